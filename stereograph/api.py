@@ -1,0 +1,251 @@
+"""The engine's public surface for node authors.
+
+A node is a plain function decorated with :func:`node`. It declares a pydantic
+params model, typed named inputs and outputs, and a version string; it runs as
+``fn(params, **inputs) -> {output_name: value}``. The engine knows nothing of
+what a node does: it validates the wiring, decides what to run, caches results
+and hands values from one node to the next.
+
+Artifact values are plain data, so that the cache can store them in open
+formats: NumPy arrays, numbers, strings, booleans, ``None``, and lists / dicts
+(string keys) nesting those. Arrays go into ``.npz``; everything else into JSON.
+
+Example
+-------
+>>> from stereograph.api import node, Params, Field, In, Out
+>>> class ScaleParams(Params):
+...     factor: float = Field(2.0, gt=0, description="Multiplier (unitless).")
+>>> @node("demo.scale", inputs={"x": In("Number")}, outputs={"y": Out("Number")},
+...       params=ScaleParams, version="1")
+... def scale(params, x):
+...     return {"y": x * params.factor}
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from pydantic import BaseModel, ConfigDict, Field  # noqa: F401  (re-exported)
+
+__all__ = [
+    "Params",
+    "Field",
+    "In",
+    "Out",
+    "NodeSpec",
+    "NodeError",
+    "RunContext",
+    "node",
+    "REGISTRY",
+]
+
+
+class Params(BaseModel):
+    """Base class of every node's parameter model.
+
+    Unknown keys are refused, values are validated on assignment, and every
+    field should carry a ``description`` that names its unit.
+    """
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True)
+
+
+class NodeError(Exception):
+    """A failure the user can act on (bad input, no object found, ...).
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, in one sentence; name the file or value involved.
+    hint : str, optional
+        How to fix it. The engine prints it after the message.
+    """
+
+    def __init__(self, message: str, hint: str | None = None):
+        super().__init__(message)
+        self.message = message
+        self.hint = hint
+
+    def __str__(self) -> str:  # pragma: no cover - trivial
+        return self.message if not self.hint else f"{self.message} Fix: {self.hint}"
+
+
+@dataclass(frozen=True)
+class In:
+    """A named input of a node.
+
+    Parameters
+    ----------
+    type : str
+        Artifact type name (see ``docs/artifacts.md``); ``"any"`` accepts all.
+    gather : bool
+        If true and the wired output is a collection, the node receives the
+        whole collection at once as ``{item_id: value}`` (a *reduce*). If false
+        (default) and the wired output is a collection, the node runs once per
+        item (a *map*).
+    optional : bool
+        The input may be left unwired; the function then receives ``None``.
+    description : str
+        One line for ``stereograph nodes``.
+    """
+
+    type: str = "any"
+    gather: bool = False
+    optional: bool = False
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Out:
+    """A named output of a node.
+
+    Parameters
+    ----------
+    type : str
+        Artifact type name; ``"any"`` matches every input.
+    collection : bool
+        The node returns an ordered ``{item_id: value}`` mapping whose items are
+        cached one by one and fan out to map nodes downstream.
+    save : bool
+        Also write this output into the run's output folder on every run
+        (images as PNG, everything else as JSON), cached or not.
+    description : str
+        One line for ``stereograph nodes``.
+    """
+
+    type: str = "any"
+    collection: bool = False
+    save: bool = False
+    description: str = ""
+
+
+@dataclass
+class RunContext:
+    """What a node may learn about the run it is part of.
+
+    A node asks for it by having a keyword parameter named ``ctx``.
+
+    Attributes
+    ----------
+    node_name : str
+        The instance name in the pipeline (``segment``), not the type.
+    item : str or None
+        The item id when the node runs once per collection item.
+    out_dir : Path
+        The run's output folder for this node (created on demand). Files written
+        here are not cached; prefer ``Out(save=True)`` for results.
+    pipeline_dir : Path
+        Folder of the pipeline file: resolve relative paths in params from it.
+    """
+
+    node_name: str
+    item: str | None
+    out_dir: Path
+    pipeline_dir: Path
+    messages: list[str] = field(default_factory=list)
+
+    def warn(self, message: str) -> None:
+        """Record a warning that the run summary shows next to the node."""
+        self.messages.append(message)
+
+    def path(self, value: str | Path) -> Path:
+        """Resolve a path given in YAML relative to the pipeline's folder."""
+        p = Path(value).expanduser()
+        return p if p.is_absolute() else (self.pipeline_dir / p)
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """Everything the engine knows about a node type."""
+
+    name: str
+    fn: Callable[..., Any]
+    params: type[Params]
+    inputs: dict[str, In]
+    outputs: dict[str, Out]
+    version: str
+    cacheable: bool
+    reads: Callable[[Params, Path], list[Path]] | None
+    description: str
+
+    @property
+    def kind(self) -> str:
+        """The part of the name before the first dot (``segmenter``)."""
+        return self.name.split(".", 1)[0]
+
+    @property
+    def wants_ctx(self) -> bool:
+        return "ctx" in inspect.signature(self.fn).parameters
+
+
+class _Registry(dict):
+    """Node types that have been defined (imported) so far, by name."""
+
+
+REGISTRY: _Registry = _Registry()
+
+
+class _NoParams(Params):
+    pass
+
+
+def node(
+    name: str,
+    *,
+    inputs: dict[str, In] | None = None,
+    outputs: dict[str, Out] | None = None,
+    params: type[Params] | None = None,
+    version: str = "1",
+    cacheable: bool = True,
+    reads: Callable[[Params, Path], list[Path]] | None = None,
+) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Declare a function as a stereograph node type.
+
+    Parameters
+    ----------
+    name : str
+        Registered type name, ``kind.method`` (``segmenter.edge_morph``).
+    inputs, outputs : dict
+        Named ports; see :class:`In` and :class:`Out`.
+    params : type[Params]
+        The pydantic model of the node's parameters (single source of truth
+        for types, defaults, ranges and units).
+    version : str
+        Bump when the node's behaviour changes in a way its source hash would
+        not show (a changed data file it ships, say).
+    cacheable : bool
+        False for nodes with side effects or live input (actuators, cameras).
+    reads : callable, optional
+        ``reads(params, pipeline_dir) -> [Path, ...]``: the files the node will
+        read, so that the cache key follows their content.
+
+    Returns
+    -------
+    The undecorated function, with the spec attached as ``fn.spec``.
+    """
+
+    def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
+        doc = inspect.getdoc(fn) or ""
+        spec = NodeSpec(
+            name=name,
+            fn=fn,
+            params=params or _NoParams,
+            inputs=dict(inputs or {}),
+            outputs=dict(outputs or {}),
+            version=str(version),
+            cacheable=cacheable,
+            reads=reads,
+            description=doc.split("\n\n", 1)[0].replace("\n", " "),
+        )
+        sig = inspect.signature(fn)
+        missing = [i for i in spec.inputs if i not in sig.parameters]
+        if missing:
+            raise TypeError(f"node {name!r}: function {fn.__name__} lacks parameters for inputs {missing}")
+        REGISTRY[name] = spec
+        fn.spec = spec  # type: ignore[attr-defined]
+        return fn
+
+    return wrap
