@@ -1,0 +1,451 @@
+"""Shared pieces of the compensator nodes: training samples, statistics, k-fold CV.
+
+A compensator removes the *systematic* part of the localisation error. It is
+fitted on the training split of placements that carry ground truth and applied
+to any later measurement. Every model is described by two pure functions,
+
+``fit(samples, **options) -> coefficients`` and
+``predict(coefficients, samples) -> corrected xyz (N, 3) in cm``,
+
+plus the names of the measured quantities it reads (``z_cm``, ``disparity_px``,
+``u_left_px``, ``v_left_px``), whose training range becomes the model's valid
+range. :func:`build_model` wraps a pair into the ``CompensationModel`` artifact
+(coefficients, valid range, training residuals, cross-validation, fit time).
+
+Errors are ``measured - truth`` per axis, in cm, everywhere in this package.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from stereograph.api import Field, In, NodeError, Params
+
+__all__ = [
+    "TRAIN_INPUT",
+    "FitParams",
+    "RayFitParams",
+    "Samples",
+    "along_ray",
+    "axis_stats",
+    "build_model",
+    "kfold_cv",
+    "node_label",
+    "require_span",
+    "samples_from_locations",
+    "training_samples",
+]
+
+AXES = ("x", "y", "z")
+#: Location keys a model may read, in the order of :attr:`Samples.variable`.
+VARIABLES = ("x_cm", "y_cm", "z_cm", "disparity_px", "u_left_px", "v_left_px")
+
+
+class FitParams(Params):
+    """Parameters every fitting compensator shares."""
+
+    cv_folds: int = Field(
+        5, ge=2, le=50, description="k of the k-fold cross-validation reported with the fit (folds, unitless)."
+    )
+    cv_seed: int = Field(0, ge=0, description="Seed of the shuffle that assigns placements to CV folds (unitless).")
+    min_span_fraction: float = Field(
+        0.02,
+        ge=0.0,
+        le=1.0,
+        description=(
+            "Smallest spread of the training distances, as a fraction of their median (unitless): "
+            "placements all at (nearly) one distance cannot define a distance-dependent correction."
+        ),
+    )
+
+
+class RayFitParams(FitParams):
+    """Fit parameters of the depth-only compensators, which can move x and y along the ray too."""
+
+    along_ray: bool = Field(
+        True,
+        description="Also rescale x and y by z_corrected / z_measured (the point moves along its viewing ray; "
+        "left-camera frame only).",
+    )
+
+
+#: The input of every fit node: the gathered Location collection (only split 'train' is used).
+TRAIN_INPUT = {"train": In("Location", gather=True, description="Located placements; only split 'train' is used.")}
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Measured locations (and truth, when known) as arrays.
+
+    Attributes
+    ----------
+    ids : list of str
+        Item ids, in order.
+    xyz_cm : ndarray (N, 3)
+        Measured position, cm, in ``frame``.
+    disparity_px : ndarray (N,)
+        Rectified disparity, px (NaN where the locator did not report it).
+    u_px, v_px : ndarray (N,)
+        Rectified left image position used for x, y, px (NaN where unknown).
+    truth_cm : ndarray (N, 3) or None
+        Ground-truth position, cm, same frame.
+    frame : str
+        ``"left_camera"`` or ``"table"``.
+    """
+
+    ids: list[str]
+    xyz_cm: np.ndarray
+    disparity_px: np.ndarray
+    u_px: np.ndarray
+    v_px: np.ndarray
+    truth_cm: np.ndarray | None
+    frame: str
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def variable(self, name: str) -> np.ndarray:
+        """One measured quantity by its Location key (``z_cm``, ``disparity_px``, ...)."""
+        table = {
+            "x_cm": self.xyz_cm[:, 0],
+            "y_cm": self.xyz_cm[:, 1],
+            "z_cm": self.xyz_cm[:, 2],
+            "disparity_px": self.disparity_px,
+            "u_left_px": self.u_px,
+            "v_left_px": self.v_px,
+        }
+        return table[name]
+
+    def subset(self, index: np.ndarray) -> Samples:
+        index = np.asarray(index)
+        return Samples(
+            ids=[self.ids[i] for i in index],
+            xyz_cm=self.xyz_cm[index],
+            disparity_px=self.disparity_px[index],
+            u_px=self.u_px[index],
+            v_px=self.v_px[index],
+            truth_cm=None if self.truth_cm is None else self.truth_cm[index],
+            frame=self.frame,
+        )
+
+
+def node_label(ctx: Any, node_type: str) -> str:
+    """``'fit' (compensator.polynomial)`` when the run context is known, else the type."""
+    name = getattr(ctx, "node_name", None)
+    return f"node '{name}' ({node_type})" if name else f"node {node_type}"
+
+
+def _num(value: Any) -> float:
+    """A Location number as float, NaN for None / missing."""
+    if value is None:
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Mapping[str, Any]]) -> Samples:
+    """Arrays from Location records (found ones are expected; no filtering here).
+
+    Parameters
+    ----------
+    locations : mapping item_id -> Location, or list of Location
+        Location artifacts (``docs/artifacts.md``).
+
+    Returns
+    -------
+    Samples
+        ``truth_cm`` is None unless every record carries ``truth_cm``.
+    """
+    items = list(locations.items()) if isinstance(locations, Mapping) else [
+        (str(loc.get("pair", i)), loc) for i, loc in enumerate(locations)
+    ]
+    n = len(items)
+    xyz = np.full((n, 3), np.nan)
+    truth = np.full((n, 3), np.nan)
+    disp = np.full(n, np.nan)
+    u = np.full(n, np.nan)
+    v = np.full(n, np.nan)
+    has_truth = n > 0
+    frames = set()
+    for i, (_, loc) in enumerate(items):
+        xyz[i] = [_num(loc.get("x_cm")), _num(loc.get("y_cm")), _num(loc.get("z_cm"))]
+        disp[i] = _num(loc.get("disparity_px"))
+        u[i] = _num(loc.get("u_left_px"))
+        v[i] = _num(loc.get("v_left_px"))
+        t = loc.get("truth_cm")
+        if t is None:
+            has_truth = False
+        else:
+            truth[i] = [_num(c) for c in list(t)[:3]]
+        frames.add(loc.get("frame", "left_camera"))
+    if len(frames) > 1:
+        raise NodeError(f"Location records mix coordinate frames {sorted(frames)}; a compensator needs one frame.")
+    return Samples(
+        ids=[str(k) for k, _ in items],
+        xyz_cm=xyz,
+        disparity_px=disp,
+        u_px=u,
+        v_px=v,
+        truth_cm=truth if has_truth else None,
+        frame=frames.pop() if frames else "left_camera",
+    )
+
+
+def training_samples(
+    train: Mapping[str, Mapping[str, Any]],
+    label: str,
+    needs: tuple[str, ...],
+    min_points: int,
+) -> Samples:
+    """The usable training placements of a gathered Location collection.
+
+    Keeps items with ``split == "train"``, ``found`` true, ground truth present
+    and every quantity in ``needs`` finite.
+
+    Parameters
+    ----------
+    train : mapping item_id -> Location
+        The gathered collection.
+    label : str
+        How to name the node in errors (``node 'fit' (compensator.polynomial)``).
+    needs : tuple of str
+        Location keys the model reads (``"z_cm"``, ``"disparity_px"`` ...).
+    min_points : int
+        Fewest usable placements the model can be fitted from (its number of
+        coefficients, at least).
+
+    Raises
+    ------
+    NodeError
+        When fewer than ``min_points`` placements remain; the message says how
+        many items were dropped for which reason.
+    """
+    if not isinstance(train, Mapping):
+        raise NodeError(f"{label}: input 'train' must be the gathered Location collection, got {type(train).__name__}.")
+    dropped = {"not in the train split": 0, "not found": 0, "no ground truth": 0, "non-finite values": 0}
+    keep: dict[str, Mapping[str, Any]] = {}
+    for item_id, loc in train.items():
+        if loc.get("split") != "train":
+            dropped["not in the train split"] += 1
+            continue
+        if not loc.get("found"):
+            dropped["not found"] += 1
+            continue
+        truth = loc.get("truth_cm")
+        if truth is None:
+            dropped["no ground truth"] += 1
+            continue
+        values = [_num(loc.get(k)) for k in ("x_cm", "y_cm", "z_cm", *needs)] + [_num(t) for t in truth]
+        if not all(math.isfinite(x) for x in values):
+            dropped["non-finite values"] += 1
+            continue
+        keep[item_id] = loc
+    if len(keep) < min_points:
+        why = ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n) or "the collection is empty"
+        raise NodeError(
+            f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
+            f"this model needs at least {min_points} (found, with truth_cm, split 'train', finite {', '.join(needs)}).",
+            hint="use a source with ground truth and more training placements (e.g. source.synthetic n_scenes / "
+            "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins).",
+        )
+    return samples_from_locations(keep)
+
+
+def require_span(values: np.ndarray, name: str, label: str, min_fraction: float, unit: str) -> None:
+    """Refuse training data whose ``values`` all lie at (nearly) one value.
+
+    The spread (max - min) must reach ``min_fraction`` of the median magnitude:
+    a correction that depends on distance cannot be learnt from one distance.
+    """
+    span = float(np.ptp(values))
+    scale = float(np.median(np.abs(values)))
+    if not span > max(min_fraction * scale, 1e-9 * max(scale, 1.0)):
+        raise NodeError(
+            f"{label}: the training placements all lie at one {name} ({np.min(values):.4g}-{np.max(values):.4g} {unit}, "
+            f"spread {span:.3g} {unit} < {min_fraction:.0%} of {scale:.4g} {unit}); a distance-dependent "
+            "correction cannot be fitted from them.",
+            hint="place the training objects over the working range of distances, or lower min_span_fraction.",
+        )
+
+
+def along_ray(xyz_cm: np.ndarray, z_new_cm: np.ndarray, frame: str, enabled: bool = True) -> np.ndarray:
+    """Move measured points to a corrected depth.
+
+    In the left-camera frame a measured point lies on the viewing ray through
+    the camera centre, and a depth error moves it along that ray, so x and y
+    scale with z (x = (u - cx) z / f). Correcting z therefore also rescales x
+    and y by ``z_new / z``. In the table frame z is a height, not a depth, and
+    only z is replaced.
+
+    Parameters
+    ----------
+    xyz_cm : ndarray (N, 3)
+        Measured points, cm.
+    z_new_cm : ndarray (N,)
+        Corrected depths, cm.
+    frame : str
+        ``"left_camera"`` or ``"table"``.
+    enabled : bool
+        False replaces z only.
+    """
+    out = np.array(xyz_cm, dtype=float, copy=True)
+    z_new = np.asarray(z_new_cm, dtype=float)
+    if enabled and frame == "left_camera":
+        scale = z_new / out[:, 2]
+        out[:, 0] *= scale
+        out[:, 1] *= scale
+    out[:, 2] = z_new
+    return out
+
+
+def axis_stats(errors_cm: np.ndarray) -> dict[str, dict[str, float]] | None:
+    """Mean, std (sample, ddof=1), RMS and max |error| per axis, cm.
+
+    Parameters
+    ----------
+    errors_cm : ndarray (N, 3)
+        measured - truth, cm.
+
+    Returns
+    -------
+    dict or None
+        ``{"x": {"mean_cm", "std_cm", "rms_cm", "max_abs_cm"}, "y": ..., "z": ...}``; None for no rows.
+    """
+    e = np.asarray(errors_cm, dtype=float).reshape(-1, 3)
+    if len(e) == 0:
+        return None
+    out = {}
+    for k, axis in enumerate(AXES):
+        col = e[:, k]
+        out[axis] = {
+            "mean_cm": float(np.mean(col)),
+            "std_cm": float(np.std(col, ddof=1)) if len(col) > 1 else 0.0,
+            "rms_cm": float(np.sqrt(np.mean(col**2))),
+            "max_abs_cm": float(np.max(np.abs(col))),
+        }
+    return out
+
+
+FitFn = Callable[[Samples], dict[str, Any]]
+PredictFn = Callable[[Mapping[str, Any], Samples], np.ndarray]
+
+
+def kfold_cv(
+    samples: Samples, fit: FitFn, predict: PredictFn, k: int, seed: int = 0
+) -> dict[str, Any]:
+    """k-fold cross-validation of a model on the training placements.
+
+    Each fold is predicted by a model fitted on the other folds; the figures
+    are the statistics of those held-out errors (predicted - truth), cm.
+
+    Returns
+    -------
+    dict
+        ``{"k", "n", "axes": axis_stats, "fold_rms_z_cm": [...]}``, or
+        ``{"k", "n", "skipped": reason}`` when it cannot run (too few
+        placements, a degenerate fold).
+    """
+    n = len(samples)
+    if n < 2 * k:
+        return {"k": k, "n": n, "skipped": f"{n} training placements are too few for {k}-fold CV (need {2 * k})"}
+    order = np.random.default_rng(seed).permutation(n)
+    folds = np.array_split(order, k)
+    errors = np.full((n, 3), np.nan)
+    fold_rms = []
+    for held in folds:
+        rest = np.setdiff1d(order, held)
+        try:
+            coef = fit(samples.subset(rest))
+            pred = predict(coef, samples.subset(held))
+        except NodeError as exc:
+            return {"k": k, "n": n, "skipped": f"a fold could not be fitted: {exc.message}"}
+        err = pred - samples.truth_cm[held]
+        if not np.all(np.isfinite(err)):
+            return {"k": k, "n": n, "skipped": "a fold's model gave non-finite predictions on its held-out placements"}
+        errors[held] = err
+        fold_rms.append(float(np.sqrt(np.mean(err[:, 2] ** 2))))
+    return {"k": k, "n": n, "axes": axis_stats(errors), "fold_rms_z_cm": fold_rms}
+
+
+def build_model(
+    model_type: str,
+    samples: Samples,
+    fit: FitFn,
+    predict: PredictFn,
+    inputs: tuple[str, ...],
+    label: str,
+    cv_folds: int = 5,
+    cv_seed: int = 0,
+    options: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Fit a model and describe it as a ``CompensationModel`` artifact.
+
+    Parameters
+    ----------
+    model_type : str
+        Key of the apply table (``"polynomial"`` ...).
+    samples : Samples
+        Training placements (with truth).
+    fit, predict : callable
+        The model's pure functions.
+    inputs : tuple of str
+        Location keys the model reads; their training min/max is the valid range.
+    label : str
+        Node label for errors.
+    cv_folds, cv_seed : int
+        k-fold cross-validation settings.
+    options : mapping, optional
+        The fit options, recorded in the artifact.
+
+    Returns
+    -------
+    dict
+        ``{"type", "coefficients", "valid_range", "frame", "n_train",
+        "train_before_cm", "train_residual_cm", "cv", "fit_time_s", "options"}``.
+    """
+    t0 = time.perf_counter()
+    try:
+        coefficients = fit(samples)
+    except NodeError as exc:
+        if exc.message.startswith(label):
+            raise
+        raise NodeError(
+            f"{label}: {exc.message}", hint=exc.hint or "use fewer coefficients or more, better spread placements."
+        ) from None
+    except np.linalg.LinAlgError as exc:
+        raise NodeError(
+            f"{label}: the least-squares fit of the {model_type} model failed ({exc}).",
+            hint="use fewer coefficients or more, better spread placements.",
+        ) from None
+    fit_time = time.perf_counter() - t0
+    corrected = predict(coefficients, samples)
+    if not np.all(np.isfinite(corrected)):
+        raise NodeError(
+            f"{label}: the fitted {model_type} model gives non-finite values on its own training placements.",
+            hint="check the training data (distances, disparities) or choose a simpler model.",
+        )
+    truth = samples.truth_cm
+    valid_range = {
+        name: {"min": float(np.min(samples.variable(name))), "max": float(np.max(samples.variable(name)))}
+        for name in inputs
+    }
+    return {
+        "type": model_type,
+        "coefficients": coefficients,
+        "valid_range": valid_range,
+        "frame": samples.frame,
+        "n_train": len(samples),
+        "train_before_cm": axis_stats(samples.xyz_cm - truth),
+        "train_residual_cm": axis_stats(corrected - truth),
+        "cv": kfold_cv(samples, fit, predict, cv_folds, cv_seed),
+        "fit_time_s": float(fit_time),
+        "options": dict(options or {}),
+    }

@@ -1,0 +1,127 @@
+"""``compensator.apply``: correct each measured location with a fitted compensation model.
+
+Runs once per item. Dispatches on ``model["type"]`` through
+:data:`nodes.compensators._table.PREDICTORS`, so any fitted model (polynomial,
+disparity curve, lookup table, 3-D polynomial, or the identity) plugs in.
+
+- ``found: false`` locations pass through unchanged.
+- A measurement whose inputs (z, disparity, image position) lie outside the
+  model's training range is still corrected, and marked ``extrapolated: true``.
+- A correction that is undefined for the measurement (the disparity curve's
+  pole) turns the item into ``found: false`` with the reason, never a NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from nodes.compensators._common import node_label, samples_from_locations
+from nodes.compensators._table import PREDICTORS
+from stereograph.api import In, NodeError, Out, Params, node
+
+__all__ = ["apply", "apply_model"]
+
+
+def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: str = "compensator.apply") -> dict:
+    """Correct one Location with a CompensationModel.
+
+    Parameters
+    ----------
+    model : dict
+        A ``CompensationModel`` artifact (``type``, ``coefficients``, ``valid_range``, ``frame``).
+    location : dict
+        A ``Location`` artifact.
+    label : str
+        How to name the node in errors.
+
+    Returns
+    -------
+    dict
+        A new Location: corrected ``x_cm``, ``y_cm``, ``z_cm`` (cm), ``extrapolated`` (bool), and
+        ``compensation`` = ``{"type", "raw_cm": [x, y, z] as measured}``. Unchanged when not found.
+
+    Raises
+    ------
+    NodeError
+        Unknown model type, a frame mismatch, or a found location lacking a quantity the model reads.
+    """
+    if not location.get("found"):
+        return dict(location)
+    mtype = model.get("type")
+    if mtype not in PREDICTORS:
+        raise NodeError(
+            f"{label}: unknown compensation model type {mtype!r}; known: {', '.join(sorted(PREDICTORS))}.",
+            hint="wire the 'model' input to a compensator fit node (compensator.polynomial, ...).",
+        )
+    predict, needs = PREDICTORS[mtype]
+    frame = location.get("frame", "left_camera")
+    if model.get("frame", frame) != frame:
+        raise NodeError(
+            f"{label}: the model was fitted in the '{model.get('frame')}' frame but location "
+            f"{location.get('pair')!r} is in the '{frame}' frame.",
+            hint="fit and apply the compensator on locations from the same locator settings.",
+        )
+    item = str(location.get("pair", "?"))
+    samples = samples_from_locations({item: location})
+    missing = [k for k in ("x_cm", "y_cm", "z_cm", *needs) if not math.isfinite(samples.variable(k)[0])]
+    if missing:
+        raise NodeError(
+            f"{label}: location {item!r} is marked found but lacks finite {', '.join(missing)}, which the "
+            f"{mtype} model needs.",
+            hint="the locator must report x_cm, y_cm, z_cm, disparity_px, u_left_px and v_left_px for found items.",
+        )
+    out = dict(location)
+    corrected = np.asarray(predict(model.get("coefficients", {}), samples), dtype=float)[0]
+    raw = [float(v) for v in samples.xyz_cm[0]]
+    if not np.all(np.isfinite(corrected)):
+        out.update(
+            found=False,
+            reason=f"the {mtype} compensation is undefined for this measurement (inputs "
+            + ", ".join(f"{k}={samples.variable(k)[0]:.4g}" for k in needs)
+            + "), far outside its training range",
+            x_cm=None, y_cm=None, z_cm=None, sigma_z_cm=None,
+            extrapolated=True,
+            compensation={"type": mtype, "raw_cm": raw},
+        )
+        return out
+    extrapolated = bool(location.get("extrapolated", False))
+    outside = []
+    for name, rng in (model.get("valid_range") or {}).items():
+        value = samples.variable(name)[0]
+        if value < rng["min"] or value > rng["max"]:
+            outside.append(name)
+    out.update(
+        x_cm=float(corrected[0]),
+        y_cm=float(corrected[1]),
+        z_cm=float(corrected[2]),
+        extrapolated=extrapolated or bool(outside),
+        compensation={"type": mtype, "raw_cm": raw, "outside_range": outside},
+    )
+    sigma = location.get("sigma_z_cm")
+    if sigma is not None and raw[2] != 0:
+        # The depth noise scales with the depth correction's local scale; the ratio is a fair first-order proxy.
+        out["sigma_z_cm"] = float(abs(sigma * corrected[2] / raw[2]))
+    return out
+
+
+class ApplyParams(Params):
+    """``compensator.apply`` has no options: the model carries everything."""
+
+
+@node(
+    "compensator.apply",
+    inputs={
+        "model": In("CompensationModel", description="A fitted model (any compensator fit node)."),
+        "location": In("Location", description="One measured location (runs once per item)."),
+    },
+    outputs={"location": Out("Location", description="Compensated location; extrapolated flags out-of-range input.")},
+    params=ApplyParams,
+    version="1",
+)
+def apply(params: ApplyParams, model, location, ctx=None):
+    """Correct a measured location with a fitted compensation model (flags extrapolation)."""
+    return {"location": apply_model(model, location, node_label(ctx, "compensator.apply"))}

@@ -1,0 +1,171 @@
+"""``compensator.disparity_curve``: depth straight from disparity by curve fitting.
+
+Triangulation gives ``z = f B / d``, which is only as good as the calibrated f
+and B. The thesis (section 2.2) names curve fitting of distance against
+disparity as the better way when the calibration is imperfect: fit
+
+    z = a / (d + b) + c
+
+on the training placements, with ``d`` the rectified disparity (px). ``a``
+absorbs errors of f B (cm px), ``b`` a disparity offset (px; a principal-point
+mismatch between the rectified cameras) and ``c`` a depth offset (cm). The fit
+is nonlinear least squares in numpy: an algebraic linear fit
+(``z d = (a + c b) + c d - b z``) for the start, then Gauss-Newton steps solved
+with :func:`numpy.linalg.lstsq` with step halving.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from nodes.compensators._common import (
+    TRAIN_INPUT,
+    RayFitParams,
+    Samples,
+    along_ray,
+    build_model,
+    node_label,
+    require_span,
+    training_samples,
+)
+from stereograph.api import Field, NodeError, Out, node
+
+__all__ = ["disparity_curve", "fit_disparity_curve", "predict_disparity_curve"]
+
+INPUTS = ("disparity_px",)
+
+
+def _curve(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+    return p[0] / (d + p[1]) + p[2]
+
+
+def _linear_ac(d: np.ndarray, z: np.ndarray, b: float) -> np.ndarray:
+    """Best (a, c) for a fixed b: z = a / (d + b) + c is linear in a and c."""
+    design = np.column_stack([1.0 / (d + b), np.ones_like(d)])
+    (a, c), *_ = np.linalg.lstsq(design, z, rcond=None)
+    return np.array([a, b, c])
+
+
+def fit_disparity_curve(
+    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, along_ray_xy: bool = True
+) -> dict[str, Any]:
+    """Least-squares fit of true z = a / (d + b) + c.
+
+    Parameters
+    ----------
+    samples : Samples
+        Training placements with truth and disparity.
+    with_offset_px : bool
+        Fit the disparity offset b (px); False fixes b = 0 (a linear fit in 1/d).
+    max_iter : int
+        Gauss-Newton iterations at most.
+    along_ray_xy : bool
+        Recorded for prediction: rescale x, y along the viewing ray.
+
+    Returns
+    -------
+    dict
+        ``{"a_cm_px", "b_px", "c_cm", "along_ray", "iterations"}``.
+    """
+    d = samples.disparity_px
+    z = samples.truth_cm[:, 2]
+    n_coef = 3 if with_offset_px else 2
+    if len(d) < n_coef + 1:
+        raise NodeError(f"the disparity curve has {n_coef} coefficients and needs at least {n_coef + 1} placements, got {len(d)}.")
+    if len(np.unique(d)) < n_coef:
+        raise NodeError(f"the disparity curve needs {n_coef} distinct disparities, got {len(np.unique(d))}.")
+    if np.any(d <= 0):
+        raise NodeError(f"training disparities must be positive (got min {np.min(d):.3g} px).")
+    p = _linear_ac(d, z, 0.0)
+    iterations = 0
+    if with_offset_px:
+        # Algebraic start: multiply out the denominator, z d = (a + c b) + c d - b z, linear in (a + cb, c, b).
+        (_alpha, _c, b), *_ = np.linalg.lstsq(np.column_stack([np.ones_like(d), d, -z]), z * d, rcond=None)
+        if np.all(d + b > 0.05 * np.min(d)):
+            start = _linear_ac(d, z, float(b))
+            if np.sum((z - _curve(start, d)) ** 2) < np.sum((z - _curve(p, d)) ** 2):
+                p = start
+        cost = float(np.sum((z - _curve(p, d)) ** 2))
+        for iterations in range(1, max_iter + 1):
+            den = d + p[1]
+            jac = np.column_stack([1.0 / den, -p[0] / den**2, np.ones_like(d)])
+            scale = np.linalg.norm(jac, axis=0)
+            scale[scale == 0] = 1.0
+            step, *_ = np.linalg.lstsq(jac / scale, z - _curve(p, d), rcond=None)
+            step = step / scale
+            improved = False
+            t = 1.0
+            for _ in range(30):
+                trial = p + t * step
+                if np.all(d + trial[1] > 0):
+                    trial_cost = float(np.sum((z - _curve(trial, d)) ** 2))
+                    if trial_cost <= cost:
+                        improved = True
+                        break
+                t *= 0.5
+            if not improved:
+                break
+            converged = abs(cost - trial_cost) <= 1e-12 * max(cost, 1e-30) or np.all(
+                np.abs(t * step) <= 1e-10 * (np.abs(p) + 1e-6)
+            )
+            p, cost = trial, trial_cost
+            if converged:
+                break
+    if not np.all(np.isfinite(p)):
+        raise NodeError("the disparity curve fit did not converge to finite coefficients.")
+    return {
+        "a_cm_px": float(p[0]),
+        "b_px": float(p[1]),
+        "c_cm": float(p[2]),
+        "along_ray": bool(along_ray_xy),
+        "iterations": int(iterations),
+    }
+
+
+def predict_disparity_curve(coefficients: Mapping[str, Any], samples: Samples) -> np.ndarray:
+    """Corrected positions, cm (N, 3); NaN rows where d + b <= 0 (outside the curve's domain)."""
+    d = samples.disparity_px
+    den = d + coefficients["b_px"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_new = np.where(den > 0, coefficients["a_cm_px"] / den + coefficients["c_cm"], np.nan)
+    return along_ray(samples.xyz_cm, z_new, samples.frame, coefficients.get("along_ray", True))
+
+
+class DisparityCurveParams(RayFitParams):
+    """Options of ``compensator.disparity_curve``."""
+
+    with_offset: bool = Field(
+        True, description="Fit the disparity offset b (px) of z = a/(d+b)+c; false fixes b = 0."
+    )
+
+
+@node(
+    "compensator.disparity_curve",
+    inputs=TRAIN_INPUT,
+    outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px).")},
+    params=DisparityCurveParams,
+    version="1",
+)
+def disparity_curve(params: DisparityCurveParams, train, ctx=None):
+    """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
+    label = node_label(ctx, "compensator.disparity_curve")
+    samples = training_samples(train, label, needs=INPUTS, min_points=4 if params.with_offset else 3)
+    if samples.frame != "left_camera":
+        raise NodeError(
+            f"{label}: the disparity curve models depth along the camera axis, but the locations are in the "
+            f"'{samples.frame}' frame.",
+            hint="fit on locations in the left_camera frame (locator frame: left_camera), or use compensator.xyz.",
+        )
+    require_span(samples.disparity_px, "disparity", label, params.min_span_fraction, "px")
+
+    def fit(s: Samples) -> dict[str, Any]:
+        return fit_disparity_curve(s, params.with_offset, along_ray_xy=params.along_ray)
+
+    model = build_model(
+        "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
+        params.model_dump(),
+    )
+    return {"model": model}

@@ -1,0 +1,131 @@
+"""``compensator.lookup``: piecewise-linear depth correction over binned distance.
+
+The training placements are binned by measured depth; each bin with enough
+placements gives one knot (mean measured z, mean z error). A measurement is
+corrected by linear interpolation between the knots (held constant beyond the
+first and last knot, and flagged as extrapolated there). No functional form is
+assumed, so it also follows errors a polynomial would not, at the price of
+needing placements in every bin.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from nodes.compensators._common import (
+    TRAIN_INPUT,
+    RayFitParams,
+    Samples,
+    along_ray,
+    build_model,
+    node_label,
+    require_span,
+    training_samples,
+)
+from stereograph.api import Field, NodeError, Out, node
+
+__all__ = ["fit_lookup", "lookup", "predict_lookup"]
+
+INPUTS = ("z_cm",)
+
+
+def fit_lookup(
+    samples: Samples,
+    n_bins: int = 6,
+    bin_edges_cm: list[float] | None = None,
+    min_per_bin: int = 3,
+    along_ray_xy: bool = True,
+) -> dict[str, Any]:
+    """Knots of a piecewise-linear z correction, cm.
+
+    Parameters
+    ----------
+    samples : Samples
+        Training placements with truth.
+    n_bins : int
+        Equal-width bins over the training range of measured z (ignored when
+        ``bin_edges_cm`` is given).
+    bin_edges_cm : list of float, optional
+        Explicit increasing bin edges of measured z, cm.
+    min_per_bin : int
+        Bins with fewer placements give no knot.
+    along_ray_xy : bool
+        Recorded for prediction: rescale x, y along the viewing ray.
+
+    Returns
+    -------
+    dict
+        ``{"knots_z_cm": [...], "knots_correction_cm": [...], "knots_n": [...], "edges_cm": [...], "along_ray"}``.
+    """
+    z = samples.xyz_cm[:, 2]
+    err = samples.truth_cm[:, 2] - z
+    if bin_edges_cm is not None:
+        edges = np.asarray(bin_edges_cm, dtype=float)
+        if edges.ndim != 1 or len(edges) < 3 or np.any(np.diff(edges) <= 0):
+            raise NodeError(f"bin_edges_cm must be at least 3 increasing values (cm), got {list(bin_edges_cm)}.")
+    else:
+        edges = np.linspace(float(np.min(z)), float(np.max(z)), n_bins + 1)
+    # Bin i holds edges[i] <= z < edges[i+1]; the last bin also takes its right edge.
+    which = np.clip(np.searchsorted(edges, z, side="right") - 1, 0, len(edges) - 2)
+    inside = (z >= edges[0]) & (z <= edges[-1])
+    knots_z, knots_c, knots_n = [], [], []
+    for i in range(len(edges) - 1):
+        sel = inside & (which == i)
+        if np.count_nonzero(sel) >= min_per_bin:
+            knots_z.append(float(np.mean(z[sel])))
+            knots_c.append(float(np.mean(err[sel])))
+            knots_n.append(int(np.count_nonzero(sel)))
+    if len(knots_z) < 2:
+        raise NodeError(
+            f"only {len(knots_z)} of {len(edges) - 1} distance bins hold at least {min_per_bin} training placements; "
+            "a piecewise-linear correction needs 2 knots."
+        )
+    return {
+        "knots_z_cm": knots_z,
+        "knots_correction_cm": knots_c,
+        "knots_n": knots_n,
+        "edges_cm": [float(e) for e in edges],
+        "along_ray": bool(along_ray_xy),
+    }
+
+
+def predict_lookup(coefficients: Mapping[str, Any], samples: Samples) -> np.ndarray:
+    """Corrected positions, cm (N, 3), from a :func:`fit_lookup` model."""
+    z = samples.xyz_cm[:, 2]
+    z_new = z + np.interp(z, coefficients["knots_z_cm"], coefficients["knots_correction_cm"])
+    return along_ray(samples.xyz_cm, z_new, samples.frame, coefficients.get("along_ray", True))
+
+
+class LookupParams(RayFitParams):
+    """Options of ``compensator.lookup``."""
+
+    n_bins: int = Field(6, ge=2, le=100, description="Equal-width bins of measured z over the training range (count).")
+    bin_edges_cm: list[float] | None = Field(
+        None, description="Explicit increasing bin edges of measured z (cm); overrides n_bins."
+    )
+    min_per_bin: int = Field(3, ge=1, description="Fewest training placements a bin needs to give a knot (count).")
+
+
+@node(
+    "compensator.lookup",
+    inputs=TRAIN_INPUT,
+    outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm).")},
+    params=LookupParams,
+    version="1",
+)
+def lookup(params: LookupParams, train, ctx=None):
+    """Fit a piecewise-linear z correction over binned measured distance on the training placements."""
+    label = node_label(ctx, "compensator.lookup")
+    samples = training_samples(train, label, needs=INPUTS, min_points=2 * params.min_per_bin)
+    require_span(samples.xyz_cm[:, 2], "measured distance z", label, params.min_span_fraction, "cm")
+
+    def fit(s: Samples) -> dict[str, Any]:
+        return fit_lookup(s, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.along_ray)
+
+    model = build_model(
+        "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump()
+    )
+    return {"model": model}

@@ -1,0 +1,186 @@
+"""Compensator fit/apply functions on synthetic Location records with a known systematic error."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from compensation_data import errors, make_locations
+
+from nodes.compensators import disparity_curve, lookup, none, polynomial, xyz
+from nodes.compensators._common import samples_from_locations
+from nodes.compensators.apply import ApplyParams, apply, apply_model
+from nodes.compensators.disparity_curve import fit_disparity_curve
+from stereograph.api import NodeError
+
+FIT_NODES = {
+    "none": none.none,
+    "polynomial": polynomial.polynomial,
+    "disparity_curve": disparity_curve.disparity_curve,
+    "lookup": lookup.lookup,
+    "xyz": xyz.xyz,
+}
+
+
+def fit(kind, locations, **params):
+    fn = FIT_NODES[kind]
+    return fn(fn.spec.params(**params), train=locations)["model"]
+
+
+def apply_all(model, locations):
+    return {k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()}
+
+
+def rms(e):
+    return np.sqrt(np.mean(e**2, axis=0))
+
+
+@pytest.fixture(scope="module")
+def biased():
+    # 2 % baseline error and a 0.5 px disparity offset: z error ~ +1 cm, growing with distance.
+    return make_locations(n=160, seed=3, baseline_scale=1.02, disparity_offset_px=0.5, noise_px=0.1)
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
+def test_fitted_models_remove_systematic_error(biased, kind):
+    base = errors(apply_all(fit("none", biased), biased))
+    out = errors(apply_all(fit(kind, biased), biased))
+    assert abs(np.mean(base[:, 2])) > 0.5  # the data really is biased
+    assert abs(np.mean(out[:, 2])) < 0.05
+    assert rms(out)[2] < 0.3 * rms(base)[2]
+    # x and y are no worse (the correction moves points along their rays / fits them).
+    assert np.all(rms(out)[:2] <= rms(base)[:2] * 1.05)
+
+
+@pytest.mark.parametrize("kind", list(FIT_NODES))
+def test_model_artifact_is_plain_json_with_required_keys(biased, kind):
+    model = fit(kind, biased, cv_folds=4)
+    text = json.dumps(model)  # plain data only
+    assert "NaN" not in text
+    for key in ("type", "coefficients", "valid_range", "train_residual_cm", "cv", "fit_time_s", "n_train"):
+        assert key in model
+    assert model["type"] == kind
+    assert model["n_train"] == sum(1 for v in biased.values() if v["split"] == "train")
+    for axis in "xyz":
+        assert set(model["train_residual_cm"][axis]) >= {"mean_cm", "std_cm", "rms_cm"}
+    assert model["cv"]["k"] == 4 and "axes" in model["cv"]
+    assert model["fit_time_s"] >= 0
+
+
+def test_only_train_split_is_used(biased):
+    # Corrupt every test item's truth: a model fitted only on train is unaffected.
+    corrupted = {k: dict(v, truth_cm=[0.0, 0.0, 1000.0]) if v["split"] == "test" else v for k, v in biased.items()}
+    a = fit("polynomial", biased)
+    b = fit("polynomial", corrupted)
+    assert a["coefficients"] == b["coefficients"]
+
+
+def test_polynomial_target_z_matches_target_error(biased):
+    a = errors(apply_all(fit("polynomial", biased, target="error", degree=2), biased))
+    b = errors(apply_all(fit("polynomial", biased, target="z", degree=2), biased))
+    np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+def test_disparity_curve_recovers_known_coefficients():
+    # Noise-free data from z = a/(d+b) + c must give back a, b, c.
+    d = np.linspace(60, 250, 25)
+    a, b, c = 8100.0, -1.5, 0.4
+    z = a / (d + b) + c
+    locs = {
+        f"p{i}": {"pair": f"p{i}", "found": True, "x_cm": 0.0, "y_cm": 0.0, "z_cm": float(z[i] * 1.01),
+                  "disparity_px": float(d[i]), "u_left_px": 320.0, "v_left_px": 240.0,
+                  "truth_cm": [0.0, 0.0, float(z[i])], "split": "train", "frame": "left_camera"}
+        for i in range(len(d))
+    }
+    coef = fit_disparity_curve(samples_from_locations(locs))
+    assert coef["a_cm_px"] == pytest.approx(a, rel=1e-6)
+    assert coef["b_px"] == pytest.approx(b, abs=1e-5)
+    assert coef["c_cm"] == pytest.approx(c, abs=1e-6)
+
+
+def test_apply_flags_extrapolation_and_keeps_value(biased):
+    model = fit("polynomial", biased)
+    zmax = model["valid_range"]["z_cm"]["max"]
+    inside = dict(next(iter(biased.values())))
+    far = dict(inside, z_cm=zmax * 1.3, x_cm=1.0, y_cm=1.0)
+    got_in = apply_model(model, inside)
+    got_far = apply_model(model, far)
+    assert got_in["extrapolated"] is False
+    assert got_far["extrapolated"] is True
+    assert math.isfinite(got_far["z_cm"]) and got_far["z_cm"] != far["z_cm"]
+    assert got_far["compensation"]["raw_cm"] == [1.0, 1.0, far["z_cm"]]
+
+
+def test_apply_passes_not_found_through_unchanged(biased):
+    model = fit("lookup", biased)
+    lost = {"pair": "x", "found": False, "reason": "no ball", "x_cm": None, "y_cm": None, "z_cm": None,
+            "frame": "left_camera", "split": "test"}
+    assert apply_model(model, lost) == lost
+
+
+def test_apply_undefined_curve_is_not_found_never_nan(biased):
+    model = fit("disparity_curve", biased)
+    loc = dict(next(iter(biased.values())))
+    loc["disparity_px"] = -model["coefficients"]["b_px"] - 5.0  # beyond the curve's pole
+    out = apply_model(model, loc)
+    assert out["found"] is False and "undefined" in out["reason"]
+    assert out["z_cm"] is None
+
+
+def test_apply_missing_input_is_a_clear_error(biased):
+    model = fit("xyz", biased)
+    loc = dict(next(iter(biased.values())), disparity_px=None)
+    with pytest.raises(NodeError, match="lacks finite disparity_px"):
+        apply_model(model, loc)
+    with pytest.raises(NodeError, match="unknown compensation model type 'spline'"):
+        apply_model(dict(model, type="spline"), loc)
+
+
+# ---- degenerate training data -------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
+def test_too_few_points(biased, kind):
+    few = dict([(k, v) for k, v in biased.items() if v["split"] == "train"][:3])
+    with pytest.raises(NodeError) as exc:
+        fit(kind, few)
+    assert f"compensator.{kind}" in exc.value.message
+    assert "usable training placements" in exc.value.message and "needs at least" in exc.value.message
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
+def test_all_at_one_distance(kind):
+    one = make_locations(n=80, seed=1, z_range_cm=(50.0, 50.0), noise_px=0.05)
+    with pytest.raises(NodeError) as exc:
+        fit(kind, one)
+    assert f"compensator.{kind}" in exc.value.message and "all lie at one" in exc.value.message
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
+def test_nans_are_dropped_or_refused(biased, kind):
+    # Half the training items carry NaN: they are dropped, and the fit stays finite.
+    train_ids = [k for k, v in biased.items() if v["split"] == "train"]
+    spoiled = {k: (dict(v, z_cm=float("nan"), disparity_px=float("nan")) if k in train_ids[::2] else v)
+               for k, v in biased.items()}
+    model = fit(kind, spoiled)
+    assert model["n_train"] == len(train_ids) - len(train_ids[::2])
+    assert "NaN" not in json.dumps(model)
+    # All NaN: a clear error naming the reason.
+    all_nan = {k: dict(v, z_cm=float("nan"), disparity_px=float("nan")) for k, v in biased.items()}
+    with pytest.raises(NodeError, match="non-finite values"):
+        fit(kind, all_nan)
+
+
+def test_no_train_split_is_a_clear_error(biased):
+    unsplit = {k: {kk: vv for kk, vv in v.items() if kk != "split"} for k, v in biased.items()}
+    with pytest.raises(NodeError, match="not in the train split"):
+        fit("polynomial", unsplit)
+
+
+def test_none_is_identity(biased):
+    model = fit("none", biased)
+    out = apply_all(model, biased)
+    for k in biased:
+        assert out[k]["z_cm"] == biased[k]["z_cm"]
+        assert out[k]["extrapolated"] is False
