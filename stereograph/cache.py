@@ -1,0 +1,385 @@
+"""Content-addressed artifact store.
+
+An entry's key is a hash of everything that determines its value: node type and version,
+the node's source code (its module *and the project-local modules it imports*, so editing a
+helper invalidates too), canonical params, the keys of its input artifacts, and the content
+of the files it reads. Entries are folders in open formats::
+
+    <root>/objects/ab/abcdef.../
+        data.json      # the outputs, NumPy arrays replaced by {"__ndarray__": "a0"}
+        arrays.npz     # the arrays
+        manifest.json  # written last: key, node, sizes and blake2b digests of the files above
+
+A folder is built under ``<root>/tmp`` and renamed into place (atomic on one file system),
+so a run killed mid-write leaves no entry that reads as valid; a corrupt entry (digest
+mismatch) is detected on load, deleted and recomputed. Per-entry ``flock`` locks let two
+runs on one cache share results instead of computing twice or failing.
+"""
+
+from __future__ import annotations
+
+import ast
+import contextlib
+import fcntl
+import hashlib
+import importlib.util
+import json
+import os
+import shutil
+import sys
+import sysconfig
+import time
+import uuid
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+FORMAT = "1"  # bump when the entry layout changes
+
+
+class CorruptEntry(Exception):
+    """An entry whose files do not match its manifest."""
+
+
+def digest(data: bytes) -> str:
+    return hashlib.blake2b(data, digest_size=16).hexdigest()
+
+
+def hash_json(obj: Any) -> str:
+    """Digest of a JSON-able object in canonical form (sorted keys, no spaces)."""
+    return digest(json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True).encode())
+
+
+def file_digest(path: Path) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- plain data <-> files
+
+
+def encode(value: Any, arrays: dict[str, np.ndarray], where: str = "value") -> Any:
+    """Replace arrays by references, check the rest is plain JSON data."""
+    if isinstance(value, np.ndarray):
+        name = f"a{len(arrays)}"
+        arrays[name] = value
+        return {"__ndarray__": name}
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, (list, tuple)):
+        return [encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise TypeError(f"{where} has a non-string key {k!r}")
+            out[k] = encode(v, arrays, f"{where}.{k}")
+        return out
+    raise TypeError(f"{where} is a {type(value).__name__}, not plain data (dict/list/str/number/bool/None/ndarray)")
+
+
+def decode(value: Any, arrays: Any) -> Any:
+    if isinstance(value, dict):
+        if len(value) == 1 and "__ndarray__" in value:
+            return arrays[value["__ndarray__"]]
+        return {k: decode(v, arrays) for k, v in value.items()}
+    if isinstance(value, list):
+        return [decode(v, arrays) for v in value]
+    return value
+
+
+# --------------------------------------------------------------------------- source-code hashing
+
+_SYSTEM_DIRS = tuple(
+    str(Path(p).resolve()) for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
+)
+_ENGINE_DIR = str(Path(__file__).resolve().parent)
+
+
+def _is_local(path: str) -> bool:
+    """Project-local source (not stdlib, not site-packages, not the engine itself)."""
+    p = str(Path(path).resolve())
+    return p.endswith(".py") and not p.startswith(_SYSTEM_DIRS) and not p.startswith(_ENGINE_DIR)
+
+
+def _find_origin(name: str) -> str | None:
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError, AttributeError):
+        return None
+    return spec.origin if spec and spec.origin and spec.origin.endswith(".py") else None
+
+
+@lru_cache(maxsize=512)
+def _imports_of(path: str, mtime_ns: int, package: str) -> tuple[str, ...]:
+    """Local modules imported by a source file (resolved to file paths)."""
+    try:
+        tree = ast.parse(Path(path).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError):
+        return ()
+    names: list[str] = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".") if package else []
+                parts = parts[: len(parts) - (node.level - 1)] if node.level > 1 else parts
+                base = ".".join(parts + ([node.module] if node.module else []))
+            names.append(base)
+            names += [f"{base}.{a.name}" for a in node.names if base]
+    found = []
+    for n in names:
+        if not n:
+            continue
+        origin = _find_origin(n)
+        if origin and _is_local(origin):
+            found.append(str(Path(origin).resolve()))
+    return tuple(sorted(set(found)))
+
+
+def _module_name_for(path: str) -> str:
+    for name, mod in list(sys.modules.items()):
+        f = getattr(mod, "__file__", None)
+        if f and str(Path(f).resolve()) == path:
+            return name
+    return ""
+
+
+def code_files(module_file: str) -> list[str]:
+    """A node module and every project-local module it imports, transitively."""
+    seen: set[str] = set()
+    todo = [str(Path(module_file).resolve())]
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        modname = _module_name_for(path)
+        package = modname if path.endswith("__init__.py") else modname.rpartition(".")[0]
+        try:
+            mtime = os.stat(path).st_mtime_ns
+        except OSError:
+            continue
+        todo += [p for p in _imports_of(path, mtime, package) if p not in seen]
+    return sorted(seen)
+
+
+def code_hash(fn: Any) -> tuple[str, dict[str, str]]:
+    """Digest of a node function's source and its local imports, and the per-file digests."""
+    mod = sys.modules.get(fn.__module__)
+    module_file = getattr(mod, "__file__", None)
+    if not module_file:
+        return digest(fn.__qualname__.encode()), {}
+    files = {}
+    for f in code_files(module_file):
+        try:
+            files[f] = digest(Path(f).read_bytes())
+        except OSError:
+            files[f] = "missing"
+    return hash_json(files), files
+
+
+# --------------------------------------------------------------------------- files a node reads
+
+
+class FileIndex:
+    """size+mtime fast path in front of content digests of input files."""
+
+    def __init__(self, root: Path | None):
+        self.path = root / "files.json" if root else None
+        self.data: dict[str, list] = {}
+        self.dirty = False
+        if self.path and self.path.exists():
+            try:
+                self.data = json.loads(self.path.read_text())
+            except (OSError, ValueError):
+                self.data = {}
+
+    def digest(self, path: Path) -> str:
+        p = str(Path(path).resolve())
+        try:
+            st = os.stat(p)
+        except OSError:
+            return "missing"
+        rec = self.data.get(p)
+        if rec and rec[0] == st.st_size and rec[1] == st.st_mtime_ns:
+            return rec[2]
+        d = file_digest(Path(p))
+        self.data[p] = [st.st_size, st.st_mtime_ns, d]
+        self.dirty = True
+        return d
+
+    def save(self) -> None:
+        if self.path and self.dirty:
+            _atomic_write(self.path, json.dumps(self.data).encode())
+            self.dirty = False
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- the store
+
+
+class ArtifactStore:
+    """Entries by key under ``root``; see the module docstring."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.objects = self.root / "objects"
+        self.tmp = self.root / "tmp"
+        self.locks = self.root / "locks"
+        self.files = FileIndex(self.root)
+
+    def _dir(self, key: str) -> Path:
+        return self.objects / key[:2] / key
+
+    def has(self, key: str) -> bool:
+        """A complete-looking entry exists (manifest present, file sizes match)."""
+        d = self._dir(key)
+        try:
+            man = json.loads((d / "manifest.json").read_text())
+            return all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items())
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+
+    def load(self, key: str) -> dict[str, Any]:
+        """The outputs stored under ``key``; :class:`CorruptEntry` if the files fail their digests."""
+        d = self._dir(key)
+        try:
+            man = json.loads((d / "manifest.json").read_text())
+            blobs = {}
+            for name, rec in man["files"].items():
+                b = (d / name).read_bytes()
+                if digest(b) != rec["digest"]:
+                    raise CorruptEntry(f"{name} does not match its digest")
+                blobs[name] = b
+            data = json.loads(blobs["data.json"])
+            arrays = {}
+            if "arrays.npz" in blobs:
+                import io
+
+                with np.load(io.BytesIO(blobs["arrays.npz"]), allow_pickle=False) as z:
+                    arrays = {k: z[k] for k in z.files}
+            return decode(data, arrays)
+        except CorruptEntry:
+            raise
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise CorruptEntry(str(e)) from e
+
+    def meta(self, key: str) -> dict[str, Any] | None:
+        try:
+            return json.loads((self._dir(key) / "manifest.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None) -> None:
+        """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept."""
+        import io
+
+        arrays: dict[str, np.ndarray] = {}
+        data = json.dumps(encode(outputs, arrays, "outputs"), allow_nan=True).encode()
+        blobs = {"data.json": data}
+        if arrays:
+            buf = io.BytesIO()
+            np.savez(buf, **arrays)
+            blobs["arrays.npz"] = buf.getvalue()
+        manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
+                    "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()}}
+        tmp = self.tmp / uuid.uuid4().hex
+        tmp.mkdir(parents=True)
+        try:
+            for name, b in blobs.items():
+                (tmp / name).write_bytes(b)
+            (tmp / "manifest.json").write_text(json.dumps(manifest))  # last: marks the entry complete
+            final = self._dir(key)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            if final.exists():
+                shutil.rmtree(final, ignore_errors=True)  # a stale/corrupt entry
+            try:
+                os.rename(tmp, final)
+            except OSError:
+                pass  # another run put it there first: its copy is as good as ours
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    def delete(self, key: str) -> None:
+        d = self._dir(key)
+        if d.exists():
+            trash = self.tmp / f"del-{uuid.uuid4().hex}"
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            with contextlib.suppress(OSError):
+                os.rename(d, trash)
+            shutil.rmtree(trash, ignore_errors=True)
+
+    @contextlib.contextmanager
+    def lock(self, key: str, blocking: bool = True) -> Iterator[bool]:
+        """An exclusive per-entry lock across processes; yields whether it was acquired."""
+        path = self.locks / key[:2] / f"{key}.lock"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+                got = True
+            except BlockingIOError:
+                got = False
+            yield got
+        finally:
+            with contextlib.suppress(OSError):
+                fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
+    # ---- bookkeeping for `explain`
+
+    def record(self, pipeline_id: str, node: str, components: dict[str, Any]) -> None:
+        _atomic_write(self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode())
+
+    def last(self, pipeline_id: str, node: str) -> dict[str, Any] | None:
+        try:
+            return json.loads((self.root / "last" / pipeline_id / f"{node}.json").read_text())
+        except (OSError, ValueError):
+            return None
+
+    # ---- `stereograph cache info|clear`
+
+    def info(self) -> dict[str, Any]:
+        n, size, by_node = 0, 0, {}
+        if self.objects.exists():
+            for d in self.objects.glob("*/*"):
+                man = self.meta(d.name)
+                s = sum(f.stat().st_size for f in d.iterdir() if f.is_file())
+                n += 1
+                size += s
+                t = (man or {}).get("meta", {}).get("type", "?")
+                cnt, sz = by_node.get(t, (0, 0))
+                by_node[t] = (cnt + 1, sz + s)
+        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node}
+
+    def clear(self) -> int:
+        n = len(list(self.objects.glob("*/*"))) if self.objects.exists() else 0
+        for sub in ("objects", "tmp", "last", "locks", "files.json"):
+            p = self.root / sub
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            elif p.exists():
+                p.unlink()
+        return n

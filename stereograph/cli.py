@@ -1,0 +1,348 @@
+"""The ``stereograph`` command.
+
+Exit codes: 0 ok, 1 a node failed, 2 bad config or usage. A user error never shows a
+traceback (``--debug`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+from pathlib import Path
+from typing import Any
+
+from stereograph import __version__, registry
+from stereograph.errors import ConfigError, UsageError
+
+
+def _console(stderr: bool = False):
+    from rich.console import Console
+
+    return Console(stderr=stderr, highlight=False, soft_wrap=True)
+
+
+class RichProgress:
+    """Progress display for a terminal: one bar per node with items."""
+
+    def __init__(self, console):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.p = Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
+                          TimeElapsedColumn(), console=console, transient=True)
+        self.tasks: dict[str, Any] = {}
+
+    def __enter__(self):
+        self.p.__enter__()
+        return self
+
+    def __exit__(self, *a):
+        self.p.__exit__(*a)
+
+    def node_started(self, name: str, n_items: int) -> None:
+        self.tasks[name] = self.p.add_task(name, total=max(n_items, 1))
+
+    def advance(self, name: str) -> None:
+        self.p.advance(self.tasks[name])
+
+
+def _load_graph(args):
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
+    doc = load_pipeline(args.pipeline, getattr(args, "set", None) or [])
+    return build_graph(doc)
+
+
+def _print_warnings(graph, console) -> None:
+    for w in graph.warnings:
+        console.print(f"[yellow]warning:[/] {w}")
+
+
+def cmd_validate(args) -> int:
+    graph = _load_graph(args)
+    con = _console()
+    _print_warnings(graph, con)
+    mapped = sum(1 for n in graph.nodes.values() if n.mapped)
+    con.print(f"{graph.doc.path.name}: OK — {len(graph.nodes)} nodes ({mapped} per item), "
+              f"order: {' -> '.join(graph.order)}")
+    return 0
+
+
+def cmd_graph(args) -> int:
+    graph = _load_graph(args)
+    lines = []
+    if args.format == "mermaid":
+        lines.append("flowchart LR")
+        for n, inst in graph.nodes.items():
+            shape = f'{n}[["{n}<br/>{inst.type}"]]' if inst.mapped else f'{n}["{n}<br/>{inst.type}"]'
+            lines.append(f"  {shape}")
+        for n, inst in graph.nodes.items():
+            for port, (src, out) in inst.inputs.items():
+                lines.append(f"  {src} -- {out} → {port} --> {n}")
+    else:
+        lines.append(f'digraph "{graph.doc.name}" {{\n  rankdir=LR; node [shape=box];')
+        for n, inst in graph.nodes.items():
+            style = ", style=\"rounded,filled\", fillcolor=\"#eef\"" if inst.mapped else ""
+            lines.append(f'  "{n}" [label="{n}\\n{inst.type}"{style}];')
+        for n, inst in graph.nodes.items():
+            for port, (src, out) in inst.inputs.items():
+                lines.append(f'  "{src}" -> "{n}" [label="{out} → {port}"];')
+        lines.append("}")
+    print("\n".join(lines))
+    return 0
+
+
+def _describe_params(spec) -> list[tuple[str, str, str, str]]:
+    rows = []
+    for name, f in spec.params.model_fields.items():
+        ann = f.annotation
+        tname = getattr(ann, "__name__", None) or str(ann).replace("typing.", "")
+        default = "required" if f.is_required() else repr(f.get_default(call_default_factory=True))
+        bounds = [f"{m.__class__.__name__.lower()} {list(vars(m).values())[0]}" for m in f.metadata
+                  if m.__class__.__name__ in ("Ge", "Gt", "Le", "Lt")]
+        desc = (f.description or "") + (f" [{', '.join(bounds)}]" if bounds else "")
+        rows.append((name, tname, default, desc))
+    return rows
+
+
+def cmd_nodes(args) -> int:
+    from rich.table import Table
+
+    con = _console()
+    if args.name:
+        spec = registry.get(args.name)
+        con.print(f"[bold]{spec.name}[/]  (kind {spec.kind}, version {spec.version}"
+                  f"{', never cached' if not spec.cacheable else ''})")
+        if spec.description:
+            con.print(spec.description)
+        t = Table("param", "type", "default", "description (unit) [range]", title="params", title_justify="left")
+        for row in _describe_params(spec):
+            t.add_row(*row)
+        con.print(t)
+        t = Table("input", "type", "mode", "description", title="inputs", title_justify="left")
+        for n, i in spec.inputs.items():
+            t.add_row(n, i.type, "gather (all items)" if i.gather else ("optional" if i.optional else "one"),
+                      i.description)
+        con.print(t)
+        t = Table("output", "type", "mode", "description", title="outputs", title_justify="left")
+        for n, o in spec.outputs.items():
+            t.add_row(n, o.type, ("collection " if o.collection else "") + ("saved" if o.save else ""),
+                      o.description)
+        con.print(t)
+        return 0
+    t = Table("node type", "inputs → outputs", "description")
+    for name in registry.names():
+        try:
+            spec = registry.get(name)
+            io = (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
+                  ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items()))
+            t.add_row(name, io, spec.description)
+        except ConfigError as e:
+            t.add_row(name, "[red]unavailable[/]", str(e))
+    con.print(t)
+    return 0
+
+
+def _summary_table(result, con) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    colours = {"ran": "green", "cached": "cyan", "failed": "red", "partial": "yellow", "skipped": "magenta",
+               "not selected": "dim"}
+    t = Table("node", "type", "status", "items", "seconds", "note", title=f"run {result.run_id}",
+              title_justify="left")
+    for r in result.reports.values():
+        items = "" if not r.items else (f"{r.items_ran} ran / {r.items}" +
+                                        (f", {r.items_failed} failed" if r.items_failed else ""))
+        note = r.error or "; ".join(r.messages[:2])
+        t.add_row(r.name, r.type, f"[{colours.get(r.status, 'white')}]{r.status}[/]", items, f"{r.seconds:.2f}",
+                  escape(note[:160]))
+    con.print(t)
+
+
+def _echo_results(result, con) -> None:
+    """Print small terminal outputs (a location, joint angles, commands) for the user."""
+    from stereograph.outputs import to_json
+
+    shown = 0
+    for key, v in result._values.items():
+        node, out, item = key
+        if item is not None or not isinstance(v, (dict, list, float, int, str)):
+            continue
+        text = json.dumps(to_json(v, {}), default=str)
+        if len(text) > 600:
+            continue
+        con.print(f"[bold]{node}.{out}[/] = {text}")
+        shown += 1
+        if shown > 12:
+            break
+
+
+def cmd_run(args) -> int:
+    from rich.markup import escape
+
+    from stereograph.runner import run_graph, workers_executor
+
+    graph = _load_graph(args)
+    err = _console(stderr=True)
+    _print_warnings(graph, err)
+    con = _console()
+    interactive = sys.stdout.isatty() and not args.json
+    executor = workers_executor(args.workers)
+    kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
+              from_node=getattr(args, "from"), executor=executor)
+    try:
+        if interactive:
+            with RichProgress(con) as prog:
+                result = run_graph(graph, progress=prog, **kw)
+        else:
+            result = run_graph(graph, **kw)
+    finally:
+        executor.close()
+    if args.json:
+        print((result.out_dir / "run.json").read_text())
+    else:
+        _echo_results(result, con)
+        _summary_table(result, con)
+        con.print(f"outputs: {result.out_dir}")
+    if not result.ok:
+        failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
+        for r in failed:
+            msg = f"node '{r.name}' ({r.type}) failed: {r.error}"
+            if r.hint:
+                msg += f" Fix: {r.hint}"
+            err.print("[red]error:[/] " + escape(msg))
+            if args.debug and r.trace:
+                err.print(r.trace)
+        first = failed[0].name
+        err.print(f"Everything upstream of '{first}' is cached: after the fix, run the same command again and "
+                  f"only '{first}' and what depends on it will run (or add --from {first} to force them).")
+        return 1
+    return 0
+
+
+def cmd_explain(args) -> int:
+    from stereograph.explain import explain
+
+    graph = _load_graph(args)
+    con = _console()
+    for v in explain(graph, args.cache_dir):
+        state = "[cyan]fresh[/]" if v.fresh else "[yellow]stale[/]"
+        con.print(f"{v.node:<16} {v.type:<26} {state}" + ("" if v.fresh else ": " + "; ".join(v.reasons)))
+    return 0
+
+
+def cmd_cache(args) -> int:
+    from stereograph.cache import ArtifactStore
+    from stereograph.config import load_pipeline
+    from stereograph.runner import default_cache_dir
+
+    if args.cache_dir:
+        root = Path(args.cache_dir)
+    elif args.pipeline:
+        root = default_cache_dir(load_pipeline(args.pipeline))
+    else:
+        root = Path.cwd() / "pipelines" / ".stereograph" / "cache"
+    store = ArtifactStore(root)
+    con = _console()
+    if args.action == "clear":
+        n = store.clear()
+        con.print(f"removed {n} entries from {root}")
+        return 0
+    info = store.info()
+    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB")
+    for t, (n, b) in sorted(info["by_type"].items()):
+        con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stereograph", description="Stereo localisation and robot-arm picking as a "
+                                "config-driven processing graph.")
+    p.add_argument("--version", action="version", version=f"stereograph {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    def pipeline_cmd(name: str, help_: str) -> argparse.ArgumentParser:
+        sp = sub.add_parser(name, help=help_)
+        sp.add_argument("pipeline", help="pipeline YAML file")
+        sp.add_argument("--set", action="append", metavar="NODE.PARAM=VALUE",
+                        help="override a param (value parsed as YAML), or NODE.type=NAME; repeatable")
+        sp.add_argument("--debug", action="store_true", help="show tracebacks")
+        return sp
+
+    sp = pipeline_cmd("run", "run a pipeline")
+    sp.add_argument("--out", help="output folder (default runs/<name>/<run-id>)")
+    sp.add_argument("--cache-dir", help="artifact cache (default .stereograph/cache next to the pipeline)")
+    sp.add_argument("--no-cache", action="store_true", help="compute everything, store nothing")
+    sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
+    sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
+    sp.add_argument("--from", metavar="NODE", help="recompute NODE and its downstream even if cached")
+    sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.set_defaults(fn=cmd_run)
+    pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
+    sp = pipeline_cmd("graph", "print the pipeline graph")
+    sp.add_argument("--format", choices=["mermaid", "dot"], default="mermaid")
+    sp.set_defaults(fn=cmd_graph)
+    sp = pipeline_cmd("explain", "say for every node whether it is fresh or stale, and why")
+    sp.add_argument("--cache-dir")
+    sp.set_defaults(fn=cmd_explain)
+    sp = sub.add_parser("nodes", help="list node types, or show one's params")
+    sp.add_argument("name", nargs="?")
+    sp.set_defaults(fn=cmd_nodes)
+    sp = sub.add_parser("cache", help="cache info | clear")
+    sp.add_argument("action", choices=["info", "clear"])
+    sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
+    sp.add_argument("--cache-dir")
+    sp.set_defaults(fn=cmd_cache)
+    try:
+        from stereograph import compare as compare_mod
+
+        compare_mod.add_subcommand(sub)
+    except (ImportError, AttributeError):
+        pass
+    for name in registry.commands():
+        sp = sub.add_parser(name, help=f"(from a node package) see `stereograph {name} --help`", add_help=False)
+        sp.add_argument("rest", nargs=argparse.REMAINDER)
+        sp.set_defaults(plugin=name)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if argv and argv[0] in registry.commands():
+        ep = registry.commands()[argv[0]]
+        return int(ep.load()(argv[1:]) or 0)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:
+        return int(e.code or 0) and 2
+    if not getattr(args, "fn", None):
+        parser.print_help()
+        return 2
+    debug = getattr(args, "debug", False) or "--debug" in argv
+    try:
+        return int(args.fn(args) or 0)
+    except ConfigError as e:
+        from rich.markup import escape
+
+        _console(stderr=True).print(f"[red]error:[/] {escape(str(e))}")
+        if debug:
+            traceback.print_exc()
+        return e.exit_code
+    except KeyboardInterrupt:
+        _console(stderr=True).print("interrupted: finished nodes are cached; run again to resume")
+        return 130
+    except Exception as e:  # a bug: one paragraph, traceback only with --debug
+        _console(stderr=True).print(f"[red]internal error:[/] {type(e).__name__}: {e}. "
+                                    "Run again with --debug for the traceback, and report it.")
+        if debug:
+            traceback.print_exc()
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,184 @@
+"""The pipeline as a validated DAG.
+
+:func:`build_graph` turns a :class:`~stereograph.config.PipelineDoc` into a :class:`Graph`:
+every node's spec resolved, params validated by the node's pydantic model, inputs wired and
+type-checked, cycles refused, and for each node whether it runs once or once per item.
+All problems are :class:`~stereograph.errors.ConfigError` naming file:line and node.
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+from typing import Any
+
+import networkx as nx
+import pydantic
+
+from stereograph import registry
+from stereograph.api import NodeSpec, Params
+from stereograph.config import PipelineDoc
+from stereograph.errors import ConfigError
+
+
+@dataclass
+class NodeInstance:
+    """One node of a pipeline, resolved."""
+
+    name: str
+    spec: NodeSpec
+    params: Params
+    inputs: dict[str, tuple[str, str]]  # input port -> (upstream node, output port)
+    mapped: bool = False  # runs once per collection item
+
+    @property
+    def type(self) -> str:
+        return self.spec.name
+
+
+@dataclass
+class Graph:
+    """A validated pipeline."""
+
+    doc: PipelineDoc
+    nodes: dict[str, NodeInstance]
+    dag: nx.DiGraph
+    order: list[str]
+    warnings: list[str] = field(default_factory=list)
+
+    def upstream(self, name: str) -> set[str]:
+        return nx.ancestors(self.dag, name)
+
+    def downstream(self, name: str) -> set[str]:
+        return nx.descendants(self.dag, name)
+
+    def consumers(self, name: str) -> list[str]:
+        return list(self.dag.successors(name))
+
+    def terminal(self) -> list[str]:
+        return [n for n in self.order if self.dag.out_degree(n) == 0]
+
+    def is_collection(self, node: str, output: str) -> bool:
+        """Whether ``node.output`` is a collection of items."""
+        inst = self.nodes[node]
+        return inst.spec.outputs[output].collection or inst.mapped
+
+
+def _format_pydantic(err: pydantic.ValidationError) -> list[tuple[tuple, str]]:
+    out = []
+    for e in err.errors():
+        loc = tuple(e.get("loc", ()))
+        msg = e.get("msg", "invalid")
+        if e.get("type") == "extra_forbidden":
+            msg = "unknown parameter"
+        elif e.get("type") == "missing":
+            msg = "required parameter is missing"
+        elif "input" in e and e.get("type") != "missing":
+            msg = f"{msg} (got {e['input']!r})"
+        out.append((loc, msg))
+    return out
+
+
+def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str) -> Params:
+    """Validate ``raw`` params with the node's model, errors pointing at the YAML."""
+    try:
+        return spec.params(**raw)
+    except pydantic.ValidationError as err:
+        (loc, msg), *rest = _format_pydantic(err)
+        field_name = ".".join(str(p) for p in loc) or "params"
+        fields = spec.params.model_fields
+        hint = None
+        if msg == "unknown parameter":
+            close = difflib.get_close_matches(str(loc[0]), list(fields), n=1)
+            hint = (f"did you mean '{close[0]}'?" if close else
+                    f"{spec.name} takes {sorted(fields) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
+        elif loc and loc[0] in fields:
+            f = fields[loc[0]]
+            desc = f.description or ""
+            ann = getattr(f.annotation, "__name__", str(f.annotation))
+            hint = f"'{loc[0]}' is {ann}" + (f": {desc}" if desc else "")
+        more = f" (and {len(rest)} more problem(s))" if rest else ""
+        raise ConfigError(f"{spec.name} parameter '{field_name}': {msg}{more}",
+                          doc.where("nodes", node, "params", *loc), node, hint) from None
+
+
+def build_graph(doc: PipelineDoc) -> Graph:
+    """Resolve and check every node and wire of a pipeline before anything runs."""
+    registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
+    nodes: dict[str, NodeInstance] = {}
+    for name, decl in doc.nodes.items():
+        spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
+        raw = {**doc.defaults.get(spec.name, {}), **(decl.get("params") or {})}
+        params = validate_params(spec, raw, doc, name)
+        nodes[name] = NodeInstance(name, spec, params, {})
+
+    dag = nx.DiGraph()
+    dag.add_nodes_from(nodes)
+    for name, decl in doc.nodes.items():
+        inst = nodes[name]
+        for port, ref in (decl.get("inputs") or {}).items():
+            where = doc.where("nodes", name, "inputs", port)
+            if port not in inst.spec.inputs:
+                close = difflib.get_close_matches(str(port), list(inst.spec.inputs), n=1)
+                raise ConfigError(f"{inst.type} has no input '{port}'", where, name,
+                                  f"did you mean '{close[0]}'?" if close else
+                                  f"its inputs are {sorted(inst.spec.inputs) or 'none'}")
+            if not isinstance(ref, str) or ref.count(".") != 1:
+                raise ConfigError(f"input '{port}: {ref}' must be 'node.output'", where, name,
+                                  "for example 'pair: rectify.pair'")
+            src, out = ref.split(".")
+            if src not in nodes:
+                close = difflib.get_close_matches(src, list(nodes), n=1)
+                raise ConfigError(f"input '{port}' refers to a node '{src}' that does not exist", where, name,
+                                  f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(nodes)}")
+            src_spec = nodes[src].spec
+            if out not in src_spec.outputs:
+                close = difflib.get_close_matches(out, list(src_spec.outputs), n=1)
+                raise ConfigError(f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
+                                  where, name, f"did you mean '{src}.{close[0]}'?" if close else
+                                  f"its outputs are {sorted(src_spec.outputs)}")
+            want, have = inst.spec.inputs[port].type, src_spec.outputs[out].type
+            if want != "any" and have != "any" and want != have:
+                raise ConfigError(f"input '{port}' wants {want} but '{src}.{out}' gives {have}", where, name,
+                                  f"wire '{port}' to an output of type {want}")
+            inst.inputs[port] = (src, out)
+            dag.add_edge(src, name)
+        for port, decl_in in inst.spec.inputs.items():
+            if port not in inst.inputs and not decl_in.optional:
+                raise ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
+                                  doc.where("nodes", name), name,
+                                  f"add 'inputs: {{{port}: some_node.output}}'")
+
+    if not nx.is_directed_acyclic_graph(dag):
+        cycle = [e[0] for e in nx.find_cycle(dag)]
+        raise ConfigError("the pipeline has a cycle: " + " -> ".join(cycle + [cycle[0]]),
+                          doc.where("nodes", cycle[0]), cycle[0], "remove one of these inputs")
+
+    order = list(nx.lexicographical_topological_sort(dag, key=lambda n: list(doc.nodes).index(n)))
+    graph = Graph(doc, nodes, dag, order)
+    # Decide map / reduce: a node is mapped when a non-gather input carries a collection.
+    for name in order:
+        inst = nodes[name]
+        mapped = False
+        for port, (src, out) in inst.inputs.items():
+            coll = graph.is_collection(src, out)
+            gather = inst.spec.inputs[port].gather
+            if gather and not coll:
+                raise ConfigError(f"input '{port}' gathers a collection, but '{src}.{out}' is a single artifact",
+                                  doc.where("nodes", name, "inputs", port), name,
+                                  "wire it to a per-item output (e.g. of a node that runs once per pair)")
+            mapped |= coll and not gather
+        inst.mapped = mapped
+        if mapped and any(o.collection for o in inst.spec.outputs.values()):
+            raise ConfigError(f"{inst.type} yields a collection but runs per item here", doc.where("nodes", name),
+                              name, "nested collections are not supported: feed it single artifacts")
+
+    used = {(s, o) for inst in nodes.values() for (s, o) in inst.inputs.values()}
+    for name in order:
+        inst = nodes[name]
+        if graph.dag.out_degree(name) == 0:
+            continue  # terminal outputs are the run's results
+        for out in inst.spec.outputs:
+            if (name, out) not in used and not inst.spec.outputs[out].save:
+                graph.warnings.append(f"{doc.where('nodes', name)}: node '{name}': output '{out}' is never used")
+    return graph

@@ -1,0 +1,131 @@
+"""Write a run's results into its output folder, in open formats.
+
+Written on every run, cached or not: every output declared ``Out(save=True)`` and every
+output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG; other values
+JSON (arrays as nested lists when small, else a side ``.npz``). A per-item output becomes
+one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
+``<node>/<output>/<item>.png`` images. ``run.json`` summarises the run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
+
+
+def is_image(v: Any) -> bool:
+    return (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
+            (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
+
+
+def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
+    if isinstance(v, np.ndarray):
+        if v.size <= SMALL_ARRAY:
+            return v.tolist()
+        big[path or "array"] = v
+        return {"npz": path or "array", "shape": list(v.shape), "dtype": str(v.dtype)}
+    if isinstance(v, (np.floating, np.integer, np.bool_)):
+        return v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None if np.isnan(v) else (1e308 if v > 0 else -1e308)
+    if isinstance(v, dict):
+        return {str(k): to_json(x, big, f"{path}.{k}" if path else str(k)) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [to_json(x, big, f"{path}[{i}]") for i, x in enumerate(v)]
+    return v
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)  # never a half-written result file
+
+
+def write_value(path_stem: Path, value: Any) -> list[Path]:
+    """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written."""
+    import cv2
+
+    if is_image(value):
+        ok, buf = cv2.imencode(".png", value)
+        if ok:
+            p = path_stem.with_suffix(".png")
+            _write_bytes(p, buf.tobytes())
+            return [p]
+    big: dict[str, np.ndarray] = {}
+    data = to_json(value, big)
+    files = []
+    p = path_stem.with_suffix(".json")
+    _write_bytes(p, json.dumps(data, indent=1).encode())
+    files.append(p)
+    if big:
+        import io
+
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **{k.replace("/", "_"): a for k, a in big.items()})
+        q = path_stem.with_suffix(".npz")
+        _write_bytes(q, buf.getvalue())
+        files.append(q)
+    return files
+
+
+def _write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
+    if not items:
+        return write_value(stem, [])
+    first = next(iter(items.values()))
+    if is_image(first):
+        out = []
+        for i, v in items.items():
+            out += write_value(stem / str(i), v)
+        return out
+    records = []
+    for i, v in items.items():
+        records.append({"item": i, **v} if isinstance(v, dict) else {"item": i, "value": v})
+    return write_value(stem, records)
+
+
+def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
+    """Write saved and terminal outputs plus ``run.json`` into ``result.out_dir``."""
+    out_dir: Path = result.out_dir
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: dict[str, list[str]] = {}
+    terminal = set(graph.terminal())
+    for name in selected:
+        inst = graph.nodes[name]
+        if run.reports[name].status in ("failed", "skipped", "not selected") and not inst.mapped:
+            continue
+        for out, decl in inst.spec.outputs.items():
+            if not (decl.save or name in terminal or name in run.keep):
+                continue
+            stem = out_dir / name / out
+            try:
+                if graph.is_collection(name, out):
+                    ids = run.items.get((name, out), [])
+                    files = _write_collection(stem, {i: run.get((name, out, i)) for i in ids})
+                else:
+                    if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
+                        continue
+                    files = write_value(stem, run.get((name, out, None)))
+            except Exception as e:  # an output we cannot write must not lose the others
+                run.reports[name].messages.append(f"could not write output '{out}': {e}")
+                continue
+            written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
+    summary = {
+        "run_id": result.run_id,
+        "pipeline": result.pipeline,
+        "overrides": list(graph.doc.overrides),
+        "ok": result.ok,
+        "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
+                   "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
+                   "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, [])}
+                  for r in run.reports.values()],
+        "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
+    }
+    _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())

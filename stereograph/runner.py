@@ -1,0 +1,585 @@
+"""The scheduler: run a validated graph in topological order, with cached artifacts.
+
+Public API::
+
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+    from stereograph.runner import run_pipeline
+
+    result = run_pipeline("pipelines/locate.yaml", overrides=["rig.n_scenes=10"],
+                          cache_dir=None,          # default: .stereograph/cache next to the pipeline
+                          out_dir=None,            # default: runs/<name>/<run-id> in the current folder
+                          use_cache=True, only=None, from_node=None, executor=None, progress=None)
+    result.status["segment"]        # "ran" | "cached" | "failed" | "skipped" | "partial"
+    result.ran                      # nodes that computed anything this run
+    result.outputs("locate", "location")   # {item: value} for a per-item output, else the value
+    result.ok                       # no node failed
+
+How it works, in a few lines: each node in turn gets its *entries* — one, or one per item
+when it runs per item — and each entry a key (see :mod:`stereograph.cache`). An entry whose
+key is in the store is not recomputed and not even loaded unless a node that must run needs
+its value. Values are kept in memory only until their last consumer has run. A node that
+fails stops its downstream; per-item failures skip only that item downstream. Items of a
+per-item node go through an ``executor`` (serial by default; a process pool with
+``--workers``) that knows nothing of what nodes do.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import os
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from stereograph import registry
+from stereograph.api import NodeError, RunContext
+from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, hash_json
+from stereograph.config import PipelineDoc, load_pipeline
+from stereograph.errors import ConfigError
+from stereograph.graph import Graph, NodeInstance, build_graph
+from stereograph import outputs as outputs_mod
+
+Ref = tuple[str, str, "str | None"]  # (node, output, item)
+
+
+# --------------------------------------------------------------------------- executors
+
+
+@dataclass
+class Task:
+    """One call of a node function (picklable, for process pools)."""
+
+    node_type: str
+    plugins: list[str]
+    params: Any
+    inputs: dict[str, Any]
+    node_name: str
+    item: str | None
+    out_dir: str
+    pipeline_dir: str
+
+
+@dataclass
+class TaskResult:
+    ok: bool
+    outputs: dict[str, Any] | None = None
+    seconds: float = 0.0
+    messages: list[str] = field(default_factory=list)
+    error: str | None = None
+    hint: str | None = None
+    trace: str | None = None
+    user_error: bool = False
+
+
+def execute(task: Task) -> TaskResult:
+    """Run one node call; never raises (failures come back as a TaskResult)."""
+    t0 = time.perf_counter()
+    try:
+        if task.plugins:
+            registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+        spec = registry.get(task.node_type)
+        ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name, Path(task.pipeline_dir))
+        kwargs = dict(task.inputs)
+        if spec.wants_ctx:
+            kwargs["ctx"] = ctx
+        out = spec.fn(task.params, **kwargs)
+        if not isinstance(out, dict) or set(out) != set(spec.outputs):
+            if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
+                out = {next(iter(spec.outputs)): out}
+            elif not isinstance(out, dict):
+                raise TypeError(f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs")
+            else:
+                missing = set(spec.outputs) - set(out)
+                extra = set(out) - set(spec.outputs)
+                raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
+                                + (f", unexpected {sorted(extra)}" if extra else ""))
+        return TaskResult(True, out, time.perf_counter() - t0, ctx.messages)
+    except NodeError as e:
+        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True)
+    except ConfigError as e:
+        return TaskResult(False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True)
+    except Exception as e:  # a bug in a node: keep the traceback for --debug
+        return TaskResult(False, None, time.perf_counter() - t0, [], f"{type(e).__name__}: {e}", None,
+                          traceback.format_exc(), False)
+
+
+class SerialExecutor:
+    """Runs tasks one after another in this process."""
+
+    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
+        return (fn(t) for t in tasks)
+
+    def close(self) -> None:
+        pass
+
+
+class ProcessExecutor:
+    """Runs item tasks in a pool of worker processes (results in order)."""
+
+    def __init__(self, workers: int):
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers)
+
+    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
+        return self.pool.map(fn, tasks, chunksize=max(1, len(tasks) // 32))
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass
+class NodeReport:
+    name: str
+    type: str
+    status: str = "pending"  # ran | cached | failed | skipped | partial
+    seconds: float = 0.0
+    items: int = 0
+    items_ran: int = 0
+    items_failed: int = 0
+    error: str | None = None
+    hint: str | None = None
+    trace: str | None = None
+    messages: list[str] = field(default_factory=list)
+
+
+@dataclass
+class RunResult:
+    run_id: str
+    pipeline: str
+    out_dir: Path
+    reports: dict[str, NodeReport]
+    seconds: float
+    _values: dict[Ref, Any]
+    _items: dict[tuple[str, str], list[str]]
+    item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not any(r.status in ("failed", "partial") for r in self.reports.values())
+
+    @property
+    def status(self) -> dict[str, str]:
+        return {n: r.status for n, r in self.reports.items()}
+
+    @property
+    def ran(self) -> set[str]:
+        return {n for n, r in self.reports.items() if r.status in ("ran", "partial") or r.items_ran}
+
+    def outputs(self, node: str, output: str) -> Any:
+        """A terminal (or saved) output: the value, or ``{item: value}`` for per-item outputs."""
+        if (node, output) in self._items:
+            return {i: self._values[(node, output, i)] for i in self._items[(node, output)]
+                    if (node, output, i) in self._values}
+        return self._values.get((node, output, None))
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def new_run_id() -> str:
+    return datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
+
+
+def default_cache_dir(doc: PipelineDoc) -> Path:
+    return doc.directory / ".stereograph" / "cache"
+
+
+class _Run:
+    def __init__(self, graph: Graph, store: ArtifactStore | None, out_dir: Path, executor: Any,
+                 force: set[str], progress: Any):
+        self.g, self.store, self.out_dir, self.executor = graph, store, out_dir, executor
+        self.force, self.progress = force, progress
+        self.keys: dict[tuple[str, str | None], str] = {}      # (node, item) -> entry key
+        self.ref_keys: dict[Ref, str] = {}                      # ref -> key of the entry holding it
+        self.mem: dict[Ref, Any] = {}
+        self.items: dict[tuple[str, str], list[str]] = {}       # collection output -> item ids (ok ones)
+        self.failed_items: dict[tuple[str, str], str] = {}      # (node, item) -> message
+        self.reports = {n: NodeReport(n, i.type) for n, i in graph.nodes.items()}
+        self.pipeline_id = hash_json(str(graph.doc.path))
+        self.code: dict[str, str] = {}
+        self.code_files: dict[str, dict[str, str]] = {}
+        self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
+        self.keep = set(graph.terminal())
+
+    # ---- keys
+
+    def node_components(self, inst: NodeInstance) -> dict[str, Any]:
+        """What, besides inputs, determines this node's artifacts."""
+        if inst.type not in self.code:
+            self.code[inst.type], self.code_files[inst.type] = code_hash(inst.spec.fn)
+        try:
+            params = inst.params.model_dump(mode="json")
+        except Exception as e:
+            raise ConfigError(f"a parameter value cannot be hashed for the cache: {e}",
+                              self.g.doc.where("nodes", inst.name, "params"), inst.name,
+                              "use plain numbers, strings, lists and mappings") from None
+        files = {}
+        if inst.spec.reads is not None:
+            paths = inst.spec.reads(inst.params, self.g.doc.directory)
+            for p in paths:
+                files[str(p)] = self.store.files.digest(Path(p)) if self.store else "nocache"
+        return {"type": inst.type, "version": inst.spec.version, "code": self.code[inst.type],
+                "params": params, "files": files}
+
+    def input_refs(self, inst: NodeInstance, item: str | None) -> dict[str, Any]:
+        """For each input port: a ref, a list of (item, ref) for a gather, or None (unwired)."""
+        refs: dict[str, Any] = {}
+        for port, (src, out) in inst.inputs.items():
+            coll = self.g.is_collection(src, out)
+            if inst.spec.inputs[port].gather:
+                refs[port] = [(i, (src, out, i)) for i in self.items.get((src, out), [])]
+            elif coll:
+                refs[port] = (src, out, item)
+            else:
+                refs[port] = (src, out, None)
+        for port, decl in inst.spec.inputs.items():
+            if port not in refs:
+                refs[port] = None
+        return refs
+
+    def entry_key(self, base: dict[str, Any], refs: dict[str, Any], item: str | None) -> str:
+        ins = {}
+        for port, r in refs.items():
+            if r is None:
+                ins[port] = None
+            elif isinstance(r, list):
+                ins[port] = hash_json([[i, self.ref_keys[rr], rr[1]] for i, rr in r])
+            else:
+                ins[port] = [self.ref_keys[r], r[1]]
+        return hash_json({**base, "inputs": ins, "item": item})
+
+    # ---- values
+
+    def get(self, ref: Ref) -> Any:
+        if ref in self.mem:
+            return self.mem[ref]
+        node, out, item = ref
+        key = self.ref_keys[ref]
+        try:
+            entry = self.store.load(key)  # type: ignore[union-attr]
+        except CorruptEntry as e:
+            self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
+            self.store.delete(key)  # type: ignore[union-attr]
+            self.recompute(node, item)
+            return self.mem[ref]
+        for o, v in entry.items():
+            self.mem[(node, o, item)] = v
+        return self.mem[ref]
+
+    def inputs_for(self, refs: dict[str, Any]) -> dict[str, Any]:
+        vals = {}
+        for port, r in refs.items():
+            if r is None:
+                vals[port] = None
+            elif isinstance(r, list):
+                vals[port] = {i: self.get(rr) for i, rr in r}
+            else:
+                vals[port] = self.get(r)
+        return vals
+
+    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any]) -> Task:
+        return Task(inst.type, list(self.g.doc.plugins), inst.params, values, inst.name, item,
+                    str(self.out_dir), str(self.g.doc.directory))
+
+    def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any]) -> None:
+        """Keep a computed entry's outputs in memory and in the store; split collections into items."""
+        single, colls = {}, {}
+        for name, val in out.items():
+            if inst.spec.outputs[name].collection:
+                if not isinstance(val, dict):
+                    raise NodeError(f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)")
+                colls[name] = {str(k): v for k, v in val.items()}
+            else:
+                single[name] = val
+        for name, items in colls.items():
+            ids = list(items)
+            self.items[(inst.name, name)] = ids
+            single[name] = {"__items__": ids}
+            for i, v in items.items():
+                ikey = hash_json([key, name, i]) if key else f"{inst.name}/{name}/{i}"
+                self.ref_keys[(inst.name, name, i)] = ikey
+                self.mem[(inst.name, name, i)] = v
+                if self.store is not None and key is not None:
+                    self.store.save(ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i})
+        for name, v in single.items():
+            if name not in colls:
+                self.mem[(inst.name, name, item)] = v
+                self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        if self.store is not None and key is not None:
+            self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item})
+
+    def adopt_cached(self, inst: NodeInstance, item: str | None, key: str) -> None:
+        """Register a cached entry's refs without loading big values (collections: load the index)."""
+        for name, o in inst.spec.outputs.items():
+            self.ref_keys[(inst.name, name, item)] = key
+            if o.collection:
+                index = self.get((inst.name, name, item))
+                ids = index["__items__"]
+                self.items[(inst.name, name)] = ids
+                for i in ids:
+                    self.ref_keys[(inst.name, name, i)] = hash_json([key, name, i])
+
+    def recompute(self, node: str, item: str | None) -> None:
+        inst = self.g.nodes[node]
+        refs = self.input_refs(inst, item)
+        res = execute(self.task(inst, item, self.inputs_for(refs)))
+        if not res.ok:
+            raise NodeError(f"recomputing a corrupt cache entry of '{node}' failed: {res.error}")
+        self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {})
+
+    # ---- one node
+
+    def upstream_failed(self, inst: NodeInstance) -> str | None:
+        for src in self.g.dag.predecessors(inst.name):
+            if self.reports[src].status in ("failed", "skipped"):
+                return src
+        return None
+
+    def item_ids(self, inst: NodeInstance) -> list[str]:
+        ids: list[str] | None = None
+        for port, (src, out) in inst.inputs.items():
+            if self.g.is_collection(src, out) and not inst.spec.inputs[port].gather:
+                these = self.items.get((src, out), [])
+                ids = list(these) if ids is None else [i for i in ids if i in set(these)]
+        return ids or []
+
+    def run_node(self, inst: NodeInstance) -> None:
+        rep = self.reports[inst.name]
+        t0 = time.perf_counter()
+        bad = self.upstream_failed(inst)
+        if bad:
+            rep.status, rep.error = "skipped", f"upstream node '{bad}' did not finish"
+            return
+        base = self.node_components(inst) if self.store is not None else None
+        entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
+        if inst.mapped:
+            for out in inst.spec.outputs:
+                self.items[(inst.name, out)] = []
+        rep.items = len(entries) if inst.mapped else 0
+        if self.progress:
+            self.progress.node_started(inst.name, len(entries))
+        todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
+        cacheable = self.store is not None and inst.spec.cacheable and inst.name not in self.force
+        for item in entries:
+            refs = self.input_refs(inst, item)
+            key = self.entry_key(base, refs, item) if self.store is not None else None
+            if key is not None:
+                self.keys[(inst.name, item)] = key
+            if cacheable and self.store.has(key):  # type: ignore[union-attr]
+                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
+                if inst.mapped:
+                    for out in inst.spec.outputs:
+                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+                if self.progress:
+                    self.progress.advance(inst.name)
+            else:
+                todo.append((item, key, refs))
+        if self.store is not None:
+            comps = dict(base or {})
+            comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
+            comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
+            comps["code_files"] = self.code_files.get(inst.type, {})
+            comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
+            self.store.record(self.pipeline_id, inst.name, comps)
+
+        # Lock what we compute so a concurrent run waits and then shares the result.
+        tasks, metas = [], []
+        for item, key, refs in todo:
+            try:
+                values = self.inputs_for(refs)
+            except NodeError as e:
+                self.fail_item(inst, item, e.message, e.hint)
+                continue
+            tasks.append(self.task(inst, item, values))
+            metas.append((item, key))
+        results = self._run_locked(inst, tasks, metas, cacheable)
+        volatile = self.store is None or not inst.spec.cacheable
+        for (item, key), (res, stored) in zip(metas, results):
+            ok = True
+            if res is None:  # another run computed it while we waited
+                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
+            elif res.ok:
+                if not stored:
+                    try:
+                        # uncacheable output (live camera, actuator): a fresh key, so nothing
+                        # downstream is ever served a stale result
+                        self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and
+                                          self.store is not None else key if not volatile else None,
+                                          res.outputs or {})
+                    except (NodeError, TypeError) as e:
+                        self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
+                        ok = False
+                rep.messages += res.messages
+                rep.items_ran += 1
+            else:
+                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace)
+                ok = False
+            if ok and inst.mapped:
+                for out in inst.spec.outputs:
+                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+            if self.progress:
+                self.progress.advance(inst.name)
+        if inst.mapped:  # keep the items in source order
+            for out in inst.spec.outputs:
+                done = set(self.items[(inst.name, out)])
+                self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
+        rep.seconds = time.perf_counter() - t0
+        n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
+        rep.items_failed = n_failed
+        if rep.status == "failed" and not inst.mapped:
+            pass
+        elif inst.mapped and n_failed and n_failed < len(entries):
+            rep.status = "partial"
+        elif n_failed:
+            rep.status = "failed"
+        elif todo:
+            rep.status = "ran"
+        else:
+            rep.status = "cached"
+        if inst.mapped and not entries:
+            rep.messages.append("no items to process (upstream produced none)")
+        self.release(inst.name)
+
+    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool) -> list:
+        """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
+        if not tasks:
+            return []
+        if not cacheable:
+            return [(r, False) for r in self.executor.map(execute, tasks)]
+        # Take each entry's lock without blocking: ours to compute; busy ones are being computed
+        # by another run right now, so wait for those afterwards and reuse their result.
+        results: list[Any] = [None] * len(tasks)
+        with contextlib.ExitStack() as stack:
+            mine, busy = [], []
+            for idx, (item, key) in enumerate(metas):
+                got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
+                (mine if got else busy).append(idx)
+            for idx, res in zip(mine, self.executor.map(execute, [tasks[i] for i in mine])):
+                stored = False
+                if res.ok:  # store while still holding the lock
+                    item, key = metas[idx]
+                    try:
+                        self.store_result(inst, item, key, res.outputs or {})
+                        stored = True
+                    except (NodeError, TypeError) as e:
+                        res = TaskResult(False, error=f"its outputs are not storable: {e}")
+                results[idx] = (res, stored)
+        for idx in busy:
+            item, key = metas[idx]
+            with self.store.lock(key):  # type: ignore[union-attr]
+                if self.store.has(key):  # type: ignore[union-attr]
+                    results[idx] = (None, True)
+                else:
+                    res = execute(tasks[idx])
+                    if res.ok:
+                        self.store_result(inst, item, key, res.outputs or {})
+                    results[idx] = (res, res.ok)
+        return results
+
+    def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None):
+        rep = self.reports[inst.name]
+        self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
+        if rep.error is None:
+            rep.error = (f"item '{item}': " if item is not None else "") + msg
+            rep.hint, rep.trace = hint, trace
+        if item is None:
+            rep.status = "failed"
+
+    def release(self, node: str) -> None:
+        """Drop in-memory values nobody downstream still needs (Kedro-style)."""
+        for src in self.g.dag.predecessors(node):
+            self.remaining_consumers[src].discard(node)
+            if not self.remaining_consumers[src] and src not in self.keep and not self._saves(src):
+                for ref in [r for r in self.mem if r[0] == src]:
+                    del self.mem[ref]
+
+    def _saves(self, node: str) -> bool:
+        return any(o.save for o in self.g.nodes[node].spec.outputs.values())
+
+
+def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str | Path | None = None,
+              use_cache: bool = True, only: str | None = None, from_node: str | None = None,
+              executor: Any = None, progress: Any = None, run_id: str | None = None,
+              write_outputs: bool = True) -> RunResult:
+    """Run a validated graph; see the module docstring."""
+    t0 = time.perf_counter()
+    doc = graph.doc
+    for flag, name in (("--only", only), ("--from", from_node)):
+        if name is not None and name not in graph.nodes:
+            import difflib
+
+            close = difflib.get_close_matches(name, list(graph.nodes), n=1)
+            raise ConfigError(f"{flag} {name}: no such node in {doc.path.name}", None, None,
+                              f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}")
+    selected = list(graph.order)
+    if only is not None:
+        keep = graph.upstream(only) | {only}
+        selected = [n for n in graph.order if n in keep]
+    force = set()
+    if from_node is not None:
+        force = graph.downstream(from_node) | {from_node}
+    run_id = run_id or new_run_id()
+    out = Path(out_dir) if out_dir else Path.cwd() / "runs" / doc.name / run_id
+    store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
+    own_executor = executor is None
+    executor = executor or SerialExecutor()
+    run = _Run(graph, store, out, executor, force, progress)
+    if only is not None:
+        run.keep = {only}
+    try:
+        for name in selected:
+            run.run_node(graph.nodes[name])
+    finally:
+        if own_executor:
+            executor.close()
+        if store is not None:
+            store.files.save()
+    for name in graph.order:
+        if name not in selected:
+            run.reports[name].status = "not selected"
+    result = RunResult(run_id, str(doc.path), out, run.reports, 0.0, {}, {}, dict(run.failed_items))
+    if write_outputs:
+        outputs_mod.write_run_outputs(graph, run, result, selected)
+    result._values, result._items = _terminal_values(graph, run, selected)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict, dict]:
+    values, items = {}, {}
+    for name in selected:
+        inst = graph.nodes[name]
+        if name not in run.keep and not any(o.save for o in inst.spec.outputs.values()):
+            continue
+        if run.reports[name].status in ("failed", "skipped"):
+            continue
+        for out in inst.spec.outputs:
+            if graph.is_collection(name, out):
+                ids = run.items.get((name, out), [])
+                items[(name, out)] = ids
+                for i in ids:
+                    values[(name, out, i)] = run.get((name, out, i))
+            else:
+                values[(name, out, None)] = run.get((name, out, None))
+    return values, items
+
+
+def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:
+    """Load, validate and run a pipeline file. Keyword arguments as :func:`run_graph`."""
+    doc = load_pipeline(path, overrides)
+    return run_graph(build_graph(doc), **kwargs)
+
+
+def workers_executor(workers: int | None) -> Any:
+    """The executor for ``--workers N`` (1 or None: serial)."""
+    if not workers or workers <= 1:
+        return SerialExecutor()
+    return ProcessExecutor(min(workers, os.cpu_count() or 1))
