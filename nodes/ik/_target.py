@@ -1,0 +1,96 @@
+"""Shared by the IK nodes: a located object -> a target in the arm-base frame -> a JointTarget.
+
+JointTarget (per item)::
+
+    {"pair": str, "found": bool, "reason": str | None, "extrapolated": bool,
+     "location_cm": [x, y, z] | None, "frame": str,        # as located (camera or table frame)
+     "target_base_cm": [x, y, z] | None,                     # the tool-point target, arm-base frame
+     "truth_base_cm": [x, y, z] | None,                      # true ball centre, arm-base frame (rig truth)
+     "joints_deg": {"yaw", "shoulder", "elbow": float} | None,
+     "servo_units": {str(id): int} | None,                   # goal positions of the joint servos
+     "fk_cm": [x, y, z] | None,                              # tool point of the quantised servo goals
+     "solver": {"type": "analytic_3dof" | "numeric", "params": {...}},
+     "split": str (copied when present)}
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from stereograph.api import NodeError
+
+from ._model import JOINTS, fk, joints_to_servo_units, quantize_joints_deg
+from ._solvers import analytic_ik, numeric_ik
+
+SOLVERS = {"analytic_3dof": analytic_ik, "numeric": numeric_ik}
+
+
+def solve(model: dict[str, Any], p, solver: dict[str, Any], q_init=None) -> np.ndarray:
+    """Joint angles (rad) for tool point ``p`` (cm, arm-base frame) with the named solver and its params."""
+    kw = dict(solver.get("params") or {})
+    if solver["type"] == "numeric" and q_init is not None:
+        kw["q_init"] = q_init
+    return SOLVERS[solver["type"]](model, p, **kw)
+
+
+def _T(hand_eye: dict[str, Any], key: str):
+    v = hand_eye.get(key)
+    return None if v is None else np.asarray(v, float)
+
+
+def location_to_base(location: dict[str, Any], hand_eye: dict[str, Any]):
+    """The located point and its ground truth (if any) in the arm-base frame (cm).
+
+    Returns
+    -------
+    (p_base, truth_base) : ndarray (3,) or None each
+    """
+    frame = location.get("frame", "left_camera")
+    if frame == "left_camera":
+        T, T_truth = _T(hand_eye, "T_base_from_left"), _T(hand_eye, "T_base_from_left_truth")
+    elif frame == "table":
+        T = T_truth = _T(hand_eye, "T_base_from_table")
+        if T is None:
+            raise NodeError(f"location {location.get('pair')} is in the table frame but the hand-eye transform "
+                            "does not place the arm base in the table frame.",
+                            hint="set base_in_table on calibrator.hand_eye, or wire left-camera locations.")
+    else:
+        raise NodeError(f"location {location.get('pair')} has unknown frame {frame!r}.",
+                        hint="use 'left_camera' or 'table'.")
+    p = None
+    if location.get("found") and location.get("x_cm") is not None:
+        X = np.array([location["x_cm"], location["y_cm"], location["z_cm"]], float)
+        p = T[:3, :3] @ X + T[:3, 3]
+    truth = None
+    if location.get("truth_cm") is not None and T_truth is not None:
+        truth = T_truth[:3, :3] @ np.asarray(location["truth_cm"], float) + T_truth[:3, 3]
+    return p, truth
+
+
+def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict[str, Any],
+                 solver: dict[str, Any]) -> dict[str, Any]:
+    """Build the JointTarget for one located object; raise Unreachable if no pose reaches it."""
+    p, truth = location_to_base(location, hand_eye)
+    out: dict[str, Any] = {
+        "pair": location.get("pair"), "found": bool(location.get("found")) and p is not None,
+        "reason": location.get("reason"), "extrapolated": bool(location.get("extrapolated", False)),
+        "location_cm": None if p is None else [float(location[k]) for k in ("x_cm", "y_cm", "z_cm")],
+        "frame": location.get("frame", "left_camera"),
+        "target_base_cm": None if p is None else [float(v) for v in p],
+        "truth_base_cm": None if truth is None else [float(v) for v in truth],
+        "joints_deg": None, "servo_units": None, "fk_cm": None, "solver": solver}
+    if "split" in location:
+        out["split"] = location["split"]
+    if p is None:
+        out["reason"] = out["reason"] or "object not found"
+        return out
+    q = solve(model, p, solver)
+    joints_deg = {n: float(math.degrees(v)) for n, v in zip(JOINTS, q)}
+    out["joints_deg"] = joints_deg
+    out["servo_units"] = joints_to_servo_units(model, joints_deg)
+    qq = quantize_joints_deg(model, joints_deg)
+    out["fk_cm"] = [float(v) for v in fk(model, np.radians([qq[n] for n in JOINTS]))]
+    return out

@@ -1,0 +1,136 @@
+"""``ik.pick_sequence``: a located, solved object -> the joint-space waypoints of a pick (and place).
+
+PickPlan (per item)::
+
+    {"pair": str, "arm": str,
+     "target_base_cm": [x, y, z], "truth_base_cm": [x, y, z] | None,
+     "solver": {...},                      # the IK solver of the JointTarget, reused for every waypoint
+     "servo_ids": [int, ...],              # every servo the plan drives, chain order
+     "grasp_index": int,                   # index of the waypoint that closes the gripper on the object
+     "grasp_fk_cm": [x, y, z],             # tool point of the quantised servo goals at the grasp
+     "waypoints": [{"name": str,           # open, above, descend_k, grasp, close, lift, place_above, ...
+                    "gripper": "open" | "closed",
+                    "tool_cm": [x, y, z],  # tool-point target, arm-base frame
+                    "joints_deg": {"yaw", "shoulder", "elbow", "gripper": float},
+                    "servo_units": {str(id): int},      # goal positions (AX-12A units)
+                    "speed_units": {str(id): int}}, ...]}  # moving speeds (1 unit = 0.666 deg/s)
+
+Speeds are scaled per waypoint so that every joint arrives at the same time (the largest move runs
+at the arm's ``max_speed_deg_s``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+from ._model import JOINTS, all_servo_ids, fk, joint, joints_to_servo_units, quantize_joints_deg, speed_to_units
+from ._solvers import Unreachable
+from ._target import solve
+
+
+class PickParams(Params):
+    approach_height_cm: float = Field(6.0, ge=0, le=100, description="Height above the object to approach from (cm).")
+    lift_height_cm: float = Field(8.0, ge=0, le=100, description="Height to lift the object by (cm).")
+    descend_steps: int = Field(3, ge=1, le=50,
+                               description="Straight-line waypoints of the vertical descent (1 = one move).")
+    place_cm: list[float] | None = Field(None, min_length=3, max_length=3,
+                                         description="Where to put the object down (arm-base frame, cm); none = hold it.")
+    return_home: bool = Field(False, description="End with a move back to the home pose.")
+    workspace_min_cm: list[float] | None = Field(
+        None, min_length=3, max_length=3,
+        description="Lower corner of the allowed workspace box (arm-base frame, cm); default [-reach, -reach, 0].")
+    workspace_max_cm: list[float] | None = Field(
+        None, min_length=3, max_length=3,
+        description="Upper corner of the workspace box (cm); default [reach, reach, base_height + reach].")
+    refuse_extrapolated: bool = Field(True, description="Refuse a location that a compensator flagged as "
+                                                        "extrapolated (outside its training range).")
+    speed_deg_s: float | None = Field(None, gt=0, le=680,
+                                      description="Speed of the largest joint move (deg/s); default the arm's.")
+
+
+def _refuse(target, why: str, hint: str) -> NodeError:
+    return NodeError(f"refusing to move the arm for {target.get('pair')}: {why}.", hint=hint)
+
+
+def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
+    """Plan the pick of a solved target (pure function; see the module docstring for the result)."""
+    if not target.get("found") or target.get("target_base_cm") is None:
+        raise _refuse(target, f"the object was not located ({target.get('reason') or 'found: false'})",
+                      "check the segmentation of this scene; the arm never moves on a failed localisation.")
+    if params.refuse_extrapolated and target.get("extrapolated"):
+        raise _refuse(target, "its location is extrapolated beyond the compensation model's training range",
+                      "collect training scenes that cover this distance, or set refuse_extrapolated: false.")
+    reach = model["reach_cm"]
+    h0 = model["links"]["base_height_cm"]
+    lo = np.array(params.workspace_min_cm if params.workspace_min_cm is not None else [-reach, -reach, 0.0])
+    hi = np.array(params.workspace_max_cm if params.workspace_max_cm is not None else [reach, reach, h0 + reach])
+    p = np.asarray(target["target_base_cm"], float)
+    up = np.array([0.0, 0.0, 1.0])
+    points = [("above", p + params.approach_height_cm * up)]
+    for k in range(1, params.descend_steps):
+        f = k / params.descend_steps
+        points.append((f"descend_{k}", p + (1 - f) * params.approach_height_cm * up))
+    points += [("grasp", p), ("close", p), ("lift", p + params.lift_height_cm * up)]
+    if params.place_cm is not None:
+        pl = np.asarray(params.place_cm, float)
+        points += [("place_above", pl + params.approach_height_cm * up), ("place", pl), ("release", pl),
+                   ("retreat", pl + params.approach_height_cm * up)]
+    for name, pt in points:
+        if np.any(pt < lo - 1e-9) or np.any(pt > hi + 1e-9):
+            txt = ", ".join(f"{v:.2f}" for v in pt)
+            raise _refuse(target, f"the {name} point [{txt}] cm lies outside the workspace box "
+                                  f"[{', '.join(f'{v:g}' for v in lo)}] .. [{', '.join(f'{v:g}' for v in hi)}] cm",
+                          "move the object, or widen workspace_min_cm / workspace_max_cm if the space is clear.")
+    g = joint(model, "gripper")
+    grip = {"open": g["open_deg"], "closed": g["closed_deg"]}
+    state = {"above": "open", "grasp": "open", "close": "closed", "lift": "closed", "place_above": "closed",
+             "place": "closed", "release": "open", "retreat": "open"}
+    home = {n: joint(model, n)["home_deg"] for n in JOINTS}
+    waypoints = [{"name": "open", "gripper": "open", "tool_cm": None,
+                  "joints_deg": {**home, "gripper": grip["open"]}}]
+    q_prev = np.radians([home[n] for n in JOINTS])
+    for name, pt in points:
+        try:
+            q = solve(model, pt, target["solver"], q_init=q_prev)
+        except Unreachable as e:
+            raise _refuse(target, f"the {name} point is {e.message}", e.hint or "move the object.")
+        q_prev = q
+        st = state.get(name, "open")
+        waypoints.append({"name": name, "gripper": st, "tool_cm": [float(v) for v in pt],
+                          "joints_deg": {**{n: float(math.degrees(v)) for n, v in zip(JOINTS, q)},
+                                         "gripper": grip[st]}})
+    if params.return_home:
+        waypoints.append({"name": "home", "gripper": waypoints[-1]["gripper"], "tool_cm": None,
+                          "joints_deg": {**home, "gripper": waypoints[-1]["joints_deg"]["gripper"]}})
+    vmax_units = (params.speed_deg_s or model["max_speed_deg_s"]) / model["speed_deg_s_per_unit"]
+    prev = None
+    for w in waypoints:
+        w["servo_units"] = joints_to_servo_units(model, w["joints_deg"])
+        # Synchronised motion: each servo's speed in proportion to its travel (in whole units, as the
+        # servo moves), so that all arrive together; the first move, from an unknown pose, at full speed.
+        travel = {i: abs(u - prev[i]) if prev else 1 for i, u in w["servo_units"].items()}
+        tmax = max(travel.values()) or 1
+        w["speed_units"] = {i: speed_to_units(vmax_units * travel[i] / tmax * model["speed_deg_s_per_unit"])
+                            for i in w["servo_units"]}
+        if w["tool_cm"] is not None:
+            qq = quantize_joints_deg(model, {n: w["joints_deg"][n] for n in JOINTS})
+            w["fk_cm"] = [float(v) for v in fk(model, np.radians([qq[n] for n in JOINTS]))]
+        prev = w["servo_units"]
+    gi = next(i for i, w in enumerate(waypoints) if w["name"] == "grasp")
+    return {"pair": target.get("pair"), "arm": model["name"], "target_base_cm": [float(v) for v in p],
+            "truth_base_cm": target.get("truth_base_cm"), "solver": target["solver"],
+            "servo_ids": all_servo_ids(model), "grasp_index": gi, "grasp_fk_cm": waypoints[gi]["fk_cm"],
+            "waypoints": waypoints}
+
+
+@node("ik.pick_sequence",
+      inputs={"arm": In("ArmModel"), "target": In("JointTarget", description="Solved object (per item).")},
+      outputs={"plan": Out("PickPlan", save=True, description="Joint-space waypoints with servo goals and speeds.")},
+      params=PickParams, version="1")
+def pick_sequence(params: PickParams, arm, target):
+    """Open -> above -> descend -> close -> lift (-> place); refuses failed, extrapolated or out-of-box targets."""
+    return {"plan": plan_pick(params, arm, target)}
