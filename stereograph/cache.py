@@ -99,6 +99,18 @@ def decode(value: Any, arrays: Any) -> Any:
     return value
 
 
+def content_key(value: Any) -> str:
+    """Digest of a plain-data value's content (arrays by dtype, shape and bytes)."""
+    arrays: dict[str, np.ndarray] = {}
+    tree = encode(value, arrays)
+    h = hashlib.blake2b(json.dumps(tree, sort_keys=True, allow_nan=True).encode(), digest_size=16)
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}{a.dtype.str}{a.shape}".encode())
+        h.update(a.data)
+    return "c" + h.hexdigest()
+
+
 # --------------------------------------------------------------------------- source-code hashing
 
 _SYSTEM_DIRS = tuple(

@@ -39,7 +39,7 @@ from typing import Any, Callable, Iterable
 
 from stereograph import registry
 from stereograph.api import NodeError, RunContext
-from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, hash_json
+from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, content_key, hash_json
 from stereograph.config import PipelineDoc, load_pipeline
 from stereograph.errors import ConfigError
 from stereograph.graph import Graph, NodeInstance, build_graph
@@ -302,13 +302,17 @@ class _Run:
         for name, items in colls.items():
             ids = list(items)
             self.items[(inst.name, name)] = ids
-            single[name] = {"__items__": ids}
+            ikeys = []
             for i, v in items.items():
-                ikey = hash_json([key, name, i]) if key else f"{inst.name}/{name}/{i}"
+                # items are content-addressed: a source change that leaves an item as it was
+                # (one image added to a folder) leaves that item's downstream cached
+                ikey = content_key(v) if key else f"{inst.name}/{name}/{i}"
+                ikeys.append(ikey)
                 self.ref_keys[(inst.name, name, i)] = ikey
                 self.mem[(inst.name, name, i)] = v
-                if self.store is not None and key is not None:
+                if self.store is not None and key is not None and not self.store.has(ikey):
                     self.store.save(ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i})
+            single[name] = {"__items__": ids, "__keys__": ikeys}
         for name, v in single.items():
             if name not in colls:
                 self.mem[(inst.name, name, item)] = v
@@ -324,8 +328,8 @@ class _Run:
                 index = self.get((inst.name, name, item))
                 ids = index["__items__"]
                 self.items[(inst.name, name)] = ids
-                for i in ids:
-                    self.ref_keys[(inst.name, name, i)] = hash_json([key, name, i])
+                for i, k in zip(ids, index["__keys__"]):
+                    self.ref_keys[(inst.name, name, i)] = k
 
     def recompute(self, node: str, item: str | None) -> None:
         inst = self.g.nodes[node]

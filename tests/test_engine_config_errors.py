@@ -1,0 +1,147 @@
+"""Every bad config: exit code 2 and one message with file:line and the node's name."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from stereograph.cli import main
+
+TOY = Path(__file__).parent / "plugins" / "toy.py"
+
+GOOD = f"""\
+name: t
+plugins: [{TOY}]
+nodes:
+  numbers:
+    type: toy.numbers
+    params: {{n: 3, size: 4}}
+  power:
+    type: toy.power
+    params: {{power: 2}}
+    inputs: {{m: numbers.items}}
+  total:
+    type: toy.sum
+    inputs: {{values: power.norm}}
+"""
+
+
+def run_cli(tmp_path: Path, text: str, *extra: str, capsys) -> tuple[int, str]:
+    f = tmp_path / "p.yaml"
+    f.write_text(textwrap.dedent(text))
+    code = main(["validate", str(f), *extra])
+    out = capsys.readouterr()
+    return code, " ".join((out.out + out.err).split())
+
+
+def test_good_pipeline_validates(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD, capsys=capsys)
+    assert code == 0, msg
+    assert "OK" in msg
+
+
+def test_broken_yaml_names_line(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("params: {power: 2}", "params: {power: 2"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:" in msg and "not valid YAML" in msg
+
+
+def test_unknown_node_type_did_you_mean(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("type: toy.power", "type: toy.powr"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:8" in msg and "node 'power'" in msg
+    assert "unknown node type 'toy.powr'" in msg and "did you mean 'toy.power'" in msg
+
+
+def test_unknown_param(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{pwer: 2}"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:9" in msg and "node 'power'" in msg and "'pwer'" in msg and "did you mean 'power'" in msg
+
+
+def test_mistyped_param(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{power: two}"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:9" in msg and "node 'power'" in msg and "parameter 'power'" in msg and "'two'" in msg
+
+
+def test_param_out_of_range(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{power: 0}"), capsys=capsys)
+    assert code == 2
+    assert "node 'power'" in msg and "greater than or equal to 1" in msg
+
+
+def test_dangling_input_node(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("m: numbers.items", "m: numbrs.items"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:10" in msg and "node 'power'" in msg and "'numbrs'" in msg and "did you mean 'numbers'" in msg
+
+
+def test_dangling_input_output(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("m: numbers.items", "m: numbers.item"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:10" in msg and "has no output 'item'" in msg and "numbers.items" in msg
+
+
+def test_mistyped_input(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("values: power.norm", "values: power.m"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:13" in msg and "node 'total'" in msg and "wants Number but 'power.m' gives Matrix" in msg
+
+
+def test_missing_required_input(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("    inputs: {values: power.norm}\n", ""), capsys=capsys)
+    assert code == 2
+    assert "node 'total'" in msg and "required input 'values'" in msg
+
+
+def test_cycle_is_named(tmp_path, capsys):
+    text = f"""\
+    name: t
+    plugins: [{TOY}]
+    nodes:
+      a:
+        type: toy.power
+        inputs: {{m: b.m}}
+      b:
+        type: toy.power
+        inputs: {{m: a.m}}
+    """
+    code, msg = run_cli(tmp_path, text, capsys=capsys)
+    assert code == 2
+    assert "cycle" in msg and ("a -> b -> a" in msg or "b -> a -> b" in msg)
+
+
+def test_set_override_validated_by_the_same_model(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD, "--set", "power.power=-3", capsys=capsys)
+    assert code == 2
+    assert "--set power.power=-3" in msg and "node 'power'" in msg
+
+
+def test_set_unknown_node(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD, "--set", "pwr.power=3", capsys=capsys)
+    assert code == 2
+    assert "no node named 'pwr'" in msg and "did you mean 'power'" in msg
+
+
+def test_unknown_key_in_node(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD.replace("    params: {power: 2}", "    parms: {power: 2}"), capsys=capsys)
+    assert code == 2
+    assert "p.yaml:9" in msg and "unknown key 'parms'" in msg
+
+
+def test_missing_pipeline_file(tmp_path, capsys):
+    code = main(["run", str(tmp_path / "nope.yaml")])
+    out = capsys.readouterr()
+    assert code == 2
+    assert "not found" in out.err
+
+
+@pytest.mark.parametrize("cmd", ["graph", "explain"])
+def test_other_commands_share_validation(tmp_path, capsys, cmd):
+    f = tmp_path / "p.yaml"
+    f.write_text(GOOD.replace("type: toy.power", "type: toy.powr"))
+    assert main([cmd, str(f)]) == 2
+    assert "did you mean" in capsys.readouterr().err

@@ -1,0 +1,284 @@
+"""Scheduler and cache behaviour: what runs, what is reused, what survives failures."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from stereograph.cache import ArtifactStore
+from stereograph.cli import main
+from stereograph.config import load_pipeline
+from stereograph.explain import explain
+from stereograph.graph import build_graph
+from stereograph.runner import run_pipeline
+
+TOY = Path(__file__).parent / "plugins" / "toy.py"
+
+
+def write_pipeline(tmp_path: Path, power: int = 2, n: int = 6, extra: str = "") -> Path:
+    f = tmp_path / "p.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: t
+        plugins: [{TOY}]
+        nodes:
+          numbers:
+            type: toy.numbers
+            params: {{n: {n}, size: 8}}
+          power:
+            type: toy.power
+            params: {{power: {power}}}
+            inputs: {{m: numbers.items}}
+          total:
+            type: toy.sum
+            inputs: {{values: power.norm}}
+          report:
+            type: toy.table
+            inputs: {{m: power.m}}
+        """) + extra)
+    return f
+
+
+def run(path, tmp_path, *overrides, **kw):
+    return run_pipeline(path, list(overrides), cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", **kw)
+
+
+def test_second_run_is_all_cached_and_same_result(tmp_path):
+    p = write_pipeline(tmp_path)
+    r1 = run(p, tmp_path)
+    assert r1.ok and r1.ran == {"numbers", "power", "total", "report"}
+    r2 = run(p, tmp_path)
+    assert set(r2.status.values()) == {"cached"}
+    assert r2.outputs("total", "total") == r1.outputs("total", "total")
+    assert json.loads((tmp_path / "out" / "total" / "total.json").read_text()) == r1.outputs("total", "total")
+
+
+def test_param_change_reruns_exactly_that_node_and_downstream(tmp_path):
+    p = write_pipeline(tmp_path)
+    run(p, tmp_path)
+    r = run(p, tmp_path, "power.power=3")
+    assert r.ran == {"power", "total", "report"}
+    assert r.status["numbers"] == "cached"
+    r = run(p, tmp_path, "total.scale=2")
+    assert r.ran == {"total"}
+
+
+def test_map_items_cached_one_by_one(tmp_path):
+    p = write_pipeline(tmp_path, n=4)
+    run(p, tmp_path)
+    r = run(p, tmp_path, "numbers.n=6")  # two new items; the first four are the same matrices
+    assert r.reports["power"].items == 6 and r.reports["power"].items_ran == 2
+
+
+def test_source_code_change_invalidates_including_helpers(tmp_path):
+    plug = tmp_path / "plug"
+    plug.mkdir()
+    (plug / "helper_mod.py").write_text("OFFSET = 1.0\n")
+    (plug / "mynode.py").write_text(textwrap.dedent("""\
+        import sys, os
+        sys.path.insert(0, os.path.dirname(__file__))
+        from stereograph.api import node, Out
+        import helper_mod
+
+        @node("tmp.const", outputs={"value": Out("Number")})
+        def const(params):
+            return {"value": 41.0 + helper_mod.OFFSET}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text("name: c\nplugins: [plug/mynode.py]\nnodes:\n  c: {type: tmp.const}\n")
+    code = textwrap.dedent(f"""\
+        import sys, json
+        from stereograph.runner import run_pipeline
+        r = run_pipeline({str(f)!r}, cache_dir={str(tmp_path / 'cache')!r}, out_dir={str(tmp_path / 'o')!r})
+        print(json.dumps([r.status['c'], r.outputs('c', 'value')]))
+        """)
+
+    def once():
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    assert once() == ["ran", 42.0]
+    assert once() == ["cached", 42.0]
+    (plug / "mynode.py").write_text((plug / "mynode.py").read_text().replace("41.0", "40.0"))
+    assert once() == ["ran", 41.0]
+    (plug / "helper_mod.py").write_text("OFFSET = 5.0\n")  # only the imported helper changes
+    assert once() == ["ran", 45.0]
+    verdicts = explain(build_graph(load_pipeline(f)), tmp_path / "cache")
+    assert verdicts[0].fresh
+
+
+def test_explain_names_the_reason(tmp_path):
+    p = write_pipeline(tmp_path)
+    run(p, tmp_path)
+    v = {x.node: x for x in explain(build_graph(load_pipeline(p, ["power.power=5"])), tmp_path / "cache")}
+    assert v["numbers"].fresh
+    assert not v["power"].fresh and "param power changed: 2 -> 5" in v["power"].reasons[0]
+    assert not v["total"].fresh and "upstream 'power'" in v["total"].reasons[0]
+    v = {x.node: x for x in explain(build_graph(load_pipeline(p)), tmp_path / "cache")}
+    assert all(x.fresh for x in v.values())
+
+
+def test_item_failure_skips_only_that_item(tmp_path):
+    p = write_pipeline(tmp_path, n=5)
+    r = run(p, tmp_path, "power.fail_on=m002")
+    assert r.status["power"] == "partial" and not r.ok
+    assert r.reports["power"].items_failed == 1
+    report = r.outputs("report", "report")
+    assert report["n"] == 4 and "m002" not in report["items"]
+    # upstream stays cached; the fix (a param change) reruns the node and its downstream
+    r = run(p, tmp_path)
+    assert r.status["numbers"] == "cached" and r.ran == {"power", "total", "report"}
+    assert r.outputs("report", "report")["n"] == 5
+
+
+def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path, capsys):
+    plug = tmp_path / "boom.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import node, In, Out, NodeError
+        @node("tmp.boom", inputs={"m": In("Matrix", gather=True)}, outputs={"x": Out("Number")})
+        def boom(params, m):
+            raise NodeError("no object found in image left07.png", hint="check the lighting")
+        """))
+    p = write_pipeline(tmp_path, extra=f"  boom:\n    type: tmp.boom\n    inputs: {{m: power.m}}\n"
+                                       f"  after:\n    type: toy.sum\n    params: {{scale: 3}}\n    inputs: {{values: power.norm}}\n")
+    text = p.read_text().replace(f"plugins: [{TOY}]", f"plugins: [{TOY}, {plug}]")
+    p.write_text(text)
+    code = main(["run", str(p), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")])
+    err = " ".join(capsys.readouterr().err.split())
+    assert code == 1
+    assert "node 'boom' (tmp.boom) failed: no object found in image left07.png" in err
+    assert "Fix: check the lighting" in err and "Traceback" not in err
+    assert "run the same command again" in err
+    summary = json.loads((tmp_path / "o" / "run.json").read_text())
+    st = {n["node"]: n["status"] for n in summary["nodes"]}
+    assert st["boom"] == "failed" and st["power"] == "ran" and st["after"] == "ran"
+
+
+def test_only_and_from(tmp_path):
+    p = write_pipeline(tmp_path)
+    r = run(p, tmp_path, only="power")
+    assert r.ran == {"numbers", "power"} and r.status["total"] == "not selected"
+    r = run(p, tmp_path, from_node="power")
+    assert r.ran == {"power", "total", "report"} and r.status["numbers"] == "cached"
+
+
+def test_no_cache_runs_everything_and_stores_nothing(tmp_path):
+    p = write_pipeline(tmp_path)
+    r = run(p, tmp_path, use_cache=False)
+    assert r.ran == {"numbers", "power", "total", "report"}
+    assert not (tmp_path / "cache").exists()
+
+
+def _kill_during_save(cache: str) -> None:
+    """Child process: dies (os._exit) after the temp files exist, before the rename."""
+    import numpy as np
+
+    from stereograph import cache as c
+
+    real_rename = os.rename
+
+    def dying_rename(src, dst):
+        if "objects" in str(dst):
+            os._exit(9)
+        return real_rename(src, dst)
+
+    c.os.rename = dying_rename
+    c.ArtifactStore(cache).save("k" * 32, {"a": np.arange(1000)})
+
+
+def test_kill_mid_write_leaves_no_valid_entry(tmp_path):
+    ctx = mp.get_context("spawn")
+    proc = ctx.Process(target=_kill_during_save, args=(str(tmp_path / "cache"),))
+    proc.start()
+    proc.join(30)
+    assert proc.exitcode == 9
+    store = ArtifactStore(tmp_path / "cache")
+    assert list((tmp_path / "cache" / "tmp").iterdir()), "the temp entry should exist (killed mid-write)"
+    assert not store.has("k" * 32)
+
+
+def test_corrupt_entry_is_detected_and_recomputed(tmp_path):
+    p = write_pipeline(tmp_path)
+    r1 = run(p, tmp_path)
+    # flip bytes in every stored array file of the 'power' items
+    store = ArtifactStore(tmp_path / "cache")
+    n = 0
+    for man in (tmp_path / "cache" / "objects").glob("*/*/manifest.json"):
+        meta = json.loads(man.read_text())["meta"]
+        if meta.get("node") == "power":
+            npz = man.parent / "arrays.npz"
+            b = bytearray(npz.read_bytes())
+            b[-100] ^= 0xFF
+            npz.write_bytes(bytes(b))
+            n += 1
+    assert n == 6
+    r2 = run(p, tmp_path, "total.scale=1.0001")  # total must load the (corrupt) power outputs
+    assert r2.ok
+    assert any("corrupt" in m for m in r2.reports["power"].messages)
+    assert r2.outputs("total", "total") == pytest.approx(1.0001 * r1.outputs("total", "total"))
+    r3 = run(p, tmp_path, "total.scale=1.0002")
+    assert r3.status["power"] == "cached" and not r3.reports["power"].messages  # the entries were rewritten
+
+
+def _concurrent_run(args):
+    path, cache, out, log = args
+    os.environ["TOY_LOG"] = log
+    from stereograph.runner import run_pipeline as rp
+
+    r = rp(path, cache_dir=cache, out_dir=out)
+    return r.ok
+
+
+def test_two_runs_at_once_share_the_cache(tmp_path):
+    plug = tmp_path / "slow.py"
+    plug.write_text(textwrap.dedent("""\
+        import os, time
+        from stereograph.api import node, In, Out
+        @node("tmp.slow", inputs={"m": In("Matrix")}, outputs={"x": Out("Number")})
+        def slow(params, m, ctx=None):
+            with open(os.environ["TOY_LOG"], "a") as f:
+                f.write(ctx.item + "\\n")
+            time.sleep(0.2)
+            return {"x": float(m.sum())}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: s\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 6}}}}\n"
+                 f"  slow: {{type: tmp.slow, inputs: {{m: numbers.items}}}}\n"
+                 f"  total: {{type: toy.sum, inputs: {{values: slow.x}}}}\n")
+    log = tmp_path / "log.txt"
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(2) as pool:
+        oks = pool.map(_concurrent_run, [(str(f), str(tmp_path / "c"), str(tmp_path / f"o{i}"), str(log))
+                                         for i in range(2)])
+    assert oks == [True, True]
+    computed = log.read_text().split()
+    assert sorted(computed) == sorted(set(computed)) and len(computed) == 6, computed
+
+
+def test_uncacheable_node_runs_every_time(tmp_path):
+    plug = tmp_path / "live.py"
+    plug.write_text(textwrap.dedent("""\
+        import itertools
+        from stereograph.api import node, Out
+        COUNTER = itertools.count()
+        @node("tmp.live", outputs={"x": Out("Number")}, cacheable=False)
+        def live(params):
+            return {"x": float(next(COUNTER))}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: l\nplugins: [{TOY}, {plug}]\nnodes:\n  live: {{type: tmp.live}}\n"
+                 f"  total: {{type: toy.sum, inputs: {{values: live.x}}}}\n")
+    with pytest.raises(Exception):
+        # gathering a single artifact is a config error
+        build_graph(load_pipeline(f))
+    f.write_text(f"name: l\nplugins: [{plug}]\nnodes:\n  live: {{type: tmp.live}}\n")
+    r1 = run(f, tmp_path)
+    r2 = run(f, tmp_path)
+    assert r1.status["live"] == "ran" and r2.status["live"] == "ran"
+    assert r2.outputs("live", "x") == r1.outputs("live", "x") + 1
