@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Callable
 
@@ -176,7 +177,7 @@ class NodeSpec:
         """The part of the name before the first dot (``segmenter``)."""
         return self.name.split(".", 1)[0]
 
-    @property
+    @cached_property
     def wants_ctx(self) -> bool:
         return "ctx" in inspect.signature(self.fn).parameters
 

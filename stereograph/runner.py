@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from stereograph import registry
-from stereograph.api import NodeError, RunContext
+from stereograph.api import REGISTRY, NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, content_key, hash_json
 from stereograph.config import PipelineDoc, load_pipeline
 from stereograph.errors import ConfigError
@@ -81,12 +81,16 @@ def execute(task: Task) -> TaskResult:
     """Run one node call; never raises (failures come back as a TaskResult)."""
     t0 = time.perf_counter()
     try:
-        if task.plugins:
-            registry.import_plugins(task.plugins, Path(task.pipeline_dir))
-        spec = registry.get(task.node_type)
-        ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name, Path(task.pipeline_dir))
+        spec = REGISTRY.get(task.node_type)
+        if spec is None:  # first call in a worker process
+            if task.plugins:
+                registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+            spec = registry.get(task.node_type)
         kwargs = dict(task.inputs)
+        ctx = None
         if spec.wants_ctx:
+            ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
+                             Path(task.pipeline_dir))
             kwargs["ctx"] = ctx
         out = spec.fn(task.params, **kwargs)
         if not isinstance(out, dict) or set(out) != set(spec.outputs):
@@ -99,7 +103,7 @@ def execute(task: Task) -> TaskResult:
                 extra = set(out) - set(spec.outputs)
                 raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
                                 + (f", unexpected {sorted(extra)}" if extra else ""))
-        return TaskResult(True, out, time.perf_counter() - t0, ctx.messages)
+        return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
     except NodeError as e:
         return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True)
     except ConfigError as e:

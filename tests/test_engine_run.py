@@ -282,3 +282,27 @@ def test_uncacheable_node_runs_every_time(tmp_path):
     r2 = run(f, tmp_path)
     assert r1.status["live"] == "ran" and r2.status["live"] == "ran"
     assert r2.outputs("live", "x") == r1.outputs("live", "x") + 1
+
+
+def test_include_and_defaults(tmp_path):
+    (tmp_path / "common.yaml").write_text(f"plugins: [{TOY}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 3, size: 4}}}}\n")
+    f = tmp_path / "p.yaml"
+    f.write_text("name: inc\ninclude: [common.yaml]\ndefaults:\n  toy.power: {power: 3}\nnodes:\n"
+                 "  power: {type: toy.power, inputs: {m: numbers.items}}\n"
+                 "  numbers: {type: toy.numbers, params: {size: 5}}\n")
+    g = build_graph(load_pipeline(f))
+    assert g.nodes["power"].params.power == 3
+    assert g.nodes["numbers"].params.n == 3 and g.nodes["numbers"].params.size == 5  # merged over the include
+
+
+def test_process_pool_gives_the_same_result(tmp_path):
+    from stereograph.runner import ProcessExecutor
+
+    p = write_pipeline(tmp_path, n=8)
+    serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
+    ex = ProcessExecutor(2)
+    try:
+        r = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o2", executor=ex)
+    finally:
+        ex.close()
+    assert r.ok and r.outputs("total", "total") == pytest.approx(serial)

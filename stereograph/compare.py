@@ -1,0 +1,805 @@
+"""``stereograph compare``: run every combination of a few settings and tabulate the accuracy.
+
+Usage::
+
+    stereograph compare pipelines/compare-compensation.yaml \\
+        --vary compensate_fit.type=none,polynomial,disparity_curve,lookup [--vary segment.type=...]
+
+or a ``variants:`` block in the pipeline file (same keys; ``--vary`` adds to / replaces it)::
+
+    variants:
+      fit.type: [none, polynomial, lookup]
+      fit.cv_folds: [5]
+
+A key is ``node.param`` (nested params with more dots), ``node.type`` (the node's type;
+a value without a dot is taken in the node's current kind, so ``none`` means
+``compensator.none`` for a compensator node; params then fall back to the new type's
+defaults plus the pipeline's ``defaults:`` block for that type, where per-type settings
+belong) or ``node.inputs.port``. The combinations are the Cartesian product of the keys.
+
+Every variant runs through :func:`stereograph.runner.run_graph` on one shared artifact
+cache, so what the variants have in common (calibration, rectification, segmentation ...)
+is computed once, and a later compare with one more value computes only that variant's
+nodes. The engine knows no concrete node here: the accuracy is read from the pipeline's
+*final* ``Location`` outputs (those no later node turns into another Location), as
+``measured - truth`` over the items of a split (``test`` by default); a fit time is
+read from any saved result that reports ``fit_time_s``; the per-pair time is the sum, over
+the nodes that run once per item, of their compute seconds per item (remembered in the
+cache folder for nodes served from the cache).
+
+Public API::
+
+    from stereograph.compare import compare
+    res = compare("pipelines/compare-compensation.yaml", ["fit.type=none,polynomial"], out_dir="out")
+    res.rows            # one dict per (variant, final Location output): the table
+    res.variants[1].ran # nodes that computed anything in that variant's run
+
+The CLI hook is :func:`add_subcommand` (the ``stereograph`` parser calls it) and
+:func:`main` runs parsed arguments.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import itertools
+import json
+import math
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+import yaml
+
+from stereograph.config import PipelineDoc, apply_override, load_pipeline
+from stereograph.errors import ConfigError, UsageError
+from stereograph.graph import Graph, build_graph
+
+__all__ = [
+    "Variant",
+    "VariantResult",
+    "CompareResult",
+    "parse_vary",
+    "expand_variants",
+    "final_location_outputs",
+    "location_errors",
+    "compare",
+    "add_subcommand",
+    "add_compare_subcommand",
+    "main",
+]
+
+AXES = ("x", "y", "z")
+TIMINGS_FILE = "compare-timings.json"
+
+
+# --------------------------------------------------------------------------- variants
+
+
+@dataclass
+class Variant:
+    """One combination of settings."""
+
+    index: int
+    settings: dict[str, Any]  # "node.field" -> value (as given)
+    overrides: list[str] = field(default_factory=list)  # what was applied to the document
+
+    @property
+    def label(self) -> str:
+        return ", ".join(f"{k}={_show(v)}" for k, v in self.settings.items())
+
+    @property
+    def slug(self) -> str:
+        text = "_".join(f"{k}-{_show(v)}" for k, v in self.settings.items())
+        return f"v{self.index:02d}_" + re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80]
+
+
+def _show(value: Any) -> str:
+    return value if isinstance(value, str) else json.dumps(value)
+
+
+def parse_vary(text: str) -> tuple[str, list[Any]]:
+    """Split ``node.field=v1,v2,...`` into the key and the values (each parsed as YAML).
+
+    Values are read as one YAML flow sequence, so ``fit.bin_edges_cm=[30, 40, 60],[30, 60]``
+    gives two lists.
+    """
+    if "=" not in text:
+        raise UsageError(f"--vary '{text}' is not of the form node.field=v1,v2,...",
+                         hint="for example --vary fit.type=none,polynomial")
+    key, rhs = (s.strip() for s in text.split("=", 1))
+    parts = key.split(".")
+    if len(parts) < 2 or not all(parts):
+        raise UsageError(f"--vary '{text}': the left side must be node.field (node.type or node.param)",
+                         hint="for example --vary fit.degree=1,2,3")
+    try:
+        values = yaml.safe_load(f"[{rhs}]")
+    except yaml.YAMLError:
+        values = [v.strip() for v in rhs.split(",")]
+    if not values or any(v is None for v in values):
+        raise UsageError(f"--vary '{text}' lists no (or an empty) value", hint="give comma-separated values")
+    return key, list(values)
+
+
+def _override_text(doc: PipelineDoc, key: str, value: Any) -> str | None:
+    """The ``--set`` text that applies one setting, or None when it changes nothing."""
+    node, _, fieldname = key.partition(".")
+    if node not in doc.nodes:
+        return f"{key}={json.dumps(value)}"  # apply_override names the bad node
+    if fieldname == "type":
+        value = str(value)
+        current = str(doc.nodes[node]["type"])
+        if "." not in value:
+            value = current.split(".", 1)[0] + "." + value
+        if value == current:
+            return None  # same type: keep the params written in the pipeline
+    return f"{key}={json.dumps(value)}"
+
+
+def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]:
+    """The Cartesian product of the pipeline's ``variants:`` block and ``--vary`` options."""
+    space: dict[str, list[Any]] = {}
+    for k, values in (doc.variants or {}).items():
+        if "." not in str(k):
+            raise ConfigError(f"variants key '{k}' must be node.field", doc.where("variants", k),
+                              hint="for example 'fit.type: [none, polynomial]'")
+        space[str(k)] = list(values)
+    for text in vary:
+        k, values = parse_vary(text)
+        space[k] = values
+    if not space:
+        raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",
+                         hint="add --vary node.field=v1,v2 (e.g. --vary fit.type=none,polynomial)")
+    keys = list(space)
+    return [Variant(i + 1, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*space.values()))]
+
+
+def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
+    """Apply a variant's settings to a copy of the document and validate it."""
+    vdoc = copy.deepcopy(doc)
+    vdoc.variants = {}
+    variant.overrides = []
+    for key, value in variant.settings.items():
+        text = _override_text(vdoc, key, value)
+        if text is not None:
+            apply_override(vdoc, text)
+            variant.overrides.append(text)
+    return build_graph(vdoc)
+
+
+# --------------------------------------------------------------------------- metrics
+
+
+def final_location_outputs(graph: Graph) -> list[tuple[str, str]]:
+    """``(node, output)`` of type Location that no later node turns into another Location."""
+    out = []
+    for name in graph.order:
+        for port, decl in graph.nodes[name].spec.outputs.items():
+            if decl.type != "Location":
+                continue
+            later = graph.downstream(name)
+            if not any(o.type == "Location" for n in later for o in graph.nodes[n].spec.outputs.values()):
+                out.append((name, port))
+    return out
+
+
+def location_errors(locations: dict[str, Any], split: str = "test") -> dict[str, Any]:
+    """Errors ``measured - truth`` (cm) of the found items of a split that carry truth.
+
+    Parameters
+    ----------
+    locations : dict
+        ``{item_id: Location}``.
+    split : {"test", "train", "all"}
+        Which items count. When no item carries a ``split`` key, every item counts
+        (and ``split_used`` says "all").
+
+    Returns
+    -------
+    dict
+        ``{"errors": (N, 3) cm, "truth": (N, 3) cm, "n": items in the split, "n_found",
+        "n_truth", "n_extrapolated", "split_used"}``.
+    """
+    items = [v for v in locations.values() if isinstance(v, dict)]
+    have_split = any("split" in v for v in items)
+    used = split if have_split else "all"
+    chosen = [v for v in items if used == "all" or v.get("split") == used]
+    errs, truth, n_found, n_extra = [], [], 0, 0
+    for loc in chosen:
+        if not loc.get("found"):
+            continue
+        n_found += 1
+        t = loc.get("truth_cm")
+        xyz = [loc.get("x_cm"), loc.get("y_cm"), loc.get("z_cm")]
+        if t is None or any(c is None for c in xyz):
+            continue
+        e = np.subtract(np.asarray(xyz, float), np.asarray(t, float)[:3])
+        if not np.all(np.isfinite(e)):
+            continue
+        errs.append(e)
+        truth.append(np.asarray(t, float)[:3])
+        n_extra += bool(loc.get("extrapolated"))
+    return {
+        "errors": np.array(errs, float).reshape(-1, 3),
+        "truth": np.array(truth, float).reshape(-1, 3),
+        "n": len(chosen),
+        "n_found": n_found,
+        "n_truth": len(errs),
+        "n_extrapolated": n_extra,
+        "split_used": used,
+    }
+
+
+def _axis_stats(e: np.ndarray) -> dict[str, dict[str, float | None]]:
+    out = {}
+    for k, axis in enumerate(AXES):
+        col = e[:, k] if len(e) else np.zeros(0)
+        out[axis] = {
+            "mean_cm": float(np.mean(col)) if len(col) else None,
+            "std_cm": float(np.std(col, ddof=1)) if len(col) > 1 else None,
+            "rms_cm": float(np.sqrt(np.mean(col**2))) if len(col) else None,
+            "max_abs_cm": float(np.max(np.abs(col))) if len(col) else None,
+        }
+    return out
+
+
+def _find_fit_times(value: Any) -> list[float]:
+    """Every ``fit_time_s`` number in a (saved) result, at any depth of dicts."""
+    found = []
+    if isinstance(value, dict):
+        t = value.get("fit_time_s")
+        if isinstance(t, (int, float)) and math.isfinite(t):
+            found.append(float(t))
+        for k, v in value.items():
+            if k != "fit_time_s" and isinstance(v, dict):
+                found += _find_fit_times(v)
+    return found
+
+
+# --------------------------------------------------------------------------- timing ledger
+
+
+def _lineages(graph: Graph) -> dict[str, str]:
+    """A config-level fingerprint of each node and everything upstream of it (for timings)."""
+    from stereograph.cache import code_hash, hash_json
+
+    lin: dict[str, str] = {}
+    for name in graph.order:
+        inst = graph.nodes[name]
+        lin[name] = hash_json({
+            "type": inst.type, "version": inst.spec.version, "code": code_hash(inst.spec.fn)[0],
+            "params": inst.params.model_dump(mode="json"),
+            "inputs": {p: [lin[s], o] for p, (s, o) in sorted(inst.inputs.items())},
+        })
+    return lin
+
+
+class _Timings:
+    """Seconds per item of per-item nodes, remembered next to the cache (best effort)."""
+
+    def __init__(self, root: Path | None):
+        self.path = None if root is None else Path(root) / TIMINGS_FILE
+        self.data: dict[str, float] = {}
+        if self.path is not None and self.path.exists():
+            try:
+                self.data = {k: float(v) for k, v in json.loads(self.path.read_text()).items()}
+            except (OSError, ValueError, AttributeError):
+                self.data = {}
+
+    def save(self) -> None:
+        if self.path is None:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(self.data, indent=0, sort_keys=True))
+            tmp.replace(self.path)
+        except OSError:
+            pass
+
+
+def _per_pair_seconds(graph: Graph, result: Any, timings: _Timings) -> float | None:
+    lin = _lineages(graph)
+    total, known = 0.0, True
+    for name in graph.order:
+        inst = graph.nodes[name]
+        if not inst.mapped:
+            continue
+        rep = result.reports[name]
+        if rep.items and rep.items_ran == rep.items and rep.status == "ran":
+            timings.data[lin[name]] = rep.seconds / rep.items
+        if lin[name] in timings.data:
+            total += timings.data[lin[name]]
+        else:
+            known = False
+    return total if known else None
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class VariantResult:
+    """What one variant's run gave."""
+
+    variant: Variant
+    ok: bool
+    error: str | None
+    status: dict[str, str]
+    ran: set[str]
+    out_dir: Path | None
+    seconds: float
+    fit_time_s: float | None
+    per_pair_s: float | None
+    outputs: list[dict[str, Any]]  # per final Location output: metrics + arrays
+
+
+@dataclass
+class CompareResult:
+    """All variants, the table rows, and the files written."""
+
+    pipeline: str
+    keys: list[str]
+    split: str
+    out_dir: Path
+    variants: list[VariantResult]
+    rows: list[dict[str, Any]]
+    files: dict[str, Path]
+
+    @property
+    def ok(self) -> bool:
+        return all(v.ok for v in self.variants)
+
+    def row(self, **settings: Any) -> dict[str, Any]:
+        """The first row whose settings include these (``row(**{"fit.type": "none"})``)."""
+        for r in self.rows:
+            if all(r["settings"].get(k) == v for k, v in settings.items()):
+                return r
+        raise KeyError(settings)
+
+
+class _PlainProgress:
+    """Progress lines for a non-terminal (one per variant)."""
+
+    def __init__(self, stream=None):
+        self.stream = stream
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+    def variant_started(self, i: int, n: int, label: str) -> None:
+        if self.stream:
+            print(f"[{i}/{n}] {label} ...", file=self.stream, flush=True)
+
+    def variant_done(self, vr: VariantResult) -> None:
+        if self.stream:
+            ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (all cached)"
+            state = "ok" if vr.ok else f"FAILED: {vr.error}"
+            print(f"      {state}; computed: {ran} ({vr.seconds:.1f} s)", file=self.stream, flush=True)
+
+    def node_started(self, name: str, n_items: int) -> None:
+        pass
+
+    def advance(self, name: str) -> None:
+        pass
+
+
+class _RichProgress(_PlainProgress):
+    """A bar over the variants and one for the node running now."""
+
+    def __init__(self, console):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        super().__init__(None)
+        self.console = console
+        self.p = Progress(TextColumn("{task.description:<48}"), BarColumn(), MofNCompleteColumn(),
+                          TimeElapsedColumn(), console=console, transient=True)
+        self.overall = None
+        self.current = None
+
+    def __enter__(self):
+        self.p.__enter__()
+        return self
+
+    def __exit__(self, *a):
+        self.p.__exit__(*a)
+        return False
+
+    def variant_started(self, i: int, n: int, label: str) -> None:
+        if self.overall is None:
+            self.overall = self.p.add_task("variants", total=n)
+        self.p.update(self.overall, description=f"variant {i}/{n}: {label}"[:48])
+
+    def variant_done(self, vr: VariantResult) -> None:
+        self.p.advance(self.overall)
+        ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (cached)"
+        mark = "[green]ok[/]" if vr.ok else f"[red]failed[/]: {vr.error}"
+        self.console.print(f"{vr.variant.label}: {mark}; computed {ran} ({vr.seconds:.1f} s)")
+
+    def node_started(self, name: str, n_items: int) -> None:
+        if self.current is not None:
+            self.p.remove_task(self.current)
+        self.current = self.p.add_task(f"  {name}", total=max(n_items, 1))
+
+    def advance(self, name: str) -> None:
+        if self.current is not None:
+            self.p.advance(self.current)
+
+
+def _default_out(doc: PipelineDoc) -> Path:
+    from stereograph.runner import new_run_id
+
+    return Path.cwd() / "runs" / doc.name / f"compare-{new_run_id()}"
+
+
+def compare(
+    pipeline_path: str | Path,
+    vary: list[str] | None = None,
+    out_dir: str | Path | None = None,
+    *,
+    overrides: list[str] | None = None,
+    cache_dir: str | Path | None = None,
+    split: str = "test",
+    executor: Any = None,
+    progress: Any = None,
+    skip_invalid: bool = False,
+    plots: bool = True,
+) -> CompareResult:
+    """Run every variant of a pipeline on one shared cache and tabulate their accuracy.
+
+    Parameters
+    ----------
+    pipeline_path : str or Path
+        The pipeline YAML.
+    vary : list of str
+        ``node.field=v1,v2,...`` each (added to the file's ``variants:`` block).
+    out_dir : str or Path, optional
+        Where ``compare.csv``, ``compare.json``, the plots and each variant's run
+        outputs (``variants/<slug>/``) go; default ``runs/<name>/compare-<run id>``.
+    overrides : list of str, optional
+        ``--set`` overrides applied to every variant.
+    cache_dir : str or Path, optional
+        The shared artifact cache (default: next to the pipeline).
+    split : {"test", "train", "all"}
+        Which items the accuracy is computed on.
+    executor, progress : optional
+        As for :func:`stereograph.runner.run_graph`; ``progress`` may also have
+        ``variant_started(i, n, label)`` / ``variant_done(variant_result)``.
+    skip_invalid : bool
+        Leave out combinations whose config does not validate (a param the varied
+        type does not take, say) instead of refusing the whole comparison.
+    plots : bool
+        Write the PNG plots.
+
+    Returns
+    -------
+    CompareResult
+
+    Raises
+    ------
+    ConfigError / UsageError
+        A bad pipeline or ``--vary``; with ``skip_invalid`` only if no variant is valid.
+    """
+    from stereograph.runner import default_cache_dir, run_graph
+
+    if split not in ("test", "train", "all"):
+        raise UsageError(f"--split {split}: choose test, train or all")
+    doc = load_pipeline(pipeline_path, overrides or [])
+    variants = expand_variants(doc, vary or [])
+    graphs: list[tuple[Variant, Graph]] = []
+    skipped: list[tuple[Variant, str]] = []
+    for v in variants:
+        try:
+            graphs.append((v, variant_graph(doc, v)))
+        except ConfigError as e:
+            if not skip_invalid:
+                e.message = f"variant {v.label}: {e.message}"
+                if not e.hint:
+                    e.hint = "fix the value, or pass --skip-invalid to leave such combinations out"
+                raise
+            skipped.append((v, str(e)))
+    if not graphs:
+        raise ConfigError(f"no variant of {doc.path.name} is valid: {skipped[0][1]}")
+    finals = final_location_outputs(graphs[0][1])
+    if not finals:
+        raise ConfigError(f"{doc.path.name} has no Location output to measure",
+                          hint="compare needs a pipeline that locates objects (a node with a Location output)")
+    out = Path(out_dir) if out_dir is not None else _default_out(doc)
+    out.mkdir(parents=True, exist_ok=True)
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir(doc)
+    timings = _Timings(cache)
+    prog = progress if progress is not None else _PlainProgress(None)
+    results: list[VariantResult] = []
+    for i, (v, graph) in enumerate(graphs, 1):
+        if hasattr(prog, "variant_started"):
+            prog.variant_started(i, len(graphs), v.label)
+        vr = _run_variant(v, graph, cache, out / "variants" / v.slug, split, executor, prog, timings, run_graph)
+        results.append(vr)
+        if hasattr(prog, "variant_done"):
+            prog.variant_done(vr)
+    timings.save()
+    rows = _rows(results)
+    res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, rows, {})
+    res.files = _write(res, skipped, plots)
+    return res
+
+
+def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, split: str, executor: Any, prog: Any,
+                 timings: _Timings, run_graph: Any) -> VariantResult:
+    import time
+
+    t0 = time.perf_counter()
+    result = run_graph(graph, cache_dir=cache, out_dir=out, executor=executor, progress=prog)
+    failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
+    error = "; ".join(f"{r.name}: {r.error}" for r in failed if r.error)[:400] or None
+    outputs = []
+    for node, port in final_location_outputs(graph):
+        values = result.outputs(node, port) or {}
+        if not values and result.reports[node].status not in ("failed", "skipped"):
+            # Not a terminal or saved output: fetch it from the cache (every entry is there now).
+            again = run_graph(graph, cache_dir=cache, out_dir=out, only=node, write_outputs=False)
+            values = again.outputs(node, port) or {}
+        if not isinstance(values, dict):
+            values = {"": values}
+        m = location_errors(values, split)
+        outputs.append({"node": node, "output": port, **m, "axes": _axis_stats(m["errors"])})
+    fit_times: list[float] = []
+    for name, inst in graph.nodes.items():
+        for port, decl in inst.spec.outputs.items():
+            if decl.save and not graph.is_collection(name, port):
+                fit_times += _find_fit_times(result.outputs(name, port))
+    return VariantResult(
+        variant=v, ok=result.ok, error=error, status=result.status, ran=set(result.ran), out_dir=out,
+        seconds=time.perf_counter() - t0, fit_time_s=sum(fit_times) if fit_times else None,
+        per_pair_s=_per_pair_seconds(graph, result, timings), outputs=outputs,
+    )
+
+
+def _rows(results: list[VariantResult]) -> list[dict[str, Any]]:
+    rows = []
+    multi = max((len(r.outputs) for r in results), default=0) > 1
+    for vr in results:
+        for o in vr.outputs or [{}]:
+            row: dict[str, Any] = {
+                "variant": vr.variant.label + (f" [{o['node']}.{o['output']}]" if multi and o else ""),
+                "settings": dict(vr.variant.settings),
+                "ok": vr.ok,
+                "error": vr.error,
+                "output": f"{o['node']}.{o['output']}" if o else None,
+                "n": o.get("n", 0),
+                "n_found": o.get("n_found", 0),
+                "n_truth": o.get("n_truth", 0),
+                "n_extrapolated": o.get("n_extrapolated", 0),
+                "split": o.get("split_used"),
+                "fit_time_s": vr.fit_time_s,
+                "per_pair_s": vr.per_pair_s,
+                "ran": sorted(vr.ran),
+            }
+            for axis in AXES:
+                for stat, val in (o.get("axes", {}).get(axis) or {}).items():
+                    row[f"{axis}_{stat}"] = val
+            rows.append(row)
+    return rows
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) -> dict[str, Path]:
+    files: dict[str, Path] = {}
+    cols = ["variant", *res.keys, "ok", "output", "split", "n", "n_found", "n_truth", "n_extrapolated"]
+    cols += [f"{a}_{s}" for a in AXES for s in ("mean_cm", "std_cm", "rms_cm", "max_abs_cm")]
+    cols += ["fit_time_s", "per_pair_s", "error"]
+    path = res.out_dir / "compare.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for r in res.rows:
+            w.writerow([_csv(r["settings"][c]) if c in res.keys else _csv(r.get(c)) for c in cols])
+    files["csv"] = path
+    doc = {
+        "pipeline": res.pipeline,
+        "keys": res.keys,
+        "split": res.split,
+        "rows": [{k: v for k, v in r.items()} for r in res.rows],
+        "variants": [
+            {"label": vr.variant.label, "settings": vr.variant.settings, "overrides": vr.variant.overrides,
+             "ok": vr.ok, "error": vr.error, "status": vr.status, "ran": sorted(vr.ran),
+             "seconds": round(vr.seconds, 3), "fit_time_s": vr.fit_time_s, "per_pair_s": vr.per_pair_s,
+             "out_dir": str(vr.out_dir)}
+            for vr in res.variants
+        ],
+        "skipped_invalid": [{"label": v.label, "error": e} for v, e in skipped],
+    }
+    path = res.out_dir / "compare.json"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(doc, indent=1, default=_json_default))
+    tmp.replace(path)
+    files["json"] = path
+    if plots:
+        files.update(_plots(res))
+    return files
+
+
+def _csv(v: Any) -> Any:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if v is None:
+        return ""
+    return v if isinstance(v, (str, int, bool)) else json.dumps(v)
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    if isinstance(v, (set, tuple)):
+        return sorted(v)
+    return str(v)
+
+
+def _series(res: CompareResult) -> list[tuple[str, dict[str, Any]]]:
+    multi = max((len(v.outputs) for v in res.variants), default=0) > 1
+    out = []
+    for vr in res.variants:
+        for o in vr.outputs:
+            if len(o["errors"]):
+                out.append((vr.variant.label + (f" [{o['node']}]" if multi else ""), o))
+    return out
+
+
+def _plots(res: CompareResult) -> dict[str, Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = _series(res)
+    files: dict[str, Path] = {}
+    if not series:
+        return files
+    colours = plt.get_cmap("tab10")
+    fig, ax = plt.subplots(figsize=(8, 5), dpi=110)
+    for i, (label, o) in enumerate(series):
+        z, ez = o["truth"][:, 2], o["errors"][:, 2]
+        c = colours(i % 10)
+        ax.scatter(z, ez, s=9, alpha=0.45, color=c)
+        order = np.argsort(z)
+        nb = max(2, min(8, len(z) // 6))
+        bins = np.array_split(order, nb)
+        ax.plot([z[b].mean() for b in bins], [ez[b].mean() for b in bins], "-o", ms=3, color=c, label=label)
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_xlabel("true distance z (cm)")
+    ax.set_ylabel("z error, measured - true (cm)")
+    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = res.out_dir / "z_error_vs_distance.png"
+    fig.savefig(path)
+    plt.close(fig)
+    files["z_error_vs_distance"] = path
+
+    fig, axes = plt.subplots(1, 3, figsize=(4 + 1.2 * len(series) * 3, 4.5), dpi=110, squeeze=False)
+    labels = [s[0] for s in series]
+    for k, axis in enumerate(AXES):
+        a = axes[0, k]
+        a.boxplot([o["errors"][:, k] for _, o in series], showfliers=True)
+        a.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
+        a.axhline(0, color="k", lw=0.6)
+        a.set_title(f"{axis} error (cm)")
+    fig.tight_layout()
+    path = res.out_dir / "error_boxplots.png"
+    fig.savefig(path)
+    plt.close(fig)
+    files["error_boxplots"] = path
+    return files
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None:
+        return "–"
+    return f"{v:.{digits}f}"
+
+
+def print_table(res: CompareResult, console: Any = None) -> None:
+    """The comparison as a rich table (cm), best z RMS marked."""
+    from rich.console import Console
+    from rich.table import Table
+
+    con = console or Console(highlight=False)
+    t = Table(title=f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)",
+              title_justify="left")
+    for k in res.keys:
+        t.add_column(k)
+    for c in ("n", "found"):
+        t.add_column(c, justify="right")
+    for a in AXES:
+        for s in ("mean", "std", "RMS"):
+            t.add_column(f"{a} {s}", justify="right")
+    t.add_column("extrap.", justify="right")
+    t.add_column("fit s", justify="right")
+    t.add_column("per pair ms", justify="right")
+    zs = [r.get("z_rms_cm") for r in res.rows if r.get("z_rms_cm") is not None]
+    best = min(zs) if zs else None
+    for r in res.rows:
+        cells = [_show(r["settings"][k]) for k in res.keys]
+        if not r["ok"] and not r.get("n_truth"):
+            t.add_row(*cells, *(["–"] * 14), style="red")
+            continue
+        cells += [str(r["n"]), str(r["n_found"])]
+        for a in AXES:
+            cells += [_fmt(r.get(f"{a}_mean_cm")), _fmt(r.get(f"{a}_std_cm")), _fmt(r.get(f"{a}_rms_cm"))]
+        cells += [str(r["n_extrapolated"]), _fmt(r["fit_time_s"], 4),
+                  _fmt(None if r["per_pair_s"] is None else 1000 * r["per_pair_s"], 1)]
+        style = "bold green" if best is not None and r.get("z_rms_cm") == best else ("red" if not r["ok"] else None)
+        t.add_row(*cells, style=style)
+    con.print(t)
+    for vr in res.variants:
+        if not vr.ok:
+            con.print(f"[red]variant {vr.variant.label} failed:[/] {vr.error}")
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def add_subcommand(subparsers: Any) -> Any:
+    """Add ``compare`` to the ``stereograph`` command's sub-parsers."""
+    sp = subparsers.add_parser("compare", help="run every combination of --vary settings and compare accuracy")
+    sp.add_argument("pipeline", help="pipeline YAML file")
+    sp.add_argument("--vary", action="append", default=[], metavar="NODE.FIELD=V1,V2,...",
+                    help="values to try for a param or a node's type (NODE.type=...); repeatable: every "
+                         "combination runs. Adds to the file's 'variants:' block")
+    sp.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
+                    help="override applied to every variant; repeatable")
+    sp.add_argument("--out", help="output folder (default runs/<name>/compare-<run-id>)")
+    sp.add_argument("--cache-dir", help="shared artifact cache (default .stereograph/cache next to the pipeline)")
+    sp.add_argument("--split", choices=["test", "train", "all"], default="test",
+                    help="items the errors are computed on (default test)")
+    sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--skip-invalid", action="store_true",
+                    help="leave out combinations whose config does not validate instead of refusing")
+    sp.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
+    sp.add_argument("--json", action="store_true", help="print compare.json instead of the table")
+    sp.add_argument("--debug", action="store_true", help="show tracebacks")
+    sp.set_defaults(fn=main)
+    return sp
+
+
+add_compare_subcommand = add_subcommand
+
+
+def main(args: Any) -> int:
+    """Run ``stereograph compare`` from parsed arguments; 0 when every variant ran, 1 otherwise."""
+    from rich.console import Console
+
+    from stereograph.runner import workers_executor
+
+    wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
+    con = Console(highlight=False, soft_wrap=True, width=wide)
+    err = Console(stderr=True, highlight=False, soft_wrap=True)
+    executor = workers_executor(args.workers)
+    kw = dict(overrides=args.set, cache_dir=args.cache_dir, split=args.split, executor=executor,
+              skip_invalid=args.skip_invalid, plots=not args.no_plots)
+    try:
+        if sys.stdout.isatty() and not args.json:
+            with _RichProgress(con) as prog:
+                res = compare(args.pipeline, args.vary, args.out, progress=prog, **kw)
+        else:
+            res = compare(args.pipeline, args.vary, args.out, progress=_PlainProgress(sys.stderr), **kw)
+    finally:
+        executor.close()
+    if args.json:
+        print(res.files["json"].read_text())
+    else:
+        print_table(res, con)
+        con.print(f"outputs: {res.out_dir} ({', '.join(p.name for p in res.files.values())})")
+    if not res.ok:
+        err.print("[red]error:[/] some variants failed (see above); what finished is cached, so a rerun "
+                  "computes only what is missing.")
+        return 1
+    return 0
