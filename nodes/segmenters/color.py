@@ -1,0 +1,63 @@
+"""``segmenter.color``: colour thresholding for a coloured ball.
+
+Pixels close to the object's colour -- the distance of the normalised chromaticity
+(b, g, r) / (b + g + r) to that of ``object.color_bgr`` (brightness-invariant, so the shaded side
+of the ball matches too) or an HSV hue range
+``object.hue_range_deg`` -- form the mask; holes (specular highlight) are filled and a small
+opening removes speckle. Selection, sub-pixel refinement and checks are those of ``_common``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from stereograph.api import Field, In, NodeError, Out, node
+
+from ._common import SegmenterParams, color_distance_map, fill_holes, hue_mask, segment_pair, structuring_element
+
+
+class ColorParams(SegmenterParams):
+    """Parameters of ``segmenter.color`` (plus the common ones); needs object.color_bgr or hue_range_deg."""
+
+    open_px: int | None = Field(
+        None, ge=1, le=101, description="Opening element diameter (px); None = 0.2 x smallest expected radius."
+    )
+
+
+def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
+    """Colour-threshold mask (uint8 0/255) of pixels matching the object's colour."""
+    if img_bgr.ndim == 2:
+        raise NodeError("segmenter.color needs colour images, got a gray image.",
+                        hint="use segmenter.edge_morph or segmenter.otsu for gray images.")
+    obj = params.object
+    if obj.color_bgr is not None:
+        m = (color_distance_map(img_bgr, obj.color_bgr) <= obj.color_tolerance).astype(np.uint8) * 255
+    else:
+        m = hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)
+    m = fill_holes(m)
+    o = params.open_px / scale if params.open_px else max(3.0, 0.2 * r_range_px[0])
+    return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
+
+
+@node(
+    "segmenter.color",
+    inputs={
+        "pair": In("RectifiedPair", description="Rectified stereo pair."),
+        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+    },
+    outputs={
+        "segmentation": Out("Segmentation", description="Masks and region properties."),
+        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+    },
+    params=ColorParams,
+    version="1",
+)
+def color(params: ColorParams, pair, rectification=None, ctx=None):
+    """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range)."""
+    if params.object.color_bgr is None and params.object.hue_range_deg is None:
+        raise NodeError(
+            "segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both unset.",
+            hint="set e.g. `object: {color_bgr: [40, 60, 200]}` or `object: {hue_range_deg: [340, 20]}` in its params.",
+        )
+    return segment_pair(pair, rectification, params, color_mask, "color", ctx)

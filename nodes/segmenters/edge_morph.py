@@ -1,0 +1,99 @@
+"""``segmenter.edge_morph``: the thesis's segmentation -- edges, morphology, largest region.
+
+Edges (Canny or a Sobel magnitude threshold on the smoothed gray image) are dilated to
+close gaps in the outline, the holes are filled (a closed outline becomes a solid region),
+the result is eroded back and opened to cut thin structures (texture, shadow bridges), and
+the largest plausible region is kept (see ``_common`` for selection, refinement and checks).
+Structuring-element sizes default to fractions of the smallest expected ball radius, which
+comes from the calibration's focal length, the object's radius and the working range.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from stereograph.api import Field, In, Out, node
+
+from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element
+
+
+class EdgeMorphParams(SegmenterParams):
+    """Parameters of ``segmenter.edge_morph`` (plus the common ones)."""
+
+    edge_detector: Literal["canny", "sobel"] = Field("canny", description="Edge operator (name).")
+    blur_sigma_px: float = Field(1.0, ge=0, le=10, description="Gaussian smoothing before edges (px).")
+    canny_low: float = Field(30.0, ge=0, le=1000, description="Canny lower hysteresis threshold (gray levels).")
+    canny_high: float = Field(90.0, ge=0, le=2000, description="Canny upper hysteresis threshold (gray levels).")
+    sobel_threshold: float = Field(
+        60.0, gt=0, description="Sobel gradient magnitude threshold (gray levels per px, 3x3 kernel)."
+    )
+    dilate_px: int | None = Field(
+        None, ge=1, le=101, description="Dilation element diameter (px); None = 0.2 x smallest expected radius."
+    )
+    erode_px: int | None = Field(
+        None, ge=1, le=101, description="Erosion element diameter (px); None = same as dilation."
+    )
+    open_px: int | None = Field(
+        None, ge=1, le=101, description="Opening element diameter (px); None = 0.4 x smallest expected radius."
+    )
+
+
+def _odd(x: float) -> int:
+    return max(1, int(round(x)) | 1)
+
+
+def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, scale: int = 1,
+                    roi: bool = False) -> np.ndarray:
+    """Edge + morphology mask of an image (uint8 0/255).
+
+    Parameters
+    ----------
+    img_bgr : uint8 HxWx3 or HxW
+    params : EdgeMorphParams
+    r_range_px : (float, float)
+        Expected ball radius range at this image's scale (px).
+    scale : int
+        Downscale factor of ``img_bgr``; pixel sizes in params are divided by it.
+    roi : bool
+        Unused (edges need no background model).
+    """
+    gray = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2GRAY) if img_bgr.ndim == 3 else img_bgr
+    sigma = params.blur_sigma_px / scale
+    if sigma > 0.3:
+        gray = cv2.GaussianBlur(gray, (0, 0), sigma)
+    if params.edge_detector == "canny":
+        edges = cv2.Canny(gray, params.canny_low, params.canny_high, L2gradient=True)
+    else:
+        gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+        edges = (cv2.magnitude(gx, gy) >= params.sobel_threshold).astype(np.uint8) * 255
+    r_min = r_range_px[0]
+    d = _odd(params.dilate_px / scale) if params.dilate_px else _odd(max(3.0, 0.2 * r_min))
+    e = _odd(params.erode_px / scale) if params.erode_px else d
+    o = _odd(params.open_px / scale) if params.open_px else _odd(max(3.0, 0.4 * r_min))
+    m = cv2.dilate(edges, structuring_element(d))
+    m = fill_holes(m)
+    m = cv2.erode(m, structuring_element(e))
+    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(o))
+    return m
+
+
+@node(
+    "segmenter.edge_morph",
+    inputs={
+        "pair": In("RectifiedPair", description="Rectified stereo pair."),
+        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+    },
+    outputs={
+        "segmentation": Out("Segmentation", description="Masks and region properties."),
+        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+    },
+    params=EdgeMorphParams,
+    version="1",
+)
+def edge_morph(params: EdgeMorphParams, pair, rectification=None, ctx=None):
+    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method)."""
+    return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx)

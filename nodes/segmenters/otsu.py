@@ -1,0 +1,88 @@
+"""``segmenter.otsu``: global gray-level threshold (Otsu's method).
+
+Otsu's threshold splits a gray image into two classes. On a whole image the two classes are
+usually table and wall, not ball and table, so the threshold is applied to the image's
+difference from its *background*: a median filter wider than the largest expected ball
+(the ball vanishes from it) on whole images, the median of the window's border in the small
+window around a detected ball. ``polarity`` says whether the ball is brighter or darker than
+its background (``auto``: either -- the absolute difference). Holes are filled and an opening
+removes speckle.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from stereograph.api import Field, In, Out, node
+
+from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element
+
+
+class OtsuParams(SegmenterParams):
+    """Parameters of ``segmenter.otsu`` (plus the common ones)."""
+
+    polarity: Literal["auto", "bright", "dark"] = Field(
+        "auto", description="Is the ball brighter or darker than its background (auto = either)."
+    )
+    blur_sigma_px: float = Field(1.0, ge=0, le=10, description="Gaussian smoothing before thresholding (px).")
+    flatten_background: bool = Field(
+        True, description="Threshold the difference from a median-filtered background instead of raw gray (bool)."
+    )
+    open_px: int | None = Field(
+        None, ge=1, le=101, description="Opening element diameter (px); None = 0.3 x smallest expected radius."
+    )
+
+
+def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
+    """Otsu threshold mask (uint8 0/255) with the object class set to 255."""
+    gray = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2GRAY) if img_bgr.ndim == 3 else img_bgr
+    sigma = params.blur_sigma_px / scale
+    if sigma > 0.3:
+        gray = cv2.GaussianBlur(gray, (0, 0), sigma)
+    if params.flatten_background:
+        if roi:
+            border = np.concatenate([gray[0], gray[-1], gray[:, 0], gray[:, -1]])
+            bg = np.full_like(gray, int(np.median(border)))
+        else:
+            k = int(2.2 * r_range_px[1]) | 1
+            k = min(k, (min(gray.shape) - 1) | 1 if min(gray.shape) % 2 == 0 else min(gray.shape))
+            bg = cv2.medianBlur(gray, max(k, 3))
+        if params.polarity == "bright":
+            diff = cv2.subtract(gray, bg)
+        elif params.polarity == "dark":
+            diff = cv2.subtract(bg, gray)
+        else:
+            diff = cv2.absdiff(gray, bg)
+        _, m = cv2.threshold(diff, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    else:
+        _, m = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        polarity = params.polarity
+        if polarity == "auto":  # the background is the class that dominates the border
+            border = np.concatenate([m[0], m[-1], m[:, 0], m[:, -1]])
+            polarity = "dark" if (border > 0).mean() > 0.5 else "bright"
+        if polarity == "dark":
+            m = cv2.bitwise_not(m)
+    m = fill_holes(m)
+    o = params.open_px / scale if params.open_px else max(3.0, 0.3 * r_range_px[0])
+    return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
+
+
+@node(
+    "segmenter.otsu",
+    inputs={
+        "pair": In("RectifiedPair", description="Rectified stereo pair."),
+        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+    },
+    outputs={
+        "segmentation": Out("Segmentation", description="Masks and region properties."),
+        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+    },
+    params=OtsuParams,
+    version="1",
+)
+def otsu(params: OtsuParams, pair, rectification=None, ctx=None):
+    """Segment the ball with an Otsu threshold of the gray image's difference from its background."""
+    return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx)
