@@ -45,6 +45,7 @@ class SimFaults(Params):
     corrupt_replies: int = Field(0, ge=0, description="Corrupt this many status packets first (count).")
     unplugged_ids: list[int] = Field(default_factory=list, description="Servo IDs that do not answer.")
     only_ids: list[int] | None = Field(None, description="Restrict dropped/corrupted replies to these IDs.")
+    after_replies: int = Field(0, ge=0, description="Inject faults only after this many status packets (count).")
     seed: int = Field(0, ge=0, description="Random seed of the faults.")
 
 
@@ -306,7 +307,8 @@ def dynamixel(params: DynamixelParams, arm, plan, ctx=None):
     f = params.sim_faults
     faults = Faults(drop_reply_prob=f.drop_reply_prob, drop_replies=f.drop_replies, corrupt_prob=f.corrupt_prob,
                     corrupt_replies=f.corrupt_replies, unplugged_ids=set(f.unplugged_ids),
-                    only_ids=None if f.only_ids is None else set(f.only_ids), seed=f.seed)
+                    only_ids=None if f.only_ids is None else set(f.only_ids),
+                    after_replies=f.after_replies, seed=f.seed)
     ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
     with ServoSim(ids, faults=faults, time_scale=params.sim_time_scale) as sim:
         log = _run(params, plan, arm, sim.port_path, sim, ctx)

@@ -139,6 +139,8 @@ class Faults:
         Servos that are configured but do not answer or act (a loose cable).
     only_ids : set of int or None
         Restrict dropped / corrupted replies to these IDs.
+    after_replies : int
+        Start dropping / corrupting only after this many status packets (a fault that appears mid-motion).
     seed : int
         Random seed of the probabilistic faults.
     """
@@ -149,6 +151,7 @@ class Faults:
     corrupt_replies: int = 0
     unplugged_ids: set[int] = field(default_factory=set)
     only_ids: set[int] | None = None
+    after_replies: int = 0
     seed: int = 0
 
 
@@ -291,6 +294,7 @@ class ServoSim:
         self.log: list[dict] = []
         self.fault_log: list[dict] = []
         self.packets: list[dict] = []
+        self.n_replies = 0
         self.lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -426,7 +430,8 @@ class ServoSim:
             return
         pkt = bytearray(status_packet(servo.id, error | servo.latched, params))
         f = self.faults
-        targeted = f.only_ids is None or servo.id in f.only_ids
+        self.n_replies += 1
+        targeted = (f.only_ids is None or servo.id in f.only_ids) and self.n_replies > f.after_replies
         t = round(time.monotonic() - self.t0, 6)
         if targeted and (f.drop_replies > 0 or (f.drop_reply_prob and self._rng.random() < f.drop_reply_prob)):
             f.drop_replies = max(0, f.drop_replies - 1)

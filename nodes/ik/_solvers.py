@@ -188,14 +188,14 @@ def _seeds(model: dict[str, Any], n_random: int, rng: np.random.Generator) -> np
 
 
 def numeric_ik_batch(model: dict[str, Any], P, *, tol_cm: float = 1e-5, max_iter: int = 100,
-                     damping_cm: float = 1.0, n_random_seeds: int = 6, seed: int = 0,
+                     damping_cm: float = 1.0, n_random_seeds: int = 12, seed: int = 0,
                      q_init=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Damped-least-squares IK (Levenberg-Marquardt step control, joint limits by projection).
 
     Each iteration takes ``dq = J^T (J J^T + lambda^2 I)^-1 e`` with the chain's Jacobian, clips
     ``q`` into the joint limits, and keeps the step only if the position error drops (then
     ``lambda`` halves; otherwise it doubles). Targets that stall (a local minimum against a limit)
-    are restarted from the next seed: ``q_init``, the three poses of a coarse joint-space grid whose
+    are restarted from the next seed: ``q_init``, the four poses of a coarse joint-space grid whose
     tool points lie nearest the target, the home pose, the middle of the limits, then
     ``n_random_seeds`` seeded random poses. Only the forward kinematics and its Jacobian are used,
     so the method carries over to chains without a closed form.
@@ -229,11 +229,11 @@ def numeric_ik_batch(model: dict[str, Any], P, *, tol_cm: float = 1e-5, max_iter
     # Seeds: the caller's guess, then the poses of a coarse joint-space grid whose tool points lie
     # nearest the target (only FK is needed, so this carries over to any chain), then home, the middle
     # of the limits and seeded random poses.
-    grid = np.stack(np.meshgrid(*[np.linspace(lo[i], hi[i], g) for i, g in enumerate((12, 7, 7))],
+    from scipy.spatial import cKDTree
+    grid = np.stack(np.meshgrid(*[np.linspace(lo[i], hi[i], g) for i, g in enumerate((24, 13, 13))],
                                 indexing="ij"), axis=-1).reshape(-1, 3)
-    grid_p = fk(model, grid)
-    n_near = 3
-    near = np.argsort(((P[:, None, :] - grid_p[None, :, :]) ** 2).sum(-1), axis=1)[:, :n_near]
+    n_near = 4
+    near = cKDTree(fk(model, grid)).query(P, k=n_near)[1].reshape(n, n_near)
     per_target = [grid[near[:, k]] for k in range(n_near)]
     generic = _seeds(model, n_random_seeds, rng)
     if q_init is not None:

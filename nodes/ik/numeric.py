@@ -11,7 +11,7 @@ class NumericParams(Params):
     tol_cm: float = Field(1e-4, gt=0, le=1.0, description="Convergence tolerance on the tool point (cm).")
     max_iter: int = Field(100, ge=1, le=10000, description="Iterations per seed.")
     damping_cm: float = Field(1.0, gt=0, le=1000, description="Initial damping lambda (cm; Jacobian in cm/rad).")
-    n_random_seeds: int = Field(6, ge=0, le=1000, description="Random restarts after the grid / home seeds.")
+    n_random_seeds: int = Field(12, ge=0, le=1000, description="Random restarts after the grid / home seeds.")
     seed: int = Field(0, ge=0, description="Random seed of the restarts (results are reproducible).")
 
 
