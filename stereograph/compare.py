@@ -47,9 +47,10 @@ import json
 import math
 import re
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 import yaml
@@ -59,17 +60,17 @@ from stereograph.errors import ConfigError, UsageError
 from stereograph.graph import Graph, build_graph
 
 __all__ = [
+    "CompareResult",
     "Variant",
     "VariantResult",
-    "CompareResult",
-    "parse_vary",
+    "add_compare_subcommand",
+    "add_subcommand",
+    "compare",
     "expand_variants",
     "final_location_outputs",
     "location_errors",
-    "compare",
-    "add_subcommand",
-    "add_compare_subcommand",
     "main",
+    "parse_vary",
 ]
 
 AXES = ("x", "y", "z")
@@ -162,7 +163,9 @@ def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
     vdoc = copy.deepcopy(doc)
     vdoc.variants = {}
     variant.overrides = []
-    for key, value in variant.settings.items():
+    # A type change resets the node's params, so types go first and params set with them survive.
+    ordered = sorted(variant.settings.items(), key=lambda kv: kv[0].split(".", 1)[1] != "type")
+    for key, value in ordered:
         text = _override_text(vdoc, key, value)
         if text is not None:
             apply_override(vdoc, text)
@@ -643,13 +646,19 @@ def _json_default(v: Any) -> Any:
     return str(v)
 
 
+def _short_label(res: CompareResult, v: Variant) -> str:
+    """Only the settings that differ between variants (plots have little room)."""
+    varying = [k for k in res.keys if len({_show(x.variant.settings[k]) for x in res.variants}) > 1] or res.keys
+    return ", ".join(_show(v.settings[k]) for k in varying)
+
+
 def _series(res: CompareResult) -> list[tuple[str, dict[str, Any]]]:
     multi = max((len(v.outputs) for v in res.variants), default=0) > 1
     out = []
     for vr in res.variants:
         for o in vr.outputs:
             if len(o["errors"]):
-                out.append((vr.variant.label + (f" [{o['node']}]" if multi else ""), o))
+                out.append((_short_label(res, vr.variant) + (f" [{o['node']}]" if multi else ""), o))
     return out
 
 
@@ -670,13 +679,13 @@ def _plots(res: CompareResult) -> dict[str, Path]:
         c = colours(i % 10)
         ax.scatter(z, ez, s=9, alpha=0.45, color=c)
         order = np.argsort(z)
-        nb = max(2, min(8, len(z) // 6))
+        nb = max(1, min(8, len(z) // 6))
         bins = np.array_split(order, nb)
         ax.plot([z[b].mean() for b in bins], [ez[b].mean() for b in bins], "-o", ms=3, color=c, label=label)
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel("true distance z (cm)")
     ax.set_ylabel("z error, measured - true (cm)")
-    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)")
+    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n" + ", ".join(res.keys), fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = res.out_dir / "z_error_vs_distance.png"
@@ -684,14 +693,14 @@ def _plots(res: CompareResult) -> dict[str, Path]:
     plt.close(fig)
     files["z_error_vs_distance"] = path
 
-    fig, axes = plt.subplots(1, 3, figsize=(4 + 1.2 * len(series) * 3, 4.5), dpi=110, squeeze=False)
     labels = [s[0] for s in series]
+    fig, axes = plt.subplots(1, 3, figsize=(min(24.0, 3 + 3 * 0.55 * len(series)), 4.5), dpi=110, squeeze=False)
     for k, axis in enumerate(AXES):
         a = axes[0, k]
         a.boxplot([o["errors"][:, k] for _, o in series], showfliers=True)
         a.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
         a.axhline(0, color="k", lw=0.6)
-        a.set_title(f"{axis} error (cm)")
+        a.set_title(f"{axis} error, measured - true (cm)")
     fig.tight_layout()
     path = res.out_dir / "error_boxplots.png"
     fig.savefig(path)
@@ -783,8 +792,8 @@ def main(args: Any) -> int:
     con = Console(highlight=False, soft_wrap=True, width=wide)
     err = Console(stderr=True, highlight=False, soft_wrap=True)
     executor = workers_executor(args.workers)
-    kw = dict(overrides=args.set, cache_dir=args.cache_dir, split=args.split, executor=executor,
-              skip_invalid=args.skip_invalid, plots=not args.no_plots)
+    kw = {"overrides": args.set, "cache_dir": args.cache_dir, "split": args.split, "executor": executor,
+              "skip_invalid": args.skip_invalid, "plots": not args.no_plots}
     try:
         if sys.stdout.isatty() and not args.json:
             with _RichProgress(con) as prog:
