@@ -1,0 +1,83 @@
+"""Chessboard corner detection shared by the calibrators (pure functions)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["to_gray", "detect_corners", "detect_views", "board_points"]
+
+
+def to_gray(img: np.ndarray) -> np.ndarray:
+    """8-bit single-channel version of a grey or BGR(A) image."""
+    img = np.asarray(img)
+    if img.ndim == 2:
+        return img if img.dtype == np.uint8 else cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U)
+    if img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+    return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+def board_points(cols: int, rows: int, square_cm: float) -> np.ndarray:
+    """Inner corners in the board frame (cm, z = 0), in OpenCV's row-major order: (cols*rows, 3) float32."""
+    gx, gy = np.meshgrid(np.arange(cols), np.arange(rows))
+    pts = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1) * square_cm
+    return pts.astype(np.float32)
+
+
+def detect_corners(img: np.ndarray, cols: int, rows: int, subpix_window_px: int | None = None):
+    """Find a chessboard's inner corners with sub-pixel refinement.
+
+    Parameters
+    ----------
+    img : uint8 HxW or HxWx3
+    cols, rows : int
+        Inner corners per row / per column.
+    subpix_window_px : int, optional
+        Half-size of ``cornerSubPix``'s search window, pixels. Default: 40 % of
+        the smallest spacing between neighbouring corners (clamped to 2..11), so
+        the window never reaches the next corner whatever the board's size in
+        the image.
+
+    Returns
+    -------
+    (cols*rows, 2) float32 corner pixels, or ``None`` if the board is not found.
+    """
+    gray = to_gray(img)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    found, corners = cv2.findChessboardCorners(gray, (cols, rows), flags=flags)
+    if not found or corners is None:
+        return None
+    c = corners.reshape(-1, 2)
+    if subpix_window_px is None:
+        g = c.reshape(rows, cols, 2)
+        d = np.concatenate([np.linalg.norm(np.diff(g, axis=1), axis=2).ravel(),
+                            np.linalg.norm(np.diff(g, axis=0), axis=2).ravel()])
+        subpix_window_px = int(np.clip(0.4 * d.min(), 2, 11))
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
+    refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (subpix_window_px, subpix_window_px), (-1, -1), crit)
+    return refined.reshape(-1, 2).astype(np.float32)
+
+
+def detect_views(views: list[dict], cols: int, rows: int, subpix_window_px: int | None = None):
+    """Detect the board in both images of every view.
+
+    Returns
+    -------
+    ids : list of view ids where both images gave a full detection
+    left, right : lists of (N, 2) float32 corner arrays (same order as ``ids``)
+    rejected : dict {view_id: reason}
+    """
+    ids, left, right, rejected = [], [], [], {}
+    for v in views:
+        cl = detect_corners(v["left"], cols, rows, subpix_window_px)
+        cr = detect_corners(v["right"], cols, rows, subpix_window_px)
+        if cl is None or cr is None:
+            which = [s for s, c in (("left", cl), ("right", cr)) if c is None]
+            names = [str(v.get(f"{s}_path", s + " image")) for s in which]
+            rejected[str(v["id"])] = f"no {cols}x{rows} board found in {' and '.join(names)}"
+            continue
+        ids.append(str(v["id"]))
+        left.append(cl)
+        right.append(cr)
+    return ids, left, right, rejected

@@ -1,0 +1,126 @@
+"""``calibrator.chessboard``: Zhang's method through OpenCV (per camera, then the stereo pair)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from nodes.calibrators._board import board_points, detect_views
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+__all__ = ["calibrate_stereo", "ChessboardParams", "chessboard"]
+
+_CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-9)
+
+
+def calibrate_stereo(ids: list[str], left: list[np.ndarray], right: list[np.ndarray], image_size, cols: int,
+                     rows: int, square_cm: float, refine: str = "joint", fix_k3: bool = False) -> dict:
+    """Calibrate a stereo pair from chessboard corners (Zhang / OpenCV).
+
+    Each camera is calibrated alone (``calibrateCamera``), then
+    ``stereoCalibrate`` finds the pose of the right camera; with
+    ``refine="joint"`` it also refines both cameras' intrinsics from all the
+    stereo constraints (``CALIB_USE_INTRINSIC_GUESS``), with ``"fix_intrinsic"``
+    it keeps the per-camera results.
+
+    Parameters
+    ----------
+    ids : list of str
+        View ids, one per corner array.
+    left, right : list of (N, 2) float32
+        Corner pixels in the left / right images.
+    image_size : (w, h)
+        Pixels.
+    cols, rows : int
+        Inner corners of the board.
+    square_cm : float
+        Square size, cm (``T_cm`` comes out in this unit).
+    refine : {"joint", "fix_intrinsic"}
+    fix_k3 : bool
+        Keep k3 = 0 (fewer parameters for mild lenses).
+
+    Returns
+    -------
+    dict
+        A ``StereoCalibration`` (see ``docs/artifacts.md``) plus
+        ``mono_rms_px`` ([left, right]), ``corners_left_px`` /
+        ``corners_right_px`` ({view_id: (N, 2)}) and ``board``.
+    """
+    size = (int(image_size[0]), int(image_size[1]))
+    obj = [board_points(cols, rows, square_cm)] * len(ids)
+    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    rms1, K1, D1, _, _ = cv2.calibrateCamera(obj, left, size, None, None, flags=flags, criteria=_CRIT)
+    rms2, K2, D2, _, _ = cv2.calibrateCamera(obj, right, size, None, None, flags=flags, criteria=_CRIT)
+    sflags = flags | (cv2.CALIB_USE_INTRINSIC_GUESS if refine == "joint" else cv2.CALIB_FIX_INTRINSIC)
+    R0, T0 = np.eye(3), np.zeros((3, 1))
+    out = cv2.stereoCalibrateExtended(obj, left, right, K1, D1, K2, D2, size, R0, T0, flags=sflags, criteria=_CRIT)
+    rms, K1, D1, K2, D2, R, T, _E, _F, _rv, _tv, per_view = out
+    per_view = np.asarray(per_view).reshape(len(ids), 2)
+    return {
+        "K1": K1, "D1": D1.ravel(), "K2": K2, "D2": D2.ravel(), "R": R, "T_cm": T.ravel(),
+        "image_size": list(size), "rms_px": float(rms),
+        "per_view_rms_px": {i: float(np.sqrt((e[0] ** 2 + e[1] ** 2) / 2)) for i, e in zip(ids, per_view)},
+        "rejected_views": [], "method": f"chessboard/{refine}",
+        "mono_rms_px": [float(rms1), float(rms2)],
+        "corners_left_px": dict(zip(ids, left)), "corners_right_px": dict(zip(ids, right)),
+        "board": {"cols": cols, "rows": rows, "square_cm": float(square_cm)},
+    }
+
+
+class ChessboardParams(Params):
+    refine: Literal["joint", "fix_intrinsic"] = Field(
+        "joint", description="stereoCalibrate mode: 'joint' refines both cameras' intrinsics together with the "
+                             "pose (lower RMS and rectified |dy| here); 'fix_intrinsic' keeps per-camera results.")
+    fix_k3: bool = Field(False, description="Hold the 6th-order radial term k3 at 0 (unitless switch).")
+    subpix_window_px: int | None = Field(
+        None, ge=2, le=30, description="Half-size of cornerSubPix's window, pixels (default: 40 % of the corner "
+                                       "spacing).")
+    min_views: int = Field(3, ge=2, description="Fewest usable views to calibrate from (count).")
+    max_view_rms_px: float | None = Field(
+        None, gt=0, description="Drop views whose reprojection RMS exceeds this, pixels, and recalibrate once.")
+
+
+@node(
+    "calibrator.chessboard",
+    inputs={"views": In("StereoViews", description="Chessboard pairs.")},
+    outputs={"calibration": Out("StereoCalibration", save=False, description="Both cameras and their pose.")},
+    params=ChessboardParams,
+    version="1",
+)
+def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
+    """Calibrate the stereo rig from chessboard views (OpenCV, Zhang's method).
+
+    Views where the board is not found in either image are rejected and
+    named (``rejected_views``; the reasons in ``rejected_reasons``).
+    """
+    board = views["board"]
+    cols, rows, sq = int(board["cols"]), int(board["rows"]), float(board["square_cm"])
+    vlist = views["views"]
+    if not vlist:
+        raise NodeError("calibrator.chessboard: the view set is empty.", hint="point the source at chessboard images")
+    ids, left, right, rejected = detect_views(vlist, cols, rows, params.subpix_window_px)
+    if len(ids) < params.min_views:
+        named = "; ".join(f"{k}: {v}" for k, v in rejected.items())
+        if not ids:
+            msg = f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of the {len(vlist)} views ({named})."
+        else:
+            msg = (f"calibrator.chessboard: only {len(ids)} of {len(vlist)} views show the {cols}x{rows} board; "
+                   f"{params.min_views} are needed ({named}).")
+        raise NodeError(msg, hint="check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and that "
+                                  "the whole board is visible in both images")
+    cal = calibrate_stereo(ids, left, right, views["image_size"], cols, rows, sq, params.refine, params.fix_k3)
+    if params.max_view_rms_px is not None:
+        bad = [i for i, e in cal["per_view_rms_px"].items() if e > params.max_view_rms_px]
+        keep = [k for k, i in enumerate(ids) if i not in bad]
+        if bad and len(keep) >= params.min_views:
+            for i in bad:
+                rejected[i] = f"reprojection RMS {cal['per_view_rms_px'][i]:.3f} px > {params.max_view_rms_px} px"
+            cal = calibrate_stereo([ids[k] for k in keep], [left[k] for k in keep], [right[k] for k in keep],
+                                   views["image_size"], cols, rows, sq, params.refine, params.fix_k3)
+    cal["rejected_views"] = sorted(rejected)
+    cal["rejected_reasons"] = rejected
+    if rejected and ctx is not None:
+        ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
+    return {"calibration": cal}

@@ -1,0 +1,103 @@
+"""File helpers shared by the file sources: list matched left/right images, read them with clear errors."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stereograph.api import NodeError
+
+__all__ = ["IMAGE_SUFFIXES", "list_pairs", "read_image", "pair_key"]
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
+_SIDE = re.compile(r"(?i)(left|right|(?<![a-z])[lr](?![a-z]))")
+
+
+def pair_key(stem: str) -> str:
+    """The name a left and a right image share: the stem without its side token (left/right/L/R)."""
+    return _SIDE.sub("", stem, count=1).strip("_-. ")
+
+
+def _glob(base: Path, pattern: str) -> list[Path]:
+    p = Path(pattern).expanduser()
+    if p.is_absolute():
+        files = sorted(Path(p.anchor).glob(str(p.relative_to(p.anchor))))
+    else:
+        files = sorted(base.glob(pattern))
+    return [f for f in files if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES]
+
+
+def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str, Path, Path]]:
+    """Match left and right images by name.
+
+    Parameters
+    ----------
+    folder : Path
+        Base folder for relative globs.
+    left_glob, right_glob : str
+        Glob patterns (relative to ``folder`` or absolute), e.g. ``left*.jpg``
+        or ``left/*.png``.
+
+    Returns
+    -------
+    list of (pair_id, left_path, right_path), sorted by id.
+
+    Raises
+    ------
+    NodeError
+        No images, unequal counts, or names that do not pair up (the files are named).
+    """
+    if not folder.exists():
+        raise NodeError(f"image folder {folder} does not exist.", hint="fix the `folder` parameter (relative paths "
+                                                                       "start at the pipeline file's folder)")
+    lefts, rights = _glob(folder, left_glob), _glob(folder, right_glob)
+    if not lefts and not rights:
+        raise NodeError(f"no images match {left_glob!r} / {right_glob!r} in {folder}.",
+                        hint=f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs")
+    if len(lefts) != len(rights):
+        lk = {pair_key(p.stem) for p in lefts}
+        rk = {pair_key(p.stem) for p in rights}
+        extra = [p.name for p in lefts if pair_key(p.stem) not in rk] + [p.name for p in rights
+                                                                        if pair_key(p.stem) not in lk]
+        raise NodeError(f"{len(lefts)} left but {len(rights)} right images in {folder}; unmatched: "
+                        f"{', '.join(extra) or '(names collide)'}.", hint="every left image needs a right image "
+                                                                          "of the same name (left01.jpg / right01.jpg)")
+
+    if _separate_dirs(lefts, rights) and {p.name for p in lefts} == {p.name for p in rights}:
+        kl, kr = {p.stem: p for p in lefts}, {p.stem: p for p in rights}  # left/x.png <-> right/x.png
+    else:
+        kl, kr = {pair_key(p.stem): p for p in lefts}, {pair_key(p.stem): p for p in rights}
+    if len(kl) != len(lefts) or len(kr) != len(rights):
+        raise NodeError(f"image names in {folder} do not give unique pair names once left/right is removed.",
+                        hint="name pairs like left01.png / right01.png or put them in left/ and right/ folders")
+    missing = sorted(set(kl) ^ set(kr))
+    if missing:
+        names = [kl[k].name if k in kl else kr[k].name for k in missing]
+        raise NodeError(f"these images have no partner: {', '.join(names)} (in {folder}).",
+                        hint="every left image needs a right image of the same name")
+    return [(_clean_id(k), kl[k], kr[k]) for k in sorted(kl)]
+
+
+def _separate_dirs(lefts, rights) -> bool:
+    return {p.parent for p in lefts}.isdisjoint({p.parent for p in rights})
+
+
+def _clean_id(key: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", key) or "pair"
+
+
+def read_image(path: Path, color: bool = True) -> np.ndarray:
+    """Read an image as uint8 BGR (``color``) or as stored (grey stays grey); NodeError if unreadable."""
+    data = np.fromfile(str(path), dtype=np.uint8) if path.exists() else None
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED) if data is not None and data.size else None
+    if img is None:
+        raise NodeError(f"cannot read image {path}: not a readable image file.",
+                        hint="replace or remove the file (supported: png, jpg, bmp, tif, pgm, ppm, webp)")
+    if img.dtype != np.uint8:
+        img = cv2.convertScaleAbs(img, alpha=255.0 / max(float(img.max()), 1.0))
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img

@@ -1,0 +1,53 @@
+"""``source.calib_files``: chessboard calibration pairs from image files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from nodes.sources._files import list_pairs, read_image
+from stereograph.api import Field, NodeError, Out, Params, node
+
+
+class CalibFilesParams(Params):
+    folder: str = Field(..., description="Folder of the images (relative to the pipeline file).")
+    left_glob: str = Field("left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
+    right_glob: str = Field("right*", description="Glob of the right images in `folder`.")
+    board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
+    board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
+    square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")
+
+
+def _reads(params: CalibFilesParams, pipeline_dir: Path) -> list[Path]:
+    folder = Path(params.folder).expanduser()
+    folder = folder if folder.is_absolute() else pipeline_dir / folder
+    try:
+        return [p for _, l, r in list_pairs(folder, params.left_glob, params.right_glob) for p in (l, r)]
+    except NodeError:
+        return []  # the node itself reports the problem when it runs
+
+
+@node(
+    "source.calib_files",
+    outputs={"views": Out("StereoViews", description="Chessboard pairs (no ground truth).")},
+    params=CalibFilesParams,
+    version="1",
+    reads=_reads,
+)
+def calib_files(params: CalibFilesParams, ctx=None) -> dict:
+    """Read chessboard calibration pairs (left/right matched by name) from a folder."""
+    folder = ctx.path(params.folder) if ctx is not None else Path(params.folder).expanduser()
+    pairs = list_pairs(folder, params.left_glob, params.right_glob)
+    views, size = [], None
+    for pid, lp, rp in pairs:
+        left, right = read_image(lp, color=False), read_image(rp, color=False)
+        for p, im in ((lp, left), (rp, right)):
+            s = [int(im.shape[1]), int(im.shape[0])]
+            if size is None:
+                size = s
+            elif s != size:
+                raise NodeError(f"image {p} is {s[0]}x{s[1]} but the others are {size[0]}x{size[1]}.",
+                                hint="calibrate with images of one resolution from the same cameras")
+        views.append({"id": pid, "left": left, "right": right, "left_path": str(lp), "right_path": str(rp)})
+    return {"views": {"views": views, "image_size": size,
+                      "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm},
+                      "truth": None}}

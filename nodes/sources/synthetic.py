@@ -1,0 +1,155 @@
+"""``source.synthetic``: a physically consistent synthetic stereo rig with ground truth.
+
+The images are ray-cast (see :mod:`nodes.sources._render`): every pixel's ray
+goes through the camera's distortion model into a textured table scene with a
+matte ball, Lambertian shading, a soft cast shadow and image noise. The rig's
+cameras, the ball's centre and its exact silhouette come with every render.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Union
+
+import numpy as np
+
+from nodes.sources import _render
+from stereograph.api import Field, NodeError, Out, Params, node
+
+HardCase = Literal["clutter", "second_ball", "border", "occluded", "hidden", "empty"]
+
+
+class SyntheticParams(Params):
+    image_width_px: int = Field(640, ge=64, le=4096, description="Image width, pixels.")
+    image_height_px: int = Field(480, ge=48, le=4096, description="Image height, pixels.")
+    focal_length_px: float = Field(560.0, gt=50, description="Left camera focal length, pixels.")
+    focal_ratio_right: float = Field(1.006, gt=0.5, lt=2, description="Right / left focal length (unitless).")
+    distortion_left: tuple[float, float, float, float] = Field(
+        (-0.12, 0.06, 0.0008, -0.0005), description="Left camera k1, k2, p1, p2 (OpenCV model, unitless).")
+    distortion_right: tuple[float, float, float, float] = Field(
+        (-0.10, 0.04, -0.0006, 0.0007), description="Right camera k1, k2, p1, p2 (OpenCV model, unitless).")
+    baseline_cm: float = Field(8.0, gt=0.5, le=50, description="Distance between the optical centres, cm.")
+    rotation_deg: tuple[float, float, float] = Field(
+        (0.6, -1.2, 0.4), description="Rotation vector of the right camera relative to the left, degrees.")
+    camera_height_cm: float = Field(32.0, gt=5, description="Height of the left optical centre above the table, cm.")
+    camera_tilt_deg: float = Field(45.0, gt=10, lt=90, description="Optical axis below the horizontal, degrees.")
+    light_cm: tuple[float, float, float] = Field((18.0, 12.0, 90.0), description="Point light, table frame, cm.")
+    ambient: float = Field(0.35, ge=0, le=1, description="Ambient share of the lighting (unitless).")
+    shadow_strength: float = Field(0.7, ge=0, le=1, description="Light blocked in a full shadow (0..1).")
+    noise_sigma: float = Field(2.0, ge=0, le=50, description="Gaussian image noise, grey levels.")
+    ball_radius_cm: float = Field(2.0, gt=0.2, le=20, description="Ball radius, cm.")
+    ball_color: Union[str, tuple[int, int, int]] = Field(
+        "orange", description="Ball colour: a name (orange, red, green, ...) or [b, g, r] 0..255.")
+    n_scenes: int = Field(120, ge=0, le=5000, description="Number of plain ball scenes (count).")
+    min_distance_cm: float = Field(30.0, gt=5, description="Nearest ball centre from the left camera, cm.")
+    max_distance_cm: float = Field(60.0, gt=5, description="Farthest ball centre from the left camera, cm.")
+    hard_cases: list[HardCase] = Field(
+        default_factory=list, description="Extra hard scene kinds to add (clutter, second_ball, border, occluded, "
+                                          "hidden, empty).")
+    n_hard_each: int = Field(10, ge=0, le=1000, description="Scenes per hard case (count).")
+    scenes: list[dict] = Field(
+        default_factory=list, description="Explicit scene descriptions (see nodes/sources/_render.py), appended.")
+    n_views: int = Field(16, ge=0, le=200, description="Chessboard calibration views (count).")
+    board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
+    board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
+    square_cm: float = Field(2.5, gt=0.1, le=20, description="Chessboard square size, cm.")
+    train_fraction: float = Field(0.5, ge=0, le=1, description="Share of scenes marked split=train (0..1).")
+    truth_masks: bool = Field(False, description="Add the ball's per-pixel coverage (float32 0..1) to the truth.")
+    seed: int = Field(0, ge=0, description="Seed of placements, noise and split.")
+
+
+def _rig_kwargs(p: SyntheticParams) -> dict:
+    return {
+        "image_width_px": p.image_width_px, "image_height_px": p.image_height_px,
+        "focal_length_px": p.focal_length_px, "focal_ratio_right": p.focal_ratio_right,
+        "distortion_left": tuple(p.distortion_left), "distortion_right": tuple(p.distortion_right),
+        "baseline_cm": p.baseline_cm, "rotation_deg": tuple(p.rotation_deg),
+        "camera_height_cm": p.camera_height_cm, "camera_tilt_deg": p.camera_tilt_deg,
+        "light_cm": tuple(p.light_cm), "ambient": p.ambient, "shadow_strength": p.shadow_strength,
+        "noise_sigma": p.noise_sigma,
+    }
+
+
+def synthetic_rig(params: SyntheticParams) -> dict:
+    """The rig (cameras, pose over the table, light) described by the node's params."""
+    return _render.make_rig(**_rig_kwargs(params))
+
+
+@node(
+    "source.synthetic",
+    outputs={
+        "pairs": Out("StereoPair", collection=True, description="Ball scenes with ground truth."),
+        "views": Out("StereoViews", description="Chessboard calibration views (with the board poses)."),
+        "truth": Out("RigTruth", description="The rig's true cameras and table pose."),
+    },
+    params=SyntheticParams,
+    version="1",
+)
+def synthetic(params: SyntheticParams) -> dict:
+    """Render a synthetic stereo rig: ball scenes, chessboard views and the true cameras.
+
+    Each pair carries ``split`` (train/test, seeded) and ``truth`` (see
+    ``docs/artifacts.md``; also ``silhouette_left/right``, ``visible_fraction_*``,
+    ``touches_border_*`` and ``kind``). The views carry ``board_poses_table``
+    (``T_table_from_board`` per view, cm), so the Tsai calibrator can use them
+    as one multi-plane 3-D target.
+    """
+    if params.max_distance_cm <= params.min_distance_cm:
+        raise NodeError(f"max_distance_cm ({params.max_distance_cm}) must exceed min_distance_cm "
+                        f"({params.min_distance_cm}).", hint="widen the distance range")
+    try:
+        _render.color_bgr(params.ball_color)
+        rig = synthetic_rig(params)
+    except ValueError as exc:
+        raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
+
+    specs: list[tuple[str, dict]] = []
+    scene_kw = {"radius_cm": params.ball_radius_cm, "color": params.ball_color,
+                "min_distance_cm": params.min_distance_cm, "max_distance_cm": params.max_distance_cm}
+    try:
+        for i in range(params.n_scenes):
+            rng = np.random.default_rng([params.seed, 1, i])
+            specs.append((f"s{i:03d}", _render.make_scene(rig, "plain", rng, **scene_kw)))
+        for kind in params.hard_cases:
+            for i in range(params.n_hard_each):
+                rng = np.random.default_rng([params.seed, 2, _render.SCENE_KINDS.index(kind), i])
+                specs.append((f"{kind}{i:03d}", _render.make_scene(rig, kind, rng, **scene_kw)))
+    except RuntimeError as exc:
+        raise NodeError(f"source.synthetic: {exc}.", hint="check camera_height_cm / tilt and the distance range")
+    for i, sc in enumerate(params.scenes):
+        specs.append((str(sc.get("id", f"custom{i:03d}")), dict(sc)))
+
+    split_rng = np.random.default_rng([params.seed, 3])
+    pairs = {}
+    for k, (pid, scene) in enumerate(specs):
+        try:
+            left, right, truth = _render.render_scene(rig, scene, seed=params.seed * 100003 + k,
+                                                      coverage=params.truth_masks)
+        except (ValueError, KeyError, TypeError) as exc:
+            raise NodeError(f"source.synthetic: scene {pid!r} is malformed: {exc}",
+                            hint="see the scene description in nodes/sources/_render.py") from exc
+        pairs[pid] = {"id": pid, "left": left, "right": right, "truth": truth,
+                      "split": "train" if split_rng.random() < params.train_fraction else "test"}
+
+    views = []
+    poses_table = {}
+    if params.n_views:
+        try:
+            poses = _render.random_board_poses(
+                rig, params.n_views, np.random.default_rng([params.seed, 4]), params.board_cols, params.board_rows,
+                params.square_cm)
+        except RuntimeError as exc:
+            raise NodeError(f"source.synthetic: {exc}.", hint="use a smaller board or a longer focal length") from exc
+        for j, pose in enumerate(poses):
+            vid = f"v{j:02d}"
+            left, right, corners = _render.render_board_view(
+                rig, pose, params.board_cols, params.board_rows, params.square_cm, seed=params.seed * 7919 + j)
+            views.append({"id": vid, "left": left, "right": right})
+            poses_table[vid] = corners["T_table_from_board"]
+    truth = rig["truth"]
+    return {
+        "pairs": pairs,
+        "views": {"views": views, "image_size": list(truth["image_size"]),
+                  "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm},
+                  "truth": truth, "board_poses_table": poses_table},
+        "truth": truth,
+    }
