@@ -597,7 +597,8 @@ def cli(argv: list[str] | None = None) -> int:
         return 2
     faults = Faults(drop_reply_prob=a.drop_prob, corrupt_prob=a.corrupt_prob, unplugged_ids=unplugged, seed=a.seed)
     stop = threading.Event()
-    prev = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    main = threading.current_thread() is threading.main_thread()
+    prev = signal.signal(signal.SIGTERM, lambda *_: stop.set()) if main else None
     try:
         with ServoSim(ids, faults=faults, time_scale=a.time_scale, link=a.link) as sim:
             print(f"AX-12A emulator: IDs {','.join(map(str, ids))} on {sim.port_path} "
@@ -611,7 +612,8 @@ def cli(argv: list[str] | None = None) -> int:
                     json.dump({"writes": sim.log, "faults": sim.fault_log, "positions": sim.positions()}, f, indent=1)
             print(f"servo-sim: stopped after {len(sim.packets)} packets, {len(sim.log)} register writes.")
     finally:
-        signal.signal(signal.SIGTERM, prev)
+        if main:
+            signal.signal(signal.SIGTERM, prev)
     return 0
 
 

@@ -1,0 +1,185 @@
+"""Pick sequence, the dry-run actuator, and actuator.dynamixel over the emulator (real dynamixel-sdk)."""
+
+import copy
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dynamixel_sdk")
+
+from nodes.actuators._plan import sync_write_packet, waypoint_data  # noqa: E402
+from nodes.actuators.dynamixel import DynamixelParams, dynamixel, execute_plan  # noqa: E402
+from nodes.actuators.log import LogParams, log  # noqa: E402
+from nodes.actuators.servo_sim import ServoSim, instruction_packet  # noqa: E402
+from nodes.calibrators.hand_eye import HandEyeParams, hand_eye  # noqa: E402
+from nodes.ik._model import servo_limits_units  # noqa: E402
+from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
+from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
+from nodes.ik.numeric import NumericParams, numeric  # noqa: E402
+from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
+from stereograph.api import NodeError, RunContext  # noqa: E402
+
+ARM = build_arm_model(ArmParams())
+HE = hand_eye(HandEyeParams(mode="given", camera_in_base={"translation_cm": [0, 0, 0], "rpy_deg": [0, 0, 0]}))[
+    "hand_eye"]
+FAST = dict(port="sim", sim_time_scale=50.0, poll_interval_s=0.002, retries=2)
+
+
+def located(x, y, z, **kw):
+    return {"pair": "p1", "found": True, "reason": None, "x_cm": x, "y_cm": y, "z_cm": z, "frame": "left_camera",
+            **kw}
+
+
+def make_plan(loc=None, **pick):
+    t = analytic_3dof(AnalyticParams(), arm=ARM, location=loc or located(17.0, 4.0, 2.5), hand_eye=HE)["target"]
+    return pick_sequence(PickParams(**pick), arm=ARM, target=t)["plan"]
+
+
+def assert_goals_within_limits(sim):
+    lim = servo_limits_units(ARM)
+    for e in sim.writes(address=30):
+        lo, hi = lim[str(e["id"])]
+        assert lo <= e["value"] <= hi, e
+
+
+# ---------------------------------------------------------------------------- pick sequence
+def test_pick_sequence_waypoints():
+    plan = make_plan(place_cm=[8.0, -14.0, 2.5], return_home=True)
+    names = [w["name"] for w in plan["waypoints"]]
+    assert names == ["open", "above", "descend_1", "descend_2", "grasp", "close", "lift", "place_above", "place",
+                     "release", "retreat", "home"]
+    wp = {w["name"]: w for w in plan["waypoints"]}
+    g = [w for w in plan["waypoints"] if w["name"] in ("above", "descend_1", "descend_2", "grasp")]
+    assert all(np.allclose(w["tool_cm"][:2], [17.0, 4.0]) for w in g)  # a vertical descent
+    assert [w["tool_cm"][2] for w in g] == pytest.approx([8.5, 6.5, 4.5, 2.5])
+    assert wp["grasp"]["gripper"] == "open" and wp["close"]["gripper"] == "closed"
+    assert wp["close"]["servo_units"]["5"] != wp["grasp"]["servo_units"]["5"]
+    assert np.linalg.norm(np.array(plan["grasp_fk_cm"]) - [17.0, 4.0, 2.5]) < 0.1
+    lim = servo_limits_units(ARM)
+    for w in plan["waypoints"]:
+        assert all(lim[k][0] <= v <= lim[k][1] for k, v in w["servo_units"].items())
+
+
+def test_pick_with_numeric_solver_matches_analytic():
+    t = numeric(NumericParams(), arm=ARM, location=located(17.0, 4.0, 2.5), hand_eye=HE)["target"]
+    plan_n = pick_sequence(PickParams(), arm=ARM, target=t)["plan"]
+    plan_a = make_plan()
+    for wa, wn in zip(plan_a["waypoints"], plan_n["waypoints"]):
+        assert all(abs(wa["servo_units"][k] - wn["servo_units"][k]) <= 1 for k in wa["servo_units"])
+
+
+@pytest.mark.parametrize("loc, pick, match", [
+    (located(None, None, None, found=False, reason="no object in the left image"), {}, "not located.*no object"),
+    (located(17.0, 4.0, 2.5, extrapolated=True), {}, "extrapolated"),
+    (located(17.0, 4.0, 2.5), {"workspace_max_cm": [15.0, 20.0, 20.0]}, "outside the workspace box"),
+    (located(17.0, 4.0, 2.5), {"place_cm": [40.0, 0.0, 0.0], "workspace_max_cm": [50, 50, 50]},
+     "place_above point is unreachable: distance"),
+])
+def test_pick_sequence_refuses(loc, pick, match):
+    t = analytic_3dof(AnalyticParams(), arm=ARM, location=loc, hand_eye=HE)["target"]
+    with pytest.raises(NodeError, match=match):
+        pick_sequence(PickParams(**pick), arm=ARM, target=t)
+
+
+# ---------------------------------------------------------------------------- dry run
+def test_log_dry_run_packets_are_valid_protocol_1():
+    plan = make_plan()
+    out = log(LogParams(), arm=ARM, plan=plan)["log"]
+    assert out["dry_run"] and len(out["packets_hex"]) == len(plan["waypoints"])
+    first = bytes.fromhex(out["packets_hex"][0])
+    data = waypoint_data(plan["waypoints"][0])
+    params = bytes([30, 4]) + b"".join(bytes([i, g & 255, g >> 8, s & 255, s >> 8]) for i, (g, s) in data.items())
+    assert first == instruction_packet(0xFE, 0x83, params) == sync_write_packet(data)
+    assert len(out["commands"]) == 2 * 5 * len(plan["waypoints"]) and out["seconds"] > 0
+
+
+def test_plans_outside_limits_are_refused_before_anything_is_sent():
+    plan = make_plan()
+    bad = copy.deepcopy(plan)
+    bad["waypoints"][3]["servo_units"]["4"] = 1020  # beyond the elbow's +140 deg
+    with pytest.raises(NodeError, match=r"refusing the whole plan: waypoint 'descend_2'.*servo 4 to 1020"):
+        log(LogParams(), arm=ARM, plan=bad)
+    with ServoSim([1, 2, 3, 4, 5]) as sim:
+        with pytest.raises(NodeError, match="refusing the whole plan"):
+            execute_plan(DynamixelParams(**FAST), bad, ARM, sim.port_path)
+        assert sim.log == [] and sim.packets == []  # not even a ping
+
+
+# ---------------------------------------------------------------------------- on the emulator
+def test_full_pick_on_the_emulator():
+    plan = make_plan(place_cm=[8.0, -14.0, 2.5])
+    out = dynamixel(DynamixelParams(**FAST), arm=ARM, plan=plan)["log"]
+    assert out["ok"] and out["retries"] == 0
+    assert [r["waypoint"] for r in out["reached"]] == [w["name"] for w in plan["waypoints"]]
+    assert all(r["max_error_units"] <= 3 for r in out["reached"])
+    final = plan["waypoints"][-1]["servo_units"]
+    assert all(abs(out["sim"]["final_positions"][k] - v) <= 3 for k, v in final.items())
+    writes = out["sim"]["writes"]
+    goals = [e for e in writes if e["address"] == 30]
+    assert {e["instruction"] for e in goals} == {"SYNC_WRITE"} and all(e["accepted"] for e in goals)
+    assert len(goals) == 5 * len(plan["waypoints"])
+    lim = servo_limits_units(ARM)
+    assert all(lim[str(e["id"])][0] <= e["value"] <= lim[str(e["id"])][1] for e in goals)
+
+
+def test_dropped_replies_are_retried():
+    plan = make_plan()
+    with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:
+        sim.set_faults(drop_reply_prob=0.15, seed=3)
+        out = execute_plan(DynamixelParams(**{**FAST, "retries": 5}), plan, ARM, sim.port_path)
+        assert out["ok"] and out["retries"] > 0 and any("no status packet" in e for e in out["events"])
+        assert len(sim.fault_log) >= out["retries"]
+        assert_goals_within_limits(sim)
+
+
+@pytest.mark.parametrize("fault", ["drop_replies", "corrupt_replies"])
+def test_persistent_fault_mid_motion_turns_torque_off(fault, tmp_path):
+    plan = make_plan()
+    with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:
+        # servo 4 answers the setup (5 pings x 2, 5 limit reads, 5 position reads), then goes bad
+        sim.set_faults(**{fault: 1000}, only_ids={4}, after_replies=25)
+        with pytest.raises(NodeError) as ei:
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        msg = str(ei.value)
+        assert "servo 4" in msg and "after 3 tries" in msg and "Torque was turned off" in msg
+        assert ("no status packet" in msg) if fault == "drop_replies" else ("Incorrect status packet" in msg)
+        assert all(sim.register(i, "torque_enable") == 0 for i in (1, 2, 3, 4, 5))
+        assert ei.value.partial_log["ok"] is False
+        assert_goals_within_limits(sim)
+
+
+def test_missing_servo_fails_before_any_write(tmp_path):
+    plan = make_plan()
+    ctx = RunContext("act", "p1", tmp_path, tmp_path)
+    with pytest.raises(NodeError, match=r"servo ID 3 did not answer a ping.*not moved.*check servo 3's cable"):
+        dynamixel(DynamixelParams(**FAST, sim_faults={"unplugged_ids": [3]}), arm=ARM, plan=plan, ctx=ctx)
+    with ServoSim([1, 2, 4, 5]) as sim:  # servo 3 absent altogether
+        with pytest.raises(NodeError, match="servo ID 3"):
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert sim.log == []
+
+
+def test_servo_angle_limits_are_checked_before_moving():
+    plan = make_plan()
+    with ServoSim([1, 2, 3, 4, 5]) as sim:
+        sim.servos[4].set(6, 300)  # CW limit 300 on servo 4, above the plan's elbow goals
+        with pytest.raises(NodeError, match=r"servo 4's own angle limits are 300\.\.1023"):
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert sim.log == []
+
+
+def test_failed_run_writes_partial_log(tmp_path):
+    plan = make_plan()
+    ctx = RunContext("act", "p1", tmp_path / "act", tmp_path)
+    with pytest.raises(NodeError, match="commands sent so far are in"):
+        dynamixel(DynamixelParams(**FAST, sim_faults={"drop_replies": 1000, "only_ids": [2], "after_replies": 25}),
+                  arm=ARM, plan=plan, ctx=ctx)
+    saved = json.loads((tmp_path / "act" / "servo_log_failed.json").read_text())
+    assert saved["ok"] is False and saved["sim"]["writes"] and saved["commands"][-1]["value"] == 0
+
+
+def test_bad_port_is_a_clear_error():
+    with pytest.raises(NodeError, match=r"cannot open serial port /dev/ttyNOPE.*") as ei:
+        dynamixel(DynamixelParams(port="/dev/ttyNOPE"), arm=ARM, plan=make_plan())
+    assert "ls /dev/ttyUSB*" in ei.value.hint
