@@ -251,8 +251,14 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
                 pending = [sid for sid in data if err[sid] > params.tolerance_units]
                 if pending and set(pending) <= grippers:
                     if all(bus.read1(sid, ADDR_MOVING, "read of the moving flag") == 0 for sid in pending):
-                        bus.events.append(f"{w['name']}: gripper stopped {max(err[s] for s in pending)} units short "
-                                          f"of its goal (holding the object)")
+                        # Stopped: at the goal by now, or short of it, closed on the object.
+                        for sid in pending:
+                            pos[sid] = bus.read2(sid, ADDR_POSITION, "read of the present position")
+                            err[sid] = abs(pos[sid] - data[sid][0])
+                        short = [sid for sid in pending if err[sid] > params.tolerance_units]
+                        if short:
+                            bus.events.append(f"{w['name']}: gripper stopped {max(err[s] for s in short)} units "
+                                              f"short of its goal (holding the object)")
                         pending = []
                 if not pending:
                     break
