@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["to_gray", "detect_corners", "detect_views", "board_points"]
+__all__ = ["to_gray", "detect_corners", "orient_corners", "detect_views", "board_points"]
 
 
 def to_gray(img: np.ndarray) -> np.ndarray:
@@ -56,7 +56,31 @@ def detect_corners(img: np.ndarray, cols: int, rows: int, subpix_window_px: int 
         subpix_window_px = int(np.clip(0.4 * d.min(), 2, 11))
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
     refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (subpix_window_px, subpix_window_px), (-1, -1), crit)
-    return refined.reshape(-1, 2).astype(np.float32)
+    return orient_corners(gray, refined.reshape(-1, 2).astype(np.float32), cols, rows)
+
+
+def orient_corners(gray: np.ndarray, c: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """Put the corners in a fixed order: the square between the first four corners is the light one.
+
+    ``findChessboardCorners`` may start from either end of the board (a 180
+    degree turn of the list). Calibrating each view alone does not mind, but
+    matching left and right corners, or using known board poses (Tsai), does.
+    When ``cols + rows`` is even the board looks the same turned around and the
+    order is left as found.
+    """
+    if (cols + rows) % 2 == 0:
+        return c
+    g = c.reshape(rows, cols, 2)
+
+    def shade(i, j):
+        centre = g[j: j + 2, i: i + 2].reshape(-1, 2).mean(axis=0)
+        u, v = int(round(centre[0])), int(round(centre[1]))
+        patch = gray[max(v - 1, 0): v + 2, max(u - 1, 0): u + 2]
+        return float(patch.mean()) if patch.size else 0.0
+
+    if shade(0, 0) < shade(1, 0):
+        return np.ascontiguousarray(c[::-1])
+    return c
 
 
 def detect_views(views: list[dict], cols: int, rows: int, subpix_window_px: int | None = None):

@@ -85,7 +85,7 @@ class ChessboardParams(Params):
 @node(
     "calibrator.chessboard",
     inputs={"views": In("StereoViews", description="Chessboard pairs.")},
-    outputs={"calibration": Out("StereoCalibration", save=False, description="Both cameras and their pose.")},
+    outputs={"calibration": Out("StereoCalibration", save=True, description="Both cameras and their pose.")},
     params=ChessboardParams,
     version="1",
 )

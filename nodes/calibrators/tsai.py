@@ -271,7 +271,7 @@ class TsaiParams(Params):
                                     "target."),
             "points": In("CalibrationPoints", optional=True,
                          description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.")},
-    outputs={"calibration": Out("StereoCalibration")},
+    outputs={"calibration": Out("StereoCalibration", save=True)},
     params=TsaiParams,
     version="1",
 )

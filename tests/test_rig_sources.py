@@ -1,0 +1,105 @@
+"""File/camera sources, bad input, the synthetic node's outputs, remapping."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from nodes.calibrators.chessboard import ChessboardParams, chessboard
+from nodes.calibrators.truth import truth_calibration
+from nodes.rectifiers.opencv import rectify_calibration
+from nodes.rectifiers.remap import RemapParams, remap
+from nodes.sources.calib_files import CalibFilesParams, calib_files
+from nodes.sources.camera import CameraParams, camera
+from nodes.sources.files import FilesParams, files
+from nodes.sources.synthetic import SyntheticParams, synthetic
+from stereograph.api import NodeError
+
+
+def _write(path: Path, img=None):
+    img = np.full((48, 64, 3), 128, np.uint8) if img is None else img
+    cv2.imwrite(str(path), img)
+
+
+def test_empty_folder_names_it(tmp_path):
+    with pytest.raises(NodeError, match=str(tmp_path)):
+        calib_files(CalibFilesParams(folder=str(tmp_path)))
+
+
+def test_mismatched_counts_name_the_extra_file(tmp_path):
+    for n in ("left01.png", "left02.png", "right01.png"):
+        _write(tmp_path / n)
+    with pytest.raises(NodeError, match="left02.png"):
+        files(FilesParams(folder=str(tmp_path)))
+
+
+def test_unreadable_file_is_named(tmp_path):
+    _write(tmp_path / "left01.png")
+    (tmp_path / "right01.png").write_bytes(b"not an image")
+    with pytest.raises(NodeError, match="right01.png"):
+        calib_files(CalibFilesParams(folder=str(tmp_path)))
+
+
+def test_board_never_found_names_files(tmp_path):
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        for side in ("left", "right"):
+            _write(tmp_path / f"{side}{i:02d}.png", rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+    views = calib_files(CalibFilesParams(folder=str(tmp_path)))["views"]
+    with pytest.raises(NodeError, match="left00.png") as e:
+        chessboard(ChessboardParams(), views=views)
+    assert "any of the 3 views" in str(e.value)
+
+
+def test_no_camera_device_is_a_clear_error():
+    with pytest.raises(NodeError, match="no left camera at device index 97"):
+        camera(CameraParams(left_index=97, right_index=98, warmup_frames=0))
+
+
+def test_files_pairs_by_name_with_csv_truth(tmp_path):
+    (tmp_path / "L").mkdir()
+    (tmp_path / "R").mkdir()
+    for n in ("a.png", "b.png"):
+        _write(tmp_path / "L" / n)
+        _write(tmp_path / "R" / n)
+    (tmp_path / "truth.csv").write_text("id,x_cm,y_cm,z_cm,radius_cm\na,1,2,40,2\n")
+    out = files(FilesParams(folder=str(tmp_path), left_glob="L/*.png", right_glob="R/*.png",
+                            truth=str(tmp_path / "truth.csv"), train_fraction=1.0))["pairs"]
+    assert list(out) == ["a", "b"]
+    assert out["a"]["truth"]["center_left_cm"] == [1.0, 2.0, 40.0] and out["b"]["truth"] is None
+    assert out["a"]["split"] == "train" and out["a"]["left"].shape == (48, 64, 3)
+
+
+def test_synthetic_node_outputs_and_remap():
+    out = synthetic(SyntheticParams(n_scenes=4, n_views=0, hard_cases=["border"], n_hard_each=1, seed=3))
+    pairs = out["pairs"]
+    assert list(pairs) == ["s000", "s001", "s002", "s003", "border000"]
+    assert {p["split"] for p in pairs.values()} <= {"train", "test"}
+    t = pairs["s000"]["truth"]
+    for key in ("center_left_cm", "center_table_cm", "radius_cm", "center_px_left", "center_px_right"):
+        assert key in t
+    assert out["views"]["views"] == [] and out["truth"]["T_table_from_left"].shape == (4, 4)
+    rect = rectify_calibration(truth_calibration(out["truth"]))
+    r = remap(RemapParams(), rectification=rect, pair=pairs["s000"])["rectified"]
+    assert r["left"].shape == (480, 640, 3) and r["split"] == pairs["s000"]["split"]
+    # The true centre lands on the same row in both rectified images, and on the ball.
+    rt = r["truth"]
+    assert abs(rt["center_px_rect_left"][1] - rt["center_px_rect_right"][1]) < 1e-6
+    u, v = (int(round(x)) for x in rt["center_px_rect_left"])
+    b, g, rr = r["left"][v, u].astype(int)
+    assert rr > g > b
+    # Fixed-point maps (1/32 px steps) give the float maps' image up to that rounding on sharp edges.
+    ref = cv2.remap(pairs["s000"]["left"], rect["map_left_x"], rect["map_left_y"], cv2.INTER_LINEAR)
+    diff = np.abs(ref.astype(int) - r["left"].astype(int))
+    assert diff.mean() < 0.3 and diff.max() <= 8
+    # alpha=1 keeps the border ball: its rectified centre stays inside the image.
+    rb = remap(RemapParams(), rectification=rect, pair=pairs["border000"])["rectified"]["truth"]
+    assert -1 < rb["center_px_rect_left"][0] < 640
+
+
+def test_synthetic_bad_params():
+    with pytest.raises(NodeError, match="max_distance_cm"):
+        synthetic(SyntheticParams(n_scenes=1, n_views=0, min_distance_cm=50, max_distance_cm=40))
+    with pytest.raises(NodeError, match="colour"):
+        synthetic(SyntheticParams(n_scenes=1, n_views=0, ball_color="mauve"))
