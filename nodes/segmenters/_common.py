@@ -23,7 +23,7 @@ Working in the ROI (and with cv2 in the hot path) keeps a 640x480 pair in a few 
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, Literal
 
 import cv2
 import numpy as np
@@ -69,8 +69,11 @@ class ShadowParams(Params):
         lt=1,
         description="A shadow pixel is at most this fraction of the local background brightness (ratio).",
     )
-    max_saturation: int = Field(
-        70, ge=0, le=255, description="A shadow pixel has at most this HSV saturation (0-255)."
+    max_saturation_gain: int = Field(
+        30,
+        ge=0,
+        le=255,
+        description="A shadow pixel is at most this much more saturated than the background (HSV S, 0-255).",
     )
     max_chroma_shift: float = Field(
         0.12,
@@ -157,13 +160,30 @@ def expected_radius_px(
 
 
 def auto_downscale(r_min_px: float, requested: int | None) -> int:
-    """Detection downscale factor: largest power of two keeping the smallest ball >= 6 px."""
+    """Detection downscale factor: largest power of two (<= 4) keeping the smallest ball >= 4 px."""
     if requested is not None:
         return int(requested)
     s = 1
-    while s < 4 and r_min_px / (2 * s) >= 6.0:
+    while s < 4 and r_min_px / (2 * s) >= 4.0:
         s *= 2
     return s
+
+
+Channel = Literal["gray", "saturation", "color"]
+
+
+def to_channel(img_bgr: np.ndarray, channel: str) -> np.ndarray:
+    """The image plane a gray-level method works on.
+
+    ``gray`` (the thesis), ``saturation`` (HSV S: a coloured ball on a neutral, textured table
+    stands out while the texture and the shadow mostly vanish) or ``color`` (the BGR image
+    itself; OpenCV's Canny then takes the strongest channel gradient).
+    """
+    if img_bgr.ndim == 2 or channel == "color":
+        return img_bgr
+    if channel == "saturation":
+        return cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)[..., 1].copy()
+    return cv2.cvtColor(img_bgr, cv2.COLOR_BGR2GRAY)
 
 
 def structuring_element(size_px: int) -> np.ndarray:
@@ -199,12 +219,19 @@ def chromaticity(img_bgr: np.ndarray) -> np.ndarray:
 def color_distance_map(img_bgr: np.ndarray, color_bgr) -> np.ndarray:
     """Per-pixel L1 distance of the normalised chromaticity to that of ``color_bgr`` (0-2, unitless).
 
-    Pixels darker than 25 gray levels (chromaticity undefined in the noise) get distance 2.
+    sum_c |x_c / S - r_c| = sum_c |x_c - r_c S| / S with S = x_b + x_g + x_r, computed with
+    cv2 channel transforms (fast). Pixels darker than 25 gray levels (chromaticity undefined
+    in the noise) get distance 2.
     """
-    ref = chromaticity(np.float32(color_bgr))
-    ch = chromaticity(img_bgr)
-    d = np.abs(ch - ref).sum(axis=-1)
-    d[np.asarray(img_bgr).max(axis=-1) < 25] = 2.0
+    ref = chromaticity(np.float32(color_bgr)).astype(np.float32)
+    img = np.asarray(img_bgr)
+    f = img.astype(np.float32)
+    ones = np.ones((1, 3), np.float32)
+    scaled = cv2.transform(f, np.repeat(ref[:, None], 3, axis=1))  # channel c = r_c * S
+    d = cv2.divide(cv2.transform(cv2.absdiff(f, scaled), ones), cv2.max(cv2.transform(f, ones), 1.0))
+    d = d.reshape(img.shape[:2])
+    gray_max = cv2.max(cv2.max(img[..., 0], img[..., 1]), img[..., 2]).reshape(img.shape[:2])
+    d[gray_max < 25] = 2.0
     return d
 
 
@@ -245,9 +272,9 @@ def object_color_score(img_bgr: np.ndarray, mask: np.ndarray, obj: ObjectSpec) -
 def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
     """Remove shadow pixels from a mask.
 
-    A cast shadow on the table is the table's own colour, darker: low HSV saturation, a
-    brightness well below that of the surrounding background and about the same normalised
-    chromaticity. Such pixels inside the mask are dropped; pixels that match the object's
+    A cast shadow on the table is the table's own colour, darker: a brightness well below that
+    of the surrounding background, no more saturated than the background (a low saturation
+    compared with a coloured ball) and about the same normalised chromaticity. Such pixels inside the mask are dropped; pixels that match the object's
     colour (when configured) are always kept. A small opening then cuts the thin bridges
     that remain between ball and shadow.
 
@@ -270,6 +297,7 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     bg_px = img_bgr[ring] if ring.sum() > 20 else img_bgr[~sel]
     bg = np.median(bg_px.reshape(-1, 3).astype(np.float32), axis=0)
     bg_v = float(bg.max())
+    bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
     if bg_v < 1:
         return mask
     img = img_bgr.astype(np.float32)
@@ -278,7 +306,7 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     chroma = img / np.maximum(img.sum(axis=2, keepdims=True), 1.0)
     bg_chroma = bg / max(float(bg.sum()), 1.0)
     dchroma = np.abs(chroma - bg_chroma).sum(axis=2)
-    shadow_px = (v <= shadow.max_brightness_ratio * bg_v) & (s <= shadow.max_saturation)
+    shadow_px = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
     shadow_px &= dchroma <= shadow.max_chroma_shift
     if obj.color_bgr is not None:
         shadow_px &= color_distance_map(img_bgr, obj.color_bgr) > obj.color_tolerance
@@ -288,6 +316,32 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     out[shadow_px & sel] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
+    return out
+
+
+def suppress_shadow_regions(
+    img_bgr: np.ndarray, mask: np.ndarray, area_range_px: tuple[float, float], shadow: ShadowParams, obj: ObjectSpec
+) -> np.ndarray:
+    """:func:`suppress_shadow` applied region by region, in a window around each region.
+
+    Only regions that could hold the object (area from the smallest plausible ball to four
+    times the largest -- ball plus shadow) are processed; each gets its own local background.
+    Working in windows keeps this cheap on whole images.
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    out = mask.copy()
+    h, w = mask.shape
+    for i in range(1, n):
+        area = stats[i, cv2.CC_STAT_AREA]
+        if not (area_range_px[0] <= area <= 4 * area_range_px[1]):
+            continue
+        x, y, bw, bh = (int(stats[i, k]) for k in range(4))
+        m = 6
+        x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)
+        sub = (labels[y0:y1, x0:x1] == i).astype(np.uint8) * 255
+        kept = suppress_shadow(img_bgr[y0:y1, x0:x1], sub, shadow, obj)
+        removed = (sub > 0) & (kept == 0)
+        out[y0:y1, x0:x1][removed] = 0
     return out
 
 
@@ -588,7 +642,8 @@ def segment_image(
     r_small = (r_range_px[0] / s, r_range_px[1] / s)
     m = mask_fn(small, params, r_small, s, False)
     if params.shadow.enabled:
-        m = suppress_shadow(small, m, params.shadow, params.object)
+        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
+        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object)
     cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
     best, reason = select_candidate(cands, small, r_small, params)
     full_mask = np.zeros((h, w), bool)

@@ -17,21 +17,28 @@ import numpy as np
 
 from stereograph.api import Field, In, Out, node
 
-from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element
+from ._common import Channel, SegmenterParams, fill_holes, segment_pair, structuring_element, to_channel
 
 
 class EdgeMorphParams(SegmenterParams):
     """Parameters of ``segmenter.edge_morph`` (plus the common ones)."""
 
     edge_detector: Literal["canny", "sobel"] = Field("canny", description="Edge operator (name).")
-    blur_sigma_px: float = Field(1.0, ge=0, le=10, description="Gaussian smoothing before edges (px).")
-    canny_low: float = Field(30.0, ge=0, le=1000, description="Canny lower hysteresis threshold (gray levels).")
-    canny_high: float = Field(90.0, ge=0, le=2000, description="Canny upper hysteresis threshold (gray levels).")
+    channel: Channel = Field(
+        "color", description="Image plane for edges: color (max over B,G,R), gray (thesis) or saturation (name)."
+    )
+    blur_sigma_px: float = Field(2.0, ge=0, le=10, description="Gaussian smoothing before edges (px).")
+    canny_low: float = Field(
+        30.0, ge=0, le=1000, description="Canny lower hysteresis threshold (gradient, gray levels per px)."
+    )
+    canny_high: float = Field(
+        90.0, ge=0, le=2000, description="Canny upper hysteresis threshold (gradient, gray levels per px)."
+    )
     sobel_threshold: float = Field(
         60.0, gt=0, description="Sobel gradient magnitude threshold (gray levels per px, 3x3 kernel)."
     )
     dilate_px: int | None = Field(
-        None, ge=1, le=101, description="Dilation element diameter (px); None = 0.2 x smallest expected radius."
+        None, ge=1, le=101, description="Dilation element diameter (px); None = 0.4 x smallest expected radius."
     )
     erode_px: int | None = Field(
         None, ge=1, le=101, description="Erosion element diameter (px); None = same as dilation."
@@ -60,18 +67,23 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     roi : bool
         Unused (edges need no background model).
     """
-    gray = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2GRAY) if img_bgr.ndim == 3 else img_bgr
+    gray = to_channel(img_bgr, params.channel)
     sigma = params.blur_sigma_px / scale
     if sigma > 0.3:
         gray = cv2.GaussianBlur(gray, (0, 0), sigma)
+    # A blurred edge's gradient per pixel grows with the downscale factor: scale the
+    # thresholds so that detection at a coarse level finds the edges found at full size.
     if params.edge_detector == "canny":
-        edges = cv2.Canny(gray, params.canny_low, params.canny_high, L2gradient=True)
+        edges = cv2.Canny(gray, params.canny_low * scale, params.canny_high * scale, L2gradient=True)
     else:
         gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
         gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-        edges = (cv2.magnitude(gx, gy) >= params.sobel_threshold).astype(np.uint8) * 255
+        mag = cv2.magnitude(gx, gy)
+        if mag.ndim == 3:
+            mag = mag.max(axis=2)
+        edges = (mag >= params.sobel_threshold * scale).astype(np.uint8) * 255
     r_min = r_range_px[0]
-    d = _odd(params.dilate_px / scale) if params.dilate_px else _odd(max(3.0, 0.2 * r_min))
+    d = _odd(params.dilate_px / scale) if params.dilate_px else _odd(max(3.0, 0.4 * r_min))
     e = _odd(params.erode_px / scale) if params.erode_px else d
     o = _odd(params.open_px / scale) if params.open_px else _odd(max(3.0, 0.4 * r_min))
     m = cv2.dilate(edges, structuring_element(d))

@@ -6,7 +6,9 @@ difference from its *background*: a median filter wider than the largest expecte
 (the ball vanishes from it) on whole images, the median of the window's border in the small
 window around a detected ball. ``polarity`` says whether the ball is brighter or darker than
 its background (``auto``: either -- the absolute difference). Holes are filled and an opening
-removes speckle.
+removes speckle. ``channel: auto`` thresholds the plane (gray or HSV saturation) on which
+Otsu's separability eta (between-class / total variance) is higher: a coloured ball on a
+neutral or textured table separates in saturation, a white ball on a dark table in gray.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from stereograph.api import Field, In, Out, node
 
-from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element
+from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element, to_channel
 
 
 class OtsuParams(SegmenterParams):
@@ -27,7 +29,11 @@ class OtsuParams(SegmenterParams):
     polarity: Literal["auto", "bright", "dark"] = Field(
         "auto", description="Is the ball brighter or darker than its background (auto = either)."
     )
-    blur_sigma_px: float = Field(1.0, ge=0, le=10, description="Gaussian smoothing before thresholding (px).")
+    channel: Literal["auto", "gray", "saturation"] = Field(
+        "auto",
+        description="Image plane to threshold: gray, HSV saturation, or auto = the more separable one (name).",
+    )
+    blur_sigma_px: float = Field(2.0, ge=0, le=10, description="Gaussian smoothing before thresholding (px).")
     flatten_background: bool = Field(
         True, description="Threshold the difference from a median-filtered background instead of raw gray (bool)."
     )
@@ -36,27 +42,55 @@ class OtsuParams(SegmenterParams):
     )
 
 
+def otsu_separability(img: np.ndarray) -> float:
+    """Otsu's effectiveness measure eta = between-class / total variance of a uint8 image (0..1)."""
+    hist = np.bincount(img.ravel(), minlength=256).astype(np.float64)
+    p = hist / max(hist.sum(), 1.0)
+    levels = np.arange(256.0)
+    omega = np.cumsum(p)
+    mu = np.cumsum(p * levels)
+    mu_t = mu[-1]
+    var_t = float((p * (levels - mu_t) ** 2).sum())
+    if var_t <= 0:
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sb = (mu_t * omega - mu) ** 2 / (omega * (1.0 - omega))
+    return float(np.nanmax(sb[:-1]) / var_t)
+
+
+def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> np.ndarray:
+    """The image's difference from its background (polarity applied), uint8."""
+    if roi:
+        border = np.concatenate([gray[0], gray[-1], gray[:, 0], gray[:, -1]])
+        bg = np.full_like(gray, int(np.median(border)))
+    else:
+        k = int(2.2 * r_range_px[1]) | 1
+        k = min(k, (min(gray.shape) - 1) | 1 if min(gray.shape) % 2 == 0 else min(gray.shape))
+        bg = cv2.medianBlur(gray, max(k, 3))
+    if params.polarity == "bright":
+        return cv2.subtract(gray, bg)
+    if params.polarity == "dark":
+        return cv2.subtract(bg, gray)
+    return cv2.absdiff(gray, bg)
+
+
 def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
     """Otsu threshold mask (uint8 0/255) with the object class set to 255."""
-    gray = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2GRAY) if img_bgr.ndim == 3 else img_bgr
     sigma = params.blur_sigma_px / scale
-    if sigma > 0.3:
-        gray = cv2.GaussianBlur(gray, (0, 0), sigma)
+    planes = ["gray", "saturation"] if params.channel == "auto" and img_bgr.ndim == 3 else [params.channel]
+    best = None
+    for ch in planes:
+        g = to_channel(img_bgr, "gray" if ch == "auto" else ch)
+        if sigma > 0.3:
+            g = cv2.GaussianBlur(g, (0, 0), sigma)
+        if params.flatten_background:
+            g = _difference(g, params, r_range_px, roi)
+        eta = otsu_separability(g) if len(planes) > 1 else 1.0
+        if best is None or eta > best[0]:
+            best = (eta, g)
+    gray = best[1]
     if params.flatten_background:
-        if roi:
-            border = np.concatenate([gray[0], gray[-1], gray[:, 0], gray[:, -1]])
-            bg = np.full_like(gray, int(np.median(border)))
-        else:
-            k = int(2.2 * r_range_px[1]) | 1
-            k = min(k, (min(gray.shape) - 1) | 1 if min(gray.shape) % 2 == 0 else min(gray.shape))
-            bg = cv2.medianBlur(gray, max(k, 3))
-        if params.polarity == "bright":
-            diff = cv2.subtract(gray, bg)
-        elif params.polarity == "dark":
-            diff = cv2.subtract(bg, gray)
-        else:
-            diff = cv2.absdiff(gray, bg)
-        _, m = cv2.threshold(diff, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        _, m = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     else:
         _, m = cv2.threshold(gray, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         polarity = params.polarity
