@@ -31,7 +31,6 @@ def renderer(n):
     rig = R.make_rig()
     R.render_scene(rig, R.make_scene(rig, "plain", 0))  # warm the caches (ray grids, texture)
     scenes = [R.make_scene(rig, "plain", np.random.default_rng([1, i])) for i in range(n)]
-    t = time.perf_counter()
     worst_c, worst_x, gaps = 0.0, 0.0, []
     tr = rig["truth"]
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-14)

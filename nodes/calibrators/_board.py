@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["to_gray", "detect_corners", "orient_corners", "detect_views", "board_points"]
+__all__ = ["board_points", "detect_corners", "detect_views", "orient_corners", "to_gray"]
 
 
 def to_gray(img: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 from nodes.calibrators._board import board_points, detect_views
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["calibrate_stereo", "ChessboardParams", "chessboard"]
+__all__ = ["ChessboardParams", "calibrate_stereo", "chessboard"]
 
 _CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-9)
 

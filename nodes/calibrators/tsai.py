@@ -40,8 +40,15 @@ import numpy as np
 from nodes.calibrators._board import board_points, detect_views
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["tsai_camera", "tsai_project", "tsai_stereo", "opencv_distortion_from_tsai", "tsai_k1_of_opencv",
-           "TsaiParams", "tsai"]
+__all__ = [
+    "TsaiParams",
+    "opencv_distortion_from_tsai",
+    "tsai",
+    "tsai_camera",
+    "tsai_k1_of_opencv",
+    "tsai_project",
+    "tsai_stereo",
+]
 
 
 def _sensor(px, u0, v0, dx, dy, ncx_over_nfx):

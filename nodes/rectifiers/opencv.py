@@ -7,7 +7,7 @@ import numpy as np
 
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["rectify_calibration", "rectified_points", "rectified_dy", "RectifyParams", "opencv"]
+__all__ = ["RectifyParams", "opencv", "rectified_dy", "rectified_points", "rectify_calibration"]
 
 _CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 

@@ -10,7 +10,7 @@ import numpy as np
 from nodes.rectifiers.opencv import rectified_points
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["remap_pair", "rectified_truth", "RemapParams", "remap"]
+__all__ = ["RemapParams", "rectified_truth", "remap", "remap_pair"]
 
 _INTERP = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "nearest": cv2.INTER_NEAREST}
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from stereograph.api import NodeError
 
-__all__ = ["IMAGE_SUFFIXES", "list_pairs", "read_image", "pair_key"]
+__all__ = ["IMAGE_SUFFIXES", "list_pairs", "pair_key", "read_image"]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 _SIDE = re.compile(r"(?i)(left|right|(?<![a-z])[lr](?![a-z]))")

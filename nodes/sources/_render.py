@@ -79,21 +79,21 @@ import cv2
 import numpy as np
 
 __all__ = [
+    "COLORS",
     "RIG_DEFAULTS",
     "SCENE_KINDS",
-    "COLORS",
+    "board_corners_3d",
+    "color_bgr",
+    "distort_normalized",
     "make_rig",
     "make_scene",
-    "render_scene",
-    "render_board_view",
-    "random_board_poses",
-    "board_corners_3d",
-    "silhouette",
     "project_points",
-    "undistort_pixels",
-    "distort_normalized",
+    "random_board_poses",
+    "render_board_view",
+    "render_scene",
+    "silhouette",
     "undistort_normalized",
-    "color_bgr",
+    "undistort_pixels",
 ]
 
 #: Default rig parameters (units in the names; angles in degrees).
@@ -965,7 +965,6 @@ def render_scene(rig: dict, scene: dict, seed: int = 0, noise_sigma: float | Non
         c_right = rig["truth"]["R"] @ c_left + rig["truth"]["T_cm"]
         sils = [silhouette(rig["cams"][0]["K"], rig["cams"][0]["D"], c_left, b["r"]),
                 silhouette(rig["cams"][1]["K"], rig["cams"][1]["D"], c_right, b["r"])]
-        w, h = rig["truth"]["image_size"]
         truth = {
             "kind": scene.get("kind", "custom"),
             "center_left_cm": [float(v) for v in c_left],

@@ -8,7 +8,7 @@ import cv2
 
 from stereograph.api import Field, NodeError, Out, Params, node
 
-__all__ = ["grab_pairs", "CameraParams", "camera"]
+__all__ = ["CameraParams", "camera", "grab_pairs"]
 
 
 class CameraParams(Params):

@@ -11,7 +11,7 @@ import numpy as np
 from nodes.sources._files import list_pairs, read_image
 from stereograph.api import Field, NodeError, Out, Params, node
 
-__all__ = ["read_truth", "FilesParams", "files"]
+__all__ = ["FilesParams", "files", "read_truth"]
 
 
 def read_truth(path: Path) -> dict[str, dict]:

@@ -8,7 +8,7 @@ cameras, the ball's centre and its exact silhouette come with every render.
 
 from __future__ import annotations
 
-from typing import Literal, Union
+from typing import Literal
 
 import numpy as np
 
@@ -37,7 +37,7 @@ class SyntheticParams(Params):
     shadow_strength: float = Field(0.7, ge=0, le=1, description="Light blocked in a full shadow (0..1).")
     noise_sigma: float = Field(2.0, ge=0, le=50, description="Gaussian image noise, grey levels.")
     ball_radius_cm: float = Field(2.0, gt=0.2, le=20, description="Ball radius, cm.")
-    ball_color: Union[str, tuple[int, int, int]] = Field(
+    ball_color: str | tuple[int, int, int] = Field(
         "orange", description="Ball colour: a name (orange, red, green, ...) or [b, g, r] 0..255.")
     n_scenes: int = Field(120, ge=0, le=5000, description="Number of plain ball scenes (count).")
     min_distance_cm: float = Field(30.0, gt=5, description="Nearest ball centre from the left camera, cm.")
