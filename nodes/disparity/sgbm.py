@@ -98,14 +98,14 @@ def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray,
     rho_m = max(1.0 - params.erode_fraction, 0.05)
     vals = disp[(sub > 0) & (disp >= d_min)]
     if len(vals) < 5:
-        return float("nan"), float("nan"), int(len(vals)), rho_m
+        return float("nan"), float("nan"), len(vals), rho_m
     q1, q3 = np.percentile(vals, [25, 75])
     core = vals[(vals >= q1) & (vals <= q3)]
     d = float(core.mean())
     # Robust spread (MAD) over an effective count (neighbouring SGBM pixels are correlated).
     mad = float(np.median(np.abs(vals - np.median(vals)))) * 1.4826
     sigma = max(mad, 1.0 / 16.0) / math.sqrt(max(len(vals) / (bs * bs), 1.0))
-    return d, sigma, int(len(vals)), rho_m
+    return d, sigma, len(vals), rho_m
 
 
 def surface_depth_offset(radius_cm: float, rho_m: float) -> float:

@@ -23,7 +23,8 @@ Working in the ROI (and with cv2 in the hot path) keeps a 640x480 pair in a few 
 from __future__ import annotations
 
 import math
-from typing import Callable, Literal
+from collections.abc import Callable
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -62,7 +63,13 @@ class ObjectSpec(Params):
 class ShadowParams(Params):
     """Shadow suppression: drop dark, low-saturation pixels that the mask took from the table."""
 
-    enabled: bool = Field(False, description="Remove shadow pixels attached to the object (bool).")
+    enabled: bool = Field(True, description="Remove shadow pixels attached to the object (bool).")
+    max_removed_fraction: float = Field(
+        0.5,
+        gt=0,
+        le=1,
+        description="Keep a region unchanged if more than this share would go (a dark object, not a shadow; ratio).",
+    )
     max_brightness_ratio: float = Field(
         0.8,
         gt=0,
@@ -192,15 +199,34 @@ def structuring_element(size_px: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
 
 
-def fill_holes(mask: np.ndarray) -> np.ndarray:
-    """Fill the holes of a uint8 0/255 mask (flood fill of the background from the border)."""
+def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray:
+    """Fill the holes of a uint8 0/255 mask (flood fill of the background from the border).
+
+    Parameters
+    ----------
+    mask : uint8 HxW, 0/255
+    max_area_px : float, optional
+        Fill only holes up to this area (px). A closed outline much larger than any ball --
+        the edge of a rectified image's valid area, a table edge -- then does not swallow the
+        whole scene.
+    """
     h, w = mask.shape
     padded = np.zeros((h + 2, w + 2), np.uint8)
     padded[1:-1, 1:-1] = mask
     ff = padded.copy()
     cv2.floodFill(ff, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 255)
     holes = cv2.bitwise_not(ff)[1:-1, 1:-1]
+    if max_area_px is not None and cv2.countNonZero(holes) > max_area_px:
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+        keep = (stats[:, cv2.CC_STAT_AREA] <= max_area_px).astype(np.uint8) * 255
+        keep[0] = 0
+        holes = keep[labels]
     return cv2.bitwise_or(mask, holes)
+
+
+def max_hole_area(r_range_px: tuple[float, float]) -> float:
+    """Largest hole worth filling: a ball of the largest expected radius plus its shadow (px)."""
+    return 4.0 * math.pi * r_range_px[1] ** 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -312,8 +338,11 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
         shadow_px &= color_distance_map(img_bgr, obj.color_bgr) > obj.color_tolerance
     elif obj.hue_range_deg is not None:
         shadow_px &= hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation) == 0
+    drop = shadow_px & sel
+    if drop.sum() > shadow.max_removed_fraction * sel.sum():
+        return mask  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask.copy()
-    out[shadow_px & sel] = 0
+    out[drop] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out

@@ -14,7 +14,15 @@ import numpy as np
 
 from stereograph.api import Field, In, NodeError, Out, node
 
-from ._common import SegmenterParams, color_distance_map, fill_holes, hue_mask, segment_pair, structuring_element
+from ._common import (
+    SegmenterParams,
+    color_distance_map,
+    fill_holes,
+    hue_mask,
+    max_hole_area,
+    segment_pair,
+    structuring_element,
+)
 
 
 class ColorParams(SegmenterParams):
@@ -35,7 +43,7 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
         m = (color_distance_map(img_bgr, obj.color_bgr) <= obj.color_tolerance).astype(np.uint8) * 255
     else:
         m = hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)
-    m = fill_holes(m)
+    m = fill_holes(m, max_hole_area(r_range_px))
     o = params.open_px / scale if params.open_px else max(3.0, 0.2 * r_range_px[0])
     return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
 

@@ -17,7 +17,15 @@ import numpy as np
 
 from stereograph.api import Field, In, Out, node
 
-from ._common import Channel, SegmenterParams, fill_holes, segment_pair, structuring_element, to_channel
+from ._common import (
+    Channel,
+    SegmenterParams,
+    fill_holes,
+    max_hole_area,
+    segment_pair,
+    structuring_element,
+    to_channel,
+)
 
 
 class EdgeMorphParams(SegmenterParams):
@@ -87,7 +95,7 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     e = _odd(params.erode_px / scale) if params.erode_px else d
     o = _odd(params.open_px / scale) if params.open_px else _odd(max(3.0, 0.4 * r_min))
     m = cv2.dilate(edges, structuring_element(d))
-    m = fill_holes(m)
+    m = fill_holes(m, max_hole_area(r_range_px))
     m = cv2.erode(m, structuring_element(e))
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(o))
     return m

@@ -20,7 +20,7 @@ import numpy as np
 
 from stereograph.api import Field, In, Out, node
 
-from ._common import SegmenterParams, fill_holes, segment_pair, structuring_element, to_channel
+from ._common import SegmenterParams, fill_holes, max_hole_area, segment_pair, structuring_element, to_channel
 
 
 class OtsuParams(SegmenterParams):
@@ -99,7 +99,7 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
             polarity = "dark" if (border > 0).mean() > 0.5 else "bright"
         if polarity == "dark":
             m = cv2.bitwise_not(m)
-    m = fill_holes(m)
+    m = fill_holes(m, max_hole_area(r_range_px))
     o = params.open_px / scale if params.open_px else max(3.0, 0.3 * r_range_px[0])
     return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
 

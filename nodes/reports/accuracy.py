@@ -1,0 +1,167 @@
+"""``report.accuracy``: localisation error statistics over a dataset with ground truth.
+
+A reduce over all ``Location`` items: per axis (x, y, z; cm, in each location's frame) the
+mean, standard deviation, max |error| and RMS of (measured - true), in the thesis's table
+form, for the items of the chosen split that were found and have a truth. Outputs: the
+``AccuracyReport`` (JSON), ``locations`` (one record per pair: the ``locations.json`` of the
+run), a figure (error histograms per axis + error vs distance; matplotlib Agg rendered to a
+BGR image) and, in the node's output folder, ``accuracy.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+
+class AccuracyParams(Params):
+    """Parameters of ``report.accuracy``."""
+
+    split: Literal["test", "train", "all"] = Field(
+        "test", description="Which items to evaluate (split name, or all)."
+    )
+    title: str = Field("Localisation error", description="Title of the table and figure (text).")
+    figure: bool = Field(True, description="Render the matplotlib figure (bool).")
+
+
+AXES = ("x", "y", "z")
+
+
+def error_table(measured_cm: np.ndarray, true_cm: np.ndarray) -> dict:
+    """Per-axis error statistics (cm).
+
+    Parameters
+    ----------
+    measured_cm, true_cm : (N, 3) arrays, cm.
+
+    Returns
+    -------
+    ``{"x": {"mean_cm", "std_cm", "max_abs_cm", "rms_cm"}, "y": ..., "z": ...}``; the std is
+    the sample standard deviation (ddof=1, as the thesis's tables); None entries when N = 0.
+    """
+    err = np.asarray(measured_cm, float) - np.asarray(true_cm, float)
+    out = {}
+    for i, ax in enumerate(AXES):
+        e = err[:, i] if len(err) else np.zeros(0)
+        if len(e) == 0:
+            out[ax] = {"mean_cm": None, "std_cm": None, "max_abs_cm": None, "rms_cm": None}
+            continue
+        out[ax] = {
+            "mean_cm": float(e.mean()),
+            "std_cm": float(e.std(ddof=1)) if len(e) > 1 else 0.0,
+            "max_abs_cm": float(np.abs(e).max()),
+            "rms_cm": float(np.sqrt((e**2).mean())),
+        }
+    return out
+
+
+def markdown_table(axes: dict, n: int, n_found: int, n_truth: int, title: str, split: str) -> str:
+    """The thesis-style Markdown table of :func:`error_table`'s result."""
+    def f(v):
+        return "–" if v is None else f"{v:.3f}"
+
+    lines = [
+        f"### {title}",
+        "",
+        f"split: {split}; pairs: {n}; found: {n_found}; evaluated (found, with truth): {n_truth}",
+        "",
+        "| axis | mean error (cm) | std (cm) | max abs (cm) | RMS (cm) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for ax in AXES:
+        s = axes[ax]
+        lines.append(f"| {ax} | {f(s['mean_cm'])} | {f(s['std_cm'])} | {f(s['max_abs_cm'])} | {f(s['rms_cm'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np.ndarray:
+    """Histograms of the per-axis errors and error vs distance, as a BGR uint8 image."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    err = np.asarray(measured_cm, float) - np.asarray(true_cm, float)
+    dist = np.linalg.norm(np.asarray(true_cm, float), axis=1) if len(err) else np.zeros(0)
+    fig = Figure(figsize=(12, 3.2), dpi=90)
+    FigureCanvasAgg(fig)
+    for i, ax_name in enumerate(AXES):
+        ax = fig.add_subplot(1, 4, i + 1)
+        if len(err):
+            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=("C0", "C1", "C2")[i])
+        ax.set_xlabel(f"{ax_name} error (cm)")
+        ax.set_ylabel("pairs")
+    ax = fig.add_subplot(1, 4, 4)
+    for i, ax_name in enumerate(AXES):
+        if len(err):
+            ax.plot(dist, err[:, i], ".", label=ax_name, color=("C0", "C1", "C2")[i])
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("distance to the camera (cm)")
+    ax.set_ylabel("error (cm)")
+    if len(err):
+        ax.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())
+    return np.ascontiguousarray(rgba[..., [2, 1, 0]])
+
+
+def location_records(locations: dict) -> list[dict]:
+    """The ``locations.json`` records, one per pair, ordered by pair id."""
+    keys = ("pair", "found", "reason", "x_cm", "y_cm", "z_cm", "sigma_z_cm", "frame", "split", "truth_cm",
+            "disparity_px", "method")
+    out = []
+    for item, loc in locations.items():
+        rec = {k: loc.get(k) for k in keys}
+        rec["pair"] = rec["pair"] or item
+        out.append(rec)
+    return out
+
+
+@node(
+    "report.accuracy",
+    inputs={"locations": In("Location", gather=True, description="All located pairs (with truth).")},
+    outputs={
+        "report": Out("AccuracyReport", save=True, description="Per-axis error statistics (cm)."),
+        "locations": Out("any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."),
+        "figure": Out("Image", save=True, description="Error histograms and error vs distance."),
+    },
+    params=AccuracyParams,
+    version="1",
+)
+def accuracy(params: AccuracyParams, locations, ctx=None):
+    """Per-axis error table (mean, std, max |err|, RMS in cm) of the located pairs against truth."""
+    if not isinstance(locations, dict):
+        raise NodeError("report.accuracy expects the gathered Location items ({pair: Location}).",
+                        hint="wire `locations` to locator.triangulate's `location` output.")
+    sel = {k: v for k, v in locations.items()
+           if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))}
+    if params.split != "all" and sel and all(v.get("split") is None for v in sel.values()) and ctx is not None:
+        ctx.warn("no item carries a `split`; all items evaluated")
+    found = [v for v in sel.values() if v.get("found")]
+    with_truth = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None]
+    meas = np.array([[v["x_cm"], v["y_cm"], v["z_cm"]] for v in with_truth], float).reshape(-1, 3)
+    true = np.array([v["truth_cm"] for v in with_truth], float).reshape(-1, 3)
+    axes = error_table(meas, true)
+    frames = sorted({v.get("frame") for v in with_truth if v.get("frame")})
+    md = markdown_table(axes, len(sel), len(found), len(with_truth), params.title, params.split)
+    reasons: dict[str, int] = {}
+    for v in sel.values():
+        if not v.get("found"):
+            r = str(v.get("reason") or "unknown")
+            reasons[r] = reasons.get(r, 0) + 1
+    report = {
+        "n": len(sel), "n_found": len(found), "n_evaluated": len(with_truth), "split": params.split,
+        "frame": frames[0] if len(frames) == 1 else frames, "axes": axes, "markdown": md,
+        "not_found_reasons": reasons,
+    }
+    if ctx is not None:
+        ctx.out_dir.mkdir(parents=True, exist_ok=True)
+        (ctx.out_dir / "accuracy.md").write_text(md)
+    fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
+    return {"report": report, "locations": location_records(locations), "figure": fig}
