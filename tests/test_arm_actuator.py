@@ -85,7 +85,7 @@ def test_pick_sequence_refuses(loc, pick, match):
 # ---------------------------------------------------------------------------- dry run
 def test_log_dry_run_packets_are_valid_protocol_1():
     plan = make_plan()
-    out = log(LogParams(), arm=ARM, plan=plan)["log"]
+    out = log(LogParams(), arm=ARM, plans=plan)["log"]["picks"][0]
     assert out["dry_run"] and len(out["packets_hex"]) == len(plan["waypoints"])
     first = bytes.fromhex(out["packets_hex"][0])
     data = waypoint_data(plan["waypoints"][0])
@@ -99,7 +99,7 @@ def test_plans_outside_limits_are_refused_before_anything_is_sent():
     bad = copy.deepcopy(plan)
     bad["waypoints"][3]["servo_units"]["4"] = 1020  # beyond the elbow's +140 deg
     with pytest.raises(NodeError, match=r"refusing the whole plan: waypoint 'descend_2'.*servo 4 to 1020"):
-        log(LogParams(), arm=ARM, plan=bad)
+        log(LogParams(), arm=ARM, plans=bad)
     with ServoSim([1, 2, 3, 4, 5]) as sim:
         with pytest.raises(NodeError, match="refusing the whole plan"):
             execute_plan(DynamixelParams(**FAST), bad, ARM, sim.port_path)
@@ -109,7 +109,7 @@ def test_plans_outside_limits_are_refused_before_anything_is_sent():
 # ---------------------------------------------------------------------------- on the emulator
 def test_full_pick_on_the_emulator():
     plan = make_plan(place_cm=[8.0, -14.0, 2.5])
-    out = dynamixel(DynamixelParams(**FAST), arm=ARM, plan=plan)["log"]
+    out = dynamixel(DynamixelParams(**FAST), arm=ARM, plans=plan)["log"]["picks"][0]
     assert out["ok"] and out["retries"] == 0
     assert [r["waypoint"] for r in out["reached"]] == [w["name"] for w in plan["waypoints"]]
     assert all(r["max_error_units"] <= 3 for r in out["reached"])
@@ -153,7 +153,7 @@ def test_missing_servo_fails_before_any_write(tmp_path):
     plan = make_plan()
     ctx = RunContext("act", "p1", tmp_path, tmp_path)
     with pytest.raises(NodeError, match=r"servo ID 3 did not answer a ping.*not moved.*check servo 3's cable"):
-        dynamixel(DynamixelParams(**FAST, sim_faults={"unplugged_ids": [3]}), arm=ARM, plan=plan, ctx=ctx)
+        dynamixel(DynamixelParams(**FAST, sim_faults={"unplugged_ids": [3]}), arm=ARM, plans=plan, ctx=ctx)
     with ServoSim([1, 2, 4, 5]) as sim:  # servo 3 absent altogether
         with pytest.raises(NodeError, match="servo ID 3"):
             execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
@@ -174,12 +174,12 @@ def test_failed_run_writes_partial_log(tmp_path):
     ctx = RunContext("act", "p1", tmp_path / "act", tmp_path)
     with pytest.raises(NodeError, match="commands sent so far are in"):
         dynamixel(DynamixelParams(**FAST, sim_faults={"drop_replies": 1000, "only_ids": [2], "after_replies": 25}),
-                  arm=ARM, plan=plan, ctx=ctx)
+                  arm=ARM, plans=plan, ctx=ctx)
     saved = json.loads((tmp_path / "act" / "servo_log_failed.json").read_text())
     assert saved["ok"] is False and saved["sim"]["writes"] and saved["commands"][-1]["value"] == 0
 
 
 def test_bad_port_is_a_clear_error():
     with pytest.raises(NodeError, match=r"cannot open serial port /dev/ttyNOPE.*") as ei:
-        dynamixel(DynamixelParams(port="/dev/ttyNOPE"), arm=ARM, plan=make_plan())
+        dynamixel(DynamixelParams(port="/dev/ttyNOPE"), arm=ARM, plans=make_plan())
     assert "ls /dev/ttyUSB*" in ei.value.hint

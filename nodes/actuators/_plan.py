@@ -1,6 +1,14 @@
-"""Shared by the actuators: checking a PickPlan against the arm model, and what a waypoint sends.
+"""Shared by the actuators: choosing plans, checking them against the arm model, what a waypoint sends.
 
-ServoLog (what both actuators output, saved to the run folder)::
+Both actuators take every PickPlan of the run at once (``gather``), choose which to execute
+(:class:`Selection`: split, explicit items, how many) and run them one after the other, as one
+arm would. Their ``log`` output::
+
+    {"ok": bool, "picks": [PickLog, ...], "not_picked": {item: reason}}
+
+and a short ``summary`` (object position, joint angles, servo goals at the grasp) for the terminal.
+
+PickLog (one executed plan)::
 
     {"pair": str, "port": str, "baud": int, "dry_run": bool, "ok": bool,
      "servo_ids": [int, ...],
@@ -16,7 +24,9 @@ ServoLog (what both actuators output, saved to the run folder)::
 
 from __future__ import annotations
 
-from stereograph.api import NodeError
+from typing import Literal
+
+from stereograph.api import Field, NodeError, Params
 
 from nodes.ik._model import servo_limits_units
 
@@ -81,3 +91,58 @@ def move_seconds(prev: dict[int, int] | None, data: dict[int, tuple[int, int]]) 
             rpm = 59.0 if speed == 0 else min(59.0, 0.111 * speed)
             t = max(t, abs(goal - prev[sid]) / (rpm * 6.0 * 1023.0 / 300.0))
     return t
+
+
+class Selection(Params):
+    """Which plans an actuator executes."""
+
+    split: Literal["all", "train", "test"] = Field("all", description="Only plans of items in this split.")
+    items: list[str] | None = Field(None, description="Only these item ids (in this order); default all, in order.")
+    max_picks: int = Field(1, ge=1, le=10000, description="Execute at most this many plans (count).")
+
+
+def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
+    """The plans to execute, and the reason for each plan that is not executed."""
+    if isinstance(plans, dict) and "waypoints" in plans:
+        plans = {str(plans.get("pair")): plans}
+    plans = dict(plans or {})
+    order = [i for i in (sel.items or list(plans)) if i in plans]
+    chosen, skipped = [], {}
+    for item in plans:
+        if sel.items is not None and item not in sel.items:
+            skipped[item] = "not in items"
+    for item in order:
+        p = plans[item]
+        if p.get("refused"):
+            skipped[item] = f"refused: {p.get('reason')}"
+        elif sel.split != "all" and p.get("split") not in (None, sel.split):
+            skipped[item] = f"split {p.get('split')}"
+        elif len(chosen) >= sel.max_picks:
+            skipped[item] = f"max_picks {sel.max_picks} reached"
+        else:
+            chosen.append(p)
+    if not chosen:
+        reasons = sorted({r.split(":")[0] for r in skipped.values()})
+        first = next((r for r in skipped.values() if r.startswith("refused")), None)
+        raise NodeError(f"no pick plan to execute: {len(plans)} plan(s), none selected ({', '.join(reasons) or 'empty'})"
+                        + (f"; e.g. {first}" if first else "") + ".",
+                        hint="check the located objects (found, extrapolated, reachable) or the actuator's split / "
+                             "items selection.")
+    return chosen, skipped
+
+
+def _r(v, nd=2):
+    return None if v is None else [round(float(x), nd) for x in v]
+
+
+def summary(picks: list[dict], plans: list[dict], n_not_picked: int) -> dict:
+    """A short, printable account of each executed pick."""
+    out = []
+    for log_, plan in zip(picks, plans):
+        g = plan["waypoints"][plan["grasp_index"]]
+        out.append({"item": plan.get("pair"), "object_left_cm": _r(plan.get("location_cm")),
+                    "object_base_cm": _r(plan.get("target_base_cm")),
+                    "grasp_joints_deg": {k: round(v, 2) for k, v in g["joints_deg"].items()},
+                    "grasp_servo_goals": g["servo_units"],
+                    "servo_commands": len(log_["commands"]), "ok": log_["ok"], "seconds": log_["seconds"]})
+    return {"picks": out, "not_picked": n_not_picked}

@@ -27,7 +27,7 @@ from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from nodes.ik._model import joint
 
-from ._plan import ADDR_GOAL, REGISTER_NAMES, check_plan, move_seconds, waypoint_data
+from ._plan import ADDR_GOAL, REGISTER_NAMES, Selection, check_plan, move_seconds, select_plans, summary, waypoint_data
 from .servo_sim import (ERR_ANGLE, ERR_CHECKSUM, ERR_INSTRUCTION, ERR_OVERHEAT, ERR_OVERLOAD, ERR_RANGE,
                         ERR_VOLTAGE, Faults, ServoSim, decode_error)
 
@@ -49,7 +49,7 @@ class SimFaults(Params):
     seed: int = Field(0, ge=0, description="Random seed of the faults.")
 
 
-class DynamixelParams(Params):
+class DynamixelParams(Selection):
     port: str = Field("/dev/ttyUSB0", description="Serial port of the USB2Dynamixel / U2D2, or 'sim' to start the "
                                                   "AX-12A emulator on a pseudo-terminal.")
     baud: int = Field(1_000_000, description="Baud rate (bit/s); AX-12A default 1000000.")
@@ -302,23 +302,32 @@ def _servo_log(plan, params, port_path, bus: Bus, reached, ok: bool, t0: float) 
 
 
 @node("actuator.dynamixel",
-      inputs={"arm": In("ArmModel"), "plan": In("PickPlan", description="Waypoints to execute (per item).")},
-      outputs={"log": Out("ServoLog", save=True, description="Commands sent, positions reached, timing.")},
+      inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan.")},
+      outputs={"log": Out("ServoLog", save=True, description="Commands sent, positions reached, timing."),
+               "summary": Out("PickSummary", description="Object position, joint angles, servo goals.")},
       params=DynamixelParams, version="1", cacheable=False)
-def dynamixel(params: DynamixelParams, arm, plan, ctx=None):
-    """Run a pick plan on AX-12A servos (real dynamixel-sdk, Protocol 1.0); port 'sim' = the emulator."""
-    check_plan(plan, arm)  # before opening or starting anything
-    if params.port != "sim":
-        return {"log": _run(params, plan, arm, params.port, None, ctx)}
-    f = params.sim_faults
-    faults = Faults(drop_reply_prob=f.drop_reply_prob, drop_replies=f.drop_replies, corrupt_prob=f.corrupt_prob,
-                    corrupt_replies=f.corrupt_replies, unplugged_ids=set(f.unplugged_ids),
-                    only_ids=None if f.only_ids is None else set(f.only_ids),
-                    after_replies=f.after_replies, seed=f.seed)
-    ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
-    with ServoSim(ids, faults=faults, time_scale=params.sim_time_scale) as sim:
-        log = _run(params, plan, arm, sim.port_path, sim, ctx)
-    return {"log": log}
+def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
+    """Run pick plans on AX-12A servos (real dynamixel-sdk, Protocol 1.0); port 'sim' = the emulator."""
+    chosen, skipped = select_plans(plans, params)
+    for p in chosen:  # every chosen plan is checked before opening or starting anything
+        check_plan(p, arm)
+    sim = None
+    if params.port == "sim":
+        f = params.sim_faults
+        faults = Faults(drop_reply_prob=f.drop_reply_prob, drop_replies=f.drop_replies, corrupt_prob=f.corrupt_prob,
+                        corrupt_replies=f.corrupt_replies, unplugged_ids=set(f.unplugged_ids),
+                        only_ids=None if f.only_ids is None else set(f.only_ids),
+                        after_replies=f.after_replies, seed=f.seed)
+        ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
+        sim = ServoSim(ids, faults=faults, time_scale=params.sim_time_scale).start()
+    try:
+        port_path = sim.port_path if sim else params.port
+        picks = [_run(params, p, arm, port_path, sim, ctx) for p in chosen]
+    finally:
+        if sim is not None:
+            sim.stop()
+    return {"log": {"ok": all(p["ok"] for p in picks), "picks": picks, "not_picked": skipped},
+            "summary": summary(picks, chosen, len(skipped))}
 
 
 def _sim_record(sim: ServoSim) -> dict:
@@ -328,6 +337,7 @@ def _sim_record(sim: ServoSim) -> dict:
 
 def _run(params, plan, arm, port_path, sim, ctx) -> dict:
     """execute_plan, plus the emulator's log, and on failure the partial log written next to the run's outputs."""
+    n0 = len(sim.log) if sim is not None else 0
     try:
         log = execute_plan(params, plan, arm, port_path)
     except NodeError as e:
@@ -341,5 +351,7 @@ def _run(params, plan, arm, port_path, sim, ctx) -> dict:
             e.args = (e.message,)
         raise
     if sim is not None:
-        log["sim"] = _sim_record(sim)
+        rec = _sim_record(sim)
+        rec["writes"] = rec["writes"][n0:]
+        log["sim"] = rec
     return log

@@ -7,12 +7,12 @@ move time at the commanded speeds.
 
 from __future__ import annotations
 
-from stereograph.api import Field, In, Out, Params, node
+from stereograph.api import Field, In, Out, node
 
-from ._plan import check_plan, move_seconds, sync_write_packet, waypoint_data
+from ._plan import Selection, check_plan, move_seconds, select_plans, summary, sync_write_packet, waypoint_data
 
 
-class LogParams(Params):
+class LogParams(Selection):
     start_units: int = Field(512, ge=0, le=1023,
                              description="Assumed servo positions before the first waypoint (units), for timing.")
 
@@ -43,9 +43,15 @@ def dry_run(params: LogParams, plan: dict, arm: dict) -> dict:
 
 
 @node("actuator.log",
-      inputs={"arm": In("ArmModel"), "plan": In("PickPlan", description="Waypoints (per item).")},
-      outputs={"log": Out("ServoLog", save=True, description="The commands that would be sent.")},
+      inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan.")},
+      outputs={"log": Out("ServoLog", save=True, description="The commands that would be sent."),
+               "summary": Out("PickSummary", description="Object position, joint angles, servo goals.")},
       params=LogParams, version="1", cacheable=False)
-def log(params: LogParams, arm, plan):
-    """Dry run: check the plan and record the servo commands it would send, without opening a port."""
-    return {"log": dry_run(params, plan, arm)}
+def log(params: LogParams, arm, plans):
+    """Dry run: check the chosen plans and record the servo commands they would send, without a port."""
+    chosen, skipped = select_plans(plans, params)
+    for p in chosen:  # all checked before any is 'sent'
+        check_plan(p, arm)
+    picks = [dry_run(params, p, arm) for p in chosen]
+    return {"log": {"ok": True, "picks": picks, "not_picked": skipped},
+            "summary": summary(picks, chosen, len(skipped))}

@@ -23,7 +23,7 @@ import numpy as np
 from stereograph.api import NodeError
 
 from ._model import JOINTS, fk, joints_to_servo_units, quantize_joints_deg
-from ._solvers import analytic_ik, numeric_ik
+from ._solvers import Unreachable, analytic_ik, numeric_ik
 
 SOLVERS = {"analytic_3dof": analytic_ik, "numeric": numeric_ik}
 
@@ -71,8 +71,12 @@ def location_to_base(location: dict[str, Any], hand_eye: dict[str, Any]):
 
 
 def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict[str, Any],
-                 solver: dict[str, Any]) -> dict[str, Any]:
-    """Build the JointTarget for one located object; raise Unreachable if no pose reaches it."""
+                 solver: dict[str, Any], on_unreachable: str = "error") -> dict[str, Any]:
+    """Build the JointTarget for one located object.
+
+    An unreachable target raises :class:`Unreachable` (``on_unreachable="error"``) or gives
+    ``found: false`` with the reason (``"skip"``), which ``ik.pick_sequence`` then refuses.
+    """
     p, truth = location_to_base(location, hand_eye)
     out: dict[str, Any] = {
         "pair": location.get("pair"), "found": bool(location.get("found")) and p is not None,
@@ -87,7 +91,13 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
     if p is None:
         out["reason"] = out["reason"] or "object not found"
         return out
-    q = solve(model, p, solver)
+    try:
+        q = solve(model, p, solver)
+    except Unreachable as e:
+        if on_unreachable == "error":
+            raise
+        out["found"], out["reason"] = False, e.message
+        return out
     joints_deg = {n: float(math.degrees(v)) for n, v in zip(JOINTS, q)}
     out["joints_deg"] = joints_deg
     out["servo_units"] = joints_to_servo_units(model, joints_deg)

@@ -10,6 +10,8 @@ from ._target import joint_target
 
 
 class AnalyticParams(Params):
+    on_unreachable: Literal["error", "skip"] = Field(
+        "error", description="error: fail this item; skip: output found=false with the reason (the pick refuses it).")
     elbow: Literal["up", "down", "auto"] = Field(
         "auto", description="Elbow configuration; auto = elbow-up, else elbow-down if up leaves the joint limits.")
     allow_back: bool = Field(True, description="Allow reaching backwards over the base (yaw + 180 deg) when the "
@@ -24,4 +26,4 @@ class AnalyticParams(Params):
 def analytic_3dof(params: AnalyticParams, arm, location, hand_eye):
     """Closed-form IK: yaw = atan2, planar two-link law of cosines, elbow up/down; 'unreachable' errors."""
     solver = {"type": "analytic_3dof", "params": {"elbow": params.elbow, "allow_back": params.allow_back}}
-    return {"target": joint_target(arm, location, hand_eye, solver)}
+    return {"target": joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)}

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from stereograph.api import Field, In, Out, Params, node
 
 from ._target import joint_target
 
 
 class NumericParams(Params):
+    on_unreachable: Literal["error", "skip"] = Field(
+        "error", description="error: fail this item; skip: output found=false with the reason (the pick refuses it).")
     tol_cm: float = Field(1e-4, gt=0, le=1.0, description="Convergence tolerance on the tool point (cm).")
     max_iter: int = Field(100, ge=1, le=10000, description="Iterations per seed.")
     damping_cm: float = Field(1.0, gt=0, le=1000, description="Initial damping lambda (cm; Jacobian in cm/rad).")
@@ -22,5 +26,5 @@ class NumericParams(Params):
       params=NumericParams, version="1")
 def numeric(params: NumericParams, arm, location, hand_eye):
     """Damped-least-squares IK on the arm chain, joint limits by projection, seeded restarts."""
-    solver = {"type": "numeric", "params": params.model_dump()}
-    return {"target": joint_target(arm, location, hand_eye, solver)}
+    solver = {"type": "numeric", "params": params.model_dump(exclude={"on_unreachable"})}
+    return {"target": joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)}

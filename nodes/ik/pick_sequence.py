@@ -2,7 +2,7 @@
 
 PickPlan (per item)::
 
-    {"pair": str, "arm": str,
+    {"pair": str, "refused": bool, "reason": str | None, "split": str | None, "arm": str,
      "target_base_cm": [x, y, z], "truth_base_cm": [x, y, z] | None,
      "solver": {...},                      # the IK solver of the JointTarget, reused for every waypoint
      "servo_ids": [int, ...],              # every servo the plan drives, chain order
@@ -22,6 +22,7 @@ at the arm's ``max_speed_deg_s``).
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 
@@ -50,6 +51,9 @@ class PickParams(Params):
                                                         "extrapolated (outside its training range).")
     speed_deg_s: float | None = Field(None, gt=0, le=680,
                                       description="Speed of the largest joint move (deg/s); default the arm's.")
+    on_refuse: Literal["error", "skip"] = Field(
+        "error", description="error: a refused target fails this item; skip: output a plan with refused=true, "
+                             "no waypoints and the reason (the actuators never move for it).")
 
 
 def _refuse(target, why: str, hint: str) -> NodeError:
@@ -121,7 +125,9 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             w["fk_cm"] = [float(v) for v in fk(model, np.radians([qq[n] for n in JOINTS]))]
         prev = w["servo_units"]
     gi = next(i for i, w in enumerate(waypoints) if w["name"] == "grasp")
-    return {"pair": target.get("pair"), "arm": model["name"], "target_base_cm": [float(v) for v in p],
+    return {"pair": target.get("pair"), "refused": False, "reason": None, "split": target.get("split"),
+            "arm": model["name"], "target_base_cm": [float(v) for v in p],
+            "location_cm": target.get("location_cm"), "frame": target.get("frame"),
             "truth_base_cm": target.get("truth_base_cm"), "solver": target["solver"],
             "servo_ids": all_servo_ids(model), "grasp_index": gi, "grasp_fk_cm": waypoints[gi]["fk_cm"],
             "waypoints": waypoints}
@@ -133,4 +139,10 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
       params=PickParams, version="1")
 def pick_sequence(params: PickParams, arm, target):
     """Open -> above -> descend -> close -> lift (-> place); refuses failed, extrapolated or out-of-box targets."""
-    return {"plan": plan_pick(params, arm, target)}
+    try:
+        return {"plan": plan_pick(params, arm, target)}
+    except NodeError as e:
+        if params.on_refuse == "error":
+            raise
+        return {"plan": {"pair": target.get("pair"), "refused": True, "reason": e.message,
+                         "split": target.get("split"), "waypoints": []}}
