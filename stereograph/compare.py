@@ -265,15 +265,22 @@ def _find_fit_times(value: Any) -> list[float]:
 # --------------------------------------------------------------------------- timing ledger
 
 
-def _lineages(graph: Graph) -> dict[str, str]:
-    """A config-level fingerprint of each node and everything upstream of it (for timings)."""
+def _lineages(graph: Graph, code: dict[Any, str] | None = None) -> dict[str, str]:
+    """A config-level fingerprint of each node and everything upstream of it.
+
+    Two variants whose node has the same fingerprint share that node's artifacts; the
+    fingerprints also key the remembered per-item timings. ``code`` memoises source hashes.
+    """
     from stereograph.cache import code_hash, hash_json
 
+    code = {} if code is None else code
     lin: dict[str, str] = {}
     for name in graph.order:
         inst = graph.nodes[name]
+        if inst.spec.fn not in code:
+            code[inst.spec.fn] = code_hash(inst.spec.fn)[0]
         lin[name] = hash_json({
-            "type": inst.type, "version": inst.spec.version, "code": code_hash(inst.spec.fn)[0],
+            "type": inst.type, "version": inst.spec.version, "code": code[inst.spec.fn],
             "params": inst.params.model_dump(mode="json"),
             "inputs": {p: [lin[s], o] for p, (s, o) in sorted(inst.inputs.items())},
         })
@@ -304,8 +311,7 @@ class _Timings:
             pass
 
 
-def _per_pair_seconds(graph: Graph, result: Any, timings: _Timings) -> float | None:
-    lin = _lineages(graph)
+def _per_pair_seconds(graph: Graph, result: Any, timings: _Timings, lin: dict[str, str]) -> float | None:
     total, known = 0.0, True
     for name in graph.order:
         inst = graph.nodes[name]
@@ -519,10 +525,16 @@ def compare(
     timings = _Timings(cache)
     prog = progress if progress is not None else _PlainProgress(None)
     results: list[VariantResult] = []
+    code: dict[Any, str] = {}
+    shared: set[str] | None = None  # fingerprints of the first variant's nodes
     for i, (v, graph) in enumerate(graphs, 1):
         if hasattr(prog, "variant_started"):
             prog.variant_started(i, len(graphs), v.label)
-        vr = _run_variant(v, graph, cache, out / "variants" / v.slug, split, executor, prog, timings, run_graph)
+        lin = _lineages(graph, code)
+        vr = _run_variant(v, graph, cache, out / "variants" / v.slug, split, executor, prog, timings, run_graph,
+                          lin, shared)
+        if shared is None:
+            shared = set(lin.values())
         results.append(vr)
         if hasattr(prog, "variant_done"):
             prog.variant_done(vr)
@@ -534,11 +546,16 @@ def compare(
 
 
 def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, split: str, executor: Any, prog: Any,
-                 timings: _Timings, run_graph: Any) -> VariantResult:
+                 timings: _Timings, run_graph: Any, lin: dict[str, str], shared: set[str] | None) -> VariantResult:
     import time
 
     t0 = time.perf_counter()
-    result = run_graph(graph, cache_dir=cache, out_dir=out, executor=executor, progress=prog)
+    # The first variant writes every saved output; the others only those of their own nodes
+    # (what they share with the first is the same artifact, already written there).
+    result = run_graph(graph, cache_dir=cache, out_dir=out, executor=executor, progress=prog,
+                       write_outputs=shared is None)
+    if shared is not None:
+        _write_own_outputs(graph, result, out, {n for n, h in lin.items() if h not in shared})
     failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
     error = "; ".join(f"{r.name}: {r.error}" for r in failed if r.error)[:400] or None
     outputs = []
@@ -560,8 +577,40 @@ def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, split: str, e
     return VariantResult(
         variant=v, ok=result.ok, error=error, status=result.status, ran=set(result.ran), out_dir=out,
         seconds=time.perf_counter() - t0, fit_time_s=sum(fit_times) if fit_times else None,
-        per_pair_s=_per_pair_seconds(graph, result, timings), outputs=outputs,
+        per_pair_s=_per_pair_seconds(graph, result, timings, lin), outputs=outputs,
     )
+
+
+def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> None:
+    """Saved / terminal outputs of the given nodes, and a small ``run.json``, into ``out``."""
+    from stereograph import outputs as outputs_mod
+
+    terminal = set(graph.terminal())
+    files: dict[str, list[str]] = {}
+    for name in graph.order:
+        if name not in own or result.reports[name].status in ("failed", "skipped"):
+            continue
+        for port, decl in graph.nodes[name].spec.outputs.items():
+            if not (decl.save or name in terminal):
+                continue
+            value = result.outputs(name, port)
+            stem = out / name / port
+            if graph.is_collection(name, port):
+                written = outputs_mod._write_collection(stem, value or {})
+            elif value is not None:
+                written = outputs_mod.write_value(stem, value)
+            else:
+                continue
+            files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
+    summary = {
+        "run_id": result.run_id, "pipeline": result.pipeline, "overrides": list(graph.doc.overrides),
+        "ok": result.ok, "outputs_of": sorted(own),
+        "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
+                   "items": r.items, "items_ran": r.items_ran, "error": r.error, "files": files.get(r.name, [])}
+                  for r in result.reports.values()],
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "run.json").write_text(json.dumps(summary, indent=1))
 
 
 def _rows(results: list[VariantResult]) -> list[dict[str, Any]]:

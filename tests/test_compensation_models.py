@@ -184,3 +184,17 @@ def test_none_is_identity(biased):
     for k in biased:
         assert out[k]["z_cm"] == biased[k]["z_cm"]
         assert out[k]["extrapolated"] is False
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup"])
+def test_xy_auto_follows_the_kind_of_error(biased, kind):
+    # A baseline error moves points along their rays: auto rescales x, y too.
+    assert fit(kind, biased)["coefficients"]["along_ray"] is True
+    # A depth-only error (x, y exact, z 2 % long, as a focal-length error gives): auto keeps x, y.
+    z_only = {k: dict(v, x_cm=v["truth_cm"][0], y_cm=v["truth_cm"][1], z_cm=v["truth_cm"][2] * 1.02)
+              for k, v in biased.items()}
+    model = fit(kind, z_only)
+    assert model["coefficients"]["along_ray"] is False
+    out = errors(apply_all(model, z_only))
+    assert np.all(np.abs(out[:, :2]) < 1e-9)
+    assert fit(kind, z_only, xy="along_ray")["coefficients"]["along_ray"] is True

@@ -13,7 +13,7 @@ import numpy as np
 
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["perturb_calibration", "perturb"]
+__all__ = ["perturb", "perturb_calibration"]
 
 
 def perturb_calibration(

@@ -21,7 +21,7 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -38,6 +38,7 @@ __all__ = [
     "kfold_cv",
     "node_label",
     "require_span",
+    "resolve_along_ray",
     "samples_from_locations",
     "training_samples",
 ]
@@ -66,12 +67,13 @@ class FitParams(Params):
 
 
 class RayFitParams(FitParams):
-    """Fit parameters of the depth-only compensators, which can move x and y along the ray too."""
+    """Fit parameters of the depth-only compensators, which may move x and y along the ray too."""
 
-    along_ray: bool = Field(
-        True,
-        description="Also rescale x and y by z_corrected / z_measured (the point moves along its viewing ray; "
-        "left-camera frame only).",
+    xy: Literal["auto", "along_ray", "keep"] = Field(
+        "auto",
+        description="What a depth correction does to x, y: along_ray rescales them by z_corrected / z_measured "
+        "(errors of baseline or disparity offset move a point along its viewing ray), keep leaves them "
+        "(errors of focal length change z only), auto picks whichever fits the training x, y better.",
     )
 
 
@@ -304,6 +306,22 @@ def along_ray(xyz_cm: np.ndarray, z_new_cm: np.ndarray, frame: str, enabled: boo
         out[:, 1] *= scale
     out[:, 2] = z_new
     return out
+
+
+def resolve_along_ray(mode: str, samples: Samples, z_new_cm: np.ndarray) -> bool:
+    """Decide whether a depth correction also rescales x, y along the ray.
+
+    ``"auto"`` compares, on the training placements, the x/y residual sum of squares of
+    moving along the ray against keeping x, y as measured, and picks the smaller (one binary
+    choice, so fitting it on the training data does not overfit).
+    """
+    if samples.frame != "left_camera" or mode == "keep":
+        return False
+    if mode == "along_ray":
+        return True
+    truth_xy = samples.truth_cm[:, :2]
+    moved = along_ray(samples.xyz_cm, z_new_cm, samples.frame, True)[:, :2]
+    return bool(np.sum((moved - truth_xy) ** 2) < np.sum((samples.xyz_cm[:, :2] - truth_xy) ** 2))
 
 
 def axis_stats(errors_cm: np.ndarray) -> dict[str, dict[str, float]] | None:

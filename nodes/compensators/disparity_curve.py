@@ -29,6 +29,7 @@ from nodes.compensators._common import (
     build_model,
     node_label,
     require_span,
+    resolve_along_ray,
     training_samples,
 )
 from stereograph.api import Field, NodeError, Out, node
@@ -50,7 +51,7 @@ def _linear_ac(d: np.ndarray, z: np.ndarray, b: float) -> np.ndarray:
 
 
 def fit_disparity_curve(
-    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, along_ray_xy: bool = True
+    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, xy: str = "auto"
 ) -> dict[str, Any]:
     """Least-squares fit of true z = a / (d + b) + c.
 
@@ -62,8 +63,8 @@ def fit_disparity_curve(
         Fit the disparity offset b (px); False fixes b = 0 (a linear fit in 1/d).
     max_iter : int
         Gauss-Newton iterations at most.
-    along_ray_xy : bool
-        Recorded for prediction: rescale x, y along the viewing ray.
+    xy : {"auto", "along_ray", "keep"}
+        What the correction does to x, y (see :func:`resolve_along_ray`).
 
     Returns
     -------
@@ -120,7 +121,7 @@ def fit_disparity_curve(
         "a_cm_px": float(p[0]),
         "b_px": float(p[1]),
         "c_cm": float(p[2]),
-        "along_ray": bool(along_ray_xy),
+        "along_ray": resolve_along_ray(xy, samples, _curve(p, d)),
         "iterations": int(iterations),
     }
 
@@ -162,7 +163,7 @@ def disparity_curve(params: DisparityCurveParams, train, ctx=None):
     require_span(samples.disparity_px, "disparity", label, params.min_span_fraction, "px")
 
     def fit(s: Samples) -> dict[str, Any]:
-        return fit_disparity_curve(s, params.with_offset, along_ray_xy=params.along_ray)
+        return fit_disparity_curve(s, params.with_offset, xy=params.xy)
 
     model = build_model(
         "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,

@@ -23,6 +23,7 @@ from nodes.compensators._common import (
     build_model,
     node_label,
     require_span,
+    resolve_along_ray,
     training_samples,
 )
 from stereograph.api import Field, NodeError, Out, node
@@ -37,7 +38,7 @@ def fit_lookup(
     n_bins: int = 6,
     bin_edges_cm: list[float] | None = None,
     min_per_bin: int = 3,
-    along_ray_xy: bool = True,
+    xy: str = "auto",
 ) -> dict[str, Any]:
     """Knots of a piecewise-linear z correction, cm.
 
@@ -52,8 +53,8 @@ def fit_lookup(
         Explicit increasing bin edges of measured z, cm.
     min_per_bin : int
         Bins with fewer placements give no knot.
-    along_ray_xy : bool
-        Recorded for prediction: rescale x, y along the viewing ray.
+    xy : {"auto", "along_ray", "keep"}
+        What the correction does to x, y (see :func:`resolve_along_ray`).
 
     Returns
     -------
@@ -83,12 +84,13 @@ def fit_lookup(
             f"only {len(knots_z)} of {len(edges) - 1} distance bins hold at least {min_per_bin} training placements; "
             "a piecewise-linear correction needs 2 knots."
         )
+    z_new = z + np.interp(z, knots_z, knots_c)
     return {
         "knots_z_cm": knots_z,
         "knots_correction_cm": knots_c,
         "knots_n": knots_n,
         "edges_cm": [float(e) for e in edges],
-        "along_ray": bool(along_ray_xy),
+        "along_ray": resolve_along_ray(xy, samples, z_new),
     }
 
 
@@ -123,7 +125,7 @@ def lookup(params: LookupParams, train, ctx=None):
     require_span(samples.xyz_cm[:, 2], "measured distance z", label, params.min_span_fraction, "cm")
 
     def fit(s: Samples) -> dict[str, Any]:
-        return fit_lookup(s, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.along_ray)
+        return fit_lookup(s, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.xy)
 
     model = build_model(
         "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump()

@@ -23,6 +23,7 @@ from nodes.compensators._common import (
     build_model,
     node_label,
     require_span,
+    resolve_along_ray,
     training_samples,
 )
 from stereograph.api import Field, NodeError, Out, node
@@ -32,9 +33,7 @@ __all__ = ["fit_polynomial", "polynomial", "predict_polynomial"]
 INPUTS = ("z_cm",)
 
 
-def fit_polynomial(
-    samples: Samples, degree: int = 2, target: str = "error", along_ray_xy: bool = True
-) -> dict[str, Any]:
+def fit_polynomial(samples: Samples, degree: int = 2, target: str = "error", xy: str = "auto") -> dict[str, Any]:
     """Least-squares polynomial of measured z, cm.
 
     Parameters
@@ -45,8 +44,8 @@ def fit_polynomial(
         Polynomial degree (0 = constant offset, 1 = offset + scale, ...).
     target : {"error", "z"}
         ``"error"``: fit ``z_true - z_measured``; ``"z"``: fit ``z_true``.
-    along_ray_xy : bool
-        Recorded for prediction: rescale x, y along the viewing ray.
+    xy : {"auto", "along_ray", "keep"}
+        What the correction does to x, y (see :func:`resolve_along_ray`).
 
     Returns
     -------
@@ -64,12 +63,13 @@ def fit_polynomial(
             f"a degree-{degree} polynomial needs {degree + 1} distinct measured distances, got {len(np.unique(z))}."
         )
     poly = Polynomial.fit(z, y, deg=degree)
+    z_new = z + poly(z) if target == "error" else poly(z)
     return {
         "coef": [float(c) for c in poly.coef],
         "domain": [float(d) for d in poly.domain],
         "target": target,
         "degree": int(degree),
-        "along_ray": bool(along_ray_xy),
+        "along_ray": resolve_along_ray(xy, samples, z_new),
     }
 
 
@@ -105,7 +105,7 @@ def polynomial(params: PolynomialParams, train, ctx=None):
     require_span(samples.xyz_cm[:, 2], "measured distance z", label, params.min_span_fraction, "cm")
 
     def fit(s: Samples) -> dict[str, Any]:
-        return fit_polynomial(s, params.degree, params.target, params.along_ray)
+        return fit_polynomial(s, params.degree, params.target, params.xy)
 
     model = build_model(
         "polynomial", samples, fit, predict_polynomial, INPUTS, label, params.cv_folds, params.cv_seed,
