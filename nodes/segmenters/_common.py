@@ -462,6 +462,11 @@ def select_candidate(
         c["color_score"] = score
         ok.append(c)
     if not ok:
+        h, w = img_bgr.shape[:2]
+        biggest = max(cands, key=lambda c: c["area_px"])
+        x0, y0, x1, y1 = biggest["bbox"]
+        if biggest["area_px"] >= a_min and (x0 <= 0 or y0 <= 0 or x1 >= w - 1 or y1 >= h - 1):
+            return None, "the only sizeable region touches the image border (object cut off?)"
         why = "; ".join(sorted(set(rejected))[:3])
         return None, f"no plausible region ({len(cands)} candidate(s): {why})"
     ok.sort(key=lambda c: -c["area_px"])
@@ -620,6 +625,14 @@ def region_properties(
     x, y, bw, bh = cv2.boundingRect(contour)
     bbox = [x + u0, y + v0, x + bw - 1 + u0, y + bh - 1 + v0]
     touches = bbox[0] <= 0 or bbox[1] <= 0 or bbox[2] >= w - 1 or bbox[3] >= h - 1
+    if not touches:
+        # A rectified image has a black (exactly 0) fill outside the camera's field of view:
+        # a region next to it is cut by the view's border just as by the frame's.
+        ring = cv2.dilate(mask, structuring_element(5)) > 0
+        ring &= mask == 0
+        px = img_bgr[ring]
+        if px.size and (px.reshape(len(px), -1).max(axis=1) == 0).sum() >= 3:
+            touches = True
     pts = refine_contour(img_bgr, mask, params.edge_search_px, contour) if params.subpixel else None
     sigma_c = None
     method = "pixels"

@@ -1,0 +1,84 @@
+"""report.accuracy and the locate pipeline through the engine."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nodes.reports.accuracy import AccuracyParams, accuracy, error_table
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_error_table_matches_numpy():
+    rng = np.random.default_rng(0)
+    true = rng.uniform(-10, 40, (50, 3))
+    err = rng.normal([0.1, -0.2, 0.3], [0.05, 0.1, 0.2], (50, 3))
+    t = error_table(true + err, true)
+    for i, ax in enumerate("xyz"):
+        assert t[ax]["mean_cm"] == pytest.approx(err[:, i].mean())
+        assert t[ax]["std_cm"] == pytest.approx(err[:, i].std(ddof=1))
+        assert t[ax]["max_abs_cm"] == pytest.approx(np.abs(err[:, i]).max())
+        assert t[ax]["rms_cm"] == pytest.approx(np.sqrt((err[:, i] ** 2).mean()))
+
+
+def _loc(pid, split, found, xyz, truth):
+    return {"pair": pid, "found": found, "reason": None if found else "no region found", "split": split,
+            "x_cm": xyz[0] if found else None, "y_cm": xyz[1] if found else None, "z_cm": xyz[2] if found else None,
+            "sigma_z_cm": 0.01, "frame": "left_camera", "truth_cm": truth}
+
+
+def test_accuracy_node_filters_split_and_counts_not_found():
+    locs = {
+        "a": _loc("a", "test", True, [1.0, 2.0, 40.5], [1.0, 2.0, 40.0]),
+        "b": _loc("b", "test", True, [0.0, 0.0, 30.3], [0.0, 0.0, 30.0]),
+        "c": _loc("c", "test", False, None, [0.0, 0.0, 30.0]),
+        "d": _loc("d", "train", True, [9.0, 9.0, 99.0], [0.0, 0.0, 30.0]),
+    }
+    out = accuracy(AccuracyParams(), locations=locs)
+    rep = out["report"]
+    assert (rep["n"], rep["n_found"], rep["n_evaluated"]) == (3, 2, 2)
+    assert rep["axes"]["z"]["mean_cm"] == pytest.approx(0.4)
+    assert rep["axes"]["x"]["max_abs_cm"] == pytest.approx(0.0)
+    assert rep["not_found_reasons"] == {"no region found": 1}
+    assert "| z | 0.400 |" in rep["markdown"]
+    assert len(out["locations"]) == 4 and {r["pair"] for r in out["locations"]} == set("abcd")
+    fig = out["figure"]
+    assert fig.dtype == np.uint8 and fig.ndim == 3 and fig.shape[2] == 3
+    all_ = accuracy(AccuracyParams(split="all", figure=False), locations=locs)["report"]
+    assert all_["n"] == 4 and all_["axes"]["z"]["max_abs_cm"] == pytest.approx(69.0)
+
+
+def test_locate_pipeline_through_the_engine(tmp_path):
+    from stereograph.runner import run_pipeline
+
+    res = run_pipeline(ROOT / "pipelines" / "locate-truthcal.yaml",
+                       overrides=["rig.n_scenes=8", "rig.n_views=0", "rig.train_fraction=0.0",
+                                  "disparity.type=disparity.ellipse"],
+                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", use_cache=False)
+    assert res.ok, res.status
+    rep = res.outputs("report", "report")
+    assert rep["n"] == 8 and rep["n_found"] >= 7
+    for ax in "xyz":
+        assert abs(rep["axes"][ax]["mean_cm"]) < 0.1 and rep["axes"][ax]["max_abs_cm"] < 0.3
+    out = tmp_path / "out"
+    assert (out / "report" / "locations.json").exists() and (out / "report" / "figure.png").exists()
+    assert len(list((out / "segment" / "overlay").glob("*.png"))) == 8
+
+
+def test_hard_scenes_through_the_engine_never_crash(tmp_path):
+    from stereograph.runner import run_pipeline
+
+    kinds = "[clutter, second_ball, border, occluded, hidden, empty]"
+    res = run_pipeline(ROOT / "pipelines" / "locate-truthcal.yaml",
+                       overrides=["rig.n_scenes=0", f"rig.hard_cases={kinds}", "rig.n_hard_each=1",
+                                  "report.split=all"],
+                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", use_cache=False)
+    assert res.ok, res.status
+    locs = {r["pair"]: r for r in res.outputs("report", "locations")}
+    assert len(locs) == 6
+    for pid in ("empty000", "hidden000"):
+        assert locs[pid]["found"] is False and locs[pid]["reason"]
+    for r in locs.values():  # whatever is reported as found must be right
+        if r["found"]:
+            assert np.linalg.norm(np.subtract([r["x_cm"], r["y_cm"], r["z_cm"]], r["truth_cm"])) < 0.5

@@ -1,0 +1,55 @@
+"""Sphere geometry of the sphere-aware disparity (nodes/disparity/_common.py)."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from nodes.disparity._common import ellipse_to_conic, sphere_from_silhouette
+
+K = np.array([[700.0, 0, 320.0], [0, 700.0, 240.0], [0, 0, 1]])
+
+
+def silhouette_points(C, r, n=720):
+    """Image points of the sphere's outline (tangent cone boundary), exact."""
+    C = np.asarray(C, float)
+    d = np.linalg.norm(C)
+    a = C / d
+    alpha = math.asin(r / d)
+    e1 = np.cross(a, [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rays = (math.cos(alpha) * a[None] + math.sin(alpha) * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2))
+    p = (K @ rays.T).T
+    return (p[:, :2] / p[:, 2:]).astype(np.float32)
+
+
+@pytest.mark.parametrize("C", [(0, 0, 40.0), (12, -8, 35.0), (-15, 10, 30.0), (20, 14, 60.0)])
+def test_centre_image_from_silhouette_is_exact(C):
+    r = 2.0
+    pts = silhouette_points(C, r)
+    (cu, cv_), (w, h), ang = cv2.fitEllipse(pts)
+    a, b = max(w, h) / 2, min(w, h) / 2
+    if h > w:
+        ang += 90.0
+    E = ellipse_to_conic((cu, cv_), (a, b), ang)
+    # Every outline point lies on the conic.
+    hom = np.hstack([pts, np.ones((len(pts), 1))])
+    assert np.abs(np.einsum("ij,jk,ik->i", hom, E, hom)).max() < 1e-3
+    res = sphere_from_silhouette(E, K)
+    true = K @ np.asarray(C)
+    true = true[:2] / true[2]
+    assert np.allclose(res["center_px"], true, atol=2e-3)
+    # Distance from the known radius.
+    assert r / math.sin(res["half_angle_rad"]) == pytest.approx(np.linalg.norm(C), rel=1e-4)
+    assert res["anisotropy"] < 1e-3
+    # The ellipse centre is NOT the centre image off axis (the bias the estimator removes).
+    if np.hypot(C[0], C[1]) > 5:
+        assert np.hypot(cu - true[0], cv_ - true[1]) > 0.1
+
+
+def test_non_sphere_conic_is_flagged():
+    E = ellipse_to_conic((320, 240), (40, 15), 0.0)  # far too elongated for a centred sphere
+    assert sphere_from_silhouette(E, K)["anisotropy"] > 0.5
