@@ -94,10 +94,34 @@ def test_disparity_curve_recovers_known_coefficients():
                   "truth_cm": [0.0, 0.0, float(z[i])], "split": "train", "frame": "left_camera"}
         for i in range(len(d))
     }
-    coef = fit_disparity_curve(samples_from_locations(locs))
+    coef = fit_disparity_curve(samples_from_locations(locs), rectified=False)
     assert coef["a_cm_px"] == pytest.approx(a, rel=1e-6)
     assert coef["b_px"] == pytest.approx(b, abs=1e-5)
     assert coef["c_cm"] == pytest.approx(c, abs=1e-6)
+
+
+def test_disparity_curve_in_the_rectified_frame_is_exact_under_a_tilt():
+    # The physical z is the rectified z times a factor of the ray direction (rectification turns the
+    # camera by R1). Fitted in the rectified frame, the curve reproduces the truth exactly.
+    rng = np.random.default_rng(5)
+    d = rng.uniform(60, 250, 40)
+    u = rng.uniform(20, 620, 40)
+    g = 1 + 0.02 * (u - 320) / 560  # ~0.6 degree tilt about the vertical axis
+    a, b, c = 8100.0, -1.5, 0.4
+    z_true, z_meas = (a / (d + b) + c) * g, 8000.0 / d * g
+    locs = {
+        f"p{i}": {"pair": f"p{i}", "found": True, "x_cm": 0.0, "y_cm": 0.0, "z_cm": float(z_meas[i]),
+                  "disparity_px": float(d[i]), "u_left_px": float(u[i]), "v_left_px": 240.0,
+                  "truth_cm": [0.0, 0.0, float(z_true[i])], "split": "train", "frame": "left_camera"}
+        for i in range(len(d))
+    }
+    samples = samples_from_locations(locs)
+    from nodes.compensators.disparity_curve import predict_disparity_curve
+
+    rect = predict_disparity_curve(fit_disparity_curve(samples, rectified=True), samples)
+    cam = predict_disparity_curve(fit_disparity_curve(samples, rectified=False), samples)
+    assert np.max(np.abs(rect[:, 2] - z_true)) < 1e-6
+    assert np.max(np.abs(cam[:, 2] - z_true)) > 0.05  # the plain curve cannot follow the tilt
 
 
 def test_apply_flags_extrapolation_and_keeps_value(biased):

@@ -12,12 +12,20 @@ mismatch between the rectified cameras) and ``c`` a depth offset (cm). The fit
 is nonlinear least squares in numpy: an algebraic linear fit
 (``z d = (a + c b) + c d - b z``) for the start, then Gauss-Newton steps solved
 with :func:`numpy.linalg.lstsq` with step halving.
+
+``z = f B / d`` holds for the depth in the *rectified* left camera, which stereoRectify
+turns by R1 against the physical camera the locations are reported in. By default
+(``depth: rectified``) the curve is therefore fitted to the rectified depth: along one
+viewing ray the physical z is the rectified z times a factor ``g`` of the ray's direction
+only, and ``g = z_measured d / K`` with ``K`` the median of ``z_measured d`` over the
+training placements (a constant; it cancels). The corrected point is ``curve(d) g`` deep.
+``depth: camera`` fits the physical z directly (the thesis's plain curve).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -50,8 +58,15 @@ def _linear_ac(d: np.ndarray, z: np.ndarray, b: float) -> np.ndarray:
     return np.array([a, b, c])
 
 
+def _ray_factor(samples: Samples, k_cm_px: float | None) -> np.ndarray:
+    """g = z_measured d / K: physical over rectified depth along each measured ray (1 without K)."""
+    if k_cm_px is None:
+        return np.ones(len(samples))
+    return samples.xyz_cm[:, 2] * samples.disparity_px / k_cm_px
+
+
 def fit_disparity_curve(
-    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, xy: str = "auto"
+    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, xy: str = "auto", rectified: bool = True
 ) -> dict[str, Any]:
     """Least-squares fit of true z = a / (d + b) + c.
 
@@ -65,14 +80,20 @@ def fit_disparity_curve(
         Gauss-Newton iterations at most.
     xy : {"auto", "along_ray", "keep"}
         What the correction does to x, y (see :func:`resolve_along_ray`).
+    rectified : bool
+        Fit the rectified depth (see the module docstring) instead of the physical z.
 
     Returns
     -------
     dict
-        ``{"a_cm_px", "b_px", "c_cm", "along_ray", "iterations"}``.
+        ``{"a_cm_px", "b_px", "c_cm", "k_cm_px" (None when not rectified), "along_ray", "iterations"}``.
     """
     d = samples.disparity_px
-    z = samples.truth_cm[:, 2]
+    k_cm_px = float(np.median(samples.xyz_cm[:, 2] * d)) if rectified else None
+    if k_cm_px is not None and not k_cm_px > 0:
+        raise NodeError("measured depth times disparity is not positive on the training placements.")
+    g = _ray_factor(samples, k_cm_px)
+    z = samples.truth_cm[:, 2] / g
     n_coef = 3 if with_offset_px else 2
     if len(d) < n_coef + 1:
         raise NodeError(f"the disparity curve has {n_coef} coefficients and needs at least {n_coef + 1} placements, got {len(d)}.")
@@ -121,7 +142,8 @@ def fit_disparity_curve(
         "a_cm_px": float(p[0]),
         "b_px": float(p[1]),
         "c_cm": float(p[2]),
-        "along_ray": resolve_along_ray(xy, samples, _curve(p, d)),
+        "k_cm_px": k_cm_px,
+        "along_ray": resolve_along_ray(xy, samples, _curve(p, d) * g),
         "iterations": int(iterations),
     }
 
@@ -132,12 +154,17 @@ def predict_disparity_curve(coefficients: Mapping[str, Any], samples: Samples) -
     den = d + coefficients["b_px"]
     with np.errstate(divide="ignore", invalid="ignore"):
         z_new = np.where(den > 0, coefficients["a_cm_px"] / den + coefficients["c_cm"], np.nan)
+    z_new = z_new * _ray_factor(samples, coefficients.get("k_cm_px"))
     return along_ray(samples.xyz_cm, z_new, samples.frame, coefficients.get("along_ray", True))
 
 
 class DisparityCurveParams(RayFitParams):
     """Options of ``compensator.disparity_curve``."""
 
+    depth: Literal["rectified", "camera"] = Field(
+        "rectified",
+        description="Fit the rectified camera's depth (where z = fB/d holds; default) or the physical z (cm).",
+    )
     with_offset: bool = Field(
         True, description="Fit the disparity offset b (px) of z = a/(d+b)+c; false fixes b = 0."
     )
@@ -163,7 +190,7 @@ def disparity_curve(params: DisparityCurveParams, train, ctx=None):
     require_span(samples.disparity_px, "disparity", label, params.min_span_fraction, "px")
 
     def fit(s: Samples) -> dict[str, Any]:
-        return fit_disparity_curve(s, params.with_offset, xy=params.xy)
+        return fit_disparity_curve(s, params.with_offset, xy=params.xy, rectified=params.depth == "rectified")
 
     model = build_model(
         "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
