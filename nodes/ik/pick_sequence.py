@@ -145,4 +145,5 @@ def pick_sequence(params: PickParams, arm, target):
         if params.on_refuse == "error":
             raise
         return {"plan": {"pair": target.get("pair"), "refused": True, "reason": e.message,
-                         "split": target.get("split"), "waypoints": []}}
+                         "split": target.get("split"), "truth_base_cm": target.get("truth_base_cm"),
+                         "waypoints": []}}
