@@ -29,9 +29,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ik", default="analytic_3dof", choices=["analytic_3dof", "numeric"])
     ap.add_argument("--threshold-cm", type=float, default=0.5)
     a = ap.parse_args(argv)
-    from stereograph.runner import run_pipeline
-
     from nodes.ik._solvers import OK, analytic_ik_batch
+    from stereograph.runner import run_pipeline
 
     def in_workspace(model, p) -> bool:
         """Can the arm reach the true centre and the approach / lift points above it?"""

@@ -1,13 +1,27 @@
 """Arm model, IK solvers (analytic and DLS) and the hand-eye fit."""
 
-import math
 
 import numpy as np
 import pytest
 
-from nodes.calibrators.hand_eye import HandEyeParams, fit_rigid, hand_eye, invert_pose, pose_matrix, transform_points
+from nodes.calibrators.hand_eye import (
+    HandEyeParams,
+    fit_rigid,
+    hand_eye,
+    invert_pose,
+    pose_matrix,
+    transform_points,
+)
 from nodes.ik._model import JOINTS, fk, fk_jacobian, limits_rad, servo_limits_units
-from nodes.ik._solvers import OK, TOO_FAR, Unreachable, analytic_ik, analytic_ik_batch, numeric_ik, numeric_ik_batch
+from nodes.ik._solvers import (
+    OK,
+    TOO_FAR,
+    Unreachable,
+    analytic_ik,
+    analytic_ik_batch,
+    numeric_ik,
+    numeric_ik_batch,
+)
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
 from nodes.ik.numeric import NumericParams, numeric

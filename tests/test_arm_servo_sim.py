@@ -7,11 +7,29 @@ import time
 import pytest
 
 dxl = pytest.importorskip("dynamixel_sdk")
-from dynamixel_sdk import (COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, DXL_HIBYTE, DXL_LOBYTE,  # noqa: E402
-                           GroupSyncWrite, PacketHandler, PortHandler)
+from dynamixel_sdk import (  # noqa: E402
+    COMM_RX_CORRUPT,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    DXL_HIBYTE,
+    DXL_LOBYTE,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
 
-from nodes.actuators.servo_sim import (ERR_ANGLE, ERR_CHECKSUM, ERR_INSTRUCTION, ERR_RANGE, Faults,  # noqa: E402
-                                       ServoSim, cli, decode_error, instruction_packet, status_packet)
+from nodes.actuators.servo_sim import (  # noqa: E402
+    ERR_ANGLE,
+    ERR_CHECKSUM,
+    ERR_INSTRUCTION,
+    ERR_RANGE,
+    Faults,
+    ServoSim,
+    cli,
+    decode_error,
+    instruction_packet,
+    status_packet,
+)
 
 
 @pytest.fixture

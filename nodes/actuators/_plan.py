@@ -26,9 +26,8 @@ from __future__ import annotations
 
 from typing import Literal
 
-from stereograph.api import Field, NodeError, Params
-
 from nodes.ik._model import servo_limits_units
+from stereograph.api import Field, NodeError, Params
 
 ADDR_GOAL = 30
 ADDR_SPEED = 32

@@ -21,15 +21,32 @@ import contextlib
 import errno
 import json
 import time
-from typing import Any
-
-from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from nodes.ik._model import joint
+from stereograph.api import Field, In, NodeError, Out, Params, node
 
-from ._plan import ADDR_GOAL, REGISTER_NAMES, Selection, check_plan, move_seconds, select_plans, summary, waypoint_data
-from .servo_sim import (ERR_ANGLE, ERR_CHECKSUM, ERR_INSTRUCTION, ERR_OVERHEAT, ERR_OVERLOAD, ERR_RANGE,
-                        ERR_VOLTAGE, Faults, ServoSim, decode_error)
+from ._plan import (
+    ADDR_GOAL,
+    REGISTER_NAMES,
+    Selection,
+    check_plan,
+    move_seconds,
+    select_plans,
+    summary,
+    waypoint_data,
+)
+from .servo_sim import (
+    ERR_ANGLE,
+    ERR_CHECKSUM,
+    ERR_INSTRUCTION,
+    ERR_OVERHEAT,
+    ERR_OVERLOAD,
+    ERR_RANGE,
+    ERR_VOLTAGE,
+    Faults,
+    ServoSim,
+    decode_error,
+)
 
 ADDR_CW_LIMIT, ADDR_TORQUE, ADDR_POSITION, ADDR_MOVING = 6, 24, 36, 46
 HARD_ERRORS = ERR_VOLTAGE | ERR_ANGLE | ERR_OVERHEAT | ERR_RANGE | ERR_OVERLOAD

@@ -9,7 +9,15 @@ from __future__ import annotations
 
 from stereograph.api import Field, In, Out, node
 
-from ._plan import Selection, check_plan, move_seconds, select_plans, summary, sync_write_packet, waypoint_data
+from ._plan import (
+    Selection,
+    check_plan,
+    move_seconds,
+    select_plans,
+    summary,
+    sync_write_packet,
+    waypoint_data,
+)
 
 
 class LogParams(Selection):

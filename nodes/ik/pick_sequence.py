@@ -28,7 +28,15 @@ import numpy as np
 
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-from ._model import JOINTS, all_servo_ids, fk, joint, joints_to_servo_units, quantize_joints_deg, speed_to_units
+from ._model import (
+    JOINTS,
+    all_servo_ids,
+    fk,
+    joint,
+    joints_to_servo_units,
+    quantize_joints_deg,
+    speed_to_units,
+)
 from ._solvers import Unreachable
 from ._target import solve
 
