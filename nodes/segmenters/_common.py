@@ -215,9 +215,10 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
     padded[1:-1, 1:-1] = mask
     ff = padded.copy()
     cv2.floodFill(ff, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 255)
-    holes = cv2.bitwise_not(ff)[1:-1, 1:-1]
+    holes = np.ascontiguousarray(cv2.bitwise_not(ff)[1:-1, 1:-1])
     if max_area_px is not None and cv2.countNonZero(holes) > max_area_px:
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+        # (Connected components, not filled outer contours: a big hole may surround small ones.)
+        _n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
         keep = (stats[:, cv2.CC_STAT_AREA] <= max_area_px).astype(np.uint8) * 255
         keep[0] = 0
         holes = keep[labels]
@@ -321,17 +322,15 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     ring = cv2.dilate(mask, structuring_element(9)) > 0
     ring &= ~sel
     bg_px = img_bgr[ring] if ring.sum() > 20 else img_bgr[~sel]
-    bg = np.median(bg_px.reshape(-1, 3).astype(np.float32), axis=0)
+    bg = np.median(bg_px.reshape(-1, 3), axis=0).astype(np.float32)
     bg_v = float(bg.max())
-    bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
     if bg_v < 1:
         return mask
-    img = img_bgr.astype(np.float32)
-    v = img.max(axis=2)
-    s = (v - img.min(axis=2)) / np.maximum(v, 1.0) * 255.0
-    chroma = img / np.maximum(img.sum(axis=2, keepdims=True), 1.0)
-    bg_chroma = bg / max(float(bg.sum()), 1.0)
-    dchroma = np.abs(chroma - bg_chroma).sum(axis=2)
+    bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
+    hsv = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    v, s = hsv[..., 2], hsv[..., 1]
+    dchroma = color_distance_map(img_bgr, bg)
+    dchroma[v < 25] = 0.0  # chromaticity is noise in the darkest pixels: do not let it veto
     shadow_px = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
     shadow_px &= dchroma <= shadow.max_chroma_shift
     if obj.color_bgr is not None:
@@ -357,17 +356,21 @@ def suppress_shadow_regions(
     times the largest -- ball plus shadow) are processed; each gets its own local background.
     Working in windows keeps this cheap on whole images.
     """
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = mask.copy()
     h, w = mask.shape
-    for i in range(1, n):
-        area = stats[i, cv2.CC_STAT_AREA]
-        if not (area_range_px[0] <= area <= 4 * area_range_px[1]):
+    for c in cnts:
+        x, y, bw, bh = cv2.boundingRect(c)
+        if bw * bh < area_range_px[0]:
             continue
-        x, y, bw, bh = (int(stats[i, k]) for k in range(4))
+        area = cv2.contourArea(c)
+        if not (0.5 * area_range_px[0] <= area <= 4 * area_range_px[1]):
+            continue
         m = 6
         x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)
-        sub = (labels[y0:y1, x0:x1] == i).astype(np.uint8) * 255
+        sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.drawContours(sub, [c - np.int32([x0, y0])], -1, 255, cv2.FILLED)
+        sub &= mask[y0:y1, x0:x1]
         kept = suppress_shadow(img_bgr[y0:y1, x0:x1], sub, shadow, obj)
         removed = (sub > 0) & (kept == 0)
         out[y0:y1, x0:x1][removed] = 0

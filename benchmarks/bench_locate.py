@@ -1,0 +1,190 @@
+"""Throughput of remap -> segment -> centroid disparity -> triangulate on 640x480 pairs, one core.
+
+Three ways, same pairs, same run:
+
+* **engine** -- the pipeline (rectifier.remap -> segmenter.edge_morph -> disparity.centroid ->
+  locator.triangulate) through ``stereograph.runner.run_pipeline`` with caching off; the source
+  (rendering), calibration and rectification nodes' own seconds are subtracted from the run's
+  wall time, so the figure covers the four per-pair nodes plus all engine overhead.
+* **loop** -- a hand-written loop doing the same steps: cv2.remap with the same maps, then the
+  same segmentation library functions (segment_image per view, check_pair), centroid disparity,
+  Q reprojection, R1^T rotation and sigma_z; no engine, no dicts passed around.
+* **raw cv2** -- for context, the thesis's bare steps in plain OpenCV (gray, blur, Canny,
+  dilate, fill, erode, open, largest contour, pixel-moment centroid, z = f B / d): no
+  plausibility checks, no sub-pixel refinement, no shadow suppression.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_locate.py            # 200 pairs, best of 3
+    .venv/bin/python benchmarks/bench_locate.py --pairs 400 --repeat 5
+
+Prints pairs/s for each and the ratio engine / loop (target: >= 150 pairs/s, ratio >= 0.9).
+Figures are per wall second of the measured part; CPU seconds are printed too, since the
+machine may be shared.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+cv2.setNumThreads(1)
+
+from nodes.calibrators.truth import truth_calibration  # noqa: E402
+from nodes.disparity.centroid import centroid_disparity  # noqa: E402
+from nodes.locators.triangulate import sigma_z_cm, triangulate_point  # noqa: E402
+from nodes.rectifiers.opencv import rectify_calibration  # noqa: E402
+from nodes.segmenters._common import check_pair, expected_radius_px, segment_image  # noqa: E402
+from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph_mask  # noqa: E402
+from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
+
+OBJECT = {"radius_cm": 2.0, "color_bgr": [20, 120, 245]}
+
+PIPELINE = """
+name: bench-locate
+nodes:
+  rig: {{type: source.synthetic, params: {{n_scenes: {n}, n_views: 0, seed: {seed}}}}}
+  calib: {{type: calibrator.truth, inputs: {{truth: rig.truth}}}}
+  rectify: {{type: rectifier.opencv, inputs: {{calibration: calib.calibration}}}}
+  remap: {{type: rectifier.remap, inputs: {{rectification: rectify.rectification, pair: rig.pairs}}}}
+  segment:
+    type: segmenter.edge_morph
+    params: {{overlay: false, object: {{radius_cm: 2.0, color_bgr: [20, 120, 245]}}}}
+    inputs: {{pair: remap.rectified, rectification: rectify.rectification}}
+  disparity: {{type: disparity.centroid, inputs: {{segmentation: segment.segmentation,
+              rectification: rectify.rectification}}}}
+  locate: {{type: locator.triangulate, inputs: {{disparity: disparity.disparity,
+           rectification: rectify.rectification}}}}
+"""
+
+
+def run_engine(n: int, seed: int, work: Path) -> tuple[float, float, int]:
+    """(measured wall s, measured cpu s (approx.), pairs found) of one engine run, caching off."""
+    from stereograph.runner import run_pipeline
+
+    yml = work / "bench-locate.yaml"
+    yml.write_text(PIPELINE.format(n=n, seed=seed))
+    c0 = time.process_time()
+    res = run_pipeline(yml, cache_dir=work / "cache", out_dir=work / "out", use_cache=False)
+    cpu = time.process_time() - c0
+    assert res.ok, res.status
+    upstream = sum(res.reports[k].seconds for k in ("rig", "calib", "rectify"))
+    found = sum(bool(v["found"]) for v in res.outputs("locate", "location").values())
+    # CPU of the upstream nodes ~ their wall time (single-threaded rendering).
+    return res.seconds - upstream, cpu - upstream, found
+
+
+def run_loop(pairs: list[dict], rect: dict, params: EdgeMorphParams) -> int:
+    """The same steps as the engine's four nodes, in a plain loop."""
+    ml = (rect["map_left_fixed"], rect["map_left_interp"])
+    mr = (rect["map_right_fixed"], rect["map_right_interp"])
+    w, h = rect["image_size"]
+    r_range = expected_radius_px(params, rect, (w, h))
+    f, B = rect["f_px"], rect["baseline_cm"]
+    found = 0
+    for p in pairs:
+        L = cv2.remap(p["left"], *ml, cv2.INTER_LINEAR)
+        R = cv2.remap(p["right"], *mr, cv2.INTER_LINEAR)
+        _, lreg, _ = segment_image(L, edge_morph_mask, params, r_range)
+        _, rreg, _ = segment_image(R, edge_morph_mask, params, r_range)
+        if lreg is None or rreg is None or check_pair(lreg, rreg, params) is not None:
+            continue
+        u, v, d, sd = centroid_disparity(lreg, rreg)
+        xyz = triangulate_point(u, v, d, rect)
+        sigma_z_cm(float(xyz[2]), sd, f, B)
+        found += 1
+    return found
+
+
+def run_raw(pairs: list[dict], rect: dict) -> int:
+    """The thesis's bare steps in plain OpenCV (context only)."""
+    ml = (rect["map_left_fixed"], rect["map_left_interp"])
+    mr = (rect["map_right_fixed"], rect["map_right_interp"])
+    Q, R1 = rect["Q"], rect["R1"]
+    k5 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    found = 0
+
+    def centroid(img):
+        g = cv2.GaussianBlur(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), (0, 0), 2.0)
+        e = cv2.dilate(cv2.Canny(g, 30, 90, L2gradient=True), k5)
+        hh, ww = e.shape
+        ff = np.zeros((hh + 2, ww + 2), np.uint8)
+        ff[1:-1, 1:-1] = e
+        cv2.floodFill(ff, None, (0, 0), 255)
+        m = cv2.bitwise_or(e, cv2.bitwise_not(ff)[1:-1, 1:-1])
+        m = cv2.morphologyEx(cv2.erode(m, k5), cv2.MORPH_OPEN, k5)
+        cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not cnts:
+            return None
+        mo = cv2.moments(max(cnts, key=cv2.contourArea))
+        return (mo["m10"] / mo["m00"], mo["m01"] / mo["m00"]) if mo["m00"] else None
+
+    for p in pairs:
+        cl = centroid(cv2.remap(p["left"], *ml, cv2.INTER_LINEAR))
+        cr = centroid(cv2.remap(p["right"], *mr, cv2.INTER_LINEAR))
+        if cl is None or cr is None:
+            continue
+        X = Q @ np.array([cl[0], cl[1], cl[0] - cr[0], 1.0])
+        R1.T @ (X[:3] / X[3])
+        found += 1
+    return found
+
+
+def best(fn, repeat):
+    """(best wall s, cpu s of that run, result)."""
+    out = None
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        r = fn()
+        t, c = time.perf_counter() - t0, time.process_time() - c0
+        if out is None or t < out[0]:
+            out = (t, c, r)
+    return out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pairs", type=int, default=200, help="pairs per run (count)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per method; the fastest is kept")
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+
+    print(f"rendering {a.pairs} synthetic 640x480 pairs ...", flush=True)
+    src = synthetic(SyntheticParams(n_scenes=a.pairs, n_views=0, seed=a.seed))
+    pairs = list(src["pairs"].values())
+    rect = rectify_calibration(truth_calibration(src["truth"]))
+    params = EdgeMorphParams(overlay=False, object=OBJECT)
+
+    loop = best(lambda: run_loop(pairs, rect, params), a.repeat)
+    raw = best(lambda: run_raw(pairs, rect), a.repeat)
+    with tempfile.TemporaryDirectory() as td:
+        eng = None
+        for _ in range(a.repeat):
+            r = run_engine(a.pairs, a.seed, Path(td))
+            if eng is None or r[0] < eng[0]:
+                eng = r
+    n = a.pairs
+    print(f"\n{n} pairs of 640x480, cv2.setNumThreads(1), best of {a.repeat} (wall; cpu in brackets)")
+    print(f"  engine (caching off)  : {n / eng[0]:7.1f} pairs/s  [{n / max(eng[1], 1e-9):7.1f} per cpu-s]"
+          f"  found {eng[2]}/{n}")
+    print(f"  hand-written loop     : {n / loop[0]:7.1f} pairs/s  [{n / max(loop[1], 1e-9):7.1f} per cpu-s]"
+          f"  found {loop[2]}/{n}")
+    print(f"  raw cv2 (thesis bare) : {n / raw[0]:7.1f} pairs/s  [{n / max(raw[1], 1e-9):7.1f} per cpu-s]"
+          f"  found {raw[2]}/{n}")
+    print(f"  ratio engine / loop   : {loop[0] / eng[0]:.3f}   (target >= 0.9; throughput target >= 150 pairs/s)")
+
+
+if __name__ == "__main__":
+    main()
