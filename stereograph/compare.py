@@ -695,10 +695,14 @@ def _json_default(v: Any) -> Any:
     return str(v)
 
 
+def _varying_keys(res: CompareResult) -> list[str]:
+    """The keys whose value differs between variants (all keys when none does)."""
+    return [k for k in res.keys if len({_show(x.variant.settings[k]) for x in res.variants}) > 1] or res.keys
+
+
 def _short_label(res: CompareResult, v: Variant) -> str:
     """Only the settings that differ between variants (plots have little room)."""
-    varying = [k for k in res.keys if len({_show(x.variant.settings[k]) for x in res.variants}) > 1] or res.keys
-    return ", ".join(_show(v.settings[k]) for k in varying)
+    return ", ".join(_show(v.settings[k]) for k in _varying_keys(res))
 
 
 def _series(res: CompareResult) -> list[tuple[str, dict[str, Any]]]:
@@ -734,7 +738,7 @@ def _plots(res: CompareResult) -> dict[str, Path]:
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel("true distance z (cm)")
     ax.set_ylabel("z error, measured - true (cm)")
-    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n" + ", ".join(res.keys), fontsize=9)
+    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n" + ", ".join(_varying_keys(res)), fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = res.out_dir / "z_error_vs_distance.png"
@@ -770,9 +774,11 @@ def print_table(res: CompareResult, console: Any = None) -> None:
     from rich.table import Table
 
     con = console or Console(highlight=False)
-    t = Table(title=f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)",
-              title_justify="left")
-    for k in res.keys:
+    keys = _varying_keys(res)
+    fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
+    t = Table(title=f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)"
+              + (f"; fixed: {', '.join(fixed)}" if fixed else ""), title_justify="left")
+    for k in keys:
         t.add_column(k)
     for c in ("n", "found"):
         t.add_column(c, justify="right")
@@ -785,7 +791,7 @@ def print_table(res: CompareResult, console: Any = None) -> None:
     zs = [r.get("z_rms_cm") for r in res.rows if r.get("z_rms_cm") is not None]
     best = min(zs) if zs else None
     for r in res.rows:
-        cells = [_show(r["settings"][k]) for k in res.keys]
+        cells = [_show(r["settings"][k]) for k in keys]
         if not r["ok"] and not r.get("n_truth"):
             t.add_row(*cells, *(["–"] * 14), style="red")
             continue
