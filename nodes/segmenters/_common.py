@@ -65,7 +65,7 @@ class ShadowParams(Params):
 
     enabled: bool = Field(True, description="Remove shadow pixels attached to the object (bool).")
     max_removed_fraction: float = Field(
-        0.5,
+        0.8,
         gt=0,
         le=1,
         description="Keep a region unchanged if more than this share would go (a dark object, not a shadow; ratio).",
@@ -610,6 +610,7 @@ def region_properties(
     image_size: tuple[int, int],
     params: SegmenterParams,
     contour: np.ndarray | None = None,
+    search_extra_px: float = 0.0,
 ) -> dict:
     """Region dict (see docs/artifacts.md) of the single region in ``mask`` (ROI coordinates).
 
@@ -636,7 +637,7 @@ def region_properties(
         px = img_bgr[ring]
         if px.size and (px.reshape(len(px), -1).max(axis=1) == 0).sum() >= 3:
             touches = True
-    pts = refine_contour(img_bgr, mask, params.edge_search_px, contour) if params.subpixel else None
+    pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
     sigma_c = None
     method = "pixels"
     if pts is not None:
@@ -705,15 +706,29 @@ def segment_image(
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not cnts:
-        return full_mask, None, "region vanished at full resolution"
-    # Keep the contour around the coarse candidate's centre (else the largest).
+    # Keep the contour around the coarse candidate's centre.
     centre = (float(best["centroid_px"][0] * sx - u0), float(best["centroid_px"][1] * sy - v0))
     inside = [c for c in cnts if cv2.pointPolygonTest(c, centre, False) >= 0]
-    chosen = max(inside or cnts, key=cv2.contourArea)
+    a_best = best["area_px"] * sx * sy
+    inside = [c for c in inside if 0.5 * a_best <= cv2.contourArea(c) <= 2.0 * a_best]
+    if inside:
+        chosen = max(inside, key=cv2.contourArea)
+    else:
+        # The window cut the outline open (a long shadow leaving it, say): use the coarse
+        # region, scaled up; the sub-pixel refinement below moves it onto the true edge.
+        chosen = np.round((best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 - [u0, v0]).astype(np.int32)
+        chosen = cv2.approxPolyDP(chosen, 0.5, True) if len(chosen) > 4 else chosen
+        # Densify to one point per pixel along the outline.
+        tmp = np.zeros(rm.shape, np.uint8)
+        cv2.drawContours(tmp, [chosen], -1, 255, cv2.FILLED)
+        dense, _ = cv2.findContours(tmp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not dense:
+            return full_mask, None, "region vanished at full resolution"
+        chosen = max(dense, key=cv2.contourArea)
     region_mask = np.zeros(rm.shape, np.uint8)
     cv2.drawContours(region_mask, [chosen], -1, 255, cv2.FILLED)
-    region = region_properties(roi, region_mask, (u0, v0), (w, h), params, contour=chosen)
+    region = region_properties(roi, region_mask, (u0, v0), (w, h), params, contour=chosen,
+                               search_extra_px=0.0 if inside else float(s))
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
     return full_mask, region, None
