@@ -768,40 +768,57 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return f"{v:.{digits}f}"
 
 
+def _table_columns(narrow: bool) -> list[tuple[str, Any]]:
+    """(header, cell function of a row) of the printed table; fewer columns on a narrow terminal."""
+    def pct(r: dict, a: str, s: str) -> str:
+        return _fmt(r.get(f"{a}_{s}_cm"))
+
+    cols: list[tuple[str, Any]] = (
+        [("found", lambda r: f"{r['n_found']}/{r['n']}")] if narrow
+        else [("n", lambda r: str(r["n"])), ("found", lambda r: str(r["n_found"]))])
+    stats = ("rms",) if narrow else ("mean", "std", "rms")
+    for a in AXES:
+        for st in (("mean", "std", "rms") if a == "z" else stats):
+            cols.append((f"{a} {st.replace('rms', 'RMS')}", lambda r, a=a, st=st: pct(r, a, st)))
+    if not narrow:
+        cols.append(("extrap.", lambda r: str(r["n_extrapolated"])))
+        cols.append(("fit s", lambda r: _fmt(r["fit_time_s"], 4)))
+    cols.append(("pair ms", lambda r: _fmt(None if r["per_pair_s"] is None else 1000 * r["per_pair_s"], 1)))
+    return cols
+
+
 def print_table(res: CompareResult, console: Any = None) -> None:
-    """The comparison as a rich table (cm), best z RMS marked."""
+    """The comparison as a rich table (cm), best z RMS in bold green.
+
+    On a terminal narrower than 150 columns x and y show their RMS only and the fit time and
+    extrapolation count are left out (compare.csv has everything).
+    """
+    from rich import box
     from rich.console import Console
     from rich.table import Table
 
     con = console or Console(highlight=False)
     keys = _varying_keys(res)
     fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
+    narrow = con.width < 150
     t = Table(title=f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)"
-              + (f"; fixed: {', '.join(fixed)}" if fixed else ""), title_justify="left")
+              + (f"; fixed: {', '.join(fixed)}" if fixed else ""), title_justify="left",
+              **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}))
+    cols = _table_columns(narrow)
     for k in keys:
-        t.add_column(k)
-    for c in ("n", "found"):
-        t.add_column(c, justify="right")
-    for a in AXES:
-        for s in ("mean", "std", "RMS"):
-            t.add_column(f"{a} {s}", justify="right")
-    t.add_column("extrap.", justify="right")
-    t.add_column("fit s", justify="right")
-    t.add_column("per pair ms", justify="right")
+        width = max(len(_show(r["settings"][k])) for r in res.rows) if res.rows else 4
+        t.add_column(k, no_wrap=True, min_width=min(width, 22))
+    for header, _ in cols:
+        t.add_column(header, justify="right", no_wrap=True)
     zs = [r.get("z_rms_cm") for r in res.rows if r.get("z_rms_cm") is not None]
     best = min(zs) if zs else None
     for r in res.rows:
         cells = [_show(r["settings"][k]) for k in keys]
         if not r["ok"] and not r.get("n_truth"):
-            t.add_row(*cells, *(["–"] * 14), style="red")
+            t.add_row(*cells, *(["–"] * len(cols)), style="red")
             continue
-        cells += [str(r["n"]), str(r["n_found"])]
-        for a in AXES:
-            cells += [_fmt(r.get(f"{a}_mean_cm")), _fmt(r.get(f"{a}_std_cm")), _fmt(r.get(f"{a}_rms_cm"))]
-        cells += [str(r["n_extrapolated"]), _fmt(r["fit_time_s"], 4),
-                  _fmt(None if r["per_pair_s"] is None else 1000 * r["per_pair_s"], 1)]
         style = "bold green" if best is not None and r.get("z_rms_cm") == best else ("red" if not r["ok"] else None)
-        t.add_row(*cells, style=style)
+        t.add_row(*cells, *(fn(r) for _, fn in cols), style=style)
     con.print(t)
     for vr in res.variants:
         if not vr.ok:
