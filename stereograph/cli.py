@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from stereograph import __version__, registry
-from stereograph.errors import ConfigError, UsageError
+from stereograph.errors import ConfigError
 
 
 def _console(stderr: bool = False):
@@ -94,16 +94,35 @@ def cmd_graph(args) -> int:
     return 0
 
 
-def _describe_params(spec) -> list[tuple[str, str, str, str]]:
+def _type_name(ann: Any) -> str:
+    import typing
+
+    origin = typing.get_origin(ann)
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in typing.get_args(ann))
+    if origin is not None:
+        args = [_type_name(a) for a in typing.get_args(ann)]
+        name = getattr(origin, "__name__", str(origin).replace("typing.", ""))
+        return " | ".join(args) if name in ("Union", "UnionType") else f"{name}[{', '.join(args)}]"
+    return "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
+
+
+def _describe_params(model, prefix: str = "") -> list[tuple[str, str, str, str]]:
+    """Rows (name, type, default, description [range]); nested models expand to dotted names."""
+    from pydantic import BaseModel
+
     rows = []
-    for name, f in spec.params.model_fields.items():
+    symbols = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
+    for name, f in model.model_fields.items():
         ann = f.annotation
-        tname = getattr(ann, "__name__", None) or str(ann).replace("typing.", "")
+        if isinstance(ann, type) and issubclass(ann, BaseModel):
+            rows += _describe_params(ann, f"{prefix}{name}.")
+            continue
         default = "required" if f.is_required() else repr(f.get_default(call_default_factory=True))
-        bounds = [f"{m.__class__.__name__.lower()} {list(vars(m).values())[0]}" for m in f.metadata
-                  if m.__class__.__name__ in ("Ge", "Gt", "Le", "Lt")]
+        bounds = [f"{sym} {getattr(m, attr)}" for m in f.metadata for attr, sym in symbols.items()
+                  if getattr(m, attr, None) is not None]
         desc = (f.description or "") + (f" [{', '.join(bounds)}]" if bounds else "")
-        rows.append((name, tname, default, desc))
+        rows.append((prefix + name, _type_name(ann), default, desc))
     return rows
 
 
@@ -118,7 +137,7 @@ def cmd_nodes(args) -> int:
         if spec.description:
             con.print(spec.description)
         t = Table("param", "type", "default", "description (unit) [range]", title="params", title_justify="left")
-        for row in _describe_params(spec):
+        for row in _describe_params(spec.params):
             t.add_row(*row)
         con.print(t)
         t = Table("input", "type", "mode", "description", title="inputs", title_justify="left")
@@ -190,7 +209,7 @@ def cmd_run(args) -> int:
     _print_warnings(graph, err)
     con = _console()
     interactive = sys.stdout.isatty() and not args.json
-    executor = workers_executor(args.workers)
+    executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor)
     try:
@@ -281,6 +300,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
     sp.add_argument("--from", metavar="NODE", help="recompute NODE and its downstream even if cached")
     sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
+                    "('local' starts one with --workers processes; needs the 'dask' extra)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
     sp = pipeline_cmd("graph", "print the pipeline graph")

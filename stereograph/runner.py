@@ -32,18 +32,19 @@ import os
 import time
 import traceback
 import uuid
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
+from stereograph import outputs as outputs_mod
 from stereograph import registry
 from stereograph.api import REGISTRY, NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, content_key, hash_json
 from stereograph.config import PipelineDoc, load_pipeline
 from stereograph.errors import ConfigError
 from stereograph.graph import Graph, NodeInstance, build_graph
-from stereograph import outputs as outputs_mod
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
@@ -86,13 +87,16 @@ def execute(task: Task) -> TaskResult:
             if task.plugins:
                 registry.import_plugins(task.plugins, Path(task.pipeline_dir))
             spec = registry.get(task.node_type)
+        params = task.params
+        if isinstance(params, dict):  # sent as plain data to another process: validate again there
+            params = spec.params.model_validate(params)
         kwargs = dict(task.inputs)
         ctx = None
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
                              Path(task.pipeline_dir))
             kwargs["ctx"] = ctx
-        out = spec.fn(task.params, **kwargs)
+        out = spec.fn(params, **kwargs)
         if not isinstance(out, dict) or set(out) != set(spec.outputs):
             if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
                 out = {next(iter(spec.outputs)): out}
@@ -126,6 +130,8 @@ class SerialExecutor:
 class ProcessExecutor:
     """Runs item tasks in a pool of worker processes (results in order)."""
 
+    remote = True
+
     def __init__(self, workers: int):
         self.pool = cf.ProcessPoolExecutor(max_workers=workers)
 
@@ -134,6 +140,37 @@ class ProcessExecutor:
 
     def close(self) -> None:
         self.pool.shutdown()
+
+
+class DaskExecutor:
+    """Runs item tasks on a Dask cluster (``pip install -e '.[dask]'``).
+
+    Parameters
+    ----------
+    address : str, optional
+        A running scheduler (``tcp://host:8786``); default: a local cluster of ``workers`` processes.
+    """
+
+    remote = True
+
+    def __init__(self, address: str | None = None, workers: int = 2):
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise ConfigError("the Dask executor needs the 'dask' extra",
+                              hint="pip install -e '.[dask]', or use --workers N for a local process pool") from None
+        self.cluster = None if address else LocalCluster(n_workers=workers, threads_per_worker=1,
+                                                         processes=True, dashboard_address=None)
+        self.client = Client(address or self.cluster)
+
+    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
+        # pure=False: two equal tasks are two calls (the cache, not Dask, deduplicates)
+        return self.client.gather(self.client.map(fn, tasks, pure=False))
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
 
 
 # --------------------------------------------------------------------------- results
@@ -290,7 +327,9 @@ class _Run:
         return vals
 
     def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any]) -> Task:
-        return Task(inst.type, list(self.g.doc.plugins), inst.params, values, inst.name, item,
+        # a params model may come from a plugin module another process has not imported yet
+        params = inst.params.model_dump() if getattr(self.executor, "remote", False) else inst.params
+        return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
                     str(self.out_dir), str(self.g.doc.directory))
 
     def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any]) -> None:
@@ -586,8 +625,10 @@ def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs:
     return run_graph(build_graph(doc), **kwargs)
 
 
-def workers_executor(workers: int | None) -> Any:
-    """The executor for ``--workers N`` (1 or None: serial)."""
+def workers_executor(workers: int | None, dask: str | None = None) -> Any:
+    """The executor for ``--workers N`` (1 or None: serial) or ``--dask [ADDRESS|local]``."""
+    if dask:
+        return DaskExecutor(None if dask == "local" else dask, max(workers or 2, 1))
     if not workers or workers <= 1:
         return SerialExecutor()
     return ProcessExecutor(min(workers, os.cpu_count() or 1))

@@ -145,8 +145,8 @@ def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path
         def boom(params, m):
             raise NodeError("no object found in image left07.png", hint="check the lighting")
         """))
-    p = write_pipeline(tmp_path, extra=f"  boom:\n    type: tmp.boom\n    inputs: {{m: power.m}}\n"
-                                       f"  after:\n    type: toy.sum\n    params: {{scale: 3}}\n    inputs: {{values: power.norm}}\n")
+    p = write_pipeline(tmp_path, extra="  boom:\n    type: tmp.boom\n    inputs: {m: power.m}\n"
+                                       "  after:\n    type: toy.sum\n    params: {scale: 3}\n    inputs: {values: power.norm}\n")
     text = p.read_text().replace(f"plugins: [{TOY}]", f"plugins: [{TOY}, {plug}]")
     p.write_text(text)
     code = main(["run", str(p), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")])
@@ -301,6 +301,20 @@ def test_process_pool_gives_the_same_result(tmp_path):
     p = write_pipeline(tmp_path, n=8)
     serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
     ex = ProcessExecutor(2)
+    try:
+        r = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o2", executor=ex)
+    finally:
+        ex.close()
+    assert r.ok and r.outputs("total", "total") == pytest.approx(serial)
+
+
+def test_dask_executor_gives_the_same_result(tmp_path):
+    pytest.importorskip("distributed")
+    from stereograph.runner import DaskExecutor
+
+    p = write_pipeline(tmp_path, n=6)
+    serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
+    ex = DaskExecutor(workers=2)
     try:
         r = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o2", executor=ex)
     finally:

@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 import pytest
-
 from locate_scenes import make_pair, rect_calibration
+
 from nodes.disparity.centroid import CentroidParams, centroid
 from nodes.disparity.ellipse import EllipseParams, ellipse
 from nodes.disparity.sgbm import SgbmParams, sgbm

@@ -40,8 +40,8 @@ import signal
 import threading
 import time
 import tty
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable
 
 # --------------------------------------------------------------------------- protocol constants
 INST_PING, INST_READ, INST_WRITE, INST_REG_WRITE, INST_ACTION, INST_RESET = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
@@ -303,7 +303,7 @@ class ServoSim:
         self.t0 = time.monotonic()
 
     # lifecycle -----------------------------------------------------------------------
-    def start(self) -> "ServoSim":
+    def start(self) -> ServoSim:
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)  # no echo / line editing before a client configures the port
         path = os.ttyname(self.slave)
@@ -333,7 +333,7 @@ class ServoSim:
         if self.link and os.path.islink(self.link):
             os.unlink(self.link)
 
-    def __enter__(self) -> "ServoSim":
+    def __enter__(self) -> ServoSim:
         return self.start()
 
     def __exit__(self, *exc) -> None:
