@@ -682,7 +682,8 @@ def _ball_sils(rig, center_table, radius):
 
 def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | None = None,
                radius_cm: float = 2.0, color: Any = "orange", min_distance_cm: float = 30.0,
-               max_distance_cm: float = 60.0, border_margin_px: float = 4.0) -> dict:
+               max_distance_cm: float = 60.0, border_margin_px: float = 4.0,
+               region_cm: tuple[float, float, float, float] | None = None) -> dict:
     """Draw a random scene of a given kind (see the module docstring).
 
     Parameters
@@ -701,6 +702,9 @@ def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | 
         Range of the ball centre's distance from the left camera, cm.
     border_margin_px : float
         For non-border kinds, the ball's silhouette stays this far inside both images.
+    region_cm : (x, y, r_min, r_max) or None
+        Keep the ball centre in this annulus of the table plane (table frame, cm): e.g. the
+        part of the table a robot arm standing at (x, y) can reach.
 
     Returns
     -------
@@ -723,10 +727,15 @@ def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | 
             ground = math.sqrt(dist * dist - dz * dz)
             bearing = rng.uniform(-0.7, 0.7)
             c = np.array([C1[0] + ground * math.sin(bearing), C1[1] + ground * math.cos(bearing), radius_cm])
+            if region_cm is not None:
+                rho = math.hypot(c[0] - region_cm[0], c[1] - region_cm[1])
+                if not region_cm[2] <= rho <= region_cm[3]:
+                    continue
             sils = _ball_sils(rig, c, radius_cm)
             if sils is not None and accept(c, sils):
                 return c, sils
-        raise RuntimeError(f"could not place a ball for scene kind {kind!r}; widen the distance range")
+        raise RuntimeError(f"could not place a ball for scene kind {kind!r}; widen the distance range"
+                           + (" or the placement region" if region_cm is not None else ""))
 
     def inside_both(c, sils):
         return all(_bbox_inside(rig, s, border_margin_px) for s in sils)

@@ -42,6 +42,9 @@ class SyntheticParams(Params):
     n_scenes: int = Field(120, ge=0, le=5000, description="Number of plain ball scenes (count).")
     min_distance_cm: float = Field(30.0, gt=5, description="Nearest ball centre from the left camera, cm.")
     max_distance_cm: float = Field(60.0, gt=5, description="Farthest ball centre from the left camera, cm.")
+    placement_region_cm: tuple[float, float, float, float] | None = Field(
+        None, description="Keep ball centres in an annulus of the table: centre x, y and radii min, max (cm, "
+                          "table frame) — e.g. what an arm standing there can reach; None = anywhere in view.")
     hard_cases: list[HardCase] = Field(
         default_factory=list, description="Extra hard scene kinds to add (clutter, second_ball, border, occluded, "
                                           "hidden, empty).")
@@ -53,6 +56,10 @@ class SyntheticParams(Params):
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(2.5, gt=0.1, le=20, description="Chessboard square size, cm.")
     train_fraction: float = Field(0.5, ge=0, le=1, description="Share of scenes marked split=train (0..1).")
+    split_mode: Literal["span", "random"] = Field(
+        "span", description="How scenes are split: span = the nearest and the farthest plain placement are train "
+                            "(a correction fitted on the train split then covers the whole working range), the "
+                            "rest at random; random = all at random.")
     truth_masks: bool = Field(False, description="Add the ball's per-pixel coverage (float32 0..1) to the truth.")
     seed: int = Field(0, ge=0, description="Seed of placements, noise and split.")
 
@@ -104,7 +111,8 @@ def synthetic(params: SyntheticParams) -> dict:
 
     specs: list[tuple[str, dict]] = []
     scene_kw = {"radius_cm": params.ball_radius_cm, "color": params.ball_color,
-                "min_distance_cm": params.min_distance_cm, "max_distance_cm": params.max_distance_cm}
+                "min_distance_cm": params.min_distance_cm, "max_distance_cm": params.max_distance_cm,
+                "region_cm": params.placement_region_cm}
     try:
         for i in range(params.n_scenes):
             rng = np.random.default_rng([params.seed, 1, i])
@@ -119,6 +127,16 @@ def synthetic(params: SyntheticParams) -> dict:
         specs.append((str(sc.get("id", f"custom{i:03d}")), dict(sc)))
 
     split_rng = np.random.default_rng([params.seed, 3])
+    forced_train: set[str] = set()
+    if params.split_mode == "span" and params.train_fraction > 0:
+        plain = [(pid, sc) for pid, sc in specs if sc.get("kind") == "plain" and sc.get("ball")]
+        if len(plain) >= 4:
+            # depth along the left optical axis: what z-based corrections are fitted against
+            cam = rig["cams"][0]
+            R, C1 = np.asarray(cam["R_table_from_cam"]), np.asarray(cam["origin_table"])
+            dist = {pid: float((R.T @ (np.array([*sc["ball"]["center_cm"], sc["ball"]["radius_cm"]]) - C1))[2])
+                    for pid, sc in plain}
+            forced_train = {min(dist, key=dist.get), max(dist, key=dist.get)}
     pairs = {}
     for k, (pid, scene) in enumerate(specs):
         try:
@@ -128,7 +146,8 @@ def synthetic(params: SyntheticParams) -> dict:
             raise NodeError(f"source.synthetic: scene {pid!r} is malformed: {exc}",
                             hint="see the scene description in nodes/sources/_render.py") from exc
         pairs[pid] = {"id": pid, "left": left, "right": right, "truth": truth,
-                      "split": "train" if split_rng.random() < params.train_fraction else "test"}
+                      "split": "train" if (split_rng.random() < params.train_fraction or pid in forced_train)
+                      else "test"}
 
     views = []
     poses_table = {}
