@@ -20,7 +20,10 @@ from stereograph.errors import ConfigError
 def _console(stderr: bool = False):
     from rich.console import Console
 
-    return Console(stderr=stderr, highlight=False, soft_wrap=True)
+    stream = sys.stderr if stderr else sys.stdout
+    # logs and pipes get a wide table rather than rich's 80-column default
+    width = None if stream.isatty() else 160
+    return Console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
 
 
 class RichProgress:
@@ -175,7 +178,13 @@ def _summary_table(result, con) -> None:
     for r in result.reports.values():
         items = "" if not r.items else (f"{r.items_ran} ran / {r.items}" +
                                         (f", {r.items_failed} failed" if r.items_failed else ""))
-        note = r.error or "; ".join(r.messages[:2])
+        if r.error:
+            note = r.error
+        elif r.messages:
+            more = len(r.messages) - 1
+            note = r.messages[0][:90] + (f" (+{more} more in run.json)" if more else "")
+        else:
+            note = ""
         t.add_row(r.name, r.type, f"[{colours.get(r.status, 'white')}]{r.status}[/]", items, f"{r.seconds:.2f}",
                   escape(note[:160]))
     con.print(t)
