@@ -214,8 +214,7 @@ def cmd_run(args) -> int:
     from stereograph.runner import run_graph, workers_executor
 
     graph = _load_graph(args)
-    err = _console(stderr=True)
-    _print_warnings(graph, err)
+    err = _console(stderr=True)  # (wiring warnings such as unused outputs: `stereograph validate`)
     con = _console()
     interactive = sys.stdout.isatty() and not args.json
     executor = workers_executor(args.workers, args.dask)
