@@ -320,3 +320,37 @@ def test_dask_executor_gives_the_same_result(tmp_path):
     finally:
         ex.close()
     assert r.ok and r.outputs("total", "total") == pytest.approx(serial)
+
+
+def test_files_a_node_reads_are_part_of_its_key(tmp_path):
+    plug = tmp_path / "reader.py"
+    plug.write_text(textwrap.dedent("""\
+        from pathlib import Path
+        from stereograph.api import node, Out, Params, Field
+
+        class P(Params):
+            path: str = Field(..., description="A text file (path).")
+
+        def _reads(params, pipeline_dir):
+            return [pipeline_dir / params.path]
+
+        @node("tmp.reader", outputs={"text": Out("Text")}, params=P, reads=_reads)
+        def reader(params, ctx=None):
+            return {"text": ctx.path(params.path).read_text()}
+        """))
+    data = tmp_path / "data.txt"
+    data.write_text("one")
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader, params: {{path: data.txt}}}}\n")
+    assert run(f, tmp_path).outputs("read", "text") == "one"
+    assert run(f, tmp_path).status["read"] == "cached"
+    os.utime(data, ns=(1, 1))  # new mtime, same content: the digest confirms nothing changed
+    assert run(f, tmp_path).status["read"] == "cached"
+    data.write_text("two")
+    r = run(f, tmp_path)
+    assert r.status["read"] == "ran" and r.outputs("read", "text") == "two"
+    v = explain(build_graph(load_pipeline(f)), tmp_path / "cache")
+    assert v[0].fresh
+    data.write_text("three")
+    v = explain(build_graph(load_pipeline(f)), tmp_path / "cache")
+    assert not v[0].fresh and "input files changed: " in v[0].reasons[0] and "data.txt" in v[0].reasons[0]
