@@ -191,20 +191,24 @@ def _summary_table(result, con) -> None:
 
 
 def _echo_results(result, con) -> None:
-    """Print small terminal outputs (a location, joint angles, commands) for the user."""
+    """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
+    larger ones are only in the output folder."""
     from stereograph.outputs import to_json
 
     shown = 0
-    for key, v in result._values.items():
-        node, out, item = key
-        if item is not None or not isinstance(v, (dict, list, float, int, str)):
+    for (node, out, item), v in result._values.items():
+        if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
             continue
-        text = json.dumps(to_json(v, {}), default=str)
-        if len(text) > 600:
+        arrays: dict = {}
+        text = json.dumps(to_json(v, arrays), default=str)
+        if arrays or len(text) > 3000:
             continue
-        con.print(f"[bold]{node}.{out}[/] = {text}")
+        con.rule(f"{node}.{out}", align="left")
+        from rich.pretty import Pretty
+
+        con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
         shown += 1
-        if shown > 12:
+        if shown >= 6:
             break
 
 

@@ -201,6 +201,7 @@ class RunResult:
     _values: dict[Ref, Any]
     _items: dict[tuple[str, str], list[str]]
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
+    terminal: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -596,6 +597,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if write_outputs:
         outputs_mod.write_run_outputs(graph, run, result, selected)
     result._values, result._items = _terminal_values(graph, run, selected)
+    result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
 
@@ -608,7 +610,9 @@ def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict
             continue
         if run.reports[name].status in ("failed", "skipped"):
             continue
-        for out in inst.spec.outputs:
+        for out, decl in inst.spec.outputs.items():
+            if name not in run.keep and not decl.save:
+                continue
             if graph.is_collection(name, out):
                 ids = run.items.get((name, out), [])
                 items[(name, out)] = ids
