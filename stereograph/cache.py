@@ -389,7 +389,7 @@ class ArtifactStore:
 
     def clear(self) -> int:
         n = len(list(self.objects.glob("*/*"))) if self.objects.exists() else 0
-        for sub in ("objects", "tmp", "last", "locks", "files.json"):
+        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json"):
             p = self.root / sub
             if p.is_dir():
                 shutil.rmtree(p, ignore_errors=True)

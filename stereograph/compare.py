@@ -596,7 +596,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
             value = result.outputs(name, port)
             stem = out / name / port
             if graph.is_collection(name, port):
-                written = outputs_mod._write_collection(stem, value or {})
+                written = outputs_mod.write_collection(stem, value or {})
             elif value is not None:
                 written = outputs_mod.write_value(stem, value)
             else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import uuid
 from pathlib import Path
 from typing import Any
@@ -76,7 +77,8 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
     return files
 
 
-def _write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
+def write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
+    """Write a per-item output: a folder of PNG images, or one JSON list of records."""
     if not items:
         return write_value(stem, [])
     first = next(iter(items.values()))
@@ -89,6 +91,42 @@ def _write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
     for i, v in items.items():
         records.append({"item": i, **v} if isinstance(v, dict) else {"item": i, "value": v})
     return write_value(stem, records)
+
+
+
+def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any) -> list[Path]:
+    """Write one output, reusing the files rendered for the same artifact on an earlier run.
+
+    Encoding a cached image again is most of a cached run's time; a copy of the PNG is not.
+    """
+    if store is None or not key or key.startswith("volatile") or "/" in key:
+        return produce()
+    rdir = store.root / "rendered" / key[:2] / f"{key}-{output}"
+    if rdir.is_dir():
+        files = []
+        for f in sorted(rdir.iterdir()):
+            dest = stem.with_suffix(f.suffix)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}.tmp")
+            shutil.copyfile(f, tmp)
+            os.replace(tmp, dest)
+            files.append(dest)
+        if files:
+            return files
+    files = produce()
+    tmp = store.tmp / f"r-{uuid.uuid4().hex}"
+    tmp.mkdir(parents=True, exist_ok=True)
+    try:
+        for f in files:
+            shutil.copyfile(f, tmp / f.name)
+        rdir.parent.mkdir(parents=True, exist_ok=True)
+        os.rename(tmp, rdir)
+    except OSError:
+        pass  # another run rendered it first
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return files
 
 
 def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
@@ -105,14 +143,23 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
             if not (decl.save or name in terminal or name in run.keep):
                 continue
             stem = out_dir / name / out
+            store = run.store
             try:
                 if graph.is_collection(name, out):
                     ids = run.items.get((name, out), [])
-                    files = _write_collection(stem, {i: run.get((name, out, i)) for i in ids})
+                    first = run.get((name, out, ids[0])) if ids else None
+                    if ids and is_image(first):  # one file per item: reuse earlier renders
+                        files = []
+                        for i in ids:
+                            files += _rendered(store, run.ref_keys.get((name, out, i)), out, stem / str(i),
+                                               lambda i=i: write_value(stem / str(i), run.get((name, out, i))))
+                    else:
+                        files = write_collection(stem, {i: run.get((name, out, i)) for i in ids})
                 else:
                     if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
                         continue
-                    files = write_value(stem, run.get((name, out, None)))
+                    files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
+                                      lambda: write_value(stem, run.get((name, out, None))))
             except Exception as e:  # an output we cannot write must not lose the others
                 run.reports[name].messages.append(f"could not write output '{out}': {e}")
                 continue

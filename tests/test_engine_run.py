@@ -354,3 +354,21 @@ def test_files_a_node_reads_are_part_of_its_key(tmp_path):
     data.write_text("three")
     v = explain(build_graph(load_pipeline(f)), tmp_path / "cache")
     assert not v[0].fresh and "input files changed: " in v[0].reasons[0] and "data.txt" in v[0].reasons[0]
+
+
+def test_saved_images_are_written_on_cached_runs_too(tmp_path):
+    p = write_pipeline(tmp_path, n=3, extra="  picture:\n    type: toy.picture\n    inputs: {m: numbers.items}\n"
+                                             "  mean:\n    type: toy.sum\n    inputs: {values: picture.mean}\n")
+    r1 = run_pipeline(p, cache_dir=tmp_path / "cache", out_dir=tmp_path / "o1")
+    r2 = run_pipeline(p, cache_dir=tmp_path / "cache", out_dir=tmp_path / "o2")
+    assert r1.ok and r2.status["picture"] == "cached"
+    files1 = sorted((tmp_path / "o1" / "picture" / "picture").glob("*.png"))
+    files2 = sorted((tmp_path / "o2" / "picture" / "picture").glob("*.png"))
+    assert [f.name for f in files1] == ["m000.png", "m001.png", "m002.png"]
+    assert [f.read_bytes() for f in files1] == [f.read_bytes() for f in files2]
+    import cv2
+
+    img = cv2.imread(str(files2[0]), cv2.IMREAD_UNCHANGED)
+    assert img.dtype.name == "uint8" and img.shape == (32, 32)
+    assert ArtifactStore(tmp_path / "cache").clear() > 0
+    assert not (tmp_path / "cache" / "rendered").exists()

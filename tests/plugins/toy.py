@@ -50,3 +50,10 @@ def total(params: SumParams, values):
 def table(params, m):
     """Shape report of all items."""
     return {"report": {"n": len(m), "items": sorted(m)}}
+
+
+@node("toy.picture", inputs={"m": In("Matrix")}, outputs={"picture": Out("Image", save=True), "mean": Out("Number")})
+def picture(params, m):
+    """A grey image of the matrix (saved to the run folder on every run)."""
+    img = (255 * (m - m.min()) / max(float(np.ptp(m)), 1e-9)).astype(np.uint8)
+    return {"picture": np.kron(img, np.ones((4, 4), np.uint8)), "mean": float(m.mean())}
