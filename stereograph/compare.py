@@ -552,19 +552,16 @@ def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, split: str, e
     t0 = time.perf_counter()
     # The first variant writes every saved output; the others only those of their own nodes
     # (what they share with the first is the same artifact, already written there).
+    measured = final_location_outputs(graph)
     result = run_graph(graph, cache_dir=cache, out_dir=out, executor=executor, progress=prog,
-                       write_outputs=shared is None)
+                       write_outputs=shared is None, keep={node for node, _ in measured})
     if shared is not None:
         _write_own_outputs(graph, result, out, {n for n, h in lin.items() if h not in shared})
     failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
     error = "; ".join(f"{r.name}: {r.error}" for r in failed if r.error)[:400] or None
     outputs = []
-    for node, port in final_location_outputs(graph):
+    for node, port in measured:
         values = result.outputs(node, port) or {}
-        if not values and result.reports[node].status not in ("failed", "skipped"):
-            # Not a terminal or saved output: fetch it from the cache (every entry is there now).
-            again = run_graph(graph, cache_dir=cache, out_dir=out, only=node, write_outputs=False)
-            values = again.outputs(node, port) or {}
         if not isinstance(values, dict):
             values = {"": values}
         m = location_errors(values, split)

@@ -556,8 +556,11 @@ class _Run:
 def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str | Path | None = None,
               use_cache: bool = True, only: str | None = None, from_node: str | None = None,
               executor: Any = None, progress: Any = None, run_id: str | None = None,
-              write_outputs: bool = True) -> RunResult:
-    """Run a validated graph; see the module docstring."""
+              write_outputs: bool = True, keep: set[str] | None = None) -> RunResult:
+    """Run a validated graph; see the module docstring.
+
+    ``keep`` names extra (non-terminal) nodes whose outputs the result should hold.
+    """
     t0 = time.perf_counter()
     doc = graph.doc
     for flag, name in (("--only", only), ("--from", from_node)):
@@ -582,6 +585,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     run = _Run(graph, store, out, executor, force, progress)
     if only is not None:
         run.keep = {only}
+    run.keep |= set(keep or ())
     try:
         for name in selected:
             run.run_node(graph.nodes[name])
