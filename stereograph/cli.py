@@ -201,7 +201,15 @@ def _echo_results(result, con) -> None:
             continue
         arrays: dict = {}
         text = json.dumps(to_json(v, arrays), default=str)
-        if arrays or len(text) > 3000:
+        if (arrays or len(text) > 3000) and isinstance(v, dict):
+            # big artifacts (a calibration, say): show their scalar facts only
+            small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
+                     (isinstance(x, (list, tuple)) and len(x) <= 6 and
+                      all(isinstance(y, (int, float, str, bool)) for y in x))}
+            if not small:
+                continue
+            text = json.dumps(to_json(small, {}), default=str)
+        elif arrays or len(text) > 3000:
             continue
         con.rule(f"{node}.{out}", align="left")
         from rich.pretty import Pretty
@@ -248,8 +256,11 @@ def cmd_run(args) -> int:
             if args.debug and r.trace:
                 err.print(r.trace)
         first = failed[0].name
-        err.print(f"Everything upstream of '{first}' is cached: after the fix, run the same command again and "
-                  f"only '{first}' and what depends on it will run (or add --from {first} to force them).")
+        if graph.upstream(first):
+            err.print(f"Everything upstream of '{first}' is cached: after the fix, run the same command again "
+                      f"and only '{first}' and what depends on it will run (or add --from {first} to force them).")
+        else:
+            err.print("After the fix, run the same command again.")
         return 1
     return 0
 
