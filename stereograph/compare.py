@@ -735,7 +735,8 @@ def _plots(res: CompareResult) -> dict[str, Path]:
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel("true distance z (cm)")
     ax.set_ylabel("z error, measured - true (cm)")
-    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n" + ", ".join(_varying_keys(res)), fontsize=9)
+    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n"
+                 + ", ".join(_varying_keys(res)), fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     path = res.out_dir / "z_error_vs_distance.png"

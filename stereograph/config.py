@@ -217,7 +217,8 @@ def parse_override(text: str) -> tuple[str, list[str], Any]:
     lhs, rhs = text.split("=", 1)
     parts = lhs.strip().split(".")
     if len(parts) < 2 or not all(parts):
-        raise UsageError(f"--set '{text}': the left side must be node.param", hint="for example --set segment.canny_low=40")
+        raise UsageError(f"--set '{text}': the left side must be node.param",
+                         hint="for example --set segment.canny_low=40")
     try:
         value = yaml.safe_load(rhs) if rhs.strip() else ""
     except yaml.YAMLError:

@@ -152,14 +152,14 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                         files = []
                         for i in ids:
                             files += _rendered(store, run.ref_keys.get((name, out, i)), out, stem / str(i),
-                                               lambda i=i: write_value(stem / str(i), run.get((name, out, i))))
+                                               lambda r=(name, out, i), p=stem / str(i): write_value(p, run.get(r)))
                     else:
                         files = write_collection(stem, {i: run.get((name, out, i)) for i in ids})
                 else:
                     if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
                         continue
                     files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
-                                      lambda: write_value(stem, run.get((name, out, None))))
+                                      lambda r=(name, out, None), p=stem: write_value(p, run.get(r)))
             except Exception as e:  # an output we cannot write must not lose the others
                 run.reports[name].messages.append(f"could not write output '{out}': {e}")
                 continue

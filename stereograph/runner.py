@@ -282,7 +282,7 @@ class _Run:
                 refs[port] = (src, out, item)
             else:
                 refs[port] = (src, out, None)
-        for port, decl in inst.spec.inputs.items():
+        for port in inst.spec.inputs:
             if port not in refs:
                 refs[port] = None
         return refs
@@ -507,7 +507,7 @@ class _Run:
         results: list[Any] = [None] * len(tasks)
         with contextlib.ExitStack() as stack:
             mine, busy = [], []
-            for idx, (item, key) in enumerate(metas):
+            for idx, (_item, key) in enumerate(metas):
                 got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
                 (mine if got else busy).append(idx)
             for idx, res in zip(mine, self.executor.map(execute, [tasks[i] for i in mine])):

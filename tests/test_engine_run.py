@@ -15,6 +15,7 @@ import pytest
 from stereograph.cache import ArtifactStore
 from stereograph.cli import main
 from stereograph.config import load_pipeline
+from stereograph.errors import ConfigError
 from stereograph.explain import explain
 from stereograph.graph import build_graph
 from stereograph.runner import run_pipeline
@@ -207,7 +208,6 @@ def test_corrupt_entry_is_detected_and_recomputed(tmp_path):
     p = write_pipeline(tmp_path)
     r1 = run(p, tmp_path)
     # flip bytes in every stored array file of the 'power' items
-    store = ArtifactStore(tmp_path / "cache")
     n = 0
     for man in (tmp_path / "cache" / "objects").glob("*/*/manifest.json"):
         meta = json.loads(man.read_text())["meta"]
@@ -274,7 +274,7 @@ def test_uncacheable_node_runs_every_time(tmp_path):
     f = tmp_path / "p.yaml"
     f.write_text(f"name: l\nplugins: [{TOY}, {plug}]\nnodes:\n  live: {{type: tmp.live}}\n"
                  f"  total: {{type: toy.sum, inputs: {{values: live.x}}}}\n")
-    with pytest.raises(Exception):
+    with pytest.raises(ConfigError, match="gathers a collection"):
         # gathering a single artifact is a config error
         build_graph(load_pipeline(f))
     f.write_text(f"name: l\nplugins: [{plug}]\nnodes:\n  live: {{type: tmp.live}}\n")
