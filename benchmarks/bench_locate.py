@@ -7,7 +7,8 @@ Three ways, same pairs, same run:
   (rendering), calibration and rectification nodes' own seconds are subtracted from the run's
   wall time, so the figure covers the four per-pair nodes plus all engine overhead.
 * **loop** -- a hand-written loop doing the same steps: cv2.remap with the same maps, then the
-  same segmentation library functions (segment_image per view, check_pair), centroid disparity,
+  same segmentation library functions (segment_image per view, the right one in the left
+  region's epipolar band, check_pair), centroid disparity,
   Q reprojection, R1^T rotation and sigma_z; no engine, no dicts passed around.
 * **raw cv2** -- for context, the thesis's bare steps in plain OpenCV (gray, blur, Canny,
   dilate, fill, erode, open, largest contour, pixel-moment centroid, z = f B / d): no
@@ -46,7 +47,7 @@ from nodes.calibrators.truth import truth_calibration  # noqa: E402
 from nodes.disparity.centroid import centroid_disparity  # noqa: E402
 from nodes.locators.triangulate import sigma_z_cm, triangulate_point  # noqa: E402
 from nodes.rectifiers.opencv import rectify_calibration  # noqa: E402
-from nodes.segmenters._common import check_pair, expected_radius_px, segment_image  # noqa: E402
+from nodes.segmenters._common import check_pair, expected_radius_px, search_band, segment_image  # noqa: E402
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph_mask  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
 
@@ -98,7 +99,8 @@ def run_loop(pairs: list[dict], rect: dict, params: EdgeMorphParams) -> int:
         L = cv2.remap(p["left"], *ml, cv2.INTER_LINEAR)
         R = cv2.remap(p["right"], *mr, cv2.INTER_LINEAR)
         _, lreg, _ = segment_image(L, edge_morph_mask, params, r_range)
-        _, rreg, _ = segment_image(R, edge_morph_mask, params, r_range)
+        band = search_band(lreg, rect, params, (w, h)) if lreg is not None else None
+        _, rreg, _ = segment_image(R, edge_morph_mask, params, r_range, window=band)
         if lreg is None or rreg is None or check_pair(lreg, rreg, params) is not None:
             continue
         u, v, d, sd = centroid_disparity(lreg, rreg)

@@ -213,21 +213,55 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
     h, w = mask.shape
     padded = np.zeros((h + 2, w + 2), np.uint8)
     padded[1:-1, 1:-1] = mask
-    ff = padded.copy()
-    cv2.floodFill(ff, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 255)
-    holes = np.ascontiguousarray(cv2.bitwise_not(ff)[1:-1, 1:-1])
+    cv2.floodFill(padded, None, (0, 0), 128)  # 4-connected background reachable from the border
+    holes = cv2.compare(padded[1:-1, 1:-1], 0, cv2.CMP_EQ)
     if max_area_px is not None and cv2.countNonZero(holes) > max_area_px:
-        # (Connected components, not filled outer contours: a big hole may surround small ones.)
-        _n, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
-        keep = (stats[:, cv2.CC_STAT_AREA] <= max_area_px).astype(np.uint8) * 255
-        keep[0] = 0
-        holes = keep[labels]
+        # Drop the holes larger than max_area_px (4-connected components). Cheaper than
+        # labelling the whole image: only outlines whose area bound exceeds the limit are
+        # measured exactly, by a flood fill (marked 1 = kept, 0 = dropped); a big hole may
+        # surround small ones, which stay (they are separate components).
+        while True:
+            cnts, _ = cv2.findContours(cv2.compare(holes, 255, cv2.CMP_EQ), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_NONE)
+            # Pixel count <= polygon area + boundary points + 1 (Pick's theorem).
+            big = [c for c in cnts if cv2.contourArea(c) + len(c) + 1 > max_area_px]
+            if not big:
+                break
+            for c in big:
+                x, y = (int(v) for v in c[0, 0])
+                if holes[y, x] != 255:
+                    continue
+                if cv2.floodFill(holes, None, (x, y), 1, flags=4)[0] > max_area_px:
+                    cv2.floodFill(holes, None, (x, y), 0, flags=4)
+        holes = cv2.compare(holes, 0, cv2.CMP_GT)
     return cv2.bitwise_or(mask, holes)
 
 
 def max_hole_area(r_range_px: tuple[float, float]) -> float:
     """Largest hole worth filling: a ball of the largest expected radius plus its shadow (px)."""
     return 4.0 * math.pi * r_range_px[1] ** 2
+
+
+def fast_median(a: np.ndarray, axis: int | None = None) -> np.ndarray | float:
+    """``np.median`` of a 1-D array (``axis=None``, flattened) or of a 2-D array along axis 0.
+
+    Same values as ``np.median`` (the mean of the two middle values for an even count; float64
+    for integers) with a single ``np.partition`` -- ``np.median``'s own overhead dominates on
+    the few hundred values per call here.
+    """
+    a = np.asarray(a)
+    if axis is None:
+        a = a.ravel()
+    n = a.shape[0]
+    if n == 0:
+        return np.median(a, axis=0)
+    k = n // 2
+    if a.dtype.kind in "iub":
+        a = a.astype(np.float64)
+    if n % 2:
+        return np.partition(a, k, axis=0)[k]
+    p = np.partition(a, (k - 1, k), axis=0)
+    return (p[k - 1] + p[k]) / 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -287,7 +321,7 @@ def object_color_score(img_bgr: np.ndarray, mask: np.ndarray, obj: ObjectSpec) -
     if not sel.any():
         return float("inf")
     if obj.color_bgr is not None:
-        dist = float(np.median(color_distance_map(img_bgr[sel][None], obj.color_bgr)))
+        dist = float(fast_median(color_distance_map(img_bgr[sel][None], obj.color_bgr)))
         return dist / obj.color_tolerance
     hm = hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)
     return float(1.0 - (hm[sel] > 0).mean()) * 2.0  # 50 % outside the range -> score 1
@@ -301,8 +335,9 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
 
     A cast shadow on the table is the table's own colour, darker: a brightness well below that
     of the surrounding background, no more saturated than the background (a low saturation
-    compared with a coloured ball) and about the same normalised chromaticity. Such pixels inside the mask are dropped; pixels that match the object's
-    colour (when configured) are always kept. A small opening then cuts the thin bridges
+    compared with a coloured ball) and about the same normalised chromaticity. Such pixels
+    inside the mask are dropped; pixels that match the object's colour (when configured) are
+    always kept. A small opening then cuts the thin bridges
     that remain between ball and shadow.
 
     Parameters
@@ -322,7 +357,7 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     ring = cv2.dilate(mask, structuring_element(9)) > 0
     ring &= ~sel
     bg_px = img_bgr[ring] if ring.sum() > 20 else img_bgr[~sel]
-    bg = np.median(bg_px.reshape(-1, 3), axis=0).astype(np.float32)
+    bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
     bg_v = float(bg.max())
     if bg_v < 1:
         return mask
@@ -548,7 +583,7 @@ def refine_contour(
     k = prof.argmax(axis=1)
     inner = (k > 0) & (k < len(t) - 1)
     peak = prof[np.arange(len(k)), k]
-    inner &= peak > 0.25 * np.median(peak)
+    inner &= peak > 0.25 * fast_median(peak)
     k = np.clip(k, 1, len(t) - 2)
     rows = np.arange(len(k))
     y0, y1, y2 = prof[rows, k - 1], prof[rows, k], prof[rows, k + 1]
@@ -583,7 +618,7 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         y = -du * st + dv * ct
         rr = np.sqrt((x / (w / 2)) ** 2 + (y / (h / 2)) ** 2)
         res = (rr - 1.0) * 0.5 * (w + h) / 2
-        mad = np.median(np.abs(res[keep])) * 1.4826 + 1e-3
+        mad = fast_median(np.abs(res[keep])) * 1.4826 + 1e-3
         new = np.abs(res) <= max(3.0 * mad, 0.3)
         if new.sum() < 6 or (new == keep).all():
             keep = new if new.sum() >= 6 else keep
@@ -668,10 +703,87 @@ def region_properties(
 # --------------------------------------------------------------------------------------------
 # Per-image and per-pair drivers
 # --------------------------------------------------------------------------------------------
+def search_band(
+    region: dict, rectification: dict | None, params: SegmenterParams, image_size: tuple[int, int]
+) -> tuple[int, int, int, int] | None:
+    """Window (u0, v0, u1, v1) of the right rectified image where the left ``region`` can appear.
+
+    Rectified views share rows, so the right region lies on the left region's rows (+ the row
+    tolerance and a size difference), shifted left by a disparity between f B / z_far and
+    f B / z_near (+ the principal points' offset) over the working range with 25 % slack.
+    Searching only there (the epipolar band) is cheaper than the whole image and cannot pick
+    a look-alike elsewhere. None without a calibration (f_px, baseline_cm).
+    """
+    if rectification is None or not rectification.get("f_px") or not rectification.get("baseline_cm"):
+        return None
+    fb = float(rectification["f_px"]) * abs(float(rectification["baseline_cm"]))
+    cx = float(rectification.get("cx_px", 0.0))
+    dcx = cx - float(rectification.get("cx_right_px", cx))  # d = f B / z + (cx_left - cx_right)
+    z0, z1 = sorted(params.working_range_cm)
+    d_min, d_max = fb / (1.25 * z1) + dcx, fb / (0.75 * z0) + dcx
+    x0, y0, x1, y1 = region["bbox"]
+    r = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1)
+    # Margins: the right outline may be larger (area ratio limit) and the detection's filters
+    # differ within a few coarse pixels of the window's edge.
+    pad_v = params.max_row_offset_px + 0.5 * r + 32
+    pad_u = 0.5 * r + 32
+    w, h = image_size
+    u0, u1 = max(0, int(x0 - d_max - pad_u)), min(w, int(math.ceil(x1 - d_min + pad_u)) + 1)
+    v0, v1 = max(0, int(y0 - pad_v)), min(h, int(math.ceil(y1 + pad_v)) + 1)
+    if u1 - u0 < 2 * r or v1 - v0 < 2 * r:
+        return None
+    return u0, v0, u1, v1
+
+
+def _detect(
+    img_bgr: np.ndarray,
+    mask_fn: MaskFn,
+    params: SegmenterParams,
+    r_range_px: tuple[float, float],
+    s: int,
+    window: tuple[int, int, int, int] | None,
+) -> tuple[dict | None, str | None, tuple[float, float, int, int]]:
+    """Coarse detection: the chosen candidate (coarse coordinates), the reason, and
+    (sx, sy, u_off, v_off) mapping coarse to full-resolution pixels."""
+    h, w = img_bgr.shape[:2]
+    if window is None:
+        wu0, wv0, wu1, wv1 = 0, 0, w, h
+    else:
+        # Align the window to the pyramid's grid so that its coarse pixels are the image's.
+        wu0, wv0 = window[0] // s * s, window[1] // s * s
+        wu1, wv1 = min(w, -(-window[2] // s) * s), min(h, -(-window[3] // s) * s)
+    small = img_bgr[wv0:wv1, wu0:wu1]
+    for _ in range(int(round(math.log2(s)))):
+        small = cv2.pyrDown(small)
+    sx, sy = (wu1 - wu0) / small.shape[1], (wv1 - wv0) / small.shape[0]
+    r_small = (r_range_px[0] / s, r_range_px[1] / s)
+    m = mask_fn(small, params, r_small, s, False)
+    if params.shadow.enabled:
+        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
+        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object)
+    cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
+    if window is not None:
+        # A region cut by the window's edge (inside the image) is not the object, which lies
+        # inside the window by construction.
+        sh, sw = m.shape
+        cands = [c for c in cands
+                 if not ((c["bbox"][0] <= 0 < wu0) or (c["bbox"][1] <= 0 < wv0)
+                         or (c["bbox"][2] >= sw - 1 and wu1 < w) or (c["bbox"][3] >= sh - 1 and wv1 < h))]
+    best, reason = select_candidate(cands, small, r_small, params)
+    return best, reason, (sx, sy, wu0, wv0)
+
+
 def segment_image(
-    img_bgr: np.ndarray, mask_fn: MaskFn, params: SegmenterParams, r_range_px: tuple[float, float]
+    img_bgr: np.ndarray,
+    mask_fn: MaskFn,
+    params: SegmenterParams,
+    r_range_px: tuple[float, float],
+    window: tuple[int, int, int, int] | None = None,
 ) -> tuple[np.ndarray, dict | None, str | None]:
     """Find the object in one rectified image.
+
+    ``window`` (u0, v0, u1, v1), optional: detect only there (see :func:`search_band`); if
+    nothing is found there, the whole image is searched (so reasons are the whole image's).
 
     Returns
     -------
@@ -681,17 +793,11 @@ def segment_image(
     """
     h, w = img_bgr.shape[:2]
     s = auto_downscale(r_range_px[0], params.detect_downscale)
-    small = img_bgr
-    for _ in range(int(round(math.log2(s)))):
-        small = cv2.pyrDown(small)
-    sx, sy = w / small.shape[1], h / small.shape[0]
-    r_small = (r_range_px[0] / s, r_range_px[1] / s)
-    m = mask_fn(small, params, r_small, s, False)
-    if params.shadow.enabled:
-        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object)
-    cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
-    best, reason = select_candidate(cands, small, r_small, params)
+    best = None
+    if window is not None:
+        best, reason, (sx, sy, ou, ov) = _detect(img_bgr, mask_fn, params, r_range_px, s, window)
+    if best is None:
+        best, reason, (sx, sy, ou, ov) = _detect(img_bgr, mask_fn, params, r_range_px, s, None)
     full_mask = np.zeros((h, w), bool)
     if best is None:
         return full_mask, None, reason
@@ -699,15 +805,15 @@ def segment_image(
     x0, y0, x1, y1 = best["bbox"]
     r_est = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1) * s
     pad = int(math.ceil(0.35 * r_est + 2 * s + params.edge_search_px + 4))
-    u0, v0 = max(0, int(x0 * sx) - pad), max(0, int(y0 * sy) - pad)
-    u1, v1 = min(w, int((x1 + 1) * sx) + pad), min(h, int((y1 + 1) * sy) + pad)
+    u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
+    u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
     roi = img_bgr[v0:v1, u0:u1]
     rm = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     # Keep the contour around the coarse candidate's centre.
-    centre = (float(best["centroid_px"][0] * sx - u0), float(best["centroid_px"][1] * sy - v0))
+    centre = (float(best["centroid_px"][0] * sx + ou - u0), float(best["centroid_px"][1] * sy + ov - v0))
     inside = [c for c in cnts if cv2.pointPolygonTest(c, centre, False) >= 0]
     a_best = best["area_px"] * sx * sy
     inside = [c for c in inside if 0.5 * a_best <= cv2.contourArea(c) <= 2.0 * a_best]
@@ -716,7 +822,8 @@ def segment_image(
     else:
         # The window cut the outline open (a long shadow leaving it, say): use the coarse
         # region, scaled up; the sub-pixel refinement below moves it onto the true edge.
-        chosen = np.round((best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 - [u0, v0]).astype(np.int32)
+        chosen = np.round((best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 + [ou - u0, ov - v0]
+                          ).astype(np.int32)
         chosen = cv2.approxPolyDP(chosen, 0.5, True) if len(chosen) > 4 else chosen
         # Densify to one point per pixel along the outline.
         tmp = np.zeros(rm.shape, np.uint8)
@@ -839,7 +946,8 @@ def segment_pair(
         h, w = L.shape[:2]
         r_range = expected_radius_px(params, rectification, (w, h))
         lm, lreg, lwhy = segment_image(L, mask_fn, params, r_range)
-        rm, rreg, rwhy = segment_image(R, mask_fn, params, r_range)
+        band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
+        rm, rreg, rwhy = segment_image(R, mask_fn, params, r_range, window=band)
         seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg)
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
