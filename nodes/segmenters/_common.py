@@ -29,7 +29,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from stereograph.api import Field, NodeError, Params
+from stereograph.api import Field, In, NodeError, Out, Params
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
 # ``scale`` is the downscale factor of ``image_bgr`` (1 = full resolution): divide sizes given in
@@ -59,6 +59,16 @@ class ObjectSpec(Params):
         60, ge=0, le=255, description="Min HSV saturation (0-255) of object pixels for hue ranges."
     )
 
+
+# Every segmenter has this interface, so that swapping methods is a one-line YAML change.
+SEGMENTER_INPUTS = {
+    "pair": In("RectifiedPair", description="Rectified stereo pair."),
+    "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+}
+SEGMENTER_OUTPUTS = {
+    "segmentation": Out("Segmentation", description="Masks and region properties."),
+    "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+}
 
 class ShadowParams(Params):
     """Shadow suppression: drop dark, low-saturation pixels that the mask took from the table."""

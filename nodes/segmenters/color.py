@@ -12,9 +12,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereograph.api import Field, In, NodeError, Out, node
+from stereograph.api import Field, NodeError, node
 
 from ._common import (
+    SEGMENTER_INPUTS,
+    SEGMENTER_OUTPUTS,
     SegmenterParams,
     color_distance_map,
     fill_holes,
@@ -50,14 +52,8 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
 
 @node(
     "segmenter.color",
-    inputs={
-        "pair": In("RectifiedPair", description="Rectified stereo pair."),
-        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
-    },
-    outputs={
-        "segmentation": Out("Segmentation", description="Masks and region properties."),
-        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
-    },
+    inputs=SEGMENTER_INPUTS,
+    outputs=SEGMENTER_OUTPUTS,
     params=ColorParams,
     version="1",
 )

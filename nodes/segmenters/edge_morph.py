@@ -15,9 +15,11 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from stereograph.api import Field, In, Out, node
+from stereograph.api import Field, node
 
 from ._common import (
+    SEGMENTER_INPUTS,
+    SEGMENTER_OUTPUTS,
     Channel,
     SegmenterParams,
     fill_holes,
@@ -103,14 +105,8 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
 
 @node(
     "segmenter.edge_morph",
-    inputs={
-        "pair": In("RectifiedPair", description="Rectified stereo pair."),
-        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
-    },
-    outputs={
-        "segmentation": Out("Segmentation", description="Masks and region properties."),
-        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
-    },
+    inputs=SEGMENTER_INPUTS,
+    outputs=SEGMENTER_OUTPUTS,
     params=EdgeMorphParams,
     version="1",
 )

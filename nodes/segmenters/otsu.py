@@ -18,9 +18,18 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from stereograph.api import Field, In, Out, node
+from stereograph.api import Field, node
 
-from ._common import SegmenterParams, fill_holes, max_hole_area, segment_pair, structuring_element, to_channel
+from ._common import (
+    SEGMENTER_INPUTS,
+    SEGMENTER_OUTPUTS,
+    SegmenterParams,
+    fill_holes,
+    max_hole_area,
+    segment_pair,
+    structuring_element,
+    to_channel,
+)
 
 
 class OtsuParams(SegmenterParams):
@@ -106,14 +115,8 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
 
 @node(
     "segmenter.otsu",
-    inputs={
-        "pair": In("RectifiedPair", description="Rectified stereo pair."),
-        "rectification": In("Rectification", optional=True, description="For the expected ball size."),
-    },
-    outputs={
-        "segmentation": Out("Segmentation", description="Masks and region properties."),
-        "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
-    },
+    inputs=SEGMENTER_INPUTS,
+    outputs=SEGMENTER_OUTPUTS,
     params=OtsuParams,
     version="1",
 )
