@@ -183,3 +183,26 @@ def test_bad_port_is_a_clear_error():
     with pytest.raises(NodeError, match=r"cannot open serial port /dev/ttyNOPE.*") as ei:
         dynamixel(DynamixelParams(port="/dev/ttyNOPE"), arm=ARM, plans=make_plan())
     assert "ls /dev/ttyUSB*" in ei.value.hint
+
+
+# ---------------------------------------------------------------------------- servo peers configured otherwise
+def test_servos_that_reply_only_to_reads_still_work():
+    """Many AX-12 buses run with status return level 1 (no status packet after a write)."""
+    plan = make_plan()
+    with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:
+        for s in sim.servos.values():
+            s.table[16] = 1
+        out = execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert out["ok"]
+        assert_goals_within_limits(sim)
+
+
+def test_servos_that_never_reply_to_reads_fail_clearly_before_moving():
+    plan = make_plan()
+    with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:
+        for s in sim.servos.values():
+            s.table[16] = 0  # answers PING only
+        with pytest.raises(NodeError) as ei:
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert "status return level" in str(ei.value) or "status return level" in (ei.value.hint or "")
+        assert sim.writes(address=30) == []  # no goal was ever written

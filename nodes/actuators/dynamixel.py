@@ -145,6 +145,19 @@ class Bus:
     def ping(self, sid: int) -> int:
         return self._call("ping", sid, self.ph.ping)
 
+    def bare_ping(self, sid: int) -> bool:
+        """A lone PING packet. The SDK's Protocol 1 ``ping`` also READs the model number, which a
+        servo with status return level 0 never answers; this tells "absent" from "silent"."""
+        from dynamixel_sdk import COMM_SUCCESS
+
+        tx = [0] * 6
+        tx[2], tx[3], tx[4] = sid, 2, 1  # ID, LENGTH, INST_PING (checksum added by the SDK)
+        for _ in range(self.retries + 1):
+            _, comm, _ = self.ph.txRxPacket(self.port, tx)
+            if comm == COMM_SUCCESS:
+                return True
+        return False
+
     def read1(self, sid: int, addr: int, what: str) -> int:
         return self._call(what, sid, self.ph.read1ByteTxRx, addr)
 
@@ -222,6 +235,12 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
             try:
                 model = bus.ping(sid)
             except ServoFailure:
+                if bus.bare_ping(sid):
+                    raise NodeError(
+                        f"servo ID {sid} answers a PING on {where} but not a READ: its status return level "
+                        f"(address 16) is 0, so its position cannot be read back; the arm was not moved.",
+                        hint=f"set servo {sid}'s status return level to 1 or 2 (Dynamixel Wizard / RoboPlus, or "
+                             f"a WRITE of 1 to address 16).") from None
                 raise NodeError(
                     f"servo ID {sid} did not answer a ping on {where} (after {params.retries + 1} tries); the arm was "
                     f"not moved.",
