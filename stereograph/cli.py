@@ -266,13 +266,16 @@ def cmd_run(args) -> int:
 
 
 def cmd_explain(args) -> int:
+    from rich.markup import escape
+
     from stereograph.explain import explain
 
     graph = _load_graph(args)
     con = _console()
     for v in explain(graph, args.cache_dir):
         state = "[cyan]fresh[/]" if v.fresh else "[yellow]stale[/]"
-        con.print(f"{v.node:<16} {v.type:<26} {state}" + ("" if v.fresh else ": " + "; ".join(v.reasons)))
+        why = ("" if not v.reasons else f" ({v.reasons[0]})") if v.fresh else ": " + "; ".join(v.reasons)
+        con.print(f"{v.node:<16} {v.type:<26} {state}" + escape(why))
     return 0
 
 

@@ -65,65 +65,64 @@ def _rel(path: str, root: Path) -> str:
 
 
 def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
-    """Say, per node, whether a run now would reuse its artifacts, and why not."""
+    """Say, per node, whether a run now would reuse its artifacts, and why not.
+
+    A node is fresh when every entry a run would look up is in the store; the reasons a stale
+    node gives are what changed since its last run (params, code, files, type, upstream).
+    """
     store = ArtifactStore(cache_dir or default_cache_dir(graph.doc))
     run = _Run(graph, store, Path("."), SerialExecutor(), set(), None)
     root = Path.cwd()
     verdicts: list[Verdict] = []
     stale: set[str] = set()
-    unknown_items: set[str] = set()
+    unknown: set[str] = set()  # nodes whose entries (keys, items) are known only after they run
     for name in graph.order:
         inst = graph.nodes[name]
-        v = Verdict(name, inst.type, True)
+        preds = list(graph.dag.predecessors(name))
         base = run.node_components(inst)
-        base_rec = {**base, "code_files": run.code_files.get(inst.type, {})}
-        last = store.last(run.pipeline_id, name)
-        if not inst.spec.cacheable:
-            v.fresh = False
-            v.reasons.append("never cached (it has side effects or live input): runs every time")
-        if last is None:
-            v.fresh = False
-            v.reasons.append("no record of an earlier run of this node")
-        else:
-            own = _diff(last, base_rec, root)
-            if own:
-                v.fresh = False
-                v.reasons += own
-        up_stale = [s for s in graph.dag.predecessors(name) if s in stale]
-        if up_stale:
-            v.fresh = False
-            v.reasons.append("its input changes: upstream " + ", ".join(f"'{s}'" for s in up_stale) + " is stale")
-        if any(s in unknown_items for s in graph.dag.predecessors(name)):
-            unknown_items.add(name)
-        elif v.fresh or not up_stale:
-            # keys can be computed: are all entries in the store?
+        computable = not any(s in unknown for s in preds)
+        missing, n_entries = 0, 0
+        if computable:
             entries = run.item_ids(inst) if inst.mapped else [None]
-            missing = 0
+            n_entries = len(entries)
             for item in entries:
                 try:
                     key = run.entry_key(base, run.input_refs(inst, item), item)
                 except KeyError:
-                    missing = -1
+                    computable = False
                     break
                 run.keys[(name, item)] = key
-                if store.has(key):
+                if inst.spec.cacheable and store.has(key):
                     run.adopt_cached(inst, item, key)
-                    if inst.mapped:
-                        for out in inst.spec.outputs:
-                            run.items.setdefault((name, out), []).append(item)
                 else:
                     missing += 1
-            if missing == -1:
-                unknown_items.add(name)
-                v.fresh = False
-            elif missing:
-                v.fresh = False
-                if not v.reasons:
-                    v.reasons.append(f"{missing} of {len(entries)} cache entries are missing "
-                                     "(cleared, or never computed with these inputs)")
-            if missing and any(o.collection for o in inst.spec.outputs.values()):
-                unknown_items.add(name)  # its items are known only once it has run
-        if not v.fresh:
+                    # the key a run would store it under: downstream keys follow from it
+                    for out, o in inst.spec.outputs.items():
+                        if not o.collection:
+                            run.ref_keys[(name, out, item)] = key
+                if inst.mapped:
+                    for out in inst.spec.outputs:
+                        run.items.setdefault((name, out), []).append(item)  # type: ignore[arg-type]
+        fresh = computable and not missing and inst.spec.cacheable
+        v = Verdict(name, inst.type, fresh)
+        last = store.last(run.pipeline_id, name)
+        own = _diff(last, {**base, "code_files": run.code_files.get(inst.type, {})}, root) if last else []
+        if fresh:
+            if own:
+                v.reasons.append("cached by an earlier run with these settings")
+        else:
             stale.add(name)
+            if not inst.spec.cacheable:
+                v.reasons.append("never cached (it has side effects or live input): runs every time")
+            v.reasons += own
+            up = [s for s in preds if s in stale]
+            if up:
+                v.reasons.append("its input changes: upstream " + ", ".join(f"'{s}'" for s in up) + " will run")
+            if not v.reasons:
+                v.reasons.append(f"{missing} of {n_entries} cache entries are missing (cleared, or never computed "
+                                 "with these inputs)" if last else "not computed yet with these settings")
+            if (not computable or not inst.spec.cacheable
+                    or any(o.collection for o in inst.spec.outputs.values())):
+                unknown.add(name)
         verdicts.append(v)
     return verdicts

@@ -372,3 +372,13 @@ def test_saved_images_are_written_on_cached_runs_too(tmp_path):
     assert img.dtype.name == "uint8" and img.shape == (32, 32)
     assert ArtifactStore(tmp_path / "cache").clear() > 0
     assert not (tmp_path / "cache" / "rendered").exists()
+
+
+def test_explain_agrees_with_what_the_next_run_does(tmp_path):
+    p = write_pipeline(tmp_path)
+    run(p, tmp_path, "power.power=3")
+    run(p, tmp_path)  # back to power=2: the last run of every node differs from power=3 now
+    for overrides in (["power.power=3"], ["power.power=4"], ["numbers.n=7"], []):
+        predicted = {v.node: v.fresh for v in explain(build_graph(load_pipeline(p, overrides)), tmp_path / "cache")}
+        actual = run(p, tmp_path, *overrides).status
+        assert predicted == {n: s == "cached" for n, s in actual.items()}, (overrides, predicted, actual)
