@@ -110,18 +110,24 @@ def _type_name(ann: Any) -> str:
     return "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
 
 
-def _describe_params(model, prefix: str = "") -> list[tuple[str, str, str, str]]:
-    """Rows (name, type, default, description [range]); nested models expand to dotted names."""
+def _describe_params(model, prefix: str = "", defaults: Any = None) -> list[tuple[str, str, str, str]]:
+    """Rows (name, type, default, description [range]); nested models expand to dotted names,
+    showing the defaults the parent gives them."""
     from pydantic import BaseModel
 
     rows = []
     symbols = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
     for name, f in model.model_fields.items():
         ann = f.annotation
+        if defaults is not None and hasattr(defaults, name):
+            value, has_default = getattr(defaults, name), True
+        else:
+            has_default = not f.is_required()
+            value = f.get_default(call_default_factory=True) if has_default else None
         if isinstance(ann, type) and issubclass(ann, BaseModel):
-            rows += _describe_params(ann, f"{prefix}{name}.")
+            rows += _describe_params(ann, f"{prefix}{name}.", value if isinstance(value, BaseModel) else None)
             continue
-        default = "required" if f.is_required() else repr(f.get_default(call_default_factory=True))
+        default = repr(value) if has_default else "required"
         bounds = [f"{sym} {getattr(m, attr)}" for m in f.metadata for attr, sym in symbols.items()
                   if getattr(m, attr, None) is not None]
         desc = (f.description or "") + (f" [{', '.join(bounds)}]" if bounds else "")

@@ -79,10 +79,30 @@ def _format_pydantic(err: pydantic.ValidationError) -> list[tuple[tuple, str]]:
     return out
 
 
+def merge_nested_defaults(model: type[pydantic.BaseModel], raw: dict[str, Any]) -> dict[str, Any]:
+    """Fill a partial mapping given for a nested-model field from that field's default.
+
+    ``yaw: {min_deg: -100}`` (or ``--set arm.yaw.min_deg=-100``) changes one field of the
+    default joint, as a user expects, instead of replacing the whole joint.
+    """
+    out = dict(raw)
+    for name, f in model.model_fields.items():
+        ann = f.annotation
+        if name not in out or not isinstance(out[name], dict):
+            continue
+        if not (isinstance(ann, type) and issubclass(ann, pydantic.BaseModel)) or f.is_required():
+            continue
+        default = f.get_default(call_default_factory=True)
+        if isinstance(default, pydantic.BaseModel):
+            merged = {**default.model_dump(), **merge_nested_defaults(ann, out[name])}
+            out[name] = merged
+    return out
+
+
 def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str) -> Params:
     """Validate ``raw`` params with the node's model, errors pointing at the YAML."""
     try:
-        return spec.params(**raw)
+        return spec.params(**merge_nested_defaults(spec.params, raw))
     except pydantic.ValidationError as err:
         (loc, msg), *rest = _format_pydantic(err)
         field_name = ".".join(str(p) for p in loc) or "params"

@@ -145,3 +145,30 @@ def test_other_commands_share_validation(tmp_path, capsys, cmd):
     f.write_text(GOOD.replace("type: toy.power", "type: toy.powr"))
     assert main([cmd, str(f)]) == 2
     assert "did you mean" in capsys.readouterr().err
+
+
+def test_nested_params_merge_into_their_default(tmp_path, capsys):
+    plug = tmp_path / "nested.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import node, Out, Params, Field
+
+        class Joint(Params):
+            min_deg: float = Field(..., description="Lower limit (deg).")
+            max_deg: float = Field(..., description="Upper limit (deg).")
+
+        class ArmP(Params):
+            yaw: Joint = Field(default_factory=lambda: Joint(min_deg=-150, max_deg=150), description="Yaw.")
+
+        @node("tmp.arm", outputs={"arm": Out("Arm")}, params=ArmP)
+        def arm(params):
+            return {"arm": params.model_dump()}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n    params: {{yaw: {{max_deg: 90}}}}\n")
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
+    g = build_graph(load_pipeline(f, ["arm.yaw.min_deg=-100"]))
+    assert g.nodes["arm"].params.yaw.min_deg == -100 and g.nodes["arm"].params.yaw.max_deg == 90
+    assert main(["validate", str(f), "--set", "arm.yaw.min_deg=low"]) == 2
+    assert "yaw.min_deg" in capsys.readouterr().err
