@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from nodes.calibrators.hand_eye import (
     HandEyeParams,
@@ -204,8 +205,12 @@ def test_hand_eye_pairs_file_and_errors(tmp_path):
     line = [{"camera_cm": [i, 0, 40], "arm_cm": [i, 0, 0]} for i in range(4)]
     with pytest.raises(NodeError, match="on a line"):
         hand_eye(HandEyeParams(mode="pairs", pairs=line))
-    with pytest.raises(NodeError, match=">= 3"):
-        hand_eye(HandEyeParams(mode="pairs", pairs=line[:2]))
+    with pytest.raises(ValidationError, match=">= 3"):  # a params error: `stereograph validate` reports it
+        HandEyeParams(mode="pairs", pairs=line[:2])
+    with pytest.raises(ValidationError, match="needs camera_in_base"):
+        HandEyeParams(mode="given")
+    with pytest.raises(ValidationError, match="needs base_in_table"):
+        HandEyeParams(mode="located")
     bad = [{"camera_cm": list(c), "arm_cm": list(transform_points(T, c) + [0, 0, 3 * (i % 2)])}
            for i, c in enumerate(cam)]
     with pytest.raises(NodeError, match="RMS residual"):

@@ -43,3 +43,10 @@ def test_bad_folder_exits_nonzero_naming_it(tmp_path, capsys):
     assert rc in (1, 2)
     io = capsys.readouterr()
     assert str(missing) in io.out + io.err
+
+
+def test_validate_reports_a_bad_distance_range(capsys):
+    rc = main(["validate", str(PIPE), "--set", "rig.min_distance_cm=70", "--set", "rig.max_distance_cm=40"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "max_distance_cm (40.0) must exceed min_distance_cm (70.0)" in err and "calibrate.yaml:" in err

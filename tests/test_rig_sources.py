@@ -5,6 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.truth import truth_calibration
@@ -99,7 +100,12 @@ def test_synthetic_node_outputs_and_remap():
 
 
 def test_synthetic_bad_params():
-    with pytest.raises(NodeError, match="max_distance_cm"):
-        synthetic(SyntheticParams(n_scenes=1, n_views=0, min_distance_cm=50, max_distance_cm=40))
-    with pytest.raises(NodeError, match="colour"):
-        synthetic(SyntheticParams(n_scenes=1, n_views=0, ball_color="mauve"))
+    # Cross-field and value checks live in the params model, so `stereograph validate` reports them.
+    with pytest.raises(ValidationError, match="max_distance_cm"):
+        SyntheticParams(n_scenes=1, n_views=0, min_distance_cm=50, max_distance_cm=40)
+    with pytest.raises(ValidationError, match="placement_region_cm"):
+        SyntheticParams(placement_region_cm=(0, 20, 30, 10))
+    with pytest.raises(ValidationError, match="colour"):
+        SyntheticParams(n_scenes=1, n_views=0, ball_color="mauve")
+    with pytest.raises(ValidationError, match="both 1"):
+        CameraParams(left_index=1, right_index=1)

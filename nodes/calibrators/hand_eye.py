@@ -29,6 +29,7 @@ import math
 from typing import Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -142,6 +143,20 @@ class HandEyeParams(Params):
     split: Literal["train", "test", "all"] = Field("train", description="mode located: which items to fit on.")
     max_residual_cm: float = Field(1.0, gt=0, description="Refuse a fit whose RMS residual exceeds this (cm).")
 
+    @model_validator(mode="after")
+    def _check_mode(self):
+        # What each mode needs from the YAML is checked here, so `stereograph validate` reports it (exit 2).
+        if self.mode == "given" and self.camera_in_base is None:
+            raise ValueError("mode given needs camera_in_base: {translation_cm: [x, y, z], rpy_deg: [r, p, y]} "
+                             "(or use mode pairs with measured point pairs)")
+        if self.mode == "pairs" and not self.pairs_file and len(self.pairs) < 3:
+            raise ValueError(f"mode pairs got {len(self.pairs)} point pairs and no pairs_file; >= 3 pairs "
+                             "(camera_cm, arm_cm) or a pairs_file are needed")
+        if self.mode in ("rig", "located") and self.base_in_table is None:
+            raise ValueError(f"mode {self.mode} needs base_in_table (the arm base's pose in the table frame); "
+                             "or use mode given / pairs")
+        return self
+
 
 def _read_pairs(path) -> tuple[np.ndarray, np.ndarray]:
     try:
@@ -200,11 +215,7 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, ctx=None):
     T_tl = _truth_T_table_from_left(views)
     T_truth = T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
     residual, n_pairs = None, 0
-    if params.mode == "given":
-        if params.camera_in_base is None:
-            raise NodeError("calibrator.hand_eye mode given needs camera_in_base.",
-                            hint="set camera_in_base: {translation_cm: [x, y, z], rpy_deg: [r, p, y]}, or use "
-                                 "mode pairs with measured point pairs.")
+    if params.mode == "given":  # camera_in_base is required by HandEyeParams
         T = pose_matrix(params.camera_in_base.translation_cm, params.camera_in_base.rpy_deg)
     elif params.mode == "pairs":
         if params.pairs_file:

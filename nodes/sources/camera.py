@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import cv2
+from pydantic import model_validator
 
 from stereograph.api import Field, NodeError, Out, Params, node
 
@@ -19,6 +20,14 @@ class CameraParams(Params):
     n_frames: int = Field(1, ge=1, le=10000, description="Pairs to grab (count).")
     interval_s: float = Field(0.0, ge=0, description="Pause between pairs, seconds.")
     warmup_frames: int = Field(5, ge=0, le=100, description="Frames dropped first while exposure settles (count).")
+
+    @model_validator(mode="after")
+    def _check_indices(self):
+        # Checked here so `stereograph validate` reports it (exit 2) before any camera is opened.
+        if self.left_index == self.right_index:
+            raise ValueError(f"left_index and right_index are both {self.left_index}; give the two cameras' "
+                             "different device indices")
+        return self
 
 
 def _open(index: int, which: str, p: CameraParams) -> cv2.VideoCapture:
@@ -73,7 +82,4 @@ def grab_pairs(p: CameraParams) -> dict:
 )
 def camera(params: CameraParams) -> dict:
     """Grab stereo pairs from two live cameras (device indices)."""
-    if params.left_index == params.right_index:
-        raise NodeError(f"source.camera: left_index and right_index are both {params.left_index}.",
-                        hint="give the two cameras' different device indices")
     return {"pairs": grab_pairs(params)}

@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+from pydantic import field_validator, model_validator
 
 from nodes.sources import _render
 from stereograph.api import Field, NodeError, Out, Params, node
@@ -63,6 +64,25 @@ class SyntheticParams(Params):
     truth_masks: bool = Field(False, description="Add the ball's per-pixel coverage (float32 0..1) to the truth.")
     seed: int = Field(0, ge=0, description="Seed of placements, noise and split.")
 
+    @model_validator(mode="after")
+    def _check_ranges(self):
+        # Checked here, not at run time, so `stereograph validate` reports them (exit 2, file:line).
+        if self.max_distance_cm <= self.min_distance_cm:
+            raise ValueError(f"max_distance_cm ({self.max_distance_cm}) must exceed min_distance_cm "
+                             f"({self.min_distance_cm}); widen the distance range")
+        if self.placement_region_cm is not None:
+            r_min, r_max = self.placement_region_cm[2:]
+            if not 0 <= r_min < r_max:
+                raise ValueError(f"placement_region_cm radii must satisfy 0 <= min < max, got min {r_min}, "
+                                 f"max {r_max}")
+        return self
+
+    @field_validator("ball_color")
+    @classmethod
+    def _check_color(cls, value):
+        _render.color_bgr(value)  # ValueError naming the known colours
+        return value
+
 
 def _rig_kwargs(p: SyntheticParams) -> dict:
     return {
@@ -100,11 +120,7 @@ def synthetic(params: SyntheticParams) -> dict:
     (``T_table_from_board`` per view, cm), so the Tsai calibrator can use them
     as one multi-plane 3-D target.
     """
-    if params.max_distance_cm <= params.min_distance_cm:
-        raise NodeError(f"max_distance_cm ({params.max_distance_cm}) must exceed min_distance_cm "
-                        f"({params.min_distance_cm}).", hint="widen the distance range")
     try:
-        _render.color_bgr(params.ball_color)
         rig = synthetic_rig(params)
     except ValueError as exc:
         raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
