@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from stereograph import __version__, registry
-from stereograph.errors import ConfigError
+from stereograph.errors import ConfigError, sentence
 
 
 def _console(stderr: bool = False):
@@ -255,12 +255,15 @@ def cmd_run(args) -> int:
     if not result.ok:
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
-            msg = f"node '{r.name}' ({r.type}) failed: {r.error}"
+            msg = sentence(f"node '{r.name}' ({r.type}) failed: {r.error}")
             if r.hint:
-                msg += f" Fix: {r.hint}"
+                msg += " Fix: " + sentence(r.hint)
+            elif r.unexpected and not args.debug:
+                msg += (" This looks like a bug in the node rather than bad input: run again with --debug for the "
+                        "traceback (it is also in run.json), and report it.")
             err.print("[red]error:[/] " + escape(msg))
             if args.debug and r.trace:
-                err.print(r.trace)
+                err.print(escape(r.trace))
         first = failed[0].name
         if graph.upstream(first):
             err.print(f"Everything upstream of '{first}' is cached: after the fix, run the same command again "
@@ -309,6 +312,16 @@ def cmd_cache(args) -> int:
     return 0
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stereograph", description="Stereo localisation and robot-arm picking as a "
                                 "config-driven processing graph.")
@@ -331,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
     sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
     sp.add_argument("--from", metavar="NODE", help="recompute NODE and its downstream even if cached")
-    sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
                     "('local' starts one with --workers processes; needs the 'dask' extra)")
     sp.set_defaults(fn=cmd_run)
@@ -377,6 +390,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     debug = getattr(args, "debug", False) or "--debug" in argv
+    args.debug = debug  # `stereograph --debug run X` and `stereograph run X --debug` alike
     try:
         return int(args.fn(args) or 0)
     except ConfigError as e:

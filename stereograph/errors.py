@@ -47,11 +47,17 @@ class ConfigError(Exception):
             parts.append(f"{self.where}:")
         if self.node:
             parts.append(f"node '{self.node}':")
-        parts.append(self.message.rstrip("."))
-        text = " ".join(parts) + "."
+        parts.append(self.message.rstrip())
+        text = sentence(" ".join(parts))
         if self.hint:
-            text += f" Fix: {self.hint.rstrip('.')}."
+            text += " Fix: " + sentence(self.hint)
         return text
+
+
+def sentence(text: str) -> str:
+    """End with exactly one full stop (a question keeps its '?')."""
+    text = text.rstrip()
+    return text if text.endswith((".", "?", "!")) else text + "."
 
 
 class UsageError(ConfigError):

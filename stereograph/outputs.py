@@ -129,6 +129,31 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     return files
 
 
+def prepare_out_dir(out_dir: Path) -> None:
+    """Make ``out_dir`` ready for a run: a folder of an earlier run is emptied of what that run
+    wrote (so no stale result sits beside new ones); any other non-empty folder is refused."""
+    from stereograph.errors import ConfigError
+
+    if not out_dir.exists() or not any(out_dir.iterdir()):
+        return
+    summary = out_dir / "run.json"
+    if not summary.is_file():
+        raise ConfigError(f"output folder {out_dir} is not empty and holds no earlier run (no run.json)",
+                          hint="choose another --out, or empty that folder")
+    try:
+        written = [f for n in json.loads(summary.read_text()).get("nodes", []) for f in n.get("files", [])]
+    except (OSError, ValueError):
+        written = []
+    for rel in written:
+        p = (out_dir / rel).resolve()
+        if out_dir.resolve() in p.parents and p.is_file():
+            p.unlink()
+    summary.unlink()
+    for d in sorted((p for p in out_dir.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)):
+        if not any(d.iterdir()):
+            d.rmdir()
+
+
 def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
     """Write saved and terminal outputs plus ``run.json`` into ``result.out_dir``."""
     out_dir: Path = result.out_dir
@@ -167,11 +192,13 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     summary = {
         "run_id": result.run_id,
         "pipeline": result.pipeline,
+        "out_dir": str(out_dir),
         "overrides": list(graph.doc.overrides),
         "ok": result.ok,
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
                    "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
-                   "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, [])}
+                   "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, []),
+                   **({"traceback": r.trace} if r.unexpected and r.trace else {})}
                   for r in run.reports.values()],
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
     }

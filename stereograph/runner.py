@@ -188,6 +188,7 @@ class NodeReport:
     error: str | None = None
     hint: str | None = None
     trace: str | None = None
+    unexpected: bool = False  # a bug in the node rather than bad input
     messages: list[str] = field(default_factory=list)
 
 
@@ -333,7 +334,8 @@ class _Run:
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
                     str(self.out_dir), str(self.g.doc.directory))
 
-    def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any]) -> None:
+    def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any],
+                     messages: list[str] | None = None) -> None:
         """Keep a computed entry's outputs in memory and in the store; split collections into items."""
         single, colls = {}, {}
         for name, val in out.items():
@@ -362,10 +364,13 @@ class _Run:
                 self.mem[(inst.name, name, item)] = v
                 self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
         if self.store is not None and key is not None:
-            self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item})
+            self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
+                                          "messages": list(messages or [])})
 
     def adopt_cached(self, inst: NodeInstance, item: str | None, key: str) -> None:
         """Register a cached entry's refs without loading big values (collections: load the index)."""
+        meta = (self.store.meta(key) or {}).get("meta", {}) if self.store is not None else {}
+        self.reports[inst.name].messages += meta.get("messages", [])  # warnings the node gave when it ran
         for name, o in inst.spec.outputs.items():
             self.ref_keys[(inst.name, name, item)] = key
             if o.collection:
@@ -461,14 +466,14 @@ class _Run:
                         # downstream is ever served a stale result
                         self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and
                                           self.store is not None else key if not volatile else None,
-                                          res.outputs or {})
+                                          res.outputs or {}, res.messages)
                     except (NodeError, TypeError) as e:
                         self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
                         ok = False
                 rep.messages += res.messages
                 rep.items_ran += 1
             else:
-                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace)
+                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error)
                 ok = False
             if ok and inst.mapped:
                 for out in inst.spec.outputs:
@@ -515,7 +520,7 @@ class _Run:
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
                     try:
-                        self.store_result(inst, item, key, res.outputs or {})
+                        self.store_result(inst, item, key, res.outputs or {}, res.messages)
                         stored = True
                     except (NodeError, TypeError) as e:
                         res = TaskResult(False, error=f"its outputs are not storable: {e}")
@@ -528,16 +533,17 @@ class _Run:
                 else:
                     res = execute(tasks[idx])
                     if res.ok:
-                        self.store_result(inst, item, key, res.outputs or {})
+                        self.store_result(inst, item, key, res.outputs or {}, res.messages)
                     results[idx] = (res, res.ok)
         return results
 
-    def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None):
+    def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
+                  unexpected: bool = False):
         rep = self.reports[inst.name]
         self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
         if rep.error is None:
             rep.error = (f"item '{item}': " if item is not None else "") + msg
-            rep.hint, rep.trace = hint, trace
+            rep.hint, rep.trace, rep.unexpected = hint, trace, unexpected
         if item is None:
             rep.status = "failed"
 
@@ -579,6 +585,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
         force = graph.downstream(from_node) | {from_node}
     run_id = run_id or new_run_id()
     out = Path(out_dir) if out_dir else Path.cwd() / "runs" / doc.name / run_id
+    outputs_mod.prepare_out_dir(out)
     store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
     own_executor = executor is None
     executor = executor or SerialExecutor()

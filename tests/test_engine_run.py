@@ -382,3 +382,48 @@ def test_explain_agrees_with_what_the_next_run_does(tmp_path):
         predicted = {v.node: v.fresh for v in explain(build_graph(load_pipeline(p, overrides)), tmp_path / "cache")}
         actual = run(p, tmp_path, *overrides).status
         assert predicted == {n: s == "cached" for n, s in actual.items()}, (overrides, predicted, actual)
+
+
+def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
+    p = write_pipeline(tmp_path)
+    out = tmp_path / "same"
+    assert main(["run", str(p), "--out", str(out), "--cache-dir", str(tmp_path / "c")]) == 0
+    assert (out / "report" / "report.json").exists()
+    assert main(["run", str(p), "--out", str(out), "--cache-dir", str(tmp_path / "c"), "--only", "power"]) == 0
+    assert not (out / "report").exists() and (out / "run.json").exists()  # the old report is gone
+    other = tmp_path / "mine"
+    other.mkdir()
+    (other / "notes.txt").write_text("keep me")
+    capsys.readouterr()
+    assert main(["run", str(p), "--out", str(other)]) == 2
+    assert "not empty" in capsys.readouterr().err and (other / "notes.txt").read_text() == "keep me"
+
+
+def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path, capsys):
+    plug = tmp_path / "bug.py"
+    plug.write_text("from stereograph.api import node, Out\n"
+                    "@node('tmp.bug', outputs={'x': Out('Number')})\n"
+                    "def bug(params):\n    return {'x': 1 / 0}\n")
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: b\nplugins: [{plug}]\nnodes:\n  bug: {{type: tmp.bug}}\n")
+    assert main(["run", str(f), "--out", str(tmp_path / "o")]) == 1
+    err = " ".join(capsys.readouterr().err.split())
+    assert "ZeroDivisionError" in err and "--debug" in err and "Traceback" not in err
+    summary = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert "Traceback" in summary["nodes"][0]["traceback"]
+    assert main(["--debug", "run", str(f), "--out", str(tmp_path / "o")]) == 1
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_node_warnings_survive_a_cached_run(tmp_path):
+    plug = tmp_path / "warn.py"
+    plug.write_text("from stereograph.api import node, In, Out\n"
+                    "@node('tmp.warn', inputs={'m': In('Matrix')}, outputs={'x': Out('Number')})\n"
+                    "def warn(params, m, ctx=None):\n    ctx.warn(f'{ctx.item}: looks odd')\n"
+                    "    return {'x': float(m.sum())}\n")
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: w\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 3}}}}\n"
+                 f"  warn: {{type: tmp.warn, inputs: {{m: numbers.items}}}}\n")
+    r1, r2 = run(f, tmp_path), run(f, tmp_path)
+    assert r2.status["warn"] == "cached"
+    assert r1.reports["warn"].messages == r2.reports["warn"].messages == [f"m00{i}: looks odd" for i in range(3)]
