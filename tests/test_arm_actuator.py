@@ -74,7 +74,7 @@ def test_pick_with_numeric_solver_matches_analytic():
     (located(17.0, 4.0, 2.5, extrapolated=True), {}, "extrapolated"),
     (located(17.0, 4.0, 2.5), {"workspace_max_cm": [15.0, 20.0, 20.0]}, "outside the workspace box"),
     (located(17.0, 4.0, 2.5), {"place_cm": [40.0, 0.0, 0.0], "workspace_max_cm": [50, 50, 50]},
-     "place_above point is unreachable: distance"),
+     "place_above point is unreachable for this arm: distance"),
 ])
 def test_pick_sequence_refuses(loc, pick, match):
     t = analytic_3dof(AnalyticParams(), arm=ARM, location=loc, hand_eye=HE)["target"]

@@ -166,6 +166,24 @@ def test_ik_node_unreachable_is_a_node_error():
         analytic_3dof(AnalyticParams(), arm=MODEL, location=loc, hand_eye=_identity_he())
 
 
+def test_ik_skip_unreachable_warns_and_pick_says_unreachable(tmp_path):
+    from nodes.ik.pick_sequence import PickParams, pick_sequence
+    from stereograph.api import RunContext
+    ctx = RunContext("ik", None, tmp_path / "out", tmp_path)
+    loc = {"pair": "far", "found": True, "x_cm": 50.0, "y_cm": 0.0, "z_cm": 0.0, "frame": "left_camera"}
+    t = analytic_3dof(AnalyticParams(on_unreachable="skip"), arm=MODEL, location=loc, hand_eye=_identity_he(),
+                      ctx=ctx)["target"]
+    assert t["found"] is False and t["unreachable"] is True
+    assert len(ctx.messages) == 1 and ctx.messages[0].startswith("far: unreachable for this arm: distance")
+    with pytest.raises(NodeError) as e:  # located, so the refusal must not say "not located"
+        pick_sequence(PickParams(), arm=MODEL, target=t)
+    msg = str(e.value)
+    assert "for far: unreachable for this arm: distance" in msg and "not located" not in msg
+    assert "link lengths" in e.value.hint and ".." not in msg and ")." in msg
+    plan = pick_sequence(PickParams(on_refuse="skip"), arm=MODEL, target=t)["plan"]
+    assert plan["refused"] and "link lengths" in plan["reason"] and not plan["reason"].endswith(".")
+
+
 # ---------------------------------------------------------------------------- hand-eye
 def test_fit_rigid_recovers_pose_and_residual():
     rng = np.random.default_rng(5)

@@ -3,6 +3,8 @@
 JointTarget (per item)::
 
     {"pair": str, "found": bool, "reason": str | None, "extrapolated": bool,
+     "unreachable": bool,                                    # located, but out of this arm's reach / limits
+     "hint": str | None,                                     # the fix, when unreachable
      "location_cm": [x, y, z] | None, "frame": str,        # as located (camera or table frame)
      "target_base_cm": [x, y, z] | None,                     # the tool-point target, arm-base frame
      "truth_base_cm": [x, y, z] | None,                      # true ball centre, arm-base frame (rig truth)
@@ -26,6 +28,22 @@ from ._model import JOINTS, fk, joints_to_servo_units, quantize_joints_deg
 from ._solvers import Unreachable, analytic_ik, numeric_ik
 
 SOLVERS = {"analytic_3dof": analytic_ik, "numeric": numeric_ik}
+
+ARM_HINT = ("check the arm's link lengths (ik.arm `links`), where it stands (calibrator.hand_eye `base_in_table`) "
+            "and the hand-eye transform; if they are right, place the object within the arm's reach")
+
+
+def unreachable_reason(e: Unreachable) -> str:
+    """The solver's message as a refusal reason: the object was located, this arm cannot reach it."""
+    msg = e.message.rstrip(".")
+    return "unreachable for this arm" + msg[len("unreachable"):] if msg.startswith("unreachable") else msg
+
+
+def unreachable_hint(e: Unreachable) -> str:
+    """The fix for an unreachable target: the arm's geometry and placement first, then the solver's advice."""
+    if "joint limits" in e.message and e.hint:
+        return f"{e.hint.rstrip('.')}; or {ARM_HINT}."
+    return f"{ARM_HINT}."
 
 
 def solve(model: dict[str, Any], p, solver: dict[str, Any], q_init=None) -> np.ndarray:
@@ -85,6 +103,7 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
         "frame": location.get("frame", "left_camera"),
         "target_base_cm": None if p is None else [float(v) for v in p],
         "truth_base_cm": None if truth is None else [float(v) for v in truth],
+        "unreachable": False, "hint": None,
         "joints_deg": None, "servo_units": None, "fk_cm": None, "solver": solver}
     if "split" in location:
         out["split"] = location["split"]
@@ -96,7 +115,10 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
     except Unreachable as e:
         if on_unreachable == "error":
             raise
-        out["found"], out["reason"] = False, e.message
+        # found stays false so that nothing downstream moves for it; `unreachable` says why (located, not
+        # reachable), which ik.pick_sequence reports instead of "not located".
+        out["found"], out["unreachable"] = False, True
+        out["reason"], out["hint"] = unreachable_reason(e), unreachable_hint(e)
         return out
     joints_deg = {n: float(math.degrees(v)) for n, v in zip(JOINTS, q)}
     out["joints_deg"] = joints_deg
@@ -104,3 +126,9 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
     qq = quantize_joints_deg(model, joints_deg)
     out["fk_cm"] = [float(v) for v in fk(model, np.radians([qq[n] for n in JOINTS]))]
     return out
+
+
+def warn_unreachable(ctx, target: dict[str, Any]) -> None:
+    """Note a skipped unreachable target in the run summary (``on_unreachable: skip``)."""
+    if ctx is not None and target.get("unreachable"):
+        ctx.warn(f"{target.get('pair')}: {target['reason']}")

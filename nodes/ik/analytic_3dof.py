@@ -6,7 +6,7 @@ from typing import Literal
 
 from stereograph.api import Field, In, Out, Params, node
 
-from ._target import joint_target
+from ._target import joint_target, warn_unreachable
 
 
 class AnalyticParams(Params):
@@ -23,7 +23,9 @@ class AnalyticParams(Params):
               "hand_eye": In("HandEye", description="Left-camera pose in the arm-base frame.")},
       outputs={"target": Out("JointTarget", description="Joint angles (deg) and servo goals for the object.")},
       params=AnalyticParams, version="1")
-def analytic_3dof(params: AnalyticParams, arm, location, hand_eye):
+def analytic_3dof(params: AnalyticParams, arm, location, hand_eye, ctx=None):
     """Closed-form IK: yaw = atan2, planar two-link law of cosines, elbow up/down; 'unreachable' errors."""
     solver = {"type": "analytic_3dof", "params": {"elbow": params.elbow, "allow_back": params.allow_back}}
-    return {"target": joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)}
+    target = joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)
+    warn_unreachable(ctx, target)
+    return {"target": target}

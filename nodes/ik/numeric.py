@@ -6,7 +6,7 @@ from typing import Literal
 
 from stereograph.api import Field, In, Out, Params, node
 
-from ._target import joint_target
+from ._target import joint_target, warn_unreachable
 
 
 class NumericParams(Params):
@@ -24,7 +24,9 @@ class NumericParams(Params):
               "hand_eye": In("HandEye", description="Left-camera pose in the arm-base frame.")},
       outputs={"target": Out("JointTarget", description="Joint angles (deg) and servo goals for the object.")},
       params=NumericParams, version="1")
-def numeric(params: NumericParams, arm, location, hand_eye):
+def numeric(params: NumericParams, arm, location, hand_eye, ctx=None):
     """Damped-least-squares IK on the arm chain, joint limits by projection, seeded restarts."""
     solver = {"type": "numeric", "params": params.model_dump(exclude={"on_unreachable"})}
-    return {"target": joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)}
+    target = joint_target(arm, location, hand_eye, solver, on_unreachable=params.on_unreachable)
+    warn_unreachable(ctx, target)
+    return {"target": target}

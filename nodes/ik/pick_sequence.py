@@ -3,6 +3,7 @@
 PickPlan (per item)::
 
     {"pair": str, "refused": bool, "reason": str | None, "split": str | None, "arm": str,
+     "hint": str | None,                   # refused plans only: the fix (also appended to the reason)
      "target_base_cm": [x, y, z], "truth_base_cm": [x, y, z] | None,
      "solver": {...},                      # the IK solver of the JointTarget, reused for every waypoint
      "servo_ids": [int, ...],              # every servo the plan drives, chain order
@@ -38,7 +39,7 @@ from ._model import (
     speed_to_units,
 )
 from ._solvers import Unreachable
-from ._target import solve
+from ._target import ARM_HINT, solve, unreachable_hint, unreachable_reason
 
 
 class PickParams(Params):
@@ -65,11 +66,14 @@ class PickParams(Params):
 
 
 def _refuse(target, why: str, hint: str) -> NodeError:
-    return NodeError(f"refusing to move the arm for {target.get('pair')}: {why}.", hint=hint)
+    return NodeError(f"refusing to move the arm for {target.get('pair')}: {why.rstrip('.')}.", hint=hint)
 
 
 def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     """Plan the pick of a solved target (pure function; see the module docstring for the result)."""
+    if target.get("unreachable"):
+        # located, but out of this arm's reach or joint limits (ik on_unreachable: skip)
+        raise _refuse(target, target.get("reason") or "unreachable for this arm", target.get("hint") or f"{ARM_HINT}.")
     if not target.get("found") or target.get("target_base_cm") is None:
         raise _refuse(target, f"the object was not located ({target.get('reason') or 'found: false'})",
                       "check the segmentation of this scene; the arm never moves on a failed localisation.")
@@ -109,7 +113,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         try:
             q = solve(model, pt, target["solver"], q_init=q_prev)
         except Unreachable as e:
-            raise _refuse(target, f"the {name} point is {e.message}", e.hint or "move the object.")
+            raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e))
         q_prev = q
         st = state.get(name, "open")
         waypoints.append({"name": name, "gripper": st, "tool_cm": [float(v) for v in pt],
@@ -152,6 +156,8 @@ def pick_sequence(params: PickParams, arm, target):
     except NodeError as e:
         if params.on_refuse == "error":
             raise
-        return {"plan": {"pair": target.get("pair"), "refused": True, "reason": e.message,
+        # The reason carries its fix: downstream (actuators, reports) shows only the reason.
+        reason = e.message.rstrip(".") + (f"; fix: {e.hint.rstrip('.')}" if e.hint else "")
+        return {"plan": {"pair": target.get("pair"), "refused": True, "reason": reason, "hint": e.hint,
                          "split": target.get("split"), "truth_base_cm": target.get("truth_base_cm"),
                          "waypoints": []}}
