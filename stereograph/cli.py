@@ -205,6 +205,14 @@ def _echo_results(result, con) -> None:
     for (node, out, item), v in result._values.items():
         if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
             continue
+        if isinstance(v, dict) and isinstance(v.get("markdown"), str):
+            # a report that renders itself: show it as the table it is
+            from rich.markdown import Markdown
+
+            con.rule(f"{node}.{out}", align="left")
+            con.print(Markdown(v["markdown"]))
+            shown += 1
+            continue
         arrays: dict = {}
         text = json.dumps(to_json(v, arrays), default=str)
         if (arrays or len(text) > 3000) and isinstance(v, dict):
