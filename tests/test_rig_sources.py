@@ -109,3 +109,16 @@ def test_synthetic_bad_params():
         SyntheticParams(n_scenes=1, n_views=0, ball_color="mauve")
     with pytest.raises(ValidationError, match="both 1"):
         CameraParams(left_index=1, right_index=1)
+
+
+def test_too_few_views_says_add_views():
+    views = synthetic(SyntheticParams(n_scenes=0, n_views=2))["views"]
+    with pytest.raises(NodeError) as e:
+        chessboard(ChessboardParams(), views=views)
+    assert "all 2 views show the 9x6 board, but 3 are needed." in e.value.message and "()" not in e.value.message
+    assert e.value.hint.startswith("add chessboard views: at least 3") and "cols/rows" not in e.value.hint
+    views["views"].append({**views["views"][0], "id": "blank", "left": np.zeros_like(views["views"][0]["left"])})
+    with pytest.raises(NodeError) as e:
+        chessboard(ChessboardParams(), views=views)
+    assert "only 2 of 3 views" in e.value.message and "(blank: no 9x6 board found in left image)" in e.value.message
+    assert "cols/rows" in e.value.hint and "add chessboard views" in e.value.hint

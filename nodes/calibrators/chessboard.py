@@ -102,14 +102,23 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
         raise NodeError("calibrator.chessboard: the view set is empty.", hint="point the source at chessboard images")
     ids, left, right, rejected = detect_views(vlist, cols, rows, params.subpix_window_px)
     if len(ids) < params.min_views:
-        named = "; ".join(f"{k}: {v}" for k, v in rejected.items())
+        named = f" ({'; '.join(f'{k}: {v}' for k, v in rejected.items())})" if rejected else ""
+        board_hint = ("check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and that the whole "
+                      "board is visible in both images")
+        add_hint = (f"add chessboard views: at least {params.min_views} are needed (10-20 recommended, the board "
+                    "at several distances and tilts across the working range)")
         if not ids:
-            msg = f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of the {len(vlist)} views ({named})."
+            msg = f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of the {len(vlist)} views{named}."
+            hint = board_hint
+        elif not rejected:  # every view shows the board: there are just too few of them
+            msg = (f"calibrator.chessboard: all {len(vlist)} views show the {cols}x{rows} board, but "
+                   f"{params.min_views} are needed.")
+            hint = add_hint
         else:
             msg = (f"calibrator.chessboard: only {len(ids)} of {len(vlist)} views show the {cols}x{rows} board; "
-                   f"{params.min_views} are needed ({named}).")
-        raise NodeError(msg, hint="check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and that "
-                                  "the whole board is visible in both images")
+                   f"{params.min_views} are needed{named}.")
+            hint = f"{board_hint}; or {add_hint}"
+        raise NodeError(msg, hint=hint)
     cal = calibrate_stereo(ids, left, right, views["image_size"], cols, rows, sq, params.refine, params.fix_k3)
     if params.max_view_rms_px is not None:
         bad = [i for i, e in cal["per_view_rms_px"].items() if e > params.max_view_rms_px]
