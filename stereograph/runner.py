@@ -578,8 +578,8 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                               f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}")
     selected = list(graph.order)
     if only is not None:
-        keep = graph.upstream(only) | {only}
-        selected = [n for n in graph.order if n in keep]
+        wanted = graph.upstream(only) | {only}
+        selected = [n for n in graph.order if n in wanted]
     force = set()
     if from_node is not None:
         force = graph.downstream(from_node) | {from_node}
