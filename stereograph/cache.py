@@ -265,11 +265,14 @@ class ArtifactStore:
         return self.objects / key[:2] / key
 
     def has(self, key: str) -> bool:
-        """A complete-looking entry exists (manifest present, file sizes match)."""
+        """A complete-looking entry exists (manifest present, file sizes match); marks it used."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
-            return all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items())
+            ok = all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items())
+            if ok:
+                os.utime(d / "manifest.json")  # last use, for `cache prune`
+            return ok
         except (OSError, ValueError, KeyError, TypeError):
             return False
 
@@ -386,6 +389,33 @@ class ArtifactStore:
                 cnt, sz = by_node.get(t, (0, 0))
                 by_node[t] = (cnt + 1, sz + s)
         return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node}
+
+    def prune(self, max_bytes: int) -> tuple[int, int]:
+        """Delete the least recently used entries until the store holds at most ``max_bytes``.
+
+        Returns (entries removed, bytes freed). Rendered output files go with their entry.
+        """
+        entries = []
+        total = 0
+        if self.objects.exists():
+            for d in self.objects.glob("*/*"):
+                try:
+                    used = (d / "manifest.json").stat().st_mtime
+                except OSError:
+                    used = 0.0
+                size = sum(f.stat().st_size for f in d.iterdir() if f.is_file())
+                entries.append((used, size, d.name))
+                total += size
+        removed = freed = 0
+        for _used, size, key in sorted(entries):
+            if total - freed <= max_bytes:
+                break
+            self.delete(key)
+            for r in (self.root / "rendered" / key[:2]).glob(f"{key}-*"):
+                shutil.rmtree(r, ignore_errors=True)
+            removed += 1
+            freed += size
+        return removed, freed
 
     def clear(self) -> int:
         n = len(list(self.objects.glob("*/*"))) if self.objects.exists() else 0

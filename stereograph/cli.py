@@ -313,6 +313,12 @@ def cmd_cache(args) -> int:
         n = store.clear()
         con.print(f"removed {n} entries from {root}")
         return 0
+    if args.action == "prune":
+        if args.max_gb is None:
+            raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
+        n, freed = store.prune(int(args.max_gb * 1e9))
+        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}")
+        return 0
     info = store.info()
     con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB")
     for t, (n, b) in sorted(info["by_type"].items()):
@@ -366,8 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("nodes", help="list node types, or show one's params")
     sp.add_argument("name", nargs="?")
     sp.set_defaults(fn=cmd_nodes)
-    sp = sub.add_parser("cache", help="cache info | clear")
-    sp.add_argument("action", choices=["info", "clear"])
+    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear")
+    sp.add_argument("action", choices=["info", "prune", "clear"])
+    sp.add_argument("--max-gb", type=float, help="prune: keep the most recently used entries up to this size (GB)")
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
     sp.add_argument("--cache-dir")
     sp.set_defaults(fn=cmd_cache)

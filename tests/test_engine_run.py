@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -428,3 +429,18 @@ def test_node_warnings_survive_a_cached_run(tmp_path):
     r1, r2 = run(f, tmp_path), run(f, tmp_path)
     assert r2.status["warn"] == "cached"
     assert r1.reports["warn"].messages == r2.reports["warn"].messages == [f"m00{i}: looks odd" for i in range(3)]
+
+
+def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
+    p = write_pipeline(tmp_path, n=4)
+    run(p, tmp_path, "power.power=3")
+    time.sleep(0.05)
+    run(p, tmp_path)  # power=2 entries (and the shared numbers entries) used last
+    store = ArtifactStore(tmp_path / "cache")
+    before = store.info()["bytes"]
+    removed, freed = store.prune(before // 2)
+    assert removed > 0 and before - freed <= before // 2
+    assert set(run(p, tmp_path).status.values()) == {"cached"}  # the latest settings survived
+    assert run(p, tmp_path, "power.power=3").status["power"] == "ran"  # the older ones did not
+    assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", "0"]) == 0
+    assert ArtifactStore(tmp_path / "cache").info()["entries"] == 0
