@@ -274,8 +274,9 @@ def cmd_run(args) -> int:
                 err.print(escape(r.trace))
         first = failed[0].name
         if graph.upstream(first):
-            err.print(f"Everything upstream of '{first}' is cached: after the fix, run the same command again "
-                      f"and only '{first}' and what depends on it will run (or add --from {first} to force them).")
+            err.print(f"What finished is cached: after the fix, run the same command again and only the nodes the "
+                      f"fix changes, and what depends on them, will run (`stereograph explain` shows which; "
+                      f"--from {first} forces '{first}' and its downstream).")
         else:
             err.print("After the fix, run the same command again.")
         return 1

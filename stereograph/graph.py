@@ -73,6 +73,8 @@ def _format_pydantic(err: pydantic.ValidationError) -> list[tuple[tuple, str]]:
             msg = "unknown parameter"
         elif e.get("type") == "missing":
             msg = "required parameter is missing"
+        elif not loc:  # a check across several params (a model validator): its text says it all
+            msg = msg.removeprefix("Value error, ")
         elif "input" in e and e.get("type") != "missing":
             msg = f"{msg} (got {e['input']!r})"
         out.append((loc, msg))
@@ -105,7 +107,12 @@ def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node:
         return spec.params(**merge_nested_defaults(spec.params, raw))
     except pydantic.ValidationError as err:
         (loc, msg), *rest = _format_pydantic(err)
-        field_name = ".".join(str(p) for p in loc) or "params"
+        if not loc:  # the params as a whole: say which --set contributed, if any
+            sets = [o for o in doc.overrides if o.split("=", 1)[0].split(".")[0] == node]
+            raise ConfigError(f"{spec.name} parameters: {msg}" + (f" (with --set {', '.join(sets)})" if sets else ""),
+                              doc.where("nodes", node, "params"), node,
+                              f"see `stereograph nodes {spec.name}`") from None
+        field_name = ".".join(str(p) for p in loc)
         fields = spec.params.model_fields
         hint = None
         if msg == "unknown parameter":

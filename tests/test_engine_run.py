@@ -156,7 +156,7 @@ def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path
     assert code == 1
     assert "node 'boom' (tmp.boom) failed: no object found in image left07.png" in err
     assert "Fix: check the lighting" in err and "Traceback" not in err
-    assert "run the same command again" in err
+    assert "run the same command again" in err and "--from boom" in err
     summary = json.loads((tmp_path / "o" / "run.json").read_text())
     st = {n["node"]: n["status"] for n in summary["nodes"]}
     assert st["boom"] == "failed" and st["power"] == "ran" and st["after"] == "ran"

@@ -122,11 +122,15 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
             chosen.append(p)
     if not chosen:
         reasons = sorted({r.split(":")[0] for r in skipped.values()})
-        first = next((r for r in skipped.values() if r.startswith("refused")), None)
+        first_item = next((i for i, r in skipped.items() if r.startswith("refused")), None)
+        first = skipped.get(first_item) if first_item else None
+        if first:  # the plan's own reason already ends with its fix
+            first = first.split("; fix: ")[0]
+        # a refused plan knows its fix (arm geometry, hand-eye, ...); otherwise it is the selection
+        hint = (plans[first_item].get("hint") if first_item else None) or (
+            "check the located objects (found, extrapolated, reachable) or the actuator's split / items selection")
         raise NodeError(f"no pick plan to execute: {len(plans)} plan(s), none selected ({', '.join(reasons) or 'empty'})"
-                        + (f"; e.g. {first}" if first else "") + ".",
-                        hint="check the located objects (found, extrapolated, reachable) or the actuator's split / "
-                             "items selection.")
+                        + (f"; e.g. {first}" if first else ""), hint=hint)
     return chosen, skipped
 
 
