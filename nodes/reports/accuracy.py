@@ -143,6 +143,9 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
            if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))}
     if params.split != "all" and sel and all(v.get("split") is None for v in sel.values()) and ctx is not None:
         ctx.warn("no item carries a `split`; all items evaluated")
+    if not sel and locations and ctx is not None:
+        ctx.warn(f"none of the {len(locations)} locations is in the '{params.split}' split: the report is empty "
+                 f"(set `split: all`, or leave some placements for {params.split})")
     found = [v for v in sel.values() if v.get("found")]
     with_truth = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None]
     meas = np.array([[v["x_cm"], v["y_cm"], v["z_cm"]] for v in with_truth], float).reshape(-1, 3)
