@@ -114,6 +114,9 @@ class Out:
     save : bool
         Also write this output into the run's output folder on every run
         (images as PNG, everything else as JSON), cached or not.
+    optional : bool
+        A by-product a pipeline may leave unwired without a warning (a synthetic
+        source's ground truth, say). Unwired outputs are otherwise warned about.
     description : str
         One line for ``stereograph nodes``.
     """
@@ -121,6 +124,7 @@ class Out:
     type: str = "any"
     collection: bool = False
     save: bool = False
+    optional: bool = False
     description: str = ""
 
 

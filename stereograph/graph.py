@@ -206,6 +206,7 @@ def build_graph(doc: PipelineDoc) -> Graph:
         if graph.dag.out_degree(name) == 0:
             continue  # terminal outputs are the run's results
         for out in inst.spec.outputs:
-            if (name, out) not in used and not inst.spec.outputs[out].save:
+            decl = inst.spec.outputs[out]
+            if (name, out) not in used and not decl.save and not decl.optional:
                 graph.warnings.append(f"{doc.where('nodes', name)}: node '{name}': output '{out}' is never used")
     return graph

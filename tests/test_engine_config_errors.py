@@ -172,3 +172,10 @@ def test_nested_params_merge_into_their_default(tmp_path, capsys):
     assert g.nodes["arm"].params.yaw.min_deg == -100 and g.nodes["arm"].params.yaw.max_deg == 90
     assert main(["validate", str(f), "--set", "arm.yaw.min_deg=low"]) == 2
     assert "yaw.min_deg" in capsys.readouterr().err
+
+
+def test_unused_outputs_are_warned_unless_optional(tmp_path, capsys):
+    code, msg = run_cli(tmp_path, GOOD, capsys=capsys)
+    assert code == 0
+    assert "node 'power': output 'm' is never used" in msg  # power.norm is wired, power.m is not
+    assert "'items' is never used" not in msg

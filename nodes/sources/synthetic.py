@@ -104,9 +104,11 @@ def synthetic_rig(params: SyntheticParams) -> dict:
 @node(
     "source.synthetic",
     outputs={
-        "pairs": Out("StereoPair", collection=True, description="Ball scenes with ground truth."),
-        "views": Out("StereoViews", description="Chessboard calibration views (with the board poses)."),
-        "truth": Out("RigTruth", description="The rig's true cameras and table pose."),
+        # a synthetic rig offers all three; each pipeline wires what it needs
+        "pairs": Out("StereoPair", collection=True, optional=True, description="Ball scenes with ground truth."),
+        "views": Out("StereoViews", optional=True,
+                     description="Chessboard calibration views (with the board poses)."),
+        "truth": Out("RigTruth", optional=True, description="The rig's true cameras and table pose."),
     },
     params=SyntheticParams,
     version="1",
