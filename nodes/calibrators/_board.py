@@ -5,7 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["board_points", "detect_corners", "detect_views", "orient_corners", "to_gray"]
+__all__ = ["board_points", "detect_corners", "detect_views", "orient_corners", "stereo_calibrate_points", "to_gray"]
+
+_CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-9)
 
 
 def to_gray(img: np.ndarray) -> np.ndarray:
@@ -105,3 +107,56 @@ def detect_views(views: list[dict], cols: int, rows: int, subpix_window_px: int 
         left.append(cl)
         right.append(cr)
     return ids, left, right, rejected
+
+
+def stereo_calibrate_points(ids: list[str], obj: list[np.ndarray], left: list[np.ndarray], right: list[np.ndarray],
+                            image_size, refine: str = "joint", fix_k3: bool = False, mono_left=None,
+                            mono_right=None) -> dict:
+    """Calibrate a stereo pair from matched board points (Zhang / OpenCV).
+
+    Each camera is calibrated alone (``calibrateCamera``), then
+    ``stereoCalibrate`` finds the pose of the right camera; with
+    ``refine="joint"`` it also refines both cameras' intrinsics from all the
+    stereo constraints (``CALIB_USE_INTRINSIC_GUESS``), with ``"fix_intrinsic"``
+    it keeps the per-camera results.
+
+    Parameters
+    ----------
+    ids : list of str
+        View ids, one per point array.
+    obj : list of (N_i, 3) float32
+        Board-frame points of each view, cm (``T_cm`` comes out in this unit).
+    left, right : list of (N_i, 2) float32
+        The same points' pixels in the left / right images.
+    image_size : (w, h)
+        Pixels.
+    refine : {"joint", "fix_intrinsic"}
+    fix_k3 : bool
+        Keep k3 = 0 (fewer parameters for mild lenses).
+    mono_left, mono_right : (obj list, pixel list), optional
+        Points for the per-camera calibrations when a camera saw more than
+        the points common to both (partial views); default: the stereo points.
+
+    Returns
+    -------
+    dict
+        ``K1 D1 K2 D2 R T_cm image_size rms_px per_view_rms_px rejected_views``
+        (a ``StereoCalibration`` without ``method``) plus ``mono_rms_px``.
+    """
+    size = (int(image_size[0]), int(image_size[1]))
+    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    ol, pl = mono_left if mono_left is not None else (obj, left)
+    orr, pr = mono_right if mono_right is not None else (obj, right)
+    rms1, K1, D1, _, _ = cv2.calibrateCamera(ol, pl, size, None, None, flags=flags, criteria=_CRIT)
+    rms2, K2, D2, _, _ = cv2.calibrateCamera(orr, pr, size, None, None, flags=flags, criteria=_CRIT)
+    sflags = flags | (cv2.CALIB_USE_INTRINSIC_GUESS if refine == "joint" else cv2.CALIB_FIX_INTRINSIC)
+    R0, T0 = np.eye(3), np.zeros((3, 1))
+    out = cv2.stereoCalibrateExtended(obj, left, right, K1, D1, K2, D2, size, R0, T0, flags=sflags, criteria=_CRIT)
+    rms, K1, D1, K2, D2, R, T, _E, _F, _rv, _tv, per_view = out
+    per_view = np.asarray(per_view).reshape(len(ids), 2)
+    return {
+        "K1": K1, "D1": D1.ravel(), "K2": K2, "D2": D2.ravel(), "R": R, "T_cm": T.ravel(),
+        "image_size": list(size), "rms_px": float(rms),
+        "per_view_rms_px": {i: float(np.sqrt((e[0] ** 2 + e[1] ** 2) / 2)) for i, e in zip(ids, per_view)},
+        "rejected_views": [], "mono_rms_px": [float(rms1), float(rms2)],
+    }

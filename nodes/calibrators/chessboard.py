@@ -4,26 +4,20 @@ from __future__ import annotations
 
 from typing import Literal
 
-import cv2
 import numpy as np
 
-from nodes.calibrators._board import board_points, detect_views
+from nodes.calibrators._board import board_points, detect_views, stereo_calibrate_points
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["ChessboardParams", "calibrate_stereo", "chessboard"]
-
-_CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-9)
 
 
 def calibrate_stereo(ids: list[str], left: list[np.ndarray], right: list[np.ndarray], image_size, cols: int,
                      rows: int, square_cm: float, refine: str = "joint", fix_k3: bool = False) -> dict:
     """Calibrate a stereo pair from chessboard corners (Zhang / OpenCV).
 
-    Each camera is calibrated alone (``calibrateCamera``), then
-    ``stereoCalibrate`` finds the pose of the right camera; with
-    ``refine="joint"`` it also refines both cameras' intrinsics from all the
-    stereo constraints (``CALIB_USE_INTRINSIC_GUESS``), with ``"fix_intrinsic"``
-    it keeps the per-camera results.
+    See :func:`nodes.calibrators._board.stereo_calibrate_points` (per camera,
+    then ``stereoCalibrate``; ``refine`` "joint" or "fix_intrinsic").
 
     Parameters
     ----------
@@ -48,25 +42,12 @@ def calibrate_stereo(ids: list[str], left: list[np.ndarray], right: list[np.ndar
         ``mono_rms_px`` ([left, right]), ``corners_left_px`` /
         ``corners_right_px`` ({view_id: (N, 2)}) and ``board``.
     """
-    size = (int(image_size[0]), int(image_size[1]))
     obj = [board_points(cols, rows, square_cm)] * len(ids)
-    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
-    rms1, K1, D1, _, _ = cv2.calibrateCamera(obj, left, size, None, None, flags=flags, criteria=_CRIT)
-    rms2, K2, D2, _, _ = cv2.calibrateCamera(obj, right, size, None, None, flags=flags, criteria=_CRIT)
-    sflags = flags | (cv2.CALIB_USE_INTRINSIC_GUESS if refine == "joint" else cv2.CALIB_FIX_INTRINSIC)
-    R0, T0 = np.eye(3), np.zeros((3, 1))
-    out = cv2.stereoCalibrateExtended(obj, left, right, K1, D1, K2, D2, size, R0, T0, flags=sflags, criteria=_CRIT)
-    rms, K1, D1, K2, D2, R, T, _E, _F, _rv, _tv, per_view = out
-    per_view = np.asarray(per_view).reshape(len(ids), 2)
-    return {
-        "K1": K1, "D1": D1.ravel(), "K2": K2, "D2": D2.ravel(), "R": R, "T_cm": T.ravel(),
-        "image_size": list(size), "rms_px": float(rms),
-        "per_view_rms_px": {i: float(np.sqrt((e[0] ** 2 + e[1] ** 2) / 2)) for i, e in zip(ids, per_view)},
-        "rejected_views": [], "method": f"chessboard/{refine}",
-        "mono_rms_px": [float(rms1), float(rms2)],
-        "corners_left_px": dict(zip(ids, left)), "corners_right_px": dict(zip(ids, right)),
-        "board": {"cols": cols, "rows": rows, "square_cm": float(square_cm)},
-    }
+    cal = stereo_calibrate_points(ids, obj, left, right, image_size, refine, fix_k3)
+    cal.update({"method": f"chessboard/{refine}", "corners_left_px": dict(zip(ids, left)),
+                "corners_right_px": dict(zip(ids, right)),
+                "board": {"cols": cols, "rows": rows, "square_cm": float(square_cm)}})
+    return cal
 
 
 class ChessboardParams(Params):

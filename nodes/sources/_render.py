@@ -1076,12 +1076,86 @@ def _filtered_square(x, w):
     return (_tri(x + w / 2) - _tri(x - w / 2)) / w
 
 
+_CHARUCO_PX_PER_SQUARE = 84  # texture resolution of a ChArUco board's markers (6 texels per 4x4 marker cell at 0.7)
+
+
+@functools.lru_cache(maxsize=4)
+def charuco_texture(cols: int, rows: int, dictionary: str = "DICT_4X4_50", marker_fraction: float = 0.7,
+                    px_per_square: int = _CHARUCO_PX_PER_SQUARE) -> tuple[np.ndarray, int]:
+    """OpenCV's ChArUco board image (``CharucoBoard.generateImage``) for ``cols x rows`` inner corners.
+
+    Returns the uint8 image ((rows+1)*px, (cols+1)*px), no margin, and the
+    parity of the black squares (square (i, j) is black when ``(i + j) % 2 ==
+    parity``). Square (0, 0) is the board's top-left square, i.e. board-frame
+    squares [-1, 0] x [-1, 0] in the renderer's frame (inner corner 0 at the origin).
+    """
+    board = charuco_board(cols, rows, 1.0, dictionary, marker_fraction)
+    size = ((cols + 1) * px_per_square, (rows + 1) * px_per_square)
+    img = board.generateImage(size, marginSize=0, borderBits=1)
+    img.setflags(write=False)
+    h = px_per_square // 2
+    parity = 0 if img[h, h] < 128 else 1
+    return img, parity
+
+
+def charuco_board(cols: int, rows: int, square_cm: float, dictionary: str = "DICT_4X4_50",
+                  marker_fraction: float = 0.7):
+    """``cv2.aruco.CharucoBoard`` with ``cols x rows`` inner corners (``cols+1 x rows+1`` squares).
+
+    Raises ValueError for an unknown dictionary name or a board needing more
+    markers than the dictionary holds.
+    """
+    code = getattr(cv2.aruco, str(dictionary), None)
+    if not str(dictionary).startswith("DICT_") or not isinstance(code, int):
+        names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+        raise ValueError(f"unknown ArUco dictionary {dictionary!r}; known: {', '.join(names)}")
+    d = cv2.aruco.getPredefinedDictionary(code)
+    n_markers = ((cols + 1) * (rows + 1)) // 2
+    if n_markers > d.bytesList.shape[0]:
+        raise ValueError(f"a {cols}x{rows} ChArUco board needs {n_markers} markers but {dictionary} holds "
+                         f"{d.bytesList.shape[0]}")
+    return cv2.aruco.CharucoBoard((cols + 1, rows + 1), float(square_cm), float(marker_fraction * square_cm), d)
+
+
+def _charuco_reflectance(bx, by, gu, gv, cols, rows, charuco: dict) -> np.ndarray:
+    """Reflectance (0..1) of a ChArUco board at board coordinates ``bx, by`` (squares).
+
+    The squares are box-filtered analytically like the chessboard's (so the
+    ChArUco corners are as exact); the markers are sampled from OpenCV's board
+    image at 4x4 points spread over each pixel's footprint (``gu`` / ``gv``:
+    d(bx, by)/du and /dv).
+    """
+    tex, parity = charuco_texture(cols, rows, str(charuco.get("dictionary", "DICT_4X4_50")),
+                                  float(charuco.get("marker_fraction", 0.7)))
+    wx = np.abs(gu[0]) + np.abs(gv[0])
+    wy = np.abs(gu[1]) + np.abs(gv[1])
+    # sign(sin(pi bx)) * sign(sin(pi by)) is +1 on the squares whose (i + j) is even (i = floor(bx) + 1)
+    s = _filtered_square(bx, wx) * _filtered_square(by, wy)
+    light = 0.5 + 0.5 * s if parity == 1 else 0.5 - 0.5 * s
+    px = tex.shape[0] // (rows + 1)
+    dark = np.zeros_like(bx)
+    offs = (-0.375, -0.125, 0.125, 0.375)
+    for ou in offs:
+        for ov in offs:
+            sx = bx + ou * gu[0] + ov * gv[0] + 1.0
+            sy = by + ou * gu[1] + ov * gv[1] + 1.0
+            ix = np.clip(np.floor(sx * px), 0, tex.shape[1] - 1).astype(np.intp)
+            iy = np.clip(np.floor(sy * px), 0, tex.shape[0] - 1).astype(np.intp)
+            light_square = (np.floor(sx) + np.floor(sy)) % 2 != parity
+            dark += (tex[iy, ix] < 128) & light_square
+    return np.clip(light - dark / len(offs) ** 2, 0.0, 1.0)
+
+
 def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9, rows: int = 6,
-                      square_cm: float = 2.5, seed: int = 0, noise_sigma: float | None = None):
+                      square_cm: float = 2.5, seed: int = 0, noise_sigma: float | None = None,
+                      charuco: dict | None = None):
     """Render a chessboard (rigid plate, matte) floating over the table, seen by both cameras.
 
     The checker pattern is box-filtered analytically over each pixel's
-    footprint, so corners are anti-aliased like a real camera's.
+    footprint, so corners are anti-aliased like a real camera's. With
+    ``charuco={"dictionary": "DICT_4X4_50", "marker_fraction": 0.7}`` the
+    board is OpenCV's ChArUco board instead (ArUco markers in the light
+    squares; ``cols x rows`` inner corners, corner ``k`` is ChArUco id ``k``).
 
     Returns
     -------
@@ -1132,7 +1206,10 @@ def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9
         gyu, gyv = np.gradient(by, axis=1), np.gradient(by, axis=0)
         wx = np.abs(gxu) + np.abs(gxv)
         wy = np.abs(gyu) + np.abs(gyv)
-        checker = 0.5 + 0.5 * _filtered_square(bx, wx) * _filtered_square(by, wy)
+        if charuco is None:
+            checker = 0.5 + 0.5 * _filtered_square(bx, wx) * _filtered_square(by, wy)
+        else:
+            checker = _charuco_reflectance(bx, by, (gxu, gyu), (gxv, gyv), cols, rows, charuco)
         pattern = (bx >= -1) & (bx <= cols) & (by >= -1) & (by <= rows)
         refl = np.where(pattern, 0.10 + 0.80 * checker, 0.92).ravel()
         # Two-sided matte plate lit by the rig's lamp (table frame -> camera frame).

@@ -56,6 +56,11 @@ class SyntheticParams(Params):
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(2.5, gt=0.1, le=20, description="Chessboard square size, cm.")
+    board_type: Literal["chessboard", "charuco"] = Field(
+        "chessboard", description="Calibration board: a plain chessboard, or OpenCV's ChArUco board (ArUco markers "
+                                  "in the light squares; board_cols x board_rows inner corners).")
+    aruco_dict: str = Field("DICT_4X4_50", description="ArUco dictionary of the ChArUco board (an OpenCV name).")
+    marker_fraction: float = Field(0.7, gt=0.1, lt=1.0, description="ChArUco marker side / square side (unitless).")
     train_fraction: float = Field(0.5, ge=0, le=1, description="Share of scenes marked split=train (0..1).")
     split_mode: Literal["span", "random"] = Field(
         "span", description="How scenes are split: span = the nearest and the farthest plain placement are train "
@@ -75,6 +80,13 @@ class SyntheticParams(Params):
             if not 0 <= r_min < r_max:
                 raise ValueError(f"placement_region_cm radii must satisfy 0 <= min < max, got min {r_min}, "
                                  f"max {r_max}")
+        return self
+
+    @model_validator(mode="after")
+    def _check_charuco(self):
+        if self.board_type == "charuco":
+            _render.charuco_board(self.board_cols, self.board_rows, self.square_cm, self.aruco_dict,
+                                  self.marker_fraction)  # ValueError naming the known dictionaries
         return self
 
     @field_validator("ball_color")
@@ -176,17 +188,24 @@ def synthetic(params: SyntheticParams) -> dict:
                 params.square_cm)
         except RuntimeError as exc:
             raise NodeError(f"source.synthetic: {exc}.", hint="use a smaller board or a longer focal length") from exc
+        charuco = ({"dictionary": params.aruco_dict, "marker_fraction": params.marker_fraction}
+                   if params.board_type == "charuco" else None)
         for j, pose in enumerate(poses):
             vid = f"v{j:02d}"
             left, right, corners = _render.render_board_view(
-                rig, pose, params.board_cols, params.board_rows, params.square_cm, seed=params.seed * 7919 + j)
+                rig, pose, params.board_cols, params.board_rows, params.square_cm, seed=params.seed * 7919 + j,
+                charuco=charuco)
             views.append({"id": vid, "left": left, "right": right})
             poses_table[vid] = corners["T_table_from_board"]
     truth = rig["truth"]
+    board = {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm,
+             "type": params.board_type}
+    if params.board_type == "charuco":
+        board.update(dictionary=params.aruco_dict, marker_fraction=params.marker_fraction)
     return {
         "pairs": pairs,
         "views": {"views": views, "image_size": list(truth["image_size"]),
-                  "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm},
+                  "board": board,
                   "truth": truth, "board_poses_table": poses_table},
         "truth": truth,
     }
