@@ -264,17 +264,22 @@ class ArtifactStore:
     def _dir(self, key: str) -> Path:
         return self.objects / key[:2] / key
 
-    def has(self, key: str) -> bool:
-        """A complete-looking entry exists (manifest present, file sizes match); marks it used."""
+    def complete(self, key: str) -> dict[str, Any] | None:
+        """The manifest of a complete-looking entry (manifest present, file sizes match), else None;
+        marks the entry used."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
-            ok = all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items())
-            if ok:
-                os.utime(d / "manifest.json")  # last use, for `cache prune`
-            return ok
-        except (OSError, ValueError, KeyError, TypeError):
-            return False
+            if not all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items()):
+                return None
+            os.utime(d / "manifest.json")  # last use, for `cache prune`
+            return man
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return None
+
+    def has(self, key: str) -> bool:
+        """A complete-looking entry exists; see :meth:`complete`."""
+        return self.complete(key) is not None
 
     def load(self, key: str) -> dict[str, Any]:
         """The outputs stored under ``key``; :class:`CorruptEntry` if the files fail their digests."""

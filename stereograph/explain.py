@@ -92,8 +92,9 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                     computable = False
                     break
                 run.keys[(name, item)] = key
-                if inst.spec.cacheable and store.has(key):
-                    run.adopt_cached(inst, item, key)
+                manifest = store.complete(key) if inst.spec.cacheable else None
+                if manifest is not None:
+                    run.adopt_cached(inst, item, key, manifest)
                 else:
                     missing += 1
                     # the key a run would store it under: downstream keys follow from it

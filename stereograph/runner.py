@@ -367,9 +367,15 @@ class _Run:
             self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
                                           "messages": list(messages or [])})
 
-    def adopt_cached(self, inst: NodeInstance, item: str | None, key: str) -> None:
-        """Register a cached entry's refs without loading big values (collections: load the index)."""
-        meta = (self.store.meta(key) or {}).get("meta", {}) if self.store is not None else {}
+    def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
+                     manifest: dict[str, Any] | None = None) -> None:
+        """Register a cached entry's refs without loading big values (collections: load the index).
+
+        ``manifest`` is the one the cache lookup already read, if any (saves reading it again).
+        """
+        if manifest is None and self.store is not None:
+            manifest = self.store.meta(key)
+        meta = (manifest or {}).get("meta", {})
         self.reports[inst.name].messages += meta.get("messages", [])  # warnings the node gave when it ran
         for name, o in inst.spec.outputs.items():
             self.ref_keys[(inst.name, name, item)] = key
@@ -426,8 +432,9 @@ class _Run:
             key = self.entry_key(base, refs, item) if self.store is not None else None
             if key is not None:
                 self.keys[(inst.name, item)] = key
-            if cacheable and self.store.has(key):  # type: ignore[union-attr]
-                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
+            manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
+            if manifest is not None:
+                self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
                 if inst.mapped:
                     for out in inst.spec.outputs:
                         self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
@@ -487,9 +494,7 @@ class _Run:
         rep.seconds = time.perf_counter() - t0
         n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
         rep.items_failed = n_failed
-        if rep.status == "failed" and not inst.mapped:
-            pass
-        elif inst.mapped and n_failed and n_failed < len(entries):
+        if inst.mapped and n_failed and n_failed < len(entries):
             rep.status = "partial"
         elif n_failed:
             rep.status = "failed"
