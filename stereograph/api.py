@@ -82,7 +82,9 @@ class In:
     Parameters
     ----------
     type : str
-        Artifact type name (see ``docs/artifacts.md``); ``"any"`` accepts all.
+        Artifact type name (see ``docs/artifacts.md``); ``"any"`` accepts all. Alternatives
+        are separated by ``|`` (``"RectifiedPair | StereoPair"``); the node learns which one
+        is wired from ``ctx.input_types``.
     gather : bool
         If true and the wired output is a collection, the node receives the
         whole collection at once as ``{item_id: value}`` (a *reduce*). If false
@@ -98,6 +100,11 @@ class In:
     gather: bool = False
     optional: bool = False
     description: str = ""
+
+    @property
+    def types(self) -> tuple[str, ...]:
+        """The accepted artifact type names (the ``|``-separated alternatives of ``type``)."""
+        return tuple(t.strip() for t in self.type.split("|") if t.strip())
 
 
 @dataclass(frozen=True)
@@ -145,6 +152,9 @@ class RunContext:
         here are not cached; prefer ``Out(save=True)`` for results.
     pipeline_dir : Path
         Folder of the pipeline file: resolve relative paths in params from it.
+    input_types : dict
+        Input port -> the artifact type of the output wired to it (unwired ports absent).
+        A node whose input accepts alternatives (``In("A | B")``) reads which one it got here.
     """
 
     node_name: str
@@ -152,6 +162,7 @@ class RunContext:
     out_dir: Path
     pipeline_dir: Path
     messages: list[str] = field(default_factory=list)
+    input_types: dict[str, str] = field(default_factory=dict)
 
     def warn(self, message: str) -> None:
         """Record a warning that the run summary shows next to the node."""

@@ -165,9 +165,11 @@ def build_graph(doc: PipelineDoc) -> Graph:
                                   where, name, f"did you mean '{src}.{close[0]}'?" if close else
                                   f"its outputs are {sorted(src_spec.outputs)}")
             want, have = inst.spec.inputs[port].type, src_spec.outputs[out].type
-            if want != "any" and have != "any" and want != have:
-                raise ConfigError(f"input '{port}' wants {want} but '{src}.{out}' gives {have}", where, name,
-                                  f"wire '{port}' to an output of type {want}")
+            accepted = inst.spec.inputs[port].types
+            if "any" not in accepted and have != "any" and have not in accepted:
+                wants = " or ".join(accepted)
+                raise ConfigError(f"input '{port}' wants {wants} but '{src}.{out}' gives {have}", where, name,
+                                  f"wire '{port}' to an output of type {wants}")
             inst.inputs[port] = (src, out)
             dag.add_edge(src, name)
         for port, decl_in in inst.spec.inputs.items():

@@ -64,6 +64,7 @@ class Task:
     item: str | None
     out_dir: str
     pipeline_dir: str
+    input_types: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -94,7 +95,7 @@ def execute(task: Task) -> TaskResult:
         ctx = None
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
-                             Path(task.pipeline_dir))
+                             Path(task.pipeline_dir), input_types=task.input_types)
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
         if not isinstance(out, dict) or set(out) != set(spec.outputs):
@@ -332,7 +333,11 @@ class _Run:
         # a params model may come from a plugin module another process has not imported yet
         params = inst.params.model_dump() if getattr(self.executor, "remote", False) else inst.params
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
-                    str(self.out_dir), str(self.g.doc.directory))
+                    str(self.out_dir), str(self.g.doc.directory), self.input_types(inst))
+
+    def input_types(self, inst: NodeInstance) -> dict[str, str]:
+        """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
+        return {port: self.g.nodes[src].spec.outputs[out].type for port, (src, out) in inst.inputs.items()}
 
     def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any],
                      messages: list[str] | None = None) -> None:

@@ -91,6 +91,19 @@ def test_mistyped_input(tmp_path, capsys):
     assert "p.yaml:13" in msg and "node 'total'" in msg and "wants Number but 'power.m' gives Matrix" in msg
 
 
+def test_input_accepting_alternatives_names_them_all(tmp_path, capsys):
+    text = GOOD + "  what:\n    type: toy.describe\n    inputs: {x: total.total}\n"
+    assert run_cli(tmp_path, text, capsys=capsys)[0] == 0  # Number is one of the alternatives
+    bad = GOOD.replace("  total:\n", "  what:\n    type: toy.describe\n    inputs: {x: numbers.items}\n  total:\n")
+    assert run_cli(tmp_path, bad, capsys=capsys)[0] == 0  # so is Matrix (per item)
+    code, msg = run_cli(tmp_path, text.replace("x: total.total", "x: what.kind"), capsys=capsys)
+    assert code == 2  # a Report is neither (and wiring a node to itself is refused first or after)
+    code, msg = run_cli(tmp_path, GOOD + "  tbl:\n    type: toy.table\n    inputs: {m: numbers.items}\n"
+                        "  what:\n    type: toy.describe\n    inputs: {x: tbl.report}\n", capsys=capsys)
+    assert code == 2
+    assert "node 'what'" in msg and "wants Matrix or Number but 'tbl.report' gives Report" in msg
+
+
 def test_missing_required_input(tmp_path, capsys):
     code, msg = run_cli(tmp_path, GOOD.replace("    inputs: {values: power.norm}\n", ""), capsys=capsys)
     assert code == 2

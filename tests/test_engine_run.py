@@ -444,3 +444,22 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
     assert run(p, tmp_path, "power.power=3").status["power"] == "ran"  # the older ones did not
     assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", "0"]) == 0
     assert ArtifactStore(tmp_path / "cache").info()["entries"] == 0
+
+
+def test_node_learns_which_alternative_is_wired(tmp_path):
+    from stereograph.runner import ProcessExecutor
+
+    extra = ("  per_item:\n    type: toy.describe\n    inputs: {x: numbers.items}\n"
+             "  whole:\n    type: toy.describe\n    inputs: {x: total.total}\n")
+    p = write_pipeline(tmp_path, n=3, extra=extra)
+    r = run(p, tmp_path)
+    assert r.ok
+    assert {v["wired"] for v in r.outputs("per_item", "kind").values()} == {"Matrix"}
+    assert all(v["is_array"] for v in r.outputs("per_item", "kind").values())
+    assert r.outputs("whole", "kind") == {"wired": "Number", "is_array": False}
+    ex = ProcessExecutor(2)  # the wiring travels with the task to another process
+    try:
+        r2 = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o2", executor=ex)
+    finally:
+        ex.close()
+    assert {v["wired"] for v in r2.outputs("per_item", "kind").values()} == {"Matrix"}

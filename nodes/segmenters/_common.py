@@ -29,6 +29,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from nodes.rectifiers._views import RectifiedView, pair_views
 from stereograph.api import Field, In, NodeError, Out, Params
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
@@ -62,7 +63,8 @@ class ObjectSpec(Params):
 
 # Every segmenter has this interface, so that swapping methods is a one-line YAML change.
 SEGMENTER_INPUTS = {
-    "pair": In("RectifiedPair", description="Rectified stereo pair."),
+    "pair": In("RectifiedPair | StereoPair",
+               description="Rectified pair, or camera images rectified on request (needs `rectification`)."),
     "rectification": In("Rectification", optional=True, description="For the expected ball size."),
 }
 SEGMENTER_OUTPUTS = {
@@ -274,6 +276,21 @@ def fast_median(a: np.ndarray, axis: int | None = None) -> np.ndarray | float:
     return (p[k - 1] + p[k]) / 2
 
 
+def masked_pixels(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``img[mask]`` -- the pixels where ``mask`` is true, (N, C) for a colour image -- but fast.
+
+    NumPy's boolean gather is ~25x slower per pixel when a pixel is C elements than when it
+    is one, so a colour image is viewed as HxW elements of C bytes for the gather.
+    """
+    if img.ndim != 3 or img.shape[:2] != mask.shape:
+        return img[mask]
+    try:
+        whole = img.view(np.dtype((np.void, img.shape[2] * img.itemsize)))[..., 0]
+    except ValueError:  # pixels not contiguous in memory
+        return img[mask]
+    return whole[mask].view(img.dtype).reshape(-1, img.shape[2])
+
+
 # --------------------------------------------------------------------------------------------
 # Colour helpers
 # --------------------------------------------------------------------------------------------
@@ -294,16 +311,24 @@ def color_distance_map(img_bgr: np.ndarray, color_bgr) -> np.ndarray:
     cv2 channel transforms (fast). Pixels darker than 25 gray levels (chromaticity undefined
     in the noise) get distance 2.
     """
-    ref = chromaticity(np.float32(color_bgr)).astype(np.float32)
     img = np.asarray(img_bgr)
     f = img.astype(np.float32)
-    ones = np.ones((1, 3), np.float32)
-    scaled = cv2.transform(f, np.repeat(ref[:, None], 3, axis=1))  # channel c = r_c * S
-    d = cv2.divide(cv2.transform(cv2.absdiff(f, scaled), ones), cv2.max(cv2.transform(f, ones), 1.0))
-    d = d.reshape(img.shape[:2])
+    d = _chroma_distance(f, cv2.max(cv2.transform(f, _ONES_1x3), 1.0), color_bgr).reshape(img.shape[:2])
     gray_max = cv2.max(cv2.max(img[..., 0], img[..., 1]), img[..., 2]).reshape(img.shape[:2])
     d[gray_max < 25] = 2.0
     return d
+
+
+_ONES_1x3 = np.ones((1, 3), np.float32)
+
+
+def _chroma_distance(f: np.ndarray, total: np.ndarray, color_bgr) -> np.ndarray:
+    """sum_c |x_c - r_c S| / S for a float32 BGR image ``f`` and its channel sum ``total`` = max(S, 1)."""
+    b, g, r = (float(x) for x in color_bgr)
+    k = max(b + g + r, 1.0)
+    ref = np.array([[b / k] * 3, [g / k] * 3, [r / k] * 3], np.float32)  # row c: r_c * (1, 1, 1)
+    scaled = cv2.transform(f, ref)  # channel c = r_c * S
+    return cv2.divide(cv2.transform(cv2.absdiff(f, scaled), _ONES_1x3), total)
 
 
 def hue_mask(img_bgr: np.ndarray, hue_range_deg, min_saturation: int) -> np.ndarray:
@@ -331,7 +356,7 @@ def object_color_score(img_bgr: np.ndarray, mask: np.ndarray, obj: ObjectSpec) -
     if not sel.any():
         return float("inf")
     if obj.color_bgr is not None:
-        dist = float(fast_median(color_distance_map(img_bgr[sel][None], obj.color_bgr)))
+        dist = float(fast_median(color_distance_map(masked_pixels(img_bgr, sel)[None], obj.color_bgr)))
         return dist / obj.color_tolerance
     hm = hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)
     return float(1.0 - (hm[sel] > 0).mean()) * 2.0  # 50 % outside the range -> score 1
@@ -366,40 +391,52 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     # Local background: a ring just outside the mask (fallback: everything outside).
     ring = cv2.dilate(mask, structuring_element(9)) > 0
     ring &= ~sel
-    bg_px = img_bgr[ring] if ring.sum() > 20 else img_bgr[~sel]
+    bg_px = masked_pixels(img_bgr, ring) if ring.sum() > 20 else masked_pixels(img_bgr, ~sel)
     bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
     bg_v = float(bg.max())
     if bg_v < 1:
         return mask
     bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
-    hsv = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    # Only the region's pixels are classified: a 1xNx3 image of them keeps the cv2 calls.
+    px = masked_pixels(img_bgr, sel)[None]
+    hsv = cv2.cvtColor(px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
     v, s = hsv[..., 2], hsv[..., 1]
-    dchroma = color_distance_map(img_bgr, bg)
-    dchroma[v < 25] = 0.0  # chromaticity is noise in the darkest pixels: do not let it veto
-    shadow_px = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
-    shadow_px &= dchroma <= shadow.max_chroma_shift
+    f = px.astype(np.float32)
+    total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
+    dchroma = _chroma_distance(f, total, bg).reshape(v.shape)
+    dark = v < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
+    dchroma[dark] = 0.0
+    drop = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
+    drop &= dchroma <= shadow.max_chroma_shift
     if obj.color_bgr is not None:
-        shadow_px &= color_distance_map(img_bgr, obj.color_bgr) > obj.color_tolerance
+        d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(v.shape)
+        d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
+        drop &= d_obj > obj.color_tolerance
     elif obj.hue_range_deg is not None:
-        shadow_px &= hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation) == 0
-    drop = shadow_px & sel
-    if drop.sum() > shadow.max_removed_fraction * sel.sum():
+        drop &= hue_mask(px, obj.hue_range_deg, obj.min_saturation) == 0
+    drop = drop[0]
+    if drop.sum() > shadow.max_removed_fraction * drop.size:
         return mask  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask.copy()
-    out[drop] = 0
+    kept = out[sel]
+    kept[drop] = 0
+    out[sel] = kept
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out
 
 
 def suppress_shadow_regions(
-    img_bgr: np.ndarray, mask: np.ndarray, area_range_px: tuple[float, float], shadow: ShadowParams, obj: ObjectSpec
+    img_bgr: np.ndarray, mask: np.ndarray, area_range_px: tuple[float, float], shadow: ShadowParams, obj: ObjectSpec,
+    min_roundness: float | None = None,
 ) -> np.ndarray:
     """:func:`suppress_shadow` applied region by region, in a window around each region.
 
     Only regions that could hold the object (area from the smallest plausible ball to four
     times the largest -- ball plus shadow) are processed; each gets its own local background.
-    Working in windows keeps this cheap on whole images.
+    Working in windows keeps this cheap on whole images. With ``min_roundness``, a region that
+    already has a ball's area and is at least that round is left as it is: a shadow attached
+    to it is too small to change the choice, and the full-resolution pass removes it.
     """
     cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     out = mask.copy()
@@ -411,6 +448,13 @@ def suppress_shadow_regions(
         area = cv2.contourArea(c)
         if not (0.5 * area_range_px[0] <= area <= 4 * area_range_px[1]):
             continue
+        if min_roundness is not None and area_range_px[0] <= area <= area_range_px[1]:
+            # Same measure as candidates(): pixel area over the disc of the farthest outline point.
+            mo = cv2.moments(c)
+            pts = c.reshape(-1, 2)
+            r_max = float(np.sqrt(((pts - (mo["m10"] / mo["m00"], mo["m01"] / mo["m00"])) ** 2).sum(1).max())) + 0.5
+            if (area + 0.5 * cv2.arcLength(c, True)) / (math.pi * r_max**2) >= min_roundness:
+                continue
         m = 6
         x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)
         sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
@@ -577,24 +621,32 @@ def refine_contour(
         return None
     # Normals from the contour's tangent over +-3 points (smooths the pixel staircase),
     # oriented away from the region's centre.
-    t = np.roll(c, -3, axis=0) - np.roll(c, 3, axis=0)
+    cc = np.concatenate((c[-3:], c, c[:3]))  # wrap around the closed outline
+    t = cc[6:] - cc[:-6]  # c[i + 3] - c[i - 3]
     n = np.stack([t[:, 1], -t[:, 0]], axis=1)
     if float(((c - c.mean(axis=0)) * n).sum()) < 0:
         n = -n
     norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
     good = norm[:, 0] > 1e-6
     c, n = c[good], n[good] / norm[good]
-    grad = _color_gradient(img_bgr)
+    # The gradient is needed only along the outline: crop to it. Samples lie within
+    # search_px + 1 px of the outline and the blur and Sobel reach 4 px, so a margin of
+    # search_px + 6 px gives the values of the whole image's gradient.
+    hh, ww = img_bgr.shape[:2]
+    m = int(math.ceil(search_px)) + 6
+    x0, y0 = max(0, int(c[:, 0].min()) - m), max(0, int(c[:, 1].min()) - m)
+    x1, y1 = min(ww, int(c[:, 0].max()) + m + 1), min(hh, int(c[:, 1].max()) + m + 1)
+    grad = _color_gradient(img_bgr[y0:y1, x0:x1])
     step = 0.25
     t = np.arange(-search_px, search_px + step / 2, step, dtype=np.float32)
-    mx = (c[:, 0:1] + n[:, 0:1] * t[None, :]).astype(np.float32)
-    my = (c[:, 1:2] + n[:, 1:2] * t[None, :]).astype(np.float32)
+    mx = (c[:, 0:1] - x0 + n[:, 0:1] * t[None, :]).astype(np.float32)
+    my = (c[:, 1:2] - y0 + n[:, 1:2] * t[None, :]).astype(np.float32)
     prof = cv2.remap(grad, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     k = prof.argmax(axis=1)
     inner = (k > 0) & (k < len(t) - 1)
     peak = prof[np.arange(len(k)), k]
     inner &= peak > 0.25 * fast_median(peak)
-    k = np.clip(k, 1, len(t) - 2)
+    k = np.minimum(np.maximum(k, 1), len(t) - 2)
     rows = np.arange(len(k))
     y0, y1, y2 = prof[rows, k - 1], prof[rows, k], prof[rows, k + 1]
     den = y0 - 2 * y1 + y2
@@ -616,6 +668,7 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
     if pts is None or len(pts) < 6:
         return None
     keep = np.ones(len(pts), bool)
+    refit = True
     for _ in range(3):
         (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
         if w <= 0 or h <= 0:
@@ -631,10 +684,11 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         mad = fast_median(np.abs(res[keep])) * 1.4826 + 1e-3
         new = np.abs(res) <= max(3.0 * mad, 0.3)
         if new.sum() < 6 or (new == keep).all():
-            keep = new if new.sum() >= 6 else keep
+            refit = False  # converged (or too few inliers): the last fit used ``keep``
             break
         keep = new
-    (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
+    if refit:
+        (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
     rms = float(np.sqrt(np.mean(res[keep] ** 2)))
     a, b = max(w, h) / 2, min(w, h) / 2
     if h > w:  # report the angle of the major axis
@@ -679,7 +733,7 @@ def region_properties(
         # a region next to it is cut by the view's border just as by the frame's.
         ring = cv2.dilate(mask, structuring_element(5)) > 0
         ring &= mask == 0
-        px = img_bgr[ring]
+        px = masked_pixels(img_bgr, ring)
         if px.size and (px.reshape(len(px), -1).max(axis=1) == 0).sum() >= 3:
             touches = True
     pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
@@ -721,6 +775,9 @@ def search_band(
     Rectified views share rows, so the right region lies on the left region's rows (+ the row
     tolerance and a size difference), shifted left by a disparity between f B / z_far and
     f B / z_near (+ the principal points' offset) over the working range with 25 % slack.
+    The object's known radius R narrows that further: a sphere whose silhouette has the
+    minor semi-axis b (px) is at z ~ f R / b, so d ~ B b / R; the band keeps d within a
+    factor 1.4 of that (occlusion or a wrong radius only cost the whole-image fallback).
     Searching only there (the epipolar band) is cheaper than the whole image and cannot pick
     a look-alike elsewhere. None without a calibration (f_px, baseline_cm).
     """
@@ -730,7 +787,15 @@ def search_band(
     cx = float(rectification.get("cx_px", 0.0))
     dcx = cx - float(rectification.get("cx_right_px", cx))  # d = f B / z + (cx_left - cx_right)
     z0, z1 = sorted(params.working_range_cm)
-    d_min, d_max = fb / (1.25 * z1) + dcx, fb / (0.75 * z0) + dcx
+    d_min, d_max = fb / (1.25 * z1), fb / (0.75 * z0)
+    ell = region.get("ellipse")
+    b_px = float(ell["axes_px"][1]) if ell else math.sqrt(max(region["area_px"], 1.0) / math.pi)
+    if b_px > 1.0:
+        d_size = abs(float(rectification["baseline_cm"])) * b_px / params.object.radius_cm
+        d_min, d_max = max(d_min, d_size / 1.4), min(d_max, d_size * 1.4)
+        if d_min > d_max:  # the size says "outside the working range": keep the range's band
+            d_min, d_max = fb / (1.25 * z1), fb / (0.75 * z0)
+    d_min, d_max = d_min + dcx, d_max + dcx
     x0, y0, x1, y1 = region["bbox"]
     r = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1)
     # Margins: the right outline may be larger (area ratio limit) and the detection's filters
@@ -746,7 +811,7 @@ def search_band(
 
 
 def _detect(
-    img_bgr: np.ndarray,
+    view: RectifiedView,
     mask_fn: MaskFn,
     params: SegmenterParams,
     r_range_px: tuple[float, float],
@@ -755,22 +820,20 @@ def _detect(
 ) -> tuple[dict | None, str | None, tuple[float, float, int, int]]:
     """Coarse detection: the chosen candidate (coarse coordinates), the reason, and
     (sx, sy, u_off, v_off) mapping coarse to full-resolution pixels."""
-    h, w = img_bgr.shape[:2]
+    h, w = view.shape[:2]
     if window is None:
         wu0, wv0, wu1, wv1 = 0, 0, w, h
     else:
         # Align the window to the pyramid's grid so that its coarse pixels are the image's.
         wu0, wv0 = window[0] // s * s, window[1] // s * s
         wu1, wv1 = min(w, -(-window[2] // s) * s), min(h, -(-window[3] // s) * s)
-    small = img_bgr[wv0:wv1, wu0:wu1]
-    for _ in range(int(round(math.log2(s)))):
-        small = cv2.pyrDown(small)
+    small = view.coarse(s, wu0, wv0, wu1, wv1)
     sx, sy = (wu1 - wu0) / small.shape[1], (wv1 - wv0) / small.shape[0]
     r_small = (r_range_px[0] / s, r_range_px[1] / s)
     m = mask_fn(small, params, r_small, s, False)
     if params.shadow.enabled:
         a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object)
+        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
     cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
     if window is not None:
         # A region cut by the window's edge (inside the image) is not the object, which lies
@@ -784,7 +847,7 @@ def _detect(
 
 
 def segment_image(
-    img_bgr: np.ndarray,
+    img_bgr: np.ndarray | RectifiedView,
     mask_fn: MaskFn,
     params: SegmenterParams,
     r_range_px: tuple[float, float],
@@ -792,8 +855,10 @@ def segment_image(
 ) -> tuple[np.ndarray, dict | None, str | None]:
     """Find the object in one rectified image.
 
-    ``window`` (u0, v0, u1, v1), optional: detect only there (see :func:`search_band`); if
-    nothing is found there, the whole image is searched (so reasons are the whole image's).
+    ``img_bgr`` is the rectified image or a :class:`RectifiedView` (a raw image rectified on
+    request: only the coarse level and the object's window are remapped). ``window``
+    (u0, v0, u1, v1), optional: detect only there (see :func:`search_band`); if nothing is
+    found there, the whole image is searched (so reasons are the whole image's).
 
     Returns
     -------
@@ -801,13 +866,14 @@ def segment_image(
     region : dict or None
     reason : str or None (why nothing was found)
     """
-    h, w = img_bgr.shape[:2]
+    view = img_bgr if isinstance(img_bgr, RectifiedView) else RectifiedView(img_bgr)
+    h, w = view.shape[:2]
     s = auto_downscale(r_range_px[0], params.detect_downscale)
     best = None
     if window is not None:
-        best, reason, (sx, sy, ou, ov) = _detect(img_bgr, mask_fn, params, r_range_px, s, window)
+        best, reason, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, s, window)
     if best is None:
-        best, reason, (sx, sy, ou, ov) = _detect(img_bgr, mask_fn, params, r_range_px, s, None)
+        best, reason, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, s, None)
     full_mask = np.zeros((h, w), bool)
     if best is None:
         return full_mask, None, reason
@@ -817,7 +883,7 @@ def segment_image(
     pad = int(math.ceil(0.35 * r_est + 2 * s + params.edge_search_px + 4))
     u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
     u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
-    roi = img_bgr[v0:v1, u0:u1]
+    roi = view.window(u0, v0, u1, v1)
     rm = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
@@ -876,12 +942,16 @@ def check_pair(left: dict, right: dict, params: SegmenterParams) -> str | None:
     return None
 
 
-def validate_pair(pair: dict, rectification: dict | None) -> str | None:
-    """Reason why a RectifiedPair cannot be segmented (shape problems), or None."""
+def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> str | None:
+    """Reason why a pair cannot be segmented (shape problems), or None.
+
+    ``raw``: the pair holds camera images (a ``StereoPair``) to be rectified on request, so
+    their size must be the calibration's source size.
+    """
     if not isinstance(pair, dict) or "left" not in pair or "right" not in pair:
         raise NodeError(
-            "segmenter input is not a RectifiedPair (a dict with 'left' and 'right' images).",
-            hint="wire the segmenter's `pair` input to a rectifier.remap output.",
+            "segmenter input is not a RectifiedPair or StereoPair (a dict with 'left' and 'right' images).",
+            hint="wire the segmenter's `pair` input to a rectifier.remap output or a source's pairs.",
         )
     L, R = np.asarray(pair["left"]), np.asarray(pair["right"])
     for side, im in (("left", L), ("right", R)):
@@ -889,13 +959,33 @@ def validate_pair(pair: dict, rectification: dict | None) -> str | None:
             return f"{side} image is not a uint8 image (dtype {im.dtype}, shape {im.shape})"
     if L.shape != R.shape:
         return f"mismatched image sizes: left {L.shape[1]}x{L.shape[0]} vs right {R.shape[1]}x{R.shape[0]}"
-    if rectification is not None and rectification.get("image_size") is not None:
-        w, h = (int(x) for x in rectification["image_size"])
-        if (L.shape[1], L.shape[0]) != (w, h):
-            return (
-                f"image size {L.shape[1]}x{L.shape[0]} differs from the calibration's {w}x{h}"
-            )
+    if rectification is not None:
+        size = rectification.get("source_size", rectification.get("image_size")) if raw \
+            else rectification.get("image_size")
+        if size is not None:
+            w, h = (int(x) for x in size)
+            if (L.shape[1], L.shape[0]) != (w, h):
+                return f"image size {L.shape[1]}x{L.shape[0]} differs from the calibration's {w}x{h}"
     return None
+
+
+def pair_is_raw(ctx, rectification: dict | None) -> bool:
+    """True when the segmenter's ``pair`` input is wired to camera images (a ``StereoPair``).
+
+    Those are rectified on request (see :mod:`nodes.rectifiers._views`), which needs the
+    Rectification's maps.
+    """
+    wired = getattr(ctx, "input_types", None) or {}
+    if wired.get("pair") != "StereoPair":
+        return False
+    if rectification is None or "map_left_x" not in rectification:
+        raise NodeError(
+            "the segmenter's `pair` input gives raw camera images (StereoPair) but no Rectification "
+            "with remap maps is wired to rectify them.",
+            hint="wire `rectification: <rectifier.opencv node>.rectification`, or wire `pair` to a "
+                 "rectifier.remap output.",
+        )
+    return True
 
 
 def as_bgr(img: np.ndarray) -> np.ndarray:
@@ -934,10 +1024,16 @@ def segment_pair(
 ) -> dict:
     """Run a segmenter's mask function on both images of a rectified pair.
 
+    When ``ctx`` says that ``pair`` is wired to camera images (a ``StereoPair``), they are
+    rectified on request with ``rectification``'s maps: the coarse detection level and the
+    object's full-resolution window only (see :mod:`nodes.rectifiers._views`); the masks and
+    regions are in rectified pixels either way.
+
     Returns the node's outputs ``{"segmentation": Segmentation, "overlay": BGR uint8}``; a pair
     that cannot be trusted gives ``found: False`` with a reason, never an exception.
     """
-    reason = validate_pair(pair, rectification)
+    raw = pair_is_raw(ctx, rectification)
+    reason = reason_shape = validate_pair(pair, rectification, raw)
     pid = str(pair.get("id", ctx.item if ctx is not None else ""))
     seg = {
         "id": pid,
@@ -953,11 +1049,12 @@ def segment_pair(
     }
     L, R = as_bgr(np.asarray(pair["left"])), as_bgr(np.asarray(pair["right"]))
     if reason is None:
-        h, w = L.shape[:2]
+        vl, vr = pair_views(rectification, L, R, raw)
+        h, w = vl.shape[:2]
         r_range = expected_radius_px(params, rectification, (w, h))
-        lm, lreg, lwhy = segment_image(L, mask_fn, params, r_range)
+        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range)
         band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
-        rm, rreg, rwhy = segment_image(R, mask_fn, params, r_range, window=band)
+        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band)
         seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg)
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
@@ -971,6 +1068,8 @@ def segment_pair(
     if reason is not None and ctx is not None:
         ctx.warn(f"{pid}: {reason}")
     if params.overlay and L.shape == R.shape:
+        if raw and reason_shape is None:  # the overlay shows the rectified images the masks refer to
+            L, R = vl.full(), vr.full()
         overlay = draw_overlay(L, R, seg)
     else:
         overlay = np.zeros((1, 1, 3), np.uint8)

@@ -57,3 +57,9 @@ def picture(params, m):
     """A grey image of the matrix (saved to the run folder on every run)."""
     img = (255 * (m - m.min()) / max(float(np.ptp(m)), 1e-9)).astype(np.uint8)
     return {"picture": np.kron(img, np.ones((4, 4), np.uint8)), "mean": float(m.mean())}
+
+
+@node("toy.describe", inputs={"x": In("Matrix | Number")}, outputs={"kind": Out("Report")})
+def describe(params, x, ctx=None):
+    """Accepts a Matrix or a Number and reports which one the pipeline wired (ctx.input_types)."""
+    return {"kind": {"wired": ctx.input_types["x"], "is_array": isinstance(x, np.ndarray)}}
