@@ -12,6 +12,7 @@ Usage::
     .venv/bin/python benchmarks/locate_matrix.py                     # 120 placements, chessboard calibration
     .venv/bin/python benchmarks/locate_matrix.py --calibration truth # isolate the locating error
     .venv/bin/python benchmarks/locate_matrix.py --n 60 --no-sgbm     # quicker
+    .venv/bin/python benchmarks/locate_matrix.py --rectify on-demand  # segmenters given the camera pairs
 
 Prints Markdown tables (cm): mean / std / max|err| per axis, n_found / n.
 """
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -54,16 +56,25 @@ def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dic
     else:
         cal = truth_calibration(src["truth"])
     rect = rectify_calibration(cal)
-    pairs = [remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in src["pairs"].values()]
-    return pairs, rect
+    raw = list(src["pairs"].values())
+    pairs = [remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in raw]
+    return pairs, rect, raw
 
 
-def locate_all(pairs, rect, seg_name, disp_name, shadow=True, **extra):
+# What the engine tells a segmenter whose `pair` input is wired to a source's camera pairs.
+ON_DEMAND = types.SimpleNamespace(input_types={"pair": "StereoPair"}, item=None, warn=lambda message: None)
+
+
+def locate_all(pairs, rect, seg_name, disp_name, shadow=True, raw=None, **extra):
+    """Locations of every pair; ``raw`` (the camera pairs): segment them with on-demand rectification."""
     fn, P = SEGMENTERS[seg_name]
     params = P(object=OBJECT, overlay=False, shadow={"enabled": shadow}, **extra)
     out = []
-    for p in pairs:
-        seg = fn(params, pair=p, rectification=rect)["segmentation"]
+    for i, p in enumerate(pairs):
+        if raw is None:
+            seg = fn(params, pair=p, rectification=rect)["segmentation"]
+        else:
+            seg = fn(params, pair=raw[i], rectification=rect, ctx=ON_DEMAND)["segmentation"]
         if disp_name == "centroid":
             d = centroid(CentroidParams(), segmentation=seg, rectification=rect)["disparity"]
         elif disp_name == "ellipse":
@@ -99,27 +110,34 @@ def main(argv=None):
     ap.add_argument("--split", choices=["test", "train", "all"], default="test")
     ap.add_argument("--no-sgbm", action="store_true", help="skip the (slow) dense estimator")
     ap.add_argument("--shadow-n", type=int, default=40, help="strong-shadow placements (count; 0 = skip)")
+    ap.add_argument("--rectify", choices=["remap", "on-demand"], default="remap",
+                    help="segment rectifier.remap's whole rectified images, or the camera pairs rectified on demand")
     a = ap.parse_args(argv)
 
     t0 = time.time()
-    pairs, rect = prepare(a.n, a.seed, a.calibration)
+    pairs, rect, raw = prepare(a.n, a.seed, a.calibration)
+    raw = raw if a.rectify == "on-demand" else None
     print(f"{len(pairs)} placements, {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
-          f"B = {rect['baseline_cm']:.2f} cm; errors = measured - true (cm), {a.split} split\n")
+          f"B = {rect['baseline_cm']:.2f} cm; errors = measured - true (cm), {a.split} split, "
+          f"rectification: {a.rectify}\n")
     print(HEADER)
     disps = ["centroid", "ellipse"] + ([] if a.no_sgbm else ["sgbm"])
     for s in SEGMENTERS:
         for d in disps:
-            print(row(f"{s} + {d}", locate_all(pairs, rect, s, d), a.split), flush=True)
+            print(row(f"{s} + {d}", locate_all(pairs, rect, s, d, raw=raw), a.split), flush=True)
     if a.shadow_n:
-        sp, srect = prepare(a.shadow_n, a.seed + 1, a.calibration, shadow_strength=0.95, light_cm=(40.0, 30.0, 45.0))
+        sp, srect, sraw = prepare(a.shadow_n, a.seed + 1, a.calibration, shadow_strength=0.95,
+                                  light_cm=(40.0, 30.0, 45.0))
+        raw = sraw if a.rectify == "on-demand" else None
         print(f"\nStrong shadow ({len(sp)} placements, shadow_strength 0.95, low light; all items), centroid disparity:\n")
         print(HEADER)
         for s in SEGMENTERS:
             print(row(f"{s}, suppression off, no roundness check (thesis: largest region)",
-                      locate_all(sp, srect, s, "centroid", shadow=False, min_roundness=0.0), "all"), flush=True)
+                      locate_all(sp, srect, s, "centroid", shadow=False, raw=raw, min_roundness=0.0), "all"),
+                      flush=True)
             for on in (False, True):
                 print(row(f"{s}, shadow suppression {'on' if on else 'off'}",
-                          locate_all(sp, srect, s, "centroid", shadow=on), "all"), flush=True)
+                          locate_all(sp, srect, s, "centroid", shadow=on, raw=raw), "all"), flush=True)
     print(f"\n({time.time() - t0:.0f} s)")
 
 

@@ -164,7 +164,7 @@ def build_graph(doc: PipelineDoc) -> Graph:
                 raise ConfigError(f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
                                   where, name, f"did you mean '{src}.{close[0]}'?" if close else
                                   f"its outputs are {sorted(src_spec.outputs)}")
-            want, have = inst.spec.inputs[port].type, src_spec.outputs[out].type
+            have = src_spec.outputs[out].type
             accepted = inst.spec.inputs[port].types
             if "any" not in accepted and have != "any" and have not in accepted:
                 wants = " or ".join(accepted)

@@ -112,7 +112,7 @@ def _record(pid, split, frame, reason=None, **kw) -> dict:
     inputs={
         "disparity": In("Disparity", description="Object disparity and left image point."),
         "rectification": In("Rectification", description="Q, R1, f, baseline."),
-        "pair": In("RectifiedPair", optional=True, description="For the ground truth, when it exists."),
+        "pair": In("RectifiedPair | StereoPair", optional=True, description="For the ground truth, when it exists."),
         "rig": In("RigTruth", optional=True, description="For T_table_from_left when frame is table."),
     },
     outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame.")},

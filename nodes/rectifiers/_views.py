@@ -132,7 +132,8 @@ class RectifiedView:
         return self.window(0, 0, w, h)
 
 
-def pair_views(rect: dict | None, left: np.ndarray, right: np.ndarray, raw: bool) -> tuple[RectifiedView, RectifiedView]:
+def pair_views(rect: dict | None, left: np.ndarray, right: np.ndarray,
+               raw: bool) -> tuple[RectifiedView, RectifiedView]:
     """Views of a stereo pair: ``raw=True`` rectifies the camera images on request with ``rect``'s maps."""
     if not raw:
         return RectifiedView(left), RectifiedView(right)

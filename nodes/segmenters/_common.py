@@ -22,6 +22,7 @@ Working in the ROI (and with cv2 in the hot path) keeps a 640x480 pair in a few 
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import Literal
@@ -206,9 +207,15 @@ def to_channel(img_bgr: np.ndarray, channel: str) -> np.ndarray:
 
 
 def structuring_element(size_px: int) -> np.ndarray:
-    """Elliptical structuring element of the given diameter (px, >= 1)."""
-    size_px = max(1, int(size_px))
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+    """Elliptical structuring element of the given diameter (px, >= 1); do not modify it (shared)."""
+    return _ellipse_element(max(1, int(size_px)))
+
+
+@functools.lru_cache(maxsize=64)
+def _ellipse_element(size_px: int) -> np.ndarray:
+    el = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+    el.flags.writeable = False
+    return el
 
 
 def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray:
@@ -385,13 +392,13 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     -------
     uint8 HxW, 0/255 : the mask without shadow pixels.
     """
-    sel = mask > 0
-    if not sel.any() or sel.all():
+    n_sel = cv2.countNonZero(mask)
+    if n_sel == 0 or n_sel == mask.size:
         return mask
+    sel = mask > 0
     # Local background: a ring just outside the mask (fallback: everything outside).
-    ring = cv2.dilate(mask, structuring_element(9)) > 0
-    ring &= ~sel
-    bg_px = masked_pixels(img_bgr, ring) if ring.sum() > 20 else masked_pixels(img_bgr, ~sel)
+    ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
+    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, ~sel)
     bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
     bg_v = float(bg.max())
     if bg_v < 1:
@@ -623,8 +630,11 @@ def refine_contour(
     # oriented away from the region's centre.
     cc = np.concatenate((c[-3:], c, c[:3]))  # wrap around the closed outline
     t = cc[6:] - cc[:-6]  # c[i + 3] - c[i - 3]
-    n = np.stack([t[:, 1], -t[:, 0]], axis=1)
-    if float(((c - c.mean(axis=0)) * n).sum()) < 0:
+    n = t[:, ::-1] * np.float32([1.0, -1.0])  # (t_y, -t_x)
+    # Outward when sum((c - mean) . n) > 0; that sum is 2 sum(x_i y_i+3 - x_i+3 y_i), a
+    # lagged shoelace area, cheaper as two dot products.
+    c64, c3 = c.astype(np.float64), cc[6:].astype(np.float64)
+    if float(c64[:, 0] @ c3[:, 1] - c3[:, 0] @ c64[:, 1]) < 0:
         n = -n
     norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
     good = norm[:, 0] > 1e-6
@@ -639,8 +649,8 @@ def refine_contour(
     grad = _color_gradient(img_bgr[y0:y1, x0:x1])
     step = 0.25
     t = np.arange(-search_px, search_px + step / 2, step, dtype=np.float32)
-    mx = (c[:, 0:1] - x0 + n[:, 0:1] * t[None, :]).astype(np.float32)
-    my = (c[:, 1:2] - y0 + n[:, 1:2] * t[None, :]).astype(np.float32)
+    mx = (c[:, 0:1] - x0 + n[:, 0:1] * t[None, :]).astype(np.float32, copy=False)
+    my = (c[:, 1:2] - y0 + n[:, 1:2] * t[None, :]).astype(np.float32, copy=False)
     prof = cv2.remap(grad, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     k = prof.argmax(axis=1)
     inner = (k > 0) & (k < len(t) - 1)
