@@ -263,7 +263,7 @@ def cmd_run(args) -> int:
     if not result.ok:
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
-            msg = sentence(f"node '{r.name}' ({r.type}) failed: {r.error}")
+            msg = sentence(f"{graph.doc.where('nodes', r.name)}: node '{r.name}' ({r.type}) failed: {r.error}")
             if r.hint:
                 msg += " Fix: " + sentence(r.hint)
             elif r.unexpected and not args.debug:

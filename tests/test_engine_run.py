@@ -155,6 +155,8 @@ def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path
     err = " ".join(capsys.readouterr().err.split())
     assert code == 1
     assert "node 'boom' (tmp.boom) failed: no object found in image left07.png" in err
+    boom_line = text.splitlines().index("  boom:") + 1
+    assert f"p.yaml:{boom_line}:3: node 'boom'" in err  # where the failed node is declared
     assert "Fix: check the lighting" in err and "Traceback" not in err
     assert "run the same command again" in err and "--from boom" in err
     summary = json.loads((tmp_path / "o" / "run.json").read_text())
