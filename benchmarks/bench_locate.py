@@ -152,16 +152,16 @@ def run_raw(pairs: list[dict], rect: dict) -> int:
     return found
 
 
-def best(fn, repeat):
-    """(best wall s, cpu s of that run, result)."""
-    out = None
-    for _ in range(repeat):
-        c0, t0 = time.process_time(), time.perf_counter()
-        r = fn()
-        t, c = time.perf_counter() - t0, time.process_time() - c0
-        if out is None or t < out[0]:
-            out = (t, c, r)
-    return out
+def timed(fn) -> tuple[float, float, int]:
+    """(wall s, cpu s, result) of one call."""
+    c0, t0 = time.process_time(), time.perf_counter()
+    r = fn()
+    return time.perf_counter() - t0, time.process_time() - c0, r
+
+
+def keep_best(old, new):
+    """The faster (by wall time) of two measurements."""
+    return new if old is None or new[0] < old[0] else old
 
 
 def main(argv=None) -> None:
@@ -177,17 +177,14 @@ def main(argv=None) -> None:
     rect = rectify_calibration(truth_calibration(src["truth"]))
     params = EdgeMorphParams(overlay=False, object=OBJECT)
 
-    loop = best(lambda: run_loop(pairs, rect, params), a.repeat)
-    raw = best(lambda: run_raw(pairs, rect), a.repeat)
-    eng = full = None
+    # Interleaved, so that every method sees the same phases of a shared machine.
+    loop = raw = eng = full = None
     with tempfile.TemporaryDirectory() as td:
         for _ in range(a.repeat):
-            r = run_engine(a.pairs, a.seed, Path(td))
-            if eng is None or r[0] < eng[0]:
-                eng = r
-            r = run_engine(a.pairs, a.seed, Path(td), FULL_REMAP)
-            if full is None or r[0] < full[0]:
-                full = r
+            loop = keep_best(loop, timed(lambda: run_loop(pairs, rect, params)))
+            eng = keep_best(eng, run_engine(a.pairs, a.seed, Path(td)))
+            full = keep_best(full, run_engine(a.pairs, a.seed, Path(td), FULL_REMAP))
+            raw = keep_best(raw, timed(lambda: run_raw(pairs, rect)))
     n = a.pairs
 
     def line(name, res):

@@ -283,6 +283,10 @@ def fast_median(a: np.ndarray, axis: int | None = None) -> np.ndarray | float:
     return (p[k - 1] + p[k]) / 2
 
 
+def _channels(img: np.ndarray) -> int:
+    return 1 if img.ndim == 2 else img.shape[2]
+
+
 def masked_pixels(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``img[mask]`` -- the pixels where ``mask`` is true, (N, C) for a colour image -- but fast.
 
@@ -741,10 +745,9 @@ def region_properties(
     if not touches:
         # A rectified image has a black (exactly 0) fill outside the camera's field of view:
         # a region next to it is cut by the view's border just as by the frame's.
-        ring = cv2.dilate(mask, structuring_element(5)) > 0
-        ring &= mask == 0
-        px = masked_pixels(img_bgr, ring)
-        if px.size and (px.reshape(len(px), -1).max(axis=1) == 0).sum() >= 3:
+        ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+        black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))  # every channel 0
+        if cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3:
             touches = True
     pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
     sigma_c = None
