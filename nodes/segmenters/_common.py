@@ -5,8 +5,11 @@ Every segmenter follows the same plan; only the *mask function* (which pixels ma
 to the object) differs between methods:
 
 1. **Detect** on a downscaled copy of each rectified image (``detect_downscale``, by default
-   chosen from the smallest expected ball radius so that it stays >= 6 px): the method's mask,
-   optional shadow suppression, connected components.
+   chosen from the smallest expected ball radius so that it stays >= 4 px; with
+   ``coarse_first`` a level twice as coarse is tried first for balls big enough there): the
+   method's mask, optional shadow suppression, connected components. The right image is
+   searched in the left region's epipolar band first. The image may be a raw camera image
+   rectified on request (:mod:`nodes.rectifiers._views`).
 2. **Select** the object among the components: plausible size (from the calibration's focal
    length, the object's radius and the working range), roundness, colour (when configured),
    then the largest one (the thesis's rule). Two near-equal survivors -> not found.
