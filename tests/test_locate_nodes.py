@@ -198,3 +198,16 @@ def test_disparity_out_of_range_is_rejected(scenes):
     seg = _seg("edge_morph", scenes[0])["segmentation"]
     d = centroid(CentroidParams(working_range_cm=(100.0, 200.0)), segmentation=seg, rectification=CAL)
     assert not d["disparity"]["found"] and "out of range" in d["disparity"]["reason"]
+
+
+def test_coarse_first_finds_near_and_far_balls_like_the_regular_level():
+    # Near: both views found at the quarter-size first pass; far (78 cm, r ~ 18 px, ~4.5 px at quarter
+    # size): at the edge of that pass, the right view falls through to the half-size level. Either way
+    # the full-resolution refinement gives the same centroids as the half-size level alone.
+    for c in [(2.0, 1.0, 28.0), (-3.0, 2.0, 78.0)]:
+        pair = make_pair(CAL, c, bgr=RED, pid="cf", seed=7)
+        a = _seg("edge_morph", pair)["segmentation"]
+        b = _seg("edge_morph", pair, coarse_first=False)["segmentation"]
+        assert a["found"] and b["found"], (a["reason"], b["reason"])
+        for side in ("left", "right"):
+            np.testing.assert_allclose(a[side]["centroid_px"], b[side]["centroid_px"], atol=0.05)
