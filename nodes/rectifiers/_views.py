@@ -50,6 +50,13 @@ def level_maps(map_x: np.ndarray, map_y: np.ndarray, level: int) -> tuple[np.nda
     return fixed, interp
 
 
+def _pyramid_level(img: np.ndarray, level: int) -> np.ndarray:
+    """``level`` successive ``cv2.pyrDown``s of ``img``."""
+    for _ in range(level):
+        img = cv2.pyrDown(img)
+    return img
+
+
 class RectifiedView:
     """One rectified image, produced on request.
 
@@ -94,10 +101,7 @@ class RectifiedView:
         """
         level = int(round(math.log2(scale)))
         if self.maps is None:
-            small = self.image[v0:v1, u0:u1]
-            for _ in range(level):
-                small = cv2.pyrDown(small)
-            return small
+            return _pyramid_level(self.image[v0:v1, u0:u1], level)
         if level == 0:
             return self.window(u0, v0, u1, v1)
         fixed, interp = level_maps(self.maps["x"], self.maps["y"], level)
@@ -117,9 +121,7 @@ class RectifiedView:
             x1 = min(iw, int(math.ceil(float(xs.max()))) + pad + 1)
             y1 = min(ih, int(math.ceil(float(ys.max()))) + pad + 1)
             if x1 > x0 and y1 > y0:
-                small = self.image[y0:y1, x0:x1]
-                for _ in range(level):
-                    small = cv2.pyrDown(small)
+                small = _pyramid_level(self.image[y0:y1, x0:x1], level)
                 shifted = fixed - np.int16([x0 // scale, y0 // scale])  # integer part of the fixed-point map
                 return cv2.remap(small, shifted, interp, cv2.INTER_LINEAR)
         while len(self._levels) <= level:

@@ -468,13 +468,9 @@ def suppress_shadow_regions(
         area = cv2.contourArea(c)
         if not (0.5 * area_range_px[0] <= area <= 4 * area_range_px[1]):
             continue
-        if min_roundness is not None and area_range_px[0] <= area <= area_range_px[1]:
-            # Same measure as candidates(): pixel area over the disc of the farthest outline point.
-            mo = cv2.moments(c)
-            pts = c.reshape(-1, 2)
-            r_max = float(np.sqrt(((pts - (mo["m10"] / mo["m00"], mo["m01"] / mo["m00"])) ** 2).sum(1).max())) + 0.5
-            if (area + 0.5 * cv2.arcLength(c, True)) / (math.pi * r_max**2) >= min_roundness:
-                continue
+        if min_roundness is not None and area_range_px[0] <= area <= area_range_px[1] \
+                and roundness(c, cv2.moments(c), area + 0.5 * cv2.arcLength(c, True)) >= min_roundness:
+            continue
         m = 6
         x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)
         sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
@@ -509,20 +505,28 @@ def candidates(mask: np.ndarray, min_area_px: float) -> list[dict]:
         area = m["m00"] + 0.5 * cv2.arcLength(c, True)
         if area < min_area_px:
             continue
-        cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
-        pts = c.reshape(-1, 2)
-        r_max = float(np.sqrt(((pts[:, 0] - cu) ** 2 + (pts[:, 1] - cv_) ** 2).max())) + 0.5
         x, y, w, h = cv2.boundingRect(c)
         out.append(
             {
                 "contour": c,
                 "area_px": float(area),
                 "bbox": [x, y, x + w - 1, y + h - 1],
-                "centroid_px": [float(cu), float(cv_)],
-                "roundness": float(area / (math.pi * r_max**2)),
+                "centroid_px": [m["m10"] / m["m00"], m["m01"] / m["m00"]],
+                "roundness": roundness(c, m, area),
             }
         )
     return out
+
+
+def roundness(contour: np.ndarray, moments: dict, area_px: float) -> float:
+    """Pixel area over the disc of the farthest outline point from the centroid (1 for a disc).
+
+    Contour points are the centres of boundary pixels, so the radius gets + 0.5 px.
+    """
+    cu, cv_ = moments["m10"] / moments["m00"], moments["m01"] / moments["m00"]
+    pts = contour.reshape(-1, 2)
+    r_max = float(np.sqrt(((pts[:, 0] - cu) ** 2 + (pts[:, 1] - cv_) ** 2).max())) + 0.5
+    return float(area_px / (math.pi * r_max**2))
 
 
 def _filled(contour: np.ndarray, bbox) -> np.ndarray:
@@ -814,9 +818,9 @@ def search_band(
     b_px = float(ell["axes_px"][1]) if ell else math.sqrt(max(region["area_px"], 1.0) / math.pi)
     if b_px > 1.0:
         d_size = abs(float(rectification["baseline_cm"])) * b_px / params.object.radius_cm
-        d_min, d_max = max(d_min, d_size / 1.4), min(d_max, d_size * 1.4)
-        if d_min > d_max:  # the size says "outside the working range": keep the range's band
-            d_min, d_max = fb / (1.25 * z1), fb / (0.75 * z0)
+        lo, hi = max(d_min, d_size / 1.4), min(d_max, d_size * 1.4)
+        if lo <= hi:  # else the size says "outside the working range": keep the range's band
+            d_min, d_max = lo, hi
     d_min, d_max = d_min + dcx, d_max + dcx
     x0, y0, x1, y1 = region["bbox"]
     r = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1)
