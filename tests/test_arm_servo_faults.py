@@ -166,3 +166,24 @@ def test_late_replies_while_moving():
         e, dt, torque = fail(sim)
     assert "arm stopped during waypoint 'open'" in e.message and "servo 1 answers late" in e.message
     assert "latency_timer" in e.hint and set(torque.values()) == {0}
+
+
+# ---------------------------------------------------------------------------- interrupted in-process
+def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
+    import os
+    import signal
+    import threading
+    with ServoSim(IDS, time_scale=1.0) as sim:
+        threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt) as ei:
+            execute_plan(DynamixelParams(**{**FAST, "sim_time_scale": 1.0, "on_interrupt": "torque_off"}), PLAN, ARM,
+                         sim.port_path)
+        stop = ei.value.servo_log["stop"]
+        assert stop["action"] == "torque_off" and stop["during"] == "open" and stop["port_closed"]
+        assert all(sim.register(i, "torque_enable") == 0 for i in IDS)
+    # interrupted while still pinging: nothing written, nothing to stop
+    with ServoSim(IDS, faults=Faults(late_replies=10_000, late_ms=400.0)) as sim:
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt) as ei:
+            execute_plan(DynamixelParams(**{**FAST, "late_window_ms": 1000}), PLAN, ARM, sim.port_path)
+        assert ei.value.servo_log["stop"]["action"] == "none" and sim.log == []

@@ -281,13 +281,14 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
     except BaseException as e:  # Ctrl-C, SIGTERM, or a bug: end the motion safely before anything else
         signame = "SIGTERM" if isinstance(e, Terminated) else "Ctrl-C (SIGINT)" if isinstance(
             e, KeyboardInterrupt) else f"an unexpected {type(e).__name__}"
+        during = bus.waypoint if moved else "setup"
         if moved:
             stop = _safe_stop(bus, ids, arm, params)
         else:
             bus.recover()
             stop = {"action": "none", "detail": "interrupted before any goal was written; nothing moved"}
         bus.close()
-        stop.update({"cause": signame, "during": bus.waypoint if moved else "setup", "port_closed": True})
+        stop.update({"cause": signame, "during": during, "port_closed": True})
         log = _servo_log(plan, params, port_path, bus, reached, ok=False, t0=t0)
         log["stop"] = stop
         e.servo_log = log
