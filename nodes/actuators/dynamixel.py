@@ -179,8 +179,8 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
         if not pending:
             break
         if time.monotonic() - t_start > timeout:
-            raise _Stalled(f"waypoint {w['name']!r}: servos {pending} still {[err[s] for s in pending]} units from "
-                           f"their goals after {timeout:.1f} s")
+            raise _Stalled(f"servos {pending} still {[err[s] for s in pending]} units from their goals "
+                           f"{[data[s][0] for s in pending]} after {timeout:.1f} s (at {[pos[s] for s in pending]})")
         time.sleep(params.poll_interval_s)
     return pos, {"waypoint": w["name"], "goal_units": {str(s): data[s][0] for s in data},
                  "present_units": {str(s): int(pos[s]) for s in data}, "max_error_units": int(max(err.values())),
