@@ -188,3 +188,25 @@ def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
         with pytest.raises(KeyboardInterrupt) as ei:
             execute_plan(DynamixelParams(**{**FAST, "late_window_ms": 1000}), PLAN, ARM, sim.port_path)
         assert ei.value.servo_log["stop"]["action"] == "none" and sim.log == []
+
+
+def test_second_ctrl_c_on_the_way_to_rest_holds_and_the_node_saves_the_log(tmp_path):
+    import json
+    import os
+    import signal
+    import threading
+
+    from nodes.actuators.dynamixel import dynamixel
+    from stereograph.api import RunContext
+    ctx = RunContext("act", None, tmp_path / "act", tmp_path)
+    for delay in (0.5, 0.8):  # the second one arrives during the move to the rest pose
+        threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    with pytest.raises(KeyboardInterrupt):
+        dynamixel(DynamixelParams(**{**FAST, "sim_time_scale": 1.0, "on_interrupt": "rest", "rest_speed_deg_s": 20}),
+                  arm=ARM, plans=PLAN, ctx=ctx)
+    saved = json.loads((tmp_path / "act" / "servo_log_interrupted.json").read_text())
+    stop = saved["stop"]
+    assert stop["action"] == "hold" and stop["detail"].startswith("interrupted again on the way to the rest pose")
+    lim = servo_limits_units(ARM)
+    assert saved["sim"]["writes"] and all(lim[str(w["id"])][0] <= w["value"] <= lim[str(w["id"])][1]
+                                          for w in saved["sim"]["writes"] if w["address"] == 30)
