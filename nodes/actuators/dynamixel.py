@@ -214,6 +214,7 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
     limits = servo_limits_units(arm)
     speed = max(1, min(1023, speed_to_units(params.rest_speed_deg_s)))
     try:
+        bus.recover()
         if params.on_interrupt == "torque_off":
             notes = bus.torque_off(ids)
             return {"action": "torque_off", "detail": "torque turned off on all servos (the arm is limp)"
@@ -221,9 +222,7 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
         if params.on_interrupt == "rest":
             home = {j["name"]: j["home_deg"] for j in arm["joints"] if j["name"] != "gripper"}
             rest_units = {int(k): v for k, v in joints_to_servo_units(arm, home).items() if int(k) in ids}
-            present = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
-            timeout = 1.5 * move_seconds(present, {s: (g, speed) for s, g in rest_units.items()}) + 2.0
-            return rest(bus, ids, limits, rest_units, speed, params.tolerance_units, timeout)
+            return rest(bus, ids, limits, rest_units, speed, params.tolerance_units)
         return hold(bus, ids, limits, speed)
     except Exception as e:  # noqa: BLE001 - the bus failed while stopping: the last resort is torque off
         notes = bus.torque_off(ids)
