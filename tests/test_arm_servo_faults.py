@@ -12,7 +12,14 @@ import pytest
 pytest.importorskip("dynamixel_sdk")
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan  # noqa: E402
-from nodes.actuators.servo_sim import ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim  # noqa: E402
+from nodes.actuators.servo_sim import (  # noqa: E402
+    ERR_ANGLE,
+    ERR_OVERHEAT,
+    ERR_OVERLOAD,
+    ERR_VOLTAGE,
+    Faults,
+    ServoSim,
+)
 from nodes.ik._model import servo_limits_units  # noqa: E402
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
@@ -89,7 +96,8 @@ def test_corrupted_replies_name_noise():
 
 @pytest.mark.parametrize("bit, word, hint_word", [(ERR_OVERLOAD, "overload error", "obstruction"),
                                                   (ERR_OVERHEAT, "overheating error", "cool"),
-                                                  (ERR_VOLTAGE, "input voltage error", "9-12 V")])
+                                                  (ERR_VOLTAGE, "input voltage error", "9-12 V"),
+                                                  (ERR_ANGLE, "angle limit error", "angle limits")])
 def test_alarm_bits_at_ping_are_named(bit, word, hint_word):
     with ServoSim(IDS, faults=Faults(alarms={4: bit})) as sim:
         e, dt, _ = fail(sim)
@@ -159,6 +167,13 @@ def test_stalled_joint_without_alarm_gets_a_load_hint():
     with ServoSim(IDS, faults=Faults(jammed_at_units={4: (512 + goal) / 2}, jam_alarm_s=1e9), time_scale=50.0) as sim:
         e, dt, torque = fail(sim, move_timeout_s=0.5)
     assert "servos [4] still" in e.message and "obstruction" in e.hint and set(torque.values()) == {0}
+
+
+def test_overheating_while_moving_is_named():
+    with ServoSim(IDS, faults=Faults(alarms={2: ERR_OVERHEAT}, after_goal_writes=1), time_scale=50.0) as sim:
+        e, dt, torque = fail(sim)
+    assert "arm stopped during waypoint 'open'" in e.message and "servo 2 reports overheating error" in e.message
+    assert "cool" in e.hint and set(torque.values()) == {0}
 
 
 def test_late_replies_while_moving():
