@@ -1,0 +1,119 @@
+"""Building blocks of Tsai's method shared by the coplanar and the non-coplanar case.
+
+* :func:`plane_frame` — a frame whose z is the normal of a (nearly) flat target, so that the
+  coplanar equations, written for z_w = 0, apply to a target measured in any frame.
+* :func:`coplanar_rotation` — Tsai (1987), section on the coplanar case: the radial alignment
+  constraint with z_w = 0 has five unknowns; |ty| from the 2x2 sub-matrix of the rotation, then
+  r13, r23 from unit-norm rows and r1 . r2 = 0, and r3 = r1 x r2. The seed thesis writes out only
+  the non-coplanar case (its eqs. 3.16-3.24); the coplanar one is the same idea with the z_w
+  terms gone and sx assumed known (a single plane cannot separate it from the rotation).
+* :func:`levenberg_marquardt` — a small damped Gauss-Newton with a forward-difference Jacobian
+  (NumPy only), used by the final non-linear step.
+
+Lengths in cm (world), sensor coordinates in the pixel-pitch unit (docs/conventions.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+__all__ = ["coplanar_rotation", "levenberg_marquardt", "plane_frame", "thickness_ratio"]
+
+
+def thickness_ratio(world_cm: np.ndarray) -> float:
+    """Out-of-plane spread of the points over their second in-plane spread (0 = exactly flat)."""
+    P = np.asarray(world_cm, float)
+    s = np.linalg.svd(P - P.mean(0), compute_uv=False)
+    return float(s[2] / s[1]) if s[1] > 0 else 0.0
+
+
+def plane_frame(world_cm: np.ndarray) -> np.ndarray:
+    """Rotation ``R_pw`` (3x3) whose rows are the best-fit plane's two in-plane axes and its normal.
+
+    ``(W - p0) @ R_pw.T`` has z ~ 0 for points on the plane (any origin p0 on it).
+    """
+    P = np.asarray(world_cm, float)
+    _, _, Vt = np.linalg.svd(P - P.mean(0))
+    if np.linalg.det(Vt) < 0:
+        Vt = Vt * np.array([[1.0], [1.0], [-1.0]])
+    return Vt
+
+
+def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Rotation and (tx, ty) of a camera seeing a flat target, from undistorted-agnostic image directions.
+
+    Parameters
+    ----------
+    Xd, Yd : (N,) arrays
+        Distorted sensor coordinates relative to the principal point, with sx already divided out.
+    xy_plane : (N, 2) array
+        The target points in the plane's frame (z = 0), cm; their origin must not be near the optical axis.
+
+    Returns
+    -------
+    R : (3, 3)
+        Rotation plane -> camera (r13, r23 signs as Tsai: fixed later by the sign of f).
+    tx, ty : float
+        cm.
+    """
+    xw, yw = xy_plane[:, 0], xy_plane[:, 1]
+    # Radial alignment with z_w = 0: Xd = [Yd xw, Yd yw, Yd, -Xd xw, -Xd yw] . (r11, r12, tx, r21, r22) / ty
+    A = np.column_stack([Yd * xw, Yd * yw, Yd, -Xd * xw, -Xd * yw])
+    a, *_ = np.linalg.lstsq(A, Xd, rcond=None)
+    a1, a2, a3, a4, a5 = a
+    sr = a1 * a1 + a2 * a2 + a4 * a4 + a5 * a5
+    det = a1 * a5 - a4 * a2
+    if abs(det) > 1e-12 * sr:
+        ty2 = (sr - np.sqrt(max(sr * sr - 4 * det * det, 0.0))) / (2 * det * det)
+    else:  # a row or column of the 2x2 block vanishes: the other one has unit norm
+        ty2 = 1.0 / max(a1 * a1 + a2 * a2, a4 * a4 + a5 * a5, a1 * a1 + a4 * a4, a2 * a2 + a5 * a5)
+    ty_abs = float(np.sqrt(ty2))
+
+    def pose(ty):
+        return a1 * ty, a2 * ty, a4 * ty, a5 * ty, a3 * ty
+
+    # Sign of ty (as in the non-coplanar case): the point farthest from the centre must project to its quadrant.
+    far = int(np.argmax(Xd ** 2 + Yd ** 2))
+    r11, r12, r21, r22, tx = pose(ty_abs)
+    xc, yc = r11 * xw[far] + r12 * yw[far] + tx, r21 * xw[far] + r22 * yw[far] + ty_abs
+    ty = ty_abs if (np.sign(xc) == np.sign(Xd[far]) and np.sign(yc) == np.sign(Yd[far])) else -ty_abs
+    r11, r12, r21, r22, tx = pose(ty)
+    r13 = np.sqrt(max(1.0 - r11 * r11 - r12 * r12, 0.0))
+    r23 = -np.sign(r11 * r21 + r12 * r22) * np.sqrt(max(1.0 - r21 * r21 - r22 * r22, 0.0))
+    r1, r2 = np.array([r11, r12, r13]), np.array([r21, r22, r23])
+    U, _, Vt = np.linalg.svd(np.vstack([r1, r2, np.cross(r1, r2)]))
+    R = U @ Vt  # noise leaves r1, r2 slightly non-orthogonal: take the nearest rotation
+    if np.linalg.det(R) < 0:
+        R = U @ np.diag([1, 1, -1]) @ Vt
+    return R, float(tx), float(ty)
+
+
+def levenberg_marquardt(resid: Callable[[np.ndarray], np.ndarray], q0: np.ndarray, steps: np.ndarray,
+                        iterations: int = 100) -> np.ndarray:
+    """Minimise ``|resid(q)|^2`` from ``q0``; ``steps`` are the forward-difference steps per parameter."""
+    q = np.asarray(q0, float).copy()
+    e = resid(q)
+    cost, lam = float(e @ e), 1e-3
+    for _ in range(iterations):
+        J = np.empty((e.size, q.size))
+        for j in range(q.size):
+            dq = np.zeros(q.size)
+            dq[j] = steps[j]
+            J[:, j] = (resid(q + dq) - e) / steps[j]
+        H, g = J.T @ J, J.T @ e
+        d = np.diag(H).copy()
+        d[d <= 0] = 1e-30
+        while True:
+            dq = np.linalg.solve(H + lam * np.diag(d), -g)
+            en = resid(q + dq)
+            if en @ en < cost:
+                q, e, cost, lam = q + dq, en, float(en @ en), lam * 0.3
+                break
+            lam *= 10
+            if lam > 1e12:
+                return q
+        if np.all(np.abs(dq) <= 1e-12 * (np.abs(q) + 1e-12)):
+            break
+    return q
