@@ -15,7 +15,7 @@ from nodes.sources import _render
 from nodes.sources._synthetic_target import target_points, tsai_cameras
 from nodes.sources.target_points import TargetPointsParams, write_target_csv
 from nodes.sources.target_points import target_points as target_node
-from stereograph.api import NodeError
+from stereograph.api import NodeError, RunContext
 from stereograph.cli import main
 from stereograph.runner import run_pipeline
 
@@ -123,7 +123,19 @@ def test_units_and_per_camera_files_agree(tmp_path, rig):
     for key in ("world_cm", "left_px", "right_px"):
         assert np.allclose(b[key][order], a[key], atol=1e-4)
     cal = tsai(TsaiParams(), points=a)["calibration"]
-    assert cal["method"] == "tsai" and cal["rms_px"] < 4  # principal point assumed at the centre: a few px
+    assert cal["method"] == "tsai" and cal["target"] == "non_coplanar" and cal["rms_px"] < 0.3  # pp: image centre
+
+
+def test_forcing_the_non_coplanar_step_on_a_thin_target_warns(rig):
+    r, cams = rig
+    W, L, R = target_points(r, cams, "non_coplanar", spacing_cm=5.0, heights_cm=(0.0, 1.0))
+    pts = {"world_cm": W, "left_px": L, "right_px": R, "image_size": [640, 480]}
+    ctx = RunContext("calib", None, Path("."), Path("."))
+    pp = {"principal_point_left_px": (cams[0]["u0"], cams[0]["v0"]),
+          "principal_point_right_px": (cams[1]["u0"], cams[1]["v0"])}
+    assert tsai(TsaiParams(**pp), points=pts, ctx=ctx)["calibration"]["target"] == "coplanar" and not ctx.messages
+    tsai(TsaiParams(target="non_coplanar", **pp), points=pts, ctx=ctx)
+    assert "nearly flat" in ctx.messages[0]
 
 
 HEADER = "id,x_cm,y_cm,z_cm,left_u_px,left_v_px,right_u_px,right_v_px"
