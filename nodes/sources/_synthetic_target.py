@@ -17,8 +17,9 @@ from __future__ import annotations
 import numpy as np
 
 from nodes.calibrators.tsai import tsai_project
+from nodes.sources._render import project_points
 
-__all__ = ["tsai_cameras", "target_points"]
+__all__ = ["opencv_pixels", "target_points", "tsai_cameras"]
 
 
 def tsai_cameras(rig: dict, kappa_left: float = 0.15, kappa_right: float = 0.12) -> list[dict]:
@@ -70,3 +71,22 @@ def target_points(rig: dict, cams: list[dict], kind: str = "coplanar", spacing_c
         keep &= (p[:, 0] >= margin_px) & (p[:, 0] <= w - 1 - margin_px)
         keep &= (p[:, 1] >= margin_px) & (p[:, 1] <= h - 1 - margin_px)
     return pts[keep], pix[0][keep], pix[1][keep]
+
+
+def opencv_pixels(rig: dict, world_cm: np.ndarray, margin_px: float = 5.0):
+    """The same world points seen through the rig's own OpenCV cameras (k1 k2 p1 p2: not Tsai's model).
+
+    Returns ``(world_cm, left_px, right_px)`` for the points inside both images (with the margin):
+    a lens that Tsai's radial-k1 model does not describe exactly, as real lenses.
+    """
+    tr = rig["truth"]
+    Tl = np.linalg.inv(np.asarray(tr["T_table_from_left"], float))
+    P = np.asarray(world_cm, float) @ Tl[:3, :3].T + Tl[:3, 3]
+    L = project_points(tr["K1"], tr["D1"], P)
+    R = project_points(tr["K2"], tr["D2"], P @ tr["R"].T + tr["T_cm"])
+    w, h = tr["image_size"]
+    ok = np.ones(len(P), bool)
+    for p in (L, R):
+        ok &= (p[:, 0] >= margin_px) & (p[:, 0] <= w - 1 - margin_px) & (p[:, 1] >= margin_px)
+        ok &= p[:, 1] <= h - 1 - margin_px
+    return np.asarray(world_cm, float)[ok], L[ok], R[ok]
