@@ -9,6 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nodes.calibrators.tsai import TsaiParams, tsai, tsai_stereo
 from nodes.sources import _render
@@ -212,3 +214,31 @@ def test_cli_bad_csv_is_one_clear_paragraph(tmp_path, capsys):
     assert rc != 0 and "Traceback" not in text and "bug" not in text.lower()
     assert str(bad.name) in text and "line 1" in text and "right_u_px" in text
     assert not (tmp_path / "o" / "calib" / "calibration.json").exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.text(alphabet=st.sampled_from(list("0123456789.,-e;\" xyzidnaplrfuv_#\t")), max_size=40),
+                max_size=12))
+def test_any_text_gives_points_or_a_node_error(lines):
+    """Whatever a file holds, the reader returns checked points or raises NodeError (never another exception)."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "fuzz.csv"
+        path.write_text(HEADER + "\n" + "\n".join(_rows()[:3] + lines) + "\n")
+        try:
+            pts = target_node(TargetPointsParams(points=str(path), image_size_px=(640, 480)))["points"]
+        except NodeError as err:
+            assert str(path) in err.message and err.hint
+        else:
+            assert len(pts["world_cm"]) >= 7 and np.isfinite(pts["left_px"]).all()
+
+
+def test_quoted_fields_and_semicolons(tmp_path):
+    path = tmp_path / "q.csv"
+    path.write_text('"id","x_cm","y_cm","z_cm","left_u_px","left_v_px","right_u_px","right_v_px"\n'
+                    + "\n".join('"' + r.replace(",", '","') + '"' for r in _rows()) + "\n")
+    pts = target_node(TargetPointsParams(points=str(path), image_size_px=(640, 480)))["points"]
+    assert pts["ids"][0] == "p0" and np.allclose(pts["left_px"][1], [110, 201])
+    path.write_text(HEADER.replace(",", ";") + "\n" + "\n".join(r.replace(",", ";") for r in _rows()) + "\n")
+    with pytest.raises(NodeError, match="not separated by commas"):
+        target_node(TargetPointsParams(points=str(path), image_size_px=(640, 480)))

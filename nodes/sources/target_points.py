@@ -22,6 +22,7 @@ column is optional. Output: the ``CalibrationPoints`` artifact::
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 from typing import Literal
@@ -99,7 +100,11 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     if not rows:
         _fail(path, None, "has no header and no rows.", "see docs/rig.md, 'Tsai on your own target', for the format")
     head_line, head = rows[0]
-    names = [c.strip().lower() for c in head.split(",")]
+    if "," not in head and any(sep in head for sep in (";", "\t")):
+        _fail(path, head_line, f"the header ({head.strip()}) is not separated by commas.",
+              "save the file as comma-separated values (a spreadsheet's 'CSV (comma delimited)'), "
+              "with a decimal point in numbers")
+    names = [c.strip().lower() for c in _fields(head)]
     col = {n: j for j, n in enumerate(names)}
     if len(col) != len(names):
         _fail(path, head_line, f"the header repeats a column name ({head.strip()}).", "name every column once")
@@ -121,7 +126,7 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     has_id = "id" in col
     ids, world, pix, lines = [], [], {cam: [] for cam in cameras}, []
     for ln, raw in rows[1:]:
-        vals = [v.strip() for v in raw.split(",")]
+        vals = [v.strip() for v in _fields(raw)]
         if len(vals) != len(names):
             _fail(path, ln, f"{len(vals)} values but the header has {len(names)} columns.",
                   "give one value per column (a decimal point, not a comma, inside numbers)")
@@ -144,6 +149,11 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     for cam in cameras:
         out[f"{cam}_px" if cam else "px"] = np.asarray(pix[cam], float).reshape(-1, 2)
     return out
+
+
+def _fields(line: str) -> list[str]:
+    """One CSV line's fields (quotes allowed, as spreadsheets write them)."""
+    return next(csv.reader([line]), [])
 
 
 def _number(path: Path, line: int, column: str, text: str) -> float:
