@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from nodes.calibrators.tsai import TsaiParams, tsai, tsai_stereo
+from nodes.calibrators.tsai import TsaiParams, tsai, tsai_project, tsai_stereo
 from nodes.sources import _render
 from nodes.sources._synthetic_target import target_points, tsai_cameras
 from nodes.sources.target_points import TargetPointsParams, write_target_csv
@@ -242,3 +242,24 @@ def test_quoted_fields_and_semicolons(tmp_path):
     path.write_text(HEADER.replace(",", ";") + "\n" + "\n".join(r.replace(",", ";") for r in _rows()) + "\n")
     with pytest.raises(NodeError, match="not separated by commas"):
         target_node(TargetPointsParams(points=str(path), image_size_px=(640, 480)))
+
+
+def test_a_flat_target_seen_face_on_is_refused_not_answered():
+    """Face-on, f and the distance trade off: the fit reaches the noise level with f tens of % off. Refused."""
+    g = np.arange(-40, 40.1, 2.5)
+    X, Y = np.meshgrid(g, g)
+    P = np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)]
+    px = {}
+    for side, rv in (("left", [0.01, 0, 0.05]), ("right", [0.8, 0, 0])):  # face-on; 46 degrees
+        cam = {"f": 560.0, "k1": 0.15 / 560 ** 2, "sx": 1.0, "R": cv2.Rodrigues(np.array(rv))[0],
+               "t_cm": np.array([1.0, -2.0, 50.0]), "u0": 319.5, "v0": 239.5, "dx": 1.0, "dy": 1.0,
+               "ncx_over_nfx": 1.0}
+        px[side] = tsai_project(cam, P) + np.random.default_rng(0).normal(0, 0.2, (len(P), 2))
+    inside = np.all([(p[:, 0] > 5) & (p[:, 0] < 634) & (p[:, 1] > 5) & (p[:, 1] < 474) for p in px.values()], 0)
+    pts = {"world_cm": P[inside], "left_px": px["left"][inside], "right_px": px["right"][inside],
+           "image_size": [640, 480], "files": ["sheet.csv"]}
+    with pytest.raises(NodeError, match=r"left camera's focal length uncertain by ±\d+ %.*from face-on"):
+        tsai(TsaiParams(), points=pts)
+    cal = tsai_stereo(pts["world_cm"], pts["left_px"], pts["right_px"], (640, 480))
+    assert cal["tsai_right"]["f_sigma_rel"] < 0.001 and cal["tsai_left"]["f_sigma_rel"] > 0.1
+    assert abs(cal["tsai_left"]["f"] / 560 - 1) > 0.1 and cal["tsai_left"]["rms_px"] < 0.4  # why it must be refused

@@ -8,7 +8,8 @@
   the non-coplanar case (its eqs. 3.16-3.24); the coplanar one is the same idea with the z_w
   terms gone and sx assumed known (a single plane cannot separate it from the rotation).
 * :func:`levenberg_marquardt` — a small damped Gauss-Newton with a forward-difference Jacobian
-  (NumPy only), used by the final non-linear step.
+  (NumPy only), used by the final non-linear step; :func:`relative_sigma` — how well the fit
+  determines one parameter (from its covariance), to refuse a focal length the target leaves free.
 
 Lengths in cm (world), sensor coordinates in the pixel-pitch unit (docs/conventions.md).
 """
@@ -19,7 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["coplanar_rotation", "levenberg_marquardt", "plane_frame", "thickness_ratio"]
+__all__ = ["coplanar_rotation", "jacobian", "levenberg_marquardt", "plane_frame", "relative_sigma", "thickness_ratio"]
 
 
 def thickness_ratio(world_cm: np.ndarray) -> float:
@@ -90,6 +91,41 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
     return R, float(tx), float(ty)
 
 
+def jacobian(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np.ndarray,
+             e: np.ndarray | None = None) -> np.ndarray:
+    """Forward-difference Jacobian of ``resid`` at ``q`` (``e`` = ``resid(q)`` if already known)."""
+    e = resid(q) if e is None else e
+    J = np.empty((e.size, q.size))
+    for j in range(q.size):
+        dq = np.zeros(q.size)
+        dq[j] = steps[j]
+        J[:, j] = (resid(q + dq) - e) / steps[j]
+    return J
+
+
+def relative_sigma(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np.ndarray, index: int) -> float:
+    """1-sigma of parameter ``index`` over its value, from the fit's covariance ``s^2 (J^T J)^-1``.
+
+    ``s^2`` is the residual variance (sum of squares over the degrees of freedom): how well the data
+    determine that parameter, whatever the noise level (a flat target seen face-on leaves f free).
+    """
+    e = resid(q)
+    J = jacobian(resid, q, steps, e)
+    dof = max(e.size - q.size, 1)
+    # Normalise the columns first: the parameters differ by ~1e9 in scale (k1 vs f), and an unscaled
+    # inverse would lose exactly the near-degenerate direction this is meant to find.
+    norms = np.linalg.norm(J, axis=0)
+    if np.any(norms == 0):
+        return float("inf")
+    Jn = J / norms
+    try:
+        cov_n = np.linalg.inv(Jn.T @ Jn)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    var = float(e @ e) / dof * cov_n[index, index] / norms[index] ** 2
+    return float(np.sqrt(var)) / max(abs(float(q[index])), 1e-300) if var >= 0 else float("inf")
+
+
 def levenberg_marquardt(resid: Callable[[np.ndarray], np.ndarray], q0: np.ndarray, steps: np.ndarray,
                         iterations: int = 100) -> np.ndarray:
     """Minimise ``|resid(q)|^2`` from ``q0``; ``steps`` are the forward-difference steps per parameter."""
@@ -97,11 +133,7 @@ def levenberg_marquardt(resid: Callable[[np.ndarray], np.ndarray], q0: np.ndarra
     e = resid(q)
     cost, lam = float(e @ e), 1e-3
     for _ in range(iterations):
-        J = np.empty((e.size, q.size))
-        for j in range(q.size):
-            dq = np.zeros(q.size)
-            dq[j] = steps[j]
-            J[:, j] = (resid(q + dq) - e) / steps[j]
+        J = jacobian(resid, q, steps, e)
         H, g = J.T @ J, J.T @ e
         d = np.diag(H).copy()
         d[d <= 0] = 1e-30

@@ -49,7 +49,13 @@ import cv2
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
-from nodes.calibrators._tsai_steps import coplanar_rotation, levenberg_marquardt, plane_frame, thickness_ratio
+from nodes.calibrators._tsai_steps import (
+    coplanar_rotation,
+    levenberg_marquardt,
+    plane_frame,
+    relative_sigma,
+    thickness_ratio,
+)
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [
@@ -181,13 +187,15 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
     k1 = 0.0
     linear = {"f": f, "tz_cm": tz, "k1": k1}
     if refine:
-        R, tx, ty, tz, f, k1, sx = _refine(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, refine_pose and not coplanar,
-                                           refine_pose)
+        R, tx, ty, tz, f, k1, sx = _refine(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose)
+    f_sigma = _f_sigma(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, not coplanar)
     t = np.array([tx, ty, tz])
     # Back to the caller's world origin: Xc = R (P - p0) + t = R P + (t - R p0).
     cam = {"f": f, "k1": k1, "sx": float(sx), "R": R, "t_cm": t - R @ p0, "u0": float(u0), "v0": float(v0),
            "dx": dx, "dy": dy, "ncx_over_nfx": float(ncx_over_nfx), "linear": linear,
-           "target": "coplanar" if coplanar else "non_coplanar", "thickness": thick}
+           "target": "coplanar" if coplanar else "non_coplanar", "thickness": thick, "f_sigma_rel": f_sigma,
+           # angle between a flat target's normal and the optical axis (0 = seen face-on: f undetermined)
+           "tilt_deg": float(np.degrees(np.arccos(min(1.0, abs((R @ Rpw[2])[2]))))) if coplanar else None}
     err = tsai_project(cam, W) - px
     cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
     cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
@@ -223,14 +231,15 @@ def _noncoplanar_rotation(Xdp, Yd, Pw):
     return R, float(tx), float(ty), float(sx)
 
 
-def _refine(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
-    """Tsai's non-linear step: minimise X'd/sx (1 + k1 r^2) - f xc/zc (and Yd likewise) over f, tz, k1,
-    with ``with_pose`` also over a rotation increment, tx, ty, and with ``with_sx`` over sx."""
-    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd ** 2)), 1e-12)
+def _residual(Pw, Xdp, Yd, R0, sx, with_pose: bool, with_sx: bool):
+    """Tsai's non-linear objective X'd/sx (1 + k1 r^2) - f xc/zc (and Yd likewise), sensor units.
 
+    Parameters q = (tx, ty, tz, f, k1[, rotation increment (3, rad) if with_pose][, sx if with_sx]).
+    Returns ``(resid, unpack)``; ``unpack(q) -> (R, tx, ty, tz, f, k1, sx)``.
+    """
     def unpack(q):
         R = R0 if not with_pose else cv2.Rodrigues(q[5:8])[0] @ R0
-        s = q[8] if with_sx else sx
+        s = q[8 if with_pose else 5] if with_sx else sx
         return R, q[0], q[1], q[2], q[3], q[4], s
 
     def resid(q):
@@ -240,20 +249,38 @@ def _refine(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
         xc, yc, z = Pw @ R[0] + txq, Pw @ R[1] + tyq, Pw @ R[2] + tzq
         return np.concatenate([Xd * (1 + kq * r2d) - fq * xc / z, Yd * (1 + kq * r2d) - fq * yc / z])
 
-    q0 = [tx, ty, tz, f, 0.0] + ([0.0, 0.0, 0.0] if with_pose else []) + ([sx] if with_sx else [])
-    scale_t = max(abs(tz), 1.0)
-    steps = [1e-7 * scale_t] * 3 + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max] + [1e-8] * (3 if with_pose else 0) \
-        + ([1e-8] if with_sx else [])
-    q = np.array(q0, float)
+    return resid, unpack
+
+
+def _steps(Xdp, Yd, tz, f, sx, with_pose: bool, with_sx: bool) -> np.ndarray:
+    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd ** 2)), 1e-12)
+    return np.array([1e-7 * max(abs(tz), 1.0)] * 3 + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max]
+                    + [1e-8] * (3 if with_pose else 0) + ([1e-8] if with_sx else []))
+
+
+def _refine(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
+    """Tsai's non-linear step over f, tz, k1; with ``with_pose`` also over a rotation increment, tx, ty,
+    and with ``with_sx`` over sx. Returns ``(R, tx, ty, tz, f, k1, sx)``."""
+    resid, unpack = _residual(Pw, Xdp, Yd, R0, sx, with_pose, with_pose and with_sx)
+    steps = _steps(Xdp, Yd, tz, f, sx, with_pose, with_pose and with_sx)
+    q = np.array([tx, ty, tz, f, 0.0] + ([0.0, 0.0, 0.0] if with_pose else []) + ([sx] if with_pose and with_sx
+                                                                                  else []), float)
     if with_pose:
-        q = levenberg_marquardt(resid, q, np.array(steps))
+        q = levenberg_marquardt(resid, q, steps)
     else:  # the thesis: f, tz and k1 only (tx, ty stay as the linear step found them)
         def sub(p):
             return resid(np.array([tx, ty, p[0], p[1], p[2]]))
-        p = levenberg_marquardt(sub, np.array([tz, f, 0.0]), np.array(steps[2:5]))
+        p = levenberg_marquardt(sub, np.array([tz, f, 0.0]), steps[2:5])
         q = np.array([tx, ty, *p])
     R, txq, tyq, tzq, fq, kq, s = unpack(q)
     return R, float(txq), float(tyq), float(tzq), float(fq), float(kq), float(s)
+
+
+def _f_sigma(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, with_sx: bool) -> float:
+    """Relative 1-sigma of f given the data, with the whole pose (and sx if estimated) free."""
+    resid, _ = _residual(Pw, Xdp, Yd, R, sx, True, with_sx)
+    q = np.array([tx, ty, tz, f, k1, 0.0, 0.0, 0.0] + ([sx] if with_sx else []), float)
+    return relative_sigma(resid, q, _steps(Xdp, Yd, tz, f, sx, True, with_sx), 3)
 
 
 def _opencv_equivalent(cam: dict, image_size) -> tuple[np.ndarray, np.ndarray]:
@@ -337,6 +364,9 @@ class TsaiParams(Params):
     coplanar_sx: float = Field(
         1.0, gt=0.5, lt=2.0, description="Horizontal scale factor sx (unitless) assumed for a coplanar target, which "
                                          "cannot determine it (Tsai 1987); 1 = square pixels.")
+    max_f_sigma_pct: float = Field(
+        0.5, gt=0, description="Refuse a calibration whose focal length the points leave uncertain by more than "
+                               "this (1 sigma from the fit's covariance, % of f): e.g. a flat target seen face-on.")
     max_rms_px: float = Field(
         2.0, gt=0, description="Refuse a calibration whose reprojection RMS exceeds this (pixels): the points do "
                                "not fit one camera (mismatched rows, wrong unit or principal point).")
@@ -425,6 +455,15 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
                 f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: the points do not fit one "
                 "camera.", hint="check that each row's 3-D point and pixels belong together, the length unit, the "
                                 "principal point and image_size_px; raise max_rms_px only for a coarse target")
+        sig = 100 * c["f_sigma_rel"]
+        if not sig <= params.max_f_sigma_pct:
+            tilt = f" (seen {c['tilt_deg']:.1f}° from face-on)" if c.get("tilt_deg") is not None else ""
+            raise NodeError(
+                f"calibrator.tsai: the points from {origin} leave the {side} camera's focal length uncertain by "
+                f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = {params.max_f_sigma_pct:g}): the target does not "
+                f"separate f from its distance{tilt}.",
+                hint="tilt a flat target 30° or more to the cameras, or add points at other depths; spread the "
+                     "points over the whole image")
         if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
             raise NodeError(f"calibrator.tsai: some target points from {origin} come out behind the {side} camera.",
                             hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
