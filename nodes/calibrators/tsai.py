@@ -464,6 +464,9 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
                 f"separate f from its distance{tilt}.",
                 hint="tilt a flat target 30° or more to the cameras, or add points at other depths; spread the "
                      "points over the whole image")
+        if sig > params.max_f_sigma_pct / 2 and ctx is not None:
+            ctx.warn(f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every depth with it; a more "
+                     "tilted target or more points would tighten it")
         if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
             raise NodeError(f"calibrator.tsai: some target points from {origin} come out behind the {side} camera.",
                             hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
