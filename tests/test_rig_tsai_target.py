@@ -160,6 +160,7 @@ BAD = {
     "no 3-D columns": ("id,a,b,c,left_u_px,left_v_px,right_u_px,right_v_px\n" + "\n".join(_rows()), "line 1",
                        "x_cm"),
     "empty": ("# only a comment\n", "no header", ""),
+    "empty id": (HEADER + "\n" + "\n".join(_rows()).replace("p4,", ","), "line 6", "id is empty"),
 }
 
 
