@@ -264,3 +264,28 @@ def test_a_flat_target_seen_face_on_is_refused_not_answered():
     cal = tsai_stereo(pts["world_cm"], pts["left_px"], pts["right_px"], (640, 480))
     assert cal["tsai_right"]["f_sigma_rel"] < 0.001 and cal["tsai_left"]["f_sigma_rel"] > 0.1
     assert abs(cal["tsai_left"]["f"] / 560 - 1) > 0.1 and cal["tsai_left"]["rms_px"] < 0.4  # why it must be refused
+
+
+DATA = ROOT.parent / "shared" / "data" / "opencv-stereo-chessboard"
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+def test_real_pairs_as_coplanar_targets():
+    """OpenCV's real pairs 02 and 11 (tilted 41 and 34 deg) alone, 54 corners each, against the 13-pair result."""
+    from nodes.calibrators._board import board_points, detect_views
+    from nodes.calibrators.chessboard import ChessboardParams, chessboard
+    from nodes.sources.calib_files import CalibFilesParams, calib_files
+
+    views = calib_files(CalibFilesParams(folder=str(DATA)))["views"]
+    ref = chessboard(ChessboardParams(), views=views)["calibration"]
+    pick = {**views, "views": [v for v in views["views"] if v["id"] in ("02", "11")]}
+    ids, left, right, _ = detect_views(pick["views"], 9, 6)
+    pp = {"principal_point_left_px": tuple(ref["K1"][:2, 2]), "principal_point_right_px": tuple(ref["K2"][:2, 2])}
+    for i, l, r in zip(ids, left, right):
+        pts = {"world_cm": board_points(9, 6, 1.0).astype(float), "left_px": l.reshape(-1, 2),
+               "right_px": r.reshape(-1, 2), "image_size": views["image_size"]}
+        cal = tsai(TsaiParams(**pp), points=pts)["calibration"]  # not refused: sigma under 0.5 %
+        assert cal["target"] == "coplanar" and cal["rms_px"] < 0.3, i
+        for k, side in ((1, "left"), (2, "right")):
+            assert abs(cal[f"tsai_{side}"]["f"] / ref[f"K{k}"][1, 1] - 1) < 0.01, (i, side)  # measured <= 0.48 %
+        assert abs(np.linalg.norm(cal["T_cm"]) / np.linalg.norm(ref["T_cm"]) - 1) < 0.015, i  # measured <= 0.83 %
