@@ -43,7 +43,10 @@ def plane_frame(world_cm: np.ndarray) -> np.ndarray:
 
 
 def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Rotation and (tx, ty) of a camera seeing a flat target, from undistorted-agnostic image directions.
+    """Rotation and (tx, ty) of a camera seeing a flat target, by Tsai's radial alignment constraint.
+
+    The constraint uses only the direction of each image point from the principal point, which
+    radial distortion does not change: this step needs neither f nor k1.
 
     Parameters
     ----------
