@@ -25,7 +25,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 
@@ -44,7 +44,7 @@ class TargetPointsParams(Params):
                           "(path relative to the pipeline file). Or give `left` and `right`.")
     left: str | None = Field(None, description="Left camera's CSV: id,x_cm,y_cm,z_cm,u_px,v_px (relative path).")
     right: str | None = Field(None, description="Right camera's CSV, same columns as `left` (relative path).")
-    image_size_px: tuple[int, int] = Field(
+    image_size_px: tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]] = Field(
         ..., description="Image width and height of both cameras (pixels), e.g. [640, 480].")
     length_unit: Literal["mm", "cm", "m", "in"] = Field(
         "cm", description="Unit of bare x, y, z columns; columns named x_mm / x_cm / x_m / x_in state their own.")
@@ -217,8 +217,6 @@ def target_points(params: TargetPointsParams, ctx=None) -> dict:
     resolve = ctx.path if ctx is not None else (lambda v: Path(v).expanduser())
     warn = ctx.warn if ctx is not None else (lambda m: None)
     size = [int(params.image_size_px[0]), int(params.image_size_px[1])]
-    if min(size) <= 0:
-        raise NodeError(f"{_NODE}: image_size_px {size} must be positive.", hint="give the width and height in pixels")
     if params.points and (params.left or params.right):
         raise NodeError(f"{_NODE}: give either `points` (one CSV, columns per camera) or `left` + `right`, not both.",
                         hint="remove one of them")
