@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from nodes.calibrators.tsai import TsaiParams, tsai, tsai_project, tsai_stereo
 from nodes.sources import _render
@@ -188,10 +189,14 @@ def test_bad_per_camera_files(tmp_path):
         return err.value.message + " " + err.value.hint
 
     assert "point 'p5'" in run(left="l.csv", right="r.csv") and "line 7" in run(left="l.csv", right="r.csv")
-    assert "no CSV for the right camera" in run(left="l.csv")
     assert "u_px, v_px are missing" in run(left="both.csv", right="r.csv")  # a two-camera file given as `left`
     assert "does not exist" in run(points="nope.csv")
-    assert "not both" in run(points="both.csv", left="l.csv", right="r.csv")
+    # Wrong combinations of files are refused by the params model, so `stereograph validate` reports them.
+    for kw, what in (({"left": "l.csv"}, "no CSV for the right camera"), ({}, "no CSV given"),
+                     ({"points": "both.csv", "left": "l.csv", "right": "r.csv"}, "not both"),
+                     ({"points": "both.csv", "image_size_px": (0, 480)}, "positive width and height")):
+        with pytest.raises(ValidationError, match=what):
+            TargetPointsParams(**{"image_size_px": (640, 480), **kw})
 
 
 def test_calibrator_refuses_points_that_do_not_fit_a_camera(rig):

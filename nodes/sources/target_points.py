@@ -25,9 +25,10 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from stereograph.api import Field, NodeError, Out, Params, node
 
@@ -44,10 +45,23 @@ class TargetPointsParams(Params):
                           "(path relative to the pipeline file). Or give `left` and `right`.")
     left: str | None = Field(None, description="Left camera's CSV: id,x_cm,y_cm,z_cm,u_px,v_px (relative path).")
     right: str | None = Field(None, description="Right camera's CSV, same columns as `left` (relative path).")
-    image_size_px: tuple[Annotated[int, Field(gt=0)], Annotated[int, Field(gt=0)]] = Field(
+    image_size_px: tuple[int, int] = Field(
         ..., description="Image width and height of both cameras (pixels), e.g. [640, 480].")
     length_unit: Literal["mm", "cm", "m", "in"] = Field(
         "cm", description="Unit of bare x, y, z columns; columns named x_mm / x_cm / x_m / x_in state their own.")
+
+    @model_validator(mode="after")
+    def _check(self):
+        # Checked here, not at run time, so `stereograph validate` reports them (exit 2, file:line).
+        if min(self.image_size_px) <= 0:
+            raise ValueError(f"image_size_px {list(self.image_size_px)} must be a positive width and height, pixels")
+        if self.points and (self.left or self.right):
+            raise ValueError("give either `points` (one CSV, columns per camera) or `left` + `right`, not both")
+        if not self.points and not (self.left and self.right):
+            side = "right" if self.left else "left" if self.right else None
+            raise ValueError(f"no CSV for the {side} camera: give `left` and `right` together" if side else
+                             "no CSV given: set `points` (one file with left_/right_ columns) or `left` and `right`")
+        return self
 
 
 def _paths(params: TargetPointsParams, resolve) -> list[Path]:
@@ -217,9 +231,6 @@ def target_points(params: TargetPointsParams, ctx=None) -> dict:
     resolve = ctx.path if ctx is not None else (lambda v: Path(v).expanduser())
     warn = ctx.warn if ctx is not None else (lambda m: None)
     size = [int(params.image_size_px[0]), int(params.image_size_px[1])]
-    if params.points and (params.left or params.right):
-        raise NodeError(f"{_NODE}: give either `points` (one CSV, columns per camera) or `left` + `right`, not both.",
-                        hint="remove one of them")
     if params.points:
         path = resolve(params.points)
         d = read_target_csv(path, ("left", "right"), params.length_unit)
@@ -228,18 +239,13 @@ def target_points(params: TargetPointsParams, ctx=None) -> dict:
         W, L, R, ids, files = d["world_cm"], d["left_px"], d["right_px"], d["ids"], [str(path)]
         ids = ids or [str(k + 1) for k in range(len(W))]
         first = path
-    elif params.left and params.right:
+    else:  # left and right (TargetPointsParams refuses any other combination)
         pl, pr = resolve(params.left), resolve(params.right)
         a, b = read_target_csv(pl, ("",), params.length_unit), read_target_csv(pr, ("",), params.length_unit)
         _check(pl, a["lines"], a["px"], size, "left")
         _check(pr, b["lines"], b["px"], size, "right")
         W, L, R, ids = _match(pl, a, pr, b, warn)
         files, first = [str(pl), str(pr)], pl
-    else:
-        missing = "right" if params.left else "left" if params.right else "points"
-        raise NodeError(f"{_NODE}: no CSV for the {missing} camera." if missing != "points" else
-                        f"{_NODE}: no CSV given.",
-                        hint="set `points:` (one file with left_/right_ columns) or both `left:` and `right:`")
     if len(W) < MIN_POINTS:
         raise NodeError(f"{_NODE}: {first} gives {len(W)} point(s) seen by both cameras; Tsai's method needs at least "
                         f"{MIN_POINTS} (its linear step has seven unknowns).",
