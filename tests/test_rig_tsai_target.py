@@ -294,3 +294,19 @@ def test_real_pairs_as_coplanar_targets():
         for k, side in ((1, "left"), (2, "right")):
             assert abs(cal[f"tsai_{side}"]["f"] / ref[f"K{k}"][1, 1] - 1) < 0.01, (i, side)  # measured <= 0.48 %
         assert abs(np.linalg.norm(cal["T_cm"]) / np.linalg.norm(ref["T_cm"]) - 1) < 0.015, i  # measured <= 0.83 %
+
+
+def test_cache_follows_the_csv_content(tmp_path):
+    import shutil
+    (tmp_path / "examples").mkdir()
+    shutil.copytree(EXAMPLE, tmp_path / "examples" / "tsai-target")
+    pipe = tmp_path / "tsai-target.yaml"
+    shutil.copy(PIPE, pipe)
+    kw = dict(cache_dir=tmp_path / "cache", out_dir=tmp_path / "out")
+    assert run_pipeline(str(pipe), **kw).status["calib"] == "ran"
+    assert run_pipeline(str(pipe), **kw).status == {"target": "cached", "calib": "cached", "rectify": "cached"}
+    csv_path = tmp_path / "examples" / "tsai-target" / "points.csv"
+    csv_path.write_text(csv_path.read_text().replace("p002,-5.0000,-15.0000,0.0000,242.6373",
+                                                     "p002,-5.0000,-15.0000,0.0000,242.6999"))
+    res = run_pipeline(str(pipe), **kw)
+    assert res.status["target"] == "ran" and res.status["calib"] == "ran"
