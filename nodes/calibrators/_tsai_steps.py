@@ -78,11 +78,11 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
     def pose(ty):
         return a1 * ty, a2 * ty, a4 * ty, a5 * ty, a3 * ty
 
-    # Sign of ty (as in the non-coplanar case): the point farthest from the centre must project to its quadrant.
-    far = int(np.argmax(Xd ** 2 + Yd ** 2))
+    # Sign of ty (as in the non-coplanar case): with the right sign every point's (xc, yc) points the way
+    # its (Xd, Yd) does; summed over all points, not decided by one.
     r11, r12, r21, r22, tx = pose(ty_abs)
-    xc, yc = r11 * xw[far] + r12 * yw[far] + tx, r21 * xw[far] + r22 * yw[far] + ty_abs
-    ty = ty_abs if (np.sign(xc) == np.sign(Xd[far]) and np.sign(yc) == np.sign(Yd[far])) else -ty_abs
+    xc, yc = r11 * xw + r12 * yw + tx, r21 * xw + r22 * yw + ty_abs
+    ty = ty_abs if float(xc @ Xd + yc @ Yd) > 0 else -ty_abs
     r11, r12, r21, r22, tx = pose(ty)
     r13 = np.sqrt(max(1.0 - r11 * r11 - r12 * r12, 0.0))
     r23 = -np.sign(r11 * r21 + r12 * r22) * np.sqrt(max(1.0 - r21 * r21 - r22 * r22, 0.0))

@@ -23,16 +23,17 @@ cannot be determined and is assumed (``coplanar_sx``, default 1).
 
 Steps (non-coplanar): (3.8) pixels -> sensor coordinates; (3.16-3.18) the radial
 alignment constraint gives a linear least-squares problem in seven unknowns
-a1..a7; (3.20) |ty|; its sign from a point far from the image centre
-(3.21-3.22); (3.24) sx; r1, r2, tx; r3 = r1 x r2 (then the nearest rotation, by
-SVD). Coplanar (Tsai 1987; not written out in the thesis): the same constraint
-with z_w = 0 has five unknowns; |ty| from the 2x2 block of the rotation, r13 and
-r23 from unit rows and r1 . r2 = 0 (``_tsai_steps.coplanar_rotation``; a target
-measured in any frame is first expressed in its own plane's frame). Then, for
-both: f and tz by linear least squares ignoring distortion; finally a
-Levenberg-Marquardt refinement of f, tz and k1 (the thesis) or, by default
-(``refine_pose``), of the whole pose with them: Tsai's full optimisation, which
-removes the linear step's rotation error (NumPy; SciPy is not needed).
+a1..a7; (3.20) |ty|; its sign as in (3.21-3.22), which test one point far from
+the image centre (here all points, weighted by that distance); (3.24) sx; r1,
+r2, tx; r3 = r1 x r2 (then the nearest rotation, by SVD). Coplanar (Tsai 1987;
+not written out in the thesis): the same constraint with z_w = 0 has five
+unknowns; |ty| from the 2x2 block of the rotation, r13 and r23 from unit rows
+and r1 . r2 = 0 (``_tsai_steps.coplanar_rotation``; a target measured in any
+frame is first expressed in its own plane's frame). Then, for both: f and tz by
+linear least squares ignoring distortion; finally a Levenberg-Marquardt
+refinement of f, tz and k1 (the thesis) or, by default (``refine_pose``), of the
+whole pose with them: Tsai's full optimisation, which removes the linear step's
+rotation error (NumPy; SciPy is not needed).
 
 Implementation notes beyond the thesis: the world origin is moved to the target
 point imaged farthest from the principal point's row, because the method
@@ -217,11 +218,12 @@ def _noncoplanar_rotation(Xdp, Yd, Pw):
         tx = a[3] * ty / sx
         return r1, r2, tx
 
-    # (3.21)-(3.22): with ty > 0, the far point's projection must share the signs of its image point.
-    far = int(np.argmax(Xdp ** 2 + Yd ** 2))
+    # (3.21)-(3.22): with ty > 0, the projections must share the signs of their image points.
+    # Checked on every point, weighted by its distance from the centre (one far point near an image axis
+    # can have the wrong sign by noise): with the right sign (xc, yc) points the way (X'd, Yd) does.
     r1, r2, tx = pose(ty_abs)
-    xc, yc = r1 @ Pw[far] + tx, r2 @ Pw[far] + ty_abs
-    ty = ty_abs if (np.sign(xc) == np.sign(Xdp[far]) and np.sign(yc) == np.sign(Yd[far])) else -ty_abs
+    xc, yc = Pw @ r1 + tx, Pw @ r2 + ty_abs
+    ty = ty_abs if float(xc @ Xdp + yc @ Yd) > 0 else -ty_abs
     r1, r2, tx = pose(ty)
     r3 = np.cross(r1, r2)
     U, _, Vt = np.linalg.svd(np.vstack([r1, r2, r3]))
