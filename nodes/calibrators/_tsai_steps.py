@@ -7,6 +7,8 @@
   r13, r23 from unit-norm rows and r1 . r2 = 0, and r3 = r1 x r2. The seed thesis writes out only
   the non-coplanar case (its eqs. 3.16-3.24); the coplanar one is the same idea with the z_w
   terms gone and sx assumed known (a single plane cannot separate it from the rotation).
+* :func:`refine_camera` — Tsai's non-linear step (f, tz, k1, and optionally the whole pose and sx),
+  :func:`f_sigma_rel` — how well the data determine f.
 * :func:`levenberg_marquardt` — a small damped Gauss-Newton with a forward-difference Jacobian
   (NumPy only), used by the final non-linear step; :func:`relative_sigma` — how well the fit
   determines one parameter (from its covariance), to refuse a focal length the target leaves free.
@@ -18,9 +20,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 
-__all__ = ["coplanar_rotation", "jacobian", "levenberg_marquardt", "plane_frame", "relative_sigma", "thickness_ratio"]
+__all__ = ["coplanar_rotation", "f_sigma_rel", "jacobian", "levenberg_marquardt", "plane_frame", "refine_camera",
+           "relative_sigma", "thickness_ratio"]
 
 
 def thickness_ratio(world_cm: np.ndarray) -> float:
@@ -152,3 +156,55 @@ def levenberg_marquardt(resid: Callable[[np.ndarray], np.ndarray], q0: np.ndarra
         if np.all(np.abs(dq) <= 1e-12 * (np.abs(q) + 1e-12)):
             break
     return q
+
+
+def _residual(Pw, Xdp, Yd, R0, sx, with_pose: bool, with_sx: bool):
+    """Tsai's non-linear objective X'd/sx (1 + k1 r^2) - f xc/zc (and Yd likewise), sensor units.
+
+    Parameters q = (tx, ty, tz, f, k1[, rotation increment (3, rad) if with_pose][, sx if with_sx]).
+    Returns ``(resid, unpack)``; ``unpack(q) -> (R, tx, ty, tz, f, k1, sx)``.
+    """
+    def unpack(q):
+        R = R0 if not with_pose else cv2.Rodrigues(q[5:8])[0] @ R0
+        s = q[8 if with_pose else 5] if with_sx else sx
+        return R, q[0], q[1], q[2], q[3], q[4], s
+
+    def resid(q):
+        R, txq, tyq, tzq, fq, kq, s = unpack(q)
+        Xd = Xdp / s
+        r2d = Xd * Xd + Yd * Yd
+        xc, yc, z = Pw @ R[0] + txq, Pw @ R[1] + tyq, Pw @ R[2] + tzq
+        return np.concatenate([Xd * (1 + kq * r2d) - fq * xc / z, Yd * (1 + kq * r2d) - fq * yc / z])
+
+    return resid, unpack
+
+
+def _steps(Xdp, Yd, tz, f, sx, with_pose: bool, with_sx: bool) -> np.ndarray:
+    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd ** 2)), 1e-12)
+    return np.array([1e-7 * max(abs(tz), 1.0)] * 3 + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max]
+                    + [1e-8] * (3 if with_pose else 0) + ([1e-8] if with_sx else []))
+
+
+def refine_camera(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
+    """Tsai's non-linear step over f, tz, k1; with ``with_pose`` also over a rotation increment, tx, ty,
+    and with ``with_sx`` over sx. Returns ``(R, tx, ty, tz, f, k1, sx)``."""
+    resid, unpack = _residual(Pw, Xdp, Yd, R0, sx, with_pose, with_pose and with_sx)
+    steps = _steps(Xdp, Yd, tz, f, sx, with_pose, with_pose and with_sx)
+    q = np.array([tx, ty, tz, f, 0.0] + ([0.0, 0.0, 0.0] if with_pose else []) + ([sx] if with_pose and with_sx
+                                                                                  else []), float)
+    if with_pose:
+        q = levenberg_marquardt(resid, q, steps)
+    else:  # the thesis: f, tz and k1 only (tx, ty stay as the linear step found them)
+        def sub(p):
+            return resid(np.array([tx, ty, p[0], p[1], p[2]]))
+        p = levenberg_marquardt(sub, np.array([tz, f, 0.0]), steps[2:5])
+        q = np.array([tx, ty, *p])
+    R, txq, tyq, tzq, fq, kq, s = unpack(q)
+    return R, float(txq), float(tyq), float(tzq), float(fq), float(kq), float(s)
+
+
+def f_sigma_rel(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, with_sx: bool) -> float:
+    """Relative 1-sigma of f given the data, with the whole pose (and sx if estimated) free."""
+    resid, _ = _residual(Pw, Xdp, Yd, R, sx, True, with_sx)
+    q = np.array([tx, ty, tz, f, k1, 0.0, 0.0, 0.0] + ([sx] if with_sx else []), float)
+    return relative_sigma(resid, q, _steps(Xdp, Yd, tz, f, sx, True, with_sx), 3)

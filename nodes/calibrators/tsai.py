@@ -46,17 +46,10 @@ from __future__ import annotations
 
 from typing import Literal
 
-import cv2
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
-from nodes.calibrators._tsai_steps import (
-    coplanar_rotation,
-    levenberg_marquardt,
-    plane_frame,
-    relative_sigma,
-    thickness_ratio,
-)
+from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [
@@ -188,8 +181,8 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
     k1 = 0.0
     linear = {"f": f, "tz_cm": tz, "k1": k1}
     if refine:
-        R, tx, ty, tz, f, k1, sx = _refine(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose)
-    f_sigma = _f_sigma(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, not coplanar)
+        R, tx, ty, tz, f, k1, sx = refine_camera(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose)
+    f_sigma = f_sigma_rel(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, not coplanar)
     t = np.array([tx, ty, tz])
     # Back to the caller's world origin: Xc = R (P - p0) + t = R P + (t - R p0).
     cam = {"f": f, "k1": k1, "sx": float(sx), "R": R, "t_cm": t - R @ p0, "u0": float(u0), "v0": float(v0),
@@ -231,58 +224,6 @@ def _noncoplanar_rotation(Xdp, Yd, Pw):
     if np.linalg.det(R) < 0:
         R = U @ np.diag([1, 1, -1]) @ Vt
     return R, float(tx), float(ty), float(sx)
-
-
-def _residual(Pw, Xdp, Yd, R0, sx, with_pose: bool, with_sx: bool):
-    """Tsai's non-linear objective X'd/sx (1 + k1 r^2) - f xc/zc (and Yd likewise), sensor units.
-
-    Parameters q = (tx, ty, tz, f, k1[, rotation increment (3, rad) if with_pose][, sx if with_sx]).
-    Returns ``(resid, unpack)``; ``unpack(q) -> (R, tx, ty, tz, f, k1, sx)``.
-    """
-    def unpack(q):
-        R = R0 if not with_pose else cv2.Rodrigues(q[5:8])[0] @ R0
-        s = q[8 if with_pose else 5] if with_sx else sx
-        return R, q[0], q[1], q[2], q[3], q[4], s
-
-    def resid(q):
-        R, txq, tyq, tzq, fq, kq, s = unpack(q)
-        Xd = Xdp / s
-        r2d = Xd * Xd + Yd * Yd
-        xc, yc, z = Pw @ R[0] + txq, Pw @ R[1] + tyq, Pw @ R[2] + tzq
-        return np.concatenate([Xd * (1 + kq * r2d) - fq * xc / z, Yd * (1 + kq * r2d) - fq * yc / z])
-
-    return resid, unpack
-
-
-def _steps(Xdp, Yd, tz, f, sx, with_pose: bool, with_sx: bool) -> np.ndarray:
-    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd ** 2)), 1e-12)
-    return np.array([1e-7 * max(abs(tz), 1.0)] * 3 + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max]
-                    + [1e-8] * (3 if with_pose else 0) + ([1e-8] if with_sx else []))
-
-
-def _refine(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
-    """Tsai's non-linear step over f, tz, k1; with ``with_pose`` also over a rotation increment, tx, ty,
-    and with ``with_sx`` over sx. Returns ``(R, tx, ty, tz, f, k1, sx)``."""
-    resid, unpack = _residual(Pw, Xdp, Yd, R0, sx, with_pose, with_pose and with_sx)
-    steps = _steps(Xdp, Yd, tz, f, sx, with_pose, with_pose and with_sx)
-    q = np.array([tx, ty, tz, f, 0.0] + ([0.0, 0.0, 0.0] if with_pose else []) + ([sx] if with_pose and with_sx
-                                                                                  else []), float)
-    if with_pose:
-        q = levenberg_marquardt(resid, q, steps)
-    else:  # the thesis: f, tz and k1 only (tx, ty stay as the linear step found them)
-        def sub(p):
-            return resid(np.array([tx, ty, p[0], p[1], p[2]]))
-        p = levenberg_marquardt(sub, np.array([tz, f, 0.0]), steps[2:5])
-        q = np.array([tx, ty, *p])
-    R, txq, tyq, tzq, fq, kq, s = unpack(q)
-    return R, float(txq), float(tyq), float(tzq), float(fq), float(kq), float(s)
-
-
-def _f_sigma(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, with_sx: bool) -> float:
-    """Relative 1-sigma of f given the data, with the whole pose (and sx if estimated) free."""
-    resid, _ = _residual(Pw, Xdp, Yd, R, sx, True, with_sx)
-    q = np.array([tx, ty, tz, f, k1, 0.0, 0.0, 0.0] + ([sx] if with_sx else []), float)
-    return relative_sigma(resid, q, _steps(Xdp, Yd, tz, f, sx, True, with_sx), 3)
 
 
 def _opencv_equivalent(cam: dict, image_size) -> tuple[np.ndarray, np.ndarray]:
