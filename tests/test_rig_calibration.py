@@ -101,10 +101,11 @@ def test_tsai_on_opencv_camera_and_noise():
         assert cam["rms_px"] < 0.05 + 1.5 * noise
 
 
-def test_tsai_rejects_coplanar_points():
+def test_tsai_non_coplanar_step_rejects_coplanar_points():
+    # Flat points are refused by the non-coplanar step (target: auto would use the coplanar one).
     W = np.c_[np.random.default_rng(0).uniform(-5, 5, (40, 2)), np.zeros(40)]
     with pytest.raises(ValueError, match="coplanar"):
-        tsai_camera(W, np.random.default_rng(1).uniform(0, 600, (40, 2)), (640, 480))
+        tsai_camera(W, np.random.default_rng(1).uniform(0, 600, (40, 2)), (640, 480), target="non_coplanar")
 
 
 def test_truth_calibrator(synth):

@@ -16,15 +16,24 @@ Assumptions (as in Tsai 1987): the pixel pitch ``dx, dy`` is known (default 1,
 so that f comes out in pixels; give the sensor pitch in micrometres for f in
 micrometres) and so is the principal point (default: the image centre; give the
 true one if known — the radial alignment constraint is exact only about the
-true principal point). The target is non-coplanar: 3-D world points (cm) such
-as a chessboard seen at several known poses (a multi-plane target).
+true principal point). The target is either non-coplanar (3-D world points, cm,
+such as a plane moved by known amounts or a chessboard seen at several known
+poses) or coplanar (one flat target, not parallel to the image plane); then sx
+cannot be determined and is assumed (``coplanar_sx``, default 1).
 
-Steps: (3.8) pixels -> sensor coordinates; (3.16-3.18) the radial alignment
-constraint gives a linear least-squares problem in seven unknowns a1..a7;
-(3.20) |ty|; its sign from a point far from the image centre (3.21-3.22);
-(3.24) sx; r1, r2, tx; r3 = r1 x r2 (then the nearest rotation, by SVD); f and
-tz by linear least squares ignoring distortion; finally a Levenberg-Marquardt
-refinement of f, tz and k1 (NumPy; SciPy is not needed).
+Steps (non-coplanar): (3.8) pixels -> sensor coordinates; (3.16-3.18) the radial
+alignment constraint gives a linear least-squares problem in seven unknowns
+a1..a7; (3.20) |ty|; its sign as in (3.21-3.22), which test one point far from
+the image centre (here all points, weighted by that distance); (3.24) sx; r1,
+r2, tx; r3 = r1 x r2 (then the nearest rotation, by SVD). Coplanar (Tsai 1987;
+not written out in the thesis): the same constraint with z_w = 0 has five
+unknowns; |ty| from the 2x2 block of the rotation, r13 and r23 from unit rows
+and r1 . r2 = 0 (``_tsai_steps.coplanar_rotation``; a target measured in any
+frame is first expressed in its own plane's frame). Then, for both: f and tz by
+linear least squares ignoring distortion; finally a Levenberg-Marquardt
+refinement of f, tz and k1 (the thesis) or, by default (``refine_pose``), of the
+whole pose with them: Tsai's full optimisation, which removes the linear step's
+rotation error (NumPy; SciPy is not needed).
 
 Implementation notes beyond the thesis: the world origin is moved to the target
 point imaged farthest from the principal point's row, because the method
@@ -35,12 +44,16 @@ it is tx = a4 ty / sx.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
+from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [
+    "COPLANAR_THICKNESS",
     "TsaiParams",
     "opencv_distortion_from_tsai",
     "tsai",
@@ -49,6 +62,12 @@ __all__ = [
     "tsai_project",
     "tsai_stereo",
 ]
+
+# A target flatter than this (out-of-plane over in-plane spread) is treated as one plane by target: auto.
+# On a nearly flat target the non-coplanar step cannot separate sx from the pose: on a sheet bowed by
+# 0.1-1.5 % it fitted to the noise level (RMS 0.28 px at 0.2 px noise) with the baseline 4-10 % off,
+# while the coplanar step (sx assumed) was within 0.3 %; at 3-9 % both were.
+COPLANAR_THICKNESS = 0.05
 
 
 def _sensor(px, u0, v0, dx, dy, ncx_over_nfx):
@@ -73,13 +92,14 @@ def tsai_project(cam: dict, world_cm: np.ndarray) -> np.ndarray:
 
 
 def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_pitch=(1.0, 1.0),
-                ncx_over_nfx: float = 1.0, refine: bool = True) -> dict:
-    """Calibrate one camera with Tsai's method from a non-coplanar target.
+                ncx_over_nfx: float = 1.0, refine: bool = True, target: str = "auto", coplanar_sx: float = 1.0,
+                refine_pose: bool = True) -> dict:
+    """Calibrate one camera with Tsai's method from a coplanar or a non-coplanar target.
 
     Parameters
     ----------
     world_cm : (N, 3) array
-        Target points in the world frame, cm; not all in one plane, N >= 7.
+        Target points in the world frame, cm; N >= 7 (non-coplanar) or >= 5 (coplanar).
     image_px : (N, 2) array
         Their (distorted) pixels.
     image_size : (w, h)
@@ -91,21 +111,34 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
     ncx_over_nfx : float
         Ncx / Nfx of (3.6) (sensor elements per sampled pixel in x).
     refine : bool
-        Run the non-linear refinement of f, tz and k1.
+        Run the non-linear refinement (f, tz, k1; with ``refine_pose`` also the rest of the pose).
+    target : {"auto", "coplanar", "non_coplanar"}
+        Which of Tsai's two linear steps to use; ``auto``: coplanar when the points' thickness
+        (out-of-plane over in-plane spread) is below ``COPLANAR_THICKNESS``.
+    coplanar_sx : float
+        The scale factor sx assumed for a coplanar target, which cannot determine it (unitless).
+    refine_pose : bool
+        Also refine the rotation, tx, ty (and sx for a non-coplanar target) in the non-linear
+        step: Tsai's (1987) full optimisation. False: f, tz and k1 only, as in the thesis.
 
     Returns
     -------
     dict
         ``f`` (pitch units), ``k1`` (1/pitch-unit^2), ``sx``, ``R`` (3x3),
-        ``t_cm`` (3,), ``u0``, ``v0``, ``dx``, ``dy``, ``ncx_over_nfx``,
-        ``rms_px`` (reprojection), ``linear`` (f, tz, k1 before refinement),
-        ``K`` and ``D`` (the OpenCV equivalent; see
-        :func:`opencv_distortion_from_tsai`).
+        ``t_cm`` (3,), ``u0``, ``v0``, ``dx``, ``dy``, ``ncx_over_nfx``, ``target``
+        ("coplanar" / "non_coplanar"), ``thickness``, ``rms_px`` (reprojection),
+        ``linear`` (f, tz, k1 before refinement), ``K`` and ``D`` (the OpenCV equivalent;
+        see :func:`opencv_distortion_from_tsai`).
     """
     W = np.asarray(world_cm, float).reshape(-1, 3)
     px = np.asarray(image_px, float).reshape(-1, 2)
-    if W.shape[0] != px.shape[0] or W.shape[0] < 7:
-        raise ValueError(f"Tsai needs >= 7 matched points, got {W.shape[0]} world and {px.shape[0]} image points")
+    thick = thickness_ratio(W) if len(W) >= 3 else 0.0
+    if target not in ("auto", "coplanar", "non_coplanar"):
+        raise ValueError(f"target must be auto, coplanar or non_coplanar, not {target!r}")
+    coplanar = target == "coplanar" or (target == "auto" and thick < COPLANAR_THICKNESS)
+    need = 5 if coplanar else 7
+    if W.shape[0] != px.shape[0] or W.shape[0] < need:
+        raise ValueError(f"Tsai needs >= {need} matched points, got {W.shape[0]} world and {px.shape[0]} image points")
     w, h = image_size
     u0, v0 = principal_point_px if principal_point_px is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
     dx, dy = (float(v) for v in pixel_pitch)
@@ -115,9 +148,56 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
     i0 = int(np.argmax(np.abs(Yd)))
     p0 = W[i0].copy()
     Pw = W - p0
-    if np.linalg.matrix_rank(Pw - Pw.mean(0), tol=1e-6 * np.abs(Pw).max()) < 3:
-        raise ValueError("the target points are coplanar; Tsai's non-coplanar method needs points off one plane")
+    if coplanar:
+        Rpw = plane_frame(W)
+        xy = Pw @ Rpw[:2].T
+        if np.linalg.matrix_rank(xy - xy.mean(0), tol=1e-6 * max(np.abs(xy).max(), 1e-12)) < 2:
+            raise ValueError("the target points lie on one line; Tsai's method needs them spread over a plane "
+                             "or over several planes")
+        sx = float(coplanar_sx)
+        Rp, tx, ty = coplanar_rotation(Xdp / sx, Yd, xy)
+        R = Rp @ Rpw  # world -> plane -> camera
+    else:
+        if np.linalg.matrix_rank(Pw - Pw.mean(0), tol=1e-6 * np.abs(Pw).max()) < 3:
+            raise ValueError("the target points are coplanar; Tsai's non-coplanar method needs points off one plane "
+                             "(use target: coplanar or auto)")
+        R, tx, ty, sx = _noncoplanar_rotation(Xdp, Yd, Pw)
+        Rpw = np.eye(3)
+    Xd = Xdp / sx
 
+    def f_tz(R, Xd):
+        # Ignoring distortion: Xd (w + tz) = f xc, Yd (w + tz) = f yc, w = r3 . P.
+        xcs, ycs, ws = Pw @ R[0] + tx, Pw @ R[1] + ty, Pw @ R[2]
+        M = np.concatenate([np.column_stack([xcs, -Xd]), np.column_stack([ycs, -Yd])])
+        b = np.concatenate([ws * Xd, ws * Yd])
+        sol, *_ = np.linalg.lstsq(M, b, rcond=None)
+        return float(sol[0]), float(sol[1])
+
+    f, tz = f_tz(R, Xd)
+    if f < 0:  # Tsai: the wrong one of two mirror solutions; flip r13, r23, r31, r32 (in the target's own
+        # frame: z along a flat target's normal, where the coplanar step chose the sign of r13, r23)
+        R = (R @ Rpw.T * np.array([[1, 1, -1], [1, 1, -1], [-1, -1, 1]])) @ Rpw
+        f, tz = f_tz(R, Xd)
+    k1 = 0.0
+    linear = {"f": f, "tz_cm": tz, "k1": k1}
+    if refine:
+        R, tx, ty, tz, f, k1, sx = refine_camera(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose)
+    f_sigma = f_sigma_rel(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, not coplanar)
+    t = np.array([tx, ty, tz])
+    # Back to the caller's world origin: Xc = R (P - p0) + t = R P + (t - R p0).
+    cam = {"f": f, "k1": k1, "sx": float(sx), "R": R, "t_cm": t - R @ p0, "u0": float(u0), "v0": float(v0),
+           "dx": dx, "dy": dy, "ncx_over_nfx": float(ncx_over_nfx), "linear": linear,
+           "target": "coplanar" if coplanar else "non_coplanar", "thickness": thick, "f_sigma_rel": f_sigma,
+           # angle between a flat target's normal and the optical axis (0 = seen face-on: f undetermined)
+           "tilt_deg": float(np.degrees(np.arccos(min(1.0, abs((R @ Rpw[2])[2]))))) if coplanar else None}
+    err = tsai_project(cam, W) - px
+    cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
+    return cam
+
+
+def _noncoplanar_rotation(Xdp, Yd, Pw):
+    """The thesis's linear step (3.16)-(3.24): R, tx, ty, sx from a non-coplanar target."""
     # (3.16)-(3.17): X'd = [Yd Xw, Yd Yw, Yd Zw, Yd, -X'd Xw, -X'd Yw, -X'd Zw] . a
     A = np.column_stack([Yd * Pw[:, 0], Yd * Pw[:, 1], Yd * Pw[:, 2], Yd,
                          -Xdp * Pw[:, 0], -Xdp * Pw[:, 1], -Xdp * Pw[:, 2]])
@@ -131,76 +211,19 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
         tx = a[3] * ty / sx
         return r1, r2, tx
 
-    # (3.21)-(3.22): with ty > 0, the far point's projection must share the signs of its image point.
-    far = int(np.argmax(Xdp ** 2 + Yd ** 2))
+    # (3.21)-(3.22): with ty > 0, the projections must share the signs of their image points.
+    # Checked on every point, weighted by its distance from the centre (one far point near an image axis
+    # can have the wrong sign by noise): with the right sign (xc, yc) points the way (X'd, Yd) does.
     r1, r2, tx = pose(ty_abs)
-    xc, yc = r1 @ Pw[far] + tx, r2 @ Pw[far] + ty_abs
-    ty = ty_abs if (np.sign(xc) == np.sign(Xdp[far]) and np.sign(yc) == np.sign(Yd[far])) else -ty_abs
+    xc, yc = Pw @ r1 + tx, Pw @ r2 + ty_abs
+    ty = ty_abs if float(xc @ Xdp + yc @ Yd) > 0 else -ty_abs
     r1, r2, tx = pose(ty)
     r3 = np.cross(r1, r2)
     U, _, Vt = np.linalg.svd(np.vstack([r1, r2, r3]))
     R = U @ Vt  # the nearest rotation: noise makes r1, r2 slightly non-orthogonal
     if np.linalg.det(R) < 0:
         R = U @ np.diag([1, 1, -1]) @ Vt
-    Xd = Xdp / sx
-
-    def f_tz(R):
-        # Ignoring distortion: Xd (w + tz) = f xc, Yd (w + tz) = f yc, w = r3 . P.
-        xcs, ycs, ws = Pw @ R[0] + tx, Pw @ R[1] + ty, Pw @ R[2]
-        M = np.concatenate([np.column_stack([xcs, -Xd]), np.column_stack([ycs, -Yd])])
-        b = np.concatenate([ws * Xd, ws * Yd])
-        sol, *_ = np.linalg.lstsq(M, b, rcond=None)
-        return float(sol[0]), float(sol[1])
-
-    f, tz = f_tz(R)
-    if f < 0:  # Tsai: the wrong one of two mirror solutions; flip r13, r23, r31, r32
-        R = R * np.array([[1, 1, -1], [1, 1, -1], [-1, -1, 1]])
-        f, tz = f_tz(R)
-    k1 = 0.0
-    linear = {"f": f, "tz_cm": tz, "k1": k1}
-    xcs, ycs, ws = Pw @ R[0] + tx, Pw @ R[1] + ty, Pw @ R[2]
-    r2d = Xd * Xd + Yd * Yd
-
-    def resid(q):
-        fq, tzq, kq = q
-        z = ws + tzq
-        return np.concatenate([Xd * (1 + kq * r2d) - fq * xcs / z, Yd * (1 + kq * r2d) - fq * ycs / z])
-
-    if refine:
-        q = np.array([f, tz, k1])
-        lam = 1e-3
-        e = resid(q)
-        cost = e @ e
-        for _ in range(100):
-            J = np.empty((e.size, 3))
-            for j in range(3):
-                step = 1e-7 * max(abs(q[j]), 1e-3 / max(r2d.max(), 1e-12) if j == 2 else 1.0)
-                dq = np.zeros(3)
-                dq[j] = step
-                J[:, j] = (resid(q + dq) - e) / step
-            H = J.T @ J
-            g = J.T @ e
-            while True:
-                dq = np.linalg.solve(H + lam * np.diag(np.diag(H)), -g)
-                qn = q + dq
-                en = resid(qn)
-                if en @ en < cost:
-                    q, e, cost, lam = qn, en, en @ en, lam * 0.3
-                    break
-                lam *= 10
-                if lam > 1e12:
-                    break
-            if lam > 1e12 or np.all(np.abs(dq) <= 1e-12 * (np.abs(q) + 1e-12)):
-                break
-        f, tz, k1 = (float(v) for v in q)
-    t = np.array([tx, ty, tz])
-    # Back to the caller's world origin: Xc = R (P - p0) + t = R P + (t - R p0).
-    cam = {"f": f, "k1": k1, "sx": float(sx), "R": R, "t_cm": t - R @ p0, "u0": float(u0), "v0": float(v0),
-           "dx": dx, "dy": dy, "ncx_over_nfx": float(ncx_over_nfx), "linear": linear}
-    err = tsai_project(cam, W) - px
-    cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
-    cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
-    return cam
+    return R, float(tx), float(ty), float(sx)
 
 
 def _opencv_equivalent(cam: dict, image_size) -> tuple[np.ndarray, np.ndarray]:
@@ -238,15 +261,21 @@ def tsai_k1_of_opencv(D, r_max: float) -> float:
 
 
 def tsai_stereo(world_cm, left_px, right_px, image_size, principal_left=None, principal_right=None,
-                pixel_pitch=(1.0, 1.0), ncx_over_nfx=1.0, refine=True) -> dict:
+                pixel_pitch=(1.0, 1.0), ncx_over_nfx=1.0, refine=True, target="auto", coplanar_sx=1.0,
+                refine_pose=True) -> dict:
     """Calibrate both cameras against the same world points and derive the stereo pose.
+
+    Two single-camera calibrations (:func:`tsai_camera`, same keyword meanings), then the
+    relative pose ``R = R_r R_l^T``, ``T = t_r - R t_l``.
 
     Returns a ``StereoCalibration`` (OpenCV-equivalent K, D; ``R``, ``T_cm`` with
     ``X_right = R X_left + T``) plus ``tsai_left`` / ``tsai_right`` (the raw
     Tsai parameters) and ``T_world_from_left`` (4x4, cm).
     """
-    cl = tsai_camera(world_cm, left_px, image_size, principal_left, pixel_pitch, ncx_over_nfx, refine)
-    cr = tsai_camera(world_cm, right_px, image_size, principal_right, pixel_pitch, ncx_over_nfx, refine)
+    kw = dict(pixel_pitch=pixel_pitch, ncx_over_nfx=ncx_over_nfx, refine=refine, target=target,
+              coplanar_sx=coplanar_sx, refine_pose=refine_pose)
+    cl = tsai_camera(world_cm, left_px, image_size, principal_left, **kw)
+    cr = tsai_camera(world_cm, right_px, image_size, principal_right, **kw)
     R = cr["R"] @ cl["R"].T
     T = cr["t_cm"] - R @ cl["t_cm"]
     Tw = np.eye(4)
@@ -269,6 +298,41 @@ class TsaiParams(Params):
         (1.0, 1.0), description="Sensor pitch (dx, dy), any length unit; (1, 1) gives f in pixels.")
     ncx_over_nfx: float = Field(1.0, gt=0, description="Ncx / Nfx of eq. (3.6) (unitless).")
     refine: bool = Field(True, description="Non-linear refinement of f, tz and k1 (switch).")
+    refine_pose: bool = Field(
+        True, description="Also refine the rotation, tx, ty (and sx for a non-coplanar target) in the non-linear "
+                          "step: Tsai 1987's full optimisation (switch); false = f, tz, k1 only, as in the thesis.")
+    target: Literal["auto", "coplanar", "non_coplanar"] = Field(
+        "auto", description="Tsai's coplanar or non-coplanar linear step; auto: coplanar when the points' "
+                            "out-of-plane spread is under 5 % of their in-plane spread (unitless choice).")
+    coplanar_sx: float = Field(
+        1.0, gt=0.5, lt=2.0, description="Horizontal scale factor sx (unitless) assumed for a coplanar target, which "
+                                         "cannot determine it (Tsai 1987); 1 = square pixels.")
+    max_f_sigma_pct: float = Field(
+        0.5, gt=0, description="Refuse a calibration whose focal length the points leave uncertain by more than "
+                               "this (1 sigma from the fit's covariance, % of f): e.g. a flat target seen face-on.")
+    max_rms_px: float = Field(
+        2.0, gt=0, description="Refuse a calibration whose reprojection RMS exceeds this (pixels): the points do "
+                               "not fit one camera (mismatched rows, wrong unit or principal point).")
+
+
+def _points_of(points: dict):
+    """The arrays of a ``CalibrationPoints`` artifact, checked (NodeError naming the bad key)."""
+    try:
+        W = np.asarray(points["world_cm"], float).reshape(-1, 3)
+        L = np.asarray(points["left_px"], float).reshape(-1, 2)
+        Rr = np.asarray(points["right_px"], float).reshape(-1, 2)
+        size = [int(v) for v in points["image_size"]]
+    except (KeyError, TypeError, ValueError) as exc:
+        raise NodeError(f"calibrator.tsai: the `points` input is not a CalibrationPoints artifact ({exc!r}).",
+                        hint="wire it to source.target_points, or give world_cm Nx3, left_px Nx2, right_px Nx2 and "
+                             "image_size [w, h] (docs/artifacts.md)") from exc
+    if not (len(W) == len(L) == len(Rr)) or len(size) != 2:
+        raise NodeError(f"calibrator.tsai: the `points` input has {len(W)} world, {len(L)} left and {len(Rr)} right "
+                        "points; they must match one to one.", hint="give every 3-D point both of its image points")
+    if not (np.isfinite(W).all() and np.isfinite(L).all() and np.isfinite(Rr).all()):
+        raise NodeError("calibrator.tsai: the `points` input holds NaN or infinite coordinates.",
+                        hint="drop the points a camera did not see")
+    return W, L, Rr, size
 
 
 @node(
@@ -280,16 +344,15 @@ class TsaiParams(Params):
                          description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.")},
     outputs={"calibration": Out("StereoCalibration", save=True)},
     params=TsaiParams,
-    version="1",
+    version="2",
 )
-def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = None) -> dict:
-    """Calibrate the stereo rig with the seed thesis's Tsai method (non-coplanar 3-D target)."""
+def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = None, ctx=None) -> dict:
+    """Calibrate the stereo rig with Tsai's method (the seed thesis; coplanar or non-coplanar target)."""
     corners_l, corners_r = {}, {}
+    origin = "the views' board corners"
     if points is not None:
-        W = np.asarray(points["world_cm"], float)
-        L = np.asarray(points["left_px"], float)
-        Rr = np.asarray(points["right_px"], float)
-        size = points["image_size"]
+        W, L, Rr, size = _points_of(points)
+        origin = ", ".join(points.get("files") or []) or "the `points` input"
         rejected = {}
     elif views is not None:
         poses = views.get("board_poses_table") or {}
@@ -320,9 +383,42 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
                         hint="see docs/rig.md, 'Tsai calibration'")
     try:
         cal = tsai_stereo(W, L, Rr, size, params.principal_point_left_px, params.principal_point_right_px,
-                          params.pixel_pitch, params.ncx_over_nfx, params.refine)
+                          params.pixel_pitch, params.ncx_over_nfx, params.refine, params.target, params.coplanar_sx,
+                          params.refine_pose)
     except ValueError as exc:
-        raise NodeError(f"calibrator.tsai: {exc}.", hint="use points on two or more planes") from exc
+        raise NodeError(f"calibrator.tsai: {exc} ({origin}).",
+                        hint="spread the target points over the whole image, on one tilted plane or on several "
+                             "planes (target: auto picks the method)") from exc
+    for side in ("left", "right"):
+        c = cal[f"tsai_{side}"]
+        # A wrong calibration is worse than none: refuse one whose points do not fit a camera.
+        if not (c["rms_px"] <= params.max_rms_px and c["f"] > 0):
+            raise NodeError(
+                f"calibrator.tsai: the {side} camera's reprojection RMS is {c['rms_px']:.2f} px (limit "
+                f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: the points do not fit one "
+                "camera.", hint="check that each row's 3-D point and pixels belong together, the length unit, the "
+                                "principal point and image_size_px; raise max_rms_px only for a coarse target")
+        sig = 100 * c["f_sigma_rel"]
+        if not sig <= params.max_f_sigma_pct:
+            tilt = f" (seen {c['tilt_deg']:.1f}° from face-on)" if c.get("tilt_deg") is not None else ""
+            raise NodeError(
+                f"calibrator.tsai: the points from {origin} leave the {side} camera's focal length uncertain by "
+                f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = {params.max_f_sigma_pct:g}): the target does not "
+                f"separate f from its distance{tilt}.",
+                hint="tilt a flat target 30° or more to the cameras, or add points at other depths; spread the "
+                     "points over the whole image")
+        if sig > params.max_f_sigma_pct / 2 and ctx is not None:
+            ctx.warn(f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every depth with it; a more "
+                     "tilted target or more points would tighten it")
+        if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
+            raise NodeError(f"calibrator.tsai: some target points from {origin} come out behind the {side} camera.",
+                            hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
+                                 "right-handed")
+    cal["target"] = cal["tsai_left"]["target"]
+    thick = cal["tsai_left"]["thickness"]
+    if cal["target"] == "non_coplanar" and thick < COPLANAR_THICKNESS and ctx is not None:
+        ctx.warn(f"the target is nearly flat (out-of-plane spread {100 * thick:.1f} % of its size): the non-coplanar "
+                 "step cannot separate sx from the pose; target: auto would use the coplanar one")
     cal["rejected_views"] = sorted(rejected)
     cal["rejected_reasons"] = rejected
     if corners_l:
