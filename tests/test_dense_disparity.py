@@ -123,3 +123,26 @@ def test_dense_aloe_pipeline_through_the_cli(tmp_path):
     assert 115 < np.percentile(pts[:, 2], 1) and np.percentile(pts[:, 2], 99) < 205
     assert "point_cloud/aloe.ply" in " ".join(
         f for n in json.loads((out / "run.json").read_text())["nodes"] for f in n["files"])
+
+
+def test_point_cloud_is_metric_in_the_left_camera_frame_on_the_synthetic_rig():
+    # The synthetic rig through rectifier.opencv (R1 != I): the cloud's table points must lie on the
+    # true table plane (T_table_from_left maps left-camera points into the table frame, table at z = 0).
+    from nodes.calibrators.truth import truth_calibration
+    from nodes.rectifiers.opencv import rectify_calibration
+    from nodes.rectifiers.remap import remap_pair
+    from nodes.sources.synthetic import synthetic
+
+    rig = synthetic(synthetic.spec.params(n_scenes=1, n_views=0, min_distance_cm=30, max_distance_cm=60, seed=1))
+    rect = rectify_calibration(truth_calibration(rig["truth"]))
+    pair = next(iter(rig["pairs"].values()))
+    left, right = remap_pair(rect, pair["left"], pair["right"])
+    params = DenseParams(working_range_cm=(20.0, 150.0))
+    disp = dense_disparity(left, right, *search_range_px(rect, params), params)
+    pts, _ = point_cloud(disp, left, rect)
+    T = np.asarray(rig["truth"]["T_table_from_left"])
+    z_table = (pts @ T[:3, :3].T + T[:3, 3])[:, 2]
+    assert np.mean(np.abs(z_table) < 0.3) > 0.75  # 84 % measured: most of the view is table
+    c = np.asarray(pair["truth"]["center_left_cm"])
+    near_ball = np.linalg.norm(pts - c, axis=1) < 1.5 * pair["truth"]["radius_cm"]
+    assert near_ball.sum() > 500  # the ball is in the cloud where it truly is

@@ -15,6 +15,8 @@ The two principal points may differ in x (``cx_right_px``): then a point's dispa
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
 
 from stereograph.api import Field, Out, Params, node
@@ -34,7 +36,9 @@ class GivenParams(Params):
         "cx_right_px - cx_px is Middlebury's doffs / dmin (px).",
     )
     baseline_cm: float = Field(..., gt=0, description="Distance between the two camera centres (cm).")
-    image_size: tuple[int, int] = Field(..., description="Width and height of the images (px).")
+    image_size: tuple[Annotated[int, Field(gt=0, le=100_000)], Annotated[int, Field(gt=0, le=100_000)]] = Field(
+        ..., description="Width and height of the images (px)."
+    )
 
 
 def given_rectification(params: GivenParams) -> dict:
