@@ -169,12 +169,12 @@ def screen_outliers(
     floor = _scale_floor(samples)
     raw = samples.xyz_cm - truth
     spread = np.linalg.norm(raw - np.median(raw, axis=0), axis=1)
-    keep = spread <= robust_threshold(spread, k, floor)
+    threshold = robust_threshold(spread, k, floor)
+    keep = spread <= threshold
     coefficients: dict[str, Any] | None = None
     fitted_on: np.ndarray | None = None
     residual = spread
     z_residual = np.full(n, np.nan)
-    threshold = float("nan")
     rounds = 0
     for rounds in range(1, MAX_ROUNDS + 1):
         idx = np.flatnonzero(keep)
@@ -220,7 +220,7 @@ def screen_outliers(
             "a correction.",
             hint="check the training placements' detections (overlays in the segmenter's folder): a distractor "
             "or a wrong colour makes a measurement of the wrong object; give the segmenter the ball's colour, "
-            "remove the mis-detected placements, or lower min_inlier_fraction if the data really is this spread.",
+            "remove the mis-detected placements, or lower min_inlier_fraction (0.5 at least) if you raised it.",
         )
     if fitted_on is None or not np.array_equal(fitted_on, keep):
         coefficients = fit(samples.subset(idx))  # the last round moved the set: fit what was kept
