@@ -118,3 +118,26 @@ def test_a_clean_fit_is_unchanged_by_the_screening(clean):
 def test_screening_off_keeps_every_placement(poisoned):
     model = fit("polynomial", poisoned, outlier_mad=None)
     assert model["n_outliers"] == 0 and model["n_train"] == model["n_candidates"]
+
+
+def test_the_run_summary_and_model_file_list_the_left_out_placements(tmp_path):
+    # Through the CLI: toy placements (a third of the train split mis-detected) -> compensator.xyz.
+    from stereograph.cli import main
+
+    plugin = Path(__file__).resolve().parent / "plugins" / "toy_locations.py"
+    pipeline = tmp_path / "p.yaml"
+    pipeline.write_text(
+        f"name: robust\nplugins: [{plugin}]\nnodes:\n"
+        "  scenes: {type: toy.scenes, params: {n: 120, seed: 3, misdetect_fraction: 0.334}}\n"
+        "  locate: {type: toy.triangulate, params: {baseline_scale: 1.02}, inputs: {scene: scenes.scenes}}\n"
+        "  fit: {type: compensator.xyz, inputs: {train: locate.location}}\n"
+    )
+    out = tmp_path / "run"
+    assert main(["run", str(pipeline), "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
+    model = json.loads((out / "fit" / "model.json").read_text())
+    truth = make_locations(n=120, seed=3, misdetect_fraction=0.334)
+    assert {o["item"] for o in model["outliers"]} == {k for k, v in truth.items() if v["misdetected"]}
+    fit_report = next(n for n in json.loads((out / "run.json").read_text())["nodes"] if n["node"] == "fit")
+    worst = model["outliers"][0]
+    assert any(f"left {model['n_outliers']} of {model['n_candidates']}" in m and worst["item"] in m
+               for m in fit_report["messages"])
