@@ -4,13 +4,17 @@ Written on every run, cached or not: every output declared ``Out(save=True)`` an
 output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG; other values
 JSON (arrays as nested lists when small, else a side ``.npz``). A per-item output becomes
 one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
-``<node>/<output>/<item>.png`` images. ``run.json`` summarises the run.
+``<node>/<output>/<item>.png`` images. A *file value* -- a dict with ``file_bytes`` (1-D
+``uint8`` array: the file's content, encoded by the node) and ``file_suffix`` (``".ply"``) --
+is written as that file as it is (other keys of the dict are for downstream nodes only).
+``run.json`` summarises the run.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import uuid
 from pathlib import Path
@@ -24,6 +28,16 @@ SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
 def is_image(v: Any) -> bool:
     return (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
             (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
+
+
+_SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,10}$")
+
+
+def is_file_value(v: Any) -> bool:
+    """A node-encoded file: ``{"file_bytes": uint8 1-D array, "file_suffix": ".ext", ...}``."""
+    return (isinstance(v, dict) and isinstance(v.get("file_bytes"), np.ndarray) and v["file_bytes"].ndim == 1
+            and v["file_bytes"].dtype == np.uint8 and isinstance(v.get("file_suffix"), str)
+            and bool(_SUFFIX.match(v["file_suffix"])))
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
@@ -54,6 +68,10 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
     """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written."""
     import cv2
 
+    if is_file_value(value):
+        p = path_stem.with_suffix(value["file_suffix"])
+        _write_bytes(p, value["file_bytes"].tobytes())
+        return [p]
     if is_image(value):
         ok, buf = cv2.imencode(".png", value)
         if ok:
@@ -82,7 +100,7 @@ def write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
     if not items:
         return write_value(stem, [])
     first = next(iter(items.values()))
-    if is_image(first):
+    if is_image(first) or is_file_value(first):
         out = []
         for i, v in items.items():
             out += write_value(stem / str(i), v)

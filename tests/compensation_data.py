@@ -22,11 +22,17 @@ def make_locations(
     noise_px: float = 0.1,
     z_range_cm: tuple[float, float] = (30.0, 90.0),
     train_fraction: float = 0.5,
+    misdetect_fraction: float = 0.0,
+    misdetect_offset_cm: tuple[float, float] = (15.0, 40.0),
 ) -> dict[str, dict]:
     """Return {item_id: Location} with split, truth and the raw measurement inputs.
 
     ``baseline_scale`` is believed/true baseline (1.02 = 2 % baseline error);
     ``disparity_offset_px`` is added to every measured disparity.
+    ``misdetect_fraction`` of the *train* items measure a distractor ball instead of the one
+    whose truth they carry: a ball ``misdetect_offset_cm`` away (random direction, kept in front
+    of the camera and in the image), seen through the same imperfect rig. Those items are marked
+    ``"misdetected": True``; every other item is identical to the data without mis-detections.
     """
     rng = np.random.default_rng(seed)
     z = rng.uniform(*z_range_cm, n)
@@ -43,6 +49,29 @@ def make_locations(
     xm = (u - cx) * zm / f_px
     ym = (v - cy) * zm / f_px
     split = np.where(rng.random(n) < train_fraction, "train", "test")
+    misdetected = np.zeros(n, dtype=bool)
+    if misdetect_fraction > 0:
+        # A separate generator: the clean items stay bit-identical to the data without distractors.
+        mrng = np.random.default_rng(seed + 7919)
+        train_idx = np.flatnonzero(split == "train")
+        pick = mrng.choice(train_idx, size=int(round(misdetect_fraction * len(train_idx))), replace=False)
+        for i in pick:
+            for _ in range(100):
+                direction = mrng.normal(size=3)
+                direction /= np.linalg.norm(direction)
+                p = np.array([x[i], y[i], z[i]]) + mrng.uniform(*misdetect_offset_cm) * direction
+                if p[2] < 15:
+                    continue
+                ud, vd = cx + f_px * p[0] / p[2], cy + f_px * p[1] / p[2]
+                if 10 < ud < 2 * cx - 10 and 10 < vd < 2 * cy - 10:
+                    break
+            u[i] = ud + mrng.normal(0, noise_px)
+            v[i] = vd + mrng.normal(0, noise_px)
+            d[i] = f_px * baseline_cm / p[2] + disparity_offset_px + mrng.normal(0, noise_px)
+            zm[i] = f_px * b_believed / d[i]
+            xm[i] = (u[i] - cx) * zm[i] / f_px
+            ym[i] = (v[i] - cy) * zm[i] / f_px
+            misdetected[i] = True
     out = {}
     for i in range(n):
         pid = f"s{i:03d}"
@@ -60,6 +89,7 @@ def make_locations(
             "v_left_px": float(v[i]),
             "truth_cm": [float(x[i]), float(y[i]), float(z[i])],
             "split": str(split[i]),
+            "misdetected": bool(misdetected[i]),
         }
     return out
 

@@ -64,6 +64,35 @@ class FitParams(Params):
             "placements all at (nearly) one distance cannot define a distance-dependent correction."
         ),
     )
+    outlier_mad: float | None = Field(
+        5.0,
+        gt=0,
+        le=100,
+        description=(
+            "A training placement whose residual against the fitted model (3-D, cm) lies more than this many "
+            "robust standard deviations (1.4826 x median absolute deviation of all residuals) above their median "
+            "is a mis-detection: left out of the fit and listed in the model (unitless; null keeps every placement)."
+        ),
+    )
+    min_inlier_fraction: float = Field(
+        0.5,
+        ge=0.5,
+        le=1.0,
+        description=(
+            "Fewest training placements, as a fraction of the usable ones, that must agree with the fit; fewer and "
+            "the fit refuses (unitless; below one half the median no longer describes the correct placements)."
+        ),
+    )
+    max_residual_sigma: float | None = Field(
+        20.0,
+        gt=1,
+        le=1000,
+        description=(
+            "The fit refuses when the median depth residual of the placements it keeps exceeds this many times "
+            "their median stated depth uncertainty (sigma_z_cm): the training set then disagrees with itself, as "
+            "when most placements are mis-detections (unitless; null skips the check, as does data without sigma_z_cm)."
+        ),
+    )
 
 
 class RayFitParams(FitParams):
@@ -99,6 +128,8 @@ class Samples:
         Ground-truth position, cm, same frame.
     frame : str
         ``"left_camera"`` or ``"table"``.
+    sigma_z_cm : ndarray (N,) or None
+        The locator's stated depth uncertainty, cm (NaN where not reported).
     """
 
     ids: list[str]
@@ -108,6 +139,7 @@ class Samples:
     v_px: np.ndarray
     truth_cm: np.ndarray | None
     frame: str
+    sigma_z_cm: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -134,6 +166,7 @@ class Samples:
             v_px=self.v_px[index],
             truth_cm=None if self.truth_cm is None else self.truth_cm[index],
             frame=self.frame,
+            sigma_z_cm=None if self.sigma_z_cm is None else self.sigma_z_cm[index],
         )
 
 
@@ -175,6 +208,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
     disp = np.full(n, np.nan)
     u = np.full(n, np.nan)
     v = np.full(n, np.nan)
+    sigma_z = np.full(n, np.nan)
     has_truth = n > 0
     frames = set()
     for i, (_, loc) in enumerate(items):
@@ -182,6 +216,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
         disp[i] = _num(loc.get("disparity_px"))
         u[i] = _num(loc.get("u_left_px"))
         v[i] = _num(loc.get("v_left_px"))
+        sigma_z[i] = _num(loc.get("sigma_z_cm"))
         t = loc.get("truth_cm")
         if t is None:
             has_truth = False
@@ -198,6 +233,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
         v_px=v,
         truth_cm=truth if has_truth else None,
         frame=frames.pop() if frames else "left_camera",
+        sigma_z_cm=sigma_z,
     )
 
 
@@ -403,6 +439,9 @@ def build_model(
     cv_folds: int = 5,
     cv_seed: int = 0,
     options: Mapping[str, Any] | None = None,
+    robust: FitParams | None = None,
+    min_points: int = 1,
+    ctx: Any = None,
 ) -> dict[str, Any]:
     """Fit a model and describe it as a ``CompensationModel`` artifact.
 
@@ -422,16 +461,35 @@ def build_model(
         k-fold cross-validation settings.
     options : mapping, optional
         The fit options, recorded in the artifact.
+    robust : FitParams, optional
+        With ``outlier_mad`` set, mis-detected placements are left out first
+        (:func:`nodes.compensators._robust.screen_outliers`); None fits every placement.
+    min_points : int
+        Fewest placements the model can be fitted from (for the screening's refusal).
+    ctx : RunContext, optional
+        Where to report the placements left out (the run summary shows it).
 
     Returns
     -------
     dict
-        ``{"type", "coefficients", "valid_range", "frame", "n_train",
-        "train_before_cm", "train_residual_cm", "cv", "fit_time_s", "options"}``.
+        ``{"type", "coefficients", "valid_range", "frame", "n_train", "n_candidates",
+        "train_before_cm", "train_residual_cm", "cv", "fit_time_s", "options",
+        "outliers": [{"item", "residual_cm", "error_cm"}], "n_outliers", "outlier_threshold_cm"}``;
+        every statistic is over the placements kept (``n_train`` of ``n_candidates``).
     """
+    from nodes.compensators._robust import Screen, screen_outliers
+
+    n_candidates = len(samples)
     t0 = time.perf_counter()
     try:
-        coefficients = fit(samples)
+        if robust is not None and robust.outlier_mad is not None:
+            screen, coefficients = screen_outliers(
+                samples, fit, predict, robust.outlier_mad, robust.min_inlier_fraction, min_points, label,
+                robust.max_residual_sigma,
+            )
+            samples = samples.subset(screen.inliers)
+        else:
+            screen, coefficients = Screen(inliers=np.arange(len(samples))), fit(samples)
     except NodeError as exc:
         if exc.message.startswith(label):
             raise
@@ -455,15 +513,29 @@ def build_model(
         name: {"min": float(np.min(samples.variable(name))), "max": float(np.max(samples.variable(name)))}
         for name in inputs
     }
-    return {
+    model = {
         "type": model_type,
         "coefficients": coefficients,
         "valid_range": valid_range,
         "frame": samples.frame,
         "n_train": len(samples),
+        "n_candidates": n_candidates,
+        **screen.describe(),
         "train_before_cm": axis_stats(samples.xyz_cm - truth),
         "train_residual_cm": axis_stats(corrected - truth),
         "cv": kfold_cv(samples, fit, predict, cv_folds, cv_seed),
         "fit_time_s": float(fit_time),
         "options": dict(options or {}),
     }
+    if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
+        listed = ", ".join(
+            f"{o['item']} ({o['residual_cm']:.3g} cm)" if o["residual_cm"] is not None else f"{o['item']} (undefined)"
+            for o in screen.outliers[:8]
+        )
+        more = f", +{len(screen.outliers) - 8} more" if len(screen.outliers) > 8 else ""
+        ctx.warn(
+            f"left {len(screen.outliers)} of {n_candidates} training placements out of the fit: their measurement "
+            f"disagrees with the truth by far more than the rest (residual > {screen.threshold_cm:.3g} cm): "
+            f"{listed}{more}; see 'outliers' in the model"
+        )
+    return model

@@ -175,7 +175,7 @@ class DisparityCurveParams(RayFitParams):
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px).")},
     params=DisparityCurveParams,
-    version="1",
+    version="2",
 )
 def disparity_curve(params: DisparityCurveParams, train, ctx=None):
     """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
@@ -194,6 +194,6 @@ def disparity_curve(params: DisparityCurveParams, train, ctx=None):
 
     model = build_model(
         "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
-        params.model_dump(),
+        params.model_dump(), robust=params, min_points=4 if params.with_offset else 3, ctx=ctx,
     )
     return {"model": model}

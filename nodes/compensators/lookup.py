@@ -116,7 +116,7 @@ class LookupParams(RayFitParams):
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm).")},
     params=LookupParams,
-    version="1",
+    version="2",
 )
 def lookup(params: LookupParams, train, ctx=None):
     """Fit a piecewise-linear z correction over binned measured distance on the training placements."""
@@ -128,6 +128,7 @@ def lookup(params: LookupParams, train, ctx=None):
         return fit_lookup(s, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.xy)
 
     model = build_model(
-        "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump()
+        "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
+        robust=params, min_points=2 * params.min_per_bin, ctx=ctx,
     )
     return {"model": model}

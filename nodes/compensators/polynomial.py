@@ -96,7 +96,7 @@ class PolynomialParams(RayFitParams):
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="Polynomial of measured z (cm).")},
     params=PolynomialParams,
-    version="1",
+    version="2",
 )
 def polynomial(params: PolynomialParams, train, ctx=None):
     """Fit the z error (or true z) as a polynomial of measured z on the training placements."""
@@ -109,6 +109,6 @@ def polynomial(params: PolynomialParams, train, ctx=None):
 
     model = build_model(
         "polynomial", samples, fit, predict_polynomial, INPUTS, label, params.cv_folds, params.cv_seed,
-        params.model_dump(),
+        params.model_dump(), robust=params, min_points=params.degree + 2, ctx=ctx,
     )
     return {"model": model}

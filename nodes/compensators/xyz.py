@@ -149,7 +149,7 @@ class XyzParams(FitParams):
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="x, y, z error polynomials (cm).")},
     params=XyzParams,
-    version="1",
+    version="2",
 )
 def xyz(params: XyzParams, train, ctx=None):
     """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""
@@ -162,6 +162,7 @@ def xyz(params: XyzParams, train, ctx=None):
         return fit_xyz(s, params.degree, params.ridge, params.depth_feature)
 
     model = build_model(
-        "xyz", samples, fit, predict_xyz, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump()
+        "xyz", samples, fit, predict_xyz, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
+        robust=params, min_points=n_terms + 1, ctx=ctx,
     )
     return {"model": model}

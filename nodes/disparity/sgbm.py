@@ -21,6 +21,7 @@ import math
 import cv2
 import numpy as np
 
+from nodes.disparity.dense import wls_filter
 from stereograph.api import Field, In, NodeError, Out, node
 
 from ._common import DisparityParams, disparity_range_px, finish, not_found, seg_reason
@@ -83,12 +84,7 @@ def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray,
     )
     disp = matcher.compute(gl, gr)
     if params.wls:
-        right_matcher = cv2.ximgproc.createRightMatcher(matcher)
-        disp_r = right_matcher.compute(gr, gl)
-        wls = cv2.ximgproc.createDisparityWLSFilter(matcher)
-        wls.setLambda(params.wls_lambda)
-        wls.setSigmaColor(params.wls_sigma)
-        disp = wls.filter(disp, gl, disparity_map_right=disp_r)
+        disp, _ = wls_filter(matcher, disp, gl, gr, params.wls_lambda, params.wls_sigma)
     disp = disp[:, pad:].astype(np.float32) / 16.0
     sub = mask[r0:r1, c0:c1].astype(np.uint8)
     r_px = math.sqrt(max(sub.sum(), 1) / math.pi)

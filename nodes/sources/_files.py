@@ -14,11 +14,16 @@ __all__ = ["IMAGE_SUFFIXES", "list_pairs", "pair_key", "read_image"]
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 _SIDE = re.compile(r"(?i)(left|right|(?<![a-z])[lr](?![a-z]))")
+# Middlebury-style camelCase names (aloeL.jpg / aloeR.jpg): a capital L or R ending the stem.
+_SIDE_SUFFIX = re.compile(r"(?<=[a-z0-9])[LR]$")
 
 
 def pair_key(stem: str) -> str:
     """The name a left and a right image share: the stem without its side token (left/right/L/R)."""
-    return _SIDE.sub("", stem, count=1).strip("_-. ")
+    key, n = _SIDE.subn("", stem, count=1)
+    if n == 0:
+        key = _SIDE_SUFFIX.sub("", stem)
+    return key.strip("_-. ")
 
 
 def _glob(base: Path, pattern: str) -> list[Path]:

@@ -22,13 +22,16 @@ class ScenesParams(Params):
     seed: int = Field(0, ge=0, description="Random seed.")
     noise_px: float = Field(0.1, ge=0, description="Pixel noise of u, v and disparity (px).")
     disparity_offset_px: float = Field(0.0, description="Offset added to every measured disparity (px).")
+    misdetect_fraction: float = Field(0.0, ge=0, le=1, description="Share of train placements measuring a "
+                                                                   "distractor 15-40 cm away (unitless).")
 
 
 @node("toy.scenes", outputs={"scenes": Out("ToyScene", collection=True)}, params=ScenesParams)
 def scenes(params: ScenesParams):
     """Placements: true centre (cm) and the rig's noisy pixel measurement of it."""
     locs = make_locations(n=params.n, seed=params.seed, noise_px=params.noise_px,
-                          disparity_offset_px=params.disparity_offset_px)
+                          disparity_offset_px=params.disparity_offset_px,
+                          misdetect_fraction=params.misdetect_fraction)
     return {"scenes": {k: {"truth_cm": v["truth_cm"], "u_px": v["u_left_px"], "v_px": v["v_left_px"],
                            "d_px": v["disparity_px"], "split": v["split"]} for k, v in locs.items()}}
 
