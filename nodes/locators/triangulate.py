@@ -140,6 +140,9 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
     if t and t.get("center_left_cm") is not None:
         tc = np.asarray(t["center_left_cm"], float)
         truth = (apply_transform(T, tc) if T is not None else tc).tolist()
+    elif t and t.get("center_table_cm") is not None and T is not None:
+        # measured on the table only (a ruler on the bench): valid in the table frame the wired T defines
+        truth = [float(c) for c in t["center_table_cm"]]
     if not disparity["found"]:
         return {"location": _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth)}
     d = float(disparity["disparity_px"])
