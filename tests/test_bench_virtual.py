@@ -6,18 +6,19 @@ table frame -> locate + fit compensation (training split from the truth file) ->
 separate pipeline that loads all of these and locates the remaining placements.
 """
 
-import csv
+import importlib.util
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from bench_scenes import table_board
 
 from nodes.sources import _render
-from nodes.sources.synthetic import SyntheticParams, _rig_kwargs, synthetic
+from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
 from stereograph.runner import run_pipeline
 
+ROOT = Path(__file__).resolve().parents[1]
 N_SCENES, N_VIEWS = 40, 10
 OBJECT = "{radius_cm: 2.0, color_bgr: [20, 120, 245]}"
 BASE_IN_RIG_TABLE = np.array([0.0, 0.0, 0.0])  # the arm base, in the synthetic rig's own table frame (cm)
@@ -37,37 +38,25 @@ LOCATE = """
 """
 
 
-def _save(folder, name, left, right):
-    folder.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(folder / f"left_{name}.png"), left)
-    cv2.imwrite(str(folder / f"right_{name}.png"), right)
+def _load_benchmark():
+    # the benchmark's own bench writer: the test runs on the very files docs/bench.md's example uses
+    spec = importlib.util.spec_from_file_location("virtual_bench", ROOT / "benchmarks" / "virtual_bench.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
-    """The bench's files: calib/, table/, balls/ + truth.csv (training placements only)."""
+    """The bench's files: calib/, table/, balls/ + truth.csv (training placements only, table frame)."""
     root = tmp_path_factory.mktemp("bench")
-    params = SyntheticParams(n_scenes=N_SCENES, n_views=N_VIEWS, seed=0, train_fraction=0.5,
-                             placement_region_cm=[0, 0, 12, 23])
-    out = synthetic(params)
-    for v in out["views"]["views"]:
-        _save(root / "calib", v["id"], v["left"], v["right"])
-    rig = _render.make_rig(**_rig_kwargs(params))
-    left, right, T_board_from_left = table_board(rig)
-    _save(root / "table", "table", left, right)
-    truth = {}
-    with (root / "truth.csv").open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["id", "x_cm", "y_cm", "z_cm", "radius_cm"])
-        for pid, p in out["pairs"].items():
-            _save(root / "balls", pid, p["left"], p["right"])
-            truth[pid] = (p["split"], np.asarray(p["truth"]["center_left_cm"], float))
-            if p["split"] == "train":
-                w.writerow([pid, *p["truth"]["center_left_cm"], p["truth"]["radius_cm"]])
+    written = _load_benchmark().write_bench(root, N_SCENES, N_VIEWS, seed=0)
+    T_board = written["T_board_from_left"]
     # the arm base's pose in the board's table frame: the board frame is the rig's, shifted
-    T_rig_from_board = np.asarray(rig["truth"]["T_table_from_left"]) @ np.linalg.inv(T_board_from_left)
+    rig = _render.make_rig(**_rig_kwargs(SyntheticParams(seed=0)))
+    T_rig_from_board = np.asarray(rig["truth"]["T_table_from_left"]) @ np.linalg.inv(T_board)
     base_in_board = (np.linalg.inv(T_rig_from_board) @ [*BASE_IN_RIG_TABLE, 1.0])[:3]
-    return {"root": root, "truth": truth, "T_board_from_left": T_board_from_left, "base_in_board": base_in_board}
+    return {"root": root, "truth": written["hidden"], "T_board_from_left": T_board, "base_in_board": base_in_board}
 
 
 def _run(root, name, text, **kw):
@@ -127,7 +116,8 @@ def test_virtual_bench(bench):
   compensate: {{type: compensator.apply, inputs: {{model: fit.model, location: locate.location}}}}
   cam_locate:
     type: locator.triangulate
-    inputs: {{disparity: disparity.disparity, rectification: rectify.rectification, pair: balls.pairs}}
+    inputs: {{disparity: disparity.disparity, rectification: rectify.rectification, pair: balls.pairs,
+             rig: tf.table_frame}}
   cam_fit: {{type: compensator.xyz, inputs: {{train: cam_locate.location}}}}
   cam_compensate: {{type: compensator.apply, inputs: {{model: cam_fit.model, location: cam_locate.location}}}}
   hand_eye:
