@@ -71,20 +71,26 @@ def test_ros_camera_info_round_trip_in_metres(tmp_path):
     _assert_same(read_ros_pair(paths["camera_info_left"], paths["camera_info_right"]), cal)
 
 
-def test_opencv_file_without_unit_or_size_is_a_clear_error(tmp_path):
-    p = tmp_path / "extrinsics.yml"
-    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)  # what OpenCV's stereo_calib sample writes: no unit
+def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
+    # What OpenCV's stereo_calib sample writes: intrinsics.yml and extrinsics.yml, no size, no unit.
     cal = _calibration()
-    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R"), ("T", "T_cm")):
-        fs.write(name, np.asarray(cal[key], float))
-    fs.release()
+    intr, extr = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+    for p, names in ((intr, (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"))),
+                     (extr, (("R", "R"), ("T", "T_cm")))):
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+        for name, key in names:
+            fs.write(name, np.asarray(cal[key], float))
+        fs.release()
+    with pytest.raises(NodeError, match="lacks R, T") as e:
+        read_calibration_file(intr)
+    assert str(intr) in e.value.message
     with pytest.raises(NodeError, match="unit of T") as e:
-        read_calibration_file(p)
-    assert str(p) in e.value.message and "cm_per_unit" in e.value.hint
+        read_calibration_file(intr, extr)
+    assert str(intr) in e.value.message and "cm_per_unit" in e.value.hint
     with pytest.raises(NodeError, match="image size"):
-        read_calibration_file(p, cm_per_unit=0.1)
-    got = read_calibration_file(p, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
-    assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1)
+        read_calibration_file(intr, extr, cm_per_unit=0.1)
+    got = read_calibration_file(intr, extr, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
+    assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1) and np.allclose(got["K2"], cal["K2"])
 
 
 def _pipeline(tmp_path: Path, nodes: str) -> Path:
@@ -145,3 +151,18 @@ def test_real_chessboard_pairs_export_reads_back(tmp_path):
     assert np.abs(fs.getNode("R").mat() - cal["R"]).max() < 1e-9
     assert np.abs(fs.getNode("T").mat().ravel() - cal["T_cm"]).max() < 1e-9
     fs.release()
+
+
+def test_opencv_xml_file_loads(tmp_path):
+    cal = _calibration()
+    p = tmp_path / "stereo.xml"
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("unit", "mm")
+    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
+        fs.write(name, np.asarray(cal[key], float))
+    fs.write("T", np.asarray(cal["T_cm"], float) * 10.0)
+    fs.release()
+    assert p.read_text().lstrip().startswith("<?xml")
+    _assert_same(read_calibration_file(p), cal)

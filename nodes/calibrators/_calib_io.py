@@ -107,7 +107,7 @@ def opencv_text(cal: dict) -> str:
         os.unlink(tmp)
 
 
-def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -> dict:
+def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None) -> dict:
     """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
 
     Parameters
@@ -120,6 +120,9 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         squares). Default: from the file's ``unit`` entry.
     image_size : (w, h), optional
         Pixels; default from ``image_width`` / ``image_height`` (or ``image_size``) in the file.
+    extra : Path, optional
+        A second FileStorage file read with the first (stereo_calib's ``extrinsics.yml`` beside its
+        ``intrinsics.yml``); an entry in both is taken from ``path``.
 
     Returns
     -------
@@ -131,29 +134,29 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
     ValueError
         A missing matrix, unit or image size; the message names what and where.
     """
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    stores = [cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ) for p in (path, extra) if p is not None]
     try:
-        if not fs.isOpened():
-            raise ValueError("OpenCV cannot open it as a FileStorage file (YAML must start with %YAML:1.0 or "
-                             "be plain YAML 1.0 OpenCV accepts; XML with <opencv_storage>)")
+        for p, fs in zip((path, extra), stores):
+            if not fs.isOpened():
+                raise ValueError(f"OpenCV cannot open {p} as a FileStorage file (YAML starting with %YAML, or XML "
+                                 "with <opencv_storage>)")
+
+        def found(n):
+            return next((node for fs in stores for node in [fs.getNode(n)] if not node.empty()), None)
 
         def mat(*names):
             for n in names:
-                node = fs.getNode(n)
-                if not node.empty() and node.isMap():
+                node = found(n)
+                if node is not None and node.isMap():
                     m = node.mat()
                     if m is not None:
                         return np.asarray(m, np.float64)
-                if not node.empty() and node.isSeq():
+                if node is not None and node.isSeq():
                     return np.asarray([node.at(i).real() for i in range(node.size())], np.float64)
             return None
 
         def scalar(*names):
-            for n in names:
-                node = fs.getNode(n)
-                if not node.empty():
-                    return node
-            return None
+            return next((node for n in names for node in [found(n)] if node is not None), None)
 
         got = {k: mat(*names) for k, names in (("K1", ("M1", "K1", "cameraMatrix1")),
                                                ("D1", ("D1", "distCoeffs1")),
@@ -164,7 +167,7 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         if missing:
             raise ValueError(f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
                              "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
-                             "merge both into one file)")
+                             "give both files: path and right_path)")
         if cm_per_unit is None:
             u = scalar("unit", "units", "length_unit")
             unit = u.string().strip().lower() if u is not None and u.isString() else None
@@ -184,7 +187,8 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
     finally:
-        fs.release()
+        for fs in stores:
+            fs.release()
     if got["K1"].shape != (3, 3) or got["K2"].shape != (3, 3) or got["R"].size != 9 or got["T"].size != 3:
         raise ValueError("M1 / M2 / R must be 3x3 and T 3x1")
     return {"K1": got["K1"], "D1": got["D1"].ravel(), "K2": got["K2"], "D2": got["D2"].ravel(),
