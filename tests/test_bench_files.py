@@ -166,3 +166,40 @@ def test_opencv_xml_file_loads(tmp_path):
     fs.release()
     assert p.read_text().lstrip().startswith("<?xml")
     _assert_same(read_calibration_file(p), cal)
+
+
+def test_export_load_locate_gives_the_same_locations(tmp_path):
+    rig = "  rig: {type: source.synthetic, params: {n_scenes: 4, n_views: 0, seed: 3}}\n"
+
+    def _run(name, text):
+        return run_pipeline(_pipeline(tmp_path, rig + text), out_dir=tmp_path / name, cache_dir=tmp_path / "cache",
+                            keep={"locate_json", "locate_ocv", "locate_ros"})
+
+    first = _run("cal", "  calib: {type: calibrator.truth, inputs: {truth: rig.truth}}\n")
+    assert first.ok
+    text = ""
+    for tag, params in (("json", "{path: cal/calib/calibration.json}"), ("ocv", "{path: cal/calib/opencv.yml}"),
+                        ("ros", "{path: cal/calib/camera_info_left.yaml, "
+                                "right_path: cal/calib/camera_info_right.yaml}")):
+        text += f"""
+  cal_{tag}: {{type: calibrator.load, params: {params}}}
+  rect_{tag}: {{type: rectifier.opencv, inputs: {{calibration: cal_{tag}.calibration}}}}
+  seg_{tag}:
+    type: segmenter.edge_morph
+    params: {{object: {{radius_cm: 2.0, color_bgr: [20, 120, 245]}}, working_range_cm: [20, 80]}}
+    inputs: {{pair: rig.pairs, rectification: rect_{tag}.rectification}}
+  disp_{tag}: {{type: disparity.centroid, inputs: {{segmentation: seg_{tag}.segmentation,
+                                                  rectification: rect_{tag}.rectification}}}}
+  locate_{tag}: {{type: locator.triangulate, inputs: {{disparity: disp_{tag}.disparity,
+                                                      rectification: rect_{tag}.rectification, pair: rig.pairs}}}}
+"""
+    r = _run("loc", text)
+    assert r.ok, {n: r.reports[n].error for n in r.status if r.reports[n].error}
+    ref = r.outputs("locate_json", "location")
+    assert sum(v["found"] for v in ref.values()) >= 3
+    for tag in ("ocv", "ros"):
+        got = r.outputs(f"locate_{tag}", "location")
+        for pid, loc in ref.items():
+            assert got[pid]["found"] == loc["found"]
+            if loc["found"]:
+                assert max(abs(got[pid][k] - loc[k]) for k in ("x_cm", "y_cm", "z_cm")) < 1e-9, (tag, pid)
