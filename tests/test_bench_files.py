@@ -150,7 +150,12 @@ def test_real_chessboard_pairs_export_reads_back(tmp_path):
     assert np.abs(fs.getNode("D2").mat().ravel() - cal["D2"]).max() < 1e-9
     assert np.abs(fs.getNode("R").mat() - cal["R"]).max() < 1e-9
     assert np.abs(fs.getNode("T").mat().ravel() - cal["T_cm"]).max() < 1e-9
+    assert fs.getNode("unit").string() == "squares"  # no square size given: lengths in squares, and it says so
     fs.release()
+    with pytest.raises(NodeError, match="in board squares"):
+        read_calibration_file(p)
+    got = read_calibration_file(p, cm_per_unit=2.5)  # once the user says how large a square is
+    assert np.allclose(got["T_cm"], cal["T_cm"] * 2.5)
 
 
 def test_opencv_xml_file_loads(tmp_path):

@@ -74,7 +74,8 @@ def calibration_summary(cal: dict) -> tuple[dict, str]:
     baseline = float(np.linalg.norm(np.asarray(cal["T_cm"], float)))
     dy = _mean_abs_dy(cal, rectify_params(cal)) if cal.get("corners_left_px") else None
     rms = cal.get("rms_px")
-    line = (f"RMS {rms:.4f} px" if rms is not None else "RMS n/a") + f", baseline {baseline:.4f} cm" + (
+    unit = cal.get("length_unit", "cm")
+    line = (f"RMS {rms:.4f} px" if rms is not None else "RMS n/a") + f", baseline {baseline:.4f} {unit}" + (
         f", mean |Δy| {dy:.3f} px" if dy is not None else ", mean |Δy| n/a (no corners)")
     return {"baseline_cm": baseline, "dy_mean_px": dy}, line
 
@@ -91,7 +92,7 @@ def opencv_text(cal: dict) -> str:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
         fs.write("image_width", w)
         fs.write("image_height", h)
-        fs.write("unit", "cm")
+        fs.write("unit", str(cal.get("length_unit", "cm")))
         fs.write("method", str(cal.get("method", "")))
         if cal.get("rms_px") is not None:
             fs.write("rms_px", float(cal["rms_px"]))
@@ -171,6 +172,9 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
         if cm_per_unit is None:
             u = scalar("unit", "units", "length_unit")
             unit = u.string().strip().lower() if u is not None and u.isString() else None
+            if unit == "squares":
+                raise ValueError("its lengths are in board squares (calibrated without a square size): the unit "
+                                 "of T is one square; give cm_per_unit = the square's size in cm")
             if unit not in CM_PER_UNIT:
                 raise ValueError(f"it does not say the unit of T ({'unit: ' + repr(unit) if unit else 'no unit entry'};"
                                  f" known: mm, cm, m, in)")
@@ -300,18 +304,28 @@ EXPORT_OUTPUTS = _export_outputs()
 
 def export_texts(cal: dict) -> dict:
     """The three export outputs of a calibration, as ``TextFile`` values ``{"text", "suffix"}``."""
+    unit = cal.get("length_unit", "cm")
+    # ROS has no unit field: a calibration in squares is flagged in a comment, and by the run's warning
+    head = "" if unit == "cm" else f"# projection_matrix lengths are in {unit}/100, not metres: no square size given\n"
     texts = {"opencv": opencv_text(cal),
-             "camera_info_left": yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
-             "camera_info_right": yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
+             "camera_info_left": head + yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
+             "camera_info_right": head + yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
     return {k: {"text": t, "suffix": _SUFFIX[k]} for k, t in texts.items()}
 
 
-def calibration_outputs(cal: dict, ctx=None) -> dict:
+def calibration_outputs(cal: dict, ctx=None, board: dict | None = None) -> dict:
     """What a calibrator returns: the calibration (with ``baseline_cm``, ``dy_mean_px``) and its exports.
 
     The one-line summary (RMS, baseline with its unit, mean |Δy|) goes first among the node's
-    messages, so that the run's console table shows it.
+    messages, so that the run's console table shows it. ``board`` (the views' board) tells the
+    length unit: ``length_unit: squares`` when no square size was given (``T_cm`` is then in
+    squares, and the exports say so).
     """
+    if board is not None and board.get("length_unit"):
+        cal["length_unit"] = str(board["length_unit"])
+    if cal.get("length_unit", "cm") != "cm" and ctx is not None:
+        ctx.warn(f"lengths are in {cal['length_unit']}, not cm (no square size given): give the board's square_cm "
+                 "to calibrate in real units; the ROS camera_info files cannot state this unit")
     facts, line = calibration_summary(cal)
     cal.update(facts)
     if ctx is not None:
