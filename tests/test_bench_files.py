@@ -208,3 +208,16 @@ def test_export_load_locate_gives_the_same_locations(tmp_path):
             assert got[pid]["found"] == loc["found"]
             if loc["found"]:
                 assert max(abs(got[pid][k] - loc[k]) for k in ("x_cm", "y_cm", "z_cm")) < 1e-9, (tag, pid)
+
+
+def test_opencv_json_file_loads(tmp_path):
+    cal = _calibration()
+    p = tmp_path / "stereo.json"  # FileStorage's JSON flavour, not a run's JSON
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_JSON)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("unit", "cm")
+    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R"), ("T", "T_cm")):
+        fs.write(name, np.asarray(cal[key], float))
+    fs.release()
+    _assert_same(read_calibration_file(p), cal)

@@ -86,7 +86,7 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
             raise NodeError(f"{label}: {p} does not exist.",
                             hint="relative paths start at the pipeline file's folder")
     suffix = path.suffix.lower()
-    if suffix == ".json" and not _is_opencv_storage(path):
+    if suffix == ".json" and not (_is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()):
         art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
         if artifact_kind(art) != "a StereoCalibration":
             raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
