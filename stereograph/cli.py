@@ -199,11 +199,13 @@ def _summary_table(result, con) -> None:
 def _echo_results(result, con) -> None:
     """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
     larger ones are only in the output folder."""
-    from stereograph.outputs import to_json
+    from stereograph.outputs import is_file_value, to_json
 
     shown = 0
     for (node, out, item), v in result._values.items():
         if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
+            continue
+        if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
             continue
         if isinstance(v, dict) and isinstance(v.get("markdown"), str):
             # a report that renders itself: show it as the table it is

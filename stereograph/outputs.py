@@ -4,10 +4,10 @@ Written on every run, cached or not: every output declared ``Out(save=True)`` an
 output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG; other values
 JSON (arrays as nested lists when small, else a side ``.npz``). A per-item output becomes
 one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
-``<node>/<output>/<item>.png`` images. A *file value* -- a dict with ``file_bytes`` (1-D
-``uint8`` array: the file's content, encoded by the node) and ``file_suffix`` (``".ply"``) --
-is written as that file as it is (other keys of the dict are for downstream nodes only).
-``run.json`` summarises the run.
+``<node>/<output>/<item>.png`` images. A *file value* -- a dict with ``file_suffix`` (``".ply"``,
+``".yml"``) and the file's content, encoded by the node, as ``file_bytes`` (1-D ``uint8`` array) or
+``file_text`` (str) -- is written as that file as it is (other keys of the dict are for downstream
+nodes only). ``run.json`` summarises the run.
 """
 
 from __future__ import annotations
@@ -34,10 +34,18 @@ _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,10}$")
 
 
 def is_file_value(v: Any) -> bool:
-    """A node-encoded file: ``{"file_bytes": uint8 1-D array, "file_suffix": ".ext", ...}``."""
-    return (isinstance(v, dict) and isinstance(v.get("file_bytes"), np.ndarray) and v["file_bytes"].ndim == 1
-            and v["file_bytes"].dtype == np.uint8 and isinstance(v.get("file_suffix"), str)
-            and bool(_SUFFIX.match(v["file_suffix"])))
+    """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text": str, ...}``."""
+    if not (isinstance(v, dict) and isinstance(v.get("file_suffix"), str) and _SUFFIX.match(v["file_suffix"])):
+        return False
+    content = v.get("file_bytes")
+    if isinstance(content, np.ndarray):
+        return content.ndim == 1 and content.dtype == np.uint8
+    return isinstance(v.get("file_text"), str)
+
+
+def file_content(v: dict) -> bytes:
+    """The bytes of a file value (text is written as UTF-8)."""
+    return v["file_bytes"].tobytes() if "file_bytes" in v else v["file_text"].encode()
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
@@ -70,7 +78,7 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
 
     if is_file_value(value):
         p = path_stem.with_suffix(value["file_suffix"])
-        _write_bytes(p, value["file_bytes"].tobytes())
+        _write_bytes(p, file_content(value))
         return [p]
     if is_image(value):
         ok, buf = cv2.imencode(".png", value)
@@ -109,7 +117,6 @@ def write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
     for i, v in items.items():
         records.append({"item": i, **v} if isinstance(v, dict) else {"item": i, "value": v})
     return write_value(stem, records)
-
 
 
 def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any) -> list[Path]:

@@ -49,6 +49,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -342,7 +343,7 @@ def _points_of(points: dict):
                                     "target."),
             "points": In("CalibrationPoints", optional=True,
                          description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.")},
-    outputs={"calibration": Out("StereoCalibration", save=True)},
+    outputs={"calibration": Out("StereoCalibration", save=True), **EXPORT_OUTPUTS},
     params=TsaiParams,
     version="2",
 )
@@ -423,4 +424,4 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
     cal["rejected_reasons"] = rejected
     if corners_l:
         cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
-    return {"calibration": cal}
+    return calibration_outputs(cal, ctx, (views or {}).get("board"))

@@ -130,6 +130,9 @@ class Samples:
         ``"left_camera"`` or ``"table"``.
     sigma_z_cm : ndarray (N,) or None
         The locator's stated depth uncertainty, cm (NaN where not reported).
+    rig : dict or None
+        The rig the locations were measured with (``Location["rig"]``: image size, focal length,
+        baseline), recorded in the fitted model so that a loader can refuse it on another rig.
     """
 
     ids: list[str]
@@ -140,6 +143,7 @@ class Samples:
     truth_cm: np.ndarray | None
     frame: str
     sigma_z_cm: np.ndarray | None = None
+    rig: dict | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -167,6 +171,7 @@ class Samples:
             truth_cm=None if self.truth_cm is None else self.truth_cm[index],
             frame=self.frame,
             sigma_z_cm=None if self.sigma_z_cm is None else self.sigma_z_cm[index],
+            rig=self.rig,
         )
 
 
@@ -211,6 +216,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
     sigma_z = np.full(n, np.nan)
     has_truth = n > 0
     frames = set()
+    rig = next((loc.get("rig") for _, loc in items if loc.get("rig")), None)
     for i, (_, loc) in enumerate(items):
         xyz[i] = [_num(loc.get("x_cm")), _num(loc.get("y_cm")), _num(loc.get("z_cm"))]
         disp[i] = _num(loc.get("disparity_px"))
@@ -234,6 +240,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
         truth_cm=truth if has_truth else None,
         frame=frames.pop() if frames else "left_camera",
         sigma_z_cm=sigma_z,
+        rig=rig,
     )
 
 
@@ -526,6 +533,7 @@ def build_model(
         "cv": kfold_cv(samples, fit, predict, cv_folds, cv_seed),
         "fit_time_s": float(fit_time),
         "options": dict(options or {}),
+        "rig": samples.rig,
     }
     if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
         listed = ", ".join(
