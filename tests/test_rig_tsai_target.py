@@ -136,9 +136,11 @@ def test_forcing_the_non_coplanar_step_on_a_thin_target_warns(rig):
     ctx = RunContext("calib", None, Path("."), Path("."))
     pp = {"principal_point_left_px": (cams[0]["u0"], cams[0]["v0"]),
           "principal_point_right_px": (cams[1]["u0"], cams[1]["v0"])}
-    assert tsai(TsaiParams(**pp), points=pts, ctx=ctx)["calibration"]["target"] == "coplanar" and not ctx.messages
+    # (the calibration's one-line summary is a message too: only warnings about the target count here)
+    assert tsai(TsaiParams(**pp), points=pts, ctx=ctx)["calibration"]["target"] == "coplanar"
+    assert not any("flat" in m for m in ctx.messages)
     tsai(TsaiParams(target="non_coplanar", **pp), points=pts, ctx=ctx)
-    assert "nearly flat" in ctx.messages[0]
+    assert any("nearly flat" in m for m in ctx.messages)
 
 
 HEADER = "id,x_cm,y_cm,z_cm,left_u_px,left_v_px,right_u_px,right_v_px"
