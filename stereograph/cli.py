@@ -324,16 +324,6 @@ def _sigterm_as_interrupt():
         signal.signal(signal.SIGTERM, old)
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 (until stopped) or more (got {value})")
-    return value
-
-
 def cmd_explain(args) -> int:
     from rich.markup import escape
 
@@ -378,14 +368,18 @@ def cmd_cache(args) -> int:
     return 0
 
 
-def _positive_int(text: str) -> int:
+def _positive_int(text: str, least: int = 1, what: str = "at least 1") -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be {what} (got {value})")
     return value
+
+
+def _non_negative_int(text: str) -> int:
+    return _positive_int(text, 0, "0 (until stopped) or more")
 
 
 def build_parser() -> argparse.ArgumentParser:
