@@ -4,13 +4,15 @@ Written on every run, cached or not: every output declared ``Out(save=True)`` an
 output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG; other values
 JSON (arrays as nested lists when small, else a side ``.npz``). A per-item output becomes
 one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
-``<node>/<output>/<item>.png`` images. ``run.json`` summarises the run.
+``<node>/<output>/<item>.png`` images. A ``TextFile`` value (``{"text": str, "suffix": ".yml"}``)
+is written as that text, ``<node>/<output><suffix>``. ``run.json`` summarises the run.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import uuid
 from pathlib import Path
@@ -43,6 +45,12 @@ def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
     return v
 
 
+def is_text_file(v: Any) -> bool:
+    """A ``TextFile`` value: ``{"text": str, "suffix": ".yml"}``, written as that text with that suffix."""
+    return (isinstance(v, dict) and set(v) == {"text", "suffix"} and isinstance(v["text"], str)
+            and isinstance(v["suffix"], str) and re.fullmatch(r"\.[A-Za-z0-9]{1,8}", v["suffix"]) is not None)
+
+
 def _write_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
@@ -60,6 +68,10 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
             p = path_stem.with_suffix(".png")
             _write_bytes(p, buf.tobytes())
             return [p]
+    if is_text_file(value):  # a file format the node renders itself (a YAML export, say)
+        p = path_stem.with_suffix(value["suffix"])
+        _write_bytes(p, value["text"].encode())
+        return [p]
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []

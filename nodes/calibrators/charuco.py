@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from nodes.calibrators._board import stereo_calibrate_points, to_gray
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from nodes.sources._render import charuco_board
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -146,7 +147,8 @@ class CharucoParams(Params):
 @node(
     "calibrator.charuco",
     inputs={"views": In("StereoViews", description="ChArUco board pairs (partial views are fine).")},
-    outputs={"calibration": Out("StereoCalibration", save=True, description="Both cameras and their pose.")},
+    outputs={"calibration": Out("StereoCalibration", save=True, description="Both cameras and their pose."),
+             **EXPORT_OUTPUTS},
     params=CharucoParams,
     version="1",
 )
@@ -188,4 +190,4 @@ def charuco(params: CharucoParams, views: dict, ctx=None) -> dict:
     cal["rejected_reasons"] = rejected
     if rejected and ctx is not None:
         ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
-    return {"calibration": cal}
+    return calibration_outputs(cal, ctx)

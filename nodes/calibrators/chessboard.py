@@ -7,6 +7,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views, stereo_calibrate_points
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["ChessboardParams", "calibrate_stereo", "chessboard"]
@@ -66,7 +67,8 @@ class ChessboardParams(Params):
 @node(
     "calibrator.chessboard",
     inputs={"views": In("StereoViews", description="Chessboard pairs.")},
-    outputs={"calibration": Out("StereoCalibration", save=True, description="Both cameras and their pose.")},
+    outputs={"calibration": Out("StereoCalibration", save=True, description="Both cameras and their pose."),
+             **EXPORT_OUTPUTS},
     params=ChessboardParams,
     version="1",
 )
@@ -113,4 +115,4 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     cal["rejected_reasons"] = rejected
     if rejected and ctx is not None:
         ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
-    return {"calibration": cal}
+    return calibration_outputs(cal, ctx)

@@ -7,7 +7,8 @@ HandEye artifact::
      "method": "given" | "pairs" | "rig" | "located",
      "n_pairs": int,                      # point pairs used by a fit (0 otherwise)
      "residual_cm": {"rms": float, "max": float, "per_pair": [float, ...]} | None,
-     "T_base_from_left_truth": 4x4 | None}  # from the rig's ground truth, when known (for scoring)
+     "T_base_from_left_truth": 4x4 | None,  # from the rig's ground truth, when known (for scoring)
+     "rig": {"image_size", "fx_px", "baseline_cm"} | None}  # the rig it was made for, when known
 
 Modes:
 
@@ -15,8 +16,10 @@ Modes:
 * ``pairs``: a rigid least-squares fit (Kabsch / Umeyama, no scale) of >= 3 point pairs: an object
   located by the cameras (left-camera frame, cm) and the same point reached by the arm
   (arm-base frame, cm), given inline or in a CSV file.
-* ``rig``: composed from the rig's ground truth ``T_table_from_left`` and the arm base's pose in the
-  table frame (``base_in_table``) — exact, for synthetic rigs.
+* ``rig``: composed from ``T_table_from_left`` and the arm base's pose in the table frame
+  (``base_in_table``): the wired ``table_frame`` (a board lying on the table,
+  ``calibrator.table_frame``: a real bench) when there is one, else the rig's ground truth (exact,
+  for synthetic rigs).
 * ``located``: the realistic calibration on a synthetic rig: every found training location (camera
   measurement, errors included) paired with where the arm would touch that ball (its true centre
   in the arm-base frame), then fitted as in ``pairs``.
@@ -204,16 +207,22 @@ def _fit(cam, arm_pts, params: HandEyeParams, source: str):
 
 @node("calibrator.hand_eye",
       inputs={"views": In("StereoViews", optional=True, description="For the rig's truth (modes rig, located)."),
-              "locations": In("Location", gather=True, optional=True, description="mode located: located balls.")},
+              "locations": In("Location", gather=True, optional=True, description="mode located: located balls."),
+              "table_frame": In("TableFrame", optional=True,
+                                description="mode rig: the measured table frame (calibrator.table_frame).")},
       outputs={"hand_eye": Out("HandEye", save=True, description="Left-camera pose in the arm-base frame.")},
       params=HandEyeParams, version="1", reads=_reads)
-def hand_eye(params: HandEyeParams, views=None, locations=None, ctx=None):
+def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None, ctx=None):
     """Left-camera pose in the arm-base frame: given, fitted from point pairs (Kabsch), or from rig truth."""
     T_base_from_table = (invert_pose(pose_matrix(params.base_in_table.translation_cm,
                                                  params.base_in_table.rpy_deg))
                          if params.base_in_table else None)
     T_tl = _truth_T_table_from_left(views)
     T_truth = T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
+    T_measured = (T_base_from_table @ np.asarray(table_frame["T_table_from_left"], float)
+                  if (table_frame is not None and T_base_from_table is not None) else None)
+    rig = (table_frame or {}).get("rig") or next(
+        (loc.get("rig") for loc in (locations or {}).values() if isinstance(loc, dict) and loc.get("rig")), None)
     residual, n_pairs = None, 0
     if params.mode == "given":  # camera_in_base is required by HandEyeParams
         T = pose_matrix(params.camera_in_base.translation_cm, params.camera_in_base.rpy_deg)
@@ -231,11 +240,15 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, ctx=None):
                             hint="add pairs (camera_cm, arm_cm) or a pairs_file.")
         T, residual = _fit(cam, arm_pts, params, source)
         n_pairs = len(cam)
+    elif params.mode == "rig" and T_measured is not None:
+        T = T_measured
     else:
         if T_truth is None:
             raise NodeError(f"calibrator.hand_eye mode {params.mode} needs the rig's truth (T_table_from_left on the "
-                            "views input) and base_in_table.",
-                            hint="wire views: <source>.views from a synthetic source and set base_in_table, or use "
+                            "views input)" + (" or a table_frame" if params.mode == "rig" else "")
+                            + " and base_in_table.",
+                            hint="wire table_frame: <calibrator.table_frame>.table_frame (a board on the table), or "
+                                 "views: <source>.views from a synthetic source, and set base_in_table; or use "
                                  "mode given / pairs.")
         if params.mode == "rig":
             T = T_truth
@@ -264,4 +277,5 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, ctx=None):
         if dt > 0.5:
             ctx.warn(f"hand-eye vs rig truth: translation differs by {dt:.3f} cm")
     return {"hand_eye": {"T_base_from_left": T, "T_base_from_table": T_base_from_table, "method": params.mode,
-                         "n_pairs": int(n_pairs), "residual_cm": residual, "T_base_from_left_truth": T_truth}}
+                         "n_pairs": int(n_pairs), "residual_cm": residual, "T_base_from_left_truth": T_truth,
+                         "rig": rig}}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["perturb", "perturb_calibration"]
@@ -67,11 +68,12 @@ class PerturbParams(Params):
 @node(
     "calibrator.perturb",
     inputs={"calibration": In("StereoCalibration", description="A calibration to degrade.")},
-    outputs={"calibration": Out("StereoCalibration", description="The same, with the injected errors.")},
+    outputs={"calibration": Out("StereoCalibration", description="The same, with the injected errors."),
+             **EXPORT_OUTPUTS},
     params=PerturbParams,
     version="1",
 )
-def perturb(params: PerturbParams, calibration: dict) -> dict:
+def perturb(params: PerturbParams, calibration: dict, ctx=None) -> dict:
     """Inject a known calibration error (baseline, focal length, principal point) for what-if studies."""
-    return {"calibration": perturb_calibration(calibration, params.baseline_scale, params.focal_scale,
-                                               params.cx_shift_right_px)}
+    return calibration_outputs(perturb_calibration(calibration, params.baseline_scale, params.focal_scale,
+                                                   params.cx_shift_right_px), ctx)

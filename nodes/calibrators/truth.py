@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from stereograph.api import In, NodeError, Out, node
 
 
@@ -25,12 +26,12 @@ def truth_calibration(truth: dict) -> dict:
 @node(
     "calibrator.truth",
     inputs={"truth": In("RigTruth", description="True cameras (synthetic rig).")},
-    outputs={"calibration": Out("StereoCalibration")},
+    outputs={"calibration": Out("StereoCalibration"), **EXPORT_OUTPUTS},
     version="1",
 )
-def truth(params, truth: dict) -> dict:
+def truth(params, truth: dict, ctx=None) -> dict:
     """Pass the rig's true cameras through as a calibration: the error-free baseline for locating."""
     if truth is None:
         raise NodeError("calibrator.truth: this source has no ground-truth cameras.",
                         hint="use calibrator.chessboard or calibrator.tsai instead")
-    return {"calibration": truth_calibration(truth)}
+    return calibration_outputs(truth_calibration(truth), ctx)

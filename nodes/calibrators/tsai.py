@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [
@@ -278,11 +279,11 @@ class TsaiParams(Params):
                                     "target."),
             "points": In("CalibrationPoints", optional=True,
                          description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.")},
-    outputs={"calibration": Out("StereoCalibration", save=True)},
+    outputs={"calibration": Out("StereoCalibration", save=True), **EXPORT_OUTPUTS},
     params=TsaiParams,
     version="1",
 )
-def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = None) -> dict:
+def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = None, ctx=None) -> dict:
     """Calibrate the stereo rig with the seed thesis's Tsai method (non-coplanar 3-D target)."""
     corners_l, corners_r = {}, {}
     if points is not None:
@@ -327,4 +328,4 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
     cal["rejected_reasons"] = rejected
     if corners_l:
         cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
-    return {"calibration": cal}
+    return calibration_outputs(cal, ctx)

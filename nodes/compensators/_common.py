@@ -99,6 +99,9 @@ class Samples:
         Ground-truth position, cm, same frame.
     frame : str
         ``"left_camera"`` or ``"table"``.
+    rig : dict or None
+        The rig the locations were measured with (``Location["rig"]``: image size, focal length,
+        baseline), recorded in the fitted model so that a loader can refuse it on another rig.
     """
 
     ids: list[str]
@@ -108,6 +111,7 @@ class Samples:
     v_px: np.ndarray
     truth_cm: np.ndarray | None
     frame: str
+    rig: dict | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -134,6 +138,7 @@ class Samples:
             v_px=self.v_px[index],
             truth_cm=None if self.truth_cm is None else self.truth_cm[index],
             frame=self.frame,
+            rig=self.rig,
         )
 
 
@@ -177,6 +182,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
     v = np.full(n, np.nan)
     has_truth = n > 0
     frames = set()
+    rig = next((loc.get("rig") for _, loc in items if loc.get("rig")), None)
     for i, (_, loc) in enumerate(items):
         xyz[i] = [_num(loc.get("x_cm")), _num(loc.get("y_cm")), _num(loc.get("z_cm"))]
         disp[i] = _num(loc.get("disparity_px"))
@@ -198,6 +204,7 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
         v_px=v,
         truth_cm=truth if has_truth else None,
         frame=frames.pop() if frames else "left_camera",
+        rig=rig,
     )
 
 
@@ -466,4 +473,5 @@ def build_model(
         "cv": kfold_cv(samples, fit, predict, cv_folds, cv_seed),
         "fit_time_s": float(fit_time),
         "options": dict(options or {}),
+        "rig": samples.rig,
     }

@@ -18,6 +18,7 @@ from typing import Literal
 
 import numpy as np
 
+from nodes.calibrators._artifact_file import rig_fingerprint
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 
@@ -86,7 +87,7 @@ def _transform(params: TriangulateParams, rig: dict | None) -> np.ndarray | None
         return None
     T = params.T_table_from_left
     if T is None and rig is not None:
-        T = rig.get("T_table_from_left")
+        T = rig.get("T_table_from_left")  # RigTruth and TableFrame both carry it
     if T is None:
         raise NodeError(
             "locator.triangulate: frame is 'table' but no table transform is known.",
@@ -113,7 +114,9 @@ def _record(pid, split, frame, reason=None, **kw) -> dict:
         "disparity": In("Disparity", description="Object disparity and left image point."),
         "rectification": In("Rectification", description="Q, R1, f, baseline."),
         "pair": In("RectifiedPair | StereoPair", optional=True, description="For the ground truth, when it exists."),
-        "rig": In("RigTruth", optional=True, description="For T_table_from_left when frame is table."),
+        "rig": In("RigTruth | TableFrame", optional=True,
+                  description="For T_table_from_left when frame is table (the rig's truth, or a table frame from a "
+                              "board: calibrator.table_frame / load_table_frame)."),
     },
     outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame.")},
     params=TriangulateParams,
@@ -142,7 +145,8 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
     d = float(disparity["disparity_px"])
     u, v = float(disparity["u_left_px"]), float(disparity["v_left_px"])
     f, B = float(rectification["f_px"]), float(rectification["baseline_cm"])
-    base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth)
+    # The rig it was measured with travels along, so that a model fitted on it can be checked later.
+    base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth, rig=rig_fingerprint(rectification))
     if d <= 0:
         return {"location": _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)}
     p = triangulate_point(u, v, d, rectification, float(disparity.get("depth_offset_cm") or 0.0))

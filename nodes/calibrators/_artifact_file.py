@@ -1,0 +1,146 @@
+"""Read back an artifact a run wrote (``<run>/<node>/<output>.json`` + ``.npz``), and check its rig.
+
+A run writes every saved output as JSON, small arrays as nested lists and large ones into an
+``.npz`` beside it (``{"npz": key, "shape", "dtype"}`` in the JSON). The loader nodes read that
+back, check that the file holds the kind of artifact they expect, and -- when a calibration is
+wired -- that it was made for the same rig: image size, focal length and baseline (a compensation
+model or hand-eye fitted on another rig would move the arm to wrong places).
+
+The rig fingerprint ``{"image_size": [w, h], "fx_px": float, "baseline_cm": float}`` is stored in
+every ``CompensationModel``, ``HandEye`` and ``TableFrame`` fitted from located balls or a
+calibration (key ``rig``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereograph.api import NodeError
+
+__all__ = ["array_keys", "check_rig", "read_artifact", "rig_fingerprint", "rig_from_file"]
+
+
+def _restore(v: Any, npz) -> Any:
+    if isinstance(v, dict):
+        if set(v) == {"npz", "shape", "dtype"} and isinstance(v["npz"], str):
+            key = v["npz"].replace("/", "_")
+            if npz is None or key not in npz:
+                raise KeyError(v["npz"])
+            return np.asarray(npz[key])
+        return {k: _restore(x, npz) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_restore(x, npz) for x in v]
+    return v
+
+
+def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
+    """Load one artifact a run wrote as JSON (with its ``.npz`` when there is one).
+
+    Parameters
+    ----------
+    path : Path
+        The JSON file.
+    label : str
+        The loading node, for errors (``calibrator.load``).
+    kind : str
+        The artifact type expected, for errors (``CompensationModel``).
+    made_by : str
+        Which output writes such a file, for the hint (``<run>/fit/model.json``).
+
+    Raises
+    ------
+    NodeError
+        Missing or unreadable file, a per-item list, or a missing ``.npz``.
+    """
+    if not path.is_file():
+        raise NodeError(f"{label}: {path} does not exist.",
+                        hint=f"give the {kind} file a run wrote ({made_by}); relative paths start at the pipeline "
+                             "file's folder")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise NodeError(f"{label}: {path} is not a JSON file a run wrote ({exc}).",
+                        hint=f"give the {kind} file a run wrote ({made_by})") from None
+    if not isinstance(data, dict):
+        raise NodeError(f"{label}: {path} holds a list (a per-item output, such as locations), not a {kind}.",
+                        hint=f"give the {kind} file a run wrote ({made_by})")
+    npz_path = path.with_suffix(".npz")
+    npz = None
+    try:
+        if npz_path.is_file():
+            with np.load(npz_path) as z:
+                npz = {k: z[k] for k in z.files}
+        return _restore(data, npz)
+    except KeyError as exc:
+        raise NodeError(f"{label}: {path} refers to array {exc} in {npz_path}, which "
+                        f"{'lacks it' if npz is not None else 'does not exist'}.",
+                        hint="copy the .npz the run wrote beside the JSON together with it") from None
+    except (OSError, ValueError) as exc:
+        raise NodeError(f"{label}: cannot read {npz_path} ({exc}).",
+                        hint="copy the .npz the run wrote beside the JSON together with it") from None
+
+
+def array_keys(art: dict, keys) -> dict:
+    """Turn the nested lists of the named keys into float arrays (where present and not None)."""
+    for k in keys:
+        if art.get(k) is not None:
+            art[k] = np.asarray(art[k], dtype=float)
+    return art
+
+
+def rig_fingerprint(calibration: dict | None) -> dict | None:
+    """``{"image_size", "fx_px", "baseline_cm"}`` of a StereoCalibration or Rectification (None if unknown)."""
+    if not calibration or calibration.get("K1") is None or calibration.get("image_size") is None:
+        return None
+    size = calibration.get("source_size") or calibration["image_size"]  # a Rectification may be rescaled
+    if calibration.get("T_cm") is not None:
+        baseline = float(np.linalg.norm(np.asarray(calibration["T_cm"], float)))
+    elif calibration.get("baseline_cm") is not None:
+        baseline = abs(float(calibration["baseline_cm"]))
+    else:
+        return None
+    return {"image_size": [int(v) for v in size], "fx_px": float(np.asarray(calibration["K1"], float)[0, 0]),
+            "baseline_cm": baseline}
+
+
+def rig_from_file(calibration: dict) -> str:
+    """Where a calibration came from, for messages."""
+    return str(calibration.get("source_file") or f"the wired calibration ({calibration.get('method', '?')})")
+
+
+def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None, tolerance: float,
+              warn=None) -> None:
+    """Refuse an artifact made for another rig than ``calibration``; both files are named.
+
+    Parameters
+    ----------
+    rig : dict or None
+        The artifact's stored fingerprint (None: made before fingerprints existed -> a warning).
+    tolerance : float
+        Largest relative difference of focal length and baseline (unitless).
+    """
+    if calibration is None:
+        return
+    now = rig_fingerprint(calibration)
+    if rig is None or now is None:
+        if warn is not None:
+            warn(f"{path} records no rig (image size, focal length, baseline): not checked against "
+                 f"{rig_from_file(calibration)}")
+        return
+    problems = []
+    if [int(v) for v in rig["image_size"]] != now["image_size"]:
+        problems.append(f"image size {rig['image_size'][0]}x{rig['image_size'][1]} vs "
+                        f"{now['image_size'][0]}x{now['image_size'][1]} px")
+    for key, name, unit in (("fx_px", "focal length", "px"), ("baseline_cm", "baseline", "cm")):
+        a, b = float(rig[key]), now[key]
+        if abs(a - b) > tolerance * abs(b):
+            problems.append(f"{name} {a:.4g} vs {b:.4g} {unit} ({100 * (a / b - 1):+.2f} %)")
+    if problems:
+        raise NodeError(f"{label}: {path} was made for another rig than {rig_from_file(calibration)}: "
+                        + "; ".join(problems) + ".",
+                        hint="use the calibration it was fitted with, or fit it again with this calibration "
+                             f"(rig_tolerance {tolerance:g} allows relative differences up to that)")

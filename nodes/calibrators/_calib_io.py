@@ -1,0 +1,315 @@
+"""Stereo calibrations as the files users already have: OpenCV FileStorage and ROS ``camera_info``.
+
+* **OpenCV FileStorage** (YAML, or XML when read): the names OpenCV's ``stereo_calib`` sample
+  writes -- ``M1 D1 M2 D2`` (intrinsics.yml) and ``R T R1 R2 P1 P2 Q`` (extrinsics.yml) -- in one
+  file, plus ``image_width``, ``image_height``, ``unit`` (the unit of ``T`` and of ``P2``'s / ``Q``'s
+  lengths: ``cm`` here) and ``rms_px``. Lengths are in the board's unit, as OpenCV's own tools write
+  them; OpenCV's sample, with its square size 1, writes them in squares.
+* **ROS camera_info** YAML, one per camera (``image_width``, ``image_height``, ``camera_name``,
+  ``camera_matrix``, ``distortion_model``, ``distortion_coefficients``, ``rectification_matrix``,
+  ``projection_matrix``), lengths in **metres** as ROS expects (only ``projection_matrix``'s
+  ``Tx = -fx' B`` of the right camera carries one).
+
+Reading a pair of ROS files back gives the stereo pose exactly: the right camera sits at
+``X_r = R2^T (R1 X_l + t)``, ``t = (P2[0,3] / P2[0,0], P2[1,3] / P2[1,1], 0)``.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+__all__ = ["CM_PER_UNIT", "EXPORT_OUTPUTS", "calibration_outputs", "calibration_summary", "export_texts", "opencv_text",
+           "read_opencv", "read_ros", "read_ros_pair", "rectify_params", "ros_camera_info"]
+
+#: Centimetres per length unit a calibration file may state.
+CM_PER_UNIT = {"mm": 0.1, "millimeter": 0.1, "millimetre": 0.1, "cm": 1.0, "centimeter": 1.0, "centimetre": 1.0,
+               "m": 100.0, "meter": 100.0, "metre": 100.0, "in": 2.54, "inch": 2.54}
+
+_CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+
+
+def rectify_params(cal: dict, alpha: float = 1.0) -> dict:
+    """``stereoRectify``'s R1 R2 P1 P2 Q of a calibration (no maps), lengths in cm."""
+    w, h = (int(v) for v in cal["image_size"])
+    K1, D1, K2, D2, R = (np.asarray(cal[k], dtype=float) for k in ("K1", "D1", "K2", "D2", "R"))
+    T = np.asarray(cal["T_cm"], dtype=float).reshape(3, 1)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, (w, h), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
+                                                alpha=alpha)
+    return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q}
+
+
+def _mean_abs_dy(cal: dict, rect: dict) -> float | None:
+    """Mean |v_left - v_right| (px) of the calibration's matched corners after rectification, or None."""
+    cl, cr = cal.get("corners_left_px") or {}, cal.get("corners_right_px") or {}
+    dys = []
+    for vid, a in cl.items():
+        b = cr.get(vid)
+        if b is None or len(a) != len(b):  # (ChArUco views keep matched corners only; others are skipped)
+            continue
+        pa = cv2.undistortPoints(np.asarray(a, np.float64).reshape(-1, 1, 2), np.asarray(cal["K1"], float),
+                                 np.asarray(cal["D1"], float), R=rect["R1"], P=rect["P1"], criteria=_CRIT)
+        pb = cv2.undistortPoints(np.asarray(b, np.float64).reshape(-1, 1, 2), np.asarray(cal["K2"], float),
+                                 np.asarray(cal["D2"], float), R=rect["R2"], P=rect["P2"], criteria=_CRIT)
+        dys.append(np.abs(pa.reshape(-1, 2)[:, 1] - pb.reshape(-1, 2)[:, 1]))
+    return float(np.concatenate(dys).mean()) if dys else None
+
+
+def calibration_summary(cal: dict) -> tuple[dict, str]:
+    """The facts a person checks first, and the one-line summary the run prints.
+
+    Returns
+    -------
+    facts : dict
+        ``baseline_cm`` (|T|, cm), ``dy_mean_px`` (mean |Δy| of the calibration corners after
+        rectification, px; None without corners).
+    line : str
+        ``"RMS 0.232 px, baseline 8.003 cm, mean |Δy| 0.09 px"``.
+    """
+    baseline = float(np.linalg.norm(np.asarray(cal["T_cm"], float)))
+    dy = _mean_abs_dy(cal, rectify_params(cal)) if cal.get("corners_left_px") else None
+    rms = cal.get("rms_px")
+    line = (f"RMS {rms:.4f} px" if rms is not None else "RMS n/a") + f", baseline {baseline:.4f} cm" + (
+        f", mean |Δy| {dy:.3f} px" if dy is not None else ", mean |Δy| n/a (no corners)")
+    return {"baseline_cm": baseline, "dy_mean_px": dy}, line
+
+
+# --------------------------------------------------------------------------- OpenCV FileStorage
+def opencv_text(cal: dict) -> str:
+    """The calibration as OpenCV FileStorage YAML (stereo_calib's names, lengths in cm)."""
+    rect = rectify_params(cal)
+    w, h = (int(v) for v in cal["image_size"])
+    fd, tmp = tempfile.mkstemp(suffix=".yml")
+    os.close(fd)
+    try:
+        # FileStorage's in-memory mode is not in every build's Python binding; a temporary file is.
+        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+        fs.write("image_width", w)
+        fs.write("image_height", h)
+        fs.write("unit", "cm")
+        fs.write("method", str(cal.get("method", "")))
+        if cal.get("rms_px") is not None:
+            fs.write("rms_px", float(cal["rms_px"]))
+        for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
+            fs.write(name, np.asarray(cal[key], np.float64).reshape(3, 3) if name[0] in "MR"
+                     else np.asarray(cal[key], np.float64).reshape(1, -1))
+        fs.write("T", np.asarray(cal["T_cm"], np.float64).reshape(3, 1))
+        for name in ("R1", "R2", "P1", "P2", "Q"):
+            fs.write(name, np.asarray(rect[name], np.float64))
+        fs.release()
+        return Path(tmp).read_text()
+    finally:
+        os.unlink(tmp)
+
+
+def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -> dict:
+    """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
+
+    Parameters
+    ----------
+    path : Path
+        The file. Needs ``M1 D1 M2 D2 R T`` (stereo_calib's names; ``K1 K2`` are accepted for
+        ``M1 M2``). One file, or intrinsics and extrinsics merged into one.
+    cm_per_unit : float, optional
+        Centimetres per unit of ``T`` (0.1 for mm, 100 for m, the square size in cm for a file in
+        squares). Default: from the file's ``unit`` entry.
+    image_size : (w, h), optional
+        Pixels; default from ``image_width`` / ``image_height`` (or ``image_size``) in the file.
+
+    Returns
+    -------
+    dict
+        A ``StereoCalibration``.
+
+    Raises
+    ------
+    ValueError
+        A missing matrix, unit or image size; the message names what and where.
+    """
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        if not fs.isOpened():
+            raise ValueError("OpenCV cannot open it as a FileStorage file (YAML must start with %YAML:1.0 or "
+                             "be plain YAML 1.0 OpenCV accepts; XML with <opencv_storage>)")
+
+        def mat(*names):
+            for n in names:
+                node = fs.getNode(n)
+                if not node.empty() and node.isMap():
+                    m = node.mat()
+                    if m is not None:
+                        return np.asarray(m, np.float64)
+                if not node.empty() and node.isSeq():
+                    return np.asarray([node.at(i).real() for i in range(node.size())], np.float64)
+            return None
+
+        def scalar(*names):
+            for n in names:
+                node = fs.getNode(n)
+                if not node.empty():
+                    return node
+            return None
+
+        got = {k: mat(*names) for k, names in (("K1", ("M1", "K1", "cameraMatrix1")),
+                                               ("D1", ("D1", "distCoeffs1")),
+                                               ("K2", ("M2", "K2", "cameraMatrix2")),
+                                               ("D2", ("D2", "distCoeffs2")),
+                                               ("R", ("R",)), ("T", ("T",)))}
+        missing = [k for k, v in got.items() if v is None]
+        if missing:
+            raise ValueError(f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
+                             "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
+                             "merge both into one file)")
+        if cm_per_unit is None:
+            u = scalar("unit", "units", "length_unit")
+            unit = u.string().strip().lower() if u is not None and u.isString() else None
+            if unit not in CM_PER_UNIT:
+                raise ValueError(f"it does not say the unit of T ({'unit: ' + repr(unit) if unit else 'no unit entry'};"
+                                 f" known: mm, cm, m, in)")
+            cm_per_unit = CM_PER_UNIT[unit]
+        if image_size is None:
+            wn, hn = scalar("image_width", "imageWidth"), scalar("image_height", "imageHeight")
+            if wn is not None and hn is not None:
+                image_size = [int(wn.real()), int(hn.real())]
+            else:
+                sz = mat("image_size", "imageSize")
+                if sz is None or sz.size != 2:
+                    raise ValueError("it does not give the image size (image_width / image_height)")
+                image_size = [int(v) for v in sz.ravel()]
+        rms = scalar("rms_px", "rms")
+        rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
+    finally:
+        fs.release()
+    if got["K1"].shape != (3, 3) or got["K2"].shape != (3, 3) or got["R"].size != 9 or got["T"].size != 3:
+        raise ValueError("M1 / M2 / R must be 3x3 and T 3x1")
+    return {"K1": got["K1"], "D1": got["D1"].ravel(), "K2": got["K2"], "D2": got["D2"].ravel(),
+            "R": got["R"].reshape(3, 3), "T_cm": got["T"].ravel() * float(cm_per_unit),
+            "image_size": [int(image_size[0]), int(image_size[1])], "rms_px": rms_px,
+            "per_view_rms_px": {}, "rejected_views": []}
+
+
+# --------------------------------------------------------------------------- ROS camera_info
+def _distortion_model(D: np.ndarray) -> str:
+    return "plumb_bob" if D.size <= 5 else "rational_polynomial"
+
+
+def ros_camera_info(cal: dict, side: str, camera_name: str | None = None) -> dict:
+    """One camera's ROS ``camera_info`` (as a dict), lengths in metres.
+
+    Parameters
+    ----------
+    cal : dict
+        A ``StereoCalibration`` (lengths in cm).
+    side : {"left", "right"}
+    camera_name : str, optional
+        Default ``"left"`` / ``"right"``.
+    """
+    rect = rectify_params(cal)
+    s = "1" if side == "left" else "2"
+    K = np.asarray(cal["K" + s], float)
+    D = np.asarray(cal["D" + s], float).ravel()
+    if D.size < 5:
+        D = np.concatenate([D, np.zeros(5 - D.size)])
+    P = np.asarray(rect["P" + s], float).copy()
+    P[:, 3] = P[:, 3] / 100.0  # cm -> m: ROS's Tx = -fx' B with B in metres
+    w, h = (int(v) for v in cal["image_size"])
+
+    def block(rows, cols, m):
+        return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(m, float).ravel()]}
+
+    return {"image_width": w, "image_height": h, "camera_name": camera_name or side,
+            "camera_matrix": block(3, 3, K), "distortion_model": _distortion_model(D),
+            "distortion_coefficients": block(1, D.size, D),
+            "rectification_matrix": block(3, 3, rect["R" + s]), "projection_matrix": block(3, 4, P)}
+
+
+def _ros_mat(doc: dict, key: str, shape, path: Path) -> np.ndarray:
+    v = doc.get(key)
+    data = v.get("data") if isinstance(v, dict) else v
+    try:
+        a = np.asarray(data, float)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.size == 0 or (shape is not None and a.size != int(np.prod(shape))):
+        raise ValueError(f"{path} has no usable `{key}`" + (f" ({int(np.prod(shape))} numbers)" if shape else ""))
+    return a.reshape(shape) if shape is not None else a.ravel()
+
+
+def read_ros(path: Path) -> dict:
+    """A ROS camera_info YAML as a dict (``ValueError`` naming the file if it is not one)."""
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path} is not valid YAML ({exc})") from exc
+    if not isinstance(doc, dict) or "camera_matrix" not in doc:
+        raise ValueError(f"{path} is not a ROS camera_info file (no camera_matrix)")
+    return doc
+
+
+def read_ros_pair(left_path: Path, right_path: Path) -> dict:
+    """A ``StereoCalibration`` from the left and right cameras' ROS camera_info files (metres -> cm)."""
+    L, Rd = read_ros(left_path), read_ros(right_path)
+    K1, K2 = _ros_mat(L, "camera_matrix", (3, 3), left_path), _ros_mat(Rd, "camera_matrix", (3, 3), right_path)
+    D1 = _ros_mat(L, "distortion_coefficients", None, left_path)
+    D2 = _ros_mat(Rd, "distortion_coefficients", None, right_path)
+    R1, R2 = _ros_mat(L, "rectification_matrix", (3, 3), left_path), _ros_mat(Rd, "rectification_matrix", (3, 3),
+                                                                              right_path)
+    P2 = _ros_mat(Rd, "projection_matrix", (3, 4), right_path)
+    size_l = [int(L.get("image_width", 0)), int(L.get("image_height", 0))]
+    size_r = [int(Rd.get("image_width", 0)), int(Rd.get("image_height", 0))]
+    if size_l != size_r or 0 in size_l:
+        raise ValueError(f"the image sizes differ or are missing: {left_path} {size_l[0]}x{size_l[1]}, "
+                         f"{right_path} {size_r[0]}x{size_r[1]}")
+    t_m = np.array([P2[0, 3] / P2[0, 0], P2[1, 3] / P2[1, 1], 0.0])
+    if not np.any(t_m):
+        raise ValueError(f"{right_path}'s projection_matrix has no baseline (P[0,3] = 0): is it the right camera's?")
+    R = R2.T @ R1
+    T_cm = (R2.T @ t_m) * 100.0
+    return {"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T_cm": T_cm, "image_size": size_l, "rms_px": None,
+            "per_view_rms_px": {}, "rejected_views": []}
+
+
+# --------------------------------------------------------------------------- calibrator outputs
+#: The export outputs every calibrator declares beside ``calibration`` (``TextFile`` artifacts:
+#: the engine writes each as ``<run>/<node>/<output><suffix>``).
+EXPORT_OUTPUTS_DOC = {
+    "opencv": "OpenCV FileStorage YAML (stereo_calib's M1 D1 M2 D2 R T R1 R2 P1 P2 Q; lengths in cm).",
+    "camera_info_left": "ROS camera_info YAML of the left camera (metres).",
+    "camera_info_right": "ROS camera_info YAML of the right camera (metres).",
+}
+_SUFFIX = {"opencv": ".yml", "camera_info_left": ".yaml", "camera_info_right": ".yaml"}
+
+
+def _export_outputs():
+    from stereograph.api import Out
+
+    return {k: Out("TextFile", save=True, optional=True, description=d) for k, d in EXPORT_OUTPUTS_DOC.items()}
+
+
+EXPORT_OUTPUTS = _export_outputs()
+
+
+def export_texts(cal: dict) -> dict:
+    """The three export outputs of a calibration, as ``TextFile`` values ``{"text", "suffix"}``."""
+    texts = {"opencv": opencv_text(cal),
+             "camera_info_left": yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
+             "camera_info_right": yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
+    return {k: {"text": t, "suffix": _SUFFIX[k]} for k, t in texts.items()}
+
+
+def calibration_outputs(cal: dict, ctx=None) -> dict:
+    """What a calibrator returns: the calibration (with ``baseline_cm``, ``dy_mean_px``) and its exports.
+
+    The one-line summary (RMS, baseline with its unit, mean |Δy|) goes first among the node's
+    messages, so that the run's console table shows it.
+    """
+    facts, line = calibration_summary(cal)
+    cal.update(facts)
+    if ctx is not None:
+        ctx.messages.insert(0, line)
+    return {"calibration": cal, **export_texts(cal)}

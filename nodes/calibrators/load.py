@@ -1,0 +1,206 @@
+"""Loader nodes: a calibration, a hand-eye transform or a table frame fitted by an earlier pipeline.
+
+``calibrator.load`` reads a stereo calibration from
+
+* the JSON a run writes (``<run>/<calibrator>/calibration.json``, with its ``.npz`` if any),
+* an OpenCV FileStorage file (``.yml`` / ``.yaml`` / ``.xml``; the names of OpenCV's
+  ``stereo_calib`` sample, ``M1 D1 M2 D2 R T``; what every calibrator here exports as
+  ``opencv.yml``), or
+* the left camera's ROS ``camera_info`` YAML, with ``right_path`` the right camera's.
+
+``calibrator.load_hand_eye`` and ``calibrator.load_table_frame`` read the ``HandEye`` /
+``TableFrame`` JSON a run wrote. Given a ``calibration`` input, they refuse a file made for
+another rig (image size, focal length, baseline), naming both files. Each node's cache key
+follows the content of the files it reads, so editing a file reruns what depends on it, and
+nothing else is recomputed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from nodes.calibrators._artifact_file import array_keys, check_rig, read_artifact
+from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs, read_opencv, read_ros, read_ros_pair
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+__all__ = ["artifact_kind", "load", "load_hand_eye", "load_table_frame", "read_calibration_file"]
+
+_CAL_ARRAYS = ("K1", "D1", "K2", "D2", "R", "T_cm", "T_table_from_left")
+
+
+def artifact_kind(art: dict) -> str:
+    """Best guess of which artifact type a loaded JSON holds (for "wrong kind of file" errors)."""
+    if not isinstance(art, dict):
+        return "a list"
+    if "K1" in art and "T_cm" in art:
+        return "a StereoCalibration"
+    if "coefficients" in art and "type" in art:
+        return "a CompensationModel"
+    if "T_base_from_left" in art:
+        return "a HandEye"
+    if "T_table_from_left" in art:
+        return "a TableFrame"
+    if "joints" in art and "reach_cm" in art:
+        return "an ArmModel"
+    return "no artifact this loader knows (keys: " + ", ".join(sorted(art)[:8]) + ")"
+
+
+def _resolve(value: str, pipeline_dir: Path) -> Path:
+    p = Path(value).expanduser()
+    return p if p.is_absolute() else pipeline_dir / p
+
+
+def _with_npz(paths: list[Path]) -> list[Path]:
+    out = []
+    for p in paths:
+        out.append(p)
+        if p.suffix.lower() == ".json" and p.with_suffix(".npz").is_file():
+            out.append(p.with_suffix(".npz"))
+    return out
+
+
+def _is_opencv_storage(path: Path) -> bool:
+    data = path.read_bytes()
+    head = data[:64].lstrip()
+    # OpenCV 4 writes "%YAML:1.0", OpenCV 5 "%YAML 1.2" + "!!opencv-matrix" tags; ROS files have neither.
+    return (head.startswith(b"%YAML:") or head.startswith(b"<?xml") or head.startswith(b"<opencv_storage")
+            or b"!!opencv-matrix" in data)
+
+
+def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_unit: float | None = None,
+                          image_size=None, label: str = "calibrator.load") -> dict:
+    """A ``StereoCalibration`` from a run's JSON, an OpenCV FileStorage file or two ROS camera_info files.
+
+    Raises
+    ------
+    NodeError
+        Missing file, wrong kind of file, or missing entries; the message names the file.
+    """
+    for p in (path, right_path):
+        if p is not None and not p.is_file():
+            raise NodeError(f"{label}: {p} does not exist.",
+                            hint="relative paths start at the pipeline file's folder")
+    suffix = path.suffix.lower()
+    if suffix == ".json" and not _is_opencv_storage(path):
+        art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
+        if artifact_kind(art) != "a StereoCalibration":
+            raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
+                            hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
+                                 "FileStorage .yml/.xml, or a ROS camera_info pair")
+        cal = array_keys(art, _CAL_ARRAYS)
+        fmt = "json"
+    else:
+        ros = None
+        if not _is_opencv_storage(path) and suffix in (".yml", ".yaml"):
+            try:
+                ros = read_ros(path)
+            except ValueError:
+                ros = None
+        try:
+            if ros is not None:
+                if right_path is None:
+                    raise NodeError(f"{label}: {path} is a ROS camera_info file (one camera); the right camera's "
+                                    "is needed too.", hint="set right_path to the right camera's camera_info YAML")
+                cal = read_ros_pair(path, right_path)
+                fmt = "ros"
+            else:
+                cal = read_opencv(path, cm_per_unit, image_size)
+                fmt = "opencv"
+        except ValueError as exc:
+            raise NodeError(f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
+                            hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and image_width / "
+                                 "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
+                                 "camera_info pair") from None
+    if image_size is not None and list(cal["image_size"]) != [int(v) for v in image_size]:
+        raise NodeError(f"{label}: {path} is for {cal['image_size'][0]}x{cal['image_size'][1]} px images, but "
+                        f"image_size says {image_size[0]}x{image_size[1]}.",
+                        hint="remove image_size, or give the calibration of these cameras")
+    cal["method"] = f"loaded/{fmt}" + (f" ({cal['method']})" if cal.get("method") else "")
+    cal["source_file"] = str(path) + (f" + {right_path}" if right_path else "")
+    return cal
+
+
+class LoadParams(Params):
+    path: str = Field(..., description="Calibration file, relative to the pipeline file: a run's calibration.json, "
+                                       "an OpenCV FileStorage .yml/.yaml/.xml, or the left camera's ROS "
+                                       "camera_info YAML.")
+    right_path: str | None = Field(None, description="The right camera's ROS camera_info YAML (with a ROS `path`).")
+    cm_per_unit: float | None = Field(
+        None, gt=0, description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the square "
+                                "size in cm for a file in squares); default: the file's `unit` entry.")
+    image_size: tuple[int, int] | None = Field(
+        None, description="Image width, height (px), for OpenCV files that do not state it (stereo_calib's do "
+                          "not); checked against the file's when both exist.")
+
+
+def _load_reads(params: LoadParams, pipeline_dir: Path) -> list[Path]:
+    return _with_npz([_resolve(p, pipeline_dir) for p in (params.path, params.right_path) if p])
+
+
+@node("calibrator.load",
+      outputs={"calibration": Out("StereoCalibration", save=True, description="The loaded calibration."),
+               **EXPORT_OUTPUTS},
+      params=LoadParams, version="1", reads=_load_reads)
+def load(params: LoadParams, ctx=None) -> dict:
+    """Load a stereo calibration file (run JSON, OpenCV FileStorage, or a ROS camera_info pair)."""
+    pdir = ctx.pipeline_dir if ctx is not None else Path.cwd()
+    right = _resolve(params.right_path, pdir) if params.right_path else None
+    cal = read_calibration_file(_resolve(params.path, pdir), right, params.cm_per_unit, params.image_size)
+    return calibration_outputs(cal, ctx)
+
+
+# --------------------------------------------------------------------------- hand-eye, table frame
+class ArtifactLoadParams(Params):
+    path: str = Field(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
+                                       "(its .npz, if any, beside it).")
+    rig_tolerance: float = Field(
+        0.01, gt=0, le=0.5, description="Largest relative difference of focal length and baseline between the "
+                                        "file's rig and the wired calibration (unitless; 0.01 = 1 %).")
+
+
+def _artifact_reads(params: ArtifactLoadParams, pipeline_dir: Path) -> list[Path]:
+    return _with_npz([_resolve(params.path, pipeline_dir)])
+
+
+def _load_matrix_artifact(params: ArtifactLoadParams, ctx, calibration, label: str, kind: str, made_by: str,
+                          key: str, arrays: tuple[str, ...]) -> dict:
+    path = _resolve(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
+    art = read_artifact(path, label, kind, made_by)
+    if artifact_kind(art) != f"a {kind}":
+        raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a {kind}.",
+                        hint=f"give the file a run wrote for it: {made_by}")
+    art = array_keys(art, arrays)
+    T = art[key]
+    if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6) or not np.allclose(
+            T[3], [0, 0, 0, 1]):
+        raise NodeError(f"{label}: {key} in {path} is not a rigid 4x4 transform.",
+                        hint=f"give the file a run wrote for it: {made_by}")
+    check_rig(label, art.get("rig"), path, calibration, params.rig_tolerance, ctx.warn if ctx is not None else None)
+    art["source_file"] = str(path)
+    return art
+
+
+_CAL_IN = {"calibration": In("StereoCalibration", optional=True,
+                             description="The rig's calibration: the file must be made for it (size, f, baseline).")}
+
+
+@node("calibrator.load_hand_eye", inputs=_CAL_IN,
+      outputs={"hand_eye": Out("HandEye", description="Left-camera pose in the arm-base frame, as fitted.")},
+      params=ArtifactLoadParams, version="1", reads=_artifact_reads)
+def load_hand_eye(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
+    """Load a hand-eye transform a run fitted (<run>/<node>/hand_eye.json), checked against the rig."""
+    return {"hand_eye": _load_matrix_artifact(
+        params, ctx, calibration, "calibrator.load_hand_eye", "HandEye", "<run>/<hand-eye node>/hand_eye.json",
+        "T_base_from_left", ("T_base_from_left", "T_base_from_table", "T_base_from_left_truth"))}
+
+
+@node("calibrator.load_table_frame", inputs=_CAL_IN,
+      outputs={"table_frame": Out("TableFrame", description="T_table_from_left (cm), as fitted from the board.")},
+      params=ArtifactLoadParams, version="1", reads=_artifact_reads)
+def load_table_frame(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
+    """Load a table frame a run found (<run>/<node>/table_frame.json), checked against the rig."""
+    return {"table_frame": _load_matrix_artifact(
+        params, ctx, calibration, "calibrator.load_table_frame", "TableFrame",
+        "<run>/<table-frame node>/table_frame.json", "T_table_from_left", ("T_table_from_left",))}

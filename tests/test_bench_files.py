@@ -1,0 +1,147 @@
+"""Calibration files in and out (OpenCV FileStorage, ROS camera_info), and the loader nodes."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from nodes.calibrators._calib_io import export_texts, read_ros_pair
+from nodes.calibrators.chessboard import ChessboardParams, chessboard
+from nodes.calibrators.load import read_calibration_file
+from nodes.sources.calib_files import CalibFilesParams, calib_files
+from stereograph.api import NodeError
+from stereograph.outputs import write_value
+from stereograph.runner import run_pipeline
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
+
+
+def _calibration():
+    """A plausible calibration with distortion and a slightly rotated right camera (cm)."""
+    R, _ = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))
+    return {"K1": np.array([[515.3, 0, 321.7], [0, 514.9, 238.2], [0, 0, 1.0]]),
+            "D1": np.array([-0.12, 0.05, 0.001, -0.0005, 0.01]),
+            "K2": np.array([[516.1, 0, 318.4], [0, 515.8, 241.0], [0, 0, 1.0]]),
+            "D2": np.array([-0.11, 0.04, -0.0007, 0.0004, 0.0]),
+            "R": R, "T_cm": np.array([-8.01, 0.05, 0.12]), "image_size": [640, 480], "rms_px": 0.21,
+            "per_view_rms_px": {}, "rejected_views": [], "method": "test"}
+
+
+def _write_exports(cal, folder: Path) -> dict:
+    paths = {}
+    for name, value in export_texts(cal).items():
+        paths[name] = write_value(folder / name, value)[0]
+    return paths
+
+
+def _assert_same(a, b, tol=1e-9):
+    for k in ("K1", "D1", "K2", "D2", "R", "T_cm"):
+        assert np.abs(np.asarray(a[k], float) - np.asarray(b[k], float)).max() < tol, k
+    assert list(a["image_size"]) == list(b["image_size"])
+
+
+def test_opencv_export_reads_back_with_filestorage(tmp_path):
+    cal = _calibration()
+    p = _write_exports(cal, tmp_path)["opencv"]
+    assert p.name == "opencv.yml"
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    got = {k: fs.getNode(k).mat() for k in ("M1", "D1", "M2", "D2", "R", "T", "R1", "R2", "P1", "P2", "Q")}
+    assert fs.getNode("unit").string() == "cm" and int(fs.getNode("image_width").real()) == 640
+    fs.release()
+    assert np.abs(got["M1"] - cal["K1"]).max() < 1e-9 and np.abs(got["M2"] - cal["K2"]).max() < 1e-9
+    assert np.abs(got["D1"].ravel() - cal["D1"]).max() < 1e-9 and np.abs(got["D2"].ravel() - cal["D2"]).max() < 1e-9
+    assert np.abs(got["R"] - cal["R"]).max() < 1e-9 and np.abs(got["T"].ravel() - cal["T_cm"]).max() < 1e-9
+    # P2's Tx is -f' B in the file's unit (cm), as stereoRectify gives it
+    assert got["P2"][0, 3] / got["P2"][0, 0] == pytest.approx(-np.linalg.norm(cal["T_cm"]), rel=1e-3)
+    _assert_same(read_calibration_file(p), cal)
+
+
+def test_ros_camera_info_round_trip_in_metres(tmp_path):
+    cal = _calibration()
+    paths = _write_exports(cal, tmp_path)
+    left = yaml.safe_load(paths["camera_info_left"].read_text())
+    assert set(left) >= {"image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
+                         "distortion_coefficients", "rectification_matrix", "projection_matrix"}
+    assert left["distortion_model"] == "plumb_bob"
+    right = yaml.safe_load(paths["camera_info_right"].read_text())
+    P2 = np.array(right["projection_matrix"]["data"]).reshape(3, 4)
+    assert P2[0, 3] / P2[0, 0] == pytest.approx(-np.linalg.norm(cal["T_cm"]) / 100, rel=1e-3)  # metres
+    _assert_same(read_ros_pair(paths["camera_info_left"], paths["camera_info_right"]), cal)
+
+
+def test_opencv_file_without_unit_or_size_is_a_clear_error(tmp_path):
+    p = tmp_path / "extrinsics.yml"
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)  # what OpenCV's stereo_calib sample writes: no unit
+    cal = _calibration()
+    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R"), ("T", "T_cm")):
+        fs.write(name, np.asarray(cal[key], float))
+    fs.release()
+    with pytest.raises(NodeError, match="unit of T") as e:
+        read_calibration_file(p)
+    assert str(p) in e.value.message and "cm_per_unit" in e.value.hint
+    with pytest.raises(NodeError, match="image size"):
+        read_calibration_file(p, cm_per_unit=0.1)
+    got = read_calibration_file(p, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
+    assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1)
+
+
+def _pipeline(tmp_path: Path, nodes: str) -> Path:
+    p = tmp_path / "p.yaml"
+    p.write_text("name: loaders\nnodes:\n" + nodes)
+    return p
+
+
+def test_loaders_in_a_pipeline_and_wrong_files(tmp_path):
+    cal = _calibration()
+    write_value(tmp_path / "calibration", cal)
+    _write_exports(cal, tmp_path)
+    rig = {"image_size": [640, 480], "fx_px": 515.3, "baseline_cm": float(np.linalg.norm(cal["T_cm"]))}
+    write_value(tmp_path / "model", {"type": "none", "coefficients": {}, "valid_range": {}, "frame": "left_camera",
+                                     "rig": rig})
+    write_value(tmp_path / "other_model", {"type": "none", "coefficients": {}, "valid_range": {},
+                                           "frame": "left_camera", "rig": {**rig, "baseline_cm": 12.0}})
+    write_value(tmp_path / "hand_eye", {"T_base_from_left": np.eye(4), "method": "given", "rig": rig})
+    p = _pipeline(tmp_path, """
+  cal: {type: calibrator.load, params: {path: calibration.json}}
+  ocv: {type: calibrator.load, params: {path: opencv.yml}}
+  ros: {type: calibrator.load, params: {path: camera_info_left.yaml, right_path: camera_info_right.yaml}}
+  model: {type: compensator.load, params: {path: model.json}, inputs: {calibration: cal.calibration}}
+  he: {type: calibrator.load_hand_eye, params: {path: hand_eye.json}, inputs: {calibration: ocv.calibration}}
+""")
+    r = run_pipeline(p, out_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    assert r.ok, r.status
+    for n in ("cal", "ocv", "ros"):
+        _assert_same(r.outputs(n, "calibration"), cal)
+    assert r.outputs("model", "model")["type"] == "none"
+    assert np.allclose(r.outputs("he", "hand_eye")["T_base_from_left"], np.eye(4))
+    # the second run recomputes nothing: the cache key is the files' content
+    r2 = run_pipeline(p, out_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    assert not r2.ran
+    # a model fitted on another rig, and a file of the wrong kind: clear errors naming both files
+    p2 = _pipeline(tmp_path, """
+  cal: {type: calibrator.load, params: {path: calibration.json}}
+  model: {type: compensator.load, params: {path: other_model.json}, inputs: {calibration: cal.calibration}}
+  he: {type: calibrator.load_hand_eye, params: {path: calibration.json}}
+""")
+    r3 = run_pipeline(p2, out_dir=tmp_path / "run3", cache_dir=tmp_path / "cache")
+    err = r3.reports["model"].error
+    assert r3.status["model"] == "failed" and "other_model.json" in err and "calibration.json" in err
+    assert "baseline" in err
+    assert r3.status["he"] == "failed" and "holds a StereoCalibration, not a HandEye" in r3.reports["he"].error
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+def test_real_chessboard_pairs_export_reads_back(tmp_path):
+    views = calib_files(CalibFilesParams(folder=str(DATA)))["views"]
+    out = chessboard(ChessboardParams(), views=views)
+    cal = out["calibration"]
+    assert cal["dy_mean_px"] < 0.5 and cal["baseline_cm"] > 0
+    p = write_value(tmp_path / "opencv", out["opencv"])[0]
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    assert np.abs(fs.getNode("M1").mat() - cal["K1"]).max() < 1e-9
+    assert np.abs(fs.getNode("D2").mat().ravel() - cal["D2"]).max() < 1e-9
+    assert np.abs(fs.getNode("R").mat() - cal["R"]).max() < 1e-9
+    assert np.abs(fs.getNode("T").mat().ravel() - cal["T_cm"]).max() < 1e-9
+    fs.release()

@@ -1,0 +1,56 @@
+"""The table frame from a chessboard lying on the table (calibrator.table_frame)."""
+
+import cv2
+import numpy as np
+import pytest
+from bench_scenes import table_board
+
+from nodes.calibrators.table_frame import TableFrameParams, table_frame
+from nodes.calibrators.truth import truth_calibration
+from nodes.sources import _render
+from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
+from stereograph.api import NodeError
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return _render.make_rig(**_rig_kwargs(SyntheticParams(n_scenes=0, n_views=0, seed=0)))
+
+
+def _views(left, right):
+    return {"views": [{"id": "table", "left": left, "right": right}], "image_size": [640, 480],
+            "board": {"type": "chessboard", "cols": 9, "rows": 6, "square_cm": 2.5}}
+
+
+def _frame(rig, left, right, **kw):
+    return table_frame(TableFrameParams(**kw), _views(left, right), truth_calibration(rig["truth"]))["table_frame"]
+
+
+@pytest.mark.parametrize("yaw", [0, 180, 90])
+def test_frame_matches_the_board_on_the_rig(rig, yaw):
+    # A board turned by 90 or 180 degrees gives the frame of its own corner nearest the cameras on the left.
+    left, right, T_true = table_board(rig, yaw_deg=yaw)
+    tf = _frame(rig, left, right)
+    T = tf["T_table_from_left"]
+    assert np.abs(T[:3, 3] - T_true[:3, 3]).max() < 0.05
+    assert np.degrees(np.linalg.norm(cv2.Rodrigues(T[:3, :3] @ T_true[:3, :3].T)[0])) < 0.05
+    assert tf["disagreement"]["translation_cm"] < 0.1 and tf["disagreement"]["rotation_deg"] < 0.1
+    assert tf["rig"]["image_size"] == [640, 480]
+
+
+def test_board_not_found_and_ambiguous_board_are_clear_errors(rig):
+    left, right, _ = table_board(rig, yaw_deg=45)
+    with pytest.raises(NodeError, match="ambiguous"):
+        _frame(rig, left, right)
+    blank = np.full((480, 640, 3), 128, np.uint8)
+    with pytest.raises(NodeError, match="no 9x6 chessboard found in the left image") as e:
+        _frame(rig, blank, right)
+    assert "view table" in e.value.message and e.value.hint
+
+
+def test_a_calibration_that_does_not_fit_is_refused(rig):
+    left, right, _ = table_board(rig)
+    cal = truth_calibration(rig["truth"])
+    cal["T_cm"] = cal["T_cm"] * 1.1  # baseline 10 % off: the two views put the board in different places
+    with pytest.raises(NodeError, match="differ by"):
+        table_frame(TableFrameParams(), _views(left, right), cal)
