@@ -63,6 +63,8 @@ class CameraParams(Params):
         "auto", description="Clock the skew is measured on: stream = the streams' own time codes (CAP_PROP_POS_MSEC), "
                             "host = when each grab() returned; auto = stream for files, host otherwise.")
     skew_retries: int = Field(2, ge=0, le=100, description="Skewed pairs dropped before the node fails (count).")
+    use_recording: bool = Field(True, description="Play the wired `recording` input, if any; false: open left/right "
+                                                  "(real cameras in a pipeline that ships a recording).")
     at_end: Literal["fail", "rewind"] = Field("fail", description="When a file ends: fail (the loop stops, saying "
                                                                   "so) or rewind both sides to the first frame.")
 
@@ -238,7 +240,7 @@ def camera(params: CameraParams, recording=None, ctx=None) -> dict:
     base = ctx.pipeline_dir if ctx is not None else None
 
     def open_capture() -> StereoCapture:
-        if recording is None:
+        if recording is None or not params.use_recording:
             return StereoCapture(params, base)
         folder = (ctx.out_dir if ctx is not None else Path.cwd()) / "recording"
         left, right = write_recording(recording, folder)
