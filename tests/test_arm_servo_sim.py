@@ -183,3 +183,21 @@ def test_stops_cleanly_and_cli(tmp_path, capsys):
     assert "IDs 1,2,3" in out and "1 register writes" in out
     assert '"value": 600' in logf.read_text()
     assert cli(["--ids", "x"]) == 2
+
+
+def test_short_reply_crashes_the_sdk_but_not_the_bus():
+    """dynamixel-sdk 4.1 indexes a too-short READ reply (what a late PING reply looks like to the READ
+    of its P1 ping) and raises IndexError; the actuator's Bus counts it as a corrupted reply and retries."""
+    from nodes.actuators._bus import Bus
+    with ServoSim([1], faults=Faults(short_replies=1)) as sim:
+        port = PortHandler(sim.port_path)
+        port.openPort()
+        with pytest.raises(IndexError):
+            PacketHandler(1.0).read2ByteTxRx(port, 1, 36)
+        port.closePort()
+        sim.set_faults(short_replies=2)
+        bus = Bus(sim.port_path, 1_000_000, retries=2, t0=time.monotonic(), late_window_ms=50)
+        bus.open()
+        assert bus.read(1, 36, 2, "read of the present position") == 512
+        bus.close()
+        assert bus.n_retries == 2 and all("corrupted status packet" in e for e in bus.events)

@@ -129,8 +129,8 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
         # a refused plan knows its fix (arm geometry, hand-eye, ...); otherwise it is the selection
         hint = (plans[first_item].get("hint") if first_item else None) or (
             "check the located objects (found, extrapolated, reachable) or the actuator's split / items selection")
-        raise NodeError(f"no pick plan to execute: {len(plans)} plan(s), none selected ({', '.join(reasons) or 'empty'})"
-                        + (f"; e.g. {first}" if first else ""), hint=hint)
+        raise NodeError(f"no pick plan to execute: {len(plans)} plan(s), none selected "
+                        f"({', '.join(reasons) or 'empty'})" + (f"; e.g. {first}" if first else ""), hint=hint)
     return chosen, skipped
 
 

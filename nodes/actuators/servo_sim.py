@@ -15,7 +15,12 @@ goal at the moving speed (0.111 rpm per unit; 0 = the servo's maximum, 59 rpm at
 or scaled by ``time_scale``.
 
 Fault injection (:class:`Faults`): dropped replies (a probability and/or a count), replies with a
-corrupted checksum, unplugged IDs (no reply, sync-write data ignored). Every write that reaches a
+corrupted checksum, late replies (the status packet held back, as a USB adapter's latency timer
+does), each optionally only for some IDs, some instructions (e.g. READ only), or only once the
+motion has begun (after N goal writes); unplugged IDs (no reply, sync-write data ignored); alarm
+bits in every status packet (overload, overheating, input voltage, ...: a servo that reports an
+alarm at the ping); and a jammed joint (an obstruction at a position: the servo stalls there,
+raises the overload alarm and, as its shutdown register says, turns its torque off). Every write that reaches a
 servo is appended to :attr:`ServoSim.log` (time, instruction, id, address, value, accepted, error)
 so tests can assert what was commanded.
 
@@ -143,6 +148,29 @@ class Faults:
         Start dropping / corrupting only after this many status packets (a fault that appears mid-motion).
     seed : int
         Random seed of the probabilistic faults.
+    instructions : set of str or None
+        Restrict dropped / corrupted / late replies and alarm bits to replies to these instructions
+        (``{"READ"}``: a servo that answers PING but loses its READ replies).
+    after_goal_writes : int
+        Inject faults only once this many goal positions have been accepted (count): a fault that
+        appears once the arm moves, whatever the number of packets before.
+    short_replies : int
+        Send this many status packets without their parameters (a valid checksum, but too short for
+        the request: what a late reply to an earlier PING looks like to a READ).
+    late_replies : int
+        Hold back this many status packets first by ``late_ms`` (then ``late_prob`` applies).
+    late_prob : float
+        Probability that a status packet is held back by ``late_ms``.
+    late_ms : float
+        Delay of a late status packet (ms) — dynamixel-sdk stops waiting after ~34 ms at 1 Mbps.
+    alarms : dict of int to int
+        Alarm bits (ERR_OVERLOAD, ERR_OVERHEAT, ERR_VOLTAGE, ...) a servo sets in every status packet.
+    jammed_at_units : dict of int to float
+        An obstruction per servo at this position (units): the servo cannot pass it; pushing against
+        it raises the overload alarm after ``jam_alarm_s`` and, with the overload bit in its shutdown
+        register (the default), turns its torque off.
+    jam_alarm_s : float
+        Stall time before the overload alarm (s, emulated time).
     """
 
     drop_reply_prob: float = 0.0
@@ -153,6 +181,15 @@ class Faults:
     only_ids: set[int] | None = None
     after_replies: int = 0
     seed: int = 0
+    instructions: set[str] | None = None
+    after_goal_writes: int = 0
+    short_replies: int = 0
+    late_replies: int = 0
+    late_prob: float = 0.0
+    late_ms: float = 80.0
+    alarms: dict[int, int] = field(default_factory=dict)
+    jammed_at_units: dict[int, float] = field(default_factory=dict)
+    jam_alarm_s: float = 0.2
 
 
 # --------------------------------------------------------------------------- one servo
@@ -167,7 +204,7 @@ class AX12:
     def reset(self, dxl_id: int, position: float | None = None) -> None:
         pos = self.position if position is None else float(position)
         self.table[:] = bytes(TABLE_SIZE)
-        for addr, (name, size, _w, _lo, _hi, default) in CONTROL_TABLE.items():
+        for addr, (_name, _size, _w, _lo, _hi, default) in CONTROL_TABLE.items():
             if default is not None:
                 self.set(addr, default)
         self.set(ADDR["id"], dxl_id)
@@ -177,6 +214,10 @@ class AX12:
         self.t_last = self.clock()
         self.pending: tuple[int, bytes] | None = None
         self.latched = 0
+        self.jam: float | None = None  # an obstruction at this position (units), see Faults.jammed_at_units
+        self.jam_alarm_s = 0.2
+        self.jam_side = 0
+        self.stalled_s = 0.0
 
     # raw register access -------------------------------------------------------------
     def get(self, addr: int) -> int:
@@ -206,7 +247,21 @@ class AX12:
         if self.table[ADDR["torque_enable"]] and self.goal != self.position:
             step = self.speed_units_per_s() * dt
             d = self.goal - self.position
-            self.position = self.goal if abs(d) <= step else self.position + step * (1 if d > 0 else -1)
+            new = self.goal if abs(d) <= step else self.position + step * (1 if d > 0 else -1)
+            j = self.jam
+            if j is not None:
+                # the obstruction holds the joint on the side it started from; pushing against it overloads it
+                if not self.jam_side:
+                    self.jam_side = (self.position > j) - (self.position < j)
+                new = max(new, j) if self.jam_side > 0 else min(new, j) if self.jam_side < 0 else new
+                if new == j and (self.goal - j) * self.jam_side < 0:
+                    self.stalled_s += dt
+                    self.set(ADDR["present_load"], 1023)
+                    if self.stalled_s >= self.jam_alarm_s:
+                        self.latched |= ERR_OVERLOAD
+                        if self.table[ADDR["shutdown"]] & ERR_OVERLOAD:
+                            self.set(ADDR["torque_enable"], 0)
+            self.position = new
         moving = self.table[ADDR["torque_enable"]] and abs(self.goal - self.position) > 1e-9
         self.set(ADDR["present_position"], int(round(self.position)))
         self.set(ADDR["moving"], 1 if moving else 0)
@@ -295,6 +350,7 @@ class ServoSim:
         self.fault_log: list[dict] = []
         self.packets: list[dict] = []
         self.n_replies = 0
+        self.n_goal_writes = 0
         self.lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -355,8 +411,8 @@ class ServoSim:
     def register(self, dxl_id: int, name_or_addr: str | int) -> int:
         """Current value of a register of a servo (motion updated first)."""
         with self.lock:
+            self._update_all()
             s = self.servos[dxl_id]
-            s.update(self.time_scale)
             a = ADDR[name_or_addr] if isinstance(name_or_addr, str) else name_or_addr
             return s.get(a)
 
@@ -428,10 +484,19 @@ class ServoSim:
         srl = servo.table[ADDR["status_return_level"]]
         if instruction != INST_PING and (srl == 0 or (srl == 1 and instruction != INST_READ)):
             return
-        pkt = bytearray(status_packet(servo.id, error | servo.latched, params))
         f = self.faults
         self.n_replies += 1
-        targeted = (f.only_ids is None or servo.id in f.only_ids) and self.n_replies > f.after_replies
+        targeted = ((f.only_ids is None or servo.id in f.only_ids) and self.n_replies > f.after_replies
+                    and self.n_goal_writes >= f.after_goal_writes
+                    and (f.instructions is None or INSTRUCTION_NAMES.get(instruction) in f.instructions))
+        if targeted:
+            error |= f.alarms.get(servo.id, 0)
+            if f.short_replies > 0 and params:
+                f.short_replies -= 1
+                params = b""
+                self.fault_log.append({"t": round(time.monotonic() - self.t0, 6), "id": servo.id,
+                                       "fault": "short reply"})
+        pkt = bytearray(status_packet(servo.id, error | servo.latched, params))
         t = round(time.monotonic() - self.t0, 6)
         if targeted and (f.drop_replies > 0 or (f.drop_reply_prob and self._rng.random() < f.drop_reply_prob)):
             f.drop_replies = max(0, f.drop_replies - 1)
@@ -441,10 +506,13 @@ class ServoSim:
             f.corrupt_replies = max(0, f.corrupt_replies - 1)
             pkt[-1] ^= 0x5A
             self.fault_log.append({"t": t, "id": servo.id, "fault": "corrupt checksum"})
-        if self.return_delay:
-            delay = 2e-6 * servo.table[ADDR["return_delay_time"]]
-            if delay:
-                time.sleep(delay)
+        delay = 2e-6 * servo.table[ADDR["return_delay_time"]] if self.return_delay else 0.0
+        if targeted and (f.late_replies > 0 or (f.late_prob and self._rng.random() < f.late_prob)):
+            f.late_replies = max(0, f.late_replies - 1)
+            delay += f.late_ms / 1000.0
+            self.fault_log.append({"t": t, "id": servo.id, "fault": f"late reply ({f.late_ms:g} ms)"})
+        if delay:
+            time.sleep(delay)
         try:
             os.write(self.master, bytes(pkt))
         except OSError:
@@ -461,8 +529,15 @@ class ServoSim:
                 return None  # garbage at the wrong baud rate: the servo hears nothing
         return s
 
+    def _update_all(self) -> None:
+        for s in self.servos.values():
+            s.jam = self.faults.jammed_at_units.get(s.id)
+            s.jam_alarm_s = self.faults.jam_alarm_s
+            s.update(self.time_scale)
+
     def _log_changes(self, instruction: int, dxl_id: int, changes, error: int) -> None:
         t = round(time.monotonic() - self.t0, 6)
+        self.n_goal_writes += sum(1 for a, _v, ok in changes if ok and a == ADDR["goal_position"])
         for a, v, ok in changes:
             self.log.append({"t": t, "instruction": INSTRUCTION_NAMES[instruction], "id": dxl_id, "address": a,
                              "register": CONTROL_TABLE[a][0], "value": v, "accepted": ok, "error": error})
@@ -471,8 +546,7 @@ class ServoSim:
         with self.lock:
             self.packets.append({"t": round(time.monotonic() - self.t0, 6), "id": dxl_id,
                                  "instruction": INSTRUCTION_NAMES.get(inst, f"0x{inst:02x}"), "checksum_ok": ok})
-            for s in self.servos.values():
-                s.update(self.time_scale)
+            self._update_all()
             if dxl_id == BROADCAST_ID:
                 targets = [s for i in list(self.servos) if (s := self._alive(i)) is not None]
             else:

@@ -1,0 +1,129 @@
+"""Ending a motion safely when the run is interrupted (Ctrl-C, SIGTERM) or something unexpected fails.
+
+The arm is mid-way between two checked waypoints; the servos keep going to their last goal unless
+told otherwise. Three ways to end (``on_interrupt``):
+
+``hold``        every servo's goal := its present position (torque stays on): the arm stops where
+                it is and holds the object.
+``rest``        the arm joints go to the arm model's home pose at ``rest_speed_deg_s``, the gripper
+                holds where it is (a held ball is not dropped); a second Ctrl-C during that move
+                holds instead.
+``torque_off``  torque off on every servo: the arm goes limp (it may sag or fall).
+
+Every goal written here is clamped into the joint limits, like every other goal. The hold itself
+(a few reads and one sync write, tens of ms) runs with Ctrl-C ignored so that it cannot be cut in
+half; SIGTERM, while the arm moves, raises :class:`Terminated` (a ``KeyboardInterrupt``) unless
+someone else (the engine) already handles SIGTERM.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+
+from ._bus import Bus, ServoFailure
+
+ADDR_POSITION = 36
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received while the arm moved."""
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """While the arm moves, SIGTERM raises :class:`Terminated` in the main thread (when nobody else
+    handles SIGTERM — the default action would kill the process mid-motion, leaving the arm going
+    to its last goal with the port open)."""
+    installed, prev = False, None
+    if _main_thread():
+        prev = signal.getsignal(signal.SIGTERM)
+        if prev in (signal.SIG_DFL, None):
+            def _raise(signum, frame):
+                raise Terminated("SIGTERM")
+            signal.signal(signal.SIGTERM, _raise)
+            installed = True
+    try:
+        yield
+    finally:
+        if installed:
+            signal.signal(signal.SIGTERM, prev)
+
+
+@contextlib.contextmanager
+def uninterruptible():
+    """Ignore SIGINT / SIGTERM for the duration (a bounded stop sequence that must not be cut in half)."""
+    if not _main_thread():
+        yield
+        return
+    prev = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s in prev:
+        signal.signal(s, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        for s, h in prev.items():
+            signal.signal(s, h)
+
+
+def _clamp(goal: int, lim: tuple[int, int]) -> int:
+    return max(lim[0], min(lim[1], int(goal)))
+
+
+def hold(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], speed_units: int) -> dict:
+    """Goal := present position on every servo that answers; returns what was done."""
+    with uninterruptible():
+        bus.recover()
+        bus.waypoint = "stop: hold"
+        goals, silent = {}, []
+        for sid in ids:
+            try:
+                pos = bus.read(sid, ADDR_POSITION, 2, "read of the present position")
+            except ServoFailure:
+                silent.append(sid)
+                continue
+            goals[sid] = _clamp(pos, limits[str(sid)])
+        if goals:
+            bus.sync_write({sid: (g, speed_units) for sid, g in goals.items()})
+    detail = f"held at the present positions {goals} (units) with torque on"
+    if silent:
+        detail += f"; servos {silent} did not answer and continue to their last goal (within limits)"
+    return {"action": "hold", "goals": {str(k): v for k, v in goals.items()}, "silent": silent, "detail": detail}
+
+
+def rest(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], rest_units: dict[int, int],
+         speed_units: int, tolerance_units: int, timeout_s: float) -> dict:
+    """Arm joints to the rest pose, the others held; a second interrupt during the move holds instead."""
+    with uninterruptible():
+        bus.recover()
+        bus.waypoint = "stop: rest"
+        goals = {}
+        for sid in ids:
+            if sid in rest_units:
+                goals[sid] = _clamp(rest_units[sid], limits[str(sid)])
+            else:  # the gripper keeps what it holds
+                goals[sid] = _clamp(bus.read(sid, ADDR_POSITION, 2, "read of the present position"),
+                                    limits[str(sid)])
+        bus.sync_write({sid: (g, speed_units) for sid, g in goals.items()})
+    t0 = time.monotonic()
+    try:
+        while True:
+            pos = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in goals}
+            if all(abs(pos[s] - goals[s]) <= tolerance_units for s in goals):
+                return {"action": "rest", "goals": {str(k): v for k, v in goals.items()},
+                        "detail": f"moved to the rest pose {goals} (units) and holding it with torque on"}
+            if time.monotonic() - t0 > timeout_s:
+                out = hold(bus, ids, limits, speed_units)
+                out["detail"] = f"did not reach the rest pose within {timeout_s:.1f} s; " + out["detail"]
+                return out
+            time.sleep(0.02)
+    except KeyboardInterrupt:
+        out = hold(bus, ids, limits, speed_units)
+        out["detail"] = "interrupted again on the way to the rest pose; " + out["detail"]
+        return out
