@@ -57,7 +57,7 @@ def test_no_reply_names_cable_power_id_baud():
     with ServoSim(IDS, faults=Faults(unplugged_ids={3})) as sim:
         e, dt, torque = fail(sim)
         assert no_goal_written(sim)
-    assert e.message.startswith("servo ID 3 did not answer a ping (3 tries: no reply; no reply; no reply")
+    assert e.message.startswith("servo ID 3 did not answer a ping (3 tries: no reply x3")
     assert "not even late" in e.message and "the arm was not moved" in e.message
     assert "cable" in e.hint and "baud rate 1000000" in e.hint and "ID is 3" in e.hint
     assert "Torque: off on [1, 2, 4, 5]; unknown on [3]" in e.message
@@ -83,6 +83,7 @@ def test_corrupted_replies_name_noise():
         e, dt, _ = fail(sim)
         assert no_goal_written(sim)
     assert e.message.startswith("servo 2's replies to the ping arrive corrupted (3 tries: corrupted reply")
+    assert dt < 1.0  # garbage is not waited for as if it were a late reply
     assert "noise" in e.hint and "cable" in e.hint
 
 
@@ -129,7 +130,7 @@ def test_torque_left_on_is_reported_and_can_be_turned_off():
     with ServoSim(IDS, faults=Faults(unplugged_ids={3})) as sim:
         earlier_run(sim)
         e, _, torque = fail(sim)
-    assert "torque is still ON on servos [1, 2, 4, 5] (left on by an earlier run" in e.message
+    assert "Torque: still ON on servos [1, 2, 4, 5] (left on by an earlier run" in e.message
     assert "torque_off_on_failure=true" in e.hint and torque == {1: 1, 2: 1, 3: 0, 4: 1, 5: 1}
     with ServoSim(IDS, faults=Faults(unplugged_ids={3})) as sim:
         earlier_run(sim)
@@ -166,3 +167,24 @@ def test_late_replies_while_moving():
         e, dt, torque = fail(sim)
     assert "arm stopped during waypoint 'open'" in e.message and "servo 1 answers late" in e.message
     assert "latency_timer" in e.hint and set(torque.values()) == {0}
+
+
+# ---------------------------------------------------------------------------- interrupted in-process
+def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
+    import os
+    import signal
+    import threading
+    with ServoSim(IDS, time_scale=1.0) as sim:
+        threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt) as ei:
+            execute_plan(DynamixelParams(**{**FAST, "sim_time_scale": 1.0, "on_interrupt": "torque_off"}), PLAN, ARM,
+                         sim.port_path)
+        stop = ei.value.servo_log["stop"]
+        assert stop["action"] == "torque_off" and stop["during"] == "open" and stop["port_closed"]
+        assert all(sim.register(i, "torque_enable") == 0 for i in IDS)
+    # interrupted while still pinging: nothing written, nothing to stop
+    with ServoSim(IDS, faults=Faults(late_replies=10_000, late_ms=400.0)) as sim:
+        threading.Timer(0.3, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt) as ei:
+            execute_plan(DynamixelParams(**{**FAST, "late_window_ms": 1000}), PLAN, ARM, sim.port_path)
+        assert ei.value.servo_log["stop"]["action"] == "none" and sim.log == []

@@ -86,17 +86,24 @@ class Exchange:
 
     def summary(self) -> str:
         """``3 tries: no reply, late reply (61 ms), ...``"""
-        words = []
+        words: list[list] = []  # [word, count]: repeats collapsed ("no reply x4")
         for t in self.tries:
             if t.outcome == "late":
-                words.append(f"late reply ({t.late_ms:.0f} ms)")
+                w = f"late reply ({t.late_ms:.0f} ms)"
             elif t.outcome == "corrupt":
-                words.append(f"corrupted reply ({t.detail})")
+                w = f"corrupted reply ({t.detail})"
             elif t.outcome == "error_bits":
-                words.append(", ".join(decode_error(t.error)))
+                w = ", ".join(decode_error(t.error))
             else:
-                words.append("no reply")
-        return f"{len(self.tries)} tries: " + "; ".join(words)
+                w = "no reply"
+            if words and (words[-1][0] == w or (t.outcome == "late" and words[-1][0].startswith("late"))):
+                words[-1][1] += 1
+                if t.outcome == "late":
+                    words[-1][0] = f"late replies ({min(x.late_ms for x in self.tries if x.late_ms):.0f}-" \
+                                   f"{self.late_ms:.0f} ms)"
+            else:
+                words.append([w, 1])
+        return f"{len(self.tries)} tries: " + "; ".join(w if n == 1 else f"{w} x{n}" for w, n in words)
 
 
 class ServoFailure(Exception):
@@ -196,9 +203,13 @@ class Bus:
         got = bytearray()
         want = 6 + n_data
         end = t_sent + self.late_window_s
+        t_byte = 0.0
         while time.monotonic() < end:
             chunk = self.port.readPort(64)
+            if not chunk and got and time.monotonic() - t_byte > 0.01:
+                break  # bytes came, then 10 ms of silence: garbage, not a late packet on its way
             if chunk:
+                t_byte = time.monotonic()
                 got += bytes(chunk)
                 i = got.find(b"\xff\xff")
                 if i >= 0 and len(got) >= i + want:
@@ -235,12 +246,13 @@ class Bus:
                 return Try("corrupt", f"the servo reported {', '.join(decode_error(err & SOFT_ERRORS))}: "
                                       f"it received a damaged packet"), []
             return Try("ok"), list(rx[5:5 + n_data])
-        if comm in (COMM_RX_TIMEOUT, COMM_RX_CORRUPT):
+        if comm == COMM_RX_TIMEOUT:
             late_ms, n_bytes = self._listen_late(sid, t_sent, n_data)
             if late_ms is not None:
                 return Try("late", f"arrived after {late_ms:.0f} ms", late_ms=late_ms), []
-            if comm == COMM_RX_TIMEOUT and n_bytes == 0:
-                return Try("no_reply"), []
+            return (Try("no_reply"), []) if n_bytes == 0 else (Try("corrupt", "garbage bytes"), [])
+        if comm == COMM_RX_CORRUPT:  # a whole packet with a bad checksum, or a truncated one
+            self._drain(0.005)
             return Try("corrupt", "bad checksum or incomplete"), []
         self.port.is_using = False
         return Try("corrupt", self.ph.getTxRxResult(comm)), []

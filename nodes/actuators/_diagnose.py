@@ -133,7 +133,7 @@ def torque_report(bus: Bus, ids: list[int], turn_off: bool) -> tuple[str, bool]:
         return text, bool(notes)
     parts = []
     if on:
-        parts.append(f"torque is still ON on servos {on} (left on by an earlier run or another program: those "
+        parts.append(f"still ON on servos {on} (left on by an earlier run or another program: those "
                      f"joints hold their pose and stay powered)")
     off = [s for s, v in state.items() if v == 0]
     if off:

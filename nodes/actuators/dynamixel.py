@@ -179,8 +179,8 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
         if not pending:
             break
         if time.monotonic() - t_start > timeout:
-            raise _Stalled(f"waypoint {w['name']!r}: servos {pending} still {[err[s] for s in pending]} units from "
-                           f"their goals after {timeout:.1f} s")
+            raise _Stalled(f"servos {pending} still {[err[s] for s in pending]} units from their goals "
+                           f"{[data[s][0] for s in pending]} after {timeout:.1f} s (at {[pos[s] for s in pending]})")
         time.sleep(params.poll_interval_s)
     return pos, {"waypoint": w["name"], "goal_units": {str(s): data[s][0] for s in data},
                  "present_units": {str(s): int(pos[s]) for s in data}, "max_error_units": int(max(err.values())),
@@ -281,13 +281,14 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
     except BaseException as e:  # Ctrl-C, SIGTERM, or a bug: end the motion safely before anything else
         signame = "SIGTERM" if isinstance(e, Terminated) else "Ctrl-C (SIGINT)" if isinstance(
             e, KeyboardInterrupt) else f"an unexpected {type(e).__name__}"
+        during = bus.waypoint if moved else "setup"
         if moved:
             stop = _safe_stop(bus, ids, arm, params)
         else:
             bus.recover()
             stop = {"action": "none", "detail": "interrupted before any goal was written; nothing moved"}
         bus.close()
-        stop.update({"cause": signame, "during": bus.waypoint if moved else "setup", "port_closed": True})
+        stop.update({"cause": signame, "during": during, "port_closed": True})
         log = _servo_log(plan, params, port_path, bus, reached, ok=False, t0=t0)
         log["stop"] = stop
         e.servo_log = log

@@ -332,11 +332,13 @@ class ServoSim:
         A servo answers only when the port's baud rate matches its baud-rate register.
     return_delay : bool
         Honour the return-delay-time register (2 us per unit; 500 us by default).
+    on_write : callable, optional
+        Called with each logged register write (a dict like the entries of :attr:`log`).
     """
 
     def __init__(self, ids: Iterable[int] = (1, 2, 3, 4, 5), *, faults: Faults | None = None,
                  time_scale: float = 1.0, positions: dict[int, float] | None = None, link: str | None = None,
-                 check_baud: bool = True, return_delay: bool = True):
+                 check_baud: bool = True, return_delay: bool = True, on_write=None):
         self.time_scale = float(time_scale)
         self.servos: dict[int, AX12] = {}
         for i in ids:
@@ -346,6 +348,7 @@ class ServoSim:
         self.link = link
         self.check_baud = check_baud
         self.return_delay = return_delay
+        self.on_write = on_write
         self.log: list[dict] = []
         self.fault_log: list[dict] = []
         self.packets: list[dict] = []
@@ -415,6 +418,11 @@ class ServoSim:
             s = self.servos[dxl_id]
             a = ADDR[name_or_addr] if isinstance(name_or_addr, str) else name_or_addr
             return s.get(a)
+
+    def state(self) -> dict[str, dict[str, int]]:
+        """Torque, goal, present position and moving flag of every servo (motion updated first)."""
+        names = ("torque_enable", "goal_position", "present_position", "moving", "moving_speed")
+        return {str(i): {n: self.register(i, n) for n in names} for i in self.servos}
 
     def positions(self) -> dict[int, int]:
         """Present position (units) of every servo."""
@@ -541,6 +549,8 @@ class ServoSim:
         for a, v, ok in changes:
             self.log.append({"t": t, "instruction": INSTRUCTION_NAMES[instruction], "id": dxl_id, "address": a,
                              "register": CONTROL_TABLE[a][0], "value": v, "accepted": ok, "error": error})
+            if self.on_write is not None:
+                self.on_write(self.log[-1])
 
     def _handle(self, dxl_id: int, inst: int, params: bytes, ok: bool) -> None:
         with self.lock:
@@ -657,7 +667,9 @@ def cli(argv: list[str] | None = None) -> int:
     ap.add_argument("--unplugged", default="", help="IDs that do not answer, e.g. 3")
     ap.add_argument("--seed", type=int, default=0, help="random seed of the faults")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    ap.add_argument("--log", default=None, help="write the command log (JSON) here when stopping")
+    ap.add_argument("--log", default=None, help="write the command log and the servos' final state (JSON) here "
+                                                "when stopping")
+    ap.add_argument("--trace", action="store_true", help="print every register write as it arrives")
     a = ap.parse_args(argv)
     try:
         ids = _ids(a.ids)
@@ -674,7 +686,12 @@ def cli(argv: list[str] | None = None) -> int:
     main = threading.current_thread() is threading.main_thread()
     prev = signal.signal(signal.SIGTERM, lambda *_: stop.set()) if main else None
     try:
-        with ServoSim(ids, faults=faults, time_scale=a.time_scale, link=a.link) as sim:
+        def trace(e: dict) -> None:
+            print(f"write t={e['t']:.3f} id={e['id']} {e['register']}={e['value']}"
+                  f"{'' if e['accepted'] else ' REFUSED'}", flush=True)
+
+        with ServoSim(ids, faults=faults, time_scale=a.time_scale, link=a.link,
+                      on_write=trace if a.trace else None) as sim:
             print(f"AX-12A emulator: IDs {','.join(map(str, ids))} on {sim.port_path} "
                   f"(Protocol 1.0, 1 Mbps). Ctrl-C to stop.", flush=True)
             try:
@@ -683,7 +700,8 @@ def cli(argv: list[str] | None = None) -> int:
                 pass
             if a.log:
                 with open(a.log, "w") as f:
-                    json.dump({"writes": sim.log, "faults": sim.fault_log, "positions": sim.positions()}, f, indent=1)
+                    json.dump({"writes": sim.log, "faults": sim.fault_log, "positions": sim.positions(),
+                               "servos": sim.state()}, f, indent=1)
             print(f"servo-sim: stopped after {len(sim.packets)} packets, {len(sim.log)} register writes.")
     finally:
         if main:
