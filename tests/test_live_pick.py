@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,11 +29,11 @@ def live(tmp_path_factory):
     doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20"])
     loop = Loop(len(ORDER))
     result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "run", cache_dir=tmp / "cache")
-    return loop, result
+    return loop, result, tmp
 
 
 def test_five_balls_in_a_row_each_grasped_within_half_a_centimetre(live):
-    loop, _ = live
+    loop, _, _ = live
     assert loop.completed and [c.values["cam.pairs"]["id"] for c in loop.cycles] == ORDER
     picked = loop.cycles[:5] + loop.cycles[6:]
     for c in picked:
@@ -45,7 +51,7 @@ def test_five_balls_in_a_row_each_grasped_within_half_a_centimetre(live):
 
 
 def test_a_frame_without_a_ball_moves_nothing_and_the_loop_goes_on(live):
-    loop, _ = live
+    loop, _, _ = live
     empty = loop.cycles[5]
     assert empty.status == "failed" and empty.failed_node == "pick"
     assert "not located" in empty.error and "refusing to move the arm" in empty.error
@@ -55,7 +61,42 @@ def test_a_frame_without_a_ball_moves_nothing_and_the_loop_goes_on(live):
 
 
 def test_the_run_folder_has_the_cycle_log_and_the_recording(live):
-    loop, result = live
+    loop, result, _ = live
     lines = (result.out_dir / "cycles.jsonl").read_text().splitlines()
     assert len(lines) == len(ORDER)
     assert (result.out_dir / "cam" / "recording" / "left.avi").stat().st_size > 0
+
+
+def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
+    _, _, tmp = live
+    out = tmp / "interrupted"
+    # real-time motion (about 6 s a pick), so that the interrupt lands while the arm moves
+    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--repeat", "0", "--out", str(out),
+           "--cache-dir", str(tmp / "cache"), "--set", f"recording.ids={ORDER}", "--set", "act.sim_time_scale=1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(PIPELINE.parents[1])})
+    log = out / "cycles.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (log.exists() and log.read_text().strip()):
+        time.sleep(0.1)
+    time.sleep(2.0)  # cycle 2: the camera and the locating take ~0.1 s, the motion ~6 s
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "stopped by an interrupt during cycle 2 (node 'act')" in stdout
+    run = json.loads((out / "run.json").read_text())
+    assert run["loop"]["interrupted"] and run["loop"]["ok"] == 1
+    servo = json.loads((out / "act" / "servo_log_interrupted.json").read_text())
+    assert servo["stop"]["action"] == "hold" and servo["stop"]["port_closed"]
+    # every goal the emulator received, the hold included, lies within the joint limits
+    from nodes.ik._model import servo_limits_units
+    from nodes.ik.arm import ArmParams, build_arm_model
+
+    limits = servo_limits_units(build_arm_model(ArmParams()))
+    sent = [c for c in servo["commands"] if c["register"] == "goal_position"]
+    assert {str(c["id"]): c["value"] for c in sent} == servo["stop"]["goals"]  # the last goals sent: the hold
+    writes = [w for w in servo["sim"]["writes"] if w["register"] == "goal_position"] + sent
+    assert len(writes) > len(sent)
+    for w in writes:
+        lo, hi = limits[str(w["id"])]
+        assert lo <= w["value"] <= hi
