@@ -22,15 +22,16 @@ def scenes():
     return list(out.values())
 
 
-def _record(folder, scenes, fps_left=30.0, fps_right=30.0):
+def _record(folder, scenes, fps_left=30.0, fps_right=30.0, codec="FFV1"):
     left, right = folder / "left.avi", folder / "right.avi"
-    write_video((s["left"] for s in scenes), left, fps_left)
-    write_video((s["right"] for s in scenes), right, fps_right)
+    write_video((s["left"] for s in scenes), left, fps_left, codec)
+    write_video((s["right"] for s in scenes), right, fps_right, codec)
     return left, right
 
 
-def test_video_files_give_exactly_the_frames_written(tmp_path, scenes):
-    left, right = _record(tmp_path, scenes)
+@pytest.mark.parametrize("codec", ["FFV1", "HFYU"])
+def test_video_files_give_exactly_the_frames_written(tmp_path, scenes, codec):
+    left, right = _record(tmp_path, scenes, codec=codec)
     pairs = camera(CameraParams(left=str(left), right=str(right), n_frames=4))["pairs"]
     assert list(pairs) == ["cam00000", "cam00001", "cam00002", "cam00003"]
     for pair, s in zip(pairs.values(), scenes):

@@ -22,7 +22,7 @@ import numpy as np
 
 from stereograph.api import NodeError
 
-LOSSLESS = ("FFV1", "HFYU")
+LOSSLESS = ("HFYU", "FFV1")
 
 
 def write_video(frames: Iterable[np.ndarray], path: Path, fps: float, codec: str = "FFV1") -> int:
@@ -54,7 +54,7 @@ def write_video(frames: Iterable[np.ndarray], path: Path, fps: float, codec: str
     return n
 
 
-def encode_recording(pairs: list[dict], fps: float = 30.0, codec: str = "FFV1", container: str = "avi") -> dict:
+def encode_recording(pairs: list[dict], fps: float = 30.0, codec: str = "HFYU", container: str = "avi") -> dict:
     """A ``StereoRecording`` of ``pairs`` (StereoPair dicts, in playing order)."""
     if not pairs:
         raise NodeError("nothing to record: no stereo pairs.", hint="wire a source with at least one pair")
