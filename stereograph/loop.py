@@ -19,7 +19,8 @@ cycle and returns normally, so the run's summary and ``run.json`` are still writ
 Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
 keeps the cycles before it): per live node its status, seconds and error, and its outputs' small
 values (arrays and long values left out); ``save_cycles`` also writes every live output, images as
-PNG, into ``cycles/<n>/``. The engine knows nothing of what the nodes do: which values say
+PNG (an image inside a dict, such as a pair's ``left``: ``<output>_<key>.png``), into
+``cycles/<n>/<node>/``. The engine knows nothing of what the nodes do: which values say
 "where" or "what moved" is up to the pipeline.
 """
 
@@ -238,7 +239,7 @@ def _save(run: Any, node: str, folder: Path) -> None:
         if isinstance(v, dict):
             for key, x in v.items():
                 if outputs_mod.is_image(x):
-                    outputs_mod.write_value(stem.parent / f"{out}.{key}", x)
+                    outputs_mod.write_value(stem.parent / f"{out}_{key}", x)
             v = {key: x for key, x in v.items() if not outputs_mod.is_image(x)}
         outputs_mod.write_value(stem, v)
 

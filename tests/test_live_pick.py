@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -27,7 +28,7 @@ def live(tmp_path_factory):
     """Seven cycles: five balls, a frame without one, then another ball."""
     tmp = tmp_path_factory.mktemp("live")
     doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20"])
-    loop = Loop(len(ORDER))
+    loop = Loop(len(ORDER), save_cycles=True)
     result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "run", cache_dir=tmp / "cache")
     return loop, result, tmp
 
@@ -65,6 +66,12 @@ def test_the_run_folder_has_the_cycle_log_and_the_recording(live):
     lines = (result.out_dir / "cycles.jsonl").read_text().splitlines()
     assert len(lines) == len(ORDER)
     assert (result.out_dir / "cam" / "recording" / "left.avi").stat().st_size > 0
+    # --save-cycles: each cycle's pair as PNG, and its other live outputs as JSON
+    first = result.out_dir / "cycles" / "00001"
+    left = cv2.imread(str(first / "cam" / "pairs_left.png"))
+    assert left.shape == (480, 640, 3)
+    assert json.loads((first / "compensate" / "location.json").read_text())["found"]
+    assert not (result.out_dir / "cycles" / "00006" / "act").exists()  # nothing moved in the empty cycle
 
 
 def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
