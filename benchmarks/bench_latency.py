@@ -57,16 +57,31 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cycles", type=int, default=60, help="cycles measured (after the first), >= 50 for the figure")
     ap.add_argument("--core", type=int, default=0, help="CPU core to run on (-1: do not pin)")
+    ap.add_argument("--emulator-core", type=int, default=None,
+                    help="CPU core of the servo emulator's thread (default: --core, all on one core; another core "
+                         "models servos that do not share our CPU)")
     ap.add_argument("--sim-time-scale", type=float, default=50.0,
                     help="emulated motion speed-up (the motion is not timed; this only shortens the run)")
     ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="pipeline override")
     a = ap.parse_args(argv)
     if a.core >= 0 and hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {a.core})
+        os.sched_setaffinity(0, {a.core})  # this thread (and threads it starts) on one core
     import cv2
 
     cv2.setNumThreads(1)
     import nodes.actuators._bus as bus_mod
+    import nodes.actuators.servo_sim as sim_mod
+
+    emu_core = a.emulator_core if a.emulator_core is not None else (a.core if a.core >= 0 else None)
+    sim_start = sim_mod.ServoSim.start
+
+    def pinned_start(self):
+        out = sim_start(self)
+        if emu_core is not None and self._thread is not None and hasattr(os, "sched_setaffinity"):
+            os.sched_setaffinity(self._thread.native_id, {emu_core})
+        return out
+
+    sim_mod.ServoSim.start = pinned_start
     from stereograph.config import load_pipeline
     from stereograph.graph import build_graph
     from stereograph.loop import Loop
@@ -126,7 +141,7 @@ def main(argv=None) -> int:
     print(file=sys.stderr)
     w, h = doc.nodes["scenes"]["params"].get("image_width_px", 640), doc.nodes["scenes"]["params"].get(
         "image_height_px", 480)
-    pinned = f"pinned to core {a.core}" if a.core >= 0 else "not pinned"
+    pinned = (f"pipeline pinned to core {a.core}, emulator on core {emu_core}" if a.core >= 0 else "not pinned")
     print(f"pick-live latency: {len(rows)} picking cycles of {len(loop.cycles) - 1} measured, {w}x{h}, {pinned}, "
           f"OpenCV 1 thread, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
           f"({time.time() - t_run:.0f} s)")
