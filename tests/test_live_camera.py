@@ -29,7 +29,7 @@ def _record(folder, scenes, fps_left=30.0, fps_right=30.0, codec="FFV1"):
     return left, right
 
 
-@pytest.mark.parametrize("codec", ["FFV1", "HFYU"])
+@pytest.mark.parametrize("codec", ["FFV1", "HFYU", "RGBA"])
 def test_video_files_give_exactly_the_frames_written(tmp_path, scenes, codec):
     left, right = _record(tmp_path, scenes, codec=codec)
     pairs = camera(CameraParams(left=str(left), right=str(right), n_frames=4))["pairs"]
