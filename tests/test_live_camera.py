@@ -108,3 +108,10 @@ def test_a_recording_plays_with_its_truth(tmp_path, scenes):
 def test_missing_file_is_a_clear_error(tmp_path):
     with pytest.raises(NodeError, match=r"could not open the left source .*nope\.avi' \(no such file\)"):
         camera(CameraParams(left=str(tmp_path / "nope.avi"), right=str(tmp_path / "nope2.avi")))
+
+
+def test_what_counts_as_a_recording():
+    from nodes.sources.camera import _is_file
+
+    assert _is_file("left.avi") and _is_file("rec/left_%03d.png")
+    assert not any(_is_file(s) for s in (0, "/dev/video2", "rtsp://cam/1", "v4l2src ! videoconvert ! appsink"))

@@ -78,8 +78,8 @@ class CameraParams(Params):
 
 
 def _is_file(src: int | str) -> bool:
-    """A recording (file or image sequence) rather than a device, URL or pipeline."""
-    if isinstance(src, int) or "://" in src or "!" in src:
+    """A recording (file or image sequence) rather than a device (index or /dev/ path), URL or pipeline."""
+    if isinstance(src, int) or "://" in src or "!" in src or src.startswith("/dev/"):
         return False
     return True
 
