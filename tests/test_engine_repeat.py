@@ -105,3 +105,10 @@ def test_sigterm_ends_the_loop_like_ctrl_c(tmp_path):
     run_json = json.loads((out / "run.json").read_text())
     assert run_json["loop"]["interrupted"] and run_json["loop"]["cycles"] >= 3
     assert marker.read_text().startswith("closed after")  # the source was closed on the way out
+
+
+def test_stop_on_failure_stops_at_the_first_failed_cycle(tmp_path, capsys):
+    f = pipeline(tmp_path, check="{fail_on_multiple_of: 2}")
+    assert main(["run", str(f), "--repeat", "5", "--stop-on-failure", "--out", str(tmp_path / "out")]) == 1
+    assert [c["status"] for c in cycles(tmp_path / "out")] == ["ok", "failed"]
+    assert "stopped at the first failed cycle (2)" in capsys.readouterr().out
