@@ -250,7 +250,7 @@ def cmd_run(args) -> int:
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor, cycles=loop)
     try:
-        with _sigterm_as_interrupt():
+        with _sigterm_as_interrupt(loop is not None):
             if interactive:
                 with RichProgress(con) as prog:
                     result = run_graph(graph, progress=prog, **kw)
@@ -307,12 +307,17 @@ def _loop(args, con):
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM (``kill``, a service manager) ends a run the way Ctrl-C does: as a KeyboardInterrupt
-    raised in the running node, so its cleanup runs and the run summary is written."""
+def _sigterm_as_interrupt(enabled: bool):
+    """In a ``--repeat`` loop, SIGTERM (``kill``, a service manager) ends the run the way Ctrl-C
+    does: as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so its cleanup runs and
+    the loop's summary is written. (A single run keeps the default action, which a node may
+    replace while it does something that must end cleanly — a motion.)"""
     def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
+        raise KeyboardInterrupt("SIGTERM")
 
+    if not enabled:
+        yield
+        return
     try:
         old = signal.signal(signal.SIGTERM, handler)
     except ValueError:  # not the main thread: leave signals alone
