@@ -201,11 +201,13 @@ def _summary_table(result, con) -> None:
 def _echo_results(result, con) -> None:
     """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
     larger ones are only in the output folder."""
-    from stereograph.outputs import to_json
+    from stereograph.outputs import is_text_file, to_json
 
     shown = 0
     for (node, out, item), v in result._values.items():
         if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
+            continue
+        if is_text_file(v):  # a rendered file (a YAML export): it is in the output folder, not for the console
             continue
         if isinstance(v, dict) and isinstance(v.get("markdown"), str):
             # a report that renders itself: show it as the table it is

@@ -71,20 +71,26 @@ def test_ros_camera_info_round_trip_in_metres(tmp_path):
     _assert_same(read_ros_pair(paths["camera_info_left"], paths["camera_info_right"]), cal)
 
 
-def test_opencv_file_without_unit_or_size_is_a_clear_error(tmp_path):
-    p = tmp_path / "extrinsics.yml"
-    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)  # what OpenCV's stereo_calib sample writes: no unit
+def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
+    # What OpenCV's stereo_calib sample writes: intrinsics.yml and extrinsics.yml, no size, no unit.
     cal = _calibration()
-    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R"), ("T", "T_cm")):
-        fs.write(name, np.asarray(cal[key], float))
-    fs.release()
+    intr, extr = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+    for p, names in ((intr, (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"))),
+                     (extr, (("R", "R"), ("T", "T_cm")))):
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+        for name, key in names:
+            fs.write(name, np.asarray(cal[key], float))
+        fs.release()
+    with pytest.raises(NodeError, match="lacks R, T") as e:
+        read_calibration_file(intr)
+    assert str(intr) in e.value.message
     with pytest.raises(NodeError, match="unit of T") as e:
-        read_calibration_file(p)
-    assert str(p) in e.value.message and "cm_per_unit" in e.value.hint
+        read_calibration_file(intr, extr)
+    assert str(intr) in e.value.message and "cm_per_unit" in e.value.hint
     with pytest.raises(NodeError, match="image size"):
-        read_calibration_file(p, cm_per_unit=0.1)
-    got = read_calibration_file(p, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
-    assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1)
+        read_calibration_file(intr, extr, cm_per_unit=0.1)
+    got = read_calibration_file(intr, extr, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
+    assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1) and np.allclose(got["K2"], cal["K2"])
 
 
 def _pipeline(tmp_path: Path, nodes: str) -> Path:
@@ -144,4 +150,74 @@ def test_real_chessboard_pairs_export_reads_back(tmp_path):
     assert np.abs(fs.getNode("D2").mat().ravel() - cal["D2"]).max() < 1e-9
     assert np.abs(fs.getNode("R").mat() - cal["R"]).max() < 1e-9
     assert np.abs(fs.getNode("T").mat().ravel() - cal["T_cm"]).max() < 1e-9
+    assert fs.getNode("unit").string() == "squares"  # no square size given: lengths in squares, and it says so
     fs.release()
+    with pytest.raises(NodeError, match="in board squares"):
+        read_calibration_file(p)
+    got = read_calibration_file(p, cm_per_unit=2.5)  # once the user says how large a square is
+    assert np.allclose(got["T_cm"], cal["T_cm"] * 2.5)
+
+
+def test_opencv_xml_file_loads(tmp_path):
+    cal = _calibration()
+    p = tmp_path / "stereo.xml"
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("unit", "mm")
+    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
+        fs.write(name, np.asarray(cal[key], float))
+    fs.write("T", np.asarray(cal["T_cm"], float) * 10.0)
+    fs.release()
+    assert p.read_text().lstrip().startswith("<?xml")
+    _assert_same(read_calibration_file(p), cal)
+
+
+def test_export_load_locate_gives_the_same_locations(tmp_path):
+    rig = "  rig: {type: source.synthetic, params: {n_scenes: 4, n_views: 0, seed: 3}}\n"
+
+    def _run(name, text):
+        return run_pipeline(_pipeline(tmp_path, rig + text), out_dir=tmp_path / name, cache_dir=tmp_path / "cache",
+                            keep={"locate_json", "locate_ocv", "locate_ros"})
+
+    first = _run("cal", "  calib: {type: calibrator.truth, inputs: {truth: rig.truth}}\n")
+    assert first.ok
+    text = ""
+    for tag, params in (("json", "{path: cal/calib/calibration.json}"), ("ocv", "{path: cal/calib/opencv.yml}"),
+                        ("ros", "{path: cal/calib/camera_info_left.yaml, "
+                                "right_path: cal/calib/camera_info_right.yaml}")):
+        text += f"""
+  cal_{tag}: {{type: calibrator.load, params: {params}}}
+  rect_{tag}: {{type: rectifier.opencv, inputs: {{calibration: cal_{tag}.calibration}}}}
+  seg_{tag}:
+    type: segmenter.edge_morph
+    params: {{object: {{radius_cm: 2.0, color_bgr: [20, 120, 245]}}, working_range_cm: [20, 80]}}
+    inputs: {{pair: rig.pairs, rectification: rect_{tag}.rectification}}
+  disp_{tag}: {{type: disparity.centroid, inputs: {{segmentation: seg_{tag}.segmentation,
+                                                  rectification: rect_{tag}.rectification}}}}
+  locate_{tag}: {{type: locator.triangulate, inputs: {{disparity: disp_{tag}.disparity,
+                                                      rectification: rect_{tag}.rectification, pair: rig.pairs}}}}
+"""
+    r = _run("loc", text)
+    assert r.ok, {n: r.reports[n].error for n in r.status if r.reports[n].error}
+    ref = r.outputs("locate_json", "location")
+    assert sum(v["found"] for v in ref.values()) >= 3
+    for tag in ("ocv", "ros"):
+        got = r.outputs(f"locate_{tag}", "location")
+        for pid, loc in ref.items():
+            assert got[pid]["found"] == loc["found"]
+            if loc["found"]:
+                assert max(abs(got[pid][k] - loc[k]) for k in ("x_cm", "y_cm", "z_cm")) < 1e-9, (tag, pid)
+
+
+def test_opencv_json_file_loads(tmp_path):
+    cal = _calibration()
+    p = tmp_path / "stereo.json"  # FileStorage's JSON flavour, not a run's JSON
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_FORMAT_JSON)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.write("unit", "cm")
+    for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R"), ("T", "T_cm")):
+        fs.write(name, np.asarray(cal[key], float))
+    fs.release()
+    _assert_same(read_calibration_file(p), cal)

@@ -74,7 +74,8 @@ def calibration_summary(cal: dict) -> tuple[dict, str]:
     baseline = float(np.linalg.norm(np.asarray(cal["T_cm"], float)))
     dy = _mean_abs_dy(cal, rectify_params(cal)) if cal.get("corners_left_px") else None
     rms = cal.get("rms_px")
-    line = (f"RMS {rms:.4f} px" if rms is not None else "RMS n/a") + f", baseline {baseline:.4f} cm" + (
+    unit = cal.get("length_unit", "cm")
+    line = (f"RMS {rms:.4f} px" if rms is not None else "RMS n/a") + f", baseline {baseline:.4f} {unit}" + (
         f", mean |Δy| {dy:.3f} px" if dy is not None else ", mean |Δy| n/a (no corners)")
     return {"baseline_cm": baseline, "dy_mean_px": dy}, line
 
@@ -91,7 +92,7 @@ def opencv_text(cal: dict) -> str:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
         fs.write("image_width", w)
         fs.write("image_height", h)
-        fs.write("unit", "cm")
+        fs.write("unit", str(cal.get("length_unit", "cm")))
         fs.write("method", str(cal.get("method", "")))
         if cal.get("rms_px") is not None:
             fs.write("rms_px", float(cal["rms_px"]))
@@ -107,7 +108,7 @@ def opencv_text(cal: dict) -> str:
         os.unlink(tmp)
 
 
-def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -> dict:
+def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None) -> dict:
     """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
 
     Parameters
@@ -120,6 +121,9 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         squares). Default: from the file's ``unit`` entry.
     image_size : (w, h), optional
         Pixels; default from ``image_width`` / ``image_height`` (or ``image_size``) in the file.
+    extra : Path, optional
+        A second FileStorage file read with the first (stereo_calib's ``extrinsics.yml`` beside its
+        ``intrinsics.yml``); an entry in both is taken from ``path``.
 
     Returns
     -------
@@ -131,29 +135,29 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
     ValueError
         A missing matrix, unit or image size; the message names what and where.
     """
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    stores = [cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ) for p in (path, extra) if p is not None]
     try:
-        if not fs.isOpened():
-            raise ValueError("OpenCV cannot open it as a FileStorage file (YAML must start with %YAML:1.0 or "
-                             "be plain YAML 1.0 OpenCV accepts; XML with <opencv_storage>)")
+        for p, fs in zip((path, extra), stores):
+            if not fs.isOpened():
+                raise ValueError(f"OpenCV cannot open {p} as a FileStorage file (YAML starting with %YAML, or XML "
+                                 "with <opencv_storage>)")
+
+        def found(n):
+            return next((node for fs in stores for node in [fs.getNode(n)] if not node.empty()), None)
 
         def mat(*names):
             for n in names:
-                node = fs.getNode(n)
-                if not node.empty() and node.isMap():
+                node = found(n)
+                if node is not None and node.isMap():
                     m = node.mat()
                     if m is not None:
                         return np.asarray(m, np.float64)
-                if not node.empty() and node.isSeq():
+                if node is not None and node.isSeq():
                     return np.asarray([node.at(i).real() for i in range(node.size())], np.float64)
             return None
 
         def scalar(*names):
-            for n in names:
-                node = fs.getNode(n)
-                if not node.empty():
-                    return node
-            return None
+            return next((node for n in names for node in [found(n)] if node is not None), None)
 
         got = {k: mat(*names) for k, names in (("K1", ("M1", "K1", "cameraMatrix1")),
                                                ("D1", ("D1", "distCoeffs1")),
@@ -164,10 +168,13 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         if missing:
             raise ValueError(f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
                              "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
-                             "merge both into one file)")
+                             "give both files: path and right_path)")
         if cm_per_unit is None:
             u = scalar("unit", "units", "length_unit")
             unit = u.string().strip().lower() if u is not None and u.isString() else None
+            if unit == "squares":
+                raise ValueError("its lengths are in board squares (calibrated without a square size): the unit "
+                                 "of T is one square; give cm_per_unit = the square's size in cm")
             if unit not in CM_PER_UNIT:
                 raise ValueError(f"it does not say the unit of T ({'unit: ' + repr(unit) if unit else 'no unit entry'};"
                                  f" known: mm, cm, m, in)")
@@ -184,7 +191,8 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None) -
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
     finally:
-        fs.release()
+        for fs in stores:
+            fs.release()
     if got["K1"].shape != (3, 3) or got["K2"].shape != (3, 3) or got["R"].size != 9 or got["T"].size != 3:
         raise ValueError("M1 / M2 / R must be 3x3 and T 3x1")
     return {"K1": got["K1"], "D1": got["D1"].ravel(), "K2": got["K2"], "D2": got["D2"].ravel(),
@@ -296,18 +304,28 @@ EXPORT_OUTPUTS = _export_outputs()
 
 def export_texts(cal: dict) -> dict:
     """The three export outputs of a calibration, as ``TextFile`` values ``{"text", "suffix"}``."""
+    unit = cal.get("length_unit", "cm")
+    # ROS has no unit field: a calibration in squares is flagged in a comment, and by the run's warning
+    head = "" if unit == "cm" else f"# projection_matrix lengths are in {unit}/100, not metres: no square size given\n"
     texts = {"opencv": opencv_text(cal),
-             "camera_info_left": yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
-             "camera_info_right": yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
+             "camera_info_left": head + yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
+             "camera_info_right": head + yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
     return {k: {"text": t, "suffix": _SUFFIX[k]} for k, t in texts.items()}
 
 
-def calibration_outputs(cal: dict, ctx=None) -> dict:
+def calibration_outputs(cal: dict, ctx=None, board: dict | None = None) -> dict:
     """What a calibrator returns: the calibration (with ``baseline_cm``, ``dy_mean_px``) and its exports.
 
     The one-line summary (RMS, baseline with its unit, mean |Δy|) goes first among the node's
-    messages, so that the run's console table shows it.
+    messages, so that the run's console table shows it. ``board`` (the views' board) tells the
+    length unit: ``length_unit: squares`` when no square size was given (``T_cm`` is then in
+    squares, and the exports say so).
     """
+    if board is not None and board.get("length_unit"):
+        cal["length_unit"] = str(board["length_unit"])
+    if cal.get("length_unit", "cm") != "cm" and ctx is not None:
+        ctx.warn(f"lengths are in {cal['length_unit']}, not cm (no square size given): give the board's square_cm "
+                 "to calibrate in real units; the ROS camera_info files cannot state this unit")
     facts, line = calibration_summary(cal)
     cal.update(facts)
     if ctx is not None:

@@ -115,4 +115,4 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     cal["rejected_reasons"] = rejected
     if rejected and ctx is not None:
         ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
-    return calibration_outputs(cal, ctx)
+    return calibration_outputs(cal, ctx, board)

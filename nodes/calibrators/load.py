@@ -8,6 +8,9 @@
   ``opencv.yml``), or
 * the left camera's ROS ``camera_info`` YAML, with ``right_path`` the right camera's.
 
+An OpenCV file may come in two parts (``stereo_calib`` writes ``intrinsics.yml`` and
+``extrinsics.yml``): ``path`` and ``right_path`` are then read together.
+
 ``calibrator.load_hand_eye`` and ``calibrator.load_table_frame`` read the ``HandEye`` /
 ``TableFrame`` JSON a run wrote. Given a ``calibration`` input, they refuse a file made for
 another rig (image size, focal length, baseline), naming both files. Each node's cache key
@@ -83,7 +86,7 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
             raise NodeError(f"{label}: {p} does not exist.",
                             hint="relative paths start at the pipeline file's folder")
     suffix = path.suffix.lower()
-    if suffix == ".json" and not _is_opencv_storage(path):
+    if suffix == ".json" and not (_is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()):
         art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
         if artifact_kind(art) != "a StereoCalibration":
             raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
@@ -99,6 +102,10 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
             except ValueError:
                 ros = None
         try:
+            if ros is None and right_path is not None and not _is_opencv_storage(right_path):
+                raise NodeError(f"{label}: {path} is an OpenCV FileStorage file but {right_path} is not.",
+                                hint="right_path is the right camera's ROS camera_info (with a ROS `path`) or the "
+                                     "second OpenCV file (stereo_calib's extrinsics.yml beside intrinsics.yml)")
             if ros is not None:
                 if right_path is None:
                     raise NodeError(f"{label}: {path} is a ROS camera_info file (one camera); the right camera's "
@@ -106,7 +113,7 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                 cal = read_ros_pair(path, right_path)
                 fmt = "ros"
             else:
-                cal = read_opencv(path, cm_per_unit, image_size)
+                cal = read_opencv(path, cm_per_unit, image_size, extra=right_path)
                 fmt = "opencv"
         except ValueError as exc:
             raise NodeError(f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
@@ -126,7 +133,9 @@ class LoadParams(Params):
     path: str = Field(..., description="Calibration file, relative to the pipeline file: a run's calibration.json, "
                                        "an OpenCV FileStorage .yml/.yaml/.xml, or the left camera's ROS "
                                        "camera_info YAML.")
-    right_path: str | None = Field(None, description="The right camera's ROS camera_info YAML (with a ROS `path`).")
+    right_path: str | None = Field(None, description="The right camera's ROS camera_info YAML (with a ROS `path`), "
+                                                     "or a second OpenCV file read with the first (stereo_calib's "
+                                                     "extrinsics.yml beside intrinsics.yml).")
     cm_per_unit: float | None = Field(
         None, gt=0, description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the square "
                                 "size in cm for a file in squares); default: the file's `unit` entry.")

@@ -328,4 +328,4 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
     cal["rejected_reasons"] = rejected
     if corners_l:
         cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
-    return calibration_outputs(cal, ctx)
+    return calibration_outputs(cal, ctx, (views or {}).get("board"))

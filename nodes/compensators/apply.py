@@ -41,8 +41,9 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
     Returns
     -------
     dict
-        A new Location: corrected ``x_cm``, ``y_cm``, ``z_cm`` (cm), ``extrapolated`` (bool), and
-        ``compensation`` = ``{"type", "raw_cm": [x, y, z] as measured}``. Unchanged when not found.
+        A new Location: corrected ``x_cm``, ``y_cm``, ``z_cm`` (cm), ``extrapolated`` (bool), the
+        measured ``raw_x_cm``, ``raw_y_cm``, ``raw_z_cm`` (cm) and ``compensation`` = ``{"type",
+        "raw_cm": [x, y, z] as measured}``. Unchanged when not found.
 
     Raises
     ------
@@ -84,7 +85,7 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
             + ", ".join(f"{k}={samples.variable(k)[0]:.4g}" for k in needs)
             + "), far outside its training range",
             x_cm=None, y_cm=None, z_cm=None, sigma_z_cm=None,
-            extrapolated=True,
+            extrapolated=True, raw_x_cm=raw[0], raw_y_cm=raw[1], raw_z_cm=raw[2],
             compensation={"type": mtype, "raw_cm": raw},
         )
         return out
@@ -99,6 +100,7 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
         y_cm=float(corrected[1]),
         z_cm=float(corrected[2]),
         extrapolated=extrapolated or bool(outside),
+        raw_x_cm=raw[0], raw_y_cm=raw[1], raw_z_cm=raw[2],  # what the locator measured, next to the correction
         compensation={"type": mtype, "raw_cm": raw, "outside_range": outside},
     )
     sigma = location.get("sigma_z_cm")
@@ -118,10 +120,16 @@ class ApplyParams(Params):
         "model": In("CompensationModel", description="A fitted model (any compensator fit node)."),
         "location": In("Location", description="One measured location (runs once per item)."),
     },
-    outputs={"location": Out("Location", description="Compensated location; extrapolated flags out-of-range input.")},
+    outputs={"location": Out("Location", save=True,
+                             description="Compensated location (raw_x_cm.. as measured); extrapolated flags "
+                                         "out-of-range input.")},
     params=ApplyParams,
     version="1",
 )
 def apply(params: ApplyParams, model, location, ctx=None):
     """Correct a measured location with a fitted compensation model (flags extrapolation)."""
-    return {"location": apply_model(model, location, node_label(ctx, "compensator.apply"))}
+    out = apply_model(model, location, node_label(ctx, "compensator.apply"))
+    if not out.get("found"):  # the written records all carry the same keys
+        out.update(extrapolated=bool(out.get("extrapolated", False)), raw_x_cm=out.get("x_cm"),
+                   raw_y_cm=out.get("y_cm"), raw_z_cm=out.get("z_cm"))
+    return {"location": out}

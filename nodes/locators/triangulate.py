@@ -82,6 +82,12 @@ def apply_transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return T[:3, :3] @ p + T[:3, 3]
 
 
+def _known_transform(params: TriangulateParams, rig: dict | None) -> np.ndarray | None:
+    """T_table_from_left from the params or the wired rig / table frame, whatever the output frame."""
+    T = params.T_table_from_left if params.T_table_from_left is not None else (rig or {}).get("T_table_from_left")
+    return None if T is None or np.asarray(T).shape != (4, 4) else np.asarray(T, float)
+
+
 def _transform(params: TriangulateParams, rig: dict | None) -> np.ndarray | None:
     if params.frame != "table":
         return None
@@ -140,6 +146,12 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
     if t and t.get("center_left_cm") is not None:
         tc = np.asarray(t["center_left_cm"], float)
         truth = (apply_transform(T, tc) if T is not None else tc).tolist()
+    elif t and t.get("center_table_cm") is not None:
+        # measured on the table only (a ruler on the bench), in the table frame the wired table frame defines
+        T_known = T if T is not None else _known_transform(params, rig)
+        if T_known is not None:
+            tc = np.asarray(t["center_table_cm"], float)
+            truth = (tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])).tolist()
     if not disparity["found"]:
         return {"location": _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth)}
     d = float(disparity["disparity_px"])

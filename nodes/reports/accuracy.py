@@ -119,8 +119,23 @@ def location_records(locations: dict) -> list[dict]:
     for item, loc in locations.items():
         rec = {k: loc.get(k) for k in keys}
         rec["pair"] = rec["pair"] or item
+        rec.update(raw_location_fields(loc))
         out.append(rec)
     return out
+
+
+def raw_location_fields(loc: dict) -> dict:
+    """``extrapolated`` and the raw (uncompensated) ``raw_x_cm``, ``raw_y_cm``, ``raw_z_cm`` of a Location.
+
+    A compensated location keeps what the locator measured in ``compensation.raw_cm``; an
+    uncompensated one's raw values are its own. Written next to the corrected values so that a
+    person can see what the correction did to each pair.
+    """
+    raw = (loc.get("compensation") or {}).get("raw_cm")
+    if raw is None:
+        raw = [loc.get("x_cm"), loc.get("y_cm"), loc.get("z_cm")]
+    return {"extrapolated": bool(loc.get("extrapolated", False)), "raw_x_cm": raw[0], "raw_y_cm": raw[1],
+            "raw_z_cm": raw[2]}
 
 
 @node(

@@ -90,6 +90,7 @@ __all__ = [
     "project_points",
     "random_board_poses",
     "render_board_view",
+    "render_table_board",
     "render_scene",
     "silhouette",
     "undistort_normalized",
@@ -1225,3 +1226,28 @@ def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9
         corners["left_px" if i == 0 else "right_px"] = project_points(cam["K"], cam["D"], pts_b @ Rcb.T + tcb)
     corners["T_table_from_board"] = T_tl @ pose_left_from_board
     return imgs[0], imgs[1], corners
+
+
+def render_table_board(rig: dict, cols: int = 9, rows: int = 6, square_cm: float = 2.5, yaw_deg: float = 0.0,
+                       centre_table_cm=(0.0, 5.0), seed: int = 1):
+    """Render a chessboard lying flat on the table, turned ``yaw_deg`` about the vertical.
+
+    Returns
+    -------
+    left, right : uint8 HxWx3 BGR
+    T_frame_from_left : 4x4 (cm)
+        The table frame this board defines by docs/conventions.md (origin at its inner corner
+        nearest the cameras on the left, x right, y away, z up) -- exact when ``yaw_deg`` is a
+        multiple of 90, i.e. when the board's edges run along and across the view.
+    """
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    T_tb = np.eye(4)
+    T_tb[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    centre = np.array([(cols - 1) * square_cm / 2, (rows - 1) * square_cm / 2, 0.0])
+    T_tb[:3, 3] = np.array([*centre_table_cm, 0.0]) - T_tb[:3, :3] @ centre
+    T_tl = np.asarray(rig["truth"]["T_table_from_left"], float)
+    left, right, corners = render_board_view(rig, np.linalg.inv(T_tl) @ T_tb, cols, rows, square_cm, seed=seed)
+    P = corners["board_cm"] @ T_tb[:3, :3].T + T_tb[:3, 3]
+    T = np.eye(4)
+    T[:3, 3] = -P[np.argmin(P[:, 0] + P[:, 1])]
+    return left, right, T @ T_tl

@@ -49,5 +49,7 @@ def calib_files(params: CalibFilesParams, ctx=None) -> dict:
                                 hint="calibrate with images of one resolution from the same cameras")
         views.append({"id": pid, "left": left, "right": right, "left_path": str(lp), "right_path": str(rp)})
     return {"views": {"views": views, "image_size": size,
-                      "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm},
+                      "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm,
+                                # a square size nobody gave means lengths in squares, and the exports say so
+                                "length_unit": "cm" if "square_cm" in params.model_fields_set else "squares"},
                       "truth": None}}

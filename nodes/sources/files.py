@@ -2,54 +2,31 @@
 
 from __future__ import annotations
 
-import csv
-import json
 from pathlib import Path
 
 import numpy as np
 
 from nodes.sources._files import list_pairs, read_image
+from nodes.sources._truth import read_truth_file, truth_split
 from stereograph.api import Field, NodeError, Out, Params, node
 
 __all__ = ["FilesParams", "files", "read_truth"]
 
 
 def read_truth(path: Path) -> dict[str, dict]:
-    """Ground truth per pair id from a JSON or CSV file.
-
-    JSON: ``{pair_id: {"center_left_cm": [x, y, z], "radius_cm": r, ...}}`` or a
-    list of such records with an ``"id"`` key. CSV: columns ``id, x_cm, y_cm,
-    z_cm`` (ball centre, left-camera frame) and optionally ``radius_cm``,
-    ``table_x_cm, table_y_cm, table_z_cm``.
-    """
-    if not path.is_file():
-        raise NodeError(f"truth file {path} does not exist.", hint="fix the `truth` parameter or remove it")
-    try:
-        if path.suffix.lower() == ".json":
-            data = json.loads(path.read_text())
-            if isinstance(data, list):
-                data = {str(r["id"]): r for r in data}
-            return {str(k): dict(v) for k, v in data.items()}
-        out = {}
-        with path.open(newline="") as fh:
-            for row in csv.DictReader(fh):
-                t = {"center_left_cm": [float(row["x_cm"]), float(row["y_cm"]), float(row["z_cm"])],
-                     "center_table_cm": None, "radius_cm": float(row["radius_cm"]) if row.get("radius_cm") else None}
-                if row.get("table_x_cm"):
-                    t["center_table_cm"] = [float(row[f"table_{a}_cm"]) for a in "xyz"]
-                out[str(row["id"])] = t
-        return out
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise NodeError(f"cannot parse truth file {path}: {exc!r}.",
-                        hint="JSON {id: {center_left_cm: [x,y,z]}} or CSV with columns id,x_cm,y_cm,z_cm") from exc
+    """Ground truth per pair id from a JSON or CSV file (see :mod:`nodes.sources._truth`)."""
+    return read_truth_file(path)[0]
 
 
 class FilesParams(Params):
     folder: str = Field(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("left*", description="Glob of the left images (e.g. left*.png, left/*.png).")
     right_glob: str = Field("right*", description="Glob of the right images.")
-    truth: str | None = Field(None, description="Optional JSON/CSV ground-truth file (relative to the pipeline).")
-    train_fraction: float = Field(0.5, ge=0, le=1, description="Share of pairs marked split=train (0..1).")
+    truth: str | None = Field(None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
+                                                "decides the split: the pairs it lists are train, the others test, "
+                                                "unless it has a split column (train/test), which rules.")
+    train_fraction: float = Field(0.5, ge=0, le=1, description="Share of pairs marked split=train (0..1), at random "
+                                                               "(seed); only without a truth file.")
     seed: int = Field(0, ge=0, description="Seed of the train/test split.")
 
 
@@ -77,10 +54,14 @@ def files(params: FilesParams, ctx=None) -> dict:
     """Read stereo pairs from a folder (left/right matched by name), with optional ground truth."""
     resolve = ctx.path if ctx is not None else (lambda v: Path(v).expanduser())
     pairs_list = list_pairs(resolve(params.folder), params.left_glob, params.right_glob)
-    truth = read_truth(resolve(params.truth)) if params.truth else {}
-    unknown = sorted(set(truth) - {pid for pid, _, _ in pairs_list})
-    if truth and unknown and ctx is not None:
-        ctx.warn(f"truth rows without images: {', '.join(unknown[:10])}")
+    splits = None
+    truth: dict[str, dict] = {}
+    if params.truth:  # the truth file decides the split (listed = train, or its split column); no random split
+        truth, explicit = read_truth_file(resolve(params.truth))
+        splits, warnings = truth_split([pid for pid, _, _ in pairs_list], truth, explicit, resolve(params.truth))
+        if ctx is not None:
+            for w in warnings:
+                ctx.warn(w)
     rng = np.random.default_rng([params.seed, 3])
     out = {}
     for pid, lp, rp in pairs_list:
@@ -89,6 +70,6 @@ def files(params: FilesParams, ctx=None) -> dict:
             raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
                             f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
         out[pid] = {"id": pid, "left": left, "right": right, "truth": truth.get(pid),
-                    "split": "train" if rng.random() < params.train_fraction else "test",
+                    "split": splits[pid] if splits else ("train" if rng.random() < params.train_fraction else "test"),
                     "left_path": str(lp), "right_path": str(rp)}
     return {"pairs": out}

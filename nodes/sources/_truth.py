@@ -1,0 +1,161 @@
+"""Ground-truth files for the file sources, and the train / test split they decide.
+
+A truth file lists measured ball centres by **pair id**. A pair id is the image file's stem
+without its side token (``left`` / ``right`` / ``L`` / ``R``, any case) and the ``_ - .`` around
+it: ``left01.png`` and ``right01.png`` -> ``01``; ``007_left.png`` -> ``007``;
+``scene3-R.jpg`` -> ``scene3``; with ``left/`` and ``right/`` folders, ``left/a.png`` -> ``a``.
+Other characters than letters, digits and ``_ . -`` become ``_``.
+
+Formats:
+
+* CSV with a header: ``id``, the centre in the left-camera frame ``x_cm, y_cm, z_cm`` and/or in
+  the table frame ``table_x_cm, table_y_cm, table_z_cm``, optionally ``radius_cm`` and ``split``.
+* JSON: ``{id: {"center_left_cm": [x, y, z], "center_table_cm": [...], "split": "train"}}`` or a
+  list of such records with an ``"id"`` key.
+
+The split (:func:`truth_split`): the pairs the file lists are the **training** placements (used to
+fit compensation and hand-eye), the others are the targets (``test``) -- unless the file has a
+``split`` column / key (``train`` / ``test``), which then rules; pairs the file does not list are
+targets. No random split is made when a truth file is given.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from stereograph.api import NodeError
+
+__all__ = ["read_truth_file", "truth_split"]
+
+_SPLITS = ("train", "test")
+
+
+def _xyz(row: dict, keys, where: str) -> list[float] | None:
+    vals = [row.get(k) for k in keys]
+    if all(v in (None, "") for v in vals):
+        return None
+    try:
+        return [float(v) for v in vals]
+    except (TypeError, ValueError):
+        raise NodeError(f"{where}: {', '.join(keys)} must be numbers, got {vals}.",
+                        hint="write the ball centre in cm, e.g. 1.5,-2.0,42.3") from None
+
+
+def _split_value(v, where: str) -> str | None:
+    if v in (None, ""):
+        return None
+    s = str(v).strip().lower()
+    if s not in _SPLITS:
+        raise NodeError(f"{where}: split is {v!r}; it must be 'train' or 'test'.",
+                        hint="write train for placements to fit on, test for the targets")
+    return s
+
+
+def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
+    """Ground truth per pair id, and the file's explicit split when it has one.
+
+    Returns
+    -------
+    truth : dict
+        ``{pair_id: {"center_left_cm": [x,y,z] | None, "center_table_cm": [x,y,z] | None,
+        "radius_cm": float | None, ...}}``
+    split : dict or None
+        ``{pair_id: "train" | "test"}`` for the rows that state one; None when the file has no
+        ``split`` column / key at all.
+
+    Raises
+    ------
+    NodeError
+        A missing or malformed file; the message names the file and the line (CSV) or id (JSON).
+    """
+    if not path.is_file():
+        raise NodeError(f"truth file {path} does not exist.", hint="fix the `truth` parameter or remove it")
+    truth: dict[str, dict] = {}
+    split: dict[str, str] = {}
+    has_split = False
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(path.read_text())
+            if isinstance(data, list):
+                data = {str(r["id"]): r for r in data}
+            items = {str(k): dict(v) for k, v in data.items()}
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise NodeError(f"cannot parse truth file {path}: {exc!r}.",
+                            hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id") from None
+        for pid, rec in items.items():
+            if "split" in rec:
+                has_split = True
+                s = _split_value(rec.pop("split"), f"truth file {path}, id {pid}")
+                if s:
+                    split[pid] = s
+            rec.setdefault("center_table_cm", None)
+            truth[pid] = rec
+        return truth, (split if has_split else None)
+    try:
+        with path.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            fields = [f.strip() for f in reader.fieldnames or []]
+            if "id" not in fields:
+                raise NodeError(f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'}).",
+                                hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,"
+                                     "table_z_cm][,split]")
+            has_split = "split" in fields
+            for row in reader:
+                row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+                where = f"truth file {path}, line {reader.line_num}"
+                pid = row.get("id")
+                if not pid:
+                    raise NodeError(f"{where}: the id is empty.", hint="give every row the pair id of its images")
+                left = _xyz(row, ("x_cm", "y_cm", "z_cm"), where)
+                table = _xyz(row, ("table_x_cm", "table_y_cm", "table_z_cm"), where)
+                if left is None and table is None:
+                    raise NodeError(f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
+                                    hint="give the ball centre in the left-camera or the table frame, in cm")
+                radius = row.get("radius_cm")
+                truth[pid] = {"center_left_cm": left, "center_table_cm": table,
+                              "radius_cm": float(radius) if radius else None}
+                s = _split_value(row.get("split"), where) if has_split else None
+                if s:
+                    split[pid] = s
+    except (OSError, UnicodeDecodeError, csv.Error, ValueError) as exc:
+        raise NodeError(f"cannot read truth file {path}: {exc}.",
+                        hint="CSV with a header id,x_cm,y_cm,z_cm (UTF-8), or JSON") from None
+    return truth, (split if has_split else None)
+
+
+def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | None,
+                path: Path) -> tuple[dict[str, str], list[str]]:
+    """The split of each pair id decided by a truth file, and the warnings to show.
+
+    Parameters
+    ----------
+    ids : list of str
+        The pairs the images give.
+    truth, split
+        From :func:`read_truth_file`.
+    path : Path
+        The truth file, for the warnings.
+
+    Returns
+    -------
+    splits : dict
+        ``{pair_id: "train" | "test"}`` for every id.
+    warnings : list of str
+        Truth ids without images; images without truth.
+    """
+    if split is None:
+        splits = {pid: "train" if pid in truth else "test" for pid in ids}
+    else:
+        splits = {pid: split.get(pid, "train" if pid in truth else "test") for pid in ids}
+    warnings = []
+    no_images = sorted(set(truth) - set(ids))
+    if no_images:
+        warnings.append(f"{len(no_images)} id(s) in {path.name} have no images: {', '.join(no_images[:20])}"
+                        + (" ..." if len(no_images) > 20 else ""))
+    no_truth = [pid for pid in ids if pid not in truth]
+    if no_truth:
+        warnings.append(f"{len(no_truth)} pair(s) have no row in {path.name} (targets, no ground truth): "
+                        + ", ".join(no_truth[:20]) + (" ..." if len(no_truth) > 20 else ""))
+    return splits, warnings

@@ -1,0 +1,56 @@
+"""Training placements chosen by a truth file (source.files), pair ids from file names."""
+
+import cv2
+import numpy as np
+import pytest
+
+from nodes.sources._files import pair_key
+from nodes.sources.files import FilesParams, files
+from stereograph.api import NodeError, RunContext
+
+
+def _folder(tmp_path, ids=("01", "02", "03")):
+    img = np.full((24, 32, 3), 90, np.uint8)
+    for i in ids:
+        cv2.imwrite(str(tmp_path / f"left{i}.png"), img)
+        cv2.imwrite(str(tmp_path / f"right{i}.png"), img)
+    return tmp_path
+
+
+def _run(tmp_path, truth_text, name="truth.csv", **kw):
+    (tmp_path / name).write_text(truth_text)
+    ctx = RunContext("rig", None, tmp_path / "out", tmp_path)
+    pairs = files(FilesParams(folder=".", truth=name, **kw), ctx=ctx)["pairs"]
+    return pairs, ctx.messages
+
+
+def test_listed_pairs_train_others_are_targets_with_warnings(tmp_path):
+    _folder(tmp_path)
+    pairs, msgs = _run(tmp_path, "id,x_cm,y_cm,z_cm\n01,1,2,40\n02,0,0,45\n09,0,0,50\n", train_fraction=0.0)
+    assert {k: v["split"] for k, v in pairs.items()} == {"01": "train", "02": "train", "03": "test"}
+    assert pairs["01"]["truth"]["center_left_cm"] == [1.0, 2.0, 40.0] and pairs["03"]["truth"] is None
+    assert any("09" in m and "no images" in m for m in msgs)
+    assert any("03" in m and "no row" in m for m in msgs)
+
+
+def test_split_column_rules(tmp_path):
+    _folder(tmp_path)
+    csv = "id,table_x_cm,table_y_cm,table_z_cm,split\n01,1,2,2,test\n02,0,5,2,train\n03,3,3,2,\n"
+    pairs, _ = _run(tmp_path, csv)
+    assert {k: v["split"] for k, v in pairs.items()} == {"01": "test", "02": "train", "03": "train"}
+    assert pairs["01"]["truth"]["center_table_cm"] == [1.0, 2.0, 2.0]
+    assert pairs["01"]["truth"]["center_left_cm"] is None
+    pairs, _ = _run(tmp_path, '{"01": {"center_left_cm": [0, 0, 40], "split": "test"}}', name="t.json")
+    assert {k: v["split"] for k, v in pairs.items()} == {"01": "test", "02": "test", "03": "test"}
+
+
+def test_bad_truth_rows_name_file_and_line(tmp_path):
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"truth.csv, line 3: split is 'val'"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm,split\n01,1,2,40,train\n02,1,2,40,val\n")
+    with pytest.raises(NodeError, match=r"line 2: x_cm, y_cm, z_cm must be numbers"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm\n01,1,two,40\n")
+
+
+def test_pair_id_rule():
+    assert pair_key("left01") == "01" and pair_key("007_left") == "007" and pair_key("scene3-R") == "scene3"
