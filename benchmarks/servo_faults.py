@@ -15,7 +15,7 @@ import argparse
 import time
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan
-from nodes.actuators.servo_sim import ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim
+from nodes.actuators.servo_sim import ERR_ANGLE, ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim
 from nodes.calibrators.hand_eye import HandEyeParams, hand_eye
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
@@ -54,12 +54,14 @@ def cases(plan):
         ("overload bit at ping", Faults(alarms={4: ERR_OVERLOAD}), None, {}),
         ("overheating bit at ping", Faults(alarms={4: ERR_OVERHEAT}), None, {}),
         ("input voltage bit at ping", Faults(alarms={4: ERR_VOLTAGE}), None, {}),
+        ("angle limit bit at ping", Faults(alarms={4: ERR_ANGLE}), None, {}),
         ("PING ok, 4 READ replies lost", Faults(drop_replies=4, instructions={"READ"}, only_ids={5}), None, {}),
         ("PING+WRITE ok, every READ lost", Faults(drop_replies=10**6, instructions={"READ"}, only_ids={5}), None, {}),
         ("status return level 0", Faults(), srl0, {}),
         ("jammed elbow (overload while moving)", Faults(jammed_at_units={4: jam}, jam_alarm_s=0.3), None, {}),
         ("stalled elbow, no alarm (move_timeout_s 2)", Faults(jammed_at_units={4: jam}, jam_alarm_s=1e9), None,
          {"move_timeout_s": 2.0}),
+        ("overheating bit while moving", Faults(alarms={2: ERR_OVERHEAT}, after_goal_writes=1), None, {}),
         ("late replies while moving", Faults(late_replies=10**6, late_ms=70, only_ids={1}, after_goal_writes=1),
          None, {}),
         ("no reply while moving", Faults(drop_replies=10**6, only_ids={4}, after_goal_writes=1), None, {}),

@@ -12,7 +12,14 @@ import pytest
 pytest.importorskip("dynamixel_sdk")
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan  # noqa: E402
-from nodes.actuators.servo_sim import ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim  # noqa: E402
+from nodes.actuators.servo_sim import (  # noqa: E402
+    ERR_ANGLE,
+    ERR_OVERHEAT,
+    ERR_OVERLOAD,
+    ERR_VOLTAGE,
+    Faults,
+    ServoSim,
+)
 from nodes.ik._model import servo_limits_units  # noqa: E402
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
@@ -89,7 +96,8 @@ def test_corrupted_replies_name_noise():
 
 @pytest.mark.parametrize("bit, word, hint_word", [(ERR_OVERLOAD, "overload error", "obstruction"),
                                                   (ERR_OVERHEAT, "overheating error", "cool"),
-                                                  (ERR_VOLTAGE, "input voltage error", "9-12 V")])
+                                                  (ERR_VOLTAGE, "input voltage error", "9-12 V"),
+                                                  (ERR_ANGLE, "angle limit error", "angle limits")])
 def test_alarm_bits_at_ping_are_named(bit, word, hint_word):
     with ServoSim(IDS, faults=Faults(alarms={4: bit})) as sim:
         e, dt, _ = fail(sim)
@@ -161,6 +169,13 @@ def test_stalled_joint_without_alarm_gets_a_load_hint():
     assert "servos [4] still" in e.message and "obstruction" in e.hint and set(torque.values()) == {0}
 
 
+def test_overheating_while_moving_is_named():
+    with ServoSim(IDS, faults=Faults(alarms={2: ERR_OVERHEAT}, after_goal_writes=1), time_scale=50.0) as sim:
+        e, dt, torque = fail(sim)
+    assert "arm stopped during waypoint 'open'" in e.message and "servo 2 reports overheating error" in e.message
+    assert "cool" in e.hint and set(torque.values()) == {0}
+
+
 def test_late_replies_while_moving():
     with ServoSim(IDS, faults=Faults(late_replies=10_000, late_ms=70.0, only_ids={1}, after_goal_writes=1),
                   time_scale=50.0) as sim:
@@ -188,3 +203,25 @@ def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
         with pytest.raises(KeyboardInterrupt) as ei:
             execute_plan(DynamixelParams(**{**FAST, "late_window_ms": 1000}), PLAN, ARM, sim.port_path)
         assert ei.value.servo_log["stop"]["action"] == "none" and sim.log == []
+
+
+def test_second_ctrl_c_on_the_way_to_rest_holds_and_the_node_saves_the_log(tmp_path):
+    import json
+    import os
+    import signal
+    import threading
+
+    from nodes.actuators.dynamixel import dynamixel
+    from stereograph.api import RunContext
+    ctx = RunContext("act", None, tmp_path / "act", tmp_path)
+    for delay in (0.5, 0.8):  # the second one arrives during the move to the rest pose
+        threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    with pytest.raises(KeyboardInterrupt):
+        dynamixel(DynamixelParams(**{**FAST, "sim_time_scale": 1.0, "on_interrupt": "rest", "rest_speed_deg_s": 20}),
+                  arm=ARM, plans=PLAN, ctx=ctx)
+    saved = json.loads((tmp_path / "act" / "servo_log_interrupted.json").read_text())
+    stop = saved["stop"]
+    assert stop["action"] == "hold" and stop["detail"].startswith("interrupted again on the way to the rest pose")
+    lim = servo_limits_units(ARM)
+    assert saved["sim"]["writes"] and all(lim[str(w["id"])][0] <= w["value"] <= lim[str(w["id"])][1]
+                                          for w in saved["sim"]["writes"] if w["address"] == 30)

@@ -32,6 +32,15 @@ from nodes.actuators.servo_sim import (  # noqa: E402
 )
 
 
+@pytest.fixture(autouse=True)
+def patient_sdk(monkeypatch):
+    """The raw SDK gives up on a reply after 2 x LATENCY_TIMER + 2 ms (34 ms); on a loaded machine the
+    emulator's thread can take longer than that, and a correct reply would read as a timeout. Waiting
+    100 ms per LATENCY_TIMER keeps these checks about what comes back, not about the machine's load."""
+    import dynamixel_sdk.port_handler as ph
+    monkeypatch.setattr(ph, "LATENCY_TIMER", 100)
+
+
 @pytest.fixture
 def bus():
     with ServoSim([1, 2, 3], time_scale=20.0) as sim:

@@ -24,6 +24,7 @@ import threading
 import time
 
 from ._bus import Bus, ServoFailure
+from ._plan import move_seconds
 
 ADDR_POSITION = 36
 
@@ -98,32 +99,36 @@ def hold(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], speed_uni
 
 
 def rest(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], rest_units: dict[int, int],
-         speed_units: int, tolerance_units: int, timeout_s: float) -> dict:
-    """Arm joints to the rest pose, the others held; a second interrupt during the move holds instead."""
+         speed_units: int, tolerance_units: int) -> dict:
+    """Arm joints to the rest pose, the others held; a second interrupt during the move holds instead.
+    Gives up (and holds) after 1.5 x the expected move time + 2 s."""
     with uninterruptible():
         bus.recover()
         bus.waypoint = "stop: rest"
-        goals = {}
-        for sid in ids:
-            if sid in rest_units:
-                goals[sid] = _clamp(rest_units[sid], limits[str(sid)])
-            else:  # the gripper keeps what it holds
-                goals[sid] = _clamp(bus.read(sid, ADDR_POSITION, 2, "read of the present position"),
-                                    limits[str(sid)])
-        bus.sync_write({sid: (g, speed_units) for sid, g in goals.items()})
+        present = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
+        # the gripper keeps what it holds
+        goals = {sid: _clamp(rest_units.get(sid, present[sid]), limits[str(sid)]) for sid in ids}
+        data = {sid: (g, speed_units) for sid, g in goals.items()}
+        bus.sync_write(data)
+    timeout_s = 1.5 * move_seconds(present, data) + 2.0
     t0 = time.monotonic()
     try:
-        while True:
-            pos = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in goals}
-            if all(abs(pos[s] - goals[s]) <= tolerance_units for s in goals):
-                return {"action": "rest", "goals": {str(k): v for k, v in goals.items()},
-                        "detail": f"moved to the rest pose {goals} (units) and holding it with torque on"}
-            if time.monotonic() - t0 > timeout_s:
-                out = hold(bus, ids, limits, speed_units)
-                out["detail"] = f"did not reach the rest pose within {timeout_s:.1f} s; " + out["detail"]
-                return out
-            time.sleep(0.02)
+        with sigterm_as_interrupt():
+            return _wait_rest(bus, ids, limits, goals, speed_units, tolerance_units, t0, timeout_s)
     except KeyboardInterrupt:
         out = hold(bus, ids, limits, speed_units)
         out["detail"] = "interrupted again on the way to the rest pose; " + out["detail"]
         return out
+
+
+def _wait_rest(bus, ids, limits, goals, speed_units, tolerance_units, t0, timeout_s) -> dict:
+    while True:
+        pos = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in goals}
+        if all(abs(pos[s] - goals[s]) <= tolerance_units for s in goals):
+            return {"action": "rest", "goals": {str(k): v for k, v in goals.items()},
+                    "detail": f"moved to the rest pose {goals} (units) and holding it with torque on"}
+        if time.monotonic() - t0 > timeout_s:
+            out = hold(bus, ids, limits, speed_units)
+            out["detail"] = f"did not reach the rest pose within {timeout_s:.1f} s; " + out["detail"]
+            return out
+        time.sleep(0.02)

@@ -5,14 +5,16 @@ emulator (:mod:`nodes.actuators.servo_sim`) on a pseudo-terminal and talks to it
 ``PortHandler`` / ``PacketHandler(1.0)`` / ``GroupSyncWrite``.
 
 Safety order: (1) every goal of the plan is checked against the joint limits before the port is
-even opened — one bad goal refuses the whole plan; (2) every servo must answer a ping; (3) each
-servo's own CW/CCW angle limits must contain its goals; only then is anything written. Each
-waypoint is one GroupSyncWrite (goal position + moving speed for all servos at once), read back,
-then present positions are polled one servo at a time until all are within ``tolerance_units``
-(the gripper may also stop short, closed on the object) or the move times out. Timeouts and
-checksum errors are retried ``retries`` times; after that, or on a servo error (angle limit,
-overload, overheating, voltage, range), torque is turned off on every servo and the node fails
-with the reason.
+even opened — one bad goal refuses the whole plan; (2) every servo must answer a PING and a READ
+(:mod:`._bus` checks every reply and classifies each try; :mod:`._diagnose` names the cause: no
+reply, late reply, corrupted replies, alarm bits, status return level 0 — and whether torque is
+still on); (3) each servo's own CW/CCW angle limits must contain its goals; only then is anything
+written. Each waypoint is one GroupSyncWrite (goal position + moving speed for all servos at
+once), read back, then present positions are polled one servo at a time until all are within
+``tolerance_units`` (the gripper may also stop short, closed on the object) or the move times out.
+A failure while moving turns torque off on every servo and names the cause. Ctrl-C or SIGTERM while
+moving ends the motion as ``on_interrupt`` says (:mod:`._stop`), closes the port and re-raises.
+See docs/arm.md, "Servo faults" and "Ctrl-C and SIGTERM".
 """
 
 from __future__ import annotations
@@ -212,6 +214,7 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
     limits = servo_limits_units(arm)
     speed = max(1, min(1023, speed_to_units(params.rest_speed_deg_s)))
     try:
+        bus.recover()
         if params.on_interrupt == "torque_off":
             notes = bus.torque_off(ids)
             return {"action": "torque_off", "detail": "torque turned off on all servos (the arm is limp)"
@@ -219,9 +222,7 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
         if params.on_interrupt == "rest":
             home = {j["name"]: j["home_deg"] for j in arm["joints"] if j["name"] != "gripper"}
             rest_units = {int(k): v for k, v in joints_to_servo_units(arm, home).items() if int(k) in ids}
-            present = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
-            timeout = 1.5 * move_seconds(present, {s: (g, speed) for s, g in rest_units.items()}) + 2.0
-            return rest(bus, ids, limits, rest_units, speed, params.tolerance_units, timeout)
+            return rest(bus, ids, limits, rest_units, speed, params.tolerance_units)
         return hold(bus, ids, limits, speed)
     except Exception as e:  # noqa: BLE001 - the bus failed while stopping: the last resort is torque off
         notes = bus.torque_off(ids)
