@@ -21,13 +21,14 @@ from stereograph.runner import run_graph
 
 PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "pick-live.yaml"
 ORDER = ["s000", "s001", "s002", "s003", "s004", "empty000", "s005"]
+DROP = [0.0, 18.0, 4.0]  # arm-base frame, cm
 
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
-    """Seven cycles: five balls, a frame without one, then another ball."""
+    """Seven cycles: five balls, a frame without one, then another ball; each ball put down at a drop point."""
     tmp = tmp_path_factory.mktemp("live")
-    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20"])
+    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20", f"pick.place_cm={DROP}"])
     loop = Loop(len(ORDER), save_cycles=True)
     result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "run", cache_dir=tmp / "cache")
     return loop, result, tmp
@@ -72,6 +73,10 @@ def test_the_run_folder_has_the_cycle_log_and_the_recording(live):
     assert left.shape == (480, 640, 3)
     assert json.loads((first / "compensate" / "location.json").read_text())["found"]
     assert not (result.out_dir / "cycles" / "00006" / "act").exists()  # nothing moved in the empty cycle
+    # the ball was carried to the drop point and released there
+    reached = json.loads((first / "act" / "log.json").read_text())["picks"][0]["reached"]
+    names = [r["waypoint"] for r in reached]
+    assert names.index("close") < names.index("place") < names.index("release")
 
 
 def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
