@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -103,6 +105,15 @@ def test_a_recording_plays_with_its_truth(tmp_path, scenes):
         assert g["truth"]["center_left_cm"] == pytest.approx(s["truth"]["center_left_cm"])
     assert (tmp_path / "out" / "recording" / "left.avi").exists()
     close_resources(ctx.resources)
+    # outside a run: a temporary folder, removed when the capture closes (nothing in the working folder)
+    cwd, here = os.getcwd(), tmp_path / "cwd"
+    here.mkdir()
+    os.chdir(here)
+    try:
+        assert list(camera(CameraParams(), recording=rec)["pairs"]) == [scenes[2]["id"]]
+    finally:
+        os.chdir(cwd)
+    assert list(here.iterdir()) == []
 
 
 def test_missing_file_is_a_clear_error(tmp_path):

@@ -25,6 +25,7 @@ camera does not warm up again.
 
 from __future__ import annotations
 
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Literal
@@ -115,6 +116,7 @@ class StereoCapture:
         self.caps: list[cv2.VideoCapture] = []
         self.frame = -1  # index of the last frame grabbed from each side
         self.lap = 0  # times a recording was rewound (keeps pair ids unique)
+        self.tmp: tempfile.TemporaryDirectory | None = None  # a recording's folder outside a run
         try:
             for which, src in zip(("left", "right"), self.sources):
                 self.caps.append(self._open(src, which if p.right is not None else "stereo"))
@@ -213,6 +215,9 @@ class StereoCapture:
         for c in self.caps:
             c.release()
         self.caps = []
+        if self.tmp is not None:
+            self.tmp.cleanup()
+            self.tmp = None
 
 
 def grab_pairs(p: CameraParams, cap: StereoCapture) -> dict:
@@ -242,10 +247,14 @@ def camera(params: CameraParams, recording=None, ctx=None) -> dict:
     def open_capture() -> StereoCapture:
         if recording is None or not params.use_recording:
             return StereoCapture(params, base)
-        folder = (ctx.out_dir if ctx is not None else Path.cwd()) / "recording"
+        # into the run folder; called outside a run, into a temporary folder removed on close
+        tmp = None if ctx is not None else tempfile.TemporaryDirectory(prefix="stereograph-camera-")
+        folder = (ctx.out_dir if ctx is not None else Path(tmp.name)) / "recording"
         left, right = write_recording(recording, folder)
         p = params.model_copy(update={"left": str(left), "right": str(right)})
-        return StereoCapture(p, None, truth=recording.get("truth"), ids=recording.get("ids"))
+        cap = StereoCapture(p, None, truth=recording.get("truth"), ids=recording.get("ids"))
+        cap.tmp = tmp
+        return cap
 
     cap = ctx.resource("capture", open_capture) if ctx is not None else None
     if cap is not None:
