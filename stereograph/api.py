@@ -155,6 +155,8 @@ class RunContext:
     input_types : dict
         Input port -> the artifact type of the output wired to it (unwired ports absent).
         A node whose input accepts alternatives (``In("A | B")``) reads which one it got here.
+    resources : dict or None
+        Objects kept open for the whole run (every cycle of ``--repeat``); see :meth:`resource`.
     """
 
     node_name: str
@@ -163,6 +165,23 @@ class RunContext:
     pipeline_dir: Path
     messages: list[str] = field(default_factory=list)
     input_types: dict[str, str] = field(default_factory=dict)
+    resources: dict[str, Any] | None = None
+
+    def resource(self, key: str, open_fn: Callable[[], Any]) -> Any:
+        """An object (a device, a connection) opened once and kept for the whole run.
+
+        The first call with ``key`` calls ``open_fn()``; later calls in the same run, such as the
+        next cycle of ``stereograph run --repeat``, get the same object. The engine calls its
+        ``close()`` (or ``release()``) when the run ends, interrupted or not. Returns None when
+        the run cannot keep objects (the node runs in another process): the node then opens and
+        closes the object itself.
+        """
+        if self.resources is None:
+            return None
+        key = f"{self.node_name}:{key}"
+        if key not in self.resources:
+            self.resources[key] = open_fn()
+        return self.resources[key]
 
     def warn(self, message: str) -> None:
         """Record a warning that the run summary shows next to the node."""

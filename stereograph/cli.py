@@ -7,7 +7,9 @@ traceback (``--debug`` does).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -244,16 +246,18 @@ def cmd_run(args) -> int:
     graph = _load_graph(args)
     err = _console(stderr=True)  # (wiring warnings such as unused outputs: `stereograph validate`)
     con = _console()
-    interactive = sys.stdout.isatty() and not args.json
+    loop = _loop(args, con)
+    interactive = sys.stdout.isatty() and not args.json and loop is None
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
-              from_node=getattr(args, "from"), executor=executor)
+              from_node=getattr(args, "from"), executor=executor, cycles=loop)
     try:
-        if interactive:
-            with RichProgress(con) as prog:
-                result = run_graph(graph, progress=prog, **kw)
-        else:
-            result = run_graph(graph, **kw)
+        with _sigterm_as_interrupt(loop is not None):
+            if interactive:
+                with RichProgress(con) as prog:
+                    result = run_graph(graph, progress=prog, **kw)
+            else:
+                result = run_graph(graph, **kw)
     finally:
         executor.close()
     if args.json:
@@ -261,7 +265,11 @@ def cmd_run(args) -> int:
     else:
         _echo_results(result, con)
         _summary_table(result, con)
+        if loop is not None:
+            con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
         con.print(f"outputs: {result.out_dir}")
+    if loop is not None and (loop.interrupted or loop.completed):
+        return 130 if loop.interrupted else 0
     if not result.ok:
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
@@ -283,6 +291,44 @@ def cmd_run(args) -> int:
             err.print("After the fix, run the same command again.")
         return 1
     return 0
+
+
+def _loop(args, con):
+    """The ``--repeat`` loop (stereograph.loop), or None."""
+    if args.repeat is None:
+        return None
+    if args.workers > 1 or args.dask:
+        raise ConfigError("--repeat runs every cycle in this process, so it cannot be combined with --workers or "
+                          "--dask.", hint="drop --workers / --dask")
+    from rich.markup import escape
+
+    from stereograph.loop import Loop
+
+    return Loop(args.repeat, args.stop_on_failure, args.save_cycles,
+                on_cycle=None if args.json else (lambda c: con.print(escape(c.line()))))
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt(enabled: bool):
+    """In a ``--repeat`` loop, SIGTERM (``kill``, a service manager) ends the run the way Ctrl-C
+    does: as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so its cleanup runs and
+    the loop's summary is written. (A single run keeps the default action, which a node may
+    replace while it does something that must end cleanly — a motion.)"""
+    def handler(signum, frame):
+        raise KeyboardInterrupt("SIGTERM")
+
+    if not enabled:
+        yield
+        return
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def cmd_explain(args) -> int:
@@ -329,14 +375,18 @@ def cmd_cache(args) -> int:
     return 0
 
 
-def _positive_int(text: str) -> int:
+def _positive_int(text: str, least: int = 1, what: str = "at least 1") -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be {what} (got {value})")
     return value
+
+
+def _non_negative_int(text: str) -> int:
+    return _positive_int(text, 0, "0 (until stopped) or more")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -364,6 +414,11 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
                     "('local' starts one with --workers processes; needs the 'dask' extra)")
+    sp.add_argument("--repeat", type=_non_negative_int, metavar="N", help="run the live part (uncacheable nodes and "
+                    "their downstream) N times, 0 = until stopped; each cycle in cycles.jsonl")
+    sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")
+    sp.add_argument("--save-cycles", action="store_true", help="--repeat: write every cycle's live outputs, images "
+                    "included, into cycles/<n>/")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
     sp = pipeline_cmd("graph", "print the pipeline graph")

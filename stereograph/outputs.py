@@ -226,5 +226,6 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                    **({"traceback": r.trace} if r.unexpected and r.trace else {})}
                   for r in run.reports.values()],
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
+        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),  # stereograph.loop
     }
     _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())

@@ -65,6 +65,7 @@ class Task:
     out_dir: str
     pipeline_dir: str
     input_types: dict[str, str] = field(default_factory=dict)
+    resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
 
 
 @dataclass
@@ -95,7 +96,7 @@ def execute(task: Task) -> TaskResult:
         ctx = None
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
-                             Path(task.pipeline_dir), input_types=task.input_types)
+                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources)
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
         if not isinstance(out, dict) or set(out) != set(spec.outputs):
@@ -252,6 +253,8 @@ class _Run:
         self.code_files: dict[str, dict[str, str]] = {}
         self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
         self.keep = set(graph.terminal())
+        self.resources: dict[str, Any] = {}   # RunContext.resource objects, closed when the run ends
+        self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.loop)
 
     # ---- keys
 
@@ -331,9 +334,11 @@ class _Run:
 
     def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any]) -> Task:
         # a params model may come from a plugin module another process has not imported yet
-        params = inst.params.model_dump() if getattr(self.executor, "remote", False) else inst.params
+        remote = getattr(self.executor, "remote", False)
+        params = inst.params.model_dump() if remote else inst.params
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
-                    str(self.out_dir), str(self.g.doc.directory), self.input_types(inst))
+                    str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
+                    None if remote else self.resources)
 
     def input_types(self, inst: NodeInstance) -> dict[str, str]:
         """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
@@ -422,7 +427,8 @@ class _Run:
         if bad:
             rep.status, rep.error = "skipped", f"upstream node '{bad}' did not finish"
             return
-        base = self.node_components(inst) if self.store is not None else None
+        store_on = self.store is not None and inst.name not in self.memory_only
+        base = self.node_components(inst) if store_on else None
         entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
         if inst.mapped:
             for out in inst.spec.outputs:
@@ -431,10 +437,10 @@ class _Run:
         if self.progress:
             self.progress.node_started(inst.name, len(entries))
         todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
-        cacheable = self.store is not None and inst.spec.cacheable and inst.name not in self.force
+        cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
         for item in entries:
             refs = self.input_refs(inst, item)
-            key = self.entry_key(base, refs, item) if self.store is not None else None
+            key = self.entry_key(base, refs, item) if store_on else None
             if key is not None:
                 self.keys[(inst.name, item)] = key
             manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
@@ -447,7 +453,7 @@ class _Run:
                     self.progress.advance(inst.name)
             else:
                 todo.append((item, key, refs))
-        if self.store is not None:
+        if store_on:
             comps = dict(base or {})
             comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
             comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
@@ -466,7 +472,7 @@ class _Run:
             tasks.append(self.task(inst, item, values))
             metas.append((item, key))
         results = self._run_locked(inst, tasks, metas, cacheable)
-        volatile = self.store is None or not inst.spec.cacheable
+        volatile = not store_on or not inst.spec.cacheable
         for (item, key), (res, stored) in zip(metas, results):
             ok = True
             if res is None:  # another run computed it while we waited
@@ -477,7 +483,7 @@ class _Run:
                         # uncacheable output (live camera, actuator): a fresh key, so nothing
                         # downstream is ever served a stale result
                         self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and
-                                          self.store is not None else key if not volatile else None,
+                                          store_on else key if not volatile else None,
                                           res.outputs or {}, res.messages)
                     except (NodeError, TypeError) as e:
                         self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
@@ -572,10 +578,13 @@ class _Run:
 def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str | Path | None = None,
               use_cache: bool = True, only: str | None = None, from_node: str | None = None,
               executor: Any = None, progress: Any = None, run_id: str | None = None,
-              write_outputs: bool = True, keep: set[str] | None = None) -> RunResult:
+              write_outputs: bool = True, keep: set[str] | None = None,
+              cycles: Callable[[_Run, list[str]], None] | None = None) -> RunResult:
     """Run a validated graph; see the module docstring.
 
     ``keep`` names extra (non-terminal) nodes whose outputs the result should hold.
+    ``cycles(run, selected)``, if given, runs the selected nodes instead of the single pass
+    (:func:`stereograph.loop.repeat`); objects nodes kept open are closed afterwards either way.
     """
     t0 = time.perf_counter()
     doc = graph.doc
@@ -604,9 +613,13 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
         run.keep = {only}
     run.keep |= set(keep or ())
     try:
-        for name in selected:
-            run.run_node(graph.nodes[name])
+        if cycles is not None:
+            cycles(run, selected)
+        else:
+            for name in selected:
+                run.run_node(graph.nodes[name])
     finally:
+        close_resources(run.resources)
         if own_executor:
             executor.close()
         if store is not None:
@@ -621,6 +634,16 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def close_resources(resources: dict[str, Any]) -> None:
+    """Close what nodes kept open with ``ctx.resource`` (last opened first); never raises."""
+    for obj in reversed(list(resources.values())):
+        close = getattr(obj, "close", None) or getattr(obj, "release", None)
+        if close is not None:
+            with contextlib.suppress(Exception):
+                close()
+    resources.clear()
 
 
 def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict, dict]:

@@ -55,7 +55,7 @@ def test_board_never_found_names_files(tmp_path):
 
 def test_no_camera_device_is_a_clear_error():
     with pytest.raises(NodeError, match="no left camera at device index 97"):
-        camera(CameraParams(left_index=97, right_index=98, warmup_frames=0))
+        camera(CameraParams(left=97, right=98, warmup_frames=0))
 
 
 def test_files_pairs_by_name_with_csv_truth(tmp_path):
@@ -108,7 +108,7 @@ def test_synthetic_bad_params():
     with pytest.raises(ValidationError, match="colour"):
         SyntheticParams(n_scenes=1, n_views=0, ball_color="mauve")
     with pytest.raises(ValidationError, match="both 1"):
-        CameraParams(left_index=1, right_index=1)
+        CameraParams(left=1, right=1)
 
 
 def test_too_few_views_says_add_views():

@@ -1,85 +1,266 @@
-"""``source.camera``: stereo pairs grabbed live from two cameras (``cv2.VideoCapture``); never cached."""
+"""``source.camera``: stereo pairs grabbed from anything ``cv2.VideoCapture`` opens; never cached.
+
+Each side is a device index (``0``), a video file (``left.avi``), an image-sequence pattern
+(``left_%03d.png``), a stream URL (``rtsp://...``) or a GStreamer pipeline string; or one stereo
+device that delivers side-by-side frames (``right: null``). Files go through the same code path as
+devices, which is what makes the node testable: the tests record the synthetic rig with
+``cv2.VideoWriter`` and read it back here.
+
+Keeping a pair close in time: both sides are ``grab()``-bed first (cheap: the frame stays in the
+driver) and only then ``retrieve()``-d (decoding), so the two exposures are as close as the
+devices allow. Each frame's timestamp is recorded and the pair's left/right *skew* measured on one
+of two clocks:
+
+- ``stream``: the time code each stream gives its frame (``CAP_PROP_POS_MSEC``). For recordings
+  this is the only meaningful clock (a file is read as fast as it decodes); two recordings whose
+  time codes disagree — different frame rates, a dropped frame — show it here.
+- ``host``: when each ``grab()`` returned on this computer's monotonic clock. For live devices,
+  whose stream time bases are unrelated to each other.
+
+A pair whose skew exceeds ``max_skew_ms`` is dropped and the next one grabbed (``skew_retries``
+times); then the node fails with the figures. Inside a ``stereograph run --repeat`` loop the
+devices stay open from one cycle to the next (``ctx.resource``), so a recording plays on and a
+camera does not warm up again.
+"""
 
 from __future__ import annotations
 
+import tempfile
 import time
+from pathlib import Path
+from typing import Any, Literal
 
 import cv2
 from pydantic import model_validator
 
-from stereograph.api import Field, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["CameraParams", "camera", "grab_pairs"]
+from ._video import write_recording
+
+__all__ = ["CameraParams", "StereoCapture", "camera", "grab_pairs"]
+
+BACKENDS = {"any": cv2.CAP_ANY, "ffmpeg": cv2.CAP_FFMPEG, "gstreamer": cv2.CAP_GSTREAMER, "v4l2": cv2.CAP_V4L2,
+            "dshow": cv2.CAP_DSHOW, "msmf": cv2.CAP_MSMF, "avfoundation": cv2.CAP_AVFOUNDATION,
+            "images": cv2.CAP_IMAGES}
 
 
 class CameraParams(Params):
-    left_index: int = Field(0, ge=0, description="Device index of the left camera (integer).")
-    right_index: int = Field(1, ge=0, description="Device index of the right camera (integer).")
-    width_px: int | None = Field(None, ge=16, description="Requested frame width, pixels (default: the camera's).")
+    left: int | str = Field(0, description="Left camera: a device index, a video file, an image-sequence pattern "
+                                           "(left_%03d.png), a stream URL or a GStreamer pipeline (ending in "
+                                           "appsink). Paths are relative to the pipeline file.")
+    right: int | str | None = Field(1, description="Right camera, as `left`; null: `left` is one stereo device "
+                                                   "delivering side-by-side frames (left image in the left half).")
+    backend: Literal[tuple(BACKENDS)] = Field("any", description="cv2.VideoCapture backend (any: OpenCV chooses).")
+    width_px: int | None = Field(None, ge=16, description="Requested frame width, pixels (side-by-side: the whole "
+                                                          "frame; default: the camera's).")
     height_px: int | None = Field(None, ge=16, description="Requested frame height, pixels.")
-    n_frames: int = Field(1, ge=1, le=10000, description="Pairs to grab (count).")
+    n_frames: int = Field(1, ge=1, le=10000, description="Pairs to grab per run (per cycle of --repeat), count.")
     interval_s: float = Field(0.0, ge=0, description="Pause between pairs, seconds.")
-    warmup_frames: int = Field(5, ge=0, le=100, description="Frames dropped first while exposure settles (count).")
+    warmup_frames: int | None = Field(None, ge=0, le=100, description="Frames dropped after opening while exposure "
+                                                                      "settles (count); default 5 for devices and "
+                                                                      "streams, 0 for files.")
+    max_skew_ms: float = Field(20.0, gt=0, description="Largest left/right time difference of a pair, ms.")
+    skew_clock: Literal["auto", "stream", "host"] = Field(
+        "auto", description="Clock the skew is measured on: stream = the streams' own time codes (CAP_PROP_POS_MSEC), "
+                            "host = when each grab() returned; auto = stream for files, host otherwise.")
+    skew_retries: int = Field(2, ge=0, le=100, description="Skewed pairs dropped before the node fails (count).")
+    use_recording: bool = Field(True, description="Play the wired `recording` input, if any; false: open left/right "
+                                                  "(real cameras in a pipeline that ships a recording).")
+    at_end: Literal["fail", "rewind"] = Field("fail", description="When a file ends: fail (the loop stops, saying "
+                                                                  "so) or rewind both sides to the first frame.")
 
     @model_validator(mode="after")
-    def _check_indices(self):
+    def _check_sides(self):
         # Checked here so `stereograph validate` reports it (exit 2) before any camera is opened.
-        if self.left_index == self.right_index:
-            raise ValueError(f"left_index and right_index are both {self.left_index}; give the two cameras' "
-                             "different device indices")
+        if self.left == self.right:
+            raise ValueError(f"left and right are both {self.left!r}; give the two cameras' different sources "
+                             "(or right: null for one side-by-side stereo device)")
         return self
 
 
-def _open(index: int, which: str, p: CameraParams) -> cv2.VideoCapture:
-    cap = cv2.VideoCapture(index)
-    if not cap.isOpened():
-        cap.release()
-        raise NodeError(f"source.camera: no {which} camera at device index {index} (cv2.VideoCapture could not open "
-                        "it).", hint=f"plug the camera in or set {which}_index to an existing device "
-                                     "(ls /dev/video*); use source.files for recorded images")
-    if p.width_px:
-        cap.set(cv2.CAP_PROP_FRAME_WIDTH, p.width_px)
-    if p.height_px:
-        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, p.height_px)
-    return cap
+def _is_file(src: int | str) -> bool:
+    """A recording (file or image sequence) rather than a device (index or /dev/ path), URL or pipeline."""
+    if isinstance(src, int) or "://" in src or "!" in src or src.startswith("/dev/"):
+        return False
+    return True
 
 
-def grab_pairs(p: CameraParams) -> dict:
-    """Grab ``n_frames`` stereo pairs. ``grab`` both devices first, then ``retrieve``, to keep them close in time."""
-    caps = []
-    try:
-        caps.append(_open(p.left_index, "left", p))
-        caps.append(_open(p.right_index, "right", p))
-        for _ in range(p.warmup_frames):
-            for c in caps:
-                c.grab()
-        out = {}
-        for k in range(p.n_frames):
-            ok = [c.grab() for c in caps]
-            frames = [c.retrieve()[1] if g else None for c, g in zip(caps, ok)]
-            for which, f in zip(("left", "right"), frames):
-                if f is None:
-                    raise NodeError(f"source.camera: the {which} camera stopped delivering frames (pair {k}).",
-                                    hint="check the cable/USB bandwidth; two cameras on one hub may need a lower "
-                                         "resolution")
-            pid = f"cam{k:04d}"
-            out[pid] = {"id": pid, "left": frames[0], "right": frames[1], "truth": None, "split": "test",
-                        "timestamp_s": time.time()}
-            if p.interval_s and k + 1 < p.n_frames:
-                time.sleep(p.interval_s)
-        return out
-    finally:
-        for c in caps:
+def _resolve(src: int | str, base: Path | None) -> int | str:
+    if isinstance(src, str) and src.strip().isdigit():
+        return int(src)
+    if isinstance(src, str) and _is_file(src) and base is not None and not Path(src).expanduser().is_absolute():
+        return str(base / src)
+    return src
+
+
+class StereoCapture:
+    """Two ``cv2.VideoCapture`` (or one side-by-side device) delivering time-stamped pairs.
+
+    Parameters
+    ----------
+    p : CameraParams
+    base : Path or None
+        Folder relative file paths are resolved from.
+    truth : list or None
+        Ground truth per frame index (a recording made from the synthetic rig), attached to each pair.
+    ids : list of str or None
+        Pair ids per frame index (default ``cam00000``...).
+    """
+
+    def __init__(self, p: CameraParams, base: Path | None = None, truth: list | None = None,
+                 ids: list[str] | None = None):
+        self.p, self.truth, self.ids = p, truth, ids
+        self.sources = [_resolve(p.left, base)] + ([] if p.right is None else [_resolve(p.right, base)])
+        self.files = all(_is_file(s) for s in self.sources)
+        self.clock = p.skew_clock if p.skew_clock != "auto" else ("stream" if self.files else "host")
+        self.caps: list[cv2.VideoCapture] = []
+        self.frame = -1  # index of the last frame grabbed from each side
+        self.lap = 0  # times a recording was rewound (keeps pair ids unique)
+        self.tmp: tempfile.TemporaryDirectory | None = None  # a recording's folder outside a run
+        try:
+            for which, src in zip(("left", "right"), self.sources):
+                self.caps.append(self._open(src, which if p.right is not None else "stereo"))
+            warm = p.warmup_frames if p.warmup_frames is not None else (0 if self.files else 5)
+            for _ in range(warm):
+                self._grab()
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, src: int | str, which: str) -> cv2.VideoCapture:
+        cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
+        if not cap.isOpened():
+            cap.release()
+            field = "left" if which in ("left", "stereo") else "right"
+            if isinstance(src, int):
+                raise NodeError(f"source.camera: no {which} camera at device index {src} (cv2.VideoCapture could not "
+                                "open it).", hint=f"plug the camera in or set {field} to an existing device "
+                                                  "(ls /dev/video*), a video file or an image-sequence pattern")
+            missing = _is_file(src) and "%" not in src and not Path(src).exists()
+            raise NodeError(f"source.camera: cv2.VideoCapture could not open the {which} source {src!r}"
+                            + (" (no such file)." if missing else f" with backend {self.p.backend}."),
+                            hint=f"set {field} to an existing video file, an image pattern such as left_%03d.png, "
+                                 "a stream URL or a GStreamer pipeline ending in appsink; check the codec is one "
+                                 "OpenCV's build reads (cv2.getBuildInformation())")
+        if self.p.width_px:
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.p.width_px)
+        if self.p.height_px:
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.p.height_px)
+        return cap
+
+    def _grab(self) -> list[float]:
+        """``grab()`` every side back to back; host times (s) when each returned. Rewinds files on request."""
+        times, ok = [], []
+        for c in self.caps:
+            ok.append(c.grab())
+            times.append(time.monotonic())
+        if not all(ok) and self.files and self.p.at_end == "rewind" and self.frame >= 0:
+            for c in self.caps:
+                c.set(cv2.CAP_PROP_POS_FRAMES, 0)
+            self.frame = -1
+            self.lap += 1
+            return self._grab()
+        if not all(ok):
+            sides = [w for w, g in zip(("left", "right") if len(self.caps) == 2 else ("stereo",), ok) if not g]
+            if self.files:
+                raise NodeError(f"source.camera: the {' and '.join(sides)} recording ended after {self.frame + 1} "
+                                "frames.", hint="set at_end: rewind to play it again, or record more frames")
+            raise NodeError(f"source.camera: the {' and '.join(sides)} camera stopped delivering frames (frame "
+                            f"{self.frame + 1}).", hint="check the cable/USB bandwidth; two cameras on one hub may "
+                                                        "need a lower resolution or frame rate")
+        self.frame += 1
+        return times
+
+    def read_pair(self) -> dict[str, Any]:
+        """The next pair whose skew is within ``max_skew_ms`` (StereoPair plus timing keys)."""
+        p = self.p
+        for attempt in range(p.skew_retries + 1):
+            host = self._grab()
+            frames = []
+            for c in self.caps:
+                ok, f = c.retrieve()
+                if not ok or f is None:
+                    raise NodeError(f"source.camera: frame {self.frame} was grabbed but could not be decoded.",
+                                    hint="check the video codec / camera pixel format (backend, width_px, height_px)")
+                frames.append(f)
+            stream = [c.get(cv2.CAP_PROP_POS_MSEC) for c in self.caps]
+            if len(frames) == 1:  # one side-by-side device: one exposure, no skew
+                f = frames[0]
+                half = f.shape[1] // 2
+                frames, skew, stream = [f[:, :half].copy(), f[:, half:2 * half].copy()], 0.0, stream * 2
+                host = host * 2
+            elif self.clock == "stream":
+                skew = abs(stream[0] - stream[1])
+            else:
+                skew = abs(host[0] - host[1]) * 1000.0
+            if skew <= p.max_skew_ms:
+                break
+            if attempt == p.skew_retries:
+                clock = (f"stream time codes {stream[0]:.1f} / {stream[1]:.1f} ms" if self.clock == "stream" else
+                         "grab() calls on this computer")
+                raise NodeError(
+                    f"source.camera: refusing frame {self.frame}: left and right are {skew:.1f} ms apart ({clock}), "
+                    f"more than max_skew_ms {p.max_skew_ms:g} ms ({p.skew_retries + 1} pair(s) tried).",
+                    hint="recordings: the two files must have the same frame rate and start (re-record or trim them); "
+                         "cameras: use synchronised cameras, a lower resolution or frame rate, or raise max_skew_ms")
+        k = self.frame
+        pid = (self.ids[k] if self.ids and k < len(self.ids) else f"cam{k:05d}") + (f"@{self.lap}" if self.lap else "")
+        truth = self.truth[k] if self.truth and k < len(self.truth) else None
+        return {"id": pid, "left": frames[0], "right": frames[1], "truth": truth, "split": "test",
+                "frame": k, "timestamp_s": time.time(), "left_ms": round(float(stream[0]), 3),
+                "right_ms": round(float(stream[1]), 3), "skew_ms": round(float(skew), 3), "skew_clock": self.clock,
+                "grab_monotonic_s": host[0]}
+
+    def close(self) -> None:
+        for c in self.caps:
             c.release()
+        self.caps = []
+        if self.tmp is not None:
+            self.tmp.cleanup()
+            self.tmp = None
+
+
+def grab_pairs(p: CameraParams, cap: StereoCapture) -> dict:
+    """Grab ``n_frames`` pairs from an open :class:`StereoCapture`; ``{pair_id: StereoPair}``."""
+    out = {}
+    for k in range(p.n_frames):
+        pair = cap.read_pair()
+        out[pair["id"]] = pair
+        if p.interval_s and k + 1 < p.n_frames:
+            time.sleep(p.interval_s)
+    return out
 
 
 @node(
     "source.camera",
-    outputs={"pairs": Out("StereoPair", collection=True, description="Live stereo pairs.")},
+    inputs={"recording": In("StereoRecording", optional=True,
+                            description="Play this recording (written into the run folder) instead of left/right.")},
+    outputs={"pairs": Out("StereoPair", collection=True, description="Stereo pairs with timestamps and skew.")},
     params=CameraParams,
-    version="1",
+    version="2",
     cacheable=False,
 )
-def camera(params: CameraParams) -> dict:
-    """Grab stereo pairs from two live cameras (device indices)."""
-    return {"pairs": grab_pairs(params)}
+def camera(params: CameraParams, recording=None, ctx=None) -> dict:
+    """Grab stereo pairs from two cameras, a side-by-side stereo camera, video files or image sequences."""
+    base = ctx.pipeline_dir if ctx is not None else None
+
+    def open_capture() -> StereoCapture:
+        if recording is None or not params.use_recording:
+            return StereoCapture(params, base)
+        # into the run folder; called outside a run, into a temporary folder removed on close
+        tmp = None if ctx is not None else tempfile.TemporaryDirectory(prefix="stereograph-camera-")
+        folder = (ctx.out_dir if ctx is not None else Path(tmp.name)) / "recording"
+        left, right = write_recording(recording, folder)
+        p = params.model_copy(update={"left": str(left), "right": str(right)})
+        cap = StereoCapture(p, None, truth=recording.get("truth"), ids=recording.get("ids"))
+        cap.tmp = tmp
+        return cap
+
+    cap = ctx.resource("capture", open_capture) if ctx is not None else None
+    if cap is not None:
+        return {"pairs": grab_pairs(params, cap)}
+    cap = open_capture()
+    try:
+        return {"pairs": grab_pairs(params, cap)}
+    finally:
+        cap.close()

@@ -1,0 +1,165 @@
+"""Latency of the live pick loop: from the frame grab to the first servo goal written, per stage.
+
+    .venv/bin/python benchmarks/bench_latency.py [--cycles 60] [--core 0] [--sim-time-scale 50] [--set NODE.PARAM=V]
+
+Runs ``pipelines/pick-live.yaml --repeat`` (the embedded default: a recorded synthetic 640x480 camera,
+the saved calibration / compensation / hand-eye, the AX-12A emulator on a pseudo-terminal driven by
+the real dynamixel-sdk) in this process, pinned to one CPU core (OpenCV single-threaded), and for
+every cycle that picks, times:
+
+    grab               source.camera: grab() both sides, retrieve (decode), timestamps, skew check
+    rectify+segment    the segmenter, rectifying on request only what it reads
+    locate+compensate  centroid disparity, triangulation, depth compensation
+    IK+plan            analytic IK, pick plan (limits checked)
+    servo I/O          actuator up to the first goal written, split into
+      start, open port   plan check, emulator start (port: sim), opening the port
+      ping, reads, write ping and limit / position reads of every servo, the first GROUP SYNC WRITE
+    grab -> first goal the sum: from the camera node's start to the first goal packet written
+
+Stage times are wall-clock between the engine's node starts (so engine overhead is counted, in
+the stage it falls in) and the first sync write returning; the motion itself is excluded. Cycle 1
+(loading the files, recording the camera) is not counted; nor are cycles where nothing was picked
+(reported). Prints median and p95 per stage in ms, with the main thread's CPU time beside them:
+on a shared machine the wall figure includes waiting for the core, the CPU figure does not.
+The servo I/O CPU figure excludes the emulator, which runs in a thread of this process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+STAGES = [("grab", "cam", "segment"), ("rectify+segment", "segment", "disparity"),
+          ("locate+compensate", "disparity", "ik"), ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
+
+
+class Stamps:
+    """The engine's progress hook: when each node started (wall and this thread's CPU clock)."""
+
+    def __init__(self):
+        self.start: dict[str, tuple[float, float]] = {}
+
+    def node_started(self, name: str, n_items: int) -> None:
+        self.start[name] = (time.perf_counter(), time.thread_time())
+
+    def advance(self, name: str) -> None:
+        pass
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cycles", type=int, default=60, help="cycles measured (after the first), >= 50 for the figure")
+    ap.add_argument("--core", type=int, default=0, help="CPU core to run on (-1: do not pin)")
+    ap.add_argument("--emulator-core", type=int, default=None,
+                    help="CPU core of the servo emulator's thread (default: --core, all on one core; another core "
+                         "models servos that do not share our CPU)")
+    ap.add_argument("--sim-time-scale", type=float, default=50.0,
+                    help="emulated motion speed-up (the motion is not timed; this only shortens the run)")
+    ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="pipeline override")
+    a = ap.parse_args(argv)
+    if a.core >= 0 and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {a.core})  # this thread (and threads it starts) on one core
+    import cv2
+
+    cv2.setNumThreads(1)
+    import nodes.actuators._bus as bus_mod
+    import nodes.actuators.servo_sim as sim_mod
+
+    emu_core = a.emulator_core if a.emulator_core is not None else (a.core if a.core >= 0 else None)
+    sim_start = sim_mod.ServoSim.start
+
+    def pinned_start(self):
+        out = sim_start(self)
+        if emu_core is not None and self._thread is not None and hasattr(os, "sched_setaffinity"):
+            os.sched_setaffinity(self._thread.native_id, {emu_core})
+        return out
+
+    sim_mod.ServoSim.start = pinned_start
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+    from stereograph.loop import Loop
+    from stereograph.runner import run_graph
+
+    first_goal: list[tuple[float, float]] = []  # (wall, cpu) when the first sync write of a cycle returned
+    port_open: list[tuple[float, float]] = []  # (wall, cpu) when the bus's port was open
+    sync_write, bus_open = bus_mod.Bus.sync_write, bus_mod.Bus.open
+
+    def timed_open(self):
+        out = bus_open(self)
+        port_open.append((time.perf_counter(), time.thread_time()))
+        return out
+
+    def timed_sync_write(self, data):  # instrumentation only: the real write, then a timestamp
+        out = sync_write(self, data)
+        if not getattr(self, "_bench_stamped", False):
+            self._bench_stamped = True
+            first_goal.append((time.perf_counter(), time.thread_time()))
+        return out
+
+    bus_mod.Bus.sync_write = timed_sync_write
+    bus_mod.Bus.open = timed_open
+    stamps = Stamps()
+    rows: list[dict[str, tuple[float, float]]] = []
+    not_picked: dict[str, int] = {}
+
+    def on_cycle(c) -> None:
+        goal = first_goal.pop() if first_goal else None
+        opened = port_open[0] if port_open else None
+        first_goal.clear()
+        port_open.clear()
+        if c.index == 1:
+            return
+        if c.status != "ok" or goal is None:
+            key = f"{c.failed_node}: {(c.error or '')[:80]}"
+            not_picked[key] = not_picked.get(key, 0) + 1
+            return
+        row = {}
+        for name, a_node, b_node in STAGES:
+            t0 = stamps.start[a_node]
+            t1 = stamps.start[b_node] if b_node else goal
+            row[name] = ((t1[0] - t0[0]) * 1000, (t1[1] - t0[1]) * 1000)
+        t0 = stamps.start["act"]
+        row["  start, open port"] = ((opened[0] - t0[0]) * 1000, (opened[1] - t0[1]) * 1000)
+        row["  ping, reads, write"] = ((goal[0] - opened[0]) * 1000, (goal[1] - opened[1]) * 1000)
+        t0 = stamps.start["cam"]
+        row["grab -> first goal"] = ((goal[0] - t0[0]) * 1000, (goal[1] - t0[1]) * 1000)
+        rows.append(row)
+        print(f"\rcycle {c.index}: {row['grab -> first goal'][0]:.1f} ms", end="", file=sys.stderr, flush=True)
+
+    doc = load_pipeline(ROOT / "pipelines" / "pick-live.yaml", [f"act.sim_time_scale={a.sim_time_scale}", *a.set])
+    loop = Loop(a.cycles + 1, on_cycle=on_cycle)
+    t_run = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        run_graph(build_graph(doc), cycles=loop, out_dir=Path(tmp) / "run", progress=stamps)
+    print(file=sys.stderr)
+    w, h = doc.nodes["scenes"]["params"].get("image_width_px", 640), doc.nodes["scenes"]["params"].get(
+        "image_height_px", 480)
+    pinned = (f"pipeline pinned to core {a.core}, emulator on core {emu_core}" if a.core >= 0 else "not pinned")
+    print(f"pick-live latency: {len(rows)} picking cycles of {len(loop.cycles) - 1} measured, {w}x{h}, {pinned}, "
+          f"OpenCV 1 thread, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
+          f"({time.time() - t_run:.0f} s)")
+    if not rows:
+        print("no cycle picked anything:", not_picked)
+        return 1
+    print(f"{'stage':<22}{'median ms':>11}{'p95 ms':>9}   {'CPU median':>10}{'CPU p95':>9}")
+    for name in [s[0] for s in STAGES] + ["  start, open port", "  ping, reads, write", "grab -> first goal"]:
+        wall = np.array([r[name][0] for r in rows])
+        cpu = np.array([r[name][1] for r in rows])
+        print(f"{name:<22}{np.median(wall):>11.1f}{np.percentile(wall, 95):>9.1f}   "
+              f"{np.median(cpu):>10.1f}{np.percentile(cpu, 95):>9.1f}")
+    total = np.median([r["grab -> first goal"][0] for r in rows])
+    print(f"grab -> first goal written: median {total:.1f} ms (target <= 30 ms, motion excluded)")
+    if not_picked:
+        print("cycles without a pick (not timed): " + "; ".join(f"{n}x {k}" for k, n in not_picked.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

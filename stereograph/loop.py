@@ -1,0 +1,262 @@
+"""Run the live part of a pipeline again and again: ``stereograph run PIPELINE --repeat N``.
+
+The *live part* of a graph is every node that cannot be cached (it reads the world or acts on
+it) and everything downstream of one. Cycle 1 runs the whole graph as a normal run does — the
+rest is served from the cache or computed and cached. The values the live part reads from the
+rest stay in memory, and every later cycle reruns only the live part, in topological order. Its
+results stay in memory and are never stored: each cycle sees new input, so nothing is gained by
+caching it and the disk writes would add to every cycle's latency.
+
+A cycle in which a live node fails is logged with the reason and the loop goes on with the next
+cycle; nodes downstream of the failure do not run in that cycle. The loop stops when the count
+is reached, when a node that starts the live part (one with no live node upstream — the source
+of new input) fails, since no cycle can follow; when a node outside the live part failed in
+cycle 1; at the first failed cycle with ``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C,
+and SIGTERM, which ``stereograph run`` turns into one). An interrupt propagates through the node
+that is running, so that node cleans up on its way out; the loop then records the interrupted
+cycle and returns normally, so the run's summary and ``run.json`` are still written.
+
+Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
+keeps the cycles before it): per live node its status, seconds and error, and its outputs' small
+values (arrays and long values left out); ``save_cycles`` also writes every live output, images as
+PNG (an image inside a dict, such as a pair's ``left``: ``<output>_<key>.png``), into
+``cycles/<n>/<node>/``. The engine knows nothing of what the nodes do: which values say
+"where" or "what moved" is up to the pipeline.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stereograph import outputs as outputs_mod
+from stereograph.errors import ConfigError
+
+SMALL_JSON = 6000  # characters: larger values are left out of cycles.jsonl
+
+
+@dataclass
+class Cycle:
+    """One pass over the live part."""
+
+    index: int
+    status: str = "running"  # ok | failed | interrupted
+    seconds: float = 0.0
+    failed_node: str | None = None
+    error: str | None = None
+    nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
+    values: dict[str, Any] = field(default_factory=dict)
+
+    def line(self) -> str:
+        """One line for the terminal."""
+        times = ", ".join(f"{n} {d['seconds'] * 1000:.0f} ms" for n, d in self.nodes.items()
+                          if d["status"] in ("ran", "partial", "failed"))
+        head = f"cycle {self.index}: {self.status} in {self.seconds:.2f} s"
+        if self.status == "failed":
+            head += f" at {self.failed_node}: {self.error}"
+        elif self.status == "interrupted":
+            head += f" (during {self.failed_node})"
+        return head + (f"  [{times}]" if times else "")
+
+
+@dataclass
+class Loop:
+    """The ``cycles`` hook of :func:`stereograph.runner.run_graph` that repeats the live part.
+
+    Parameters
+    ----------
+    repeat : int
+        Cycles to run; 0 = until interrupted (or the input ends).
+    stop_on_failure : bool
+        Stop at the first failed cycle instead of going on.
+    save_cycles : bool
+        Write every live output of every cycle into ``cycles/<n>/`` (images as PNG).
+    on_cycle : callable, optional
+        Called with each finished :class:`Cycle` (the CLI prints its line).
+    """
+
+    repeat: int
+    stop_on_failure: bool = False
+    save_cycles: bool = False
+    on_cycle: Callable[[Cycle], None] | None = None
+    cycles: list[Cycle] = field(default_factory=list)
+    live: list[str] = field(default_factory=list)
+    stopped: str = ""  # why the loop ended, in words
+    interrupted: bool = False
+
+    @property
+    def n_ok(self) -> int:
+        return sum(1 for c in self.cycles if c.status == "ok")
+
+    def summary(self) -> str:
+        failed = [c for c in self.cycles if c.status == "failed"]
+        text = f"{len(self.cycles)} cycle(s): {self.n_ok} ok, {len(failed)} failed"
+        if failed:
+            reasons: dict[str, int] = {}
+            for c in failed:
+                reasons[f"{c.failed_node}: {c.error}"] = reasons.get(f"{c.failed_node}: {c.error}", 0) + 1
+            text += " (" + "; ".join(f"{n}x {r}" for r, n in list(reasons.items())[:3]) + ")"
+        return text + f"; {self.stopped}"
+
+    # ---- the hook
+
+    def __call__(self, run: Any, selected: list[str]) -> None:
+        g = run.g
+        chosen = set(selected)
+        seeds = [n for n in selected if not g.nodes[n].spec.cacheable]
+        live = set()
+        for n in seeds:
+            live |= ({n} | g.downstream(n)) & chosen
+        if not live:
+            raise ConfigError(f"--repeat: every node of {g.doc.path.name} can be cached, so every cycle would give "
+                              "the same result.", hint="add a live node (a camera, an actuator) or drop --repeat")
+        self.live = [n for n in selected if n in live]
+        run.memory_only = set(live)
+        # Kept in memory across cycles: what the live part reads, and each cycle's own values
+        # until they are logged (the next cycle's reset drops them).
+        keep = set(run.keep)
+        run.keep |= {src for n in self.live for src in g.dag.predecessors(n) if src not in live} | live
+        try:
+            self._cycles(run, selected, live, log_path=run.out_dir / "cycles.jsonl")
+        finally:
+            run.keep = keep
+            run.loop_info = self.info()  # into run.json
+
+    def info(self) -> dict[str, Any]:
+        """What happened, for ``run.json``."""
+        return {"repeat": self.repeat, "cycles": len(self.cycles), "ok": self.n_ok,
+                "failed": sum(1 for c in self.cycles if c.status == "failed"), "interrupted": self.interrupted,
+                "completed": self.completed, "stopped": self.stopped, "summary": self.summary(), "live": self.live,
+                "log": "cycles.jsonl"}
+
+    @property
+    def completed(self) -> bool:
+        """Ran every cycle asked for (never true for ``repeat`` 0)."""
+        return self.stopped.startswith("ran the ")
+
+    def _cycles(self, run: Any, selected: list[str], live: set[str], log_path: Path) -> None:
+        g = run.g
+        roots = {n for n in self.live if not (set(g.dag.predecessors(n)) & live)}
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        log_path.write_text("")
+        k = 0
+        while self.repeat == 0 or k < self.repeat:
+            k += 1
+            cycle = Cycle(k)
+            order = selected if k == 1 else self.live
+            if k > 1:
+                _reset(run, self.live)
+            t0 = time.perf_counter()
+            current = None
+            try:
+                for name in order:
+                    current = name
+                    run.run_node(g.nodes[name])
+            except KeyboardInterrupt:
+                for name in order:  # the interrupted node and those after it did not finish
+                    rep = run.reports[name]
+                    if rep.status in ("pending", "running"):
+                        rep.status, rep.error = "skipped", f"interrupted during cycle {k}"
+                cycle.status, cycle.failed_node = "interrupted", current
+                self.interrupted = True
+            cycle.seconds = time.perf_counter() - t0
+            try:
+                self._record(run, cycle, order, log_path)
+                if self.on_cycle is not None:
+                    self.on_cycle(cycle)
+            except KeyboardInterrupt:  # between cycles: this one is logged as far as it got
+                self.interrupted = True
+            if self.interrupted:
+                self.stopped = f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
+                return
+            outside = [n for n in order if n not in live and run.reports[n].status in ("failed", "skipped")]
+            if outside:
+                self.stopped = f"stopped: node '{outside[0]}' (outside the live part) failed, so no cycle can run"
+                return
+            if cycle.status == "failed" and cycle.failed_node in roots:
+                self.stopped = f"stopped: '{cycle.failed_node}' gave no new input"
+                return
+            if cycle.status == "failed" and self.stop_on_failure:
+                self.stopped = f"stopped at the first failed cycle ({k})"
+                return
+        self.stopped = f"ran the {self.repeat} cycle(s) asked for"
+
+    def _record(self, run: Any, cycle: Cycle, order: list[str], log_path: Path) -> None:
+        g = run.g
+        for name in order:
+            if name not in self.live:
+                continue
+            r = run.reports[name]
+            cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error}
+            if cycle.status == "running" and r.status in ("failed", "partial"):
+                cycle.status, cycle.failed_node, cycle.error = "failed", name, r.error
+            for out in g.nodes[name].spec.outputs:
+                v = _value(run, name, out, g.is_collection(name, out))
+                if v is None:
+                    continue
+                text = json.dumps(outputs_mod.to_json(v, {}), default=str)
+                if len(text) <= SMALL_JSON and '"npz"' not in text:
+                    cycle.values[f"{name}.{out}"] = json.loads(text)
+                elif isinstance(v, dict):  # a big value: keep its scalar facts (ids, timestamps, flags)
+                    small = {key: x for key, x in v.items() if isinstance(x, (int, float, str, bool)) or x is None}
+                    if small:
+                        cycle.values[f"{name}.{out}"] = json.loads(json.dumps(outputs_mod.to_json(small, {})))
+            if self.save_cycles:
+                _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
+        if cycle.status == "running":
+            cycle.status = "ok"
+        rec = {"cycle": cycle.index, "status": cycle.status, "seconds": round(cycle.seconds, 5),
+               "failed_node": cycle.failed_node, "error": cycle.error, "time": time.time(),
+               "nodes": cycle.nodes, "values": cycle.values}
+        with log_path.open("a") as f:
+            f.write(json.dumps(rec, default=str) + "\n")
+        self.cycles.append(cycle)
+
+
+def _value(run: Any, node: str, out: str, collection: bool) -> Any:
+    """The cycle's value of an output (``{item: value}`` for a collection), None if it has none."""
+    if collection:
+        ids = run.items.get((node, out), [])
+        vals = {i: run.mem.get((node, out, i)) for i in ids}
+        if len(vals) == 1 and isinstance(next(iter(vals.values())), dict):
+            return next(iter(vals.values()))  # the usual live cycle: one item
+        return vals or None
+    return run.mem.get((node, out, None))
+
+
+def _save(run: Any, node: str, folder: Path) -> None:
+    """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest as JSON."""
+    for out in run.g.nodes[node].spec.outputs:
+        v = _value(run, node, out, run.g.is_collection(node, out))
+        if v is None:
+            continue
+        stem = folder / node / out
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        if isinstance(v, dict):
+            for key, x in v.items():
+                if outputs_mod.is_image(x):
+                    outputs_mod.write_value(stem.parent / f"{out}_{key}", x)
+            v = {key: x for key, x in v.items() if not outputs_mod.is_image(x)}
+        outputs_mod.write_value(stem, v)
+
+
+def _reset(run: Any, live: list[str]) -> None:
+    """Forget the live nodes' results of the last cycle, so they run again."""
+    from stereograph.runner import NodeReport
+
+    g = run.g
+    live_set = set(live)
+    for n in live:
+        run.reports[n] = NodeReport(n, g.nodes[n].type)
+        run.remaining_consumers[n] = set(g.consumers(n))
+    for table in (run.mem, run.ref_keys):
+        for ref in [r for r in table if r[0] in live_set]:
+            del table[ref]
+    for key in [k for k in run.items if k[0] in live_set]:
+        del run.items[key]
+    for key in [k for k in run.failed_items if k[0] in live_set]:
+        del run.failed_items[key]

@@ -1,0 +1,55 @@
+"""Toy nodes for the --repeat loop tests: a live counter source (kept open across cycles) and a checker."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+
+class TickParams(Params):
+    stop_after: int = Field(1000, ge=0, description="Ticks before the source 'ends' (count).")
+    sleep_s: float = Field(0.0, ge=0, description="Time each tick takes, seconds.")
+    marker: str = Field("", description="File touched when the source is closed (tests).")
+
+
+class Ticker:
+    """A stand-in for a device: counts, and says when it was closed."""
+
+    def __init__(self, marker: str):
+        self.n, self.marker = 0, marker
+
+    def close(self) -> None:
+        if self.marker:
+            Path(self.marker).write_text(f"closed after {self.n}")
+
+
+@node("toy.ticker", outputs={"tick": Out("Number")}, params=TickParams, cacheable=False)
+def ticker(params: TickParams, ctx=None):
+    """Counts 1, 2, 3, ... from one cycle to the next (an uncacheable source)."""
+    t = ctx.resource("ticker", lambda: Ticker(params.marker))
+    if t.n >= params.stop_after:
+        raise NodeError(f"the ticker ended after {t.n} ticks", hint="raise stop_after")
+    time.sleep(params.sleep_s)
+    t.n += 1
+    return {"tick": t.n}
+
+
+class CheckParams(Params):
+    fail_on_multiple_of: int = Field(0, ge=0, description="Fail when the tick is a multiple of this (0: never).")
+
+
+@node("toy.check", inputs={"tick": In("Number"), "offset": In("Number")},
+      outputs={"result": Out("Number")}, params=CheckParams)
+def check(params: CheckParams, tick, offset):
+    """tick + offset, or a failure on chosen ticks (a 'nothing found' cycle)."""
+    if params.fail_on_multiple_of and tick % params.fail_on_multiple_of == 0:
+        raise NodeError(f"tick {tick} refused", hint="none needed")
+    return {"result": tick + offset}
+
+
+@node("toy.constant", outputs={"value": Out("Number")}, params=CheckParams)
+def constant(params: CheckParams):
+    """A cacheable upstream value (counts its own runs in an environment-free way: it is just 7)."""
+    return {"value": 7}

@@ -1,0 +1,114 @@
+"""`stereograph run --repeat`: only the live part reruns, failed cycles are logged, interrupts end it cleanly."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+from stereograph.cli import main
+from stereograph.config import load_pipeline
+from stereograph.graph import build_graph
+from stereograph.loop import Loop
+from stereograph.runner import run_graph
+
+TOY = Path(__file__).parent / "plugins" / "live_toy.py"
+
+
+def pipeline(tmp_path: Path, tick: str = "{}", check: str = "{}") -> Path:
+    f = tmp_path / "live.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: live
+        plugins: [{TOY}]
+        nodes:
+          const: {{type: toy.constant}}
+          tick:
+            type: toy.ticker
+            params: {tick}
+          check:
+            type: toy.check
+            params: {check}
+            inputs: {{tick: tick.tick, offset: const.value}}
+        """))
+    return f
+
+
+def cycles(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "cycles.jsonl").read_text().splitlines()]
+
+
+def test_only_the_live_part_reruns_and_each_cycle_is_logged(tmp_path):
+    marker = tmp_path / "closed.txt"
+    graph = build_graph(load_pipeline(pipeline(tmp_path, tick=f"{{marker: {marker}}}")))
+    loop = Loop(4)
+    r = run_graph(graph, cycles=loop, out_dir=tmp_path / "out", cache_dir=tmp_path / "cache")
+    assert loop.live == ["tick", "check"] and loop.completed and loop.n_ok == 4
+    log = cycles(tmp_path / "out")
+    assert [c["values"]["check.result"] for c in log] == [8, 9, 10, 11]  # the ticker stayed open
+    assert "const" in log[0]["nodes"] or "const" not in log[1]["nodes"]
+    assert all(set(c["nodes"]) == {"tick", "check"} for c in log)
+    assert r.status["const"] == "ran" and r.outputs("check", "result") == 11
+    assert marker.read_text() == "closed after 4"  # closed once, at the end of the run
+    run_json = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run_json["loop"]["cycles"] == 4 and run_json["loop"]["completed"]
+    # A second run: the upstream comes from the cache, the live part's results were never stored.
+    r2 = run_graph(graph, cycles=Loop(2), out_dir=tmp_path / "out2", cache_dir=tmp_path / "cache")
+    assert r2.status["const"] == "cached" and r2.outputs("check", "result") == 9
+
+
+def test_a_failed_cycle_is_logged_and_the_loop_goes_on(tmp_path):
+    f = pipeline(tmp_path, check="{fail_on_multiple_of: 2}")
+    code = main(["run", str(f), "--repeat", "5", "--out", str(tmp_path / "out")])
+    assert code == 0
+    log = cycles(tmp_path / "out")
+    assert [c["status"] for c in log] == ["ok", "failed", "ok", "failed", "ok"]
+    assert log[1]["failed_node"] == "check" and log[1]["error"] == "tick 2 refused"
+    assert "check.result" not in log[1]["values"]  # nothing from the failed node
+
+
+def test_the_loop_stops_when_its_source_ends(tmp_path, capsys):
+    f = pipeline(tmp_path, tick="{stop_after: 3}")
+    code = main(["run", str(f), "--repeat", "0", "--out", str(tmp_path / "out")])
+    assert code == 1
+    log = cycles(tmp_path / "out")
+    assert [c["status"] for c in log] == ["ok", "ok", "ok", "failed"]
+    out = capsys.readouterr()
+    assert "stopped: 'tick' gave no new input" in out.out and "the ticker ended after 3 ticks" in out.err
+
+
+def test_repeat_needs_a_live_node(tmp_path, capsys):
+    f = tmp_path / "static.yaml"
+    f.write_text(f"name: s\nplugins: [{TOY}]\nnodes:\n  const: {{type: toy.constant}}\n")
+    assert main(["run", str(f), "--repeat", "2", "--out", str(tmp_path / "o")]) == 2
+    assert "every node of static.yaml can be cached" in capsys.readouterr().err
+
+
+def test_sigterm_ends_the_loop_like_ctrl_c(tmp_path):
+    marker = tmp_path / "closed.txt"
+    f = pipeline(tmp_path, tick=f"{{sleep_s: 0.2, marker: {marker}}}")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "stereograph.cli", "run", str(f), "--repeat", "0", "--out",
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    deadline = time.time() + 60
+    while time.time() < deadline and not ((out / "cycles.jsonl").exists() and len(cycles(out)) >= 2):
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    stdout, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert "stopped by an interrupt during cycle" in stdout
+    run_json = json.loads((out / "run.json").read_text())
+    assert run_json["loop"]["interrupted"] and run_json["loop"]["cycles"] >= 3
+    assert marker.read_text().startswith("closed after")  # the source was closed on the way out
+
+
+def test_stop_on_failure_stops_at_the_first_failed_cycle(tmp_path, capsys):
+    f = pipeline(tmp_path, check="{fail_on_multiple_of: 2}")
+    assert main(["run", str(f), "--repeat", "5", "--stop-on-failure", "--out", str(tmp_path / "out")]) == 1
+    assert [c["status"] for c in cycles(tmp_path / "out")] == ["ok", "failed"]
+    assert "stopped at the first failed cycle (2)" in capsys.readouterr().out

@@ -1,0 +1,114 @@
+"""pipelines/pick-live.yaml --repeat: successive balls picked from a recorded camera on the emulated servos."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stereograph.config import load_pipeline
+from stereograph.graph import build_graph
+from stereograph.loop import Loop
+from stereograph.runner import run_graph
+
+PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "pick-live.yaml"
+ORDER = ["s000", "s001", "s002", "s003", "s004", "empty000", "s005"]
+DROP = [0.0, 18.0, 4.0]  # arm-base frame, cm
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    """Seven cycles: five balls, a frame without one, then another ball; each ball put down at a drop point."""
+    tmp = tmp_path_factory.mktemp("live")
+    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20", f"pick.place_cm={DROP}"])
+    loop = Loop(len(ORDER), save_cycles=True)
+    result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "run", cache_dir=tmp / "cache")
+    return loop, result, tmp
+
+
+def test_five_balls_in_a_row_each_grasped_within_half_a_centimetre(live):
+    loop, _, _ = live
+    assert loop.completed and [c.values["cam.pairs"]["id"] for c in loop.cycles] == ORDER
+    picked = loop.cycles[:5] + loop.cycles[6:]
+    for c in picked:
+        assert c.status == "ok", c.line()
+        plan, summary = c.values["pick.plan"], c.values["act.summary"]["picks"][0]
+        # the grasp point the commanded servo goals put the tool at, against the true ball centre
+        err = np.linalg.norm(np.subtract(plan["grasp_fk_cm"], plan["truth_base_cm"]))
+        assert err < 0.5, (c.index, err)
+        assert summary["ok"] and summary["grasp_servo_goals"] == plan["waypoints"][plan["grasp_index"]]["servo_units"]
+        assert c.values["compensate.location"]["sigma_z_cm"] > 0
+        assert c.values["cam.pairs"]["skew_ms"] == 0.0
+        assert set(c.nodes) >= {"cam", "segment", "locate", "compensate", "ik", "pick", "act"}
+    # cycle 1 also loaded the files and recorded the camera; later cycles ran only the live part
+    assert "calibration" not in loop.cycles[1].nodes and loop.live[0] == "cam"
+
+
+def test_a_frame_without_a_ball_moves_nothing_and_the_loop_goes_on(live):
+    loop, _, _ = live
+    empty = loop.cycles[5]
+    assert empty.status == "failed" and empty.failed_node == "pick"
+    assert "not located" in empty.error and "refusing to move the arm" in empty.error
+    assert "act" not in empty.nodes or empty.nodes["act"]["status"] == "skipped"  # the servos were never opened
+    assert "act.log" not in empty.values
+    assert loop.cycles[6].status == "ok"
+
+
+def test_the_run_folder_has_the_cycle_log_and_the_recording(live):
+    loop, result, _ = live
+    lines = (result.out_dir / "cycles.jsonl").read_text().splitlines()
+    assert len(lines) == len(ORDER)
+    assert (result.out_dir / "cam" / "recording" / "left.avi").stat().st_size > 0
+    # --save-cycles: each cycle's pair as PNG, and its other live outputs as JSON
+    first = result.out_dir / "cycles" / "00001"
+    left = cv2.imread(str(first / "cam" / "pairs_left.png"))
+    assert left.shape == (480, 640, 3)
+    assert json.loads((first / "compensate" / "location.json").read_text())["found"]
+    assert not (result.out_dir / "cycles" / "00006" / "act").exists()  # nothing moved in the empty cycle
+    # the ball was carried to the drop point and released there
+    reached = json.loads((first / "act" / "log.json").read_text())["picks"][0]["reached"]
+    names = [r["waypoint"] for r in reached]
+    assert names.index("close") < names.index("place") < names.index("release")
+
+
+def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
+    _, _, tmp = live
+    out = tmp / "interrupted"
+    # real-time motion (about 6 s a pick), so that the interrupt lands while the arm moves
+    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--repeat", "0", "--out", str(out),
+           "--cache-dir", str(tmp / "cache"), "--set", f"recording.ids={ORDER}", "--set", "act.sim_time_scale=1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(PIPELINE.parents[1])})
+    log = out / "cycles.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (log.exists() and log.read_text().strip()):
+        time.sleep(0.1)
+    time.sleep(2.0)  # cycle 2: the camera and the locating take ~0.1 s, the motion ~6 s
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "stopped by an interrupt during cycle 2 (node 'act')" in stdout
+    run = json.loads((out / "run.json").read_text())
+    assert run["loop"]["interrupted"] and run["loop"]["ok"] == 1
+    servo = json.loads((out / "act" / "servo_log_interrupted.json").read_text())
+    assert servo["stop"]["action"] == "hold" and servo["stop"]["port_closed"]
+    # every goal the emulator received, the hold included, lies within the joint limits
+    from nodes.ik._model import servo_limits_units
+    from nodes.ik.arm import ArmParams, build_arm_model
+
+    limits = servo_limits_units(build_arm_model(ArmParams()))
+    sent = [c for c in servo["commands"] if c["register"] == "goal_position"]
+    assert {str(c["id"]): c["value"] for c in sent} == servo["stop"]["goals"]  # the last goals sent: the hold
+    writes = [w for w in servo["sim"]["writes"] if w["register"] == "goal_position"] + sent
+    assert len(writes) > len(sent)
+    for w in writes:
+        lo, hi = limits[str(w["id"])]
+        assert lo <= w["value"] <= hi
