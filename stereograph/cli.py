@@ -260,6 +260,8 @@ def cmd_run(args) -> int:
             result = run_graph(graph, **kw)
     finally:
         executor.close()
+    for note in result.notes:
+        err.print(f"note: {note}", markup=False)
     if args.json:
         print((result.out_dir / "run.json").read_text())
     else:
