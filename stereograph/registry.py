@@ -131,6 +131,7 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                               hint="plugins are module names or .py paths relative to the pipeline file") from None
 
 
+@lru_cache(maxsize=1)  # reading every installed package's metadata takes tens of ms
 def commands() -> dict[str, EntryPoint]:
     """Extra CLI sub-commands contributed by node packages."""
     return {ep.name: ep for ep in entry_points(group=COMMANDS_GROUP)}
