@@ -265,8 +265,12 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                         continue
                     files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
                                       lambda r=(name, out, None), p=stem: write_value(p, run.get(r)))
-            except Exception as e:  # an output we cannot write must not lose the others
-                run.reports[name].messages.append(f"could not write output '{out}': {e}")
+            except Exception as e:  # an output we cannot write must not lose the others ...
+                rep = run.reports[name]
+                rep.messages.append(f"could not write output '{out}': {e}")
+                if isinstance(e, OSError) and rep.error is None:  # ... nor pass for a delivered result
+                    rep.status, rep.error = "failed", f"could not write output '{out}': {e.strerror or e}"
+                    rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
     summary = {

@@ -469,3 +469,39 @@ def test_stray_files_in_the_cache(tmp_path, capsys):
     assert code == 0 and "removed" in msg
     code, msg = cli("cache", "clear", "--cache-dir", cache, capsys=capsys)
     assert code == 0
+
+
+def _on_small_tmpfs(folder: Path, kib: int, argv: list[str]) -> subprocess.CompletedProcess:
+    """Run the CLI with ``folder`` on a file system of ``kib`` KiB (a real full disk)."""
+    if os.geteuid() != 0 or shutil.which("unshare") is None:
+        pytest.skip("needs root and unshare to mount a small tmpfs")
+    folder.mkdir(parents=True, exist_ok=True)
+    cmd = " ".join(f"'{a}'" for a in [sys.executable, "-m", "stereograph.cli", *argv])
+    # list any .tmp left behind while the (private) mount is still there
+    script = (f"mount -t tmpfs -o size={kib}k tmpfs {folder} || exit 99; {cmd}; rc=$?; "
+              f"echo LEFT:; find {folder} -name '*.tmp'; exit $rc")
+    env = {**os.environ, "STEREOGRAPH_ALLOW_PLUGINS": "1"}
+    res = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True, env=env)
+    if res.returncode == 99:
+        pytest.skip("this machine does not allow mounting a tmpfs")
+    return res
+
+
+def test_full_disk_for_out_and_for_the_cache(tmp_path):
+    p = write(tmp_path / "p.yaml", f"""\
+        plugins: [{TOY}]
+        nodes:
+          numbers: {{type: toy.numbers, params: {{n: 6, size: 64}}}}
+          power: {{type: toy.power, inputs: {{m: numbers.items}}}}
+          picture: {{type: toy.picture, inputs: {{m: power.m}}}}
+          total: {{type: toy.sum, inputs: {{values: power.norm}}}}
+        """)
+    disk = tmp_path / "disk"
+    res = _on_small_tmpfs(disk, 20, ["run", str(p), "--out", str(disk / "o"), "--cache-dir", str(tmp_path / "c")])
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert "could not write output" in res.stderr and "No space left on device" in res.stderr
+    assert res.stdout.split("LEFT:")[-1].strip() == ""  # no half-written .tmp files in --out
+    res = _on_small_tmpfs(disk, 24, ["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(disk / "c")])
+    assert res.returncode == 0, res.stderr
+    assert "cannot store more entries" in res.stderr and (tmp_path / "o" / "total" / "total.json").exists()
+    assert res.stdout.split("LEFT:")[-1].strip() == ""
