@@ -291,17 +291,22 @@ class ArtifactStore:
         self.files = FileIndex(self.root)
 
     def _probe(self) -> bool:
-        """Whether entries can be stored here; a read-only cache is still read."""
-        try:
-            self.tmp.mkdir(parents=True, exist_ok=True)
-            probe = self.tmp / f"probe-{uuid.uuid4().hex}"
-            probe.write_bytes(b"")
-            probe.unlink()
+        """Whether entries can be stored here, asked without creating anything (``cache info`` and
+        ``explain`` leave no trace); a read-only cache is still read."""
+        probe = self.root
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not probe.is_dir():
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
+                              hint="choose another --cache-dir")
+        dirs = [probe] + [d for d in (self.objects, self.tmp) if d.is_dir()]
+        # access() reports a read-only file system (EROFS) even to root; permissions too for others
+        if all(os.access(d, os.W_OK | os.X_OK) for d in dirs):
             return True
-        except OSError as e:
-            self.notes.append(f"cache {self.root} is not writable ({e.strerror or e}): results are read from it, "
-                              "new ones are not stored")
-            return False
+        self.notes.append(f"cache {self.root} is not writable: results are read from it, new ones are not stored")
+        return False
 
     def _cannot_store(self, e: OSError) -> None:
         if self.writable:
