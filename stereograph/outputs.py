@@ -200,6 +200,14 @@ def prepare_out_dir(out_dir: Path) -> None:
 
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"output folder {out_dir} is an existing file", hint="choose another --out")
+    probe = out_dir
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"output folder {out_dir} cannot be made: {probe} is a file", hint="choose another --out")
+    if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
+        raise ConfigError(f"output folder {out_dir} cannot be written: {probe} is not writable",
+                          hint="choose another --out")
     try:
         if not out_dir.exists() or not any(out_dir.iterdir()):
             return
@@ -236,7 +244,13 @@ def prepare_out_dir(out_dir: Path) -> None:
 def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
     """Write saved and terminal outputs plus ``run.json`` into ``result.out_dir``."""
     out_dir: Path = result.out_dir
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        from stereograph.errors import ConfigError
+
+        raise ConfigError(f"cannot make output folder {out_dir}: {e.strerror or e}",
+                          hint="choose another --out") from None
     written: dict[str, list[str]] = {}
     terminal = set(graph.terminal())
     for name in selected:
