@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -45,9 +46,9 @@ def table(locs: list[dict], raw: list[dict], kinds) -> list[str]:
         vis[p["id"]] = None if t is None else min(t["visible_fraction_left"], t["visible_fraction_right"])
     rows = []
     for kind in kinds:
-        sel = [v for v in locs if v["id"].rstrip("0123456789") == kind]
+        sel = [v for v in locs if _pid(v).rstrip("0123456789") == kind]
         found = [v for v in sel if v["found"]]
-        vis50 = [v for v in sel if vis[v["id"]] is not None and vis[v["id"]] >= 0.5]
+        vis50 = [v for v in sel if vis[_pid(v)] is not None and vis[_pid(v)] >= 0.5]
         f50 = [v for v in vis50 if v["found"]]
         errs = [float(np.linalg.norm(np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"])))
                 if v["truth_cm"] is not None else float("inf") for v in found]
@@ -57,6 +58,10 @@ def table(locs: list[dict], raw: list[dict], kinds) -> list[str]:
         rows.append(f"| {kind} | {len(found)}/{len(sel)} | {len(f50)}/{len(vis50)} | {bad} | "
                     f"{max(errs) if errs else float('nan'):.2f} | {top} |")
     return rows
+
+
+def _pid(loc: dict) -> str:
+    return str(loc.get("pair", loc.get("id")))
 
 
 def _short(reason: str | None) -> str:
@@ -72,10 +77,17 @@ def main(argv=None):
     ap.add_argument("--calibration", choices=["chessboard", "truth"], default="chessboard")
     ap.add_argument("--segmenters", nargs="+", default=["edge_morph", "color"], choices=list(SEGMENTERS))
     ap.add_argument("--disparity", nargs="+", default=["centroid", "ellipse"], choices=["centroid", "ellipse"])
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="pickle file: reuse the rendered, rectified pairs from there (written when absent)")
     a = ap.parse_args(argv)
     kinds = list(HARD_KINDS) + (list(OLD_KINDS) if a.old else [])
     t0 = time.time()
-    pairs, rect, raw = prepare(0, a.seed, a.calibration, hard_cases=kinds, n_hard_each=a.n)
+    if a.cache is not None and a.cache.exists():
+        pairs, rect, raw = pickle.loads(a.cache.read_bytes())
+    else:
+        pairs, rect, raw = prepare(0, a.seed, a.calibration, hard_cases=kinds, n_hard_each=a.n)
+        if a.cache is not None:
+            a.cache.write_bytes(pickle.dumps((pairs, rect, raw)))
     print(f"{len(pairs)} hard pairs ({a.n} per kind), {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
           f"B = {rect['baseline_cm']:.2f} cm; rendered in {time.time() - t0:.0f} s\n")
     for seg in a.segmenters:
