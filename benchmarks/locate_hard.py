@@ -55,8 +55,9 @@ def table(locs: list[dict], raw: list[dict], kinds) -> list[str]:
         bad = sum(e > 1.0 for e in errs)
         reasons = collections.Counter(_short(v["reason"]) for v in sel if not v["found"])
         top = "; ".join(f"{n}x {r}" for r, n in reasons.most_common(2))
+        worst = ", ".join(_pid(v) for v, e in zip(found, errs, strict=True) if e > 1.0)
         rows.append(f"| {kind} | {len(found)}/{len(sel)} | {len(f50)}/{len(vis50)} | {bad} | "
-                    f"{max(errs) if errs else float('nan'):.2f} | {top} |")
+                    f"{max(errs) if errs else float('nan'):.2f} | {top} |" + (f" > 1 cm: {worst}" if worst else ""))
     return rows
 
 

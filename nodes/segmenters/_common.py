@@ -117,6 +117,10 @@ class PartialParams(Params):
     min_disc_coverage: float = Field(
         0.4, gt=0, le=1, description="Share of the fitted ball's in-image disc the region must cover (ratio): an arc "
                                      "that the region does not fill is not a ball.")
+    size_tolerance: float = Field(
+        0.01, ge=0, le=0.5, description="Besides the fits' own 3 sigma, how far (ratio) a partly seen ball's distance "
+                                        "from its fitted size may differ from the stereo distance (the radius's and "
+                                        "the calibration's error).")
     ambiguous_second_arc: float = Field(
         0.3, gt=0, le=1, description="A merged region whose remaining outline holds this share (ratio) of a second "
                                      "ball image of similar size, of the same colour or with no colour given, is "
@@ -981,7 +985,7 @@ def segment_image(
     u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
     u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
     roi = view.window(u0, v0, u1, v1)
-    rm = mask_fn(roi, params, r_range_px, 1, True)
+    rm = rm_before = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -1012,6 +1016,11 @@ def segment_image(
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
     ell = region.get("ellipse")
+    if K is not None and params.partial.enabled and params.object.color_bgr is None \
+            and params.object.hue_range_deg is None:
+        why = _merged_rival(rm_before, region, (u0, v0), K, params)
+        if why is not None:
+            return np.zeros((h, w), bool), None, why
     n_pts = len(region["contour_px"])
     if K is not None and params.partial.enabled and (
             region["touches_border"] or (ell is not None and (
@@ -1026,6 +1035,27 @@ def segment_image(
             return np.zeros((h, w), bool), None, f"partial view: {pwhy}"
         return pmask, pregion, None
     return full_mask, region, None
+
+
+def _merged_rival(mask: np.ndarray, region: dict, offset: tuple[int, int], K: np.ndarray,
+                  params: SegmenterParams) -> str | None:
+    """Without a colour: a reason when the region was cut (shadow suppression, the mask) from a
+    larger one whose outline also holds a second ball image of about its size (a touching ball)."""
+    from ._partial import second_ball_arc
+
+    cu, cv_ = region["centroid_px"]
+    u, v = int(round(cu)) - offset[0], int(round(cv_)) - offset[1]
+    if not (0 <= v < mask.shape[0] and 0 <= u < mask.shape[1]) or mask[v, u] == 0:
+        return None
+    cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    inside = [c for c in cnts if cv2.pointPolygonTest(c, (float(u), float(v)), False) >= 0]
+    if not inside or cv2.contourArea(inside[0]) < (1.0 + params.ambiguity_ratio) * region["area_px"]:
+        return None  # nothing of a second ball's size was attached
+    pts = inside[0].reshape(-1, 2).astype(np.float64) + offset
+    if second_ball_arc(pts, np.asarray(region["contour_px"]), K) >= params.partial.ambiguous_second_arc:
+        return ("ambiguous: 2 round objects of similar size touching (no colour given: set object.color_bgr "
+                "to tell them apart)")
+    return None
 
 
 def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None) -> str | None:
@@ -1089,6 +1119,18 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
                 f"{z_size[0]:.1f} cm, stereo {z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
     if left.get("partial") or right.get("partial"):
         s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
+        # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
+        # whose size disagrees with the stereo distance by more than both can be off.
+        for reg, z in ((left, z_size[0]), (right, z_size[1])):
+            part = reg.get("partial")
+            if not part:
+                continue
+            tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
+            if abs(z / z_stereo - 1.0) > tol:
+                side = "left" if reg is left else "right"
+                return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
+                        f"outline visible: the arc fitted to it gives {z:.1f} cm from its size but {z_stereo:.1f} cm "
+                        f"by stereo (> {100 * tol:.1f} %): not trusted")
         s_z = z_stereo**2 * s_d / fb
         if s_z > params.partial.max_sigma_z_cm:
             part = left.get("partial") or right.get("partial")

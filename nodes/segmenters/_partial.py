@@ -161,6 +161,35 @@ def which_border(pts: np.ndarray, image_size: tuple[int, int]) -> str:
     return min(d, key=d.get)
 
 
+def second_ball_arc(pts: np.ndarray, ball_pts: np.ndarray, K: np.ndarray, thr_px: float = 1.0,
+                    seed: int = 0) -> float:
+    """Share (0..1) of a second sphere image of about the ball's size in an outline ``pts``.
+
+    ``ball_pts``: the chosen ball's own outline (image px). Points of ``pts`` within
+    ``thr_px`` of the ball's sphere image are left out; the rest is searched for a second
+    sphere image of 0.75-1.33 x the ball's image radius (RANSAC). Used without a colour: a
+    second ball merged with the first (touching it) makes the choice ambiguous.
+    """
+    f_px = float(K[0, 0])
+    if len(ball_pts) < 6 or len(pts) < 12:
+        return 0.0
+    fit = fit_cone(rays(ball_pts, K), f_px)
+    n2 = float(fit["w"] @ fit["w"])
+    if n2 <= 1.0:
+        return 0.0
+    radius_px = f_px * math.sqrt(n2 - 1.0)
+    X = rays(pts, K)
+    rest = _residual_px(fit["w"], X, f_px) > thr_px
+    if rest.sum() < 12:
+        return 0.0
+    Xr, pr = X[rest], pts[rest]
+    inl = ransac_cone(Xr, f_px, (0.75 * radius_px, 1.33 * radius_px), thr_px, np.random.default_rng(seed))
+    if inl is None or inl.sum() < 12:
+        return 0.0
+    e2 = cone_ellipse(fit_cone(Xr[inl], f_px)["w"], K)
+    return 0.0 if e2 is None else coverage(pr[inl], np.asarray(e2["center_px"]))
+
+
 def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image_size: tuple[int, int],
                 K: np.ndarray, r_range_px: tuple[float, float], seed: int = 0) -> dict:
     """Fit the sphere's image to the true silhouette edge among outline points ``pts`` (image px).
@@ -191,7 +220,12 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
     if ell is None:
         return {"ok": False, "reason": "the outline's arc is not the image of a sphere"}
     centre, s_u = cone_center_px(w, K, fit["cov"])
-    radius_px = f_px * math.sqrt(max(float(w @ w) - 1.0, 0.0))
+    n = float(np.linalg.norm(w))
+    radius_px = f_px * math.sqrt(max(n * n - 1.0, 0.0))
+    # Relative sd of the distance the fitted size gives: |C| = R / sin(alpha) = R n / sqrt(n^2 - 1),
+    # d ln|C| / dn = -1 / (n (n^2 - 1)), with sd(n) along w / n.
+    u_w = w / n
+    s_size = math.sqrt(max(float(u_w @ fit["cov"] @ u_w), 0.0)) / (n * max(n * n - 1.0, 1e-12))
     true_pts = cand[inl]
     vis = coverage(true_pts, np.asarray(ell["center_px"]))
     n_border = int(on_border.sum())
@@ -211,5 +245,6 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
                 second = coverage(foreign[inl2], np.asarray(e2["center_px"]))
     ell.update(rms_px=fit["rms_px"], inliers=int(inl.sum()), sigma_center_px=s_u)
     return {"ok": True, "ellipse": ell, "center_px": centre, "sigma_u_px": s_u, "radius_px": radius_px,
+            "sigma_size_rel": s_size,
             "outline_visible": vis, "cause": cause, "second": second, "n_border": n_border,
             "second_ellipse": e2, "n_foreign": int(len(foreign)), "true_edge_px": true_pts}

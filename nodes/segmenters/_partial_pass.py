@@ -166,6 +166,7 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         "sigma_centroid_px": float(fit["sigma_u_px"]),
         "roundness": roundness,
         "partial": {"outline_visible": float(fit["outline_visible"]), "cause": fit["cause"],
-                    "sigma_u_px": float(fit["sigma_u_px"]), "radius_px": float(fit["radius_px"])},
+                    "sigma_u_px": float(fit["sigma_u_px"]), "radius_px": float(fit["radius_px"]),
+                    "sigma_size_rel": float(fit["sigma_size_rel"])},
     }
     return full, region, ""
