@@ -46,7 +46,7 @@ def table(locs: list[dict], raw: list[dict], kinds) -> list[str]:
         vis[p["id"]] = None if t is None else min(t["visible_fraction_left"], t["visible_fraction_right"])
     rows = []
     for kind in kinds:
-        sel = [v for v in locs if _pid(v).rstrip("0123456789") == kind]
+        sel = [v for v in locs if _kind(_pid(v)) == kind]
         found = [v for v in sel if v["found"]]
         vis50 = [v for v in sel if vis[_pid(v)] is not None and vis[_pid(v)] >= 0.5]
         f50 = [v for v in vis50 if v["found"]]
@@ -61,6 +61,11 @@ def table(locs: list[dict], raw: list[dict], kinds) -> list[str]:
     return rows
 
 
+def _kind(pid: str) -> str:
+    k = pid.rstrip("0123456789")
+    return "plain" if k == "s" else k
+
+
 def _pid(loc: dict) -> str:
     return str(loc.get("pair", loc.get("id")))
 
@@ -68,6 +73,15 @@ def _pid(loc: dict) -> str:
 def _short(reason: str | None) -> str:
     r = (reason or "").split(" (")[0]
     return r[:70]
+
+
+def _prepare(cache: Path | None, n: int, seed: int, calibration: str, **kw):
+    if cache is not None and cache.exists():
+        return pickle.loads(cache.read_bytes())
+    out = prepare(n, seed, calibration, **kw)
+    if cache is not None:
+        cache.write_bytes(pickle.dumps(out))
+    return out
 
 
 def main(argv=None):
@@ -78,17 +92,18 @@ def main(argv=None):
     ap.add_argument("--calibration", choices=["chessboard", "truth"], default="chessboard")
     ap.add_argument("--segmenters", nargs="+", default=["edge_morph", "color"], choices=list(SEGMENTERS))
     ap.add_argument("--disparity", nargs="+", default=["centroid", "ellipse"], choices=["centroid", "ellipse"])
+    ap.add_argument("--plain", type=int, default=0, help="also this many plain scenes (one ball, nothing else)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="pickle file: reuse the rendered, rectified pairs from there (written when absent)")
     a = ap.parse_args(argv)
     kinds = list(HARD_KINDS) + (list(OLD_KINDS) if a.old else [])
     t0 = time.time()
-    if a.cache is not None and a.cache.exists():
-        pairs, rect, raw = pickle.loads(a.cache.read_bytes())
-    else:
-        pairs, rect, raw = prepare(0, a.seed, a.calibration, hard_cases=kinds, n_hard_each=a.n)
-        if a.cache is not None:
-            a.cache.write_bytes(pickle.dumps((pairs, rect, raw)))
+    pairs, rect, raw = _prepare(a.cache, 0, a.seed, a.calibration, hard_cases=kinds, n_hard_each=a.n)
+    if a.plain:
+        # Same seed, so the same rig, views and calibration as the hard scenes.
+        cache = None if a.cache is None else a.cache.with_suffix(f".plain{a.plain}.pkl")
+        p2, _, r2 = _prepare(cache, a.plain, a.seed, a.calibration)
+        pairs, raw, kinds = pairs + p2, raw + r2, kinds + ["plain"]
     print(f"{len(pairs)} hard pairs ({a.n} per kind), {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
           f"B = {rect['baseline_cm']:.2f} cm; rendered in {time.time() - t0:.0f} s\n")
     for seg in a.segmenters:

@@ -51,7 +51,8 @@ class ObjectSpec(Params):
 
     radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
     color_bgr: tuple[int, int, int] | None = Field(
-        None, description="Expected colour of the ball, B, G, R in 0-255; None = unknown colour."
+        None, description="Expected colour of the ball, B, G, R in 0-255. Give it: None = unknown colour, and then "
+                          "any second round object of a ball's size makes the result ambiguous (not found)."
     )
     hue_range_deg: tuple[float, float] | None = Field(
         None,
@@ -145,11 +146,13 @@ class SegmenterParams(Params):
         description="Min area / (pi * r_max^2) of a candidate, 1 = disc (unitless).",
     )
     ambiguity_ratio: float = Field(
-        0.5,
+        0.1,
         gt=0,
         le=1,
         description="Second-best plausible candidate (ball-sized, round, the object's colour when given) area / best "
-                    "area at or above which the choice is ambiguous (ratio; 0.5 = radii within 0.71).",
+                    "area at or above which the choice is ambiguous (ratio). Size alone cannot tell two balls apart "
+                    "(a nearer one looks bigger), so the default 0.1 counts any second ball down to a third of the "
+                    "first's image radius.",
     )
     max_area_ratio: float = Field(
         1.25, ge=1, description="Max ratio of the left and right region areas (ratio)."

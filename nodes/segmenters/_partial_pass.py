@@ -85,6 +85,7 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
     rm = np.ascontiguousarray(rm[sides[0]: rm.shape[0] - sides[1], sides[2]: rm.shape[1] - sides[3]])
     if params.shadow.enabled:
         rm = C.suppress_shadow(roi, rm, params.shadow, params.object)
+    rm = _split_by_colour(roi, rm, params, r_range_px)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     centre = (float(cand["centroid_px"][0] * sx - u0), float(cand["centroid_px"][1] * sy - v0))
     cnts = [c for c in cnts if len(c) >= 12]
@@ -99,6 +100,27 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
         pts = chosen.reshape(-1, 2).astype(np.float32)
     pts = pts.astype(np.float64) + [u0, v0]
     return judge(view, params, r_range_px, K, roi, (u0, v0, u1, v1), region_mask, pts, float(cand["roundness"]))
+
+
+def _split_by_colour(roi: np.ndarray, rm: np.ndarray, params, r_range_px) -> np.ndarray:
+    """With the object's colour given, keep only the mask's pixels of that colour (+ a 1 px rim for
+    the anti-aliased edge): a ball merged with an object it touches comes apart along their colour
+    edge, which is then true silhouette edge for the fit instead of a lost stretch of outline."""
+    obj = params.object
+    if roi.ndim != 3 or (obj.color_bgr is None and obj.hue_range_deg is None):
+        return rm
+    if obj.color_bgr is not None:
+        col = cv2.compare(C.color_distance_map(roi, obj.color_bgr), obj.color_tolerance, cv2.CMP_LE)
+    else:
+        col = C.hue_mask(roi, obj.hue_range_deg, obj.min_saturation)
+    col = C.fill_holes(col, C.max_hole_area(r_range_px))
+    col = cv2.morphologyEx(col, cv2.MORPH_OPEN, C.structuring_element(int(max(3.0, 0.2 * r_range_px[0])) | 1))
+    col = cv2.dilate(col, C.structuring_element(3))
+    split = cv2.bitwise_and(rm, col)
+    # Only when the colour leaves a ball-sized part (a dark rim or a dim view may fail the test).
+    if cv2.countNonZero(split) < 0.25 * math.pi * r_range_px[0] ** 2:
+        return rm
+    return split
 
 
 def refit_region(view, params, r_range_px, K, mask: np.ndarray, region: dict):

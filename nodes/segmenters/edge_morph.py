@@ -164,5 +164,10 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     version="1",
 )
 def edge_morph(params: EdgeMorphParams, pair, rectification=None, ctx=None):
-    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method)."""
+    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
+    give object.color_bgr, else look-alikes are refused as ambiguous.
+
+    Without object.color_bgr two round objects of similar size are refused as ambiguous
+    (not found), and a ball touching another object cannot be split from it.
+    """
     return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx)
