@@ -988,7 +988,7 @@ def segment_image(
     u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
     u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
     roi = view.window(u0, v0, u1, v1)
-    rm = rm_before = mask_fn(roi, params, r_range_px, 1, True)
+    rm = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -1019,11 +1019,6 @@ def segment_image(
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
     ell = region.get("ellipse")
-    if K is not None and params.partial.enabled and params.object.color_bgr is None \
-            and params.object.hue_range_deg is None:
-        why = _merged_rival(rm_before, region, (u0, v0), K, params)
-        if why is not None:
-            return np.zeros((h, w), bool), None, why
     n_pts = len(region["contour_px"])
     if K is not None and params.partial.enabled and (
             region["touches_border"] or (ell is not None and (
@@ -1038,27 +1033,6 @@ def segment_image(
             return np.zeros((h, w), bool), None, f"partial view: {pwhy}"
         return pmask, pregion, None
     return full_mask, region, None
-
-
-def _merged_rival(mask: np.ndarray, region: dict, offset: tuple[int, int], K: np.ndarray,
-                  params: SegmenterParams) -> str | None:
-    """Without a colour: a reason when the region was cut (shadow suppression, the mask) from a
-    larger one whose outline also holds a second ball image of about its size (a touching ball)."""
-    from ._partial import second_ball_arc
-
-    cu, cv_ = region["centroid_px"]
-    u, v = int(round(cu)) - offset[0], int(round(cv_)) - offset[1]
-    if not (0 <= v < mask.shape[0] and 0 <= u < mask.shape[1]) or mask[v, u] == 0:
-        return None
-    cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    inside = [c for c in cnts if cv2.pointPolygonTest(c, (float(u), float(v)), False) >= 0]
-    if not inside or cv2.contourArea(inside[0]) < (1.0 + params.ambiguity_ratio) * region["area_px"]:
-        return None  # nothing of a second ball's size was attached
-    pts = inside[0].reshape(-1, 2).astype(np.float64) + offset
-    if second_ball_arc(pts, np.asarray(region["contour_px"]), K) >= params.partial.ambiguous_second_arc:
-        return ("ambiguous: 2 round objects of similar size touching (no colour given: set object.color_bgr "
-                "to tell them apart)")
-    return None
 
 
 def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None) -> str | None:

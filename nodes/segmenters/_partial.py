@@ -161,35 +161,6 @@ def which_border(pts: np.ndarray, image_size: tuple[int, int]) -> str:
     return min(d, key=d.get)
 
 
-def second_ball_arc(pts: np.ndarray, ball_pts: np.ndarray, K: np.ndarray, thr_px: float = 1.0,
-                    seed: int = 0) -> float:
-    """Share (0..1) of a second sphere image of about the ball's size in an outline ``pts``.
-
-    ``ball_pts``: the chosen ball's own outline (image px). Points of ``pts`` within
-    ``thr_px`` of the ball's sphere image are left out; the rest is searched for a second
-    sphere image of 0.75-1.33 x the ball's image radius (RANSAC). Used without a colour: a
-    second ball merged with the first (touching it) makes the choice ambiguous.
-    """
-    f_px = float(K[0, 0])
-    if len(ball_pts) < 6 or len(pts) < 12:
-        return 0.0
-    fit = fit_cone(rays(ball_pts, K), f_px)
-    n2 = float(fit["w"] @ fit["w"])
-    if n2 <= 1.0:
-        return 0.0
-    radius_px = f_px * math.sqrt(n2 - 1.0)
-    X = rays(pts, K)
-    rest = _residual_px(fit["w"], X, f_px) > thr_px
-    if rest.sum() < 12:
-        return 0.0
-    Xr, pr = X[rest], pts[rest]
-    inl = ransac_cone(Xr, f_px, (0.75 * radius_px, 1.33 * radius_px), thr_px, np.random.default_rng(seed))
-    if inl is None or inl.sum() < 12:
-        return 0.0
-    e2 = cone_ellipse(fit_cone(Xr[inl], f_px)["w"], K)
-    return 0.0 if e2 is None else coverage(pr[inl], np.asarray(e2["center_px"]))
-
-
 def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image_size: tuple[int, int],
                 K: np.ndarray, r_range_px: tuple[float, float], seed: int = 0) -> dict:
     """Fit the sphere's image to the true silhouette edge among outline points ``pts`` (image px).
