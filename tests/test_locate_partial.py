@@ -102,3 +102,39 @@ def test_no_colour_never_gives_a_confident_wrong_answer(hard):
         assert not loc["found"] or _err(loc) < 1.0, (p["id"], loc["reason"])
         n_ambiguous += "ambiguous" in (loc["reason"] or "")
     assert n_ambiguous >= 2  # two balls alike: refused with the reason, not guessed
+
+
+def test_auto_channel_picks_a_plane_where_an_orange_ball_stands_out_on_grey():
+    from nodes.segmenters._channel import best_plane, normalize_exposure
+
+    rng = np.random.default_rng(0)
+    img = np.clip(rng.normal(145, 12, (120, 160, 3)), 0, 255).astype(np.uint8)  # grey as bright as orange
+    img[40:70, 60:90] = (20, 120, 245)
+    name, contrast = best_plane(img, ORANGE)
+    assert name in ("blue", "red", "saturation") and contrast[name] > contrast["gray"]
+    dim = (img * 0.3).astype(np.uint8)
+    assert np.percentile(normalize_exposure(dim[..., 2]), 99) >= 250  # stretched back
+
+
+def test_dim_scene_is_found_with_the_auto_channel_not_with_gray():
+    from nodes.disparity.centroid import CentroidParams, centroid
+
+    src = synthetic(SyntheticParams(n_scenes=3, n_views=0, seed=5, ambient=0.2))
+    rect = rectify_calibration(truth_calibration(src["truth"]))
+    rng = np.random.default_rng(0)
+    found = {}
+    for ch in ("gray", "auto"):
+        params = EdgeMorphParams(object={"radius_cm": 2.0, "color_bgr": ORANGE}, channel=ch, overlay=False)
+        found[ch] = 0
+        for p in src["pairs"].values():
+            q = dict(p)
+            for k in ("left", "right"):
+                q[k] = np.clip(p[k] * 0.3 + rng.normal(0, 1.0, p[k].shape), 0, 255).astype(np.uint8)
+            r = remap(RemapParams(), rectification=rect, pair=q)["rectified"]
+            seg = edge_morph(params, pair=r, rectification=rect)["segmentation"]
+            d = centroid(CentroidParams(), segmentation=seg, rectification=rect)["disparity"]
+            loc = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=r)["location"]
+            if loc["found"]:
+                assert _err(loc) < 0.5
+                found[ch] += 1
+    assert found["auto"] == 3 and found["gray"] < found["auto"]
