@@ -57,30 +57,32 @@ def ransac_cone(X: np.ndarray, f_px: float, r_range_px: tuple[float, float], thr
                 rng: np.random.Generator) -> np.ndarray | None:
     """Inlier mask of the best cone (sphere image) through the rays ``X`` (N, 3), or None.
 
-    Samples are three points; a cone whose image radius (f tan alpha, px) is outside
-    ``r_range_px`` is skipped. The score is the inlier count within ``thr_px``.
+    Samples are three points, all drawn and solved at once: the w with x_k . w = 1 for three
+    rays is (x2 x x3 + x3 x x1 + x1 x x2) / (x1 . (x2 x x3)). A cone whose image radius
+    (f tan alpha, px) is outside ``r_range_px`` is skipped; the score is the inlier count
+    within ``thr_px``.
     """
     n = len(X)
     if n < 12:
         return None
-    best, best_n = None, 0
-    for _ in range(_RANSAC_ITERS):
-        idx = rng.choice(n, 3, replace=False)
-        try:
-            w = np.linalg.solve(X[idx], np.ones(3))
-        except np.linalg.LinAlgError:
-            continue
-        n2 = float(w @ w)
-        if n2 <= 1.0 or w[2] <= 0:
-            continue
-        r_px = f_px * math.sqrt(n2 - 1.0)  # f tan(alpha)
-        if not (r_range_px[0] <= r_px <= r_range_px[1]):
-            continue
-        inl = _residual_px(w, X, f_px) <= thr_px
-        k = int(inl.sum())
-        if k > best_n:
-            best, best_n = inl, k
-    return best
+    idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(_RANSAC_ITERS)])
+    x1, x2, x3 = X[idx[:, 0]], X[idx[:, 1]], X[idx[:, 2]]
+    c23 = np.cross(x2, x3)
+    det = np.einsum("ij,ij->i", x1, c23)
+    ok = np.abs(det) > 1e-12
+    W = (c23 + np.cross(x3, x1) + np.cross(x1, x2))[ok] / det[ok, None]
+    n2 = np.einsum("ij,ij->i", W, W)
+    good = (n2 > 1.0) & (W[:, 2] > 0)
+    W, n2 = W[good], n2[good]
+    tan_a = np.sqrt(n2 - 1.0)
+    r_px = f_px * tan_a
+    keep = (r_px >= r_range_px[0]) & (r_px <= r_range_px[1])
+    if not keep.any():
+        return None
+    W, tan_a = W[keep], tan_a[keep]
+    inl = np.abs(X @ W.T - 1.0) * (f_px / tan_a)[None, :] <= thr_px  # (N, samples)
+    best = int(np.argmax(inl.sum(axis=0)))
+    return inl[:, best]
 
 
 def fit_cone(X: np.ndarray, f_px: float, noise_floor_px: float = 0.1) -> dict:
