@@ -65,10 +65,11 @@ def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dic
 ON_DEMAND = types.SimpleNamespace(input_types={"pair": "StereoPair"}, item=None, warn=lambda message: None)
 
 
-def locate_all(pairs, rect, seg_name, disp_name, shadow=True, raw=None, **extra):
-    """Locations of every pair; ``raw`` (the camera pairs): segment them with on-demand rectification."""
+def locate_all(pairs, rect, seg_name, disp_name, shadow=True, raw=None, object_=None, **extra):
+    """Locations of every pair; ``raw`` (the camera pairs): segment them with on-demand rectification;
+    ``object_``: the segmenters' object model (default OBJECT)."""
     fn, P = SEGMENTERS[seg_name]
-    params = P(object=OBJECT, overlay=False, shadow={"enabled": shadow}, **extra)
+    params = P(object=OBJECT if object_ is None else object_, overlay=False, shadow={"enabled": shadow}, **extra)
     out = []
     for i, p in enumerate(pairs):
         if raw is None:

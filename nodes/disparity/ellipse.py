@@ -84,6 +84,9 @@ def ellipse(params: EllipseParams, segmentation, rectification, ctx=None):
     s = []
     for reg in (segmentation["left"], segmentation["right"]):
         e = reg["ellipse"]
+        if e.get("sigma_center_px") is not None:  # a sphere image fitted to a partial outline
+            s.append(float(e["sigma_center_px"]))
+            continue
         s.append(e.get("rms_px", 0.3) * math.sqrt(2.0 / max(e.get("inliers", 10), 1)))
     R = float(segmentation.get("object_radius_cm") or 0.0)
     extra = {}

@@ -51,7 +51,8 @@ class ObjectSpec(Params):
 
     radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
     color_bgr: tuple[int, int, int] | None = Field(
-        None, description="Expected colour of the ball, B, G, R in 0-255; None = unknown colour."
+        None, description="Expected colour of the ball, B, G, R in 0-255. Give it: None = unknown colour, and then "
+                          "any second round object of a ball's size makes the result ambiguous (not found)."
     )
     hue_range_deg: tuple[float, float] | None = Field(
         None,
@@ -105,6 +106,28 @@ class ShadowParams(Params):
     )
 
 
+class PartialParams(Params):
+    """Balls cut by the image border, partly hidden or touching another object (issue 15)."""
+
+    enabled: bool = Field(
+        True, description="When no whole ball is found, fit the sphere's image to the true part of a region's "
+                          "outline (bool); see nodes/segmenters/_partial.py.")
+    max_sigma_z_cm: float = Field(
+        0.25, gt=0, description="Report a partly seen ball only if the depth uncertainty predicted from the fit of "
+                                "its visible arc (1 sigma, both views) is at most this (cm); 4 sigma = 1 cm.")
+    min_disc_coverage: float = Field(
+        0.4, gt=0, le=1, description="Share of the fitted ball's in-image disc the region must cover (ratio): an arc "
+                                     "that the region does not fill is not a ball.")
+    size_tolerance: float = Field(
+        0.01, ge=0, le=0.5, description="Besides the fits' own 3 sigma, how far (ratio) a partly seen ball's distance "
+                                        "from its fitted size may differ from the stereo distance (the radius's and "
+                                        "the calibration's error).")
+    ambiguous_second_arc: float = Field(
+        0.3, gt=0, le=1, description="A merged region whose remaining outline holds this share (ratio) of a second "
+                                     "ball image of similar size, of the same colour or with no colour given, is "
+                                     "refused as ambiguous.")
+
+
 class SegmenterParams(Params):
     """Parameters common to every segmenter."""
 
@@ -123,10 +146,13 @@ class SegmenterParams(Params):
         description="Min area / (pi * r_max^2) of a candidate, 1 = disc (unitless).",
     )
     ambiguity_ratio: float = Field(
-        0.85,
+        0.1,
         gt=0,
         le=1,
-        description="Second-best candidate area / best area at or above which the choice is ambiguous (ratio).",
+        description="Second-best plausible candidate (ball-sized, round, the object's colour when given) area / best "
+                    "area at or above which the choice is ambiguous (ratio). Size alone cannot tell two balls apart "
+                    "(a nearer one looks bigger), so the default 0.1 counts any second ball down to a third of the "
+                    "first's image radius.",
     )
     max_area_ratio: float = Field(
         1.25, ge=1, description="Max ratio of the left and right region areas (ratio)."
@@ -149,6 +175,11 @@ class SegmenterParams(Params):
                                         "at least half a pixel, or it samples nothing."
     )
     shadow: ShadowParams = Field(default_factory=ShadowParams, description="Shadow suppression options.")
+    partial: PartialParams = Field(default_factory=PartialParams, description="Partly visible / touching balls.")
+    max_size_mismatch: float = Field(
+        0.15, gt=0, le=1, description="Max relative difference between the distance the silhouette's size gives for "
+                                      "a ball of object.radius_cm and the stereo distance (ratio); above -> not found "
+                                      "(another object, or the wrong radius in the YAML).")
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
 
 
@@ -566,6 +597,7 @@ def select_candidate(
             rejected.append(f"area {c['area_px']:.0f} px outside {a_min:.0f}-{a_max:.0f}")
             continue
         if c["roundness"] < params.min_roundness:
+            c["_why"] = "round"
             rejected.append(f"roundness {c['roundness']:.2f} < {params.min_roundness}")
             continue
         x0, y0, x1, y1 = c["bbox"]
@@ -587,15 +619,26 @@ def select_candidate(
         why = "; ".join(sorted(set(rejected))[:3])
         return None, f"no plausible region ({len(cands)} candidate(s): {why})"
     ok.sort(key=lambda c: -c["area_px"])
+    if params.object.color_bgr is None and params.object.hue_range_deg is None:
+        # No colour to tell objects apart: a ball-sized region that failed only the roundness
+        # test may be the ball merged with what it touches, as plausible as the round winner.
+        a = ok[0]
+        rivals = [c for c in cands if c is not a and c.get("_why") == "round"
+                  and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max]
+        if rivals:
+            return None, (f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
+                          f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
+                          "object.color_bgr to tell them apart")
     if len(ok) > 1:
         a, b = ok[0], ok[1]
         if b["area_px"] >= params.ambiguity_ratio * a["area_px"]:
             if a.get("color_score") is not None and abs(a["color_score"] - b["color_score"]) > 0.25:
                 ok.sort(key=lambda c: c["color_score"])
                 return ok[0], None
-            return None, (
-                f"two candidate regions of near-equal size ({a['area_px']:.0f} and {b['area_px']:.0f} px)"
-            )
+            what = "and colour " if a.get("color_score") is not None else ""
+            hint = "" if what else "; give object.color_bgr to tell them apart"
+            return None, (f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
+                          f"{b['area_px']:.0f} px){hint}")
     return ok[0], None
 
 
@@ -875,6 +918,13 @@ def _detect(
     return best, reason, (sx, sy, wu0, wv0)
 
 
+# A whole ball's outline is all true edge and fills its ellipse (area within the sub-pixel
+# outline's ~0.5 % precision); below these the outline holds foreign edges: refit (_partial_pass).
+_MIN_TRUE_EDGE = 0.9  # share of outline points on the robust ellipse
+_MIN_FILL = 0.97  # region area / ellipse area
+_MAX_EDGE_RMS_PX = 0.5  # a sub-pixel outline of one ellipse scatters by a few tenths of a px
+# (A refit of a whole outline gives the same ball, so these triggers err on the liberal side:
+# they cost time, not accuracy.)
 _MIN_RADIUS_COARSE_PX = 4.0  # smallest ball radius a coarse-first pass trusts (px at its level)
 
 
@@ -884,13 +934,16 @@ def segment_image(
     params: SegmenterParams,
     r_range_px: tuple[float, float],
     window: tuple[int, int, int, int] | None = None,
+    K: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict | None, str | None]:
     """Find the object in one rectified image.
 
     ``img_bgr`` is the rectified image or a :class:`RectifiedView` (a raw image rectified on
     request: only the coarse level and the object's window are remapped). ``window``
     (u0, v0, u1, v1), optional: detect only there (see :func:`search_band`); if nothing is
-    found there, the whole image is searched (so reasons are the whole image's).
+    found there, the whole image is searched (so reasons are the whole image's). ``K`` (the
+    view's rectified camera matrix), optional: when no whole ball is found, look for a partly
+    visible or touching one (:mod:`._partial_pass`; the region then has a ``partial`` entry).
 
     Returns
     -------
@@ -921,6 +974,13 @@ def segment_image(
             break
     full_mask = np.zeros((h, w), bool)
     if best is None:
+        if K is not None and params.partial.enabled and not (reason or "").startswith("ambiguous"):
+            from ._partial_pass import partial_region  # the fallback imports this module
+
+            pmask, pregion, pwhy = partial_region(view, mask_fn, params, r_range_px, s, K, window)
+            if pregion is not None:
+                return pmask, pregion, None
+            reason = f"{reason}; partial view: {pwhy}"
         return full_mask, None, reason
     # Region of interest at full resolution around the chosen candidate.
     x0, y0, x1, y1 = best["bbox"]
@@ -959,11 +1019,36 @@ def segment_image(
                                search_extra_px=0.0 if inside else float(s))
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
+    ell = region.get("ellipse")
+    n_pts = len(region["contour_px"])
+    if K is not None and params.partial.enabled and (
+            region["touches_border"] or (ell is not None and (
+                ell["inliers"] < _MIN_TRUE_EDGE * n_pts
+                or ell["rms_px"] > _MAX_EDGE_RMS_PX
+                or region["area_px"] < _MIN_FILL * math.pi * ell["axes_px"][0] * ell["axes_px"][1]))):
+        # Part of the outline is not the ball's (the frame, an occluder, a touching object).
+        from ._partial_pass import refit_region
+
+        pmask, pregion, pwhy = refit_region(view, params, r_range_px, K, full_mask, region)
+        if pregion is None:
+            return np.zeros((h, w), bool), None, f"partial view: {pwhy}"
+        return pmask, pregion, None
     return full_mask, region, None
 
 
-def check_pair(left: dict, right: dict, params: SegmenterParams) -> str | None:
-    """Reason why a left/right pair of regions cannot be trusted, or None."""
+def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None) -> str | None:
+    """Reason why a left/right pair of regions cannot be trusted, or None.
+
+    With a ``rectification`` also: the silhouettes' size must give the stereo distance for a
+    ball of ``object.radius_cm`` (``max_size_mismatch``), and a partly visible ball (region with
+    ``partial``) must be located within ``partial.max_sigma_z_cm`` by its fitted arcs.
+    """
+    if rectification is not None and rectification.get("P1") is not None:
+        why = _check_size_and_partial(left, right, params, rectification)
+        if why is not None:
+            return why
+    if left.get("partial") or right.get("partial"):
+        return None  # border, size and shape were judged on the fitted sphere images above
     if left["touches_border"] or right["touches_border"]:
         side = "left" if left["touches_border"] else "right"
         return f"region touches the {side} image border (object cut off)"
@@ -985,6 +1070,60 @@ def check_pair(left: dict, right: dict, params: SegmenterParams) -> str | None:
     if left["centroid_px"][0] < right["centroid_px"][0]:
         return "negative disparity: the right region lies right of the left one"
     return None
+
+
+def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, rectification: dict) -> str | None:
+    from nodes.disparity._common import ellipse_to_conic, sphere_from_silhouette
+
+    el, er = left.get("ellipse"), right.get("ellipse")
+    if not el or not er:
+        return None
+    P1, P2 = np.asarray(rectification["P1"], float), np.asarray(rectification["P2"], float)
+    try:
+        cones = [sphere_from_silhouette(ellipse_to_conic(e["center_px"], e["axes_px"], e["angle_deg"]), K)
+                 for e, K in ((el, P1[:, :3]), (er, P2[:, :3]))]
+    except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+        return "the silhouettes are not the images of a sphere"
+    fb = -float(P2[0, 3])  # P2[0, 3] = -f B (rectified right camera)
+    d = (cones[0]["center_px"][0] - float(P1[0, 2])) - (cones[1]["center_px"][0] - float(P2[0, 2]))
+    if d <= 0 or fb <= 0:
+        return None  # the disparity estimator reports a negative disparity
+    z_stereo = fb / d
+    R = params.object.radius_cm
+    z_size = [R / max(math.sin(c["half_angle_rad"]), 1e-9) * c["axis"][2] for c in cones]
+    worst = max(abs(z / z_stereo - 1.0) for z in z_size)
+    if worst > params.max_size_mismatch:
+        return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
+                f"{z_size[0]:.1f} cm, stereo {z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
+    if left.get("partial") or right.get("partial"):
+        s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
+        # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
+        # whose size disagrees with the stereo distance by more than both can be off.
+        for reg, z in ((left, z_size[0]), (right, z_size[1])):
+            part = reg.get("partial")
+            if not part:
+                continue
+            tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
+            if abs(z / z_stereo - 1.0) > tol:
+                side = "left" if reg is left else "right"
+                return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
+                        f"outline visible: the arc fitted to it gives {z:.1f} cm from its size but {z_stereo:.1f} cm "
+                        f"by stereo (> {100 * tol:.1f} %): not trusted")
+        s_z = z_stereo**2 * s_d / fb
+        if s_z > params.partial.max_sigma_z_cm:
+            part = left.get("partial") or right.get("partial")
+            side = "left" if left.get("partial") else "right"
+            return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
+                    f"outline visible: too little to locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
+                    f"{params.partial.max_sigma_z_cm:g})")
+    return None
+
+
+def _partial_words(part: dict) -> str:
+    cause = part.get("cause", "")
+    if cause.startswith("border: "):
+        return f"cut by the {cause[8:]} image border"
+    return "occluded or touching another object"
 
 
 def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> str | None:
@@ -1097,14 +1236,17 @@ def segment_pair(
         vl, vr = pair_views(rectification, L, R, raw)
         h, w = vl.shape[:2]
         r_range = expected_radius_px(params, rectification, (w, h))
-        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range)
+        K1 = K2 = None
+        if rectification is not None and rectification.get("P1") is not None:
+            K1, K2 = np.asarray(rectification["P1"], float)[:, :3], np.asarray(rectification["P2"], float)[:, :3]
+        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1)
         band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
-        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band)
+        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band, K=K2)
         seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg)
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
         else:
-            reason = check_pair(lreg, rreg, params)
+            reason = check_pair(lreg, rreg, params, rectification)
     else:
         h, w = L.shape[:2]
         seg.update(left_mask=np.zeros((h, w), bool), right_mask=np.zeros(R.shape[:2], bool))

@@ -18,6 +18,7 @@ import numpy as np
 
 from stereograph.api import Field, node
 
+from ._channel import best_plane, normalize_exposure, plane
 from ._common import (
     SEGMENTER_INPUTS,
     SEGMENTER_OUTPUTS,
@@ -35,8 +36,14 @@ class EdgeMorphParams(SegmenterParams):
     """Parameters of ``segmenter.edge_morph`` (plus the common ones)."""
 
     edge_detector: Literal["canny", "sobel"] = Field("canny", description="Edge operator (name).")
-    channel: Channel = Field(
-        "color", description="Image plane for edges: color (max over B,G,R), gray (thesis) or saturation (name)."
+    channel: Channel | Literal["auto"] = Field(
+        "color", description="Image plane for edges: color (max over B,G,R), gray (thesis), saturation, or auto = "
+                             "the plane (B, G, R, gray, saturation) where object.color_bgr contrasts most with the "
+                             "background, per image (needs object.color_bgr; else color) (name)."
+    )
+    normalize_exposure: bool = Field(
+        True, description="For a single plane (gray, saturation, auto): stretch it so its 99th percentile is 255, so "
+                          "the Canny thresholds hold on a dim exposure (bool)."
     )
     blur_sigma_px: float = Field(2.0, ge=0, le=10, description="Gaussian smoothing before edges (px).")
     canny_low: float = Field(
@@ -114,7 +121,15 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     roi : bool
         Unused (edges need no background model).
     """
-    gray = to_channel(img_bgr, params.channel)
+    if params.channel == "color" or img_bgr.ndim == 2 and not params.normalize_exposure:
+        gray = to_channel(img_bgr, params.channel)
+    else:
+        name = params.channel
+        if name == "auto":
+            name = best_plane(img_bgr, params.object.color_bgr)[0] if params.object.color_bgr is not None else "color"
+        gray = to_channel(img_bgr, name) if name in ("color", "gray", "saturation") else plane(img_bgr, name)
+        if params.normalize_exposure and gray.ndim == 2:
+            gray = normalize_exposure(gray)
     sigma = params.blur_sigma_px / scale
     if sigma > 0.3:
         gray = cv2.GaussianBlur(gray, (0, 0), sigma)
@@ -149,5 +164,10 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     version="1",
 )
 def edge_morph(params: EdgeMorphParams, pair, rectification=None, ctx=None):
-    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method)."""
+    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
+    give object.color_bgr, else look-alikes are refused as ambiguous.
+
+    Without object.color_bgr two round objects of similar size are refused as ambiguous
+    (not found), and a ball touching another object cannot be split from it.
+    """
     return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx)

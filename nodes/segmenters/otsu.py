@@ -121,5 +121,10 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
     version="1",
 )
 def otsu(params: OtsuParams, pair, rectification=None, ctx=None):
-    """Segment the ball with an Otsu threshold of the gray image's difference from its background."""
+    """Segment the ball with an Otsu threshold of the gray image's difference from its background;
+    give object.color_bgr, else look-alikes are refused as ambiguous.
+
+    Without object.color_bgr two round objects of similar size are refused as ambiguous
+    (not found), and a ball touching another object cannot be split from it.
+    """
     return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx)

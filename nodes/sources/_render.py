@@ -58,7 +58,9 @@ near the ball), ``"second_ball"`` (another ball of another colour),
 ``"border"`` (ball partly cut by the left or right image border),
 ``"occluded"`` (a box between the left camera and the ball hides part of it),
 ``"hidden"`` (the ball is entirely hidden in the left image), ``"empty"`` (no
-ball). ``source.synthetic`` exposes them as ``hard_cases: [clutter, border]``
+ball), and issue 15's partial-view / touching kinds of :mod:`._hard_scenes` (``border_cut``,
+``occluded_part``, ``touching_box``, ``touching_ball``, ``distractor``, ``same_color``).
+``source.synthetic`` exposes them as ``hard_cases: [clutter, border]``
 (``n_hard_each`` scenes per kind) and accepts explicit scene dicts in its
 ``scenes`` parameter. The truth of every pair carries ``kind``,
 ``visible_fraction_left`` / ``_right`` (visible share of the silhouette) and
@@ -77,6 +79,8 @@ from typing import Any
 
 import cv2
 import numpy as np
+
+from nodes.sources._hard_scenes import HARD_KINDS, make_hard_scene
 
 __all__ = [
     "COLORS",
@@ -119,7 +123,7 @@ RIG_DEFAULTS: dict[str, Any] = {
 }
 
 #: Scene kinds understood by :func:`make_scene`.
-SCENE_KINDS = ("plain", "clutter", "second_ball", "border", "occluded", "hidden", "empty")
+SCENE_KINDS = ("plain", "clutter", "second_ball", "border", "occluded", "hidden", "empty", *HARD_KINDS)
 
 #: Named colours (BGR, 0..255) for balls and objects.
 COLORS: dict[str, tuple[int, int, int]] = {
@@ -750,6 +754,8 @@ def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | 
     def inside_both(c, sils):
         return all(_bbox_inside(rig, s, border_margin_px) for s in sils)
 
+    if kind in HARD_KINDS:  # issue 15's kinds, measured visibility (nodes/sources/_hard_scenes.py)
+        return make_hard_scene(rig, kind, rng, radius_cm, color, draw_ball, inside_both)
     scene: dict = {"kind": kind, "ball": None, "objects": []}
     others = [n for n in COLORS if n not in (color if isinstance(color, str) else "", "white", "black")]
     if kind == "empty":

@@ -16,7 +16,8 @@ from pydantic import field_validator, model_validator
 from nodes.sources import _render
 from stereograph.api import Field, NodeError, Out, Params, node
 
-HardCase = Literal["clutter", "second_ball", "border", "occluded", "hidden", "empty"]
+HardCase = Literal["clutter", "second_ball", "border", "occluded", "hidden", "empty",
+                   "border_cut", "occluded_part", "touching_box", "touching_ball", "distractor", "same_color"]
 
 
 class SyntheticParams(Params):
@@ -48,7 +49,9 @@ class SyntheticParams(Params):
                           "table frame) — e.g. what an arm standing there can reach; None = anywhere in view.")
     hard_cases: list[HardCase] = Field(
         default_factory=list, description="Extra hard scene kinds to add (clutter, second_ball, border, occluded, "
-                                          "hidden, empty).")
+                                          "hidden, empty; issue 15: border_cut, occluded_part, touching_box, "
+                                          "touching_ball, distractor, same_color -- see "
+                                          "nodes/sources/_hard_scenes.py).")
     n_hard_each: int = Field(10, ge=0, le=1000, description="Scenes per hard case (count).")
     scenes: list[dict] = Field(
         default_factory=list, description="Explicit scene descriptions (see nodes/sources/_render.py), appended.")
