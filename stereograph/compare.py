@@ -600,6 +600,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
     summary = {
+        outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},  # a later run may clear this folder
         "run_id": result.run_id, "pipeline": result.pipeline, "overrides": list(graph.doc.overrides),
         "ok": result.ok, "outputs_of": sorted(own),
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
