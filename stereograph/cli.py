@@ -67,7 +67,12 @@ def _print_warnings(graph, console) -> None:
 
 
 def cmd_validate(args) -> int:
-    graph = _load_graph(args)
+    from stereograph.errors import ConfigErrors
+    from stereograph.graph import check_pipeline
+
+    graph, problems = check_pipeline(args.pipeline, getattr(args, "set", None) or [])
+    if problems:  # every one, not the first only (the summary line tells how many to fix)
+        raise problems[0] if len(problems) == 1 else ConfigErrors(problems)
     con = _console()
     _print_warnings(graph, con)
     mapped = sum(1 for n in graph.nodes.values() if n.mapped)
@@ -427,7 +432,13 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         from rich.markup import escape
 
-        _console(stderr=True).print(f"[red]error:[/] {escape(str(e))}")
+        from stereograph.errors import ConfigErrors
+
+        err = _console(stderr=True)
+        for one in (e.errors if isinstance(e, ConfigErrors) else [e]):
+            err.print(f"[red]error:[/] {escape(str(one))}")
+        if isinstance(e, ConfigErrors):
+            err.print(f"{len(e.errors)} problems; fix them all, then run the command again.")
         if debug:
             traceback.print_exc()
         return e.exit_code
