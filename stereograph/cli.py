@@ -16,6 +16,7 @@ from typing import Any
 
 from stereograph import __version__, registry
 from stereograph.errors import ConfigError, sentence
+from stereograph.progress import PlainProgress, RichProgress  # noqa: F401  (RichProgress: the old home)
 
 
 def _console(stderr: bool = False):
@@ -25,30 +26,6 @@ def _console(stderr: bool = False):
     # logs and pipes get a wide table rather than rich's 80-column default
     width = None if stream.isatty() else 160
     return Console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
-
-
-class RichProgress:
-    """Progress display for a terminal: one bar per node with items."""
-
-    def __init__(self, console):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.p = Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                          TimeElapsedColumn(), console=console, transient=True)
-        self.tasks: dict[str, Any] = {}
-
-    def __enter__(self):
-        self.p.__enter__()
-        return self
-
-    def __exit__(self, *a):
-        self.p.__exit__(*a)
-
-    def node_started(self, name: str, n_items: int) -> None:
-        self.tasks[name] = self.p.add_task(name, total=max(n_items, 1))
-
-    def advance(self, name: str) -> None:
-        self.p.advance(self.tasks[name])
 
 
 def _load_graph(args):
@@ -257,12 +234,12 @@ def cmd_run(args) -> int:
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor)
+    # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with --json)
+    prog = RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
+                                                              args.progress_interval)
     try:
-        if interactive:
-            with RichProgress(con) as prog:
-                result = run_graph(graph, progress=prog, **kw)
-        else:
-            result = run_graph(graph, **kw)
+        with prog:
+            result = run_graph(graph, progress=prog, **kw)
     finally:
         executor.close()
     for note in result.notes:
@@ -378,6 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
                     "('local' starts one with --workers processes; needs the 'dask' extra)")
+    sp.add_argument("--progress-interval", type=float, default=5.0, metavar="SECONDS",
+                    help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
     sp = pipeline_cmd("graph", "print the pipeline graph")

@@ -85,7 +85,9 @@ def files(params: FilesParams, ctx=None) -> dict:
         ctx.warn(f"truth rows without images: {', '.join(unknown[:10])}")
     rng = np.random.default_rng([params.seed, 3])
     out, skipped = {}, {}
-    for pid, lp, rp in pairs_list:
+    for k, (pid, lp, rp) in enumerate(pairs_list):
+        if ctx is not None:
+            ctx.progress(k, len(pairs_list), "pairs")
         split = "train" if rng.random() < params.train_fraction else "test"  # drawn for every pair: a skip
         try:                                                                # leaves the others' split as it was
             left, right = read_image(lp, max_mpx=params.max_image_mpx), read_image(rp, max_mpx=params.max_image_mpx)
