@@ -883,3 +883,20 @@ def main(args: Any) -> int:
                   "computes only what is missing.")
         return 1
     return 0
+
+
+class _CallableModule(type(sys)):
+    """``stereograph.compare(...)`` is the Python API's :func:`stereograph.pyapi.compare`.
+
+    Importing this module makes ``stereograph.compare`` the module (Python sets the package
+    attribute), so the module itself answers the call; ``from stereograph.compare import compare``
+    still gives the function above.
+    """
+
+    def __call__(self, *args: Any, **kwargs: Any) -> CompareResult:
+        from stereograph.pyapi import compare as api_compare
+
+        return api_compare(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule
