@@ -307,41 +307,10 @@ def compare(
         vary_texts = [f"{key}=" + ", ".join(json.dumps(_plain(v)) for v in values) for key, values in vary.items()]
     else:
         vary_texts = [str(v) for v in (vary or [])]
-    prog = _progress(progress)
-    if progress is True:
-        prog = _CompareLines(prog)
+    # True: a line per variant, and the per-node lines of run(), on stderr
+    prog = compare_mod._PlainProgress(sys.stderr) if progress is True else (progress or None)
     kw = dict(overrides=_set_texts(set), cache_dir=cache_dir, split=split, skip_invalid=skip_invalid, plots=plots)
     if hasattr(prog, "__enter__"):  # compare does not enter it: start (and stop) the heartbeat here
         with prog:
             return compare_mod.compare(path, vary_texts, out_dir, progress=prog, **kw)
     return compare_mod.compare(path, vary_texts, out_dir, progress=prog, **kw)
-
-
-class _CompareLines:
-    """Plain progress for compare: a line per variant, and the per-node lines of :func:`run`."""
-
-    def __init__(self, plain: Any):
-        self.plain = plain
-
-    def __enter__(self) -> _CompareLines:
-        self.plain.__enter__()
-        return self
-
-    def __exit__(self, *a: Any) -> bool:
-        return self.plain.__exit__(*a)
-
-    def variant_started(self, i: int, n: int, label: str) -> None:
-        self.plain._print(f"variant {i}/{n}: {label}")
-
-    def variant_done(self, vr: Any) -> None:
-        self.plain._print(f"variant {vr.variant.label}: " + ("ok" if vr.ok else f"FAILED: {vr.error}")
-                          + f" ({vr.seconds:.1f} s)")
-
-    def node_started(self, name: str, n_items: int) -> None:
-        self.plain.node_started(name, n_items)
-
-    def advance(self, name: str) -> None:
-        self.plain.advance(name)
-
-    def item_progress(self, name: str, done: float, total: float, unit: str = "items") -> None:
-        self.plain.item_progress(name, done, total, unit)
