@@ -9,9 +9,26 @@ The engine is a handful of modules, read in this order:
 - :mod:`stereograph.cache`    content-addressed artifact store
 - :mod:`stereograph.runner`   the scheduler
 - :mod:`stereograph.cli`      the ``stereograph`` command
+- :mod:`stereograph.pyapi`    the Python API: :func:`run`, :func:`check`, :func:`compare` (docs/python.md)
 """
 
 from stereograph.api import REGISTRY, Field, In, NodeError, NodeSpec, Out, Params, RunContext, node
 
-__all__ = ["REGISTRY", "Field", "In", "NodeError", "NodeSpec", "Out", "Params", "RunContext", "node"]
+__all__ = ["REGISTRY", "Field", "In", "NodeError", "NodeSpec", "Out", "Params", "RunContext", "node",
+           "run", "check", "compare", "Result"]
 __version__ = "0.1.0"
+
+_PYAPI = {"run", "check", "compare", "Result", "NodeFailed"}
+
+
+def __getattr__(name: str):
+    # imported on first use: `import stereograph` (and every node module) stays light
+    if name == "compare":  # the module, callable as the API's compare (see stereograph/compare.py)
+        import importlib
+
+        return importlib.import_module("stereograph.compare")
+    if name in _PYAPI:
+        from stereograph import pyapi
+
+        return getattr(pyapi, name)
+    raise AttributeError(f"module 'stereograph' has no attribute {name!r}")

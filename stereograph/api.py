@@ -191,6 +191,7 @@ class RunContext:
     messages: list[str] = field(default_factory=list)
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None
+    on_progress: Callable[[float, float, str], None] | None = field(default=None, repr=False, compare=False)
 
     def resource(self, key: str, open_fn: Callable[[], Any]) -> Any:
         """An object (a device, a connection) opened once and kept for the whole run.
@@ -207,6 +208,19 @@ class RunContext:
         if key not in self.resources:
             self.resources[key] = open_fn()
         return self.resources[key]
+
+    def progress(self, done: float, total: float, unit: str = "items") -> None:
+        """Report progress inside this call: ``ctx.progress(37, 120, "scenes")``.
+
+        For a node that does much in one call (a source rendering or reading a whole
+        collection); the run shows ``rig 37/120 scenes`` with an ETA. Cheap to call often; a
+        no-op where nobody listens (a worker process, a plain function call).
+        """
+        if self.on_progress is not None:
+            try:
+                self.on_progress(done, total, unit)
+            except Exception:  # noqa: BLE001 - a display problem must never fail the node
+                pass
 
     def warn(self, message: str) -> None:
         """Record a warning that the run summary shows next to the node."""

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import ast
 import contextlib
-import fcntl
 import hashlib
 import importlib.util
 import json
@@ -36,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from filelock import FileLock, Timeout
 
 FORMAT = "1"  # bump when the entry layout changes
 
@@ -420,27 +420,30 @@ class ArtifactStore:
 
     @contextlib.contextmanager
     def lock(self, key: str, blocking: bool = True) -> Iterator[bool]:
-        """An exclusive per-entry lock across processes; yields whether it was acquired."""
+        """An exclusive per-entry lock across processes; yields whether it was acquired.
+
+        ``filelock`` rather than ``fcntl``: the same lock on Windows (``msvcrt``) as on POSIX.
+        """
         path = self.locks / key[:2] / f"{key}.lock"
         try:
             if not self.writable:
                 raise PermissionError("read-only cache")
             path.parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+            # thread_local=False: the executor may release from another thread than it acquired in
+            lock = FileLock(path, mode=0o644, thread_local=False)
+            lock.acquire(blocking=blocking)
+            got = True
+        except Timeout:  # held by another run (non-blocking only)
+            got = False
         except OSError:  # nothing will be stored, so there is nothing to share: compute without a lock
             yield True
             return
         try:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-                got = True
-            except BlockingIOError:
-                got = False
             yield got
         finally:
-            with contextlib.suppress(OSError):
-                fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
+            if got:
+                with contextlib.suppress(OSError):
+                    lock.release()
 
     # ---- bookkeeping for `explain`
 

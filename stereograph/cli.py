@@ -18,6 +18,7 @@ from typing import Any
 
 from stereograph import __version__, registry
 from stereograph.errors import ConfigError, sentence
+from stereograph.progress import PlainProgress, RichProgress  # noqa: F401  (RichProgress: the old home)
 
 
 def _console(stderr: bool = False):
@@ -27,30 +28,6 @@ def _console(stderr: bool = False):
     # logs and pipes get a wide table rather than rich's 80-column default
     width = None if stream.isatty() else 160
     return Console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
-
-
-class RichProgress:
-    """Progress display for a terminal: one bar per node with items."""
-
-    def __init__(self, console):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self.p = Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                          TimeElapsedColumn(), console=console, transient=True)
-        self.tasks: dict[str, Any] = {}
-
-    def __enter__(self):
-        self.p.__enter__()
-        return self
-
-    def __exit__(self, *a):
-        self.p.__exit__(*a)
-
-    def node_started(self, name: str, n_items: int) -> None:
-        self.tasks[name] = self.p.add_task(name, total=max(n_items, 1))
-
-    def advance(self, name: str) -> None:
-        self.p.advance(self.tasks[name])
 
 
 def _load_graph(args):
@@ -69,7 +46,12 @@ def _print_warnings(graph, console) -> None:
 
 
 def cmd_validate(args) -> int:
-    graph = _load_graph(args)
+    from stereograph.errors import ConfigErrors
+    from stereograph.graph import check_pipeline
+
+    graph, problems = check_pipeline(args.pipeline, getattr(args, "set", None) or [])
+    if problems:  # every one, not the first only (the summary line tells how many to fix)
+        raise problems[0] if len(problems) == 1 else ConfigErrors(problems)
     con = _console()
     _print_warnings(graph, con)
     mapped = sum(1 for n in graph.nodes.values() if n.mapped)
@@ -257,13 +239,13 @@ def cmd_run(args) -> int:
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor, cycles=loop)
+    # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with --json)
+    prog = RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
+                                                              args.progress_interval)
     try:
         with _sigterm_as_interrupt(loop is not None):
-            if interactive:
-                with RichProgress(con) as prog:
-                    result = run_graph(graph, progress=prog, **kw)
-            else:
-                result = run_graph(graph, **kw)
+            with prog:
+                result = run_graph(graph, progress=prog, **kw)
     finally:
         executor.close()
     for note in result.notes:
@@ -430,6 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")
     sp.add_argument("--save-cycles", action="store_true", help="--repeat: write every cycle's live outputs, images "
                     "included, into cycles/<n>/")
+    sp.add_argument("--progress-interval", type=float, default=5.0, metavar="SECONDS",
+                    help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
     sp = pipeline_cmd("graph", "print the pipeline graph")
@@ -484,7 +468,13 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         from rich.markup import escape
 
-        _console(stderr=True).print(f"[red]error:[/] {escape(str(e))}")
+        from stereograph.errors import ConfigErrors
+
+        err = _console(stderr=True)
+        for one in (e.errors if isinstance(e, ConfigErrors) else [e]):
+            err.print(f"[red]error:[/] {escape(str(one))}")
+        if isinstance(e, ConfigErrors):
+            err.print(f"{len(e.errors)} problems; fix them all, then run the command again.")
         if debug:
             traceback.print_exc()
         return e.exit_code

@@ -374,15 +374,23 @@ class CompareResult:
 
 
 class _PlainProgress:
-    """Progress lines for a non-terminal (one per variant)."""
+    """Progress lines for a non-terminal: one per variant, and the run's per-node lines
+    (:class:`stereograph.progress.PlainProgress`: a line per running node every few seconds)."""
 
-    def __init__(self, stream=None):
+    def __init__(self, stream=None, interval_s: float = 5.0):
+        from stereograph.progress import PlainProgress
+
         self.stream = stream
+        self.nodes = PlainProgress(stream, interval_s) if stream else None
 
     def __enter__(self):
+        if self.nodes is not None:
+            self.nodes.__enter__()
         return self
 
     def __exit__(self, *a):
+        if self.nodes is not None:
+            self.nodes.__exit__(*a)
         return False
 
     def variant_started(self, i: int, n: int, label: str) -> None:
@@ -396,10 +404,16 @@ class _PlainProgress:
             print(f"      {state}; computed: {ran} ({vr.seconds:.1f} s)", file=self.stream, flush=True)
 
     def node_started(self, name: str, n_items: int) -> None:
-        pass
+        if self.nodes is not None:
+            self.nodes.node_started(name, n_items)
 
     def advance(self, name: str) -> None:
-        pass
+        if self.nodes is not None:
+            self.nodes.advance(name)
+
+    def item_progress(self, name: str, done: float, total: float, unit: str = "items") -> None:
+        if self.nodes is not None:
+            self.nodes.item_progress(name, done, total, unit)
 
 
 class _RichProgress(_PlainProgress):
@@ -439,11 +453,17 @@ class _RichProgress(_PlainProgress):
     def node_started(self, name: str, n_items: int) -> None:
         if self.current is not None:
             self.p.remove_task(self.current)
-        self.current = self.p.add_task(f"  {name}", total=max(n_items, 1))
+        self.n_items, self.entries = max(n_items, 1), 0
+        self.current = self.p.add_task(f"  {name}", total=self.n_items)
 
     def advance(self, name: str) -> None:
         if self.current is not None:
-            self.p.advance(self.current)
+            self.entries += 1  # (back from the node's own count, if it showed one)
+            self.p.update(self.current, total=self.n_items, completed=self.entries)
+
+    def item_progress(self, name: str, done: float, total: float, unit: str = "items") -> None:
+        if self.current is not None:  # the node's own count inside one call (a source's scenes)
+            self.p.update(self.current, total=total, completed=done, description=f"  {name} ({unit})")
 
 
 def _default_out(doc: PipelineDoc) -> Path:
@@ -876,7 +896,8 @@ def main(args: Any) -> int:
             with _RichProgress(con) as prog:
                 res = compare(args.pipeline, args.vary, args.out, progress=prog, **kw)
         else:
-            res = compare(args.pipeline, args.vary, args.out, progress=_PlainProgress(sys.stderr), **kw)
+            with _PlainProgress(sys.stderr) as prog:
+                res = compare(args.pipeline, args.vary, args.out, progress=prog, **kw)
     finally:
         executor.close()
     if args.json:
@@ -889,3 +910,20 @@ def main(args: Any) -> int:
                   "computes only what is missing.")
         return 1
     return 0
+
+
+class _CallableModule(type(sys)):
+    """``stereograph.compare(...)`` is the Python API's :func:`stereograph.pyapi.compare`.
+
+    Importing this module makes ``stereograph.compare`` the module (Python sets the package
+    attribute), so the module itself answers the call; ``from stereograph.compare import compare``
+    still gives the function above.
+    """
+
+    def __call__(self, *args: Any, **kwargs: Any) -> CompareResult:
+        from stereograph.pyapi import compare as api_compare
+
+        return api_compare(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallableModule

@@ -30,7 +30,7 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from stereograph.errors import ConfigError, UsageError, Where
+from stereograph.errors import ConfigError, UsageError, Where, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 
@@ -51,6 +51,7 @@ class PipelineDoc:
     nodes: dict[str, dict[str, Any]]
     lines: dict[Path_, Where] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
+    broken: set[str] = field(default_factory=set)  # nodes left out for a problem of their own (already reported)
 
     @property
     def directory(self) -> Path:
@@ -321,10 +322,13 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
     data, lines = _read(path)
     where = lambda *p: lines.get(tuple(p), Where(str(path), 1))  # noqa: E731
 
+    # Problems that leave the rest of the file readable are collected, so that one `validate`
+    # reports them all; the file is read on without the part in error.
+    problems: list[ConfigError] = []
     unknown = set(data) - TOP_KEYS
     for key in sorted(unknown, key=str):
-        raise ConfigError(f"unknown top-level key '{key}'", where(key),
-                          hint=f"use one of {sorted(TOP_KEYS)}")
+        problems.append(ConfigError(f"unknown top-level key '{key}'", where(key),
+                                    hint=f"use one of {sorted(TOP_KEYS)}"))
 
     name = data.get("name")
     if name is not None and name != "":
@@ -386,33 +390,39 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
                           hint="add a 'nodes:' mapping of node instances, each with a 'type:'")
     for name, decl in (nodes or {}).items():
         name = str(name)
-        if decl is None:
-            decl = {}
-        if not isinstance(decl, dict):
-            raise ConfigError("a node must be a mapping with 'type', 'params', 'inputs'", where("nodes", name),
-                              node=name)
-        for key in decl:
-            if key not in NODE_KEYS:
-                raise ConfigError(f"unknown key '{key}' in node", where("nodes", name, key), node=name,
-                                  hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'")
-        if "type" not in decl:
-            raise ConfigError("node has no 'type'", where("nodes", name), node=name,
-                              hint="add 'type: kind.method' (see `stereograph nodes`)")
-        for key in ("params", "inputs"):
-            if decl.get(key) is not None and not isinstance(decl[key], dict):
-                raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
-        check_name(name, "node name", where("nodes", name), node=name)
-        if not isinstance(decl["type"], str):
-            raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}", where("nodes", name, "type"),
-                              node=name, hint="add 'type: kind.method' (see `stereograph nodes`)")
-        base = doc.nodes.get(name, {})
-        # a node redefined over an included one keeps the included params only if the type is the same
-        base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
-        merged = {"type": decl["type"],
-                  "params": {**base_params, **(decl.get("params") or {})},
-                  "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
-        doc.nodes[name] = merged
-
+        try:
+            if decl is None:
+                decl = {}
+            if not isinstance(decl, dict):
+                raise ConfigError("a node must be a mapping with 'type', 'params', 'inputs'", where("nodes", name),
+                                  node=name)
+            for key in decl:
+                if key not in NODE_KEYS:
+                    raise ConfigError(f"unknown key '{key}' in node", where("nodes", name, key), node=name,
+                                      hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'")
+            if "type" not in decl:
+                raise ConfigError("node has no 'type'", where("nodes", name), node=name,
+                                  hint="add 'type: kind.method' (see `stereograph nodes`)")
+            for key in ("params", "inputs"):
+                if decl.get(key) is not None and not isinstance(decl[key], dict):
+                    raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
+            check_name(name, "node name", where("nodes", name), node=name)
+            if not isinstance(decl["type"], str):
+                raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}",
+                                  where("nodes", name, "type"), node=name,
+                                  hint="add 'type: kind.method' (see `stereograph nodes`)")
+            base = doc.nodes.get(name, {})
+            # a node redefined over an included one keeps the included params only if the type is the same
+            base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
+            merged = {"type": decl["type"],
+                      "params": {**base_params, **(decl.get("params") or {})},
+                      "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
+            doc.nodes[name] = merged
+        except ConfigError as e:
+            problems.append(e)
+            doc.broken.add(name)
+            doc.nodes.pop(name, None)
+    raise_all(problems, doc)
     for ov in overrides or []:
         apply_override(doc, ov)
     return doc

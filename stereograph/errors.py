@@ -62,3 +62,47 @@ def sentence(text: str) -> str:
 
 class UsageError(ConfigError):
     """A bad command line (exit code 2)."""
+
+
+class ConfigErrors(ConfigError):
+    """Several problems of one pipeline, found in one pass (``validate`` lists them all).
+
+    Its ``message``, ``where``, ``node`` and ``hint`` are the first problem's, so code that reads
+    one :class:`ConfigError` keeps working; ``errors`` holds every one, in file order.
+
+    Parameters
+    ----------
+    errors : list of ConfigError
+        Two or more problems.
+    doc : PipelineDoc, optional
+        The pipeline as far as it could be read (nodes with a problem of their own left out),
+        so that later checks can still look at the rest.
+    """
+
+    def __init__(self, errors: list[ConfigError], doc: object | None = None):
+        first = errors[0]
+        super().__init__(first.message, first.where, first.node, first.hint)
+        self.errors, self.doc = list(errors), doc
+        self.exit_code = max(e.exit_code for e in errors)
+
+    def __str__(self) -> str:
+        return "\n".join(str(e) for e in self.errors)
+
+
+def raise_all(errors: list[ConfigError], doc: object | None = None) -> None:
+    """Raise nothing, the one error, or a :class:`ConfigErrors` of all of them (sorted by file and line)."""
+    if not errors:
+        return
+    flat = in_file_order(errors)
+    if len(flat) == 1 and doc is None:
+        raise flat[0]
+    raise ConfigErrors(flat, doc)
+
+
+def in_file_order(errors: list[ConfigError]) -> list[ConfigError]:
+    """Errors sorted by file and line (unlocated ones last), each :class:`ConfigErrors` unpacked."""
+    flat: list[ConfigError] = []
+    for e in errors:
+        flat += e.errors if isinstance(e, ConfigErrors) else [e]
+    return sorted(flat, key=lambda e: (e.where is None, e.where.file if e.where else "",
+                                       (e.where.line or 0) if e.where else 0))

@@ -17,8 +17,8 @@ import pydantic
 
 from stereograph import registry
 from stereograph.api import NodeSpec, Params
-from stereograph.config import PipelineDoc
-from stereograph.errors import ConfigError
+from stereograph.config import PipelineDoc, apply_override, load_pipeline
+from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
 
 @dataclass
@@ -102,88 +102,119 @@ def merge_nested_defaults(model: type[pydantic.BaseModel], raw: dict[str, Any]) 
 
 
 def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str) -> Params:
-    """Validate ``raw`` params with the node's model, errors pointing at the YAML."""
+    """Validate ``raw`` params with the node's model, errors pointing at the YAML (all of them)."""
     try:
         # model_validate, not **raw: a YAML key need not be a string (`1: 2` is an unknown parameter)
         return spec.params.model_validate(merge_nested_defaults(spec.params, raw))
     except pydantic.ValidationError as err:
-        (loc, msg), *rest = _format_pydantic(err)
-        if not loc:  # the params as a whole: say which --set contributed, if any
-            sets = [o for o in doc.overrides if o.split("=", 1)[0].split(".")[0] == node]
-            raise ConfigError(f"{spec.name} parameters: {msg}" + (f" (with --set {', '.join(sets)})" if sets else ""),
-                              doc.where("nodes", node, "params"), node,
-                              f"see `stereograph nodes {spec.name}`") from None
-        field_name = ".".join(str(p) for p in loc)
-        fields = spec.params.model_fields
-        hint = None
-        if msg == "unknown parameter":
-            close = difflib.get_close_matches(str(loc[0]), list(fields), n=1)
-            hint = (f"did you mean '{close[0]}'?" if close else
-                    f"{spec.name} takes {sorted(fields) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
-        elif loc and loc[0] in fields:
-            f = fields[loc[0]]
-            desc = f.description or ""
-            ann = getattr(f.annotation, "__name__", str(f.annotation))
-            hint = f"'{loc[0]}' is {ann}" + (f": {desc}" if desc else "")
-        more = f" (and {len(rest)} more problem(s))" if rest else ""
-        raise ConfigError(f"{spec.name} parameter '{field_name}': {msg}{more}",
-                          doc.where("nodes", node, "params", *loc), node, hint) from None
+        raise_all([_param_error(spec, doc, node, loc, msg) for loc, msg in _format_pydantic(err)])
+        raise  # pragma: no cover - pydantic never raises without an error
+
+
+def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: str) -> ConfigError:
+    """One parameter problem as a located error with the fix."""
+    if not loc:  # the params as a whole: say which --set contributed, if any
+        sets = [o for o in doc.overrides if o.split("=", 1)[0].split(".")[0] == node]
+        return ConfigError(f"{spec.name} parameters: {msg}" + (f" (with --set {', '.join(sets)})" if sets else ""),
+                           doc.where("nodes", node, "params"), node, f"see `stereograph nodes {spec.name}`")
+    field_name = ".".join(str(p) for p in loc)
+    fields = spec.params.model_fields
+    hint = None
+    if msg == "unknown parameter":
+        close = difflib.get_close_matches(str(loc[0]), list(fields), n=1)
+        hint = (f"did you mean '{close[0]}'?" if close else
+                f"{spec.name} takes {sorted(fields) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
+    elif loc and loc[0] in fields:
+        f = fields[loc[0]]
+        desc = f.description or ""
+        ann = getattr(f.annotation, "__name__", str(f.annotation))
+        hint = f"'{loc[0]}' is {ann}" + (f": {desc}" if desc else "")
+    return ConfigError(f"{spec.name} parameter '{field_name}': {msg}", doc.where("nodes", node, "params", *loc),
+                       node, hint)
+
+
+def _wire(doc: PipelineDoc, nodes: dict[str, NodeInstance], unresolved: set[str], inst: NodeInstance,
+          port: Any, ref: Any) -> bool:
+    """Check one ``port: node.output`` wire and record it; False if it leads to a node already in error."""
+    name = inst.name
+    where = doc.where("nodes", name, "inputs", port)
+    if port not in inst.spec.inputs:
+        close = difflib.get_close_matches(str(port), list(inst.spec.inputs), n=1)
+        raise ConfigError(f"{inst.type} has no input '{port}'", where, name,
+                          f"did you mean '{close[0]}'?" if close else
+                          f"its inputs are {sorted(inst.spec.inputs) or 'none'}")
+    if not isinstance(ref, str) or ref.count(".") != 1:
+        raise ConfigError(f"input '{port}: {ref}' must be 'node.output'", where, name,
+                          "for example 'pair: rectify.pair'")
+    src, out = ref.split(".")
+    if src in unresolved:
+        return False
+    if src not in nodes:
+        close = difflib.get_close_matches(src, list(nodes), n=1)
+        raise ConfigError(f"input '{port}' refers to a node '{src}' that does not exist", where, name,
+                          f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(nodes)}")
+    src_spec = nodes[src].spec
+    if out not in src_spec.outputs:
+        close = difflib.get_close_matches(out, list(src_spec.outputs), n=1)
+        raise ConfigError(f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
+                          where, name, f"did you mean '{src}.{close[0]}'?" if close else
+                          f"its outputs are {sorted(src_spec.outputs)}")
+    have = src_spec.outputs[out].type
+    accepted = inst.spec.inputs[port].types
+    if "any" not in accepted and have != "any" and have not in accepted:
+        wants = " or ".join(accepted)
+        raise ConfigError(f"input '{port}' wants {wants} but '{src}.{out}' gives {have}", where, name,
+                          f"wire '{port}' to an output of type {wants}")
+    inst.inputs[port] = (src, out)
+    return True
 
 
 def build_graph(doc: PipelineDoc) -> Graph:
-    """Resolve and check every node and wire of a pipeline before anything runs."""
+    """Resolve and check every node and wire of a pipeline before anything runs.
+
+    Every problem is found in one pass: one is raised as a :class:`ConfigError`, several as a
+    :class:`~stereograph.errors.ConfigErrors` listing them all (in file order).
+    """
     registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
+    problems: list[ConfigError] = []
     known = set(registry.names())
     for t in doc.defaults:
         if t not in known:  # a misspelt type's defaults would silently apply to nothing
             close = difflib.get_close_matches(t, sorted(known), n=1, cutoff=0.5)
-            raise ConfigError(f"defaults are given for an unknown node type '{t}'", doc.where("defaults", t), None,
-                              f"did you mean '{close[0]}'?" if close else "run `stereograph nodes` to list the types")
+            problems.append(ConfigError(f"defaults are given for an unknown node type '{t}'",
+                                        doc.where("defaults", t), None, f"did you mean '{close[0]}'?" if close
+                                        else "run `stereograph nodes` to list the types"))
     nodes: dict[str, NodeInstance] = {}
+    unresolved = set(doc.broken)  # nodes with a problem of their own: wires to them are not checked further
     for name, decl in doc.nodes.items():
-        spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
-        raw = {**doc.defaults.get(spec.name, {}), **(decl.get("params") or {})}
-        params = validate_params(spec, raw, doc, name)
+        try:
+            spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
+            raw = {**doc.defaults.get(spec.name, {}), **(decl.get("params") or {})}
+            params = validate_params(spec, raw, doc, name)
+        except ConfigError as e:
+            problems.append(e)
+            unresolved.add(name)
+            continue
         nodes[name] = NodeInstance(name, spec, params, {})
 
     dag = nx.DiGraph()
     dag.add_nodes_from(nodes)
     for name, decl in doc.nodes.items():
+        if name not in nodes:
+            continue
         inst = nodes[name]
         for port, ref in (decl.get("inputs") or {}).items():
-            where = doc.where("nodes", name, "inputs", port)
-            if port not in inst.spec.inputs:
-                close = difflib.get_close_matches(str(port), list(inst.spec.inputs), n=1)
-                raise ConfigError(f"{inst.type} has no input '{port}'", where, name,
-                                  f"did you mean '{close[0]}'?" if close else
-                                  f"its inputs are {sorted(inst.spec.inputs) or 'none'}")
-            if not isinstance(ref, str) or ref.count(".") != 1:
-                raise ConfigError(f"input '{port}: {ref}' must be 'node.output'", where, name,
-                                  "for example 'pair: rectify.pair'")
-            src, out = ref.split(".")
-            if src not in nodes:
-                close = difflib.get_close_matches(src, list(nodes), n=1)
-                raise ConfigError(f"input '{port}' refers to a node '{src}' that does not exist", where, name,
-                                  f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(nodes)}")
-            src_spec = nodes[src].spec
-            if out not in src_spec.outputs:
-                close = difflib.get_close_matches(out, list(src_spec.outputs), n=1)
-                raise ConfigError(f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
-                                  where, name, f"did you mean '{src}.{close[0]}'?" if close else
-                                  f"its outputs are {sorted(src_spec.outputs)}")
-            have = src_spec.outputs[out].type
-            accepted = inst.spec.inputs[port].types
-            if "any" not in accepted and have != "any" and have not in accepted:
-                wants = " or ".join(accepted)
-                raise ConfigError(f"input '{port}' wants {wants} but '{src}.{out}' gives {have}", where, name,
-                                  f"wire '{port}' to an output of type {wants}")
-            inst.inputs[port] = (src, out)
-            dag.add_edge(src, name)
+            try:
+                if _wire(doc, nodes, unresolved, inst, port, ref):
+                    dag.add_edge(inst.inputs[port][0], name)
+            except ConfigError as e:
+                problems.append(e)
         for port, decl_in in inst.spec.inputs.items():
-            if port not in inst.inputs and not decl_in.optional:
-                raise ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
-                                  doc.where("nodes", name), name,
-                                  f"add 'inputs: {{{port}: some_node.output}}'")
+            if port not in (decl.get("inputs") or {}) and not decl_in.optional:
+                problems.append(ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
+                                            doc.where("nodes", name), name,
+                                            f"add 'inputs: {{{port}: some_node.output}}'"))
+    raise_all(problems)
 
     if not nx.is_directed_acyclic_graph(dag):
         cycle = [e[0] for e in nx.find_cycle(dag)]
@@ -200,14 +231,16 @@ def build_graph(doc: PipelineDoc) -> Graph:
             coll = graph.is_collection(src, out)
             gather = inst.spec.inputs[port].gather
             if gather and not coll:
-                raise ConfigError(f"input '{port}' gathers a collection, but '{src}.{out}' is a single artifact",
-                                  doc.where("nodes", name, "inputs", port), name,
-                                  "wire it to a per-item output (e.g. of a node that runs once per pair)")
+                problems.append(ConfigError(f"input '{port}' gathers a collection, but '{src}.{out}' is a single "
+                                            "artifact", doc.where("nodes", name, "inputs", port), name,
+                                            "wire it to a per-item output (e.g. of a node that runs once per pair)"))
             mapped |= coll and not gather
         inst.mapped = mapped
         if mapped and any(o.collection for o in inst.spec.outputs.values()):
-            raise ConfigError(f"{inst.type} yields a collection but runs per item here", doc.where("nodes", name),
-                              name, "nested collections are not supported: feed it single artifacts")
+            problems.append(ConfigError(f"{inst.type} yields a collection but runs per item here",
+                                        doc.where("nodes", name), name,
+                                        "nested collections are not supported: feed it single artifacts"))
+    raise_all(problems)
 
     used = {(s, o) for inst in nodes.values() for (s, o) in inst.inputs.values()}
     for name in order:
@@ -219,3 +252,41 @@ def build_graph(doc: PipelineDoc) -> Graph:
             if (name, out) not in used and not decl.save and not decl.optional:
                 graph.warnings.append(f"{doc.where('nodes', name)}: node '{name}': output '{out}' is never used")
     return graph
+
+
+def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph | None, list[ConfigError]]:
+    """Every problem of a pipeline file at once: what ``stereograph validate`` prints.
+
+    Parameters
+    ----------
+    path : str or Path
+        The pipeline YAML.
+    overrides : list of str, optional
+        ``--set`` overrides, as for :func:`~stereograph.config.load_pipeline`.
+
+    Returns
+    -------
+    (graph, problems)
+        The validated graph (None when there is any problem) and the problems, each one located
+        ``file:line`` with its node and fix. Problems in a node's declaration (an unknown key) do not
+        hide those of the rest of the file; a file that is not valid YAML gives its one syntax error.
+    """
+    problems: list[ConfigError] = []
+    try:
+        doc = load_pipeline(path, overrides)
+    except ConfigErrors as e:
+        if e.doc is None:
+            return None, e.errors
+        doc, problems = e.doc, list(e.errors)
+        for ov in overrides or []:  # load_pipeline stopped before the overrides
+            try:
+                apply_override(doc, ov)
+            except ConfigError as oe:
+                problems.append(oe)
+    except ConfigError as e:
+        return None, [e]
+    try:
+        graph = build_graph(doc)
+    except ConfigError as e:
+        return None, in_file_order(problems + [e])
+    return (None if problems else graph), problems

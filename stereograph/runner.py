@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import contextvars
 import os
 import time
 import traceback
@@ -47,6 +48,18 @@ from stereograph.errors import ConfigError
 from stereograph.graph import Graph, NodeInstance, build_graph
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
+
+# The run's progress display, for nodes that report progress inside a call (ctx.progress). A
+# context variable, not a Task field: the display cannot travel to worker processes (there
+# ctx.progress is a no-op and the per-item count still advances).
+_PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar("stereograph_progress", default=None)
+
+
+def _progress_hook(node_name: str) -> Callable[[float, float, str], None] | None:
+    report = getattr(_PROGRESS.get(), "item_progress", None)
+    if report is None:
+        return None
+    return lambda done, total, unit: report(node_name, done, total, unit)
 
 
 # --------------------------------------------------------------------------- executors
@@ -96,7 +109,8 @@ def execute(task: Task) -> TaskResult:
         ctx = None
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
-                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources)
+                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
+                             on_progress=_progress_hook(task.node_name))
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
         if not isinstance(out, dict) or set(out) != set(spec.outputs):
@@ -206,6 +220,7 @@ class RunResult:
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
     terminal: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # about the run as a whole (a read-only cache, say)
+    _run: Any = field(default=None, repr=False)  # the finished run: loads any node's output from the cache
 
     @property
     def ok(self) -> bool:
@@ -477,6 +492,7 @@ class _Run:
                 values = self.inputs_for(refs)
             except NodeError as e:
                 self.fail_item(inst, item, e.message, e.hint)
+                self._advance(inst)
                 continue
             tasks.append(self.task(inst, item, values))
             metas.append((item, key))
@@ -505,8 +521,6 @@ class _Run:
             if ok and inst.mapped:
                 for out in inst.spec.outputs:
                     self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-            if self.progress:
-                self.progress.advance(inst.name)
         if inst.mapped:  # keep the items in source order
             for out in inst.spec.outputs:
                 done = set(self.items[(inst.name, out)])
@@ -531,7 +545,7 @@ class _Run:
         if not tasks:
             return []
         if not cacheable:
-            return [(r, False) for r in self.executor.map(execute, tasks)]
+            return [(r, False) for r in self._advancing(inst, self.executor.map(execute, tasks))]
         # Take each entry's lock without blocking: ours to compute; busy ones are being computed
         # by another run right now, so wait for those afterwards and reuse their result.
         results: list[Any] = [None] * len(tasks)
@@ -540,7 +554,7 @@ class _Run:
             for idx, (_item, key) in enumerate(metas):
                 got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
                 (mine if got else busy).append(idx)
-            for idx, res in zip(mine, self.executor.map(execute, [tasks[i] for i in mine])):
+            for idx, res in zip(mine, self._advancing(inst, self.executor.map(execute, [tasks[i] for i in mine]))):
                 stored = False
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
@@ -560,7 +574,18 @@ class _Run:
                     if res.ok:
                         self.store_result(inst, item, key, res.outputs or {}, res.messages)
                     results[idx] = (res, res.ok)
+            self._advance(inst)
         return results
+
+    def _advance(self, inst: NodeInstance) -> None:
+        if self.progress:
+            self.progress.advance(inst.name)
+
+    def _advancing(self, inst: NodeInstance, results: Iterable[TaskResult]) -> Iterable[TaskResult]:
+        """The executor's results, advancing the progress display as each one arrives."""
+        for res in results:
+            self._advance(inst)
+            yield res
 
     def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
                   unexpected: bool = False):
@@ -621,6 +646,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if only is not None:
         run.keep = {only}
     run.keep |= set(keep or ())
+    progress_token = _PROGRESS.set(progress)
     try:
         if cycles is not None:
             cycles(run, selected)
@@ -629,6 +655,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                 run.run_node(graph.nodes[name])
     finally:
         close_resources(run.resources)
+        _PROGRESS.reset(progress_token)
         if own_executor:
             executor.close()
         if store is not None:
@@ -641,6 +668,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if write_outputs:
         outputs_mod.write_run_outputs(graph, run, result, selected)
     result._values, result._items = _terminal_values(graph, run, selected)
+    result._run = run
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result

@@ -9,9 +9,10 @@ disparity as the better way when the calibration is imperfect: fit
 on the training placements, with ``d`` the rectified disparity (px). ``a``
 absorbs errors of f B (cm px), ``b`` a disparity offset (px; a principal-point
 mismatch between the rectified cameras) and ``c`` a depth offset (cm). The fit
-is nonlinear least squares in numpy: an algebraic linear fit
-(``z d = (a + c b) + c d - b z``) for the start, then Gauss-Newton steps solved
-with :func:`numpy.linalg.lstsq` with step halving.
+is nonlinear least squares: an algebraic linear fit
+(``z d = (a + c b) + c d - b z``) for the start, then
+:func:`scipy.optimize.least_squares` (trust region, analytic Jacobian) with the
+disparity offset bounded so that ``d + b`` stays positive on every training placement.
 
 ``z = f B / d`` holds for the depth in the *rectified* left camera, which stereoRectify
 turns by R1 against the physical camera the locations are reported in. By default
@@ -28,6 +29,7 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from nodes.compensators._common import (
     TRAIN_INPUT,
@@ -77,7 +79,7 @@ def fit_disparity_curve(
     with_offset_px : bool
         Fit the disparity offset b (px); False fixes b = 0 (a linear fit in 1/d).
     max_iter : int
-        Gauss-Newton iterations at most.
+        Jacobian evaluations of the nonlinear fit at most.
     xy : {"auto", "along_ray", "keep"}
         What the correction does to x, y (see :func:`resolve_along_ray`).
     rectified : bool
@@ -96,7 +98,8 @@ def fit_disparity_curve(
     z = samples.truth_cm[:, 2] / g
     n_coef = 3 if with_offset_px else 2
     if len(d) < n_coef + 1:
-        raise NodeError(f"the disparity curve has {n_coef} coefficients and needs at least {n_coef + 1} placements, got {len(d)}.")
+        raise NodeError(f"the disparity curve has {n_coef} coefficients and needs at least {n_coef + 1} placements, "
+                        f"got {len(d)}.")
     if len(np.unique(d)) < n_coef:
         raise NodeError(f"the disparity curve needs {n_coef} distinct disparities, got {len(np.unique(d))}.")
     if np.any(d <= 0):
@@ -110,32 +113,23 @@ def fit_disparity_curve(
             start = _linear_ac(d, z, float(b))
             if np.sum((z - _curve(start, d)) ** 2) < np.sum((z - _curve(p, d)) ** 2):
                 p = start
-        cost = float(np.sum((z - _curve(p, d)) ** 2))
-        for iterations in range(1, max_iter + 1):
-            den = d + p[1]
-            jac = np.column_stack([1.0 / den, -p[0] / den**2, np.ones_like(d)])
-            scale = np.linalg.norm(jac, axis=0)
-            scale[scale == 0] = 1.0
-            step, *_ = np.linalg.lstsq(jac / scale, z - _curve(p, d), rcond=None)
-            step = step / scale
-            improved = False
-            t = 1.0
-            for _ in range(30):
-                trial = p + t * step
-                if np.all(d + trial[1] > 0):
-                    trial_cost = float(np.sum((z - _curve(trial, d)) ** 2))
-                    if trial_cost <= cost:
-                        improved = True
-                        break
-                t *= 0.5
-            if not improved:
-                break
-            converged = abs(cost - trial_cost) <= 1e-12 * max(cost, 1e-30) or np.all(
-                np.abs(t * step) <= 1e-10 * (np.abs(p) + 1e-6)
-            )
-            p, cost = trial, trial_cost
-            if converged:
-                break
+        # b > -min(d) keeps every denominator positive (the curve's pole stays left of the data)
+        b_low = -float(np.min(d)) * (1.0 - 1e-6)
+
+        def residuals(q: np.ndarray) -> np.ndarray:
+            return _curve(q, d) - z
+
+        def jacobian(q: np.ndarray) -> np.ndarray:
+            den = d + q[1]
+            return np.column_stack([1.0 / den, -q[0] / den**2, np.ones_like(d)])
+
+        fit = least_squares(residuals, p, jac=jacobian, method="trf", x_scale="jac", max_nfev=max_iter,
+                            bounds=([-np.inf, b_low, -np.inf], [np.inf, np.inf, np.inf]),
+                            ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        # never worse than the start (least_squares returns its best point, but say so explicitly)
+        if np.sum(fit.fun**2) <= np.sum((z - _curve(p, d)) ** 2):
+            p = fit.x
+        iterations = int(fit.njev or fit.nfev)
     if not np.all(np.isfinite(p)):
         raise NodeError("the disparity curve fit did not converge to finite coefficients.")
     return {

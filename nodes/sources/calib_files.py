@@ -40,7 +40,9 @@ def calib_files(params: CalibFilesParams, ctx=None) -> dict:
     folder = ctx.path(params.folder) if ctx is not None else Path(params.folder).expanduser()
     pairs = list_pairs(folder, params.left_glob, params.right_glob)
     views, size, rejected = [], None, {}
-    for pid, lp, rp in pairs:
+    for k, (pid, lp, rp) in enumerate(pairs):
+        if ctx is not None:
+            ctx.progress(k, len(pairs), "views")
         try:
             left = read_image(lp, color=False, max_mpx=params.max_image_mpx)
             right = read_image(rp, color=False, max_mpx=params.max_image_mpx)

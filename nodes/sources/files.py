@@ -69,7 +69,9 @@ def files(params: FilesParams, ctx=None) -> dict:
                 ctx.warn(w)
     rng = np.random.default_rng([params.seed, 3])
     out, skipped = {}, {}
-    for pid, lp, rp in pairs_list:
+    for k, (pid, lp, rp) in enumerate(pairs_list):
+        if ctx is not None:
+            ctx.progress(k, len(pairs_list), "pairs")
         split = "train" if rng.random() < params.train_fraction else "test"  # drawn for every pair: a skip
         try:                                                                # leaves the others' split as it was
             kw = {"max_mpx": params.max_image_mpx, "expect_size": params.image_size_px}

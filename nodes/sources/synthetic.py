@@ -128,7 +128,7 @@ def synthetic_rig(params: SyntheticParams) -> dict:
     params=SyntheticParams,
     version="1",
 )
-def synthetic(params: SyntheticParams) -> dict:
+def synthetic(params: SyntheticParams, ctx=None) -> dict:
     """Render a synthetic stereo rig: ball scenes, chessboard views and the true cameras.
 
     Each pair carries ``split`` (train/test, seeded) and ``truth`` (see
@@ -155,7 +155,8 @@ def synthetic(params: SyntheticParams) -> dict:
                 rng = np.random.default_rng([params.seed, 2, _render.SCENE_KINDS.index(kind), i])
                 specs.append((f"{kind}{i:03d}", _render.make_scene(rig, kind, rng, **scene_kw)))
     except RuntimeError as exc:
-        raise NodeError(f"source.synthetic: {exc}.", hint="check camera_height_cm / tilt and the distance range")
+        raise NodeError(f"source.synthetic: {exc}.",
+                        hint="check camera_height_cm / tilt and the distance range") from exc
     for i, sc in enumerate(params.scenes):
         specs.append((str(sc.get("id", f"custom{i:03d}")), dict(sc)))
 
@@ -171,7 +172,9 @@ def synthetic(params: SyntheticParams) -> dict:
                     for pid, sc in plain}
             forced_train = {min(dist, key=dist.get), max(dist, key=dist.get)}
     pairs = {}
+    report = ctx.progress if ctx is not None else (lambda *a: None)
     for k, (pid, scene) in enumerate(specs):
+        report(k, len(specs), "scenes")
         try:
             left, right, truth = _render.render_scene(rig, scene, seed=params.seed * 100003 + k,
                                                       coverage=params.truth_masks)
@@ -194,6 +197,7 @@ def synthetic(params: SyntheticParams) -> dict:
         charuco = ({"dictionary": params.aruco_dict, "marker_fraction": params.marker_fraction}
                    if params.board_type == "charuco" else None)
         for j, pose in enumerate(poses):
+            report(j, len(poses), "views")
             vid = f"v{j:02d}"
             left, right, corners = _render.render_board_view(
                 rig, pose, params.board_cols, params.board_rows, params.square_cm, seed=params.seed * 7919 + j,

@@ -1,0 +1,77 @@
+"""The documented Python API (issue 14 item 4): docs/python.md's example runs as written."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+import stereograph
+from stereograph.errors import ConfigError, ConfigErrors
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "python.md"
+
+
+def _python_blocks(text: str) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", text, flags=re.S)
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A folder laid out like the repository (pipelines/), so the cache and runs stay in tmp."""
+    (tmp_path / "pipelines").mkdir()
+    shutil.copy(ROOT / "pipelines" / "locate-truthcal.yaml", tmp_path / "pipelines")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_the_documented_example_runs(project, capsys):
+    blocks = _python_blocks(DOC.read_text())
+    assert len(blocks) == 1
+    exec(compile(blocks[0], str(DOC), "exec"), {"__name__": "docs_python_example"})
+    out = capsys.readouterr().out
+    assert "<stereograph.Result" in out and ": ok;" in out
+    assert "x, y, z (cm):" in out or "not found:" in out
+    assert "10 segmentations" in out
+    assert out.count("z RMS (cm):") == 2  # one row per variant
+    assert list((project / "runs" / "locate-truthcal").iterdir())  # the runs went to the current folder
+
+
+def test_result_access_and_its_errors(project):
+    res = stereograph.run("pipelines/locate-truthcal.yaml", {"rig.n_scenes": 4}, progress=False)
+    assert res.ok and set(res.status) >= {"rig", "locate", "report"}
+    assert set(res.outputs("locate", "location")) == {"s000", "s001", "s002", "s003"}
+    assert "report" in res["report"]
+    masks = res["segment"]["segmentation"]  # not terminal, not saved: loaded from the cache
+    assert set(masks) == {"s000", "s001", "s002", "s003"}
+    with pytest.raises(KeyError, match="no node 'segmnt'"):
+        res.outputs("segmnt", "segmentation")
+    with pytest.raises(KeyError, match="has no output 'mask'"):
+        res.outputs("segment", "mask")
+    again = stereograph.run("pipelines/locate-truthcal.yaml", ["rig.n_scenes=4"], progress=False)
+    assert again.ran == set() and "segment" in again.nodes  # all cached
+    assert again.raise_for_errors() is again
+    nocache = stereograph.run("pipelines/locate-truthcal.yaml", {"rig.n_scenes": 4}, use_cache=False,
+                              keep=["disparity"], progress=False)
+    assert set(nocache.outputs("disparity", "disparity")) == set(masks)  # kept in memory
+    with pytest.raises(KeyError, match="keep="):
+        nocache["segment"]  # no cache to load it from, and not kept
+
+
+def test_a_bad_pipeline_raises_every_problem(project):
+    bad = {"segment.canny_lo": 40, "rig.n_scenes": -1}
+    assert len(stereograph.check("pipelines/locate-truthcal.yaml", bad)) == 2
+    with pytest.raises(ConfigErrors) as info:
+        stereograph.run("pipelines/locate-truthcal.yaml", bad, progress=False)
+    assert {e.node for e in info.value.errors} == {"segment", "rig"}
+    with pytest.raises(ConfigError, match="keep= names nodes"):
+        stereograph.run("pipelines/locate-truthcal.yaml", keep=["nosuch"], progress=False)
+
+
+def test_compare_is_callable_from_the_package_and_the_module_still_imports():
+    from stereograph.compare import CompareResult, compare
+
+    assert callable(stereograph.compare) and callable(compare) and CompareResult
