@@ -15,6 +15,12 @@ once), read back, then present positions are polled one servo at a time until al
 A failure while moving turns torque off on every servo and names the cause. Ctrl-C or SIGTERM while
 moving ends the motion as ``on_interrupt`` says (:mod:`._stop`), closes the port and re-raises.
 See docs/arm.md, "Servo faults" and "Ctrl-C and SIGTERM".
+
+In a ``--repeat`` loop the port (and the emulator) stay open from one plan to the next
+(``ctx.resource``; the engine closes them when the run ends): steps (2)-(3) read the servos once per
+open port, and later plans check their goals against the limits read then and write the first goal
+after one present-position READ per servo. Any failure or interrupt closes the port, so the next
+plan checks every servo again (docs/live.md, "Latency").
 """
 
 from __future__ import annotations
