@@ -12,8 +12,9 @@ every cycle that picks, times:
     locate+compensate  centroid disparity, triangulation, depth compensation
     IK+plan            analytic IK, pick plan (limits checked)
     servo I/O          actuator up to the first goal written, split into
-      start, open port   plan check, emulator start (port: sim), opening the port
-      ping, reads, write ping and limit / position reads of every servo, the first GROUP SYNC WRITE
+      check, port        plan check, the emulator (port: sim) and the open port (kept from cycle 1)
+      reads, write       setup of each servo (cycle 1 and after a fault: ping, model, limits), its
+                         present position, the first GROUP SYNC WRITE
     grab -> first goal the sum: from the camera node's start to the first goal packet written
 
 Stage times are wall-clock between the engine's node starts (so engine overhead is counted, in
@@ -21,7 +22,9 @@ the stage it falls in) and the first sync write returning; the motion itself is 
 (loading the files, recording the camera) is not counted; nor are cycles where nothing was picked
 (reported). Prints median and p95 per stage in ms, with the main thread's CPU time beside them:
 on a shared machine the wall figure includes waiting for the core, the CPU figure does not.
-The servo I/O CPU figure excludes the emulator, which runs in a thread of this process.
+The main thread's CPU figure excludes the emulator, which runs in a thread of this process; the
+last column, the whole process's CPU time (pipeline + emulator), is what the stage would take on
+a core of its own, waits on the port aside.
 """
 
 from __future__ import annotations
@@ -40,14 +43,23 @@ STAGES = [("grab", "cam", "segment"), ("rectify+segment", "segment", "disparity"
           ("locate+compensate", "disparity", "ik"), ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
 
 
+def _now() -> tuple[float, float, float]:
+    """Wall clock, this thread's CPU clock, the whole process's CPU clock (s)."""
+    return time.perf_counter(), time.thread_time(), time.process_time()
+
+
+def _ms(a: tuple, b: tuple) -> tuple[float, ...]:
+    return tuple((y - x) * 1000 for x, y in zip(a, b))
+
+
 class Stamps:
     """The engine's progress hook: when each node started (wall and this thread's CPU clock)."""
 
     def __init__(self):
-        self.start: dict[str, tuple[float, float]] = {}
+        self.start: dict[str, tuple[float, float, float]] = {}
 
     def node_started(self, name: str, n_items: int) -> None:
-        self.start[name] = (time.perf_counter(), time.thread_time())
+        self.start[name] = _now()
 
     def advance(self, name: str) -> None:
         pass
@@ -87,26 +99,27 @@ def main(argv=None) -> int:
     from stereograph.loop import Loop
     from stereograph.runner import run_graph
 
-    first_goal: list[tuple[float, float]] = []  # (wall, cpu) when the first sync write of a cycle returned
-    port_open: list[tuple[float, float]] = []  # (wall, cpu) when the bus's port was open
-    sync_write, bus_open = bus_mod.Bus.sync_write, bus_mod.Bus.open
+    first_goal: list[tuple[float, float, float]] = []  # (wall, cpu) when the first sync write of a cycle returned
+    port_open: list[tuple[float, float, float]] = []  # (wall, cpu) when the plan started on the open port
+    sync_write, bus_begin = bus_mod.Bus.sync_write, bus_mod.Bus.begin
 
-    def timed_open(self):
-        out = bus_open(self)
-        port_open.append((time.perf_counter(), time.thread_time()))
+    def timed_begin(self, t0):
+        out = bus_begin(self, t0)
+        self._bench_stamped = False  # a new plan on a bus kept open: stamp its first write
+        port_open.append(_now())
         return out
 
     def timed_sync_write(self, data):  # instrumentation only: the real write, then a timestamp
         out = sync_write(self, data)
         if not getattr(self, "_bench_stamped", False):
             self._bench_stamped = True
-            first_goal.append((time.perf_counter(), time.thread_time()))
+            first_goal.append(_now())
         return out
 
     bus_mod.Bus.sync_write = timed_sync_write
-    bus_mod.Bus.open = timed_open
+    bus_mod.Bus.begin = timed_begin
     stamps = Stamps()
-    rows: list[dict[str, tuple[float, float]]] = []
+    rows: list[dict[str, tuple[float, float, float]]] = []
     not_picked: dict[str, int] = {}
 
     def on_cycle(c) -> None:
@@ -124,12 +137,12 @@ def main(argv=None) -> int:
         for name, a_node, b_node in STAGES:
             t0 = stamps.start[a_node]
             t1 = stamps.start[b_node] if b_node else goal
-            row[name] = ((t1[0] - t0[0]) * 1000, (t1[1] - t0[1]) * 1000)
+            row[name] = _ms(t0, t1)
         t0 = stamps.start["act"]
-        row["  start, open port"] = ((opened[0] - t0[0]) * 1000, (opened[1] - t0[1]) * 1000)
-        row["  ping, reads, write"] = ((goal[0] - opened[0]) * 1000, (goal[1] - opened[1]) * 1000)
+        row["  check, port"] = _ms(t0, opened)
+        row["  reads, write"] = _ms(opened, goal)
         t0 = stamps.start["cam"]
-        row["grab -> first goal"] = ((goal[0] - t0[0]) * 1000, (goal[1] - t0[1]) * 1000)
+        row["grab -> first goal"] = _ms(t0, goal)
         rows.append(row)
         print(f"\rcycle {c.index}: {row['grab -> first goal'][0]:.1f} ms", end="", file=sys.stderr, flush=True)
 
@@ -148,12 +161,13 @@ def main(argv=None) -> int:
     if not rows:
         print("no cycle picked anything:", not_picked)
         return 1
-    print(f"{'stage':<22}{'median ms':>11}{'p95 ms':>9}   {'CPU median':>10}{'CPU p95':>9}")
-    for name in [s[0] for s in STAGES] + ["  start, open port", "  ping, reads, write", "grab -> first goal"]:
+    print(f"{'stage':<22}{'median ms':>11}{'p95 ms':>9}   {'CPU median':>10}{'CPU p95':>9}{'process CPU median':>20}")
+    for name in [s[0] for s in STAGES] + ["  check, port", "  reads, write", "grab -> first goal"]:
         wall = np.array([r[name][0] for r in rows])
         cpu = np.array([r[name][1] for r in rows])
+        proc = np.array([r[name][2] for r in rows])
         print(f"{name:<22}{np.median(wall):>11.1f}{np.percentile(wall, 95):>9.1f}   "
-              f"{np.median(cpu):>10.1f}{np.percentile(cpu, 95):>9.1f}")
+              f"{np.median(cpu):>10.1f}{np.percentile(cpu, 95):>9.1f}{np.median(proc):>20.1f}")
     total = np.median([r["grab -> first goal"][0] for r in rows])
     print(f"grab -> first goal written: median {total:.1f} ms (target <= 30 ms, motion excluded)")
     if not_picked:

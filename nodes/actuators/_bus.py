@@ -150,6 +150,23 @@ class Bus:
         self.waypoint = "setup"
         self.answered: dict[int, set[str]] = {}  # servo -> instructions it has answered correctly
         self.status_level: dict[int, int] = {}  # servo -> status return level read at setup
+        # Servos pinged, identified and whose own CW/CCW limits (units) were read on this open port;
+        # a bus kept open across the cycles of a run skips that setup until a fault clears it.
+        self.limits: dict[int, tuple[int, int]] = {}
+        self.n_plans = 0  # plans started on this bus (begin)
+
+    def begin(self, t0: float) -> None:
+        """Start the log of a new plan on a bus kept open (``ctx.resource``): commands, events and
+        retries are per plan; what was learnt about the servos (``limits``) is kept."""
+        self.t0 = t0
+        self.n_plans += 1
+        self.commands, self.events = [], []
+        self.n_retries = 0
+        self.waypoint = "setup"
+
+    @property
+    def is_open(self) -> bool:
+        return bool(getattr(self.port, "is_open", False))
 
     # ------------------------------------------------------------------------- port
     def open(self) -> None:
@@ -174,6 +191,10 @@ class Bus:
                             hint="use a rate the SDK supports (AX-12A default 1000000; also 57600, 115200, ...).")
 
     def close(self) -> None:
+        """Close the port and forget the setup (a reopened port is checked again); never raises."""
+        self.limits.clear()
+        self.answered.clear()
+        self.status_level.clear()
         with contextlib.suppress(Exception):
             self.port.closePort()
 

@@ -133,8 +133,9 @@ def torque_report(bus: Bus, ids: list[int], turn_off: bool) -> tuple[str, bool]:
         return text, bool(notes)
     parts = []
     if on:
-        parts.append(f"still ON on servos {on} (left on by an earlier run or another program: those "
-                     f"joints hold their pose and stay powered)")
+        by = ("by this run's earlier picks" if bus.n_plans > 1  # a port kept open across --repeat cycles
+              else "by an earlier run or another program")
+        parts.append(f"still ON on servos {on} (left on {by}: those joints hold their pose and stay powered)")
     off = [s for s, v in state.items() if v == 0]
     if off:
         parts.append(f"off on {off}")

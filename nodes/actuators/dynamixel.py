@@ -15,6 +15,12 @@ once), read back, then present positions are polled one servo at a time until al
 A failure while moving turns torque off on every servo and names the cause. Ctrl-C or SIGTERM while
 moving ends the motion as ``on_interrupt`` says (:mod:`._stop`), closes the port and re-raises.
 See docs/arm.md, "Servo faults" and "Ctrl-C and SIGTERM".
+
+In a ``--repeat`` loop the port (and the emulator) stay open from one plan to the next
+(``ctx.resource``; the engine closes them when the run ends): steps (2)-(3) read the servos once per
+open port, and later plans check their goals against the limits read then and write the first goal
+after one present-position READ per servo. Any failure or interrupt closes the port, so the next
+plan checks every servo again (docs/live.md, "Latency").
 """
 
 from __future__ import annotations
@@ -114,12 +120,25 @@ def _gripper_ids(arm: dict) -> set[int]:
 def _check_servos(bus: Bus, ids: list[int], plan: dict, params: DynamixelParams) -> dict[int, int]:
     """Ping, identify and check every servo before anything is written; return present positions.
 
+    On a bus kept open across the cycles of a run, the PINGs and the reads of model, status return
+    level and angle limits are done once (and again after a fault, which closes the port): later
+    plans are checked against the limits read then, and each servo answers one READ of its present
+    position before anything is written — the proof that it is still there.
+
     Raises
     ------
     NodeError
         Naming the servo and the cause (no / late / corrupted reply, alarm bits, status return
         level 0, angle limits).
     """
+    if not set(ids) <= set(bus.limits):
+        _setup_servos(bus, ids, params)
+    _check_own_limits(bus.limits, plan)
+    return {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
+
+
+def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
+    """PING and READ every servo, read its status return level and CW/CCW limits into ``bus.limits``."""
     for sid in ids:
         try:
             bus.ping(sid)
@@ -131,10 +150,17 @@ def _check_servos(bus: Bus, ids: list[int], plan: dict, params: DynamixelParams)
             raise NodeError(*_diagnose.after_ping(bus, sid, e, params.baud)) from None
         if model not in (12, 18, 44, 300):
             bus.events.append(f"servo {sid} reports model number {model}, not an AX-12A (12)")
+    limits = {}
     for sid in ids:
         bus.status_level[sid] = bus.read(sid, 16, 1, "read of the status return level")
-        limits = bus.read(sid, ADDR_CW_LIMIT, 4, "read of the angle limits")
-        cw, ccw = limits & 0xFFFF, limits >> 16
+        both = bus.read(sid, ADDR_CW_LIMIT, 4, "read of the angle limits")
+        limits[sid] = (both & 0xFFFF, both >> 16)
+    bus.limits.update(limits)  # only once every servo passed
+
+
+def _check_own_limits(limits: dict[int, tuple[int, int]], plan: dict) -> None:
+    """Every goal of the plan within its servo's own CW/CCW angle limits (0/0: wheel mode, unchecked)."""
+    for sid, (cw, ccw) in limits.items():
         for w in plan["waypoints"]:
             g = w["servo_units"].get(str(sid))
             if g is not None and not (cw == ccw == 0) and not cw <= g <= ccw:
@@ -142,7 +168,6 @@ def _check_servos(bus: Bus, ids: list[int], plan: dict, params: DynamixelParams)
                                 f"waypoint {w['name']!r} needs {g}; nothing was sent.",
                                 hint="fix the servo's CW/CCW angle limits (addresses 6/8) or the arm model's "
                                      "joint limits / zero offsets.")
-    return {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
 
 
 def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelParams, grippers: set[int]):
@@ -230,8 +255,20 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
                                                   f"instead" + (f" ({'; '.join(notes)})" if notes else "")}
 
 
-def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str) -> dict:
+def open_bus(params: DynamixelParams, port_path: str) -> Bus:
+    """The bus at ``port_path``, open (a NodeError names the port and the fix when it cannot be)."""
+    bus = Bus(port_path, params.baud, params.retries, time.monotonic(), late_window_ms=params.late_window_ms,
+              reply_timeout_extra_ms=params.reply_timeout_extra_ms)
+    bus.open()
+    return bus
+
+
+def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str, bus: Bus | None = None) -> dict:
     """Ping, check, and run every waypoint of ``plan`` on the bus at ``port_path``; return the ServoLog.
+
+    ``bus``: a bus kept open by the caller across plans (the cycles of a ``--repeat`` run); it is
+    left open after a plan that succeeded, closed after any failure or interrupt (reopened and all
+    servos checked again on the next plan). Without it the port is opened and closed here.
 
     Raises
     ------
@@ -246,9 +283,12 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
     check_plan(plan, arm)
     ids = sorted({int(k) for w in plan["waypoints"] for k in w["servo_units"]})
     t0 = time.monotonic()
-    bus = Bus(port_path, params.baud, params.retries, t0, late_window_ms=params.late_window_ms,
-              reply_timeout_extra_ms=params.reply_timeout_extra_ms)
-    bus.open()
+    own = bus is None
+    if own:
+        bus = open_bus(params, port_path)
+    elif not bus.is_open:
+        bus.open()  # closed by a fault or an interrupt in an earlier plan: set up again
+    bus.begin(t0)
     where = f"{params.port if params.port != 'sim' else 'the emulator (' + port_path + ')'} at {params.baud} baud"
     reached: list[dict] = []
     moved = False
@@ -280,8 +320,7 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
         err.partial_log = _servo_log(plan, params, port_path, bus, reached, ok=False, t0=t0)
         raise err from None
     except BaseException as e:  # Ctrl-C, SIGTERM, or a bug: end the motion safely before anything else
-        signame = "SIGTERM" if isinstance(e, Terminated) else "Ctrl-C (SIGINT)" if isinstance(
-            e, KeyboardInterrupt) else f"an unexpected {type(e).__name__}"
+        signame = _interrupt_name(e)
         during = bus.waypoint if moved else "setup"
         if moved:
             stop = _safe_stop(bus, ids, arm, params)
@@ -296,8 +335,17 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str)
         with contextlib.suppress(Exception):
             e.add_note(f"actuator: {signame} during {stop['during']!r}: {stop['detail']}; port closed.")
         raise
-    bus.close()
+    if own:
+        bus.close()
     return _servo_log(plan, params, port_path, bus, reached, ok=True, t0=t0)
+
+
+def _interrupt_name(e: BaseException) -> str:
+    """What ended the motion, in words: our own SIGTERM handler raises :class:`Terminated`; the engine's
+    (``stereograph run --repeat``) raises ``KeyboardInterrupt("SIGTERM")``."""
+    if isinstance(e, Terminated) or (isinstance(e, KeyboardInterrupt) and e.args[:1] == ("SIGTERM",)):
+        return "SIGTERM"
+    return "Ctrl-C (SIGINT)" if isinstance(e, KeyboardInterrupt) else f"an unexpected {type(e).__name__}"
 
 
 def _servo_log(plan, params, port_path, bus: Bus, reached, ok: bool, t0: float) -> dict:
@@ -318,30 +366,40 @@ def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
     chosen, skipped = select_plans(plans, params)
     for p in chosen:  # every chosen plan is checked before opening or starting anything
         check_plan(p, arm)
+    # Kept open for the whole run when the engine can (every cycle of --repeat): the emulator, then
+    # the port, so a cycle writes its first goal after one position read per servo instead of
+    # reopening the port and pinging and reading every servo (docs/live.md, "Latency").
+    keep = ctx is not None and ctx.resources is not None
     sim = None
     if params.port == "sim":
         ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
-        sim = ServoSim(ids, faults=params.sim_faults.to_faults(), time_scale=params.sim_time_scale).start()
+
+        def start_sim() -> ServoSim:
+            return ServoSim(ids, faults=params.sim_faults.to_faults(), time_scale=params.sim_time_scale).start()
+
+        sim = ctx.resource("emulator", start_sim) if keep else start_sim()
     try:
         port_path = sim.port_path if sim else params.port
-        picks = [_run(params, p, arm, port_path, sim, ctx) for p in chosen]
+        bus = ctx.resource(f"bus {port_path}", lambda: open_bus(params, port_path)) if keep else None
+        picks = [_run(params, p, arm, port_path, sim, ctx, bus) for p in chosen]
     finally:
-        if sim is not None:
+        if sim is not None and not keep:
             sim.stop()
     return {"log": {"ok": all(p["ok"] for p in picks), "picks": picks, "not_picked": skipped},
             "summary": summary(picks, chosen, len(skipped))}
 
 
 def _sim_record(sim: ServoSim) -> dict:
+    sim.drain()  # the last sync write (a hold, say) may still be on its way through the pty
     return {"writes": list(sim.log), "faults": list(sim.fault_log),
             "final_positions": {str(k): v for k, v in sim.positions().items()}}
 
 
-def _run(params, plan, arm, port_path, sim, ctx) -> dict:
+def _run(params, plan, arm, port_path, sim, ctx, bus=None) -> dict:
     """execute_plan, plus the emulator's log, and on failure the partial log written next to the run's outputs."""
     n0 = len(sim.log) if sim is not None else 0
     try:
-        log = execute_plan(params, plan, arm, port_path)
+        log = execute_plan(params, plan, arm, port_path, bus)
     except NodeError as e:
         partial = getattr(e, "partial_log", None)
         if partial is not None and ctx is not None:

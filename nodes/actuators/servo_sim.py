@@ -357,6 +357,7 @@ class ServoSim:
         self.lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._busy = False  # between reading bytes off the pty and handling them (see drain)
         self.master = self.slave = None
         self.port_path: str | None = None
         self.t0 = time.monotonic()
@@ -391,6 +392,32 @@ class ServoSim:
         self.master = self.slave = None
         if self.link and os.path.islink(self.link):
             os.unlink(self.link)
+
+    def close(self) -> None:
+        """Same as :meth:`stop` (the engine closes a run's resources with ``close()``)."""
+        self.stop()
+
+    def drain(self, timeout_s: float = 0.5) -> bool:
+        """Wait until every byte written to the port so far has been handled (its writes logged);
+        False if that took longer than ``timeout_s``. A TX-only packet (a sync write) has no reply
+        to wait for, so a log copied right after it can miss it without this."""
+        import fcntl
+        import struct
+        import termios
+
+        end = time.monotonic() + timeout_s
+        idle = 0
+        while time.monotonic() < end:
+            try:
+                waiting = struct.unpack("i", fcntl.ioctl(self.master, termios.FIONREAD, b"\0\0\0\0"))[0]
+            except (OSError, TypeError):
+                return True  # stopped: nothing more will be handled
+            # idle twice, 2 ms apart: the kernel hands bytes written to the pty on asynchronously
+            idle = idle + 1 if waiting == 0 and not self._busy else 0
+            if idle >= 2:
+                return True
+            time.sleep(0.002)
+        return False
 
     def __enter__(self) -> ServoSim:
         return self.start()
@@ -448,19 +475,21 @@ class ServoSim:
                 if buf and time.monotonic() - t_last_byte > 0.1:
                     buf.clear()  # an incomplete packet: drop it, like the servo's packet timeout
                 continue
+            self._busy = True
             try:
                 chunk = os.read(self.master, 4096)
             except OSError:
+                self._busy = False
                 continue
-            if not chunk:
-                continue
-            t_last_byte = time.monotonic()
-            buf += chunk
-            while True:
-                pkt = self._next_packet(buf)
-                if pkt is None:
-                    break
-                self._handle(*pkt)
+            if chunk:
+                t_last_byte = time.monotonic()
+                buf += chunk
+                while True:
+                    pkt = self._next_packet(buf)
+                    if pkt is None:
+                        break
+                    self._handle(*pkt)
+            self._busy = False
 
     @staticmethod
     def _next_packet(buf: bytearray):

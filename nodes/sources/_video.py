@@ -9,8 +9,9 @@
 The bytes travel in the artifact (and the cache) so that a camera source can write them into its
 run folder and open them with ``cv2.VideoCapture`` — the same path as a real camera's recording.
 HuffYUV, FFV1 and uncompressed RGBA are lossless: frames read back are pixel-identical to the
-frames written. Decoding a 640x480 frame on one core of the development machine: HuffYUV ~7 ms,
-FFV1 ~32 ms, RGBA ~1.4 ms; sizes ~460, ~410 and ~1200 kB.
+frames written. Grabbing and decoding a 640x480 frame on one core (CPU time, on the development
+machine, ``benchmarks/bench_codecs.py``): RGBA ~0.7 ms, HuffYUV ~9 ms, FFV1 ~39 ms; sizes ~1200,
+~460 and ~410 kB. A recording is a camera in a latency-bound loop, so RGBA is the default.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def write_video(frames: Iterable[np.ndarray], path: Path, fps: float, codec: str
     return n
 
 
-def encode_recording(pairs: list[dict], fps: float = 30.0, codec: str = "HFYU", container: str = "avi") -> dict:
+def encode_recording(pairs: list[dict], fps: float = 30.0, codec: str = "RGBA", container: str = "avi") -> dict:
     """A ``StereoRecording`` of ``pairs`` (StereoPair dicts, in playing order)."""
     if not pairs:
         raise NodeError("nothing to record: no stereo pairs.", hint="wire a source with at least one pair")
