@@ -111,7 +111,12 @@ def test_plans_outside_limits_are_refused_before_anything_is_sent():
 def test_full_pick_on_the_emulator():
     plan = make_plan(place_cm=[8.0, -14.0, 2.5])
     out = dynamixel(DynamixelParams(**FAST), arm=ARM, plans=plan)["log"]["picks"][0]
-    assert out["ok"] and out["retries"] == 0
+    assert out["ok"]
+    # A fault-free emulator never corrupts or alarms; on a starved machine its thread may answer late (a
+    # retry for timing, logged as such), which is the only retry allowed here.
+    retried = [e for e in out["events"] if "retry" in e]
+    assert len(retried) == out["retries"]
+    assert all("late status packet" in e or "no status packet" in e for e in retried), retried
     assert [r["waypoint"] for r in out["reached"]] == [w["name"] for w in plan["waypoints"]]
     assert all(r["max_error_units"] <= 3 for r in out["reached"])
     final = plan["waypoints"][-1]["servo_units"]
