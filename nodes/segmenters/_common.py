@@ -33,7 +33,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from nodes.rectifiers._views import RectifiedView, pair_views
+from nodes.contracts.views import RectifiedView, pair_views
 from stereograph.api import Field, In, NodeError, Out, Params
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
