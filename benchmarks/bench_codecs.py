@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     import cv2
 
     cv2.setNumThreads(1)
-    from nodes.sources._video import LOSSLESS, write_video
+    from nodes.contracts.recording import LOSSLESS, write_video
     from nodes.sources.synthetic import SyntheticParams, synthetic
 
     pairs = synthetic(SyntheticParams(n_scenes=a.frames, n_views=0, train_fraction=0.0, seed=11,

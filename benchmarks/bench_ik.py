@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from nodes.ik._model import fk, limits_rad
+from nodes.contracts.arm import fk, limits_rad
 from nodes.ik._solvers import OK, analytic_ik, analytic_ik_batch, numeric_ik, numeric_ik_batch
 from nodes.ik.arm import ArmParams, build_arm_model
 

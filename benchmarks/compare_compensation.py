@@ -40,6 +40,10 @@ RIGS = {
 }
 
 
+#: The columns printed (compare.csv has every metric the pipeline declares).
+TABLE = ["n", "n_found", "[xyz]_mean_cm", "[xyz]_std_cm", "[xyz]_rms_cm", "n_extrapolated", "fit_time_s", "per_pair_s"]
+
+
 def check_nominal(res, con) -> bool:
     none = res.row(**{"fit.type": "none"})
     ok_any = False
@@ -86,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         sets = common + RIGS[name]
         con.rule(f"{name} rig: --set {' '.join(sets)}")
         res = compare(PIPELINE, [], Path(args.out) / name, overrides=sets, cache_dir=args.cache_dir)
-        print_table(res, con)
+        print_table(res, con, metrics=TABLE, best="z_rms_cm")
         results[name] = res
         con.print(f"files: {res.out_dir}")
     con.rule("checks (test split)")

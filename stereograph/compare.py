@@ -1,4 +1,4 @@
-"""``stereograph compare``: run every combination of a few settings and tabulate the accuracy.
+"""``stereograph compare``: run every combination of a few settings and tabulate the metrics the pipeline declares.
 
 Usage::
 
@@ -18,20 +18,23 @@ defaults plus the pipeline's ``defaults:`` block for that type, where per-type s
 belong) or ``node.inputs.port``. The combinations are the Cartesian product of the keys.
 
 Every variant runs through :func:`stereograph.runner.run_graph` on one shared artifact
-cache, so what the variants have in common (calibration, rectification, segmentation ...)
-is computed once, and a later compare with one more value computes only that variant's
-nodes. The engine knows no concrete node here: the accuracy is read from the pipeline's
-*final* ``Location`` outputs (those no later node turns into another Location), as
-``measured - truth`` over the items of a split (``test`` by default); a fit time is
-read from any saved result that reports ``fit_time_s``; the per-pair time is the sum, over
-the nodes that run once per item, of their compute seconds per item (remembered in the
-cache folder for nodes served from the cache).
+cache, so what the variants have in common is computed once, and a later compare with one
+more value computes only that variant's nodes.
+
+What is compared is what the pipeline's nodes *declare*: every output of type ``Metrics``
+(``Out("Metrics")``: a flat mapping of names to numbers, the unit in the name, see
+``docs/artifacts.md``) becomes columns of the table, ``compare.csv`` and ``compare.json``,
+and a panel of ``metrics.png``. This module knows nothing of what the numbers mean. A name
+that two nodes of a pipeline both report gets the node's name in front (``fit.n``). Besides
+the declared metrics there is one the engine measures itself: the per-pair time, the sum, over
+the nodes that run once per item, of their compute seconds per item (remembered in the cache
+folder for nodes served from the cache).
 
 Public API::
 
     from stereograph.compare import compare
     res = compare("pipelines/compare-compensation.yaml", ["fit.type=none,polynomial"], out_dir="out")
-    res.rows            # one dict per (variant, final Location output): the table
+    res.rows            # one dict per variant: settings, declared metrics, per_pair_s
     res.variants[1].ran # nodes that computed anything in that variant's run
 
 The CLI hook is :func:`add_subcommand` (the ``stereograph`` parser calls it) and
@@ -42,6 +45,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import fnmatch
 import itertools
 import json
 import math
@@ -59,21 +63,26 @@ from stereograph.errors import ConfigError, UsageError
 from stereograph.graph import Graph, build_graph
 
 __all__ = [
+    "METRICS_TYPE",
     "CompareResult",
     "Variant",
     "VariantResult",
     "add_compare_subcommand",
     "add_subcommand",
+    "collect_metrics",
     "compare",
     "expand_variants",
-    "final_location_outputs",
-    "location_errors",
     "main",
+    "metrics_outputs",
     "parse_vary",
+    "print_table",
 ]
 
-AXES = ("x", "y", "z")
+#: The artifact type of a node output that ``compare`` tabulates.
+METRICS_TYPE = "Metrics"
 TIMINGS_FILE = "compare-timings.json"
+#: The one column the engine adds to the declared metrics (it measures it itself).
+PER_PAIR = "per_pair_s"
 
 
 # --------------------------------------------------------------------------- variants
@@ -176,93 +185,69 @@ def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
     return build_graph(vdoc)
 
 
+
 # --------------------------------------------------------------------------- metrics
 
 
-def final_location_outputs(graph: Graph) -> list[tuple[str, str]]:
-    """``(node, output)`` of type Location that no later node turns into another Location."""
-    out = []
-    for name in graph.order:
-        for port, decl in graph.nodes[name].spec.outputs.items():
-            if decl.type != "Location":
-                continue
-            later = graph.downstream(name)
-            if not any(o.type == "Location" for n in later for o in graph.nodes[n].spec.outputs.values()):
-                out.append((name, port))
-    return out
+def metrics_outputs(graph: Graph) -> list[tuple[str, str]]:
+    """``(node, output)`` of every single (non-collection) output declared ``Out("Metrics")``, in run order."""
+    return [(name, port) for name in graph.order for port, decl in graph.nodes[name].spec.outputs.items()
+            if decl.type == METRICS_TYPE and not graph.is_collection(name, port)]
 
 
-def location_errors(locations: dict[str, Any], split: str = "test") -> dict[str, Any]:
-    """Errors ``measured - truth`` (cm) of the found items of a split that carry truth.
+def _number(value: Any) -> float | int | None:
+    """A metric's value as a plain number (None for a missing or non-numeric one)."""
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(float(value)) else None
+    if isinstance(value, np.ndarray) and value.size == 1:
+        return _number(value.item())
+    return None
+
+
+def collect_metrics(values: dict[tuple[str, str], Any]) -> dict[str, float | int | None]:
+    """Merge the Metrics outputs of one run into one flat row, in declaration order.
 
     Parameters
     ----------
-    locations : dict
-        ``{item_id: Location}``.
-    split : {"test", "train", "all"}
-        Which items count. When no item carries a ``split`` key, every item counts
-        (and ``split_used`` says "all").
+    values : dict
+        ``{(node, output): {name: number, ...}}``; a value that is not a mapping is skipped.
 
     Returns
     -------
     dict
-        ``{"errors": (N, 3) cm, "truth": (N, 3) cm, "n": items in the split, "n_found",
-        "n_truth", "n_extrapolated", "split_used"}``.
+        ``{name: number}``; a name reported by more than one output is prefixed ``node.``
+        (``node.output.`` when one node reports it twice).
     """
-    items = [v for v in locations.values() if isinstance(v, dict)]
-    have_split = any("split" in v for v in items)
-    used = split if have_split else "all"
-    chosen = [v for v in items if used == "all" or v.get("split") == used]
-    errs, truth, n_found, n_extra = [], [], 0, 0
-    for loc in chosen:
-        if not loc.get("found"):
+    owners: dict[str, list[tuple[str, str]]] = {}
+    for key, m in values.items():
+        for name in (m or {}) if isinstance(m, dict) else ():
+            owners.setdefault(str(name), []).append(key)
+    row: dict[str, float | int | None] = {}
+    for (node, port), m in values.items():
+        if not isinstance(m, dict):
             continue
-        n_found += 1
-        t = loc.get("truth_cm")
-        xyz = [loc.get("x_cm"), loc.get("y_cm"), loc.get("z_cm")]
-        if t is None or any(c is None for c in xyz):
-            continue
-        e = np.subtract(np.asarray(xyz, float), np.asarray(t, float)[:3])
-        if not np.all(np.isfinite(e)):
-            continue
-        errs.append(e)
-        truth.append(np.asarray(t, float)[:3])
-        n_extra += bool(loc.get("extrapolated"))
-    return {
-        "errors": np.array(errs, float).reshape(-1, 3),
-        "truth": np.array(truth, float).reshape(-1, 3),
-        "n": len(chosen),
-        "n_found": n_found,
-        "n_truth": len(errs),
-        "n_extrapolated": n_extra,
-        "split_used": used,
-    }
+        for name, value in m.items():
+            who = owners[str(name)]
+            if len(who) == 1:
+                col = str(name)
+            elif len({n for n, _ in who}) == len(who):
+                col = f"{node}.{name}"
+            else:
+                col = f"{node}.{port}.{name}"
+            row[col] = _number(value)
+    return row
 
 
-def _axis_stats(e: np.ndarray) -> dict[str, dict[str, float | None]]:
-    out = {}
-    for k, axis in enumerate(AXES):
-        col = e[:, k] if len(e) else np.zeros(0)
-        out[axis] = {
-            "mean_cm": float(np.mean(col)) if len(col) else None,
-            "std_cm": float(np.std(col, ddof=1)) if len(col) > 1 else None,
-            "rms_cm": float(np.sqrt(np.mean(col**2))) if len(col) else None,
-            "max_abs_cm": float(np.max(np.abs(col))) if len(col) else None,
-        }
-    return out
-
-
-def _find_fit_times(value: Any) -> list[float]:
-    """Every ``fit_time_s`` number in a (saved) result, at any depth of dicts."""
-    found = []
-    if isinstance(value, dict):
-        t = value.get("fit_time_s")
-        if isinstance(t, (int, float)) and math.isfinite(t):
-            found.append(float(t))
-        for k, v in value.items():
-            if k != "fit_time_s" and isinstance(v, dict):
-                found += _find_fit_times(v)
-    return found
+def _split_overrides(graph: Graph, split: str | None) -> list[str]:
+    """``--split``: set the ``split`` param of every node that declares metrics and takes one."""
+    if split is None:
+        return []
+    nodes = sorted({n for n, _ in metrics_outputs(graph)})
+    return [f"{n}.split={json.dumps(split)}" for n in nodes if "split" in graph.nodes[n].spec.params.model_fields]
 
 
 # --------------------------------------------------------------------------- timing ledger
@@ -344,9 +329,8 @@ class VariantResult:
     ran: set[str]
     out_dir: Path | None
     seconds: float
-    fit_time_s: float | None
     per_pair_s: float | None
-    outputs: list[dict[str, Any]]  # per final Location output: metrics + arrays
+    metrics: dict[str, float | int | None]  # the declared metrics, merged (see collect_metrics)
 
 
 @dataclass
@@ -355,7 +339,7 @@ class CompareResult:
 
     pipeline: str
     keys: list[str]
-    split: str
+    split: str | None
     out_dir: Path
     variants: list[VariantResult]
     rows: list[dict[str, Any]]
@@ -365,12 +349,21 @@ class CompareResult:
     def ok(self) -> bool:
         return all(v.ok for v in self.variants)
 
+    @property
+    def metric_names(self) -> list[str]:
+        """Every metric column, in the order the variants first report them (per-pair time last)."""
+        names: dict[str, None] = {}
+        for vr in self.variants:
+            names.update(dict.fromkeys(vr.metrics))
+        return [*names, PER_PAIR]
+
     def row(self, **settings: Any) -> dict[str, Any]:
         """The first row whose settings include these (``row(**{"fit.type": "none"})``)."""
         for r in self.rows:
             if all(r["settings"].get(k) == v for k, v in settings.items()):
                 return r
         raise KeyError(settings)
+
 
 
 class _PlainProgress:
@@ -479,13 +472,13 @@ def compare(
     *,
     overrides: list[str] | None = None,
     cache_dir: str | Path | None = None,
-    split: str = "test",
+    split: str | None = None,
     executor: Any = None,
     progress: Any = None,
     skip_invalid: bool = False,
     plots: bool = True,
 ) -> CompareResult:
-    """Run every variant of a pipeline on one shared cache and tabulate their accuracy.
+    """Run every variant of a pipeline on one shared cache and tabulate the metrics its nodes declare.
 
     Parameters
     ----------
@@ -494,14 +487,15 @@ def compare(
     vary : list of str
         ``node.field=v1,v2,...`` each (added to the file's ``variants:`` block).
     out_dir : str or Path, optional
-        Where ``compare.csv``, ``compare.json``, the plots and each variant's run
+        Where ``compare.csv``, ``compare.json``, ``metrics.png`` and each variant's run
         outputs (``variants/<slug>/``) go; default ``runs/<name>/compare-<run id>``.
     overrides : list of str, optional
         ``--set`` overrides applied to every variant.
     cache_dir : str or Path, optional
         The shared artifact cache (default: next to the pipeline).
-    split : {"test", "train", "all"}
-        Which items the accuracy is computed on.
+    split : str, optional
+        Sets the ``split`` param of every node that declares metrics and takes one (a shortcut
+        for ``--set node.split=...``); None leaves the pipeline's values.
     executor, progress : optional
         As for :func:`stereograph.runner.run_graph`; ``progress`` may also have
         ``variant_started(i, n, label)`` / ``variant_done(variant_result)``.
@@ -509,7 +503,7 @@ def compare(
         Leave out combinations whose config does not validate (a param the varied
         type does not take, say) instead of refusing the whole comparison.
     plots : bool
-        Write the PNG plots.
+        Write ``metrics.png``.
 
     Returns
     -------
@@ -518,13 +512,19 @@ def compare(
     Raises
     ------
     ConfigError / UsageError
-        A bad pipeline or ``--vary``; with ``skip_invalid`` only if no variant is valid.
+        A bad pipeline or ``--vary``, or a pipeline that declares no metrics; with
+        ``skip_invalid`` only if no variant is valid.
     """
     from stereograph.runner import default_cache_dir, run_graph
 
-    if split not in ("test", "train", "all"):
-        raise UsageError(f"--split {split}: choose test, train or all")
-    doc = load_pipeline(pipeline_path, overrides or [])
+    overrides = list(overrides or [])
+    doc = load_pipeline(pipeline_path, overrides)
+    if split is not None:
+        extra = _split_overrides(build_graph(doc), split)
+        if not extra:
+            raise UsageError(f"--split {split}: no node of {doc.path.name} that declares metrics takes a 'split' "
+                             "param", hint="leave --split out, or set the split of the node you mean with --set")
+        doc = load_pipeline(pipeline_path, overrides + extra)
     variants = expand_variants(doc, vary or [])
     graphs: list[tuple[Variant, Graph]] = []
     skipped: list[tuple[Variant, str]] = []
@@ -540,10 +540,10 @@ def compare(
             skipped.append((v, str(e)))
     if not graphs:
         raise ConfigError(f"no variant of {doc.path.name} is valid: {skipped[0][1]}")
-    finals = final_location_outputs(graphs[0][1])
-    if not finals:
-        raise ConfigError(f"{doc.path.name} has no Location output to measure",
-                          hint="compare needs a pipeline that locates objects (a node with a Location output)")
+    if not metrics_outputs(graphs[0][1]):
+        raise ConfigError(f"{doc.path.name} declares no metrics to compare",
+                          hint="add a node with an output of type Metrics (`stereograph nodes` shows each node's "
+                               "outputs), a report of the results, say")
     out = Path(out_dir) if out_dir is not None else _default_out(doc)
     out.mkdir(parents=True, exist_ok=True)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir(doc)
@@ -556,7 +556,7 @@ def compare(
         if hasattr(prog, "variant_started"):
             prog.variant_started(i, len(graphs), v.label)
         lin = _lineages(graph, code)
-        vr = _run_variant(v, graph, cache, out / "variants" / v.slug, split, executor, prog, timings, run_graph,
+        vr = _run_variant(v, graph, cache, out / "variants" / v.slug, executor, prog, timings, run_graph,
                           lin, shared)
         if shared is None:
             shared = set(lin.values())
@@ -564,42 +564,31 @@ def compare(
         if hasattr(prog, "variant_done"):
             prog.variant_done(vr)
     timings.save()
-    rows = _rows(results)
-    res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, rows, {})
+    res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
+    res.rows = _rows(res)
     res.files = _write(res, skipped, plots)
     return res
 
 
-def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, split: str, executor: Any, prog: Any,
+def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any, prog: Any,
                  timings: _Timings, run_graph: Any, lin: dict[str, str], shared: set[str] | None) -> VariantResult:
     import time
 
     t0 = time.perf_counter()
     # The first variant writes every saved output; the others only those of their own nodes
     # (what they share with the first is the same artifact, already written there).
-    measured = final_location_outputs(graph)
+    measured = metrics_outputs(graph)
     result = run_graph(graph, cache_dir=cache, out_dir=out, executor=executor, progress=prog,
                        write_outputs=shared is None, keep={node for node, _ in measured})
     if shared is not None:
         _write_own_outputs(graph, result, out, {n for n, h in lin.items() if h not in shared})
     failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
     error = "; ".join(f"{r.name}: {r.error}" for r in failed if r.error)[:400] or None
-    outputs = []
-    for node, port in measured:
-        values = result.outputs(node, port) or {}
-        if not isinstance(values, dict):
-            values = {"": values}
-        m = location_errors(values, split)
-        outputs.append({"node": node, "output": port, **m, "axes": _axis_stats(m["errors"])})
-    fit_times: list[float] = []
-    for name, inst in graph.nodes.items():
-        for port, decl in inst.spec.outputs.items():
-            if decl.save and not graph.is_collection(name, port):
-                fit_times += _find_fit_times(result.outputs(name, port))
+    metrics = collect_metrics({(node, port): result.outputs(node, port) for node, port in measured})
     return VariantResult(
         variant=v, ok=result.ok, error=error, status=result.status, ran=set(result.ran), out_dir=out,
-        seconds=time.perf_counter() - t0, fit_time_s=sum(fit_times) if fit_times else None,
-        per_pair_s=_per_pair_seconds(graph, result, timings, lin), outputs=outputs,
+        seconds=time.perf_counter() - t0, per_pair_s=_per_pair_seconds(graph, result, timings, lin),
+        metrics=metrics,
     )
 
 
@@ -636,30 +625,22 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
     (out / "run.json").write_text(json.dumps(summary, indent=1))
 
 
-def _rows(results: list[VariantResult]) -> list[dict[str, Any]]:
+
+def _rows(res: CompareResult) -> list[dict[str, Any]]:
+    """One row per variant: its settings, every metric column (None where it reported none), run facts."""
+    names = res.metric_names
     rows = []
-    multi = max((len(r.outputs) for r in results), default=0) > 1
-    for vr in results:
-        for o in vr.outputs or [{}]:
-            row: dict[str, Any] = {
-                "variant": vr.variant.label + (f" [{o['node']}.{o['output']}]" if multi and o else ""),
-                "settings": dict(vr.variant.settings),
-                "ok": vr.ok,
-                "error": vr.error,
-                "output": f"{o['node']}.{o['output']}" if o else None,
-                "n": o.get("n", 0),
-                "n_found": o.get("n_found", 0),
-                "n_truth": o.get("n_truth", 0),
-                "n_extrapolated": o.get("n_extrapolated", 0),
-                "split": o.get("split_used"),
-                "fit_time_s": vr.fit_time_s,
-                "per_pair_s": vr.per_pair_s,
-                "ran": sorted(vr.ran),
-            }
-            for axis in AXES:
-                for stat, val in (o.get("axes", {}).get(axis) or {}).items():
-                    row[f"{axis}_{stat}"] = val
-            rows.append(row)
+    for vr in res.variants:
+        row: dict[str, Any] = {
+            "variant": vr.variant.label,
+            "settings": dict(vr.variant.settings),
+            "ok": vr.ok,
+            "error": vr.error,
+            "ran": sorted(vr.ran),
+        }
+        for name in names:
+            row[name] = vr.per_pair_s if name == PER_PAIR else vr.metrics.get(name)
+        rows.append(row)
     return rows
 
 
@@ -668,9 +649,7 @@ def _rows(results: list[VariantResult]) -> list[dict[str, Any]]:
 
 def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) -> dict[str, Path]:
     files: dict[str, Path] = {}
-    cols = ["variant", *res.keys, "ok", "output", "split", "n", "n_found", "n_truth", "n_extrapolated"]
-    cols += [f"{a}_{s}" for a in AXES for s in ("mean_cm", "std_cm", "rms_cm", "max_abs_cm")]
-    cols += ["fit_time_s", "per_pair_s", "error"]
+    cols = ["variant", *res.keys, "ok", *res.metric_names, "error"]
     path = res.out_dir / "compare.csv"
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
@@ -682,11 +661,12 @@ def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) 
         "pipeline": res.pipeline,
         "keys": res.keys,
         "split": res.split,
+        "metrics": res.metric_names,
         "rows": [{k: v for k, v in r.items()} for r in res.rows],
         "variants": [
             {"label": vr.variant.label, "settings": vr.variant.settings, "overrides": vr.variant.overrides,
              "ok": vr.ok, "error": vr.error, "status": vr.status, "ran": sorted(vr.ran),
-             "seconds": round(vr.seconds, 3), "fit_time_s": vr.fit_time_s, "per_pair_s": vr.per_pair_s,
+             "seconds": round(vr.seconds, 3), "per_pair_s": vr.per_pair_s, "metrics": vr.metrics,
              "out_dir": str(vr.out_dir)}
             for vr in res.variants
         ],
@@ -728,94 +708,125 @@ def _short_label(res: CompareResult, v: Variant) -> str:
     return ", ".join(_show(v.settings[k]) for k in _varying_keys(res))
 
 
-def _series(res: CompareResult) -> list[tuple[str, dict[str, Any]]]:
-    multi = max((len(v.outputs) for v in res.variants), default=0) > 1
-    out = []
-    for vr in res.variants:
-        for o in vr.outputs:
-            if len(o["errors"]):
-                out.append((_short_label(res, vr.variant) + (f" [{o['node']}]" if multi else ""), o))
-    return out
+
+def _plotted(res: CompareResult, names: list[str]) -> list[str]:
+    """The chosen metrics with a number in at least one variant."""
+    return [n for n in names if any(isinstance(r.get(n), (int, float)) for r in res.rows)]
 
 
-def _plots(res: CompareResult) -> dict[str, Path]:
+def _plots(res: CompareResult, patterns: list[str] | None = None) -> dict[str, Path]:
+    """``metrics.png``: one bar panel per metric (the chosen ones), one bar per variant."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series = _series(res)
-    files: dict[str, Path] = {}
-    if not series:
-        return files
-    colours = plt.get_cmap("tab10")
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=110)
-    for i, (label, o) in enumerate(series):
-        z, ez = o["truth"][:, 2], o["errors"][:, 2]
-        c = colours(i % 10)
-        ax.scatter(z, ez, s=9, alpha=0.45, color=c)
-        order = np.argsort(z)
-        nb = max(1, min(8, len(z) // 6))
-        bins = np.array_split(order, nb)
-        ax.plot([z[b].mean() for b in bins], [ez[b].mean() for b in bins], "-o", ms=3, color=c, label=label)
-    ax.axhline(0, color="k", lw=0.6)
-    ax.set_xlabel("true distance z (cm)")
-    ax.set_ylabel("z error, measured - true (cm)")
-    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n"
-                 + ", ".join(_varying_keys(res)), fontsize=9)
-    ax.legend(fontsize=7)
+    names = _plotted(res, select_metrics(res.metric_names, patterns))
+    if not names:
+        return {}
+    labels = [_short_label(res, vr.variant) for vr in res.variants]
+    ncols = min(4, len(names))
+    nrows = math.ceil(len(names) / ncols)
+    height = max(2.2, 0.28 * len(labels) + 1.0)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols + 1.5, height * nrows), dpi=100, squeeze=False)
+    ypos = np.arange(len(labels))
+    for k, name in enumerate(names):
+        a = axes[k // ncols, k % ncols]
+        vals = [r.get(name) for r in res.rows]
+        a.barh(ypos, [v if isinstance(v, (int, float)) else 0.0 for v in vals], color="tab:blue")
+        for y, v in zip(ypos, vals):
+            if not isinstance(v, (int, float)):
+                a.text(0, y, " –", va="center", fontsize=7)
+        a.axvline(0, color="k", lw=0.6)
+        a.set_yticks(ypos, labels if k % ncols == 0 else [""] * len(labels), fontsize=7)
+        a.invert_yaxis()
+        a.set_title(name, fontsize=9)
+        a.tick_params(axis="x", labelsize=7)
+    for k in range(len(names), nrows * ncols):
+        axes[k // ncols, k % ncols].axis("off")
+    fig.suptitle(f"compare {Path(res.pipeline).name}: " + ", ".join(_varying_keys(res)), fontsize=9)
     fig.tight_layout()
-    path = res.out_dir / "z_error_vs_distance.png"
+    path = res.out_dir / "metrics.png"
     fig.savefig(path)
     plt.close(fig)
-    files["z_error_vs_distance"] = path
-
-    labels = [s[0] for s in series]
-    fig, axes = plt.subplots(1, 3, figsize=(min(24.0, 3 + 3 * 0.55 * len(series)), 4.5), dpi=110, squeeze=False)
-    for k, axis in enumerate(AXES):
-        a = axes[0, k]
-        a.boxplot([o["errors"][:, k] for _, o in series], showfliers=True)
-        a.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
-        a.axhline(0, color="k", lw=0.6)
-        a.set_title(f"{axis} error, measured - true (cm)")
-    fig.tight_layout()
-    path = res.out_dir / "error_boxplots.png"
-    fig.savefig(path)
-    plt.close(fig)
-    files["error_boxplots"] = path
-    return files
+    return {"metrics": path}
 
 
-def _fmt(v: Any, digits: int = 3) -> str:
+def select_metrics(names: list[str], patterns: list[str] | None) -> list[str]:
+    """The names matching any of the shell-style patterns (``z_*``, ``*rms*``), in ``names``'s order; all for None."""
+    if not patterns:
+        return list(names)
+    return [n for n in names if any(fnmatch.fnmatchcase(n, p) for p in patterns)]
+
+
+def _fmt(v: Any, name: str = "") -> str:
+    """A metric cell: integers as they are, seconds (a name ending ``_s``) with 4 decimals, other numbers with 3."""
     if v is None:
         return "–"
-    return f"{v:.{digits}f}"
+    if isinstance(v, int):
+        return str(v)
+    return f"{v:.4f}" if name.endswith("_s") else f"{v:.3f}"
 
 
-def _table_columns(narrow: bool) -> list[tuple[str, Any]]:
-    """(header, cell function of a row) of the printed table; fewer columns on a narrow terminal."""
-    def pct(r: dict, a: str, s: str) -> str:
-        return _fmt(r.get(f"{a}_{s}_cm"))
-
-    cols: list[tuple[str, Any]] = (
-        [("found", lambda r: f"{r['n_found']}/{r['n']}")] if narrow
-        else [("n", lambda r: str(r["n"])), ("found", lambda r: str(r["n_found"]))])
-    stats = ("rms",) if narrow else ("mean", "std", "rms")
-    for a in AXES:
-        for st in (("mean", "std", "rms") if a == "z" else stats):
-            cols.append((f"{a} {st.replace('rms', 'RMS')}", lambda r, a=a, st=st: pct(r, a, st)))
-    if not narrow:
-        cols.append(("extrap.", lambda r: str(r["n_extrapolated"])))
-        cols.append(("fit s", lambda r: _fmt(r["fit_time_s"], 4)))
-    cols.append(("pair ms", lambda r: _fmt(None if r["per_pair_s"] is None else 1000 * r["per_pair_s"], 1)))
-    return cols
+def _header(name: str) -> str:
+    return "pair ms" if name == PER_PAIR else name
 
 
-def print_table(res: CompareResult, console: Any = None) -> None:
-    """The comparison as a rich table (cm), best z RMS in bold green.
+def _cell(name: str, v: Any) -> str:
+    # The engine's own per-pair time is shown in ms (as before), the declared metrics as they come.
+    if name == PER_PAIR:
+        return "–" if v is None else f"{1000 * v:.1f}"
+    return _fmt(v, name)
 
-    On a terminal narrower than 150 columns x and y show their RMS only and the fit time and
-    extrapolation count are left out (compare.csv has everything).
+
+def _best(res: CompareResult, best: str | None) -> tuple[str, float] | None:
+    """``(metric, value)`` of the best row for ``--best NAME`` (lowest) or ``NAME:max`` (highest)."""
+    if not best:
+        return None
+    name, _, how = best.partition(":")
+    if name not in res.metric_names:
+        raise UsageError(f"--best {best}: no metric '{name}'", hint="choose one of " + ", ".join(res.metric_names))
+    vals = [r[name] for r in res.rows if isinstance(r.get(name), (int, float))]
+    if not vals:
+        return None
+    return name, (max(vals) if how == "max" else min(vals))
+
+
+def _chunks(res: CompareResult, keys: list[str], names: list[str], width: int, narrow: bool) -> list[list[str]]:
+    """The metric columns split into tables that each fit ``width`` (the setting columns repeat in each)."""
+    pad = 2 if narrow else 3  # a column's padding and rule
+
+    def col_width(header: str, cells: list[str]) -> int:
+        return max([len(header), *map(len, cells)]) + pad
+
+    used = sum(col_width(k, [_show(r["settings"][k]) for r in res.rows]) for k in keys) + 1
+    chunks: list[list[str]] = [[]]
+    room = width - used
+    for name in names:
+        w = col_width(_header(name), [_cell(name, r.get(name)) for r in res.rows])
+        if chunks[-1] and w > room:
+            chunks.append([])
+            room = width - used
+        chunks[-1].append(name)
+        room -= w
+    return chunks
+
+
+def print_table(res: CompareResult, console: Any = None, metrics: list[str] | None = None,
+                best: str | None = None) -> None:
+    """The comparison as rich tables: one row per variant, one column per metric.
+
+    When the metrics do not fit the console's width they continue in a second table (and a
+    third ...), each repeating the varied settings.
+
+    Parameters
+    ----------
+    res : CompareResult
+    console : rich Console, optional
+    metrics : list of str, optional
+        Shell-style patterns of the metric columns to show (default: all; compare.csv has all).
+    best : str, optional
+        ``NAME`` (lowest is best) or ``NAME:max``: that row in bold green.
     """
     from rich import box
     from rich.console import Console
@@ -825,26 +836,31 @@ def print_table(res: CompareResult, console: Any = None) -> None:
     con = console or Console(highlight=False)
     keys = _varying_keys(res)
     fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
+    names = select_metrics(res.metric_names, metrics)
+    if not names:
+        raise UsageError("--metrics matches no metric", hint="choose among " + ", ".join(res.metric_names))
     narrow = con.width < 150
-    t = Table(title=escape(f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)"
-                           + (f"; fixed: {', '.join(fixed)}" if fixed else "")), title_justify="left",
-              **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}))
-    cols = _table_columns(narrow)
-    for k in keys:
-        width = max(len(_show(r["settings"][k])) for r in res.rows) if res.rows else 4
-        t.add_column(escape(k), no_wrap=True, min_width=min(width, 22))
-    for header, _ in cols:
-        t.add_column(header, justify="right", no_wrap=True)
-    zs = [r.get("z_rms_cm") for r in res.rows if r.get("z_rms_cm") is not None]
-    best = min(zs) if zs else None
-    for r in res.rows:
-        cells = [escape(_show(r["settings"][k])) for k in keys]
-        if not r["ok"] and not r.get("n_truth"):
-            t.add_row(*cells, *(["–"] * len(cols)), style="red")
-            continue
-        style = "bold green" if best is not None and r.get("z_rms_cm") == best else ("red" if not r["ok"] else None)
-        t.add_row(*cells, *(fn(r) for _, fn in cols), style=style)
-    con.print(t)
+    top = _best(res, best)
+    chunks = _chunks(res, keys, names, con.width, narrow)
+    for i, chunk in enumerate(chunks):
+        title = (f"compare {Path(res.pipeline).name}" + (f" — split {res.split}" if res.split else "")
+                 + (f"; fixed: {', '.join(fixed)}" if fixed else "")
+                 + (f" ({i + 1}/{len(chunks)})" if len(chunks) > 1 else ""))
+        t = Table(title=escape(title), title_justify="left",
+                  **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}))
+        for k in keys:
+            t.add_column(escape(k), no_wrap=True)
+        for name in chunk:
+            t.add_column(_header(name), justify="right", no_wrap=True)
+        for r in res.rows:
+            cells = [escape(_show(r["settings"][k])) for k in keys]
+            if not r["ok"] and not any(isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR):
+                t.add_row(*cells, *(["–"] * len(chunk)), style="red")
+                continue
+            style = ("bold green" if top is not None and r.get(top[0]) == top[1]
+                     else ("red" if not r["ok"] else None))
+            t.add_row(*cells, *(_cell(n, r.get(n)) for n in chunk), style=style)
+        con.print(t)
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
@@ -855,7 +871,8 @@ def print_table(res: CompareResult, console: Any = None) -> None:
 
 def add_subcommand(subparsers: Any) -> Any:
     """Add ``compare`` to the ``stereograph`` command's sub-parsers."""
-    sp = subparsers.add_parser("compare", help="run every combination of --vary settings and compare accuracy")
+    sp = subparsers.add_parser("compare", help="run every combination of --vary settings and tabulate the metrics "
+                                               "the pipeline's nodes declare")
     sp.add_argument("pipeline", help="pipeline YAML file")
     sp.add_argument("--vary", action="append", default=[], metavar="NODE.FIELD=V1,V2,...",
                     help="values to try for a param or a node's type (NODE.type=...); repeatable: every "
@@ -864,12 +881,18 @@ def add_subcommand(subparsers: Any) -> Any:
                     help="override applied to every variant; repeatable")
     sp.add_argument("--out", help="output folder (default runs/<name>/compare-<run-id>)")
     sp.add_argument("--cache-dir", help="shared artifact cache (default .stereograph/cache next to the pipeline)")
-    sp.add_argument("--split", choices=["test", "train", "all"], default="test",
-                    help="items the errors are computed on (default test)")
+    sp.add_argument("--split", default=None, metavar="NAME",
+                    help="set the 'split' param of every node that declares metrics and takes one "
+                         "(test, train, all); default: as the pipeline says")
+    sp.add_argument("--metrics", action="append", default=[], metavar="PATTERN",
+                    help="metric columns to print and plot, shell-style, comma-separated (z_*,'*rms*'); repeatable; "
+                         "default all (compare.csv always has all)")
+    sp.add_argument("--best", metavar="METRIC[:max]",
+                    help="show the row with the lowest (or with :max the highest) METRIC in bold green")
     sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--skip-invalid", action="store_true",
                     help="leave out combinations whose config does not validate instead of refusing")
-    sp.add_argument("--no-plots", action="store_true", help="do not write the PNG plots")
+    sp.add_argument("--no-plots", action="store_true", help="do not write metrics.png")
     sp.add_argument("--json", action="store_true", help="print compare.json instead of the table")
     sp.add_argument("--debug", action="store_true", help="show tracebacks")
     sp.set_defaults(fn=main)
@@ -890,7 +913,7 @@ def main(args: Any) -> int:
     err = Console(stderr=True, highlight=False, soft_wrap=True)
     executor = workers_executor(args.workers)
     kw = {"overrides": args.set, "cache_dir": args.cache_dir, "split": args.split, "executor": executor,
-              "skip_invalid": args.skip_invalid, "plots": not args.no_plots}
+          "skip_invalid": args.skip_invalid, "plots": False}
     try:
         if sys.stdout.isatty() and not args.json:
             with _RichProgress(con) as prog:
@@ -900,10 +923,14 @@ def main(args: Any) -> int:
                 res = compare(args.pipeline, args.vary, args.out, progress=prog, **kw)
     finally:
         executor.close()
+    patterns = [p.strip() for text in (getattr(args, "metrics", None) or []) for p in text.split(",") if p.strip()]
+    patterns = patterns or None
+    if not args.no_plots:
+        res.files.update(_plots(res, patterns))
     if args.json:
         print(res.files["json"].read_text())
     else:
-        print_table(res, con)
+        print_table(res, con, metrics=patterns, best=getattr(args, "best", None))
         con.print(f"outputs: {res.out_dir} ({', '.join(p.name for p in res.files.values())})", markup=False)
     if not res.ok:
         err.print("[red]error:[/] some variants failed (see above); what finished is cached, so a rerun "

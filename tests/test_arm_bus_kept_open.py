@@ -19,7 +19,7 @@ from test_arm_actuator import ARM, FAST, make_plan  # noqa: E402
 
 from nodes.actuators.dynamixel import DynamixelParams, _run, dynamixel, execute_plan, open_bus  # noqa: E402
 from nodes.actuators.servo_sim import ServoSim  # noqa: E402
-from nodes.ik._model import servo_limits_units  # noqa: E402
+from nodes.contracts.arm import servo_limits_units  # noqa: E402
 from stereograph.api import NodeError, RunContext  # noqa: E402
 from stereograph.runner import close_resources  # noqa: E402
 

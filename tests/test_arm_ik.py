@@ -13,7 +13,7 @@ from nodes.calibrators.hand_eye import (
     pose_matrix,
     transform_points,
 )
-from nodes.ik._model import JOINTS, fk, fk_jacobian, limits_rad, servo_limits_units
+from nodes.contracts.arm import JOINTS, fk, fk_jacobian, limits_rad, servo_limits_units
 from nodes.ik._solvers import (
     OK,
     TOO_FAR,

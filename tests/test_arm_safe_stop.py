@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("dynamixel_sdk")
 
-from nodes.ik._model import joints_to_servo_units, servo_limits_units  # noqa: E402
+from nodes.contracts.arm import joints_to_servo_units, servo_limits_units  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -20,7 +20,7 @@ from nodes.actuators.servo_sim import (  # noqa: E402
     Faults,
     ServoSim,
 )
-from nodes.ik._model import servo_limits_units  # noqa: E402
+from nodes.contracts.arm import servo_limits_units  # noqa: E402
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402

@@ -1,5 +1,5 @@
 """`stereograph compare`: variants share the cache, a new variant computes only its own nodes,
-and the table / files report the accuracy of the final Location outputs."""
+and the table / files report the metrics the pipeline's nodes declare (``Out("Metrics")``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from stereograph.cli import main as cli_main
-from stereograph.compare import compare, expand_variants, final_location_outputs, parse_vary
+from stereograph.compare import collect_metrics, compare, expand_variants, metrics_outputs, parse_vary
 from stereograph.config import load_pipeline
 from stereograph.errors import ConfigError, UsageError
 from stereograph.graph import build_graph
@@ -29,6 +29,7 @@ nodes:
   locate: {{type: toy.triangulate, params: {{baseline_scale: 1.02}}, inputs: {{scene: scenes.scenes}}}}
   fit: {{type: compensator.none, inputs: {{train: locate.location}}}}
   compensate: {{type: compensator.apply, inputs: {{model: fit.model, location: locate.location}}}}
+  report: {{type: report.accuracy, params: {{figure: false}}, inputs: {{locations: compensate.location}}}}
 """
 
 
@@ -44,26 +45,29 @@ def test_second_compare_computes_only_the_new_variant(pipeline, tmp_path):
     first = compare(pipeline, [], tmp_path / "out1", cache_dir=cache, plots=False)
     assert [v.variant.label for v in first.variants] == ["fit.type=none", "fit.type=polynomial"]
     # The shared upstream runs once: only the first variant computes the source and the locator.
-    assert first.variants[0].ran == {"scenes", "locate", "fit", "compensate"}
-    assert first.variants[1].ran == {"fit", "compensate"}
+    assert first.variants[0].ran == {"scenes", "locate", "fit", "compensate", "report"}
+    assert first.variants[1].ran == {"fit", "compensate", "report"}
 
     second = compare(pipeline, ["fit.type=none,polynomial,lookup"], tmp_path / "out2", cache_dir=cache, plots=True)
     ran = {v.variant.label: v.ran for v in second.variants}
-    assert ran == {"fit.type=none": set(), "fit.type=polynomial": set(), "fit.type=lookup": {"fit", "compensate"}}
+    assert ran == {"fit.type=none": set(), "fit.type=polynomial": set(),
+                   "fit.type=lookup": {"fit", "compensate", "report"}}
     # Same numbers from the cache as when computed.
     assert second.row(**{"fit.type": "polynomial"})["z_rms_cm"] == first.row(**{"fit.type": "polynomial"})["z_rms_cm"]
-    for name in ("compare.csv", "compare.json", "z_error_vs_distance.png", "error_boxplots.png"):
+    for name in ("compare.csv", "compare.json", "metrics.png"):
         assert (tmp_path / "out2" / name).stat().st_size > 0
 
 
 def test_table_reports_test_split_accuracy(pipeline, tmp_path):
     res = compare(pipeline, ["fit.type=none,polynomial"], tmp_path / "out", cache_dir=tmp_path / "c", plots=False)
     none, poly = res.row(**{"fit.type": "none"}), res.row(**{"fit.type": "polynomial"})
-    assert none["split"] == "test" and 0 < none["n"] < 60 and none["n_truth"] == none["n"]
+    assert 0 < none["n"] < 60 and none["n_truth"] == none["n"] and none["found_rate"] == 1.0
     assert none["z_mean_cm"] > 0.5  # a 2 % baseline error biases z
     assert abs(poly["z_mean_cm"]) < 0.05 and poly["z_rms_cm"] < 0.2 * none["z_rms_cm"]
     assert poly["fit_time_s"] is not None and poly["per_pair_s"] > 0
-    assert none["output"] == "compensate.location"
+    # The columns are the declared metrics, in declaration order (fit's, then report's), then the per-pair time.
+    assert res.metric_names[:4] == ["fit_time_s", "n_train", "n_outliers", "cv_z_rms_cm"]
+    assert res.metric_names[-1] == "per_pair_s" and "x_max_abs_cm" in res.metric_names
     with open(tmp_path / "out" / "compare.csv") as f:
         rows = list(csv.DictReader(f))
     assert [r["fit.type"] for r in rows] == ["none", "polynomial"]
@@ -86,13 +90,43 @@ def test_param_variation_and_type_first(pipeline, tmp_path):
     assert model["type"] == "lookup" and model["cv"]["k"] == 4
 
 
-def test_metrics_from_a_non_terminal_location_output(tmp_path):
+def test_metrics_are_what_nodes_declare(tmp_path):
     p = tmp_path / "p.yaml"
-    p.write_text(PIPELINE + "  count: {type: toy.count_found, inputs: {locations: compensate.location}}\n")
+    p.write_text(PIPELINE + "  report2: {type: report.accuracy, params: {figure: false, split: train}, "
+                            "inputs: {locations: locate.location}}\n")
     graph = build_graph(load_pipeline(p))
-    assert final_location_outputs(graph) == [("compensate", "location")]
-    res = compare(p, [], tmp_path / "o", cache_dir=tmp_path / "c", plots=False)
-    assert all(r["n_truth"] > 0 for r in res.rows)
+    assert sorted(metrics_outputs(graph)) == [("fit", "metrics"), ("report", "metrics"), ("report2", "metrics")]
+    res = compare(p, ["fit.type=polynomial"], tmp_path / "o", cache_dir=tmp_path / "c", plots=False)
+    row = res.rows[0]
+    # Names two nodes both report get the node's name in front; the others stay bare.
+    assert row["report.z_rms_cm"] < 0.2 * row["report2.z_rms_cm"] and "z_rms_cm" not in row
+    assert row["report.n"] + row["report2.n"] == 60 and row["fit_time_s"] is not None
+
+
+def test_collect_metrics_keeps_numbers_only():
+    row = collect_metrics({("a", "m"): {"x_s": 1.5, "k": 3, "bad": float("nan"), "txt": "no"},
+                           ("b", "m"): {"k": True}, ("c", "m"): None})
+    assert row == {"x_s": 1.5, "a.k": 3, "bad": None, "txt": None, "b.k": 1}
+
+
+def test_a_pipeline_without_metrics_is_refused(tmp_path):
+    p = tmp_path / "p.yaml"
+    # Only a source, a locator and a count: nothing declares an Out("Metrics").
+    p.write_text(PIPELINE.split("  fit:")[0].replace("variants:\n  fit.type: [none, polynomial]\n", "")
+                 + "  count: {type: toy.count_found, inputs: {locations: locate.location}}\n")
+    with pytest.raises(ConfigError, match="declares no metrics"):
+        compare(p, ["locate.baseline_scale=1.0,1.02"], tmp_path / "o", cache_dir=tmp_path / "c")
+
+
+def test_the_engine_knows_no_domain():
+    # compare and the rest of the engine name no artifact type, coordinate or axis of the node library.
+    import re
+
+    engine = Path(__file__).resolve().parents[1] / "stereograph"
+    pattern = re.compile(r"\bLocation\b|\b[xyz]_cm\b|\b[xyz]_(mean|std|rms|max_abs)|AXES|fit_time_s|truth_cm")
+    hits = [f"{f.name}:{i}" for f in sorted(engine.glob("*.py"))
+            for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, hits
 
 
 def test_parse_vary():
@@ -131,7 +165,7 @@ def test_cli(pipeline, tmp_path, capsys):
                    "--out", str(tmp_path / "o"), "--no-plots"])
     out = capsys.readouterr()
     assert rc == 0, out.err
-    assert "xyz" in out.out and "z RMS" in out.out and "compare.csv" in out.out
+    assert "xyz" in out.out and "z_rms_cm" in out.out and "pair ms" in out.out and "compare.csv" in out.out
     assert "[2/2] fit.type=xyz" in out.err  # progress lines when not on a terminal
     assert cli_main(["compare", str(pipeline), "--vary", "nodot=1"]) == 2
     assert cli_main(["compare", str(pipeline), "--vary", "ghost.type=a,b"]) == 2

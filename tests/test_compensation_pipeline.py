@@ -24,7 +24,7 @@ def test_compare_compensation_real_pipeline(tmp_path):
     assert first.variants[0].ran == upstream | own
     assert first.variants[1].ran == own  # calibration and segmentation ran once, not per variant
     none, poly = first.row(**{"fit.type": "none"}), first.row(**{"fit.type": "polynomial"})
-    assert none["n_truth"] >= 6 and none["output"] == "compensate.location"
+    assert none["n_truth"] >= 6 and none["found_rate"] > 0.9  # the report node's metrics
     assert none["z_mean_cm"] > 0.4  # 2 % of 30-60 cm
     assert poly["z_rms_cm"] < 0.5 * none["z_rms_cm"]
     assert poly["x_rms_cm"] <= none["x_rms_cm"] and poly["y_rms_cm"] <= none["y_rms_cm"]

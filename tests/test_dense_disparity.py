@@ -115,6 +115,10 @@ def test_dense_aloe_pipeline_through_the_cli(tmp_path):
     gt = cv2.imread(str(ALOE / "aloeGT.png"), cv2.IMREAD_GRAYSCALE).astype(np.float32)
     fill, bad = bad_pixels(disp, gt, 2.0)
     assert fill >= 0.72 and bad <= 0.038, (fill, bad)  # plain StereoSGBM: 3.77 % at 72.5 %
+    # report.disparity's Metrics (what `stereograph compare` tabulates) hold the same scores.
+    metrics = json.loads((out / "dense-score" / "metrics.json").read_text())
+    assert metrics["n_pairs"] == 1 and metrics["bad_2px_fraction"] == pytest.approx(bad, abs=1e-9)
+    assert metrics["fill_fraction"] == pytest.approx(fill, abs=1e-9)
     img = cv2.imread(str(out / "dense" / "disparity_image" / "aloe.png"))
     assert img.shape == (1110, 1282, 3)
     pts, rgb, _ = decode_ply((out / "dense" / "point_cloud" / "aloe.ply").read_bytes())
@@ -146,3 +150,24 @@ def test_point_cloud_is_metric_in_the_left_camera_frame_on_the_synthetic_rig():
     c = np.asarray(pair["truth"]["center_left_cm"])
     near_ball = np.linalg.norm(pts - c, axis=1) < 1.5 * pair["truth"]["radius_cm"]
     assert near_ball.sum() > 500  # the ball is in the cloud where it truly is
+
+
+def test_disparity_score_names_a_missing_or_mismatched_truth(tmp_path):
+    from nodes.reports.disparity import DisparityScoreParams, disparity_score
+
+    disp = np.full((4, 6), 10.0, dtype=np.float32)
+    disp[0, 0] = np.nan
+    maps = {"p1": {"id": "p1", "disparity_px": disp, "compute_seconds": 0.5}}
+    truth = np.full((4, 6), 10, dtype=np.uint8)
+    truth[1, :] = 20  # 6 of the 23 filled pixels are 10 px off
+    truth[3, 5] = 0  # unknown
+    cv2.imwrite(str(tmp_path / "p1GT.png"), truth)
+    out = disparity_score(DisparityScoreParams(truth=str(tmp_path / "{id}GT.png")), maps)
+    assert out["metrics"]["n_pairs"] == 1 and out["metrics"]["match_s"] == 0.5
+    assert out["metrics"]["fill_fraction"] == pytest.approx(22 / 23)
+    assert out["metrics"]["bad_2px_fraction"] == pytest.approx(6 / 22)
+    with pytest.raises(NodeError, match="no readable truth image for pair 'p1'"):
+        disparity_score(DisparityScoreParams(truth=str(tmp_path / "missing.png")), maps)
+    cv2.imwrite(str(tmp_path / "small.png"), truth[:2])
+    with pytest.raises(NodeError, match="6x2 px"):
+        disparity_score(DisparityScoreParams(truth=str(tmp_path / "small.png")), maps)

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from nodes.contracts.recording import write_video
 from nodes.recorders.stereo_video import StereoVideoParams, stereo_video
-from nodes.sources._video import write_video
 from nodes.sources.camera import CameraParams, camera
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.api import NodeError, RunContext

@@ -101,7 +101,7 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
     servo = json.loads((out / "act" / "servo_log_interrupted.json").read_text())
     assert servo["stop"]["action"] == "hold" and servo["stop"]["port_closed"]
     # every goal the emulator received, the hold included, lies within the joint limits
-    from nodes.ik._model import servo_limits_units
+    from nodes.contracts.arm import servo_limits_units
     from nodes.ik.arm import ArmParams, build_arm_model
 
     limits = servo_limits_units(build_arm_model(ArmParams()))

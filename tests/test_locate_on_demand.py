@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.truth import truth_calibration
-from nodes.rectifiers._views import RectifiedView, pair_views
+from nodes.contracts.views import RectifiedView, pair_views
 from nodes.rectifiers.opencv import rectify_calibration
 from nodes.segmenters._common import masked_pixels
 from nodes.sources.synthetic import SyntheticParams, synthetic

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.charuco import CharucoParams, charuco, detect_charuco
+from nodes.contracts.board import charuco_board
 from nodes.sources import _render
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.api import NodeError
@@ -38,7 +39,7 @@ def test_charuco_views_rendered(views):
     rig = _render.make_rig()
     pose = _render.random_board_poses(rig, 1, np.random.default_rng(3))[0]
     left, _, corners = _render.render_board_view(rig, pose, seed=1, charuco=CHARUCO)
-    board = _render.charuco_board(9, 6, 2.5)
+    board = charuco_board(9, 6, 2.5)
     ids, px = detect_charuco(left, cv2.aruco.CharucoDetector(board))
     assert len(ids) == 54
     err = np.linalg.norm(px - corners["left_px"][ids], axis=1)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from nodes.ik._model import servo_limits_units
+from nodes.contracts.arm import servo_limits_units
 from stereograph.api import Field, NodeError, Params
 
 ADDR_GOAL = 30

@@ -31,7 +31,7 @@ import sys
 import time
 from typing import Literal
 
-from nodes.ik._model import joint, joints_to_servo_units, servo_limits_units, speed_to_units
+from nodes.contracts.arm import joint, joints_to_servo_units, servo_limits_units, speed_to_units
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from . import _diagnose

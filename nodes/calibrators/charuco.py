@@ -15,7 +15,7 @@ import numpy as np
 
 from nodes.calibrators._board import stereo_calibrate_points, to_gray
 from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
-from nodes.sources._render import charuco_board
+from nodes.contracts.board import charuco_board
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["CharucoParams", "calibrate_charuco", "charuco", "detect_charuco"]

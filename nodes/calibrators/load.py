@@ -24,44 +24,22 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.calibrators._artifact_file import array_keys, check_rig, read_artifact
 from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs, read_opencv, read_ros, read_ros_pair
+from nodes.contracts.calibration_file import (
+    ArtifactLoadParams,
+    array_keys,
+    artifact_kind,
+    artifact_reads,
+    check_rig,
+    read_artifact,
+    resolve_path,
+    with_npz,
+)
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["artifact_kind", "load", "load_hand_eye", "load_table_frame", "read_calibration_file"]
+__all__ = ["load", "load_hand_eye", "load_table_frame", "read_calibration_file"]
 
 _CAL_ARRAYS = ("K1", "D1", "K2", "D2", "R", "T_cm", "T_table_from_left")
-
-
-def artifact_kind(art: dict) -> str:
-    """Best guess of which artifact type a loaded JSON holds (for "wrong kind of file" errors)."""
-    if not isinstance(art, dict):
-        return "a list"
-    if "K1" in art and "T_cm" in art:
-        return "a StereoCalibration"
-    if "coefficients" in art and "type" in art:
-        return "a CompensationModel"
-    if "T_base_from_left" in art:
-        return "a HandEye"
-    if "T_table_from_left" in art:
-        return "a TableFrame"
-    if "joints" in art and "reach_cm" in art:
-        return "an ArmModel"
-    return "no artifact this loader knows (keys: " + ", ".join(sorted(art)[:8]) + ")"
-
-
-def _resolve(value: str, pipeline_dir: Path) -> Path:
-    p = Path(value).expanduser()
-    return p if p.is_absolute() else pipeline_dir / p
-
-
-def _with_npz(paths: list[Path]) -> list[Path]:
-    out = []
-    for p in paths:
-        out.append(p)
-        if p.suffix.lower() == ".json" and p.with_suffix(".npz").is_file():
-            out.append(p.with_suffix(".npz"))
-    return out
 
 
 def _is_opencv_storage(path: Path) -> bool:
@@ -145,7 +123,7 @@ class LoadParams(Params):
 
 
 def _load_reads(params: LoadParams, pipeline_dir: Path) -> list[Path]:
-    return _with_npz([_resolve(p, pipeline_dir) for p in (params.path, params.right_path) if p])
+    return with_npz([resolve_path(p, pipeline_dir) for p in (params.path, params.right_path) if p])
 
 
 @node("calibrator.load",
@@ -155,27 +133,15 @@ def _load_reads(params: LoadParams, pipeline_dir: Path) -> list[Path]:
 def load(params: LoadParams, ctx=None) -> dict:
     """Load a stereo calibration file (run JSON, OpenCV FileStorage, or a ROS camera_info pair)."""
     pdir = ctx.pipeline_dir if ctx is not None else Path.cwd()
-    right = _resolve(params.right_path, pdir) if params.right_path else None
-    cal = read_calibration_file(_resolve(params.path, pdir), right, params.cm_per_unit, params.image_size)
+    right = resolve_path(params.right_path, pdir) if params.right_path else None
+    cal = read_calibration_file(resolve_path(params.path, pdir), right, params.cm_per_unit, params.image_size)
     return calibration_outputs(cal, ctx)
 
 
 # --------------------------------------------------------------------------- hand-eye, table frame
-class ArtifactLoadParams(Params):
-    path: str = Field(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
-                                       "(its .npz, if any, beside it).")
-    rig_tolerance: float = Field(
-        0.01, gt=0, le=0.5, description="Largest relative difference of focal length and baseline between the "
-                                        "file's rig and the wired calibration (unitless; 0.01 = 1 %).")
-
-
-def _artifact_reads(params: ArtifactLoadParams, pipeline_dir: Path) -> list[Path]:
-    return _with_npz([_resolve(params.path, pipeline_dir)])
-
-
 def _load_matrix_artifact(params: ArtifactLoadParams, ctx, calibration, label: str, kind: str, made_by: str,
                           key: str, arrays: tuple[str, ...]) -> dict:
-    path = _resolve(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
+    path = resolve_path(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
     art = read_artifact(path, label, kind, made_by)
     if artifact_kind(art) != f"a {kind}":
         raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a {kind}.",
@@ -197,7 +163,7 @@ _CAL_IN = {"calibration": In("StereoCalibration", optional=True,
 
 @node("calibrator.load_hand_eye", inputs=_CAL_IN,
       outputs={"hand_eye": Out("HandEye", description="Left-camera pose in the arm-base frame, as fitted.")},
-      params=ArtifactLoadParams, version="1", reads=_artifact_reads)
+      params=ArtifactLoadParams, version="1", reads=artifact_reads)
 def load_hand_eye(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
     """Load a hand-eye transform a run fitted (<run>/<node>/hand_eye.json), checked against the rig."""
     return {"hand_eye": _load_matrix_artifact(
@@ -207,7 +173,7 @@ def load_hand_eye(params: ArtifactLoadParams, calibration=None, ctx=None) -> dic
 
 @node("calibrator.load_table_frame", inputs=_CAL_IN,
       outputs={"table_frame": Out("TableFrame", description="T_table_from_left (cm), as fitted from the board.")},
-      params=ArtifactLoadParams, version="1", reads=_artifact_reads)
+      params=ArtifactLoadParams, version="1", reads=artifact_reads)
 def load_table_frame(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
     """Load a table frame a run found (<run>/<node>/table_frame.json), checked against the rig."""
     return {"table_frame": _load_matrix_artifact(

@@ -28,8 +28,8 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from nodes.calibrators._artifact_file import rig_fingerprint
 from nodes.calibrators._board import board_points, detect_corners
+from nodes.contracts.calibration_file import rig_fingerprint
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["TableFrameParams", "board_pose", "frame_from_board_pose", "table_frame"]

@@ -25,7 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from stereograph.api import Field, In, NodeError, Params
+from stereograph.api import Field, In, NodeError, Out, Params
 
 __all__ = [
     "TRAIN_INPUT",
@@ -36,6 +36,8 @@ __all__ = [
     "axis_stats",
     "build_model",
     "kfold_cv",
+    "METRICS_OUTPUT",
+    "model_metrics",
     "node_label",
     "require_span",
     "resolve_along_ray",
@@ -108,6 +110,24 @@ class RayFitParams(FitParams):
 
 #: The input of every fit node: the gathered Location collection (only split 'train' is used).
 TRAIN_INPUT = {"train": In("Location", gather=True, description="Located placements; only split 'train' is used.")}
+
+#: The ``Metrics`` output of every fit node (what ``stereograph compare`` tabulates).
+METRICS_OUTPUT = {"metrics": Out("Metrics", save=True, optional=True,
+                                 description="fit_time_s, n_train, n_outliers, cv_z_rms_cm (flat).")}
+
+
+def model_metrics(model: Mapping[str, Any]) -> dict[str, float | int | None]:
+    """A fitted ``CompensationModel`` as flat ``Metrics``.
+
+    Returns
+    -------
+    dict
+        ``{"fit_time_s": s, "n_train": placements fitted, "n_outliers": left out,
+        "cv_z_rms_cm": cross-validated z RMS error (cm), None when no cross-validation ran}``.
+    """
+    cv_z = ((model.get("cv") or {}).get("axes") or {}).get("z") or {}
+    return {"fit_time_s": model.get("fit_time_s"), "n_train": model.get("n_train"),
+            "n_outliers": model.get("n_outliers", 0), "cv_z_rms_cm": cv_z.get("rms_cm")}
 
 
 @dataclass(frozen=True)

@@ -32,11 +32,13 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from nodes.compensators._common import (
+    METRICS_OUTPUT,
     TRAIN_INPUT,
     RayFitParams,
     Samples,
     along_ray,
     build_model,
+    model_metrics,
     node_label,
     require_span,
     resolve_along_ray,
@@ -167,7 +169,8 @@ class DisparityCurveParams(RayFitParams):
 @node(
     "compensator.disparity_curve",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px).")},
+    outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px)."),
+             **METRICS_OUTPUT},
     params=DisparityCurveParams,
     version="2",
 )
@@ -190,4 +193,4 @@ def disparity_curve(params: DisparityCurveParams, train, ctx=None):
         "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
         params.model_dump(), robust=params, min_points=4 if params.with_offset else 3, ctx=ctx,
     )
-    return {"model": model}
+    return {"model": model, "metrics": model_metrics(model)}

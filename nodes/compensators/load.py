@@ -9,9 +9,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nodes.calibrators._artifact_file import check_rig, read_artifact
-from nodes.calibrators.load import ArtifactLoadParams, _artifact_reads, _resolve, artifact_kind
 from nodes.compensators._table import PREDICTORS
+from nodes.contracts.calibration_file import (
+    ArtifactLoadParams,
+    artifact_kind,
+    artifact_reads,
+    check_rig,
+    read_artifact,
+    resolve_path,
+)
 from stereograph.api import In, NodeError, Out, node
 
 __all__ = ["load"]
@@ -23,11 +29,11 @@ _MADE_BY = "<run>/<fit node>/model.json, written by compensator.polynomial / .xy
       inputs={"calibration": In("StereoCalibration", optional=True,
                                 description="The rig's calibration: the model must be fitted on it.")},
       outputs={"model": Out("CompensationModel", description="The fitted model, as written by its run.")},
-      params=ArtifactLoadParams, version="1", reads=_artifact_reads)
+      params=ArtifactLoadParams, version="1", reads=artifact_reads)
 def load(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
     """Load a fitted compensation model (<run>/<fit>/model.json), checked against the rig."""
     label = "compensator.load"
-    path = _resolve(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
+    path = resolve_path(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
     model = read_artifact(path, label, "CompensationModel", _MADE_BY)
     if artifact_kind(model) != "a CompensationModel":
         raise NodeError(f"{label}: {path} holds {artifact_kind(model)}, not a CompensationModel.",

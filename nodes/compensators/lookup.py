@@ -16,11 +16,13 @@ from typing import Any
 import numpy as np
 
 from nodes.compensators._common import (
+    METRICS_OUTPUT,
     TRAIN_INPUT,
     RayFitParams,
     Samples,
     along_ray,
     build_model,
+    model_metrics,
     node_label,
     require_span,
     resolve_along_ray,
@@ -114,7 +116,8 @@ class LookupParams(RayFitParams):
 @node(
     "compensator.lookup",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm).")},
+    outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm)."),
+             **METRICS_OUTPUT},
     params=LookupParams,
     version="2",
 )
@@ -131,4 +134,4 @@ def lookup(params: LookupParams, train, ctx=None):
         "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
         robust=params, min_points=2 * params.min_per_bin, ctx=ctx,
     )
-    return {"model": model}
+    return {"model": model, "metrics": model_metrics(model)}

@@ -12,10 +12,12 @@ from typing import Any
 import numpy as np
 
 from nodes.compensators._common import (
+    METRICS_OUTPUT,
     TRAIN_INPUT,
     FitParams,
     Samples,
     build_model,
+    model_metrics,
     node_label,
     training_samples,
 )
@@ -43,7 +45,8 @@ class NoneParams(FitParams):
 @node(
     "compensator.none",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Identity model + raw training error.")},
+    outputs={"model": Out("CompensationModel", save=True, description="Identity model + raw training error."),
+             **METRICS_OUTPUT},
     params=NoneParams,
     version="1",
 )
@@ -53,12 +56,10 @@ def none(params: NoneParams, train, ctx=None):
     samples = training_samples(train, label, needs=INPUTS, min_points=0)
     if len(samples) == 0:
         # The baseline needs no training data: without truth it still passes locations through.
-        return {"model": {"type": "none", "coefficients": {}, "valid_range": {}, "frame": samples.frame,
-                          "n_train": 0, "train_before_cm": None, "train_residual_cm": None,
-                          "cv": {"k": params.cv_folds, "n": 0, "skipped": "no training placements"},
-                          "fit_time_s": 0.0, "options": {}}}
-    return {
-        "model": build_model(
-            "none", samples, fit_none, predict_none, INPUTS, label, params.cv_folds, params.cv_seed, {}
-        )
-    }
+        model = {"type": "none", "coefficients": {}, "valid_range": {}, "frame": samples.frame,
+                 "n_train": 0, "train_before_cm": None, "train_residual_cm": None,
+                 "cv": {"k": params.cv_folds, "n": 0, "skipped": "no training placements"},
+                 "fit_time_s": 0.0, "options": {}}
+    else:
+        model = build_model("none", samples, fit_none, predict_none, INPUTS, label, params.cv_folds, params.cv_seed, {})
+    return {"model": model, "metrics": model_metrics(model)}

@@ -16,11 +16,13 @@ import numpy as np
 from numpy.polynomial import Polynomial
 
 from nodes.compensators._common import (
+    METRICS_OUTPUT,
     TRAIN_INPUT,
     RayFitParams,
     Samples,
     along_ray,
     build_model,
+    model_metrics,
     node_label,
     require_span,
     resolve_along_ray,
@@ -94,7 +96,8 @@ class PolynomialParams(RayFitParams):
 @node(
     "compensator.polynomial",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Polynomial of measured z (cm).")},
+    outputs={"model": Out("CompensationModel", save=True, description="Polynomial of measured z (cm)."),
+             **METRICS_OUTPUT},
     params=PolynomialParams,
     version="2",
 )
@@ -111,4 +114,4 @@ def polynomial(params: PolynomialParams, train, ctx=None):
         "polynomial", samples, fit, predict_polynomial, INPUTS, label, params.cv_folds, params.cv_seed,
         params.model_dump(), robust=params, min_points=params.degree + 2, ctx=ctx,
     )
-    return {"model": model}
+    return {"model": model, "metrics": model_metrics(model)}

@@ -20,10 +20,12 @@ from typing import Any, Literal
 import numpy as np
 
 from nodes.compensators._common import (
+    METRICS_OUTPUT,
     TRAIN_INPUT,
     FitParams,
     Samples,
     build_model,
+    model_metrics,
     node_label,
     require_span,
     training_samples,
@@ -147,7 +149,8 @@ class XyzParams(FitParams):
 @node(
     "compensator.xyz",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="x, y, z error polynomials (cm).")},
+    outputs={"model": Out("CompensationModel", save=True, description="x, y, z error polynomials (cm)."),
+             **METRICS_OUTPUT},
     params=XyzParams,
     version="2",
 )
@@ -165,4 +168,4 @@ def xyz(params: XyzParams, train, ctx=None):
         "xyz", samples, fit, predict_xyz, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
         robust=params, min_points=n_terms + 1, ctx=ctx,
     )
-    return {"model": model}
+    return {"model": model, "metrics": model_metrics(model)}

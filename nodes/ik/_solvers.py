@@ -2,7 +2,7 @@
 
 Each solver has a scalar form (one target -> one pose or an :class:`Unreachable` error naming why)
 and a vectorised batch form (N targets -> N poses + a status code per target), both on the same
-forward kinematics (:func:`nodes.ik._model.fk`).
+forward kinematics (:func:`nodes.contracts.arm.fk`).
 """
 
 from __future__ import annotations
@@ -12,9 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from nodes.contracts.arm import JOINTS, fk, fk_jacobian, geometry, joint, limits_rad
 from stereograph.api import NodeError
-
-from ._model import JOINTS, fk, fk_jacobian, geometry, joint, limits_rad
 
 OK, TOO_FAR, TOO_CLOSE, LIMITS, NO_CONVERGENCE = 0, 1, 2, 3, 4
 STATUS_WORDS = {OK: "ok", TOO_FAR: "beyond reach", TOO_CLOSE: "inside minimum reach",

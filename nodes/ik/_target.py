@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from nodes.contracts.arm import JOINTS, fk, joints_to_servo_units, quantize_joints_deg
 from stereograph.api import NodeError
 
-from ._model import JOINTS, fk, joints_to_servo_units, quantize_joints_deg
 from ._solvers import Unreachable, analytic_ik, numeric_ik
 
 SOLVERS = {"analytic_3dof": analytic_ik, "numeric": numeric_ik}

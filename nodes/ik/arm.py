@@ -21,9 +21,8 @@ from __future__ import annotations
 
 from typing import Literal
 
+from nodes.contracts.arm import MAX_POSITION_UNITS, SPEED_DEG_S_PER_UNIT, UNITS_PER_DEG, servo_limits_units
 from stereograph.api import Field, NodeError, Out, Params, node
-
-from ._model import MAX_POSITION_UNITS, SPEED_DEG_S_PER_UNIT, UNITS_PER_DEG, servo_limits_units
 
 
 class ServoSpec(Params):

@@ -27,9 +27,7 @@ from typing import Literal
 
 import numpy as np
 
-from stereograph.api import Field, In, NodeError, Out, Params, node
-
-from ._model import (
+from nodes.contracts.arm import (
     JOINTS,
     all_servo_ids,
     fk,
@@ -38,6 +36,8 @@ from ._model import (
     quantize_joints_deg,
     speed_to_units,
 )
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
 from ._solvers import Unreachable
 from ._target import ARM_HINT, solve, unreachable_hint, unreachable_reason
 

@@ -18,7 +18,7 @@ from typing import Literal
 
 import numpy as np
 
-from nodes.calibrators._artifact_file import rig_fingerprint
+from nodes.contracts.calibration_file import rig_fingerprint
 from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange, node
 
 

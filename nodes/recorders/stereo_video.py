@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from nodes.sources._video import LOSSLESS, encode_recording
+from nodes.contracts.recording import LOSSLESS, encode_recording
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 

@@ -145,6 +145,8 @@ def raw_location_fields(loc: dict) -> dict:
         "report": Out("AccuracyReport", save=True, description="Per-axis error statistics (cm)."),
         "locations": Out("any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."),
         "figure": Out("Image", save=True, description="Error histograms and error vs distance."),
+        "metrics": Out("Metrics", save=True, optional=True,
+                       description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat."),
     },
     params=AccuracyParams,
     version="1",
@@ -182,4 +184,31 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         ctx.out_dir.mkdir(parents=True, exist_ok=True)
         (ctx.out_dir / "accuracy.md").write_text(md)
     fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
-    return {"report": report, "locations": location_records(locations), "figure": fig}
+    n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)
+    return {"report": report, "locations": location_records(locations), "figure": fig,
+            "metrics": accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated)}
+
+
+def accuracy_metrics(axes: dict, n: int, n_found: int, n_truth: int, n_extrapolated: int) -> dict:
+    """The report as flat ``Metrics`` (what ``stereograph compare`` tabulates).
+
+    Parameters
+    ----------
+    axes : dict
+        :func:`error_table`'s result.
+    n, n_found, n_truth, n_extrapolated : int
+        Items in the split; found; found with truth (evaluated); of those, corrected outside the
+        range a compensation model was fitted on.
+
+    Returns
+    -------
+    dict
+        ``{"n", "n_found", "found_rate" (found / n, None for n = 0), "n_truth", "n_extrapolated",
+        "x_mean_cm", "x_std_cm", "x_rms_cm", "x_max_abs_cm", "y_...", "z_..."}``.
+    """
+    out = {"n": n, "n_found": n_found, "found_rate": n_found / n if n else None, "n_truth": n_truth,
+           "n_extrapolated": n_extrapolated}
+    for ax in AXES:
+        for stat in ("mean_cm", "std_cm", "rms_cm", "max_abs_cm"):
+            out[f"{ax}_{stat}"] = axes[ax][stat]
+    return out

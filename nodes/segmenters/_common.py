@@ -9,7 +9,7 @@ to the object) differs between methods:
    ``coarse_first`` a level twice as coarse is tried first for balls big enough there): the
    method's mask, optional shadow suppression, connected components. The right image is
    searched in the left region's epipolar band first. The image may be a raw camera image
-   rectified on request (:mod:`nodes.rectifiers._views`).
+   rectified on request (:mod:`nodes.contracts.views`).
 2. **Select** the object among the components: plausible size (from the calibration's focal
    length, the object's radius and the working range), roundness, colour (when configured),
    then the largest one (the thesis's rule). Two near-equal survivors -> not found.
@@ -33,7 +33,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from nodes.rectifiers._views import RectifiedView, pair_views
+from nodes.contracts.views import RectifiedView, pair_views
 from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
@@ -1156,7 +1156,7 @@ def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> 
 def pair_is_raw(ctx, rectification: dict | None) -> bool:
     """True when the segmenter's ``pair`` input is wired to camera images (a ``StereoPair``).
 
-    Those are rectified on request (see :mod:`nodes.rectifiers._views`), which needs the
+    Those are rectified on request (see :mod:`nodes.contracts.views`), which needs the
     Rectification's maps.
     """
     wired = getattr(ctx, "input_types", None) or {}
@@ -1210,7 +1210,7 @@ def segment_pair(
 
     When ``ctx`` says that ``pair`` is wired to camera images (a ``StereoPair``), they are
     rectified on request with ``rectification``'s maps: the coarse detection level and the
-    object's full-resolution window only (see :mod:`nodes.rectifiers._views`); the masks and
+    object's full-resolution window only (see :mod:`nodes.contracts.views`); the masks and
     regions are in rectified pixels either way.
 
     Returns the node's outputs ``{"segmentation": Segmentation, "overlay": BGR uint8}``; a pair

@@ -80,6 +80,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from nodes.contracts.board import charuco_board
 from nodes.sources._hard_scenes import HARD_KINDS, make_hard_scene
 
 __all__ = [
@@ -1103,25 +1104,6 @@ def charuco_texture(cols: int, rows: int, dictionary: str = "DICT_4X4_50", marke
     h = px_per_square // 2
     parity = 0 if img[h, h] < 128 else 1
     return img, parity
-
-
-def charuco_board(cols: int, rows: int, square_cm: float, dictionary: str = "DICT_4X4_50",
-                  marker_fraction: float = 0.7):
-    """``cv2.aruco.CharucoBoard`` with ``cols x rows`` inner corners (``cols+1 x rows+1`` squares).
-
-    Raises ValueError for an unknown dictionary name or a board needing more
-    markers than the dictionary holds.
-    """
-    code = getattr(cv2.aruco, str(dictionary), None)
-    if not str(dictionary).startswith("DICT_") or not isinstance(code, int):
-        names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
-        raise ValueError(f"unknown ArUco dictionary {dictionary!r}; known: {', '.join(names)}")
-    d = cv2.aruco.getPredefinedDictionary(code)
-    n_markers = ((cols + 1) * (rows + 1)) // 2
-    if n_markers > d.bytesList.shape[0]:
-        raise ValueError(f"a {cols}x{rows} ChArUco board needs {n_markers} markers but {dictionary} holds "
-                         f"{d.bytesList.shape[0]}")
-    return cv2.aruco.CharucoBoard((cols + 1, rows + 1), float(square_cm), float(marker_fraction * square_cm), d)
 
 
 def _charuco_reflectance(bx, by, gu, gv, cols, rows, charuco: dict) -> np.ndarray:

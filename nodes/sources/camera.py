@@ -33,9 +33,8 @@ from typing import Any, Literal
 import cv2
 from pydantic import model_validator
 
+from nodes.contracts.recording import write_recording
 from stereograph.api import Field, In, NodeError, Out, Params, node
-
-from ._video import write_recording
 
 __all__ = ["CameraParams", "StereoCapture", "camera", "grab_pairs"]
 

@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 from pydantic import field_validator, model_validator
 
+from nodes.contracts.board import charuco_board
 from nodes.sources import _render
 from stereograph.api import Field, NodeError, Out, Params, node
 
@@ -88,8 +89,8 @@ class SyntheticParams(Params):
     @model_validator(mode="after")
     def _check_charuco(self):
         if self.board_type == "charuco":
-            _render.charuco_board(self.board_cols, self.board_rows, self.square_cm, self.aruco_dict,
-                                  self.marker_fraction)  # ValueError naming the known dictionaries
+            charuco_board(self.board_cols, self.board_rows, self.square_cm, self.aruco_dict,
+                          self.marker_fraction)  # ValueError naming the known dictionaries
         return self
 
     @field_validator("ball_color")

@@ -19,9 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from stereograph.api import NodeError
+from stereograph.api import Field, NodeError, Params
 
-__all__ = ["array_keys", "check_rig", "read_artifact", "rig_fingerprint", "rig_from_file"]
+__all__ = [
+    "ArtifactLoadParams", "array_keys", "artifact_kind", "artifact_reads", "check_rig", "read_artifact",
+    "resolve_path", "rig_fingerprint", "rig_from_file", "with_npz",
+]
 
 
 def _restore(v: Any, npz) -> Any:
@@ -144,3 +147,51 @@ def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None
                         + "; ".join(problems) + ".",
                         hint="use the calibration it was fitted with, or fit it again with this calibration "
                              f"(rig_tolerance {tolerance:g} allows relative differences up to that)")
+
+
+def artifact_kind(art: dict) -> str:
+    """Best guess of which artifact type a loaded JSON holds (for "wrong kind of file" errors)."""
+    if not isinstance(art, dict):
+        return "a list"
+    if "K1" in art and "T_cm" in art:
+        return "a StereoCalibration"
+    if "coefficients" in art and "type" in art:
+        return "a CompensationModel"
+    if "T_base_from_left" in art:
+        return "a HandEye"
+    if "T_table_from_left" in art:
+        return "a TableFrame"
+    if "joints" in art and "reach_cm" in art:
+        return "an ArmModel"
+    return "no artifact this loader knows (keys: " + ", ".join(sorted(art)[:8]) + ")"
+
+
+def resolve_path(value: str, pipeline_dir: Path) -> Path:
+    """A path from YAML, relative to the pipeline's folder."""
+    p = Path(value).expanduser()
+    return p if p.is_absolute() else pipeline_dir / p
+
+
+def with_npz(paths: list[Path]) -> list[Path]:
+    """The paths, each ``.json`` followed by its ``.npz`` where one lies beside it (for a node's ``reads``)."""
+    out = []
+    for p in paths:
+        out.append(p)
+        if p.suffix.lower() == ".json" and p.with_suffix(".npz").is_file():
+            out.append(p.with_suffix(".npz"))
+    return out
+
+
+class ArtifactLoadParams(Params):
+    """Parameters of a node that loads one artifact a run wrote (``*.load``)."""
+
+    path: str = Field(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
+                                       "(its .npz, if any, beside it).")
+    rig_tolerance: float = Field(
+        0.01, gt=0, le=0.5, description="Largest relative difference of focal length and baseline between the "
+                                        "file's rig and the wired calibration (unitless; 0.01 = 1 %).")
+
+
+def artifact_reads(params: ArtifactLoadParams, pipeline_dir: Path) -> list[Path]:
+    """The files an artifact loader reads (its ``reads=``): the JSON and its ``.npz``."""
+    return with_npz([resolve_path(params.path, pipeline_dir)])
