@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nodes.disparity._common import ellipse_to_conic, sphere_from_silhouette
+from nodes.contracts.sphere import ellipse_to_conic, sphere_from_silhouette
 
 K = np.array([[700.0, 0, 320.0], [0, 700.0, 240.0], [0, 0, 1]])
 

@@ -14,9 +14,10 @@ import math
 
 import numpy as np
 
+from nodes.contracts.sphere import ellipse_to_conic, sphere_from_silhouette
 from stereograph.api import Field, In, NodeError, Out, node
 
-from ._common import DisparityParams, ellipse_to_conic, finish, not_found, seg_reason, sphere_from_silhouette
+from ._common import DisparityParams, finish, not_found, seg_reason
 
 
 class EllipseParams(DisparityParams):

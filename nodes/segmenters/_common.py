@@ -1073,7 +1073,7 @@ def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: 
 
 
 def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, rectification: dict) -> str | None:
-    from nodes.disparity._common import ellipse_to_conic, sphere_from_silhouette
+    from nodes.contracts.sphere import ellipse_to_conic, sphere_from_silhouette
 
     el, er = left.get("ellipse"), right.get("ellipse")
     if not el or not er:
