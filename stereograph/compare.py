@@ -547,6 +547,12 @@ def compare(
     rows = _rows(results)
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, rows, {})
     res.files = _write(res, skipped, plots)
+    try:
+        from stereograph.compare_report import write_compare_html
+
+        res.files["html"] = write_compare_html(res, list(overrides or []))
+    except Exception as e:  # the table and CSV are written: a page problem must not hide them
+        print(f"note: compare.html not written: {type(e).__name__}: {e}", file=sys.stderr)
     return res
 
 
@@ -614,6 +620,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
     }
     out.mkdir(parents=True, exist_ok=True)
     (out / "run.json").write_text(json.dumps(summary, indent=1))
+    outputs_mod.write_report_quietly(out)
 
 
 def _rows(results: list[VariantResult]) -> list[dict[str, Any]]:
@@ -729,19 +736,26 @@ def _plots(res: CompareResult) -> dict[str, Path]:
     if not series:
         return files
     colours = plt.get_cmap("tab10")
+    markers, dashes = "osD^vPX*<>", ["-", "--", "-.", ":"]
     fig, ax = plt.subplots(figsize=(8, 5), dpi=110)
+    span = max((float(np.ptp(o["truth"][:, 2])) for _, o in series), default=0.0)
     for i, (label, o) in enumerate(series):
         z, ez = o["truth"][:, 2], o["errors"][:, 2]
         c = colours(i % 10)
-        ax.scatter(z, ez, s=9, alpha=0.45, color=c)
+        # Variants with equal errors would hide one another: each gets its own marker, dash and a small
+        # sideways offset of its binned means (the scatter stays at the true distance).
+        ax.scatter(z, ez, s=9, alpha=0.35, color=c, marker=markers[i % len(markers)])
         order = np.argsort(z)
         nb = max(1, min(8, len(z) // 6))
         bins = np.array_split(order, nb)
-        ax.plot([z[b].mean() for b in bins], [ez[b].mean() for b in bins], "-o", ms=3, color=c, label=label)
+        dx = (i - (len(series) - 1) / 2) * 0.006 * span
+        ax.plot([z[b].mean() + dx for b in bins], [ez[b].mean() for b in bins], dashes[i % len(dashes)],
+                marker=markers[i % len(markers)], ms=5, mfc="none", lw=max(0.8, 2.4 - 0.3 * i), color=c,
+                label=label)
     ax.axhline(0, color="k", lw=0.6)
     ax.set_xlabel("true distance z (cm)")
     ax.set_ylabel("z error, measured - true (cm)")
-    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means)\n"
+    ax.set_title(f"z error vs distance ({res.split} split; lines: binned means, nudged sideways to stay visible)\n"
                  + ", ".join(_varying_keys(res)), fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -751,7 +765,8 @@ def _plots(res: CompareResult) -> dict[str, Path]:
     files["z_error_vs_distance"] = path
 
     labels = [s[0] for s in series]
-    fig, axes = plt.subplots(1, 3, figsize=(min(24.0, 3 + 3 * 0.55 * len(series)), 4.5), dpi=110, squeeze=False)
+    width_in = min(24.0, max(10.0, 3 + 3 * 0.55 * len(series)))  # three titles need 10 in
+    fig, axes = plt.subplots(1, 3, figsize=(width_in, 4.5), dpi=110, squeeze=False)
     for k, axis in enumerate(AXES):
         a = axes[0, k]
         a.boxplot([o["errors"][:, k] for _, o in series], showfliers=True)

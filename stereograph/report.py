@@ -26,7 +26,7 @@ from typing import Any
 from stereograph import graph_picture
 
 REPORT_NAME = "report.html"
-IMAGES_PER_OUTPUT = 8  # per-item image folders (120 overlays): the first ones embedded, the rest linked
+IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones embedded, the rest linked
 EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
 MAX_JSON_BYTES = 2 * 2**20
 _MIME = {".png": "image/png", ".svg": "image/svg+xml", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
@@ -42,7 +42,8 @@ td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
 th{background:#f0f0f0}
 td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
 figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
-figure img{max-width:720px;border:1px solid #ddd}.err{color:#a00}.hint{color:#555}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:440px}
+.graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
 """
 
@@ -71,7 +72,7 @@ class _Page:
         self.dir = run_dir
         self.budget = EMBED_BUDGET_BYTES
 
-    def image(self, rel: str, caption: str) -> str:
+    def image(self, rel: str, caption: str, css_class: str = "") -> str:
         """One figure: embedded while the budget lasts, else linked (the file lies beside the page)."""
         p = self.dir / rel
         mime = _MIME.get(p.suffix.lower())
@@ -84,7 +85,7 @@ class _Page:
             src = f"data:{mime};base64," + base64.b64encode(p.read_bytes()).decode("ascii")
         else:
             src = _e(Path(rel).as_posix())
-        return (f'<figure><img src="{src}" alt="{_e(rel)}" data-file="{_e(rel)}" loading="eager">'
+        return (f'<figure class="{css_class}"><img src="{src}" alt="{_e(rel)}" data-file="{_e(rel)}" loading="eager">'
                 f"<figcaption>{_e(rel)}</figcaption></figure>")
 
     def json_block(self, rel: str) -> str:
@@ -153,8 +154,9 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
         imgs = [f for f in files if Path(f).suffix.lower() in _MIME]
         rest = [f for f in files if f not in imgs]
         bits.append(f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(out)}</h3>')
+        per_item = len(Path(imgs[0]).parts) > 2 if imgs else False
         for f in imgs[:IMAGES_PER_OUTPUT]:
-            bits.append(page.image(f, f))
+            bits.append(page.image(f, f, "item" if per_item else ""))
         if len(imgs) > IMAGES_PER_OUTPUT:
             folder = Path(imgs[0]).parent.as_posix()
             bits.append(f'<p>… and {len(imgs) - IMAGES_PER_OUTPUT} more in <a href="{_e(folder)}">{_e(folder)}</a></p>')
@@ -162,6 +164,14 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
             bits.append(page.json_block(f) if f.endswith(".json") else _link(f))
         bits.append("</div>")
     return "\n".join(bits)
+
+
+def _contents(nodes: list[dict[str, Any]]) -> str:
+    """Links to the nodes that saved pictures or tables (a long page: 120 overlays, a dozen nodes)."""
+    links = [f'<li><a href="#node-{_e(n["node"])}">{_e(n["node"])}</a>: '
+             + ", ".join(sorted({_e(k) for k in _group([f for f in n.get("files", []) if isinstance(f, str)])}))
+             + "</li>" for n in nodes if n.get("files") and "node" in n]
+    return f"<h3>outputs</h3><ul>{''.join(links)}</ul>" if links else ""
 
 
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
@@ -183,8 +193,8 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
              '<p id="sg-images" data-ok="unknown">image check did not run</p>']
     for note in summary.get("notes") or []:
         parts.append(f'<p class="hint">note: {_e(note)}</p>')
-    parts.append(f'<div class="graph" id="sg-graph">{graph_picture.to_svg(desc, status)}</div>')
-    parts.append(table_html(overview, "sg-overview"))
+    parts.append(f'<div class="graph-row"><div class="graph" id="sg-graph">{graph_picture.to_svg(desc, status)}</div>'
+                 f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>")
     for n in nodes:
         parts.append(f'<section class="sg-node-section" data-node="{_e(n.get("node", ""))}">'
                      f"{node_section(page, n)}</section>")
