@@ -115,6 +115,6 @@ def test_pick_report(tmp_path):
                        cache_dir=tmp_path / "cache", out_dir=tmp_path / "pick")
     assert res.ok
     shot = _shots(tmp_path) / "pick.png"
-    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 3000)
-    _check(dom, shot, ["pick_report/arm_figure.png"])
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 7600)  # tall: the arm is the last node
+    _check(dom, shot, ["pick_report/arm_figure.png", "locate/overlay/"])
     assert "Joints and servos at the grasp" in dom and "goal (units)" in dom
