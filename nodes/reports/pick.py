@@ -2,7 +2,9 @@
 
 A stick figure from forward kinematics (base, shoulder, elbow, tool point; the same geometry as
 ``ik``'s ``fk``), side view (radial distance vs height, in the arm's plane) and top view (x, y),
-for the pick the actuator executed (or, with no summary wired, the first plan not refused). The
+for the pick the actuator executed when its ``log`` is wired, else the first plan not refused of the
+chosen split (the actuator's own default choice; wiring ``log`` would make the actuator a non-terminal
+node, whose summary a run then does not keep). The
 ball is drawn at its located centre with its radius, and the true centre when there is one. The
 table lists every joint at the grasp: angle (deg), servo ids, goal positions and speeds (AX-12A
 units). Refused plans are counted, with their reasons, in the table's title.
@@ -11,6 +13,7 @@ units). Refused plans are counted, with their reasons, in the table's title.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 
@@ -24,6 +27,8 @@ class PickReportParams(Params):
     """Parameters of ``report.pick``."""
 
     ball_radius_cm: float = Field(2.0, gt=0, le=50, description="Radius of the ball drawn at the target (cm).")
+    split: Literal["test", "train", "all"] = Field(
+        "test", description="Without a wired log: draw the first plan not refused of this split (name).")
     workspace_min_cm: list[float] | None = Field(
         None, min_length=3, max_length=3,
         description="Workspace box lower corner drawn (arm-base frame, cm); default as ik.pick_sequence's.")
@@ -116,20 +121,21 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
 @node(
     "report.pick",
     inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True),
-            "summary": In("PickSummary", optional=True, description="Which plan the actuator executed.")},
+            "log": In("ServoLog", optional=True, description="Which plan the actuator executed.")},
     outputs={"arm_figure": Out("Image", save=True, description="Arm at the grasp pose: side and top views (cm)."),
              "servo_table": Out("any", save=True,
                                 description="Joint angles (deg) and servo goals (units) at the grasp (a table).")},
     params=PickReportParams,
     version="1",
 )
-def pick(params: PickReportParams, arm: dict, plans, summary: dict | None = None, ctx=None) -> dict:
+def pick(params: PickReportParams, arm: dict, plans, log: dict | None = None, ctx=None) -> dict:
     """Picture of the arm at the grasp (forward kinematics, side and top views) and its joint / servo table."""
     plans = list(plans.values()) if isinstance(plans, dict) else list(plans)
     ok = [p for p in plans if not p.get("refused")]
     refused = [p for p in plans if p.get("refused")]
-    executed = {str(p.get("item")) for p in (summary or {}).get("picks", [])}
-    chosen = next((p for p in ok if str(p.get("pair")) in executed), ok[0] if ok else None)
+    executed = {str(p.get("pair")) for p in (log or {}).get("picks", [])}
+    in_split = [p for p in ok if params.split == "all" or p.get("split") == params.split]
+    chosen = next((p for p in ok if str(p.get("pair")) in executed), (in_split or ok or [None])[0])
     if chosen is None:
         raise NodeError(f"no pick to draw: all {len(plans)} plans were refused"
                         + (f" (first: {refused[0].get('reason')})" if refused else ""),
