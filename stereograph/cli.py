@@ -62,6 +62,8 @@ def cmd_validate(args) -> int:
 
 def cmd_graph(args) -> int:
     graph = _load_graph(args)
+    if args.format in ("png", "svg"):
+        return _graph_picture(graph, args)
     lines = []
     if args.format == "mermaid":
         lines.append("flowchart LR")
@@ -81,6 +83,30 @@ def cmd_graph(args) -> int:
                 lines.append(f'  "{src}" -> "{n}" [label="{out} → {port}"];')
         lines.append("}")
     print("\n".join(lines))
+    return 0
+
+
+def _graph_picture(graph, args) -> int:
+    from stereograph import graph_picture
+    from stereograph.report import write_html
+
+    desc = graph_picture.describe(graph)
+    path = Path(args.output or f"{graph.doc.name}.graph.{args.format}")
+    try:
+        if args.format == "svg":
+            write_html(path, graph_picture.to_svg(desc))
+        else:
+            path.write_bytes(graph_picture.to_png(desc))
+    except OSError as e:
+        raise ConfigError(f"cannot write {path}: {e.strerror or e}", hint="choose another --output") from None
+    print(path)
+    return 0
+
+
+def cmd_report(args) -> int:
+    from stereograph.report import write_report
+
+    print(write_report(args.run_dir))
     return 0
 
 
@@ -417,8 +443,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
     sp = pipeline_cmd("graph", "print the pipeline graph")
-    sp.add_argument("--format", choices=["mermaid", "dot"], default="mermaid")
+    sp.add_argument("--format", choices=["mermaid", "dot", "png", "svg"], default="mermaid",
+                    help="text (mermaid, dot) on stdout, or a picture (png, svg) written to --output")
+    sp.add_argument("--output", "-o", metavar="FILE", help="png/svg: the file (default <pipeline>.graph.<format>)")
     sp.set_defaults(fn=cmd_graph)
+    sp = sub.add_parser("report", help="(re)build report.html in a run folder")
+    sp.add_argument("run_dir", help="the folder a run wrote (it holds run.json)")
+    sp.set_defaults(fn=cmd_report)
     sp = pipeline_cmd("explain", "say for every node whether it is fresh or stale, and why")
     sp.add_argument("--cache-dir")
     sp.set_defaults(fn=cmd_explain)

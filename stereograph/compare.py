@@ -567,6 +567,12 @@ def compare(
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
     res.rows = _rows(res)
     res.files = _write(res, skipped, plots)
+    try:
+        from stereograph.compare_report import write_compare_html
+
+        res.files["html"] = write_compare_html(res, list(overrides or []))
+    except Exception as e:  # the table and CSV are written: a page problem must not hide them
+        print(f"note: compare.html not written: {type(e).__name__}: {e}", file=sys.stderr)
     return res
 
 
@@ -623,6 +629,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
     }
     out.mkdir(parents=True, exist_ok=True)
     (out / "run.json").write_text(json.dumps(summary, indent=1))
+    outputs_mod.write_report_quietly(out)
 
 
 

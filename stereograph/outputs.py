@@ -258,6 +258,7 @@ def prepare_out_dir(out_dir: Path) -> None:
             p.unlink()
             parents.update(q for q in p.parents if root in q.parents)
     summary.unlink()
+    (out_dir / "report.html").unlink(missing_ok=True)  # written from that run.json (stereograph.report)
     for d in sorted(parents, key=lambda p: -len(p.parts)):  # only folders the run's files were in
         try:
             d.rmdir()
@@ -322,6 +323,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
                    "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
                    "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, []),
+                   **_wiring(graph, r.name),
                    **({"traceback": r.trace} if r.unexpected and r.trace else {})}
                   for r in run.reports.values()],
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
@@ -334,3 +336,23 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
 
         raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
                           hint="free space on that disk, or choose another --out") from None
+    write_report_quietly(out_dir, result)
+
+
+def _wiring(graph: Any, name: str) -> dict[str, Any]:
+    """What report.html needs to draw the graph from run.json alone."""
+    inst = graph.nodes.get(name)
+    if inst is None:
+        return {}
+    return {"mapped": bool(inst.mapped), "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()}}
+
+
+def write_report_quietly(out_dir: Path, result: Any = None) -> None:
+    """``report.html`` beside ``run.json``; a page that cannot be built is a note, never a failed run."""
+    from stereograph import report
+
+    try:
+        report.write_report(out_dir)
+    except Exception as e:  # the results are written: a report problem must not hide them
+        if result is not None and hasattr(result, "notes"):
+            result.notes.append(f"report.html not written: {type(e).__name__}: {e}")

@@ -168,7 +168,7 @@ def test_only_and_from(tmp_path):
     p = write_pipeline(tmp_path)
     r = run(p, tmp_path, only="power")
     assert r.ran == {"numbers", "power"} and r.status["total"] == "not selected"
-    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == ["power", "run.json"]  # not its upstream
+    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == ["power", "report.html", "run.json"]  # not its upstream
     r = run(p, tmp_path, from_node="power")
     assert r.ran == {"power", "total", "report"} and r.status["numbers"] == "cached"
 

@@ -55,7 +55,8 @@ def test_segmenters_find_the_ball_with_subpixel_centroid(kind, scenes):
         assert seg["found"], seg["reason"]
         assert seg["left_mask"].shape == pair["left"].shape[:2] and seg["left_mask"].any()
         ov = out["overlay"]
-        assert ov.dtype == np.uint8 and ov.shape == (480, 1280, 3)
+        # left | right, below a band naming the pair and the result
+        assert ov.dtype == np.uint8 and ov.shape[1:] == (1280, 3) and 480 < ov.shape[0] < 560
         # Ellipse centre vs the exact silhouette ellipse centre (tangent cone, closed form).
         C = np.asarray(pair["truth"]["center_rect_cm"])
         for side, O in (("left", np.zeros(3)), ("right", np.array([CAL["baseline_cm"], 0, 0]))):

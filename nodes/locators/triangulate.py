@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.contracts.calibration_file import rig_fingerprint
+from nodes.locators._overlay import location_overlay
 from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange, node
 
 
@@ -34,6 +35,7 @@ class TriangulateParams(Params):
     working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found."
     )
+    overlay: bool = Field(True, description="Draw the labelled left | right overlay (bool); off = a 1x1 placeholder.")
 
 
 def triangulate_point(u_px: float, v_px: float, d_px: float, rectification: dict,
@@ -124,12 +126,23 @@ def _record(pid, split, frame, reason=None, **kw) -> dict:
                   description="For T_table_from_left when frame is table (the rig's truth, or a table frame from a "
                               "board: calibrator.table_frame / load_table_frame)."),
     },
-    outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame.")},
+    outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame."),
+             "overlay": Out("Image", save=True,
+                            description="Rectified left | right with the located point and its epipolar line, "
+                                        "labelled x/y/z, sigma_z or the reason.")},
     params=TriangulateParams,
     version="1",
 )
 def triangulate(params: TriangulateParams, disparity, rectification, pair=None, rig=None, ctx=None):
     """Triangulate the object's centre: x, y from the left point, z = f B / d, rotated by R1^T."""
+    loc = _locate(params, disparity, rectification, pair, rig, ctx)
+    if not params.overlay:
+        return {"location": loc, "overlay": np.zeros((1, 1, 3), np.uint8)}
+    raw = ctx is not None and (ctx.input_types or {}).get("pair") == "StereoPair"
+    return {"location": loc, "overlay": location_overlay(loc, disparity, rectification, pair, raw)}
+
+
+def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx) -> dict:
     if not isinstance(disparity, dict) or "found" not in disparity:
         raise NodeError("locator.triangulate: `disparity` is not a Disparity record.",
                         hint="wire it to a disparity.* node's `disparity` output.")
@@ -153,21 +166,21 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
             tc = np.asarray(t["center_table_cm"], float)
             truth = (tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])).tolist()
     if not disparity["found"]:
-        return {"location": _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth)}
+        return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth)
     d = float(disparity["disparity_px"])
     u, v = float(disparity["u_left_px"]), float(disparity["v_left_px"])
     f, B = float(rectification["f_px"]), float(rectification["baseline_cm"])
     # The rig it was measured with travels along, so that a model fitted on it can be checked later.
     base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth, rig=rig_fingerprint(rectification))
     if d <= 0:
-        return {"location": _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)}
+        return _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)
     p = triangulate_point(u, v, d, rectification, float(disparity.get("depth_offset_cm") or 0.0))
     z0, z1 = sorted(params.working_range_cm)
     if not (0.75 * z0 <= p[2] <= 1.25 * z1):
-        return {"location": _record(pid, split, frame,
-                                    f"depth {p[2]:.1f} cm outside the working range {z0:g}-{z1:g} cm", **base)}
+        return _record(pid, split, frame,
+                                    f"depth {p[2]:.1f} cm outside the working range {z0:g}-{z1:g} cm", **base)
     sz = sigma_z_cm(float(p[2]), float(disparity.get("sigma_disparity_px") or 0.0), f, B)
     if T is not None:
         p = apply_transform(T, p)
-    return {"location": _record(pid, split, frame, None, x_cm=float(p[0]), y_cm=float(p[1]), z_cm=float(p[2]),
-                                sigma_z_cm=sz, method=disparity.get("method"), **base)}
+    return _record(pid, split, frame, None, x_cm=float(p[0]), y_cm=float(p[1]), z_cm=float(p[2]),
+                                sigma_z_cm=sz, method=disparity.get("method"), **base)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from nodes.reports._draw import caption
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["RectifyParams", "opencv", "rectified_dy", "rectified_points", "rectify_calibration"]
@@ -106,6 +107,16 @@ def check_image(rect: dict, left: np.ndarray, right: np.ndarray, n_lines: int = 
     return img
 
 
+def _check_title(cal: dict, rect: dict) -> str:
+    """The check image's title: the figures that say whether rectification can be trusted."""
+    rms = cal.get("rms_px")
+    dy = rect.get("dy_mean_px")
+    return (f"Rectified check ({cal.get('method', 'calibration')}): stereo RMS "
+            + (f"{rms:.4f} px" if rms is not None else "n/a") + ", mean |dy| of matched corners "
+            + (f"{dy:.3f} px (max {rect.get('dy_max_px', 0):.3f}, {rect.get('dy_n_points', 0)} points)"
+               if dy is not None else "n/a (no corners)") + "; green lines: matching points must share one")
+
+
 class RectifyParams(Params):
     alpha: float = Field(
         1.0, ge=-1, le=1, description="stereoRectify free scaling (unitless): 1 keeps the whole field of view so a "
@@ -144,6 +155,7 @@ def opencv(params: RectifyParams, calibration: dict, views: dict | None = None, 
         w, h = calibration["image_size"]
         white = np.full((int(h), int(w)), 200, np.uint8)
         img = check_image(rect, white, white, params.epipolar_lines)
+    img = caption(img, [_check_title(calibration, rect)])
     if ctx is not None and rect["dy_mean_px"] is not None and rect["dy_mean_px"] > 0.5:
         ctx.warn(f"rectified corners differ by {rect['dy_mean_px']:.2f} px in y on average (> 0.5 px): "
                  "the calibration is poor")

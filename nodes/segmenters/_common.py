@@ -1178,10 +1178,14 @@ def as_bgr(img: np.ndarray) -> np.ndarray:
 
 
 def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
-    """Left | right side by side (BGR uint8) with the mask outline (green) and centroid (red cross)."""
+    """Left | right side by side (BGR uint8) with the mask outline (green), centroid (red cross), rejected
+    candidates (orange, when the Segmentation lists them) and a band above naming the pair and the result."""
+    from nodes.reports.overlay import draw_rejected, label_pair
+
     out = []
     for side, img in (("left", left), ("right", right)):
         im = as_bgr(img).copy()
+        draw_rejected(im, seg.get(f"rejected_{side}_px"))
         mask = seg.get(f"{side}_mask")
         reg = seg.get(side)
         if mask is not None and mask.any():
@@ -1192,10 +1196,12 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
             cv2.drawMarker(im, (int(round(u)), int(round(v))), (0, 0, 255), cv2.MARKER_CROSS, 12, 1)
         out.append(im)
     over = np.hstack(out)
-    if not seg["found"]:
-        cv2.putText(over, f"not found: {seg['reason']}"[:90], (5, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                    (0, 0, 255), 1, cv2.LINE_AA)
-    return over
+    detail = None
+    if seg["found"] and seg.get("left") is not None and seg.get("right") is not None:
+        (ul, vl), (ur, vr) = seg["left"]["centroid_px"], seg["right"]["centroid_px"]
+        detail = (f"{seg.get('method', 'segmented')}: centroid left ({ul:.1f}, {vl:.1f}) px, "
+                  f"right ({ur:.1f}, {vr:.1f}) px")
+    return label_pair(over, seg.get("id"), bool(seg["found"]), seg.get("reason"), detail)
 
 
 def segment_pair(

@@ -1,0 +1,154 @@
+"""The pipeline DAG as a picture: SVG (hand-written, no dependency) or PNG (matplotlib).
+
+Works on a plain description -- ``{node: {"type": str, "mapped": bool, "inputs": {port: [src, out]}}}``
+-- so that it can draw a :class:`~stereograph.graph.Graph` (``stereograph graph --format svg``) and a
+finished run from its ``run.json`` alike (``report.html``), and knows nothing of what the nodes do.
+Layout, top to bottom: a node's row is the length of the longest path that reaches it; nodes of one
+row stand side by side in pipeline order. A wire between adjacent rows is a straight arrow; a longer
+one runs down its own lane on the left and along the gaps between rows, so it never crosses a box.
+"""
+
+from __future__ import annotations
+
+import html
+from typing import Any
+
+BOX_W, BOX_H, GAP_X, GAP_Y, PAD, LANE = 170, 46, 24, 40, 12, 9
+STATUS_FILL = {"ran": "#d9f2d9", "cached": "#e3ecfa", "partial": "#fde9c4", "failed": "#f8d0d0",
+               "skipped": "#e6e6e6", "not selected": "#f4f4f4"}
+
+
+def describe(graph: Any) -> dict[str, dict[str, Any]]:
+    """The plain description of a validated :class:`~stereograph.graph.Graph`."""
+    return {n: {"type": inst.type, "mapped": bool(inst.mapped),
+                "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()}}
+            for n, inst in graph.nodes.items()}
+
+
+def _rows(nodes: dict[str, dict[str, Any]]) -> dict[str, int]:
+    row: dict[str, int] = {}
+
+    def depth(n: str, seen: frozenset = frozenset()) -> int:
+        if n not in row:
+            srcs = [s for s, _ in nodes[n].get("inputs", {}).values() if s in nodes and s not in seen]
+            row[n] = 1 + max((depth(s, seen | {n}) for s in srcs), default=-1)
+        return row[n]
+
+    for n in nodes:
+        depth(n)
+    for n, d in nodes.items():  # a node without inputs (an arm model) sits just above its first consumer
+        users = [row[m] for m, e in nodes.items() if any(s == n for s, _ in e.get("inputs", {}).values())]
+        if not d.get("inputs") and users:
+            row[n] = max(0, min(users) - 1)
+    return row
+
+
+def _edges(nodes: dict[str, dict[str, Any]]):
+    for n, d in nodes.items():
+        for port, (src, out) in d.get("inputs", {}).items():
+            if src in nodes:
+                yield src, out, n, port
+
+
+def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, float]], list, tuple[float, float]]:
+    """Box corners (top-left, px), each wire as ``(src, out, dst, port, [(x, y), ...])``, and the size (px)."""
+    row = _rows(nodes)
+    n_long = sum(1 for e in _edges(nodes) if row[e[2]] - row[e[0]] > 1)
+    left = PAD + LANE * (n_long + 1) if n_long else PAD
+    count: dict[int, int] = {}
+    pos = {}
+    for n in nodes:
+        r = row[n]
+        i = count.get(r, 0)
+        count[r] = i + 1
+        pos[n] = (left + i * (BOX_W + GAP_X), PAD + r * (BOX_H + GAP_Y))
+    wires = []
+    lane = 0
+    n_in = {n: len(d.get("inputs", {})) for n, d in nodes.items()}
+    k_in: dict[str, int] = {}
+    for src, out, dst, port in _edges(nodes):
+        (x0, y0), (x1, y1) = pos[src], pos[dst]
+        k = k_in[dst] = k_in.get(dst, 0) + 1  # each input arrives at its own point on the box's top
+        a, b = (x0 + BOX_W / 2, y0 + BOX_H), (x1 + BOX_W * k / (n_in[dst] + 1), y1)
+        if row[dst] - row[src] > 1:
+            lane += 1
+            lx = left - LANE * lane
+            jog = 6 + (lane % 5) * 6  # distinct heights in a gap: wires sharing it stay apart
+            pts = [a, (a[0], a[1] + jog), (lx, a[1] + jog), (lx, b[1] - jog), (b[0], b[1] - jog), b]
+        else:
+            pts = [a, b]
+        wires.append((src, out, dst, port, pts))
+    w = max((x for x, _ in pos.values()), default=0) + BOX_W + PAD
+    h = max((y for _, y in pos.values()), default=0) + BOX_H + PAD
+    return pos, wires, (w, h)
+
+
+def to_svg(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None) -> str:
+    """An SVG document; ``status`` (node -> ran / cached / failed ...) colours the boxes."""
+    pos, wires, (w, h) = layout(nodes)
+    e = html.escape
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" class="sg-graph" width="{w:.0f}" height="{h:.0f}" '
+             f'viewBox="0 0 {w:.0f} {h:.0f}" font-family="sans-serif">',
+             '<defs><marker id="sg-arrow" viewBox="0 0 10 10" refX="10" refY="5" markerWidth="7" '
+             'markerHeight="7" orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" fill="#555"/></marker></defs>']
+    for src, out, dst, port, pts in wires:
+        d = "M" + " L".join(f"{x:.0f},{y:.0f}" for x, y in pts)
+        parts.append(f'<path d="{d}" fill="none" stroke="#555" stroke-width="1.2" marker-end="url(#sg-arrow)">'
+                     f'<title>{e(f"{src}.{out} -> {dst}.{port}")}</title></path>')
+    for n, d in nodes.items():
+        x, y = pos[n]
+        st = (status or {}).get(n)
+        fill = STATUS_FILL.get(st or "", "#ffffff")
+        tip = f"{n} ({d.get('type', '?')})" + (f": {st}" if st else "") + (", once per item" if d.get("mapped") else "")
+        parts.append(f'<g class="sg-node" data-node="{e(n)}"><title>{e(tip)}</title>')
+        if d.get("mapped"):  # a stacked look for per-item nodes
+            parts.append(f'<rect x="{x + 4:.0f}" y="{y + 4:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" '
+                         f'fill="{fill}" stroke="#777"/>')
+        parts.append(f'<rect x="{x:.0f}" y="{y:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" fill="{fill}" '
+                     f'stroke="#333"/>')
+        parts.append(f'<text x="{x + BOX_W / 2:.0f}" y="{y + 19:.0f}" text-anchor="middle" font-size="13" '
+                     f'font-weight="bold">{e(_clip(n, 22))}</text>')
+        parts.append(f'<text x="{x + BOX_W / 2:.0f}" y="{y + 36:.0f}" text-anchor="middle" font-size="11" '
+                     f'fill="#444">{e(_clip(str(d.get("type", "")), 26))}</text></g>')
+    parts.append("</svg>")
+    return "\n".join(parts)
+
+
+def _clip(text: str, n: int) -> str:
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def to_png(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None, dpi: int = 100) -> bytes:
+    """The same picture as :func:`to_svg`, rendered by matplotlib (Agg) as PNG bytes."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+    from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
+
+    pos, wires, (w, h) = layout(nodes)
+    fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)  # y down, as in the SVG
+    ax.axis("off")
+    for *_, pts in wires:
+        xs, ys = zip(*pts)
+        ax.plot(xs[:-1], ys[:-1], color="#555", lw=1.0)
+        ax.add_patch(FancyArrowPatch(pts[-2], pts[-1], arrowstyle="-|>", mutation_scale=10, color="#555", lw=1.0,
+                                     shrinkA=0, shrinkB=0))
+    for n, d in nodes.items():
+        x, y = pos[n]
+        fill = STATUS_FILL.get((status or {}).get(n) or "", "#ffffff")
+        if d.get("mapped"):
+            ax.add_patch(FancyBboxPatch((x + 4, y + 4), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6",
+                                        fc=fill, ec="#777"))
+        ax.add_patch(FancyBboxPatch((x, y), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6", fc=fill, ec="#333"))
+        ax.text(x + BOX_W / 2, y + 17, _clip(n, 22), ha="center", va="center", fontsize=9.5, weight="bold")
+        ax.text(x + BOX_W / 2, y + 34, _clip(str(d.get("type", "")), 26), ha="center", va="center", fontsize=8,
+                color="#444")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return buf.getvalue()

@@ -1,0 +1,235 @@
+"""``report.html``: one self-contained page per run folder, built from ``run.json`` alone.
+
+The engine knows no domain, so the page is generic: the pipeline graph (coloured by status), then
+one section per node with its status, time, items, errors and every file the node saved -- images
+(PNG, SVG, JPEG) embedded as data URIs, *tables* rendered as HTML, ``markdown`` text shown as is,
+anything else linked. What a kind of node shows is therefore up to the node: it declares a saved
+``Image`` output (a figure it drew) or a saved *table* value::
+
+    {"title": str, "columns": [str, ...], "rows": [[cell, ...], ...]}
+
+No network: no scripts or styles from elsewhere. A small inline script checks that every image
+decoded and writes the result into the page (``#sg-images``, ``data-ok``), which the browser test
+reads from Chromium's ``--dump-dom``. ``stereograph report RUN_DIR`` rebuilds the page.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import os
+import uuid
+from pathlib import Path
+from typing import Any
+
+from stereograph import graph_picture
+
+REPORT_NAME = "report.html"
+IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones embedded, the rest linked
+EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
+MAX_JSON_BYTES = 2 * 2**20
+_MIME = {".png": "image/png", ".svg": "image/svg+xml", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
+
+_STYLE = """
+body{font-family:sans-serif;margin:1.2em;color:#222;max-width:1500px}
+h1{font-size:1.4em}h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ccc}
+.st{display:inline-block;padding:1px 8px;border-radius:8px;font-size:.85em}
+.st-ran{background:#d9f2d9}.st-cached{background:#e3ecfa}.st-partial{background:#fde9c4}
+.st-failed{background:#f8d0d0}.st-skipped,.st-notselected{background:#e6e6e6}
+table{border-collapse:collapse;margin:.5em 0;font-size:.9em}
+td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
+th{background:#f0f0f0}
+td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
+figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:440px}
+.graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
+pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
+"""
+
+_CHECK = """
+<script>
+window.addEventListener('load', function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var bad = imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); });
+  var el = document.getElementById('sg-images');
+  el.setAttribute('data-ok', bad.length === 0 ? 'true' : 'false');
+  el.setAttribute('data-loaded', String(imgs.length - bad.length));
+  el.setAttribute('data-total', String(imgs.length));
+  el.textContent = (imgs.length - bad.length) + ' of ' + imgs.length + ' images loaded' +
+    (bad.length ? ' (not loaded: ' + bad.map(function (i) { return i.alt; }).join(', ') + ')' : '');
+});
+</script>
+"""
+
+
+def _e(x: Any) -> str:
+    return html.escape(str(x))
+
+
+class _Page:
+    def __init__(self, run_dir: Path):
+        self.dir = run_dir
+        self.budget = EMBED_BUDGET_BYTES
+
+    def image(self, rel: str, caption: str, css_class: str = "") -> str:
+        """One figure: embedded while the budget lasts, else linked (the file lies beside the page)."""
+        p = self.dir / rel
+        mime = _MIME.get(p.suffix.lower())
+        try:
+            size = p.stat().st_size
+        except OSError:
+            return f'<p class="err">missing file {_e(rel)}</p>'
+        if size <= self.budget:
+            self.budget -= size
+            src = f"data:{mime};base64," + base64.b64encode(p.read_bytes()).decode("ascii")
+        else:
+            src = _e(Path(rel).as_posix())
+        return (f'<figure class="{css_class}"><img src="{src}" alt="{_e(rel)}" data-file="{_e(rel)}" loading="eager">'
+                f"<figcaption>{_e(rel)}</figcaption></figure>")
+
+    def json_block(self, rel: str) -> str:
+        p = self.dir / rel
+        try:
+            if p.stat().st_size > MAX_JSON_BYTES:
+                return _link(rel)
+            value = json.loads(p.read_text())
+        except (OSError, ValueError):
+            return _link(rel)
+        if is_table(value):
+            return table_html(value)
+        if isinstance(value, dict) and isinstance(value.get("markdown"), str):
+            return f"<pre>{_e(value['markdown'])}</pre>{_link(rel)}"
+        return _link(rel)
+
+
+def _link(rel: str) -> str:
+    return f'<div><a href="{_e(Path(rel).as_posix())}">{_e(rel)}</a></div>'
+
+
+def is_table(v: Any) -> bool:
+    """A saved *table* value: ``{"columns": [...], "rows": [[...], ...]}`` (``title`` optional)."""
+    return (isinstance(v, dict) and isinstance(v.get("columns"), list) and isinstance(v.get("rows"), list)
+            and all(isinstance(r, list) for r in v["rows"]))
+
+
+def table_html(t: dict[str, Any], css_class: str = "sg-table") -> str:
+    def cell(c: Any) -> str:
+        if isinstance(c, float):
+            return f"{c:.4g}"
+        return "" if c is None else str(c)
+
+    cap = f"<caption>{_e(t['title'])}</caption>" if t.get("title") else ""
+    head = "".join(f"<th>{_e(c)}</th>" for c in t["columns"])
+    body = "".join("<tr>" + "".join(f"<td>{_e(cell(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
+    return f'<table class="{css_class}">{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def _group(files: list[str]) -> dict[str, list[str]]:
+    """Files by output: ``node/out.png`` -> ``out``; ``node/out/item.png`` -> ``out``."""
+    groups: dict[str, list[str]] = {}
+    for f in files:
+        parts = Path(f).parts
+        key = parts[1] if len(parts) > 2 else Path(parts[-1]).stem
+        groups.setdefault(key, []).append(f)
+    return groups
+
+
+def node_section(page: _Page, n: dict[str, Any]) -> str:
+    name, status = n.get("node", "?"), n.get("status", "?")
+    items = n.get("items") or 0
+    bits = [f'<h2 id="node-{_e(name)}">{_e(name)} <small>({_e(n.get("type", ""))})</small> '
+            f'<span class="st st-{_e(str(status).replace(" ", ""))}">{_e(status)}</span></h2>',
+            f"<p>{float(n.get('seconds') or 0):.2f} s"
+            + (f"; {items} items ({n.get('items_ran', 0)} computed, {n.get('items_failed', 0)} failed)"
+               if items else "")
+            + "</p>"]
+    if n.get("error"):
+        bits.append(f'<p class="err">{_e(n["error"])}</p>')
+    if n.get("hint"):
+        bits.append(f'<p class="hint">Fix: {_e(n["hint"])}</p>')
+    for m in (n.get("messages") or [])[:20]:
+        bits.append(f'<p class="hint">{_e(m)}</p>')
+    for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
+        imgs = [f for f in files if Path(f).suffix.lower() in _MIME]
+        rest = [f for f in files if f not in imgs]
+        bits.append(f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(out)}</h3>')
+        per_item = len(Path(imgs[0]).parts) > 2 if imgs else False
+        for f in imgs[:IMAGES_PER_OUTPUT]:
+            bits.append(page.image(f, f, "item" if per_item else ""))
+        if len(imgs) > IMAGES_PER_OUTPUT:
+            folder = Path(imgs[0]).parent.as_posix()
+            bits.append(f'<p>… and {len(imgs) - IMAGES_PER_OUTPUT} more in <a href="{_e(folder)}">{_e(folder)}</a></p>')
+        for f in rest:
+            bits.append(page.json_block(f) if f.endswith(".json") else _link(f))
+        bits.append("</div>")
+    return "\n".join(bits)
+
+
+def _contents(nodes: list[dict[str, Any]]) -> str:
+    """Links to the nodes that saved pictures or tables (a long page: 120 overlays, a dozen nodes)."""
+    links = [f'<li><a href="#node-{_e(n["node"])}">{_e(n["node"])}</a>: '
+             + ", ".join(sorted({_e(k) for k in _group([f for f in n.get("files", []) if isinstance(f, str)])}))
+             + "</li>" for n in nodes if n.get("files") and "node" in n]
+    return f"<h3>outputs</h3><ul>{''.join(links)}</ul>" if links else ""
+
+
+def build_html(summary: dict[str, Any], run_dir: Path) -> str:
+    page = _Page(run_dir)
+    nodes = [n for n in summary.get("nodes", []) if isinstance(n, dict)]
+    desc = {n["node"]: {"type": n.get("type", ""), "mapped": bool(n.get("mapped")), "inputs": n.get("inputs") or {}}
+            for n in nodes if "node" in n}
+    status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
+    title = f"{Path(str(summary.get('pipeline', 'run'))).name} — run {summary.get('run_id', '')}"
+    overview = {"title": "nodes", "columns": ["node", "type", "status", "seconds", "items", "error"],
+                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(float(n.get("seconds") or 0), 3),
+                          n.get("items") or "", n.get("error") or ""] for n in nodes]}
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{_e(title)}</title>",
+             f"<style>{_STYLE}</style></head><body>", f"<h1>{_e(title)}</h1>",
+             f"<p>pipeline <code>{_e(summary.get('pipeline', ''))}</code>; result: "
+             f"<b>{'ok' if summary.get('ok') else 'FAILED'}</b>"
+             + (f"; overrides: <code>{_e(' '.join(summary.get('overrides') or []))}</code>" if summary.get("overrides")
+                else "") + "</p>",
+             '<p id="sg-images" data-ok="unknown">image check did not run</p>']
+    for note in summary.get("notes") or []:
+        parts.append(f'<p class="hint">note: {_e(note)}</p>')
+    parts.append(f'<div class="graph-row"><div class="graph" id="sg-graph">{graph_picture.to_svg(desc, status)}</div>'
+                 f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>")
+    for n in nodes:
+        parts.append(f'<section class="sg-node-section" data-node="{_e(n.get("node", ""))}">'
+                     f"{node_section(page, n)}</section>")
+    parts.append(_CHECK + "</body></html>")
+    return "\n".join(parts)
+
+
+def write_html(path: Path, text: str) -> Path:
+    """Write atomically: never a half-written page."""
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_report(run_dir: str | Path) -> Path:
+    """(Re)build ``RUN_DIR/report.html`` from ``RUN_DIR/run.json``; returns its path.
+
+    Raises :class:`~stereograph.errors.ConfigError` when the folder holds no readable ``run.json``.
+    """
+    from stereograph.errors import ConfigError
+
+    d = Path(run_dir)
+    try:
+        summary = json.loads((d / "run.json").read_text())
+        if not isinstance(summary, dict):
+            raise ValueError("not a JSON object")
+    except FileNotFoundError:
+        raise ConfigError(f"{d} has no run.json: it is not the folder of a stereograph run",
+                          hint="give the folder a run wrote (printed as 'outputs:' at the end of `stereograph run`)"
+                          ) from None
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"cannot read {d / 'run.json'}: {e}", hint="run the pipeline again to rewrite it") from None
+    return write_html(d / REPORT_NAME, build_html(summary, d))

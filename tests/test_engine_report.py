@@ -1,0 +1,54 @@
+"""report.html (engine side, no browser) and `stereograph graph --format png|svg`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+
+from stereograph.cli import main
+from stereograph.runner import run_pipeline
+
+ROOT = Path(__file__).resolve().parents[1]
+HELLO = ROOT / "pipelines" / "hello.yaml"
+
+
+def test_every_run_writes_a_self_contained_report(tmp_path):
+    res = run_pipeline(HELLO, ["numbers.n=4"], cache_dir=tmp_path / "c", out_dir=tmp_path / "out")
+    page = (res.out_dir / "report.html").read_text()
+    summary = json.loads((res.out_dir / "run.json").read_text())
+    assert summary["nodes"][1]["inputs"] == {"m": ["numbers", "items"]}  # the graph is drawn from run.json
+    assert "<svg" in page and 'data-node="power"' in page
+    for n in summary["nodes"]:
+        assert f'id="node-{n["node"]}"' in page
+    assert "http://" not in page.replace("http://www.w3.org/2000/svg", "") and "https://" not in page
+    # rebuilt from run.json alone; a folder without one is a clear error, not a traceback
+    (res.out_dir / "report.html").unlink()
+    assert main(["report", str(res.out_dir)]) == 0 and (res.out_dir / "report.html").is_file()
+    assert main(["report", str(tmp_path)]) == 2
+
+
+def test_report_renders_tables_and_embeds_images(tmp_path):
+    from stereograph.report import build_html
+
+    (tmp_path / "n").mkdir()
+    img = (255 * (cv2.getGaussianKernel(40, 8) @ cv2.getGaussianKernel(40, 8).T)).astype("uint8")
+    cv2.imwrite(str(tmp_path / "n" / "fig.png"), img)
+    (tmp_path / "n" / "t.json").write_text(json.dumps({"title": "servo goals", "columns": ["joint", "deg"],
+                                                       "rows": [["yaw", 1.5], ["elbow", -3.25]]}))
+    html = build_html({"pipeline": "x.yaml", "run_id": "r", "ok": True,
+                       "nodes": [{"node": "n", "type": "k.t", "status": "ran", "seconds": 1.0,
+                                  "files": ["n/fig.png", "n/t.json"]}]}, tmp_path)
+    assert 'src="data:image/png;base64,' in html
+    assert "<caption>servo goals</caption>" in html and "<td>-3.25</td>" in html
+
+
+def test_graph_picture_png_and_svg(tmp_path):
+    png, svg = tmp_path / "g.png", tmp_path / "g.svg"
+    assert main(["graph", str(HELLO), "--format", "png", "-o", str(png)]) == 0
+    assert main(["graph", str(HELLO), "--format", "svg", "-o", str(svg)]) == 0
+    im = cv2.imread(str(png))
+    assert im is not None and im.shape[0] > 100 and im.shape[1] > 100
+    text = svg.read_text()
+    assert text.startswith("<svg") and text.count('class="sg-node"') == 4 and text.count("<path d=") >= 3

@@ -1,0 +1,121 @@
+"""report.html / compare.html opened in headless Chromium: every image decodes, the key figures are there.
+
+Chromium is Debian's ``chromium`` package (``.ci/run`` installs it when it runs as root with apt);
+where it is missing the browser tests skip, saying so. The page checks its own images on load
+(``img.complete && naturalWidth > 0``) and writes the result into ``#sg-images``, which
+``--dump-dom`` returns. Screenshots go to ``$STEREOGRAPH_REPORT_SHOTS`` when set (for a person to
+look at), else into the test's temporary folder.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from stereograph.cli import main
+from stereograph.runner import run_pipeline
+
+ROOT = Path(__file__).resolve().parents[1]
+PIPES = ROOT / "pipelines"
+CHESS = ROOT.parent / "shared" / "data" / "opencv-stereo-chessboard"
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        if shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+CHROMIUM = _chromium()
+needs_browser = pytest.mark.skipif(
+    CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium; .ci/run installs it "
+                             "when it runs as root with apt): report.html is not checked in a browser here")
+
+
+def _shots(tmp_path: Path) -> Path:
+    d = Path(os.environ.get("STEREOGRAPH_REPORT_SHOTS") or tmp_path / "shots")
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _browser(page: Path, tmp_path: Path, shot: Path, height: int = 3000) -> str:
+    """Screenshot ``page`` to ``shot`` and return the DOM after the page's scripts ran."""
+    common = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
+              f"--user-data-dir={tmp_path / 'chromium-profile'}", "--virtual-time-budget=15000"]
+    url = page.resolve().as_uri()
+    subprocess.run([*common, f"--window-size=1400,{height}", f"--screenshot={shot}", url],
+                   check=True, capture_output=True, timeout=180)
+    dom = subprocess.run([*common, "--dump-dom", url], check=True, capture_output=True, timeout=180, text=True).stdout
+    return dom
+
+
+def _check(dom: str, shot: Path, figures: list[str]) -> None:
+    m = re.search(r'id="sg-images"[^>]*data-ok="(\w+)"[^>]*data-loaded="(\d+)"[^>]*data-total="(\d+)"', dom)
+    assert m, "the page's image check did not run (no data-ok on #sg-images)"
+    ok, loaded, total = m.group(1), int(m.group(2)), int(m.group(3))
+    assert ok == "true" and loaded == total, f"{total - loaded} of {total} images did not load"
+    for f in figures:
+        assert f'data-file="{f}' in dom, f"{f} is not on the page"
+    assert shot.stat().st_size > 20_000  # a real render, not a blank page
+
+
+@needs_browser
+@pytest.mark.skipif(not CHESS.is_dir(), reason="OpenCV's chessboard pairs not in ../shared/data")
+def test_calibration_report_real_pairs(tmp_path):
+    res = run_pipeline(PIPES / "calibrate.yaml", ["rig.type=source.calib_files", f"rig.folder={CHESS}"],
+                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "cal")
+    assert res.ok
+    shot = _shots(tmp_path) / "calibrate-opencv-pairs.png"
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 3800)
+    _check(dom, shot, ["calib_report/reprojection_errors.png", "calib_report/corners.png",
+                       "calib_report/poses.png", "rectify/check_image.png"])
+    assert "sg-graph" in dom and "stereo RMS" not in dom  # the RMS is in the check image, drawn, not text
+    # `stereograph report` rebuilds the page from run.json alone
+    (res.out_dir / "report.html").unlink()
+    assert main(["report", str(res.out_dir)]) == 0
+    assert "calib_report/corners.png" in (res.out_dir / "report.html").read_text()
+
+
+@needs_browser
+def test_locate_hard_report(tmp_path):
+    res = run_pipeline(PIPES / "locate-hard.yaml", ["rig.n_hard_each=2", "rig.n_views=10"],
+                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "hard")
+    shot = _shots(tmp_path) / "locate-hard.png"
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot)
+    _check(dom, shot, ["report/figure.png", "segment/overlay/"])
+    assert "Hard scenes, ball centre error" in dom  # the accuracy table's markdown
+
+
+@needs_browser
+def test_compare_report(tmp_path):
+    from stereograph.compare import compare
+
+    res = compare(PIPES / "compare-compensation.yaml", ["fit.type=none,polynomial,xyz"], tmp_path / "cmp",
+                  overrides=["rig.n_scenes=24", "rig.n_views=10"], cache_dir=tmp_path / "cache")
+    page = res.out_dir / "compare.html"
+    shot = _shots(tmp_path) / "compare-compensation.png"
+    dom = _browser(page, tmp_path, shot, 1800)
+    _check(dom, shot, ["metrics.png"])  # one bar per variant and metric: no variant hides another
+    assert "z_rms_cm" in dom and "found_rate" in dom  # the metrics the nodes declared, as columns
+    # every variant's full settings, the shared --set overrides in the title and in each row
+    assert all(f"fit.type={t}" in dom for t in ("none", "polynomial", "xyz"))
+    assert dom.count("--set rig.n_scenes=24") >= 4
+    for vr in res.variants:
+        assert (vr.out_dir / "report.html").is_file()
+
+
+@needs_browser
+def test_pick_report(tmp_path):
+    res = run_pipeline(PIPES / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10"],
+                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "pick")
+    assert res.ok
+    shot = _shots(tmp_path) / "pick.png"
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 7600)  # tall: the arm is the last node
+    _check(dom, shot, ["pick_report/arm_figure.png", "locate/overlay/"])
+    assert "Joints and servos at the grasp" in dom and "goal (units)" in dom
