@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nodes.reports._draw import caption
+from nodes.contracts.drawing import caption
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["RectifyParams", "opencv", "rectified_dy", "rectified_points", "rectify_calibration"]

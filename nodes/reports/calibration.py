@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from nodes.contracts.drawing import caption, figure_bgr, new_figure
 from stereograph.api import Field, In, Out, Params, node
-
-from ._draw import caption, figure_bgr, new_figure
 
 
 class CalibrationReportParams(Params):

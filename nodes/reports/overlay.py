@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ._draw import caption
+from nodes.contracts.drawing import caption
 
 FOUND_BGR = (0, 130, 0)
 REFUSED_BGR = (0, 0, 200)

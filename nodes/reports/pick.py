@@ -17,10 +17,9 @@ from typing import Literal
 
 import numpy as np
 
-from nodes.ik._model import geometry
+from nodes.contracts.arm import geometry
+from nodes.contracts.drawing import figure_bgr, new_figure
 from stereograph.api import Field, In, NodeError, Out, Params, node
-
-from ._draw import figure_bgr, new_figure
 
 
 class PickReportParams(Params):
