@@ -28,13 +28,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field  # noqa: F401  (re-exported)
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field  # noqa: F401  (re-exported)
 
 __all__ = [
     "Params",
     "Field",
+    "OrderedRange",
+    "PositiveRange",
     "In",
     "Out",
     "NodeSpec",
@@ -49,10 +51,33 @@ class Params(BaseModel):
     """Base class of every node's parameter model.
 
     Unknown keys are refused, values are validated on assignment, and every
-    field should carry a ``description`` that names its unit.
+    field should carry a ``description`` that names its unit. Every float is
+    finite (``inf``, ``nan`` and ``1e309`` are refused when the pipeline is
+    validated); a field that means "no limit" by ``inf`` opts out with
+    ``Field(..., allow_inf_nan=True)``.
     """
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True, allow_inf_nan=False)
+
+
+def _ordered(value: tuple[float, float]) -> tuple[float, float]:
+    lo, hi = value
+    if not lo < hi:
+        raise ValueError(f"the first value must be below the second (got [{lo:g}, {hi:g}])")
+    return value
+
+
+OrderedRange = Annotated[tuple[float, float], AfterValidator(_ordered)]
+"""A ``[low, high]`` range with ``low < high`` (both finite); use as a params field type."""
+
+def _positive_ordered(value: tuple[float, float]) -> tuple[float, float]:
+    if not value[0] > 0:
+        raise ValueError(f"the range must start above 0 (got [{value[0]:g}, {value[1]:g}])")
+    return _ordered(value)
+
+
+PositiveRange = Annotated[tuple[float, float], AfterValidator(_positive_ordered)]
+"""A ``[low, high]`` range with ``0 < low < high`` (a distance or size range)."""
 
 
 class NodeError(Exception):

@@ -208,8 +208,19 @@ def code_hash(fn: Any) -> tuple[str, dict[str, str]]:
 # --------------------------------------------------------------------------- files a node reads
 
 
+RACY_SECONDS = 2.0  # coarser than any file system's timestamps (FAT: 2 s)
+
+
 class FileIndex:
-    """size+mtime fast path in front of content digests of input files."""
+    """A fast path in front of content digests of input files.
+
+    A file's digest is reused only when its size, mtime, ctime and inode all match the ones
+    recorded with the digest, and its mtime was at least :data:`RACY_SECONDS` older than the
+    moment the digest was taken. The ctime cannot be set by a user tool, so a file edited and
+    then given its old mtime back (``touch -r``, a restore) is hashed again; the age rule covers
+    an edit in the same timestamp tick as the recording ("racy" files, as git calls them) on a
+    file system with coarse timestamps. Otherwise the content is hashed.
+    """
 
     def __init__(self, root: Path | None):
         self.path = root / "files.json" if root else None
@@ -217,7 +228,8 @@ class FileIndex:
         self.dirty = False
         if self.path and self.path.exists():
             try:
-                self.data = json.loads(self.path.read_text())
+                data = json.loads(self.path.read_text())
+                self.data = data if isinstance(data, dict) else {}
             except (OSError, ValueError):
                 self.data = {}
 
@@ -227,25 +239,35 @@ class FileIndex:
             st = os.stat(p)
         except OSError:
             return "missing"
+        stamp = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
         rec = self.data.get(p)
-        if rec and rec[0] == st.st_size and rec[1] == st.st_mtime_ns:
-            return rec[2]
-        d = file_digest(Path(p))
-        self.data[p] = [st.st_size, st.st_mtime_ns, d]
+        if isinstance(rec, list) and len(rec) == 6 and rec[:4] == stamp and rec[5] - rec[1] >= RACY_SECONDS * 1e9:
+            return rec[4]
+        try:
+            d = file_digest(Path(p))
+        except OSError:
+            return "unreadable"
+        self.data[p] = [*stamp, d, time.time_ns()]
         self.dirty = True
         return d
 
     def save(self) -> None:
         if self.path and self.dirty:
-            _atomic_write(self.path, json.dumps(self.data).encode())
+            with contextlib.suppress(OSError):  # a read-only or full cache: the digests are only a fast path
+                _atomic_write(self.path, json.dumps(self.data).encode())
             self.dirty = False
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 # --------------------------------------------------------------------------- the store
@@ -259,7 +281,38 @@ class ArtifactStore:
         self.objects = self.root / "objects"
         self.tmp = self.root / "tmp"
         self.locks = self.root / "locks"
+        self.notes: list[str] = []  # what a user should know about this cache (read-only, full)
+        if self.root.exists() and not self.root.is_dir():
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"cache folder {self.root} is an existing file",
+                              hint="choose another --cache-dir (a folder), or remove that file")
+        self.writable = self._probe()
         self.files = FileIndex(self.root)
+
+    def _probe(self) -> bool:
+        """Whether entries can be stored here, asked without creating anything (``cache info`` and
+        ``explain`` leave no trace); a read-only cache is still read."""
+        probe = self.root
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if not probe.is_dir():
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
+                              hint="choose another --cache-dir")
+        dirs = [probe] + [d for d in (self.objects, self.tmp) if d.is_dir()]
+        # access() reports a read-only file system (EROFS) even to root; permissions too for others
+        if all(os.access(d, os.W_OK | os.X_OK) for d in dirs):
+            return True
+        self.notes.append(f"cache {self.root} is not writable: results are read from it, new ones are not stored")
+        return False
+
+    def _cannot_store(self, e: OSError) -> None:
+        if self.writable:
+            self.notes.append(f"cache {self.root}: cannot store more entries ({e.strerror or e}); the run goes on "
+                              "without storing them")
+        self.writable = False
 
     def _dir(self, key: str) -> Path:
         return self.objects / key[:2] / key
@@ -272,7 +325,9 @@ class ArtifactStore:
             man = json.loads((d / "manifest.json").read_text())
             if not all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items()):
                 return None
-            os.utime(d / "manifest.json")  # last use, for `cache prune`
+            if self.writable:
+                with contextlib.suppress(OSError):
+                    os.utime(d / "manifest.json")  # last use, for `cache prune`
             return man
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             return None
@@ -312,7 +367,11 @@ class ArtifactStore:
             return None
 
     def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None) -> None:
-        """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept."""
+        """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept.
+
+        On a read-only or full cache nothing is stored (the run goes on; :attr:`notes` says so).
+        A value that is not plain data raises ``TypeError`` whatever the cache.
+        """
         import io
 
         arrays: dict[str, np.ndarray] = {}
@@ -324,8 +383,14 @@ class ArtifactStore:
             blobs["arrays.npz"] = buf.getvalue()
         manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
                     "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()}}
+        if not self.writable:
+            return
         tmp = self.tmp / uuid.uuid4().hex
-        tmp.mkdir(parents=True)
+        try:
+            tmp.mkdir(parents=True)
+        except OSError as e:
+            self._cannot_store(e)
+            return
         try:
             for name, b in blobs.items():
                 (tmp / name).write_bytes(b)
@@ -338,13 +403,15 @@ class ArtifactStore:
                 os.rename(tmp, final)
             except OSError:
                 pass  # another run put it there first: its copy is as good as ours
+        except OSError as e:  # a full disk, say: keep going without this entry
+            self._cannot_store(e)
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
 
     def delete(self, key: str) -> None:
         d = self._dir(key)
-        if d.exists():
+        if d.exists() and self.writable:
             trash = self.tmp / f"del-{uuid.uuid4().hex}"
             trash.parent.mkdir(parents=True, exist_ok=True)
             with contextlib.suppress(OSError):
@@ -355,8 +422,14 @@ class ArtifactStore:
     def lock(self, key: str, blocking: bool = True) -> Iterator[bool]:
         """An exclusive per-entry lock across processes; yields whether it was acquired."""
         path = self.locks / key[:2] / f"{key}.lock"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        try:
+            if not self.writable:
+                raise PermissionError("read-only cache")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_CREAT | os.O_RDWR, 0o644)
+        except OSError:  # nothing will be stored, so there is nothing to share: compute without a lock
+            yield True
+            return
         try:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
@@ -372,7 +445,12 @@ class ArtifactStore:
     # ---- bookkeeping for `explain`
 
     def record(self, pipeline_id: str, node: str, components: dict[str, Any]) -> None:
-        _atomic_write(self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode())
+        if not self.writable:
+            return
+        try:
+            _atomic_write(self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode())
+        except OSError as e:
+            self._cannot_store(e)
 
     def last(self, pipeline_id: str, node: str) -> dict[str, Any] | None:
         try:
@@ -384,8 +462,8 @@ class ArtifactStore:
 
     def info(self) -> dict[str, Any]:
         n, size, by_node = 0, 0, {}
-        if self.objects.exists():
-            for d in self.objects.glob("*/*"):
+        if self.objects.is_dir():
+            for d in self._entries():
                 man = self.meta(d.name)
                 s = sum(f.stat().st_size for f in d.iterdir() if f.is_file())
                 n += 1
@@ -400,10 +478,14 @@ class ArtifactStore:
 
         Returns (entries removed, bytes freed). Rendered output files go with their entry.
         """
+        if not self.writable:
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
         entries = []
         total = 0
-        if self.objects.exists():
-            for d in self.objects.glob("*/*"):
+        if self.objects.is_dir():
+            for d in self._entries():
                 try:
                     used = (d / "manifest.json").stat().st_mtime
                 except OSError:
@@ -422,8 +504,16 @@ class ArtifactStore:
             freed += size
         return removed, freed
 
+    def _entries(self) -> Iterator[Path]:
+        """Entry folders (a stray file such as .DS_Store, or a half-deleted entry, is skipped)."""
+        for sub in self.objects.iterdir():
+            if sub.is_dir() and not sub.is_symlink():
+                for d in sub.iterdir():
+                    if d.is_dir() and not d.is_symlink() and d.name[:2] == sub.name:
+                        yield d
+
     def clear(self) -> int:
-        n = len(list(self.objects.glob("*/*"))) if self.objects.exists() else 0
+        n = len(list(self._entries())) if self.objects.is_dir() else 0
         for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json"):
             p = self.root / sub
             if p.is_dir():

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -59,8 +60,10 @@ def _load_graph(args):
 
 
 def _print_warnings(graph, console) -> None:
+    from rich.markup import escape
+
     for w in graph.warnings:
-        console.print(f"[yellow]warning:[/] {w}")
+        console.print(f"[yellow]warning:[/] {escape(w)}")
 
 
 def cmd_validate(args) -> int:
@@ -69,7 +72,7 @@ def cmd_validate(args) -> int:
     _print_warnings(graph, con)
     mapped = sum(1 for n in graph.nodes.values() if n.mapped)
     con.print(f"{graph.doc.path.name}: OK — {len(graph.nodes)} nodes ({mapped} per item), "
-              f"order: {' -> '.join(graph.order)}")
+              f"order: {' -> '.join(graph.order)}", markup=False)
     return 0
 
 
@@ -136,28 +139,29 @@ def _describe_params(model, prefix: str = "", defaults: Any = None) -> list[tupl
 
 
 def cmd_nodes(args) -> int:
+    from rich.markup import escape
     from rich.table import Table
 
     con = _console()
     if args.name:
         spec = registry.get(args.name)
-        con.print(f"[bold]{spec.name}[/]  (kind {spec.kind}, version {spec.version}"
+        con.print(f"[bold]{escape(spec.name)}[/]  (kind {escape(spec.kind)}, version {escape(spec.version)}"
                   f"{', never cached' if not spec.cacheable else ''})")
         if spec.description:
-            con.print(spec.description)
+            con.print(spec.description, markup=False)
         t = Table("param", "type", "default", "description (unit) [range]", title="params", title_justify="left")
         for row in _describe_params(spec.params):
-            t.add_row(*row)
+            t.add_row(*(escape(c) for c in row))
         con.print(t)
         t = Table("input", "type", "mode", "description", title="inputs", title_justify="left")
         for n, i in spec.inputs.items():
-            t.add_row(n, i.type, "gather (all items)" if i.gather else ("optional" if i.optional else "one"),
-                      i.description)
+            t.add_row(escape(n), escape(i.type), "gather (all items)" if i.gather else
+                      ("optional" if i.optional else "one"), escape(i.description))
         con.print(t)
         t = Table("output", "type", "mode", "description", title="outputs", title_justify="left")
         for n, o in spec.outputs.items():
-            t.add_row(n, o.type, ("collection " if o.collection else "") + ("saved" if o.save else ""),
-                      o.description)
+            t.add_row(escape(n), escape(o.type), ("collection " if o.collection else "") +
+                      ("saved" if o.save else ""), escape(o.description))
         con.print(t)
         return 0
     t = Table("node type", "inputs → outputs", "description")
@@ -166,9 +170,9 @@ def cmd_nodes(args) -> int:
             spec = registry.get(name)
             io = (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
                   ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items()))
-            t.add_row(name, io, spec.description)
+            t.add_row(escape(name), escape(io), escape(spec.description))
         except ConfigError as e:
-            t.add_row(name, "[red]unavailable[/]", str(e))
+            t.add_row(escape(name), "[red]unavailable[/]", escape(str(e)))
     con.print(t)
     return 0
 
@@ -191,14 +195,16 @@ def _summary_table(result, con) -> None:
             note = r.messages[0][:90] + (f" (+{more} more in run.json)" if more else "")
         else:
             note = ""
-        t.add_row(r.name, r.type, f"[{colours.get(r.status, 'white')}]{r.status}[/]", items, f"{r.seconds:.2f}",
-                  escape(note[:160]))
+        t.add_row(escape(r.name), escape(r.type), f"[{colours.get(r.status, 'white')}]{r.status}[/]", items,
+                  f"{r.seconds:.2f}", escape(note[:160]))
     con.print(t)
 
 
 def _echo_results(result, con) -> None:
     """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
     larger ones are only in the output folder."""
+    from rich.markup import escape
+
     from stereograph.outputs import to_json
 
     shown = 0
@@ -209,7 +215,7 @@ def _echo_results(result, con) -> None:
             # a report that renders itself: show it as the table it is
             from rich.markdown import Markdown
 
-            con.rule(f"{node}.{out}", align="left")
+            con.rule(escape(f"{node}.{out}"), align="left")
             con.print(Markdown(v["markdown"]))
             shown += 1
             continue
@@ -225,7 +231,7 @@ def _echo_results(result, con) -> None:
             text = json.dumps(to_json(small, {}), default=str)
         elif arrays or len(text) > 3000:
             continue
-        con.rule(f"{node}.{out}", align="left")
+        con.rule(escape(f"{node}.{out}"), align="left")
         from rich.pretty import Pretty
 
         con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
@@ -254,12 +260,14 @@ def cmd_run(args) -> int:
             result = run_graph(graph, **kw)
     finally:
         executor.close()
+    for note in result.notes:
+        err.print(f"note: {note}", markup=False)
     if args.json:
         print((result.out_dir / "run.json").read_text())
     else:
         _echo_results(result, con)
         _summary_table(result, con)
-        con.print(f"outputs: {result.out_dir}")
+        con.print(f"outputs: {result.out_dir}", markup=False)
     if not result.ok:
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
@@ -276,7 +284,7 @@ def cmd_run(args) -> int:
         if graph.upstream(first):
             err.print(f"What finished is cached: after the fix, run the same command again and only the nodes the "
                       f"fix changes, and what depends on them, will run (`stereograph explain` shows which; "
-                      f"--from {first} forces '{first}' and its downstream).")
+                      f"--from {first} forces '{first}' and its downstream).", markup=False)
         else:
             err.print("After the fix, run the same command again.")
         return 1
@@ -293,7 +301,7 @@ def cmd_explain(args) -> int:
     for v in explain(graph, args.cache_dir):
         state = "[cyan]fresh[/]" if v.fresh else "[yellow]stale[/]"
         why = ("" if not v.reasons else f" ({v.reasons[0]})") if v.fresh else ": " + "; ".join(v.reasons)
-        con.print(f"{v.node:<16} {v.type:<26} {state}" + escape(why))
+        con.print(f"{escape(f'{v.node:<16} {v.type:<26}')} {state}" + escape(why))
     return 0
 
 
@@ -312,18 +320,18 @@ def cmd_cache(args) -> int:
     con = _console()
     if args.action == "clear":
         n = store.clear()
-        con.print(f"removed {n} entries from {root}")
+        con.print(f"removed {n} entries from {root}", markup=False)
         return 0
     if args.action == "prune":
         if args.max_gb is None:
             raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
         n, freed = store.prune(int(args.max_gb * 1e9))
-        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}")
+        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
         return 0
     info = store.info()
-    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB")
+    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB", markup=False)
     for t, (n, b) in sorted(info["by_type"].items()):
-        con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB")
+        con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB", markup=False)
     return 0
 
 
@@ -342,6 +350,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 "config-driven processing graph.")
     p.add_argument("--version", action="version", version=f"stereograph {__version__}")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--allow-plugins", action="store_true",
+                   help="import the Python modules a pipeline lists under 'plugins:' (runs their code: only for "
+                        "pipelines you trust; also STEREOGRAPH_ALLOW_PLUGINS=1)")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
     def pipeline_cmd(name: str, help_: str) -> argparse.ArgumentParser:
@@ -398,6 +409,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] in registry.commands():
         ep = registry.commands()[argv[0]]
         return int(ep.load()(argv[1:]) or 0)
+    # a global option, accepted anywhere on the line (every sub-command loads pipelines)
+    allow_plugins = "--allow-plugins" in argv or os.environ.get("STEREOGRAPH_ALLOW_PLUGINS", "") in ("1", "yes", "true")
+    argv = [a for a in argv if a != "--allow-plugins"]
     try:
         args = parser.parse_args(argv)
     except SystemExit as e:
@@ -408,7 +422,8 @@ def main(argv: list[str] | None = None) -> int:
     debug = getattr(args, "debug", False) or "--debug" in argv
     args.debug = debug  # `stereograph --debug run X` and `stereograph run X --debug` alike
     try:
-        return int(args.fn(args) or 0)
+        with registry.plugins_allowed(allow_plugins):
+            return int(args.fn(args) or 0)
     except ConfigError as e:
         from rich.markup import escape
 
@@ -420,7 +435,9 @@ def main(argv: list[str] | None = None) -> int:
         _console(stderr=True).print("interrupted: finished nodes are cached; run again to resume")
         return 130
     except Exception as e:  # a bug: one paragraph, traceback only with --debug
-        _console(stderr=True).print(f"[red]internal error:[/] {type(e).__name__}: {e}. "
+        from rich.markup import escape
+
+        _console(stderr=True).print(f"[red]internal error:[/] {escape(f'{type(e).__name__}: {e}')}. "
                                     "Run again with --debug for the traceback, and report it.")
         if debug:
             traceback.print_exc()

@@ -53,7 +53,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, UsageError
@@ -116,9 +115,13 @@ def parse_vary(text: str) -> tuple[str, list[Any]]:
     if len(parts) < 2 or not all(parts):
         raise UsageError(f"--vary '{text}': the left side must be node.field (node.type or node.param)",
                          hint="for example --vary fit.degree=1,2,3")
-    try:
-        values = yaml.safe_load(f"[{rhs}]")
-    except yaml.YAMLError:
+    from stereograph.config import parse_yaml
+
+    try:  # the bounds of a pipeline file apply (an alias bomb, deep nesting)
+        values = parse_yaml(f"[{rhs}]", f"--vary {key}", record_lines=False)[0]
+    except ConfigError as e:
+        if not getattr(e, "syntax", False):
+            raise
         values = [v.strip() for v in rhs.split(",")]
     if not values or any(v is None for v in values):
         raise UsageError(f"--vary '{text}' lists no (or an empty) value", hint="give comma-separated values")
@@ -600,6 +603,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
     summary = {
+        outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},  # a later run may clear this folder
         "run_id": result.run_id, "pipeline": result.pipeline, "overrides": list(graph.doc.overrides),
         "ok": result.ok, "outputs_of": sorted(own),
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),

@@ -20,11 +20,15 @@ path to its file and line, so that every later error can point at the YAML that 
 from __future__ import annotations
 
 import copy
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
+from yaml.composer import Composer
+from yaml.constructor import SafeConstructor
+from yaml.resolver import Resolver
 
 from stereograph.errors import ConfigError, UsageError, Where
 
@@ -62,52 +66,224 @@ class PipelineDoc:
         return Where(str(self.path))
 
 
-def _compose(text: str, filename: str) -> tuple[Any, dict[Path_, Where]]:
-    """Parse YAML with safe_load semantics and record the line of each key."""
-    loader = yaml.SafeLoader(text)
+# Bounds on what one pipeline file (or one --set value) may hold. Pipeline files are written by
+# hand and are a few KB; data belongs in files that nodes read. The bounds keep a hostile or
+# broken file from hanging the tool: an alias "bomb" expands a few hundred bytes into billions
+# of values, and a deeply nested document exhausts Python's stack.
+MAX_FILE_BYTES = 256 * 1024
+MAX_YAML_VALUES = 20_000  # scalars and collections after expanding aliases
+MAX_YAML_DEPTH = 64  # nested mappings / lists
+MAX_INCLUDED_FILES = 64  # files read for one pipeline, includes of includes counted
+
+_SAFE_NAME = re.compile(r"^[^\W][\w-]*$")  # letters, digits, '_' and '-' (no dot, separator or space)
+_SAFE_PIPELINE_NAME = re.compile(r"^[^\W][\w.-]*$")
+MAX_NAME_CHARS = 100
+
+
+def check_name(name: str, what: str, where: Where, node: str | None = None, dots: bool = False) -> None:
+    """Refuse a node or pipeline name that is not a safe file-name component.
+
+    Names become folder and file names (``<out>/<node>/<output>.json``, ``runs/<pipeline>/``), so
+    a name with a path separator, a leading dot or a control character could write elsewhere.
+    """
+    pattern = _SAFE_PIPELINE_NAME if dots else _SAFE_NAME
+    if not pattern.match(name) or len(name) > MAX_NAME_CHARS or ".." in name:
+        allowed = "letters, digits, '_', '-'" + (" and '.'" if dots else "")
+        raise ConfigError(f"invalid {what} {name!r}", where, node,
+                          hint=f"a {what} is used as a file name: use {allowed} only, starting with a letter or "
+                               f"digit, at most {MAX_NAME_CHARS} characters"
+                               + ("" if dots else " ('.' separates node and output in inputs)"))
+
+
+try:  # libyaml's parser gives the same events about six times faster; the composer stays Python's
+    from yaml._yaml import CParser as _CParser
+
+    class _SafeBase(Composer, SafeConstructor, Resolver, _CParser):  # safe_load semantics
+        def __init__(self, stream: str):
+            _CParser.__init__(self, stream)
+            SafeConstructor.__init__(self)
+            Resolver.__init__(self)
+            Composer.__init__(self)
+
+    _LIBYAML = True
+except ImportError:  # pragma: no cover - PyYAML built without libyaml
+    _SafeBase = yaml.SafeLoader  # type: ignore[assignment,misc]
+    _LIBYAML = False
+
+
+class _BoundedLoader(_SafeBase):
+    """A safe loader that refuses documents nested deeper than :data:`MAX_YAML_DEPTH`.
+
+    PyYAML composes recursively; checking the depth as it goes stops before Python's stack does.
+    """
+
+    def __init__(self, stream: str, filename: str):
+        _SafeBase.__init__(self, stream)
+        self._depth = 0
+        self._filename = filename
+
+    def compose_node(self, parent, index):  # noqa: ANN001 - PyYAML's signature
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                mark = self.peek_event().start_mark
+                raise ConfigError(f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep",
+                                  Where(self._filename, mark.line + 1, mark.column + 1),
+                                  hint="a pipeline needs a few levels; flatten the data or put it in a file a "
+                                       "node reads")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def _expanded_size(root: yaml.Node, filename: str) -> int:
+    """Number of values the document holds once aliases are expanded (memoised per YAML node,
+    so an alias bomb is measured without being expanded); refuses recursive aliases."""
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(node: yaml.Node) -> int:
+        k = id(node)
+        if k in sizes:
+            return sizes[k]
+        if k in active:
+            raise ConfigError("a YAML alias refers to the collection that contains it",
+                              Where(filename, node.start_mark.line + 1, node.start_mark.column + 1),
+                              hint="remove the recursive '*alias'")
+        active.add(k)
+        n = 1
+        if isinstance(node, yaml.MappingNode):
+            n += sum(size(kn) + size(vn) for kn, vn in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            n += sum(size(v) for v in node.value)
+        active.discard(k)
+        sizes[k] = n = min(n, 10 * MAX_YAML_VALUES)  # capped: the sum cannot grow without bound
+        return n
+
+    return size(root)
+
+
+def _yaml_error(e: yaml.YAMLError, filename: str, text: str) -> ConfigError:
+    mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+    line = col = None
+    if mark is not None:
+        line, col = mark.line + 1, mark.column + 1
+    elif isinstance(e, yaml.reader.ReaderError):  # a character YAML does not allow (NUL, control)
+        before = text.encode("utf-8", "surrogatepass")[:e.position].decode("utf-8", "replace") if _LIBYAML \
+            else text[:e.position]  # libyaml counts bytes, PyYAML characters
+        line = before.count("\n") + 1
+        col = len(before) - (before.rfind("\n") + 1) + 1
+        ch = e.character if isinstance(e.character, int) else ord(str(e.character)[:1] or "?")
+        err = ConfigError(f"character U+{ch:04X} is not allowed in YAML", Where(filename, line, col),
+                          hint="remove it (control characters and NUL cannot appear in a pipeline file)")
+        err.syntax = True  # type: ignore[attr-defined]
+        return err
+    what = getattr(e, "problem", None) or getattr(e, "context", None) or str(e)
+    err = ConfigError(f"not valid YAML: {what}", Where(filename, line, col),
+                      hint="check indentation and quoting around that line")
+    err.syntax = True  # type: ignore[attr-defined]  # (a --set value that is not YAML is taken as text)
+    return err
+
+
+def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any, dict[Path_, Where]]:
+    """Parse YAML with safe_load semantics, within the bounds above, and record the line of each key.
+
+    Parameters
+    ----------
+    text : str
+        The document.
+    filename : str
+        Named in errors (a path, or ``--set ...``).
+    record_lines : bool
+        Keep the line of every key and list item.
+
+    Returns
+    -------
+    (data, lines)
+
+    Raises
+    ------
+    ConfigError
+        Invalid YAML, a non-scalar key, a duplicate key, or a document beyond the bounds.
+    """
+    loader = None
     try:
+        loader = _BoundedLoader(text, filename)  # (checks every character first)
         root = loader.get_single_node()
         lines: dict[Path_, Where] = {}
+        if root is None:
+            return None, lines
+        n = _expanded_size(root, filename)
+        if n > MAX_YAML_VALUES:
+            raise ConfigError(f"the YAML holds more than {MAX_YAML_VALUES} values once its aliases are expanded",
+                              Where(filename, 1),
+                              hint="a pipeline file sets parameters; put large data in a file that a node reads")
+        walked: set[int] = set()
 
         def walk(node: yaml.Node, path: Path_) -> None:
+            # a node reached again through an alias has its lines already (under its anchor)
+            if id(node) in walked:
+                return
+            walked.add(id(node))
             if isinstance(node, yaml.MappingNode):
                 seen: dict[Any, int] = {}
                 for k, v in node.value:
+                    at = Where(filename, k.start_mark.line + 1, k.start_mark.column + 1)
+                    if not isinstance(k, yaml.ScalarNode):
+                        raise ConfigError("a key must be a plain name, not a list or mapping", at,
+                                          hint="write 'name: value' (a '? [a, b]' complex key is not a name)")
                     key = loader.construct_object(k, deep=True)
                     if key in seen:
-                        raise ConfigError(f"duplicate key '{key}' (first at line {seen[key]})",
-                                          Where(filename, k.start_mark.line + 1, k.start_mark.column + 1),
+                        raise ConfigError(f"duplicate key '{key}' (first at line {seen[key]})", at,
                                           hint="keep one of them")
                     seen[key] = k.start_mark.line + 1
-                    lines[path + (key,)] = Where(filename, k.start_mark.line + 1, k.start_mark.column + 1)
+                    if record_lines:
+                        lines[path + (key,)] = at
                     walk(v, path + (key,))
             elif isinstance(node, yaml.SequenceNode):
                 for i, v in enumerate(node.value):
-                    lines[path + (i,)] = Where(filename, v.start_mark.line + 1, v.start_mark.column + 1)
+                    if record_lines:
+                        lines[path + (i,)] = Where(filename, v.start_mark.line + 1, v.start_mark.column + 1)
                     walk(v, path + (i,))
 
-        if root is None:
-            return None, lines
         walk(root, ())
         data = loader.construct_document(root)
         return data, lines
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark or e.context_mark
-        raise ConfigError(f"not valid YAML: {e.problem or e.context}",
-                          Where(filename, mark.line + 1 if mark else None, mark.column + 1 if mark else None),
-                          hint="check indentation and quoting around that line") from None
+    except yaml.YAMLError as e:
+        raise _yaml_error(e, filename, text) from None
+    except RecursionError:  # belt and braces: the depth bound should stop it first
+        raise ConfigError("the YAML is nested too deeply", Where(filename),
+                          hint=f"keep it within {MAX_YAML_DEPTH} levels") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
+
+
+_compose = parse_yaml  # the name earlier code used
 
 
 def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"pipeline file not found: {path}", hint="check the path") from None
-    except OSError as e:
-        raise ConfigError(f"cannot read pipeline file {path}: {e.strerror}") from None
-    data, lines = _compose(text, str(path))
+        if not path.exists():
+            raise ConfigError(f"pipeline file not found: {path}", hint="check the path")
+        if not path.is_file():
+            raise ConfigError(f"{path} is not a regular file", hint="give the path of a pipeline .yaml file")
+        with path.open("rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
+    except ConfigError:
+        raise
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"cannot read pipeline file {path}: {getattr(e, 'strerror', None) or e}") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ConfigError(f"pipeline file {path} is larger than {MAX_FILE_BYTES // 1024} KiB",
+                          hint="a pipeline file sets parameters; put large data in a file that a node reads")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = raw.count(b"\n", 0, e.start) + 1
+        raise ConfigError(f"byte 0x{raw[e.start]:02x} is not UTF-8 text", Where(str(path), line),
+                          hint="save the file as UTF-8") from None
+    data, lines = parse_yaml(text, str(path))
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -115,7 +291,8 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
     return data, lines
 
 
-def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: tuple = ()) -> PipelineDoc:
+def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: tuple = (),
+                  _budget: list[int] | None = None) -> PipelineDoc:
     """Load a pipeline file, its includes, and ``--set`` overrides.
 
     Parameters
@@ -130,9 +307,17 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
     -------
     PipelineDoc
     """
-    path = Path(path).resolve()
+    try:
+        path = Path(path).resolve()
+    except (OSError, ValueError) as e:  # a NUL in the name, a loop of symlinks
+        raise ConfigError(f"cannot use pipeline path {str(path)!r}: {e}", hint="check the path") from None
     if path in _stack:
         raise ConfigError("include cycle: " + " -> ".join(str(p) for p in _stack + (path,)))
+    budget = _budget if _budget is not None else [MAX_INCLUDED_FILES]
+    budget[0] -= 1
+    if budget[0] < 0:
+        raise ConfigError(f"more than {MAX_INCLUDED_FILES} files are read through include:",
+                          Where(str(path)), hint="include each shared file once")
     data, lines = _read(path)
     where = lambda *p: lines.get(tuple(p), Where(str(path), 1))  # noqa: E731
 
@@ -141,18 +326,37 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         raise ConfigError(f"unknown top-level key '{key}'", where(key),
                           hint=f"use one of {sorted(TOP_KEYS)}")
 
-    doc = PipelineDoc(path=path, name=str(data.get("name") or path.stem), description=str(data.get("description", "")),
+    name = data.get("name")
+    if name is not None and name != "":
+        if not isinstance(name, (str, int)) or isinstance(name, bool):
+            raise ConfigError("'name' must be a text", where("name"), hint="for example 'name: locate'")
+        name = str(name)
+        check_name(name, "pipeline name", where("name"), dots=True)
+    else:  # the file's name, made safe for a folder name
+        name = re.sub(r"[^\w.-]", "_", path.stem).lstrip(".")[:MAX_NAME_CHARS] or "pipeline"
+    doc = PipelineDoc(path=path, name=name, description=str(data.get("description", "")),
                       plugins=[], defaults={}, variants={}, nodes={}, lines={})
 
     includes = data.get("include") or []
     if isinstance(includes, str):
         includes = [includes]
+    if not isinstance(includes, list):
+        raise ConfigError("'include' must be a file name or a list of file names", where("include"),
+                          hint="for example 'include: [common.yaml]' (relative to this file)")
     for i, inc in enumerate(includes):
+        at = where("include", i) if ("include", i) in lines else where("include")
+        if not isinstance(inc, str) or not inc.strip():
+            raise ConfigError(f"include: {inc!r} is not a file name", at,
+                              hint="list YAML files relative to this file, e.g. [common.yaml]")
         inc_path = (path.parent / inc)
-        if not inc_path.exists():
-            raise ConfigError(f"included file not found: {inc}", where("include", i) if ("include", i) in lines
-                              else where("include"), hint="paths in include: are relative to this file")
-        sub = load_pipeline(inc_path, None, _stack + (path,))
+        try:
+            ok = inc_path.is_file()
+        except (OSError, ValueError):
+            ok = False
+        if not ok:
+            raise ConfigError(f"included file not found: {inc}", at,
+                              hint="paths in include: are relative to this file and name a YAML file")
+        sub = load_pipeline(inc_path, None, _stack + (path,), budget)
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
             doc.defaults.setdefault(t, {}).update(p)
@@ -164,7 +368,11 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
     for key, kind in (("plugins", list), ("defaults", dict), ("variants", dict), ("nodes", dict)):
         if key in data and data[key] is not None and not isinstance(data[key], kind):
             raise ConfigError(f"'{key}' must be a {'list' if kind is list else 'mapping'}", where(key))
-    doc.plugins += [str(p) for p in data.get("plugins") or []]
+    for i, p in enumerate(data.get("plugins") or []):
+        if not isinstance(p, str) or not p.strip():
+            raise ConfigError(f"plugin {p!r} is not a module name or .py path", where("plugins", i),
+                              hint="for example 'plugins: [my_nodes.py]' (relative to this file)")
+        doc.plugins.append(p)
     for t, p in (data.get("defaults") or {}).items():
         if not isinstance(p, dict):
             raise ConfigError(f"defaults for '{t}' must be a mapping of params", where("defaults", t))
@@ -193,9 +401,10 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         for key in ("params", "inputs"):
             if decl.get(key) is not None and not isinstance(decl[key], dict):
                 raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
-        if "." in name or not name:
-            raise ConfigError(f"invalid node name '{name}'", where("nodes", name), node=name,
-                              hint="node names may not contain '.', which separates node and output in inputs")
+        check_name(name, "node name", where("nodes", name), node=name)
+        if not isinstance(decl["type"], str):
+            raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}", where("nodes", name, "type"),
+                              node=name, hint="add 'type: kind.method' (see `stereograph nodes`)")
         base = doc.nodes.get(name, {})
         # a node redefined over an included one keeps the included params only if the type is the same
         base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
@@ -216,13 +425,18 @@ def parse_override(text: str) -> tuple[str, list[str], Any]:
                          hint="for example --set segment.canny_low=40")
     lhs, rhs = text.split("=", 1)
     parts = lhs.strip().split(".")
-    if len(parts) < 2 or not all(parts):
+    if len(parts) < 2 or not all(parts) or parts[1:] == ["params"]:
         raise UsageError(f"--set '{text}': the left side must be node.param",
                          hint="for example --set segment.canny_low=40")
+    if len(text) > MAX_FILE_BYTES:
+        raise UsageError(f"--set {lhs}=...: the value is longer than {MAX_FILE_BYTES // 1024} KiB",
+                         hint="put large data in a file that a node reads")
     try:
-        value = yaml.safe_load(rhs) if rhs.strip() else ""
-    except yaml.YAMLError:
-        value = rhs
+        value = parse_yaml(rhs, f"--set {lhs}", record_lines=False)[0] if rhs.strip() else ""
+    except ConfigError as e:
+        if not getattr(e, "syntax", False):
+            raise  # beyond the bounds (alias bomb, nesting): refuse, never fall back
+        value = rhs  # not YAML: the text as written
     return parts[0], parts[1:], value
 
 

@@ -73,7 +73,7 @@ def _format_pydantic(err: pydantic.ValidationError) -> list[tuple[tuple, str]]:
             msg = "unknown parameter"
         elif e.get("type") == "missing":
             msg = "required parameter is missing"
-        elif not loc:  # a check across several params (a model validator): its text says it all
+        elif not loc or e.get("type") == "value_error":  # a validator's own text says it all
             msg = msg.removeprefix("Value error, ")
         elif "input" in e and e.get("type") != "missing":
             msg = f"{msg} (got {e['input']!r})"
@@ -104,7 +104,8 @@ def merge_nested_defaults(model: type[pydantic.BaseModel], raw: dict[str, Any]) 
 def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str) -> Params:
     """Validate ``raw`` params with the node's model, errors pointing at the YAML."""
     try:
-        return spec.params(**merge_nested_defaults(spec.params, raw))
+        # model_validate, not **raw: a YAML key need not be a string (`1: 2` is an unknown parameter)
+        return spec.params.model_validate(merge_nested_defaults(spec.params, raw))
     except pydantic.ValidationError as err:
         (loc, msg), *rest = _format_pydantic(err)
         if not loc:  # the params as a whole: say which --set contributed, if any
@@ -132,6 +133,12 @@ def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node:
 def build_graph(doc: PipelineDoc) -> Graph:
     """Resolve and check every node and wire of a pipeline before anything runs."""
     registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
+    known = set(registry.names())
+    for t in doc.defaults:
+        if t not in known:  # a misspelt type's defaults would silently apply to nothing
+            close = difflib.get_close_matches(t, sorted(known), n=1, cutoff=0.5)
+            raise ConfigError(f"defaults are given for an unknown node type '{t}'", doc.where("defaults", t), None,
+                              f"did you mean '{close[0]}'?" if close else "run `stereograph nodes` to list the types")
     nodes: dict[str, NodeInstance] = {}
     for name, decl in doc.nodes.items():
         spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)

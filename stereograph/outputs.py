@@ -12,10 +12,12 @@ is written as that file as it is (other keys of the dict are for downstream node
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
 import shutil
+import urllib.parse
 import uuid
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,25 @@ from typing import Any
 import numpy as np
 
 SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
+MARKER = "stereograph_run"  # a run.json key only stereograph writes: the folder holds its run (prepare_out_dir)
+_PLAIN_ID = re.compile(r"^[^\W][\w.-]{0,119}$")
+
+
+def file_name(item: Any) -> str:
+    """An item id as one safe file-name component.
+
+    Item ids come from data (a file name, a scene id in a YAML list), so ``../../x`` or ``/etc``
+    must not become a path: ids of letters, digits, ``_ . -`` (not starting with a dot, at most
+    120 characters) are kept as they are; any other is percent-encoded (``..%2F..%2Fx``), and a
+    long one shortened with a digest. Distinct ids give distinct names.
+    """
+    text = str(item)
+    if _PLAIN_ID.match(text) and ".." not in text:
+        return text
+    enc = urllib.parse.quote(text, safe="-_").replace(".", "%2E")
+    if len(enc) > 120:
+        enc = enc[:96] + "~" + hashlib.blake2b(text.encode("utf-8", "surrogatepass"), digest_size=8).hexdigest()
+    return enc or "%00"
 
 
 def is_image(v: Any) -> bool:
@@ -57,11 +78,20 @@ def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
     return v
 
 
+def _with_ext(stem: Path, ext: str) -> Path:
+    """``stem`` + ``ext`` (not ``with_suffix``: an item id ``scene.001`` keeps its ``.001``)."""
+    return stem.with_name(stem.name + ext)
+
+
 def _write_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)  # never a half-written result file
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)  # never a half-written result file
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a full disk must not leave a .tmp behind
+        raise
 
 
 def write_value(path_stem: Path, value: Any) -> list[Path]:
@@ -75,13 +105,13 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
     if is_image(value):
         ok, buf = cv2.imencode(".png", value)
         if ok:
-            p = path_stem.with_suffix(".png")
+            p = _with_ext(path_stem, ".png")
             _write_bytes(p, buf.tobytes())
             return [p]
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []
-    p = path_stem.with_suffix(".json")
+    p = _with_ext(path_stem, ".json")
     _write_bytes(p, json.dumps(data, indent=1).encode())
     files.append(p)
     if big:
@@ -89,7 +119,7 @@ def write_value(path_stem: Path, value: Any) -> list[Path]:
 
         buf = io.BytesIO()
         np.savez_compressed(buf, **{k.replace("/", "_"): a for k, a in big.items()})
-        q = path_stem.with_suffix(".npz")
+        q = _with_ext(path_stem, ".npz")
         _write_bytes(q, buf.getvalue())
         files.append(q)
     return files
@@ -103,7 +133,7 @@ def write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
     if is_image(first) or is_file_value(first):
         out = []
         for i, v in items.items():
-            out += write_value(stem / str(i), v)
+            out += write_value(stem / file_name(i), v)
         return out
     records = []
     for i, v in items.items():
@@ -120,62 +150,124 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
     rdir = store.root / "rendered" / key[:2] / f"{key}-{output}"
-    if rdir.is_dir():
+    blobs = _verified_render(rdir)
+    if blobs:
         files = []
-        for f in sorted(rdir.iterdir()):
-            dest = stem.with_suffix(f.suffix)
-            dest.parent.mkdir(parents=True, exist_ok=True)
-            tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}.tmp")
-            shutil.copyfile(f, tmp)
-            os.replace(tmp, dest)
+        for name, data in blobs.items():
+            dest = _with_ext(stem, Path(name).suffix)
+            _write_bytes(dest, data)
             files.append(dest)
-        if files:
-            return files
+        return files
+    if rdir.exists() and getattr(store, "writable", True):  # corrupt or unverifiable: render again
+        shutil.rmtree(rdir, ignore_errors=True)
     files = produce()
+    if not getattr(store, "writable", True):
+        return files
     tmp = store.tmp / f"r-{uuid.uuid4().hex}"
-    tmp.mkdir(parents=True, exist_ok=True)
     try:
+        tmp.mkdir(parents=True, exist_ok=True)
+        digests = {}
         for f in files:
-            shutil.copyfile(f, tmp / f.name)
+            data = f.read_bytes()
+            (tmp / f.name).write_bytes(data)
+            digests[f.name] = hashlib.blake2b(data, digest_size=16).hexdigest()
+        (tmp / RENDER_DIGESTS).write_text(json.dumps(digests))  # last: marks the copy complete
         rdir.parent.mkdir(parents=True, exist_ok=True)
         os.rename(tmp, rdir)
     except OSError:
-        pass  # another run rendered it first
+        pass  # another run rendered it first, or the cache cannot take it: the result is written anyway
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return files
 
 
+RENDER_DIGESTS = "digests.json"
+
+
+def _verified_render(rdir: Path) -> dict[str, bytes] | None:
+    """The rendered files kept in ``rdir`` if every one matches its recorded digest, else None
+    (a flipped byte in a cached PNG must not be delivered as a result)."""
+    try:
+        digests = json.loads((rdir / RENDER_DIGESTS).read_text())
+        if not isinstance(digests, dict) or not digests:
+            return None
+        blobs = {}
+        for name, want in sorted(digests.items()):
+            if "/" in name or name.startswith("."):
+                return None
+            data = (rdir / name).read_bytes()
+            if hashlib.blake2b(data, digest_size=16).hexdigest() != want:
+                return None
+            blobs[name] = data
+        return blobs
+    except (OSError, ValueError, TypeError, AttributeError):
+        return None
+
+
 def prepare_out_dir(out_dir: Path) -> None:
-    """Make ``out_dir`` ready for a run: a folder of an earlier run is emptied of what that run
-    wrote (so no stale result sits beside new ones); any other non-empty folder is refused."""
+    """Make ``out_dir`` ready for a run.
+
+    A folder that an earlier stereograph run wrote (its ``run.json`` carries the :data:`MARKER` key,
+    which only stereograph writes) is emptied of the files that run recorded, and of the sub-folders
+    they leave empty, so that no stale result sits beside new ones. Any other non-empty folder is
+    refused: another tool's ``run.json`` or a user's files are never deleted.
+    """
     from stereograph.errors import ConfigError
 
-    if not out_dir.exists() or not any(out_dir.iterdir()):
-        return
-    summary = out_dir / "run.json"
-    if not summary.is_file():
-        raise ConfigError(f"output folder {out_dir} is not empty and holds no earlier run (no run.json)",
-                          hint="choose another --out, or empty that folder")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"output folder {out_dir} is an existing file", hint="choose another --out")
+    probe = out_dir
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"output folder {out_dir} cannot be made: {probe} is a file", hint="choose another --out")
+    if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
+        raise ConfigError(f"output folder {out_dir} cannot be written: {probe} is not writable",
+                          hint="choose another --out")
     try:
-        written = [f for n in json.loads(summary.read_text()).get("nodes", []) for f in n.get("files", [])]
-    except (OSError, ValueError):
-        written = []
+        if not out_dir.exists() or not any(out_dir.iterdir()):
+            return
+    except OSError as e:
+        raise ConfigError(f"cannot use output folder {out_dir}: {e.strerror or e}",
+                          hint="choose another --out") from None
+    summary = out_dir / "run.json"
+    try:
+        earlier = json.loads(summary.read_text()) if summary.is_file() else None
+        ours = isinstance(earlier, dict) and isinstance(earlier.get(MARKER), dict)
+        written = [f for n in earlier.get("nodes", []) for f in n.get("files", [])] if ours else []
+    except (OSError, ValueError, AttributeError, TypeError):
+        ours, written = False, []
+    if not ours:
+        raise ConfigError(f"output folder {out_dir} is not empty and is not the folder of an earlier stereograph run "
+                          "(no run.json that stereograph wrote)", hint="choose another --out, or empty that folder")
+    root = out_dir.resolve()
+    parents: set[Path] = set()
     for rel in written:
+        if not isinstance(rel, str):
+            continue
         p = (out_dir / rel).resolve()
-        if out_dir.resolve() in p.parents and p.is_file():
+        if root in p.parents and p.is_file():
             p.unlink()
+            parents.update(q for q in p.parents if root in q.parents)
     summary.unlink()
-    for d in sorted((p for p in out_dir.rglob("*") if p.is_dir()), key=lambda p: -len(p.parts)):
-        if not any(d.iterdir()):
+    for d in sorted(parents, key=lambda p: -len(p.parts)):  # only folders the run's files were in
+        try:
             d.rmdir()
+        except OSError:
+            pass  # not empty: something else lives there
 
 
 def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
     """Write saved and terminal outputs plus ``run.json`` into ``result.out_dir``."""
     out_dir: Path = result.out_dir
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        from stereograph.errors import ConfigError
+
+        raise ConfigError(f"cannot make output folder {out_dir}: {e.strerror or e}",
+                          hint="choose another --out") from None
     written: dict[str, list[str]] = {}
     terminal = set(graph.terminal())
     for name in selected:
@@ -194,8 +286,9 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     if ids and is_image(first):  # one file per item: reuse earlier renders
                         files = []
                         for i in ids:
-                            files += _rendered(store, run.ref_keys.get((name, out, i)), out, stem / str(i),
-                                               lambda r=(name, out, i), p=stem / str(i): write_value(p, run.get(r)))
+                            p = stem / file_name(i)
+                            files += _rendered(store, run.ref_keys.get((name, out, i)), out, p,
+                                               lambda r=(name, out, i), p=p: write_value(p, run.get(r)))
                     else:
                         files = write_collection(stem, {i: run.get((name, out, i)) for i in ids})
                 else:
@@ -203,16 +296,22 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                         continue
                     files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
                                       lambda r=(name, out, None), p=stem: write_value(p, run.get(r)))
-            except Exception as e:  # an output we cannot write must not lose the others
-                run.reports[name].messages.append(f"could not write output '{out}': {e}")
+            except Exception as e:  # an output we cannot write must not lose the others ...
+                rep = run.reports[name]
+                rep.messages.append(f"could not write output '{out}': {e}")
+                if isinstance(e, OSError) and rep.error is None:  # ... nor pass for a delivered result
+                    rep.status, rep.error = "failed", f"could not write output '{out}': {e.strerror or e}"
+                    rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
     summary = {
+        MARKER: {"format": 1, "run_id": result.run_id},
         "run_id": result.run_id,
         "pipeline": result.pipeline,
         "out_dir": str(out_dir),
         "overrides": list(graph.doc.overrides),
         "ok": result.ok,
+        "notes": list(getattr(result, "notes", [])),
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
                    "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
                    "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, []),
@@ -220,4 +319,10 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                   for r in run.reports.values()],
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
     }
-    _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
+    try:
+        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
+    except OSError as e:
+        from stereograph.errors import ConfigError
+
+        raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
+                          hint="free space on that disk, or choose another --out") from None

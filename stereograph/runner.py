@@ -204,6 +204,7 @@ class RunResult:
     _items: dict[tuple[str, str], list[str]]
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
     terminal: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # about the run as a whole (a read-only cache, say)
 
     @property
     def ok(self) -> bool:
@@ -312,7 +313,12 @@ class _Run:
         except CorruptEntry as e:
             self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
             self.store.delete(key)  # type: ignore[union-attr]
-            self.recompute(node, item)
+            # an item of a collection (or its index) comes from the one entry of the node that yields it
+            self.recompute(node, None if self.g.nodes[node].spec.outputs[out].collection else item)
+            if ref not in self.mem:
+                raise NodeError(f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
+                                f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
+                                hint="run again with --from " + node) from None
             return self.mem[ref]
         for o, v in entry.items():
             self.mem[(node, o, item)] = v
@@ -364,6 +370,9 @@ class _Run:
                 if self.store is not None and key is not None and not self.store.has(ikey):
                     self.store.save(ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i})
             single[name] = {"__items__": ids, "__keys__": ikeys}
+            # the index too, so that a recompute (a corrupt entry) serves it as a load would
+            self.mem[(inst.name, name, item)] = single[name]
+            self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
         for name, v in single.items():
             if name not in colls:
                 self.mem[(inst.name, name, item)] = v
@@ -614,7 +623,8 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     for name in graph.order:
         if name not in selected:
             run.reports[name].status = "not selected"
-    result = RunResult(run_id, str(doc.path), out, run.reports, 0.0, {}, {}, dict(run.failed_items))
+    result = RunResult(run_id, str(doc.path), out, run.reports, 0.0, {}, {}, dict(run.failed_items),
+                       notes=list(store.notes) if store is not None else [])
     if write_outputs:
         outputs_mod.write_run_outputs(graph, run, result, selected)
     result._values, result._items = _terminal_values(graph, run, selected)

@@ -176,6 +176,7 @@ def charuco(params: CharucoParams, views: dict, ctx=None) -> dict:
     except ValueError as exc:
         raise NodeError(f"calibrator.charuco: {exc}.", hint="set calib.dictionary to the printed board's "
                                                             "dictionary, or use a smaller board") from exc
+    rejected = {**(views.get("rejected") or {}), **rejected}  # views the source could not read
     if cal is None or n_used < params.min_views:
         named = "; ".join(f"{k}: {v}" for k, v in rejected.items())
         raise NodeError(

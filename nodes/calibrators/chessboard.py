@@ -82,6 +82,7 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     if not vlist:
         raise NodeError("calibrator.chessboard: the view set is empty.", hint="point the source at chessboard images")
     ids, left, right, rejected = detect_views(vlist, cols, rows, params.subpix_window_px)
+    rejected = {**(views.get("rejected") or {}), **rejected}  # views the source could not read
     if len(ids) < params.min_views:
         named = f" ({'; '.join(f'{k}: {v}' for k, v in rejected.items())})" if rejected else ""
         board_hint = ("check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and that the whole "

@@ -27,13 +27,13 @@ import math
 
 import numpy as np
 
-from stereograph.api import Field, Params
+from stereograph.api import Field, Params, PositiveRange
 
 
 class DisparityParams(Params):
     """Parameters shared by every disparity estimator."""
 
-    working_range_cm: tuple[float, float] = Field(
+    working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Nearest and farthest plausible object distance (cm); outside -> not found."
     )
     range_slack: float = Field(

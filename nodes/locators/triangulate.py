@@ -18,7 +18,7 @@ from typing import Literal
 
 import numpy as np
 
-from stereograph.api import Field, In, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange, node
 
 
 class TriangulateParams(Params):
@@ -30,7 +30,7 @@ class TriangulateParams(Params):
     T_table_from_left: list[list[float]] | None = Field(
         None, description="4x4 transform from left-camera to table frame (cm); None = take it from `rig`."
     )
-    working_range_cm: tuple[float, float] = Field(
+    working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found."
     )
 

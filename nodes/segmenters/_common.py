@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from nodes.rectifiers._views import RectifiedView, pair_views
-from stereograph.api import Field, In, NodeError, Out, Params
+from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
 # ``scale`` is the downscale factor of ``image_bgr`` (1 = full resolution): divide sizes given in
@@ -109,10 +109,10 @@ class SegmenterParams(Params):
     """Parameters common to every segmenter."""
 
     object: ObjectSpec = Field(default_factory=ObjectSpec, description="Object model (radius in cm, colour).")
-    working_range_cm: tuple[float, float] = Field(
+    working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Nearest and farthest distance of the object from the cameras (cm)."
     )
-    radius_px_range: tuple[float, float] | None = Field(
+    radius_px_range: PositiveRange | None = Field(
         None,
         description="Expected image radius range (px) when no Rectification is wired; None = 3 px .. half the image.",
     )
@@ -145,7 +145,8 @@ class SegmenterParams(Params):
     )
     subpixel: bool = Field(True, description="Refine the contour to sub-pixel accuracy (bool).")
     edge_search_px: float = Field(
-        3.0, gt=0, le=20, description="Half length of the normal search for the sub-pixel edge (px)."
+        3.0, ge=0.5, le=20, description="Half length of the normal search for the sub-pixel edge (px); "
+                                        "at least half a pixel, or it samples nothing."
     )
     shadow: ShadowParams = Field(default_factory=ShadowParams, description="Shadow suppression options.")
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")

@@ -10,7 +10,9 @@ import numpy as np
 
 from stereograph.api import NodeError
 
-__all__ = ["IMAGE_SUFFIXES", "list_pairs", "pair_key", "read_image"]
+__all__ = ["DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "header_size", "list_pairs", "pair_key", "read_image"]
+
+DEFAULT_MAX_MPX = 50.0  # megapixels: above any stereo camera this project targets, far below a decompression bomb
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 _SIDE = re.compile(r"(?i)(left|right|(?<![a-z])[lr](?![a-z]))")
@@ -94,13 +96,51 @@ def _clean_id(key: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", key) or "pair"
 
 
-def read_image(path: Path, color: bool = True) -> np.ndarray:
-    """Read an image as uint8 BGR (``color``) or as stored (grey stays grey); NodeError if unreadable."""
-    data = np.fromfile(str(path), dtype=np.uint8) if path.exists() else None
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED) if data is not None and data.size else None
+def header_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from the image file's header, without decoding the pixels; None if the
+    header is not one Pillow knows (OpenCV may still read the file)."""
+    from PIL import Image
+
+    before, Image.MAX_IMAGE_PIXELS = Image.MAX_IMAGE_PIXELS, None  # our limit applies; Pillow's would hide the size
+    try:
+        with Image.open(path) as im:  # reads the header only
+            return int(im.size[0]), int(im.size[1])
+    except Exception:  # not an image Pillow knows, truncated header, ...: let OpenCV judge
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = before
+
+
+def read_image(path: Path, color: bool = True, max_mpx: float = DEFAULT_MAX_MPX) -> np.ndarray:
+    """Read an image as uint8 BGR (``color``) or as stored (grey stays grey).
+
+    The size is checked from the header before decoding: a 20000x20000 PNG is a few hundred KB on
+    disk but gigabytes decoded.
+
+    Raises
+    ------
+    NodeError
+        The file cannot be read, is not an image, or is larger than ``max_mpx`` megapixels.
+    """
+    size = header_size(path) if path.is_file() else None
+    if size is not None and size[0] * size[1] > max_mpx * 1e6:
+        raise NodeError(f"image {path} is {size[0]}x{size[1]} ({size[0] * size[1] / 1e6:.0f} Mpx), above the "
+                        f"limit of {max_mpx:g} Mpx; it was not decoded.",
+                        hint="use images of the cameras' resolution, or raise max_image_mpx if they really are "
+                             "that large")
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
+        flag = cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED
+        img = cv2.imdecode(data, flag) if data is not None and data.size else None
+    except (cv2.error, OSError, MemoryError) as exc:
+        raise NodeError(f"cannot read image {path}: {str(exc).strip().splitlines()[-1] if str(exc) else exc!r}.",
+                        hint="replace or remove the file") from None
     if img is None:
         raise NodeError(f"cannot read image {path}: not a readable image file.",
                         hint="replace or remove the file (supported: png, jpg, bmp, tif, pgm, ppm, webp)")
+    if img.shape[0] * img.shape[1] > max_mpx * 1e6:  # a format whose header Pillow did not read
+        raise NodeError(f"image {path} is {img.shape[1]}x{img.shape[0]}, above the limit of {max_mpx:g} Mpx.",
+                        hint="use images of the cameras' resolution, or raise max_image_mpx")
     if img.dtype != np.uint8:
         img = cv2.convertScaleAbs(img, alpha=255.0 / max(float(img.max()), 1.0))
     if img.ndim == 3 and img.shape[2] == 4:

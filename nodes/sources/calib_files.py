@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from nodes.sources._files import list_pairs, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
 from stereograph.api import Field, NodeError, Out, Params, node
 
 
@@ -15,6 +15,8 @@ class CalibFilesParams(Params):
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")
+    max_image_mpx: float = Field(DEFAULT_MAX_MPX, gt=0, description="Largest image read, megapixels (checked from "
+                                 "the file's header before decoding); a view with a larger image is rejected.")
 
 
 def _reads(params: CalibFilesParams, pipeline_dir: Path) -> list[Path]:
@@ -37,9 +39,14 @@ def calib_files(params: CalibFilesParams, ctx=None) -> dict:
     """Read chessboard calibration pairs (left/right matched by name) from a folder."""
     folder = ctx.path(params.folder) if ctx is not None else Path(params.folder).expanduser()
     pairs = list_pairs(folder, params.left_glob, params.right_glob)
-    views, size = [], None
+    views, size, rejected = [], None, {}
     for pid, lp, rp in pairs:
-        left, right = read_image(lp, color=False), read_image(rp, color=False)
+        try:
+            left = read_image(lp, color=False, max_mpx=params.max_image_mpx)
+            right = read_image(rp, color=False, max_mpx=params.max_image_mpx)
+        except NodeError as exc:  # rejected with its reason, like a view without a board
+            rejected[pid] = exc.message
+            continue
         for p, im in ((lp, left), (rp, right)):
             s = [int(im.shape[1]), int(im.shape[0])]
             if size is None:
@@ -48,6 +55,12 @@ def calib_files(params: CalibFilesParams, ctx=None) -> dict:
                 raise NodeError(f"image {p} is {s[0]}x{s[1]} but the others are {size[0]}x{size[1]}.",
                                 hint="calibrate with images of one resolution from the same cameras")
         views.append({"id": pid, "left": left, "right": right, "left_path": str(lp), "right_path": str(rp)})
-    return {"views": {"views": views, "image_size": size,
+    if rejected and ctx is not None:
+        ctx.warn(f"rejected {len(rejected)} unreadable view(s): " + "; ".join(f"{k}: {v}" for k, v in rejected.items()))
+    if not views:
+        raise NodeError(f"none of the {len(pairs)} views could be read: "
+                        + "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:5]),
+                        hint="replace or remove the unreadable images")
+    return {"views": {"views": views, "image_size": size, "rejected": rejected,
                       "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm},
                       "truth": None}}

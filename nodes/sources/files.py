@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.sources._files import list_pairs, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
 from stereograph.api import Field, NodeError, Out, Params, node
 
 __all__ = ["FilesParams", "files", "read_truth"]
@@ -51,6 +51,8 @@ class FilesParams(Params):
     truth: str | None = Field(None, description="Optional JSON/CSV ground-truth file (relative to the pipeline).")
     train_fraction: float = Field(0.5, ge=0, le=1, description="Share of pairs marked split=train (0..1).")
     seed: int = Field(0, ge=0, description="Seed of the train/test split.")
+    max_image_mpx: float = Field(DEFAULT_MAX_MPX, gt=0, description="Largest image read, megapixels (checked from "
+                                 "the file's header before decoding); a pair with a larger image is skipped.")
 
 
 def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
@@ -82,13 +84,24 @@ def files(params: FilesParams, ctx=None) -> dict:
     if truth and unknown and ctx is not None:
         ctx.warn(f"truth rows without images: {', '.join(unknown[:10])}")
     rng = np.random.default_rng([params.seed, 3])
-    out = {}
+    out, skipped = {}, {}
     for pid, lp, rp in pairs_list:
-        left, right = read_image(lp), read_image(rp)
-        if left.shape != right.shape:
-            raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
-                            f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
+        split = "train" if rng.random() < params.train_fraction else "test"  # drawn for every pair: a skip
+        try:                                                                # leaves the others' split as it was
+            left, right = read_image(lp, max_mpx=params.max_image_mpx), read_image(rp, max_mpx=params.max_image_mpx)
+            if left.shape != right.shape:
+                raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
+                                f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
+        except NodeError as exc:  # one bad pair costs that pair only
+            skipped[pid] = exc.message
+            if ctx is not None:
+                ctx.warn(f"pair {pid} skipped: {exc.message}")
+            continue
         out[pid] = {"id": pid, "left": left, "right": right, "truth": truth.get(pid),
-                    "split": "train" if rng.random() < params.train_fraction else "test",
+                    "split": split,
                     "left_path": str(lp), "right_path": str(rp)}
+    if not out:
+        raise NodeError(f"none of the {len(pairs_list)} pairs could be read: "
+                        + "; ".join(f"{k}: {v}" for k, v in list(skipped.items())[:5]),
+                        hint="replace or remove the unreadable images")
     return {"pairs": out}
