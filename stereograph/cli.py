@@ -315,7 +315,9 @@ def cmd_cache(args) -> int:
     elif args.pipeline:
         root = default_cache_dir(load_pipeline(args.pipeline))
     else:
-        root = Path.cwd() / "pipelines" / ".stereograph" / "cache"
+        from stereograph.project import cache_dir
+
+        root = cache_dir(Path.cwd())
     store = ArtifactStore(root)
     con = _console()
     if args.action == "clear":
@@ -364,8 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
         return sp
 
     sp = pipeline_cmd("run", "run a pipeline")
-    sp.add_argument("--out", help="output folder (default runs/<name>/<run-id>)")
-    sp.add_argument("--cache-dir", help="artifact cache (default .stereograph/cache next to the pipeline)")
+    sp.add_argument("--out", help="output folder (default <project>/runs/<name>/<run-id>)")
+    sp.add_argument("--cache-dir", help="artifact cache (default: the project's .stereograph/cache, or "
+                    "STEREOGRAPH_CACHE_DIR; see docs/cache.md)")
     sp.add_argument("--no-cache", action="store_true", help="compute everything, store nothing")
     sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
     sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")

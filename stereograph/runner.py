@@ -7,8 +7,8 @@ Public API::
     from stereograph.runner import run_pipeline
 
     result = run_pipeline("pipelines/locate.yaml", overrides=["rig.n_scenes=10"],
-                          cache_dir=None,          # default: .stereograph/cache next to the pipeline
-                          out_dir=None,            # default: runs/<name>/<run-id> in the current folder
+                          cache_dir=None,          # default: the project's .stereograph/cache
+                          out_dir=None,            # default: <project>/runs/<name>/<run-id>
                           use_cache=True, only=None, from_node=None, executor=None, progress=None)
     result.status["segment"]        # "ran" | "cached" | "failed" | "skipped" | "partial"
     result.ran                      # nodes that computed anything this run
@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from stereograph import outputs as outputs_mod
-from stereograph import registry
+from stereograph import project, registry
 from stereograph.api import REGISTRY, NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, content_key, hash_json
 from stereograph.config import PipelineDoc, load_pipeline
@@ -234,7 +234,8 @@ def new_run_id() -> str:
 
 
 def default_cache_dir(doc: PipelineDoc) -> Path:
-    return doc.directory / ".stereograph" / "cache"
+    """The project's one cache (see :mod:`stereograph.project`)."""
+    return project.cache_dir(doc.directory)
 
 
 class _Run:
@@ -603,7 +604,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if from_node is not None:
         force = graph.downstream(from_node) | {from_node}
     run_id = run_id or new_run_id()
-    out = Path(out_dir) if out_dir else Path.cwd() / "runs" / doc.name / run_id
+    out = Path(out_dir) if out_dir else project.runs_dir(doc.directory) / doc.name / run_id
     outputs_mod.prepare_out_dir(out)
     store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
     own_executor = executor is None
