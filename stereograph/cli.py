@@ -208,8 +208,11 @@ def _echo_results(result, con) -> None:
     from stereograph.outputs import to_json
 
     shown = 0
-    for (node, out, item), v in result._values.items():
-        if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
+    for node, out, item in list(result._values):
+        if node not in result.terminal or item is not None:
+            continue  # (decided before loading: a cached rerun reads only what it shows)
+        v = result._values[(node, out, item)]
+        if not isinstance(v, (dict, list, float, int, str)):
             continue
         if isinstance(v, dict) and isinstance(v.get("markdown"), str):
             # a report that renders itself: show it as the table it is

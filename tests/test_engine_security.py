@@ -380,8 +380,10 @@ def test_corrupt_rendered_png_is_not_delivered(tmp_path):
     p = toy_pipeline(tmp_path)
     assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1").ok
     good = {f.name: f.read_bytes() for f in (tmp_path / "o1" / "picture" / "picture").iterdir()}
-    rendered = sorted((tmp_path / "c" / "rendered").rglob("*.png"))
-    assert rendered
+    # the cache keeps each image once, as the PNG the run folder gets (in its entry; older
+    # entries: under rendered/): flip a byte in every copy it has
+    rendered = sorted((tmp_path / "c").rglob("*.png"))
+    assert rendered and not list((tmp_path / "c" / "rendered").rglob("*.png"))
     for f in rendered:
         data = bytearray(f.read_bytes())
         data[-20] ^= 0xFF
