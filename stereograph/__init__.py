@@ -11,7 +11,16 @@ The engine is a handful of modules, read in this order:
 - :mod:`stereograph.cli`      the ``stereograph`` command
 """
 
-from stereograph.api import REGISTRY, Field, In, NodeError, NodeSpec, Out, Params, RunContext, node
+from typing import Any
 
 __all__ = ["REGISTRY", "Field", "In", "NodeError", "NodeSpec", "Out", "Params", "RunContext", "node"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    # the node API (pydantic) is imported when first used, not by `stereograph --help`
+    if name in __all__:
+        from stereograph import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'stereograph' has no attribute {name!r}")

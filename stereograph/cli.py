@@ -165,14 +165,11 @@ def cmd_nodes(args) -> int:
         con.print(t)
         return 0
     t = Table("node type", "inputs → outputs", "description")
-    for name in registry.names():
-        try:
-            spec = registry.get(name)
-            io = (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
-                  ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items()))
-            t.add_row(escape(name), escape(io), escape(spec.description))
-        except ConfigError as e:
-            t.add_row(escape(name), "[red]unavailable[/]", escape(str(e)))
+    for name, s in registry.summaries().items():  # (an index: no node module imported when unchanged)
+        if "error" in s:
+            t.add_row(escape(name), "[red]unavailable[/]", escape(s["error"]))
+        else:
+            t.add_row(escape(name), escape(s["io"]), escape(s["description"]))
     con.print(t)
     return 0
 
@@ -350,7 +347,9 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
+    """The command's parser; ``lazy`` leaves out what needs heavy imports (``compare``'s own options:
+    ``main`` builds the full parser when the line names it), so ``--help`` starts fast."""
     p = argparse.ArgumentParser(prog="stereograph", description="Stereo localisation and robot-arm picking as a "
                                 "config-driven processing graph.")
     p.add_argument("--version", action="version", version=f"stereograph {__version__}")
@@ -396,12 +395,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
     sp.add_argument("--cache-dir")
     sp.set_defaults(fn=cmd_cache)
-    try:
-        from stereograph import compare as compare_mod
+    if lazy:
+        sub.add_parser("compare", help="run every combination of --vary settings and compare accuracy",
+                       add_help=False)
+    else:
+        try:
+            from stereograph import compare as compare_mod
 
-        compare_mod.add_subcommand(sub)
-    except (ImportError, AttributeError):
-        pass
+            compare_mod.add_subcommand(sub)
+        except (ImportError, AttributeError):
+            pass
     for name in registry.commands():
         sp = sub.add_parser(name, help=f"(from a node package) see `stereograph {name} --help`", add_help=False)
         sp.add_argument("rest", nargs=argparse.REMAINDER)
@@ -411,7 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    parser = build_parser(lazy="compare" not in argv)
     if argv and argv[0] in registry.commands():
         ep = registry.commands()[argv[0]]
         return int(ep.load()(argv[1:]) or 0)
