@@ -393,9 +393,9 @@ class ArtifactStore:
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise CorruptEntry(str(e)) from e
 
-    def ready_file(self, key: str, output: str) -> bytes | None:
-        """The stored PNG of a top-level image ``output`` of entry ``key``, checked against its digest
-        (the run folder's file, copied without decoding), or None."""
+    def ready_file(self, key: str, output: str) -> Path | None:
+        """The stored PNG of a top-level image ``output`` of entry ``key`` -- the very file a run folder
+        gets for it -- if it matches its digest, else None."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
@@ -403,7 +403,7 @@ class ArtifactStore:
             if not isinstance(name, str) or "/" in name:
                 return None
             b = (d / name).read_bytes()
-            return b if digest(b) == man["files"][name]["digest"] else None
+            return d / name if digest(b) == man["files"][name]["digest"] else None
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             return None
 
@@ -449,7 +449,9 @@ class ArtifactStore:
                 ready[out] = f"{ref['__ndarray__']}.png"
         if arrays:
             buf = io.BytesIO()
-            np.savez(buf, **arrays)
+            # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
+            # float arrays barely compress, so they are stored as they are
+            (np.savez_compressed if any(a.dtype == np.bool_ for a in arrays.values()) else np.savez)(buf, **arrays)
             blobs["arrays.npz"] = buf.getvalue()
         manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
                     "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},

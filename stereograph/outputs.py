@@ -150,9 +150,9 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
     ready = store.ready_file(key, output) if hasattr(store, "ready_file") else None
-    if ready is not None:  # the entry keeps this image as the very PNG the run folder gets: copy it
+    if ready is not None:  # the entry keeps this image as the very PNG the run folder gets
         dest = _with_ext(stem, ".png")
-        _write_bytes(dest, ready)
+        _link_or_copy(ready, dest)
         return [dest]
     rdir = store.root / "rendered" / key[:2] / f"{key}-{output}"
     blobs = _verified_render(rdir)
@@ -185,6 +185,21 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return files
+
+
+def _link_or_copy(src: Path, dest: Path) -> None:
+    """Put ``src`` at ``dest`` as a hard link (no second copy on disk), else as a copy (another disk).
+
+    The cache checks its files' digests before any use, so a linked result edited in place is
+    detected there, and recomputed, never delivered."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        os.link(src, tmp)
+        os.replace(tmp, dest)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        _write_bytes(dest, src.read_bytes())
 
 
 RENDER_DIGESTS = "digests.json"
