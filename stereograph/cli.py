@@ -330,8 +330,17 @@ def cmd_cache(args) -> int:
         n, freed = store.prune(int(args.max_gb * 1e9))
         con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
         return 0
-    info = store.info()
-    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB", markup=False)
+    from stereograph.project import budget_bytes
+
+    try:
+        budget = budget_bytes(Path(args.pipeline).parent if args.pipeline else Path.cwd())
+    except ValueError as e:
+        raise ConfigError(f"cache budget: {e}",
+                          hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4") from None
+    info = store.info(budget)
+    limit = f" of a {budget / 1e9:g} GB budget (least recently used entries pruned after runs)" if budget else \
+        " (no budget)"
+    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB{limit}", markup=False)
     for t, (n, b) in sorted(info["by_type"].items()):
         con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB", markup=False)
     return 0
@@ -389,7 +398,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp = sub.add_parser("nodes", help="list node types, or show one's params")
     sp.add_argument("name", nargs="?")
     sp.set_defaults(fn=cmd_nodes)
-    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear")
+    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
     sp.add_argument("action", choices=["info", "prune", "clear"])
     sp.add_argument("--max-gb", type=float, help="prune: keep the most recently used entries up to this size (GB)")
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
