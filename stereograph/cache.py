@@ -190,12 +190,25 @@ def _imports_of(path: str, mtime_ns: int, package: str) -> tuple[str, ...]:
     return tuple(sorted(set(found)))
 
 
+@lru_cache(maxsize=8192)
+def _resolved(file: str) -> str:
+    return str(Path(file).resolve())
+
+
+_NAMES: dict[str, str] = {}  # resolved module file -> module name, for the sys.modules it was built from
+_NAMES_SEEN = [0]
+
+
 def _module_name_for(path: str) -> str:
-    for name, mod in list(sys.modules.items()):
-        f = getattr(mod, "__file__", None)
-        if f and str(Path(f).resolve()) == path:
-            return name
-    return ""
+    # resolving every loaded module's path on every call was most of a cached rerun's time
+    if len(sys.modules) != _NAMES_SEEN[0] or path not in _NAMES:
+        _NAMES.clear()
+        for name, mod in list(sys.modules.items()):
+            f = getattr(mod, "__file__", None)
+            if isinstance(f, str):
+                _NAMES.setdefault(_resolved(f), name)
+        _NAMES_SEEN[0] = len(sys.modules)
+    return _NAMES.get(path, "")
 
 
 def code_files(module_file: str) -> list[str]:
