@@ -393,8 +393,13 @@ class _Run:
                 self.mem[(inst.name, name, item)] = v
                 self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
         if save and self.store is not None and key is not None:
+            # collection indexes in the manifest too: a rerun learns the items without loading the
+            # entry (which may hold big values beside them, such as calibration views)
             self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
-                                          "messages": list(messages or [])}, compute_seconds=seconds)
+                                          "messages": list(messages or []),
+                                          "indexes": {n: single[n] for n in colls},
+                                          "indexes_digest": hash_json({n: single[n] for n in colls})},
+                            compute_seconds=seconds)
 
     def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
                      manifest: dict[str, Any] | None = None) -> None:
@@ -409,7 +414,14 @@ class _Run:
         for name, o in inst.spec.outputs.items():
             self.ref_keys[(inst.name, name, item)] = key
             if o.collection:
-                index = self.get((inst.name, name, item))
+                indexes = meta.get("indexes")
+                # (a damaged manifest must not name wrong items: its digest decides, else the entry is read)
+                index = indexes.get(name) if isinstance(indexes, dict) and \
+                    hash_json(indexes) == meta.get("indexes_digest") else None
+                if not (isinstance(index, dict) and isinstance(index.get("__items__"), list)
+                        and isinstance(index.get("__keys__"), list)
+                        and len(index["__items__"]) == len(index["__keys__"])):
+                    index = self.get((inst.name, name, item))  # an entry from before indexes were kept there
                 ids = index["__items__"]
                 self.items[(inst.name, name)] = ids
                 for i, k in zip(ids, index["__keys__"]):

@@ -367,6 +367,10 @@ def test_corrupt_collection_entry_is_recomputed(tmp_path, damage):
         data = bytearray((index[0] / "data.json").read_bytes())
         data[len(data) // 2] ^= 0x01
         (index[0] / "data.json").write_bytes(bytes(data))
+        # the copy of the index a rerun reads from the manifest, damaged too (JSON still valid)
+        man = json.loads((index[0] / "manifest.json").read_text())
+        man["meta"]["indexes"]["items"]["__items__"][0] += "x"
+        (index[0] / "manifest.json").write_text(json.dumps(man))
     else:
         item = next(d for d in entries if (d / "arrays.npz").exists() and d not in index)
         (item / "arrays.npz").write_bytes(bytes((item / "arrays.npz").stat().st_size))
