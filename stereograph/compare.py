@@ -431,8 +431,10 @@ class _RichProgress(_PlainProgress):
     def variant_done(self, vr: VariantResult) -> None:
         self.p.advance(self.overall)
         ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (cached)"
-        mark = "[green]ok[/]" if vr.ok else f"[red]failed[/]: {vr.error}"
-        self.console.print(f"{vr.variant.label}: {mark}; computed {ran} ({vr.seconds:.1f} s)")
+        from rich.markup import escape  # labels and errors are user text: print them literally
+
+        mark = "[green]ok[/]" if vr.ok else f"[red]failed[/]: {escape(str(vr.error))}"
+        self.console.print(f"{escape(vr.variant.label)}: {mark}; computed {escape(ran)} ({vr.seconds:.1f} s)")
 
     def node_started(self, name: str, n_items: int) -> None:
         if self.current is not None:
@@ -798,25 +800,26 @@ def print_table(res: CompareResult, console: Any = None) -> None:
     """
     from rich import box
     from rich.console import Console
+    from rich.markup import escape
     from rich.table import Table
 
     con = console or Console(highlight=False)
     keys = _varying_keys(res)
     fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
     narrow = con.width < 150
-    t = Table(title=f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)"
-              + (f"; fixed: {', '.join(fixed)}" if fixed else ""), title_justify="left",
+    t = Table(title=escape(f"compare {Path(res.pipeline).name} — {res.split} split, errors = measured − truth (cm)"
+                           + (f"; fixed: {', '.join(fixed)}" if fixed else "")), title_justify="left",
               **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}))
     cols = _table_columns(narrow)
     for k in keys:
         width = max(len(_show(r["settings"][k])) for r in res.rows) if res.rows else 4
-        t.add_column(k, no_wrap=True, min_width=min(width, 22))
+        t.add_column(escape(k), no_wrap=True, min_width=min(width, 22))
     for header, _ in cols:
         t.add_column(header, justify="right", no_wrap=True)
     zs = [r.get("z_rms_cm") for r in res.rows if r.get("z_rms_cm") is not None]
     best = min(zs) if zs else None
     for r in res.rows:
-        cells = [_show(r["settings"][k]) for k in keys]
+        cells = [escape(_show(r["settings"][k])) for k in keys]
         if not r["ok"] and not r.get("n_truth"):
             t.add_row(*cells, *(["–"] * len(cols)), style="red")
             continue
@@ -825,7 +828,7 @@ def print_table(res: CompareResult, console: Any = None) -> None:
     con.print(t)
     for vr in res.variants:
         if not vr.ok:
-            con.print(f"[red]variant {vr.variant.label} failed:[/] {vr.error}")
+            con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
 
 
 # --------------------------------------------------------------------------- CLI
@@ -881,7 +884,7 @@ def main(args: Any) -> int:
         print(res.files["json"].read_text())
     else:
         print_table(res, con)
-        con.print(f"outputs: {res.out_dir} ({', '.join(p.name for p in res.files.values())})")
+        con.print(f"outputs: {res.out_dir} ({', '.join(p.name for p in res.files.values())})", markup=False)
     if not res.ok:
         err.print("[red]error:[/] some variants failed (see above); what finished is cached, so a rerun "
                   "computes only what is missing.")

@@ -90,8 +90,8 @@ def check_name(name: str, what: str, where: Where, node: str | None = None, dots
     if not pattern.match(name) or len(name) > MAX_NAME_CHARS or ".." in name:
         allowed = "letters, digits, '_', '-'" + (" and '.'" if dots else "")
         raise ConfigError(f"invalid {what} {name!r}", where, node,
-                          hint=f"a {what} is used as a file name: use {allowed} only, starting with a letter or "
-                               f"digit, at most {MAX_NAME_CHARS} characters"
+                          hint=f"a {what} is used as a file name: use {allowed} only, starting with a letter, "
+                               f"digit or '_', at most {MAX_NAME_CHARS} characters"
                                + ("" if dots else " ('.' separates node and output in inputs)"))
 
 

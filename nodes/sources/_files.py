@@ -111,16 +111,19 @@ def header_size(path: Path) -> tuple[int, int] | None:
         Image.MAX_IMAGE_PIXELS = before
 
 
-def read_image(path: Path, color: bool = True, max_mpx: float = DEFAULT_MAX_MPX) -> np.ndarray:
+def read_image(path: Path, color: bool = True, max_mpx: float = DEFAULT_MAX_MPX,
+               expect_size: tuple[int, int] | None = None) -> np.ndarray:
     """Read an image as uint8 BGR (``color``) or as stored (grey stays grey).
 
     The size is checked from the header before decoding: a 20000x20000 PNG is a few hundred KB on
-    disk but gigabytes decoded.
+    disk but gigabytes decoded. ``expect_size`` (width, height), e.g. the calibration's, refuses
+    any other size the same way.
 
     Raises
     ------
     NodeError
-        The file cannot be read, is not an image, or is larger than ``max_mpx`` megapixels.
+        The file cannot be read, is not an image, is larger than ``max_mpx`` megapixels, or is
+        not ``expect_size``.
     """
     size = header_size(path) if path.is_file() else None
     if size is not None and size[0] * size[1] > max_mpx * 1e6:
@@ -128,6 +131,10 @@ def read_image(path: Path, color: bool = True, max_mpx: float = DEFAULT_MAX_MPX)
                         f"limit of {max_mpx:g} Mpx; it was not decoded.",
                         hint="use images of the cameras' resolution, or raise max_image_mpx if they really are "
                              "that large")
+    if size is not None and expect_size is not None and tuple(size) != tuple(expect_size):
+        raise NodeError(f"image {path} is {size[0]}x{size[1]}, not the expected {expect_size[0]}x{expect_size[1]}; "
+                        "it was not decoded.", hint="use images from the calibrated cameras at their resolution, "
+                                                    "or fix image_size_px")
     try:
         data = np.fromfile(str(path), dtype=np.uint8) if path.is_file() else None
         flag = cv2.IMREAD_COLOR if color else cv2.IMREAD_UNCHANGED

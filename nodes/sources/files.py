@@ -53,6 +53,9 @@ class FilesParams(Params):
     seed: int = Field(0, ge=0, description="Seed of the train/test split.")
     max_image_mpx: float = Field(DEFAULT_MAX_MPX, gt=0, description="Largest image read, megapixels (checked from "
                                  "the file's header before decoding); a pair with a larger image is skipped.")
+    image_size_px: tuple[int, int] | None = Field(None, description="Expected image size, width and height in "
+                                                  "pixels (the calibration's image_size); a pair of another size is "
+                                                  "skipped before decoding. None = any size.")
 
 
 def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
@@ -88,7 +91,8 @@ def files(params: FilesParams, ctx=None) -> dict:
     for pid, lp, rp in pairs_list:
         split = "train" if rng.random() < params.train_fraction else "test"  # drawn for every pair: a skip
         try:                                                                # leaves the others' split as it was
-            left, right = read_image(lp, max_mpx=params.max_image_mpx), read_image(rp, max_mpx=params.max_image_mpx)
+            kw = {"max_mpx": params.max_image_mpx, "expect_size": params.image_size_px}
+            left, right = read_image(lp, **kw), read_image(rp, **kw)
             if left.shape != right.shape:
                 raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
                                 f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")

@@ -10,7 +10,7 @@ from stereograph.api import Field, In, NodeError, Out, Params, node
 class NumbersParams(Params):
     n: int = Field(5, ge=0, le=10_000, description="How many items (count).")
     size: int = Field(64, ge=1, description="Side of each item's array (elements).")
-    seed: int = Field(0, description="Random seed.")
+    seed: int = Field(0, ge=0, description="Random seed (NumPy needs it non-negative).")
 
 
 @node("toy.numbers", outputs={"items": Out("Matrix", collection=True)}, params=NumbersParams)
