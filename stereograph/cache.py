@@ -153,7 +153,25 @@ def _is_local(path: str) -> bool:
     return p.endswith(".py") and not p.startswith(_SYSTEM_DIRS) and not p.startswith(_ENGINE_DIR)
 
 
+@lru_cache(maxsize=1024)
+def _top_is_local(top: str) -> bool:
+    """Whether a top-level package could hold project-local modules. Asking about ``pkg.sub``
+    imports ``pkg``: for a site-packages or stdlib package (matplotlib, say) that costs a second
+    and cannot find anything local, so such names are not looked up at all."""
+    try:
+        spec = importlib.util.find_spec(top)  # a top-level name imports nothing
+    except (ImportError, ValueError, AttributeError):
+        return False
+    if spec is None:
+        return False
+    if spec.origin and spec.origin not in ("namespace", "built-in", "frozen"):
+        return _is_local(spec.origin)
+    return any(_is_local(str(Path(p) / "__init__.py")) for p in (spec.submodule_search_locations or []))
+
+
 def _find_origin(name: str) -> str | None:
+    if "." in name and not _top_is_local(name.partition(".")[0]):
+        return None
     try:
         spec = importlib.util.find_spec(name)
     except (ImportError, ValueError, AttributeError):
