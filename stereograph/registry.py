@@ -55,8 +55,12 @@ def _fingerprint() -> list:
 
 
 def _index_file() -> Path:
+    """One folder per Python environment (two virtual environments must not take turns rewriting it)."""
+    import hashlib
+
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "stereograph" / "entry-points.json"
+    env = hashlib.blake2b(sys.prefix.encode(), digest_size=6).hexdigest()
+    return Path(base) / "stereograph" / env / "entry-points.json"
 
 
 @lru_cache(maxsize=1)

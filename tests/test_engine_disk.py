@@ -167,3 +167,23 @@ def test_the_cache_stays_within_its_budget(tmp_path, monkeypatch):
     monkeypatch.setenv("STEREOGRAPH_CACHE_BUDGET_GB", "lots")
     with pytest.raises(ConfigError, match="STEREOGRAPH_CACHE_BUDGET_GB"):
         run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o3")
+
+
+def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, monkeypatch):
+    from stereograph import registry
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    registry._all_groups.cache_clear()
+    assert "rectifier.remap" in registry.names()
+    index = registry._index_file()
+    assert index.is_file() and str(tmp_path) in str(index)
+    # the index is what is read while sys.path's folders are unchanged ...
+    index.write_text(json.dumps([{"fingerprint": registry._fingerprint(),
+                                  "groups": {registry.GROUP: {"only.this": "x:y"}}}]))
+    registry._all_groups.cache_clear()
+    assert registry.names() == ["only.this"] or "only.this" in registry.names()
+    # ... and a changed folder (a package installed) makes it scan again
+    index.write_text(json.dumps([{"fingerprint": [["/nowhere", 1]], "groups": {registry.GROUP: {"only.this": "x:y"}}}]))
+    registry._all_groups.cache_clear()
+    assert "only.this" not in registry.names() and "rectifier.remap" in registry.names()
+    registry._all_groups.cache_clear()
