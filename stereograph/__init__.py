@@ -12,7 +12,7 @@ The engine is a handful of modules, read in this order:
 - :mod:`stereograph.pyapi`    the Python API: :func:`run`, :func:`check`, :func:`compare` (docs/python.md)
 """
 
-from stereograph.api import REGISTRY, Field, In, NodeError, NodeSpec, Out, Params, RunContext, node
+from typing import Any
 
 __all__ = ["REGISTRY", "Field", "In", "NodeError", "NodeSpec", "Out", "Params", "RunContext", "node",
            "run", "check", "compare", "Result"]
@@ -21,8 +21,8 @@ __version__ = "0.1.0"
 _PYAPI = {"run", "check", "compare", "Result", "NodeFailed"}
 
 
-def __getattr__(name: str):
-    # imported on first use: `import stereograph` (and every node module) stays light
+def __getattr__(name: str) -> Any:
+    # imported on first use: `import stereograph` (and `stereograph --help`) stays light
     if name == "compare":  # the module, callable as the API's compare (see stereograph/compare.py)
         import importlib
 
@@ -31,4 +31,8 @@ def __getattr__(name: str):
         from stereograph import pyapi
 
         return getattr(pyapi, name)
+    if name in __all__:  # the node API (pydantic)
+        from stereograph import api
+
+        return getattr(api, name)
     raise AttributeError(f"module 'stereograph' has no attribute {name!r}")

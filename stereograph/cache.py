@@ -37,11 +37,38 @@ from typing import Any
 import numpy as np
 from filelock import FileLock, Timeout
 
-FORMAT = "1"  # bump when the entry layout changes
+FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
 
 class CorruptEntry(Exception):
     """An entry whose files do not match its manifest."""
+
+
+class NotStored(Exception):
+    """An entry kept as a manifest only: recomputing its value is cheaper than reading it back."""
+
+
+def is_png_image(a: Any) -> bool:
+    """An 8-bit image PNG holds exactly (HxW, HxWx3, HxWx4 ``uint8``, not tiny)."""
+    return (isinstance(a, np.ndarray) and a.dtype == np.uint8 and a.size > 64
+            and (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))))
+
+
+def _png_encode(a: np.ndarray) -> bytes | None:
+    """PNG bytes (OpenCV's default level: fast, lossless), byte-identical to what the run folder gets."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(a))
+    return buf.tobytes() if ok else None
+
+
+def _png_decode(data: bytes) -> np.ndarray:
+    import cv2
+
+    a = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if a is None or a.dtype != np.uint8:
+        raise ValueError("an image file of the entry does not decode")
+    return a
 
 
 def digest(data: bytes) -> str:
@@ -126,7 +153,25 @@ def _is_local(path: str) -> bool:
     return p.endswith(".py") and not p.startswith(_SYSTEM_DIRS) and not p.startswith(_ENGINE_DIR)
 
 
+@lru_cache(maxsize=1024)
+def _top_is_local(top: str) -> bool:
+    """Whether a top-level package could hold project-local modules. Asking about ``pkg.sub``
+    imports ``pkg``: for a site-packages or stdlib package (matplotlib, say) that costs a second
+    and cannot find anything local, so such names are not looked up at all."""
+    try:
+        spec = importlib.util.find_spec(top)  # a top-level name imports nothing
+    except (ImportError, ValueError, AttributeError):
+        return False
+    if spec is None:
+        return False
+    if spec.origin and spec.origin not in ("namespace", "built-in", "frozen"):
+        return _is_local(spec.origin)
+    return any(_is_local(str(Path(p) / "__init__.py")) for p in (spec.submodule_search_locations or []))
+
+
 def _find_origin(name: str) -> str | None:
+    if "." in name and not _top_is_local(name.partition(".")[0]):
+        return None
     try:
         spec = importlib.util.find_spec(name)
     except (ImportError, ValueError, AttributeError):
@@ -163,12 +208,25 @@ def _imports_of(path: str, mtime_ns: int, package: str) -> tuple[str, ...]:
     return tuple(sorted(set(found)))
 
 
+@lru_cache(maxsize=8192)
+def _resolved(file: str) -> str:
+    return str(Path(file).resolve())
+
+
+_NAMES: dict[str, str] = {}  # resolved module file -> module name, for the sys.modules it was built from
+_NAMES_SEEN = [0]
+
+
 def _module_name_for(path: str) -> str:
-    for name, mod in list(sys.modules.items()):
-        f = getattr(mod, "__file__", None)
-        if f and str(Path(f).resolve()) == path:
-            return name
-    return ""
+    # resolving every loaded module's path on every call was most of a cached rerun's time
+    if len(sys.modules) != _NAMES_SEEN[0] or path not in _NAMES:
+        _NAMES.clear()
+        for name, mod in list(sys.modules.items()):
+            f = getattr(mod, "__file__", None)
+            if isinstance(f, str):
+                _NAMES.setdefault(_resolved(f), name)
+        _NAMES_SEEN[0] = len(sys.modules)
+    return _NAMES.get(path, "")
 
 
 def code_files(module_file: str) -> list[str]:
@@ -289,6 +347,7 @@ class ArtifactStore:
                               hint="choose another --cache-dir (a folder), or remove that file")
         self.writable = self._probe()
         self.files = FileIndex(self.root)
+        self._written = 0
 
     def _probe(self) -> bool:
         """Whether entries can be stored here, asked without creating anything (``cache info`` and
@@ -347,6 +406,8 @@ class ArtifactStore:
                 if digest(b) != rec["digest"]:
                     raise CorruptEntry(f"{name} does not match its digest")
                 blobs[name] = b
+            if man.get("recompute"):
+                raise NotStored(man.get("recompute_reason", "cheaper to recompute than to read"))
             data = json.loads(blobs["data.json"])
             arrays = {}
             if "arrays.npz" in blobs:
@@ -354,11 +415,28 @@ class ArtifactStore:
 
                 with np.load(io.BytesIO(blobs["arrays.npz"]), allow_pickle=False) as z:
                     arrays = {k: z[k] for k in z.files}
+            for name, b in blobs.items():
+                if name.endswith(".png"):
+                    arrays[name[:-4]] = _png_decode(b)
             return decode(data, arrays)
-        except CorruptEntry:
+        except (CorruptEntry, NotStored):
             raise
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise CorruptEntry(str(e)) from e
+
+    def ready_file(self, key: str, output: str) -> Path | None:
+        """The stored PNG of a top-level image ``output`` of entry ``key`` -- the very file a run folder
+        gets for it -- if it matches its digest, else None."""
+        d = self._dir(key)
+        try:
+            man = json.loads((d / "manifest.json").read_text())
+            name = man.get("png_outputs", {}).get(output)
+            if not isinstance(name, str) or "/" in name:
+                return None
+            b = (d / name).read_bytes()
+            return d / name if digest(b) == man["files"][name]["digest"] else None
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return None
 
     def meta(self, key: str) -> dict[str, Any] | None:
         try:
@@ -366,25 +444,59 @@ class ArtifactStore:
         except (OSError, ValueError):
             return None
 
-    def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None) -> None:
+    def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None,
+             compute_seconds: float | None = None) -> None:
         """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept.
 
         On a read-only or full cache nothing is stored (the run goes on; :attr:`notes` says so).
         A value that is not plain data raises ``TypeError`` whatever the cache.
+
+        ``compute_seconds``: what computing ``outputs`` took, given when the caller may do without a
+        stored copy. If it is less than encoding the entry's images took (measured here, now: decoding
+        costs about as much), only the manifest is kept (see :class:`NotStored`): the entry reads as
+        fresh, and whoever needs its value computes it again from its cached inputs.
         """
         import io
 
         arrays: dict[str, np.ndarray] = {}
-        data = json.dumps(encode(outputs, arrays, "outputs"), allow_nan=True).encode()
-        blobs = {"data.json": data}
-        if arrays:
-            buf = io.BytesIO()
-            np.savez(buf, **arrays)
-            blobs["arrays.npz"] = buf.getvalue()
-        manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
-                    "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()}}
+        tree = encode(outputs, arrays, "outputs")
         if not self.writable:
             return
+        data = json.dumps(tree, allow_nan=True).encode()
+        blobs = {"data.json": data}
+        ready: dict[str, str] = {}
+        # 8-bit images as PNG (lossless, 3-10x smaller than raw); a top-level image output's PNG
+        # is also the run folder's file for it, copied as it is (no second copy under rendered/)
+        t0 = time.perf_counter()
+        for name in [n for n, a in arrays.items() if is_png_image(a)]:
+            png = _png_encode(arrays[name])
+            if png is not None:
+                blobs[f"{name}.png"] = png
+                del arrays[name]
+        codec_seconds = time.perf_counter() - t0
+        recompute = (compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds)
+        for out, ref in tree.items() if isinstance(tree, dict) else ():
+            if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}.png" in blobs:
+                ready[out] = f"{ref['__ndarray__']}.png"
+        if arrays:
+            buf = io.BytesIO()
+            # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
+            # float arrays barely compress, so they are stored as they are
+            (np.savez_compressed if any(a.dtype == np.bool_ for a in arrays.values()) else np.savez)(buf, **arrays)
+            blobs["arrays.npz"] = buf.getvalue()
+        manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
+                    "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},
+                    **({"png_outputs": ready} if ready else {})}
+        if recompute:
+            # only the manifest: the entry reads as fresh, and its value is computed again from its
+            # (cached) inputs by whoever needs it -- cheaper than reading it back
+            blobs, manifest["files"], manifest["recompute"] = {}, {}, True
+            manifest["recompute_reason"] = (f"computing took {compute_seconds * 1e3:.1f} ms, encoding its images "
+                                            f"{codec_seconds * 1e3:.1f} ms")
+            manifest.pop("png_outputs", None)
+        self._write_entry(key, blobs, manifest)
+
+    def _write_entry(self, key: str, blobs: dict[str, bytes], manifest: dict[str, Any]) -> None:
         tmp = self.tmp / uuid.uuid4().hex
         try:
             tmp.mkdir(parents=True)
@@ -401,6 +513,7 @@ class ArtifactStore:
                 shutil.rmtree(final, ignore_errors=True)  # a stale/corrupt entry
             try:
                 os.rename(tmp, final)
+                self._written += sum(len(b) for b in blobs.values())
             except OSError:
                 pass  # another run put it there first: its copy is as good as ours
         except OSError as e:  # a full disk, say: keep going without this entry
@@ -463,49 +576,74 @@ class ArtifactStore:
 
     # ---- `stereograph cache info|clear`
 
-    def info(self) -> dict[str, Any]:
+    def info(self, budget: int | None = None) -> dict[str, Any]:
+        """Entries, bytes (entries and their rendered files) by node type, and the budget if given."""
         n, size, by_node = 0, 0, {}
-        if self.objects.is_dir():
-            for d in self._entries():
-                man = self.meta(d.name)
-                s = sum(f.stat().st_size for f in d.iterdir() if f.is_file())
-                n += 1
+        for _used, s, key, d in self._usage():
+            if d is None:  # rendered files whose entry is gone
                 size += s
-                t = (man or {}).get("meta", {}).get("type", "?")
-                cnt, sz = by_node.get(t, (0, 0))
-                by_node[t] = (cnt + 1, sz + s)
-        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node}
+                continue
+            t = ((self.meta(key) or {}).get("meta", {}) or {}).get("type", "?")
+            n += 1
+            size += s
+            cnt, sz = by_node.get(t, (0, 0))
+            by_node[t] = (cnt + 1, sz + s)
+        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node, "budget": budget}
 
-    def prune(self, max_bytes: int) -> tuple[int, int]:
-        """Delete the least recently used entries until the store holds at most ``max_bytes``.
+    def _usage(self) -> list[tuple[float, int, str, Path | None]]:
+        """(last use, bytes, key, entry folder or None) per entry, its rendered files counted with it."""
+        def du(d: Path) -> int:
+            with contextlib.suppress(OSError):
+                return sum(f.stat().st_size for f in d.iterdir() if f.is_file())
+            return 0
 
-        Returns (entries removed, bytes freed). Rendered output files go with their entry.
-        """
-        if not self.writable:
-            from stereograph.errors import ConfigError
-
-            raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
-        entries = []
-        total = 0
+        rendered: dict[str, list[Path]] = {}
+        rroot = self.root / "rendered"
+        if rroot.is_dir():
+            for sub in rroot.iterdir():
+                if sub.is_dir():
+                    for r in sub.iterdir():
+                        rendered.setdefault(r.name.split("-", 1)[0], []).append(r)
+        rows = []
         if self.objects.is_dir():
             for d in self._entries():
                 try:
                     used = (d / "manifest.json").stat().st_mtime
                 except OSError:
                     used = 0.0
-                size = sum(f.stat().st_size for f in d.iterdir() if f.is_file())
-                entries.append((used, size, d.name))
-                total += size
+                size = du(d) + sum(du(r) for r in rendered.pop(d.name, []))
+                rows.append((used, size, d.name, d))
+        for key, dirs in rendered.items():
+            rows.append((0.0, sum(du(r) for r in dirs), key, None))
+        return rows
+
+    def prune(self, max_bytes: int) -> tuple[int, int]:
+        """Delete the least recently used entries until the store holds at most ``max_bytes``.
+
+        Returns (entries removed, bytes freed). Rendered output files go with their entry. An entry
+        in use by a run stays readable: that run holds its value in memory, or recomputes it.
+        """
+        if not self.writable:
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
+        rows = self._usage()
+        total = sum(r[1] for r in rows)
         removed = freed = 0
-        for _used, size, key in sorted(entries):
+        for _used, size, key, d in sorted(rows, key=lambda r: r[0]):
             if total - freed <= max_bytes:
                 break
-            self.delete(key)
+            if d is not None:
+                self.delete(key)
+                removed += 1
             for r in (self.root / "rendered" / key[:2]).glob(f"{key}-*"):
                 shutil.rmtree(r, ignore_errors=True)
-            removed += 1
             freed += size
         return removed, freed
+
+    def stored_bytes(self) -> int:
+        """Bytes this store object wrote in this process (decides whether a prune is worth a look)."""
+        return self._written
 
     def _entries(self) -> Iterator[Path]:
         """Entry folders (a stray file such as .DS_Store, or a half-deleted entry, is skipped)."""

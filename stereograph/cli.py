@@ -175,14 +175,11 @@ def cmd_nodes(args) -> int:
         con.print(t)
         return 0
     t = Table("node type", "inputs → outputs", "description")
-    for name in registry.names():
-        try:
-            spec = registry.get(name)
-            io = (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
-                  ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items()))
-            t.add_row(escape(name), escape(io), escape(spec.description))
-        except ConfigError as e:
-            t.add_row(escape(name), "[red]unavailable[/]", escape(str(e)))
+    for name, s in registry.summaries().items():  # (an index: no node module imported when unchanged)
+        if "error" in s:
+            t.add_row(escape(name), "[red]unavailable[/]", escape(s["error"]))
+        else:
+            t.add_row(escape(name), escape(s["io"]), escape(s["description"]))
     con.print(t)
     return 0
 
@@ -218,8 +215,11 @@ def _echo_results(result, con) -> None:
     from stereograph.outputs import is_file_value, to_json
 
     shown = 0
-    for (node, out, item), v in result._values.items():
-        if node not in result.terminal or item is not None or not isinstance(v, (dict, list, float, int, str)):
+    for node, out, item in list(result._values):
+        if node not in result.terminal or item is not None:
+            continue  # (decided before loading: a cached rerun reads only what it shows)
+        v = result._values[(node, out, item)]
+        if not isinstance(v, (dict, list, float, int, str)):
             continue
         if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
             continue
@@ -371,7 +371,9 @@ def cmd_cache(args) -> int:
     elif args.pipeline:
         root = default_cache_dir(load_pipeline(args.pipeline))
     else:
-        root = Path.cwd() / "pipelines" / ".stereograph" / "cache"
+        from stereograph.project import cache_dir
+
+        root = cache_dir(Path.cwd())
     store = ArtifactStore(root)
     con = _console()
     if args.action == "clear":
@@ -384,8 +386,17 @@ def cmd_cache(args) -> int:
         n, freed = store.prune(int(args.max_gb * 1e9))
         con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
         return 0
-    info = store.info()
-    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB", markup=False)
+    from stereograph.project import budget_bytes
+
+    try:
+        budget = budget_bytes(Path(args.pipeline).parent if args.pipeline else Path.cwd())
+    except ValueError as e:
+        raise ConfigError(f"cache budget: {e}",
+                          hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4") from None
+    info = store.info(budget)
+    limit = f" of a {budget / 1e9:g} GB budget (least recently used entries pruned after runs)" if budget else \
+        " (no budget)"
+    con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB{limit}", markup=False)
     for t, (n, b) in sorted(info["by_type"].items()):
         con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB", markup=False)
     return 0
@@ -405,7 +416,9 @@ def _non_negative_int(text: str) -> int:
     return _positive_int(text, 0, "0 (until stopped) or more")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
+    """The command's parser; ``lazy`` leaves out what needs heavy imports (``compare``'s own options:
+    ``main`` builds the full parser when the line names it), so ``--help`` starts fast."""
     p = argparse.ArgumentParser(prog="stereograph", description="Stereo localisation and robot-arm picking as a "
                                 "config-driven processing graph.")
     p.add_argument("--version", action="version", version=f"stereograph {__version__}")
@@ -424,8 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
         return sp
 
     sp = pipeline_cmd("run", "run a pipeline")
-    sp.add_argument("--out", help="output folder (default runs/<name>/<run-id>)")
-    sp.add_argument("--cache-dir", help="artifact cache (default .stereograph/cache next to the pipeline)")
+    sp.add_argument("--out", help="output folder (default <project>/runs/<name>/<run-id>)")
+    sp.add_argument("--cache-dir", help="artifact cache (default: the project's .stereograph/cache, or "
+                    "STEREOGRAPH_CACHE_DIR; see docs/cache.md)")
     sp.add_argument("--no-cache", action="store_true", help="compute everything, store nothing")
     sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
     sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
@@ -456,18 +470,22 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("nodes", help="list node types, or show one's params")
     sp.add_argument("name", nargs="?")
     sp.set_defaults(fn=cmd_nodes)
-    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear")
+    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
     sp.add_argument("action", choices=["info", "prune", "clear"])
     sp.add_argument("--max-gb", type=float, help="prune: keep the most recently used entries up to this size (GB)")
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
     sp.add_argument("--cache-dir")
     sp.set_defaults(fn=cmd_cache)
-    try:
-        from stereograph import compare as compare_mod
+    if lazy:
+        sub.add_parser("compare", help="run every combination of --vary settings and compare accuracy",
+                       add_help=False)
+    else:
+        try:
+            from stereograph import compare as compare_mod
 
-        compare_mod.add_subcommand(sub)
-    except (ImportError, AttributeError):
-        pass
+            compare_mod.add_subcommand(sub)
+        except (ImportError, AttributeError):
+            pass
     for name in registry.commands():
         sp = sub.add_parser(name, help=f"(from a node package) see `stereograph {name} --help`", add_help=False)
         sp.add_argument("rest", nargs=argparse.REMAINDER)
@@ -477,7 +495,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    parser = build_parser(lazy="compare" not in argv)
     if argv and argv[0] in registry.commands():
         ep = registry.commands()[argv[0]]
         return int(ep.load()(argv[1:]) or 0)

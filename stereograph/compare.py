@@ -460,9 +460,10 @@ class _RichProgress(_PlainProgress):
 
 
 def _default_out(doc: PipelineDoc) -> Path:
+    from stereograph.project import runs_dir
     from stereograph.runner import new_run_id
 
-    return Path.cwd() / "runs" / doc.name / f"compare-{new_run_id()}"
+    return runs_dir(doc.directory) / doc.name / f"compare-{new_run_id()}"
 
 
 def compare(
@@ -887,7 +888,7 @@ def add_subcommand(subparsers: Any) -> Any:
     sp.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
                     help="override applied to every variant; repeatable")
     sp.add_argument("--out", help="output folder (default runs/<name>/compare-<run-id>)")
-    sp.add_argument("--cache-dir", help="shared artifact cache (default .stereograph/cache next to the pipeline)")
+    sp.add_argument("--cache-dir", help="shared artifact cache (default: the project's, see docs/cache.md)")
     sp.add_argument("--split", default=None, metavar="NAME",
                     help="set the 'split' param of every node that declares metrics and takes one "
                          "(test, train, all); default: as the pipeline says")

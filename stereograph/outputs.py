@@ -156,6 +156,11 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     """
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
+    ready = store.ready_file(key, output) if hasattr(store, "ready_file") else None
+    if ready is not None:  # the entry keeps this image as the very PNG the run folder gets
+        dest = _with_ext(stem, ".png")
+        _link_or_copy(ready, dest)
+        return [dest]
     rdir = store.root / "rendered" / key[:2] / f"{key}-{output}"
     blobs = _verified_render(rdir)
     if blobs:
@@ -168,8 +173,8 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if rdir.exists() and getattr(store, "writable", True):  # corrupt or unverifiable: render again
         shutil.rmtree(rdir, ignore_errors=True)
     files = produce()
-    if not getattr(store, "writable", True):
-        return files
+    if not getattr(store, "writable", True) or (hasattr(store, "ready_file") and store.ready_file(key, output)):
+        return files  # (an entry stored just now keeps the PNG itself: no second copy)
     tmp = store.tmp / f"r-{uuid.uuid4().hex}"
     try:
         tmp.mkdir(parents=True, exist_ok=True)
@@ -187,6 +192,21 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return files
+
+
+def _link_or_copy(src: Path, dest: Path) -> None:
+    """Put ``src`` at ``dest`` as a hard link (no second copy on disk), else as a copy (another disk).
+
+    The cache checks its files' digests before any use, so a linked result edited in place is
+    detected there, and recomputed, never delivered."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        os.link(src, tmp)
+        os.replace(tmp, dest)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        _write_bytes(dest, src.read_bytes())
 
 
 RENDER_DIGESTS = "digests.json"
@@ -290,8 +310,10 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
             try:
                 if graph.is_collection(name, out):
                     ids = run.items.get((name, out), [])
-                    first = run.get((name, out, ids[0])) if ids else None
-                    if ids and is_image(first):  # one file per item: reuse earlier renders
+                    # an image per item is known from the first entry's manifest, without loading it
+                    ready = (store is not None and ids and hasattr(store, "ready_file") and
+                             store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None)
+                    if ids and (ready or is_image(run.get((name, out, ids[0])))):  # one file per item
                         files = []
                         for i in ids:
                             p = stem / file_name(i)

@@ -10,27 +10,90 @@ import contextlib
 import difflib
 import importlib
 import importlib.util
+import json
+import os
 import sys
 from collections.abc import Iterator
 from functools import lru_cache
-from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from stereograph.api import REGISTRY, NodeSpec
 from stereograph.errors import ConfigError, Where
+
+if TYPE_CHECKING:
+    from stereograph.api import NodeSpec
 
 GROUP = "stereograph.nodes"
 COMMANDS_GROUP = "stereograph.commands"
 
 
+class EntryPoint:
+    """A named ``module:attr`` reference, imported on :meth:`load` (what ``importlib.metadata`` gives,
+    without its import and its scan of every installed package)."""
+
+    def __init__(self, name: str, value: str):
+        self.name, self.value = name, value
+
+    def load(self):
+        module, _, attr = self.value.partition(":")
+        obj = importlib.import_module(module.strip())
+        for part in filter(None, attr.strip().split(".")):
+            obj = getattr(obj, part)
+        return obj
+
+
+def _fingerprint() -> list:
+    """What installing or removing a package changes: the folders on ``sys.path`` and their mtimes
+    (a new or rewritten ``*.dist-info`` changes its folder's mtime)."""
+    out = []
+    for p in sys.path:
+        try:
+            out.append([p, os.stat(p or ".").st_mtime_ns])
+        except OSError:
+            out.append([p, None])
+    return out
+
+
+def _index_file() -> Path:
+    """One folder per Python environment (two virtual environments must not take turns rewriting it)."""
+    import hashlib
+
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    env = hashlib.blake2b(sys.prefix.encode(), digest_size=6).hexdigest()
+    return Path(base) / "stereograph" / env / "entry-points.json"
+
+
 @lru_cache(maxsize=1)
+def _all_groups() -> dict[str, dict[str, str]]:
+    """Both entry-point groups as {group: {name: value}}, from a small index file while the installed
+    packages are unchanged (scanning every package's metadata costs more than the rest of ``--help``)."""
+    fp = _fingerprint()
+    path = _index_file()
+    known: list = []
+    with contextlib.suppress(OSError, ValueError, TypeError, AttributeError):
+        known = [e for e in json.loads(path.read_text()) if isinstance(e, dict)]
+        for e in known:  # one per sys.path seen (the console script's differs from `python -m`'s)
+            if e.get("fingerprint") == fp and isinstance(e.get("groups"), dict):
+                return e["groups"]
+    from importlib.metadata import entry_points
+
+    groups = {g: {ep.name: ep.value for ep in entry_points(group=g)} for g in (GROUP, COMMANDS_GROUP)}
+    with contextlib.suppress(OSError):  # a read-only home: the index is only a fast path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps([{"fingerprint": fp, "groups": groups}] + known[:7]))
+        os.replace(tmp, path)
+    return groups
+
+
 def _entry_points() -> dict[str, EntryPoint]:
-    return {ep.name: ep for ep in entry_points(group=GROUP)}
+    return {n: EntryPoint(n, v) for n, v in _all_groups().get(GROUP, {}).items()}
 
 
 def names() -> list[str]:
     """All known node type names, sorted."""
-    return sorted(set(_entry_points()) | set(REGISTRY))
+    api = sys.modules.get("stereograph.api")  # (no node can be registered before it is imported)
+    return sorted(set(_entry_points()) | set(api.REGISTRY if api else ()))
 
 
 def get(name: str, where: Where | None = None, node: str | None = None) -> NodeSpec:
@@ -41,6 +104,8 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
     ConfigError
         Unknown name (with the closest known names), or a module that fails to import.
     """
+    from stereograph.api import REGISTRY, NodeSpec
+
     if name in REGISTRY:
         return REGISTRY[name]
     ep = _entry_points().get(name)
@@ -131,7 +196,68 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                               hint="plugins are module names or .py paths relative to the pipeline file") from None
 
 
-@lru_cache(maxsize=1)  # reading every installed package's metadata takes tens of ms
 def commands() -> dict[str, EntryPoint]:
     """Extra CLI sub-commands contributed by node packages."""
-    return {ep.name: ep for ep in entry_points(group=COMMANDS_GROUP)}
+    return {n: EntryPoint(n, v) for n, v in _all_groups().get(COMMANDS_GROUP, {}).items()}
+
+
+def _module_stamp(value: str) -> list:
+    """Size and mtime of a node module's file and of the files beside it (its package's helpers),
+    found without importing the module (its parent packages only)."""
+    module = value.partition(":")[0].strip()
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError, AttributeError):
+        return [module, None]
+    if spec is None or not spec.origin:
+        return [module, None]
+    folder = Path(spec.origin).parent
+    stamp = []
+    with contextlib.suppress(OSError):
+        for f in sorted(folder.glob("*.py")):
+            st = f.stat()
+            stamp.append([f.name, st.st_size, st.st_mtime_ns])
+    return [module, str(folder), stamp]
+
+
+def summaries() -> dict[str, dict[str, str]]:
+    """For ``stereograph nodes``: each node type's ``io`` ("in:Type → out:Type") and ``description``,
+    or its ``error``; kept in an index beside the entry-point one and recomputed (importing the node
+    modules) only for node types whose module folder changed."""
+    eps = _entry_points()
+    path = _index_file().with_name("node-summaries.json")
+    try:
+        old = json.loads(path.read_text())
+        old = old if isinstance(old, dict) else {}
+    except (OSError, ValueError):
+        old = {}
+    stamps: dict[str, list] = {}
+    out: dict[str, dict[str, str]] = {}
+    changed = False
+    for name in names():
+        ep = eps.get(name)
+        stamp = [ep.value, _module_stamp(ep.value)] if ep is not None else None
+        rec = old.get(name)
+        if stamp is not None and isinstance(rec, dict) and rec.get("stamp") == stamp:
+            out[name] = rec["summary"]
+            continue
+        try:
+            spec = get(name)
+            summary = {"io": (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
+                              ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items())),
+                       "description": spec.description}
+        except ConfigError as e:
+            summary, stamp = {"error": str(e)}, None  # never remembered: the next call tries again
+        out[name] = summary
+        if stamp is not None:
+            stamps[name] = stamp
+            changed = True
+    if changed:
+        index = {n: {"stamp": stamps.get(n, (old.get(n) or {}).get("stamp")), "summary": out[n]}
+                 for n in out if n in stamps or isinstance(old.get(n), dict)}
+        with contextlib.suppress(OSError):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+            tmp.write_text(json.dumps(index))
+            os.replace(tmp, path)
+    return out

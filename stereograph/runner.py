@@ -7,8 +7,8 @@ Public API::
     from stereograph.runner import run_pipeline
 
     result = run_pipeline("pipelines/locate.yaml", overrides=["rig.n_scenes=10"],
-                          cache_dir=None,          # default: .stereograph/cache next to the pipeline
-                          out_dir=None,            # default: runs/<name>/<run-id> in the current folder
+                          cache_dir=None,          # default: the project's .stereograph/cache
+                          out_dir=None,            # default: <project>/runs/<name>/<run-id>
                           use_cache=True, only=None, from_node=None, executor=None, progress=None)
     result.status["segment"]        # "ran" | "cached" | "failed" | "skipped" | "partial"
     result.ran                      # nodes that computed anything this run
@@ -40,9 +40,9 @@ from pathlib import Path
 from typing import Any
 
 from stereograph import outputs as outputs_mod
-from stereograph import registry
+from stereograph import project, registry
 from stereograph.api import REGISTRY, NodeError, RunContext
-from stereograph.cache import ArtifactStore, CorruptEntry, code_hash, content_key, hash_json
+from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json
 from stereograph.config import PipelineDoc, load_pipeline
 from stereograph.errors import ConfigError
 from stereograph.graph import Graph, NodeInstance, build_graph
@@ -250,7 +250,8 @@ def new_run_id() -> str:
 
 
 def default_cache_dir(doc: PipelineDoc) -> Path:
-    return doc.directory / ".stereograph" / "cache"
+    """The project's one cache (see :mod:`stereograph.project`)."""
+    return project.cache_dir(doc.directory)
 
 
 class _Run:
@@ -328,6 +329,12 @@ class _Run:
         key = self.ref_keys[ref]
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
+        except NotStored:  # kept as a manifest only: computing it again is the cheaper read
+            self.recompute(node, item, store=False)
+            if ref not in self.mem:
+                raise NodeError(f"recomputing '{node}'" + (f" for item '{item}'" if item is not None else "")
+                                + f" no longer gives '{out}'", hint="run again with --from " + node) from None
+            return self.mem[ref]
         except CorruptEntry as e:
             self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
             self.store.delete(key)  # type: ignore[union-attr]
@@ -366,8 +373,16 @@ class _Run:
         return {port: self.g.nodes[src].spec.outputs[out].type for port, (src, out) in inst.inputs.items()}
 
     def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any],
-                     messages: list[str] | None = None) -> None:
-        """Keep a computed entry's outputs in memory and in the store; split collections into items."""
+                     messages: list[str] | None = None, seconds: float | None = None, save: bool = True) -> None:
+        """Keep a computed entry's outputs in memory and in the store; split collections into items.
+
+        ``seconds`` (what computing took) lets the store keep a manifest only when recomputing is
+        cheaper than reading back (:meth:`ArtifactStore.save`); never for an output the run folder
+        gets, nor for collections (their items are content-addressed entries of their own).
+        """
+        delivered = inst.name in self.keep or self._saves(inst.name)
+        if delivered or any(o.collection for o in inst.spec.outputs.values()):
+            seconds = None
         single, colls = {}, {}
         for name, val in out.items():
             if inst.spec.outputs[name].collection:
@@ -397,9 +412,14 @@ class _Run:
             if name not in colls:
                 self.mem[(inst.name, name, item)] = v
                 self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
-        if self.store is not None and key is not None:
+        if save and self.store is not None and key is not None:
+            # collection indexes in the manifest too: a rerun learns the items without loading the
+            # entry (which may hold big values beside them, such as calibration views)
             self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
-                                          "messages": list(messages or [])})
+                                          "messages": list(messages or []),
+                                          "indexes": {n: single[n] for n in colls},
+                                          "indexes_digest": hash_json({n: single[n] for n in colls})},
+                            compute_seconds=seconds)
 
     def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
                      manifest: dict[str, Any] | None = None) -> None:
@@ -414,19 +434,27 @@ class _Run:
         for name, o in inst.spec.outputs.items():
             self.ref_keys[(inst.name, name, item)] = key
             if o.collection:
-                index = self.get((inst.name, name, item))
+                indexes = meta.get("indexes")
+                # (a damaged manifest must not name wrong items: its digest decides, else the entry is read)
+                index = indexes.get(name) if isinstance(indexes, dict) and \
+                    hash_json(indexes) == meta.get("indexes_digest") else None
+                if not (isinstance(index, dict) and isinstance(index.get("__items__"), list)
+                        and isinstance(index.get("__keys__"), list)
+                        and len(index["__items__"]) == len(index["__keys__"])):
+                    index = self.get((inst.name, name, item))  # an entry from before indexes were kept there
                 ids = index["__items__"]
                 self.items[(inst.name, name)] = ids
                 for i, k in zip(ids, index["__keys__"]):
                     self.ref_keys[(inst.name, name, i)] = k
 
-    def recompute(self, node: str, item: str | None) -> None:
+    def recompute(self, node: str, item: str | None, store: bool = True) -> None:
+        """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest only)."""
         inst = self.g.nodes[node]
         refs = self.input_refs(inst, item)
         res = execute(self.task(inst, item, self.inputs_for(refs)))
         if not res.ok:
-            raise NodeError(f"recomputing a corrupt cache entry of '{node}' failed: {res.error}")
-        self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {})
+            raise NodeError(f"recomputing a cache entry of '{node}' failed: {res.error}", hint=res.hint)
+        self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {}, save=store)
 
     # ---- one node
 
@@ -559,7 +587,7 @@ class _Run:
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
                     try:
-                        self.store_result(inst, item, key, res.outputs or {}, res.messages)
+                        self.store_result(inst, item, key, res.outputs or {}, res.messages, res.seconds)
                         stored = True
                     except (NodeError, TypeError) as e:
                         res = TaskResult(False, error=f"its outputs are not storable: {e}")
@@ -637,9 +665,14 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if from_node is not None:
         force = graph.downstream(from_node) | {from_node}
     run_id = run_id or new_run_id()
-    out = Path(out_dir) if out_dir else Path.cwd() / "runs" / doc.name / run_id
+    out = Path(out_dir) if out_dir else project.runs_dir(doc.directory) / doc.name / run_id
     outputs_mod.prepare_out_dir(out)
     store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
+    try:
+        budget = project.budget_bytes(doc.directory) if store is not None else 0
+    except ValueError as e:
+        raise ConfigError(f"cache budget: {e}", hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 "
+                          "(0: no limit)") from None
     own_executor = executor is None
     executor = executor or SerialExecutor()
     run = _Run(graph, store, out, executor, force, progress)
@@ -667,6 +700,13 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                        notes=list(store.notes) if store is not None else [])
     if write_outputs:
         outputs_mod.write_run_outputs(graph, run, result, selected)
+    if store is not None and budget and store.writable and store.stored_bytes():
+        # only a run that stored something can have grown the cache past its budget
+        with contextlib.suppress(OSError):
+            n, freed = store.prune(budget)
+            if n:
+                result.notes.append(f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
+                                    f"entries ({freed / 1e6:.0f} MB)")
     result._values, result._items = _terminal_values(graph, run, selected)
     result._run = run
     result.terminal = [n for n in selected if n in run.keep]
@@ -684,8 +724,48 @@ def close_resources(resources: dict[str, Any]) -> None:
     resources.clear()
 
 
+class _LazyValues(dict):
+    """Terminal values by ref, each loaded from the cache the first time it is asked for.
+
+    A rerun with nothing changed then loads nothing that nobody reads (a caller that asks for
+    ``result.outputs(...)`` gets the value as before)."""
+
+    def __init__(self, run: _Run, refs: list[Ref]):
+        super().__init__()
+        self._run, self._refs = run, {r: None for r in refs}
+
+    def __contains__(self, ref: object) -> bool:
+        return ref in self._refs
+
+    def __iter__(self):
+        return iter(self._refs)
+
+    def __len__(self) -> int:
+        return len(self._refs)
+
+    def keys(self):
+        return self._refs.keys()
+
+    def __getitem__(self, ref: Ref) -> Any:
+        if ref not in self._refs:
+            raise KeyError(ref)
+        if not super().__contains__(ref):
+            super().__setitem__(ref, self._run.get(ref))
+        return super().__getitem__(ref)
+
+    def get(self, ref: Ref, default: Any = None) -> Any:
+        return self[ref] if ref in self._refs else default
+
+    def items(self):
+        return ((r, self[r]) for r in self._refs)
+
+    def values(self):
+        return (self[r] for r in self._refs)
+
+
 def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict, dict]:
-    values, items = {}, {}
+    refs: list[Ref] = []
+    items = {}
     for name in selected:
         inst = graph.nodes[name]
         if name not in run.keep and not any(o.save for o in inst.spec.outputs.values()):
@@ -698,11 +778,10 @@ def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict
             if graph.is_collection(name, out):
                 ids = run.items.get((name, out), [])
                 items[(name, out)] = ids
-                for i in ids:
-                    values[(name, out, i)] = run.get((name, out, i))
-            else:
-                values[(name, out, None)] = run.get((name, out, None))
-    return values, items
+                refs += [(name, out, i) for i in ids]
+            elif (name, out, None) in run.ref_keys or (name, out, None) in run.mem:
+                refs.append((name, out, None))
+    return _LazyValues(run, refs), items
 
 
 def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:

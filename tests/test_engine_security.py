@@ -367,6 +367,10 @@ def test_corrupt_collection_entry_is_recomputed(tmp_path, damage):
         data = bytearray((index[0] / "data.json").read_bytes())
         data[len(data) // 2] ^= 0x01
         (index[0] / "data.json").write_bytes(bytes(data))
+        # the copy of the index a rerun reads from the manifest, damaged too (JSON still valid)
+        man = json.loads((index[0] / "manifest.json").read_text())
+        man["meta"]["indexes"]["items"]["__items__"][0] += "x"
+        (index[0] / "manifest.json").write_text(json.dumps(man))
     else:
         item = next(d for d in entries if (d / "arrays.npz").exists() and d not in index)
         (item / "arrays.npz").write_bytes(bytes((item / "arrays.npz").stat().st_size))
@@ -380,8 +384,10 @@ def test_corrupt_rendered_png_is_not_delivered(tmp_path):
     p = toy_pipeline(tmp_path)
     assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1").ok
     good = {f.name: f.read_bytes() for f in (tmp_path / "o1" / "picture" / "picture").iterdir()}
-    rendered = sorted((tmp_path / "c" / "rendered").rglob("*.png"))
-    assert rendered
+    # the cache keeps each image once, as the PNG the run folder gets (in its entry; older
+    # entries: under rendered/): flip a byte in every copy it has
+    rendered = sorted((tmp_path / "c").rglob("*.png"))
+    assert rendered and not list((tmp_path / "c" / "rendered").rglob("*.png"))
     for f in rendered:
         data = bytearray(f.read_bytes())
         data[-20] ^= 0xFF

@@ -1,0 +1,94 @@
+"""Where a pipeline's cache and run folders live: one of each per project.
+
+The project root is the nearest folder, walking up from the pipeline file's folder, that holds
+a ``pyproject.toml`` or a ``.git``; a pipeline outside any project is its own project (its folder).
+Every pipeline of a project then shares one cache, ``<root>/.stereograph/cache`` (so a pipeline in
+another folder reuses the artifacts the others made), and one ``<root>/runs/`` for run folders.
+
+Overrides, strongest first: ``--cache-dir`` / ``--out``; the ``STEREOGRAPH_CACHE_DIR`` environment
+variable; ``[tool.stereograph] cache_dir`` in the project's ``pyproject.toml`` (relative to the root).
+
+The cache's size budget (least recently used entries are pruned after a run when it is exceeded):
+``STEREOGRAPH_CACHE_BUDGET_GB``, else ``[tool.stereograph] cache_budget_gb``, else
+:data:`DEFAULT_BUDGET_GB`. ``0`` turns pruning off.
+
+This module imports nothing heavy: the command line asks it before deciding what to import.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+DEFAULT_BUDGET_GB = 4.0  # a few GB: every everyday pipeline's artifacts fit many times over
+MARKERS = ("pyproject.toml", ".git")
+
+
+def project_root(start: str | Path) -> Path:
+    """The nearest folder at or above ``start`` (a file's folder, or a folder) with a project marker;
+    ``start`` (its folder) itself when there is none."""
+    here = Path(start).resolve()
+    if not here.is_dir():
+        here = here.parent
+    for d in (here, *here.parents):
+        if any((d / m).exists() for m in MARKERS):
+            return d
+    return here
+
+
+@lru_cache(maxsize=32)
+def _tool_config(root: Path) -> dict[str, Any]:
+    """``[tool.stereograph]`` of ``root/pyproject.toml`` ({} when absent or unreadable)."""
+    path = root / "pyproject.toml"
+    if not path.is_file():
+        return {}
+    try:
+        import tomllib
+
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, ImportError):
+        return {}
+    conf = data.get("tool", {}).get("stereograph", {})
+    return conf if isinstance(conf, dict) else {}
+
+
+def cache_dir(pipeline_dir: str | Path) -> Path:
+    """The default artifact cache for a pipeline in ``pipeline_dir`` (see the module docstring)."""
+    env = os.environ.get("STEREOGRAPH_CACHE_DIR")
+    if env:
+        return Path(env).expanduser()
+    root = project_root(pipeline_dir)
+    conf = _tool_config(root).get("cache_dir")
+    if isinstance(conf, str) and conf:
+        return (root / Path(conf).expanduser()).resolve()
+    return root / ".stereograph" / "cache"
+
+
+def runs_dir(pipeline_dir: str | Path) -> Path:
+    """The folder that holds run folders (``<root>/runs``) for a pipeline in ``pipeline_dir``."""
+    return project_root(pipeline_dir) / "runs"
+
+
+def budget_bytes(pipeline_dir: str | Path | None = None) -> int:
+    """The cache's size budget in bytes (0: unlimited).
+
+    Raises
+    ------
+    ValueError
+        ``STEREOGRAPH_CACHE_BUDGET_GB`` or the project setting is not a non-negative number.
+    """
+    env = os.environ.get("STEREOGRAPH_CACHE_BUDGET_GB")
+    if env is not None and env.strip():
+        value, source = env, "STEREOGRAPH_CACHE_BUDGET_GB"
+    else:
+        conf = _tool_config(project_root(pipeline_dir)) if pipeline_dir is not None else {}
+        value, source = conf.get("cache_budget_gb", DEFAULT_BUDGET_GB), "[tool.stereograph] cache_budget_gb"
+    try:
+        gb = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{source} = {value!r} is not a number of GB") from None
+    if not gb >= 0:
+        raise ValueError(f"{source} = {value!r} must be 0 (no limit) or more")
+    return int(gb * 1e9)
