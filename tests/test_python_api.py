@@ -23,6 +23,7 @@ def _python_blocks(text: str) -> list[str]:
 def project(tmp_path, monkeypatch):
     """A folder laid out like the repository (pipelines/), so the cache and runs stay in tmp."""
     (tmp_path / "pipelines").mkdir()
+    (tmp_path / "pyproject.toml").write_text("")  # the project root: its cache and runs/ (docs/cache.md)
     shutil.copy(ROOT / "pipelines" / "locate-truthcal.yaml", tmp_path / "pipelines")
     monkeypatch.chdir(tmp_path)
     return tmp_path
@@ -37,7 +38,7 @@ def test_the_documented_example_runs(project, capsys):
     assert "x, y, z (cm):" in out or "not found:" in out
     assert "10 segmentations" in out
     assert out.count("z RMS (cm):") == 2  # one row per variant
-    assert list((project / "runs" / "locate-truthcal").iterdir())  # the runs went to the current folder
+    assert list((project / "runs" / "locate-truthcal").iterdir())  # the runs went to the project's runs/
 
 
 def test_result_access_and_its_errors(project):
