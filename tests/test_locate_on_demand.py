@@ -94,7 +94,8 @@ def test_raw_pairs_segment_like_remapped_pairs(tmp_path):
     # The overlay of the raw path shows the rectified images the masks refer to.
     ov_a, ov_b = res.outputs("seg_remapped", "overlay"), res.outputs("seg_raw", "overlay")
     k = next(iter(ov_a))
-    assert ov_b[k].shape == ov_a[k].shape == (480, 1280, 3)
+    # (the two views side by side, under a caption band that says which pair and what was found)
+    assert ov_b[k].shape == ov_a[k].shape and ov_a[k].shape[1:] == (1280, 3) and ov_a[k].shape[0] > 480
     assert np.abs(ov_b[k].astype(int) - ov_a[k]).mean() < 1.0
 
 
