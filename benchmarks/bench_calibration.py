@@ -16,7 +16,11 @@ from nodes.calibrators._board import board_points, detect_views
 from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.tsai import tsai_k1_of_opencv, tsai_project, tsai_stereo
 from nodes.rectifiers.opencv import RectifyParams, opencv
-from nodes.sources import _render as R
+from nodes.sources._boards import board_corners_3d, random_board_poses, render_board_view
+from nodes.sources._lens import project_points
+from nodes.sources._render import render_scene
+from nodes.sources._rig import make_rig
+from nodes.sources._scenes import make_scene
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 from nodes.sources.synthetic import SyntheticParams, synthetic
 
@@ -28,9 +32,9 @@ def rot_deg(Ra, Rb):
 
 
 def renderer(n):
-    rig = R.make_rig()
-    R.render_scene(rig, R.make_scene(rig, "plain", 0))  # warm the caches (ray grids, texture)
-    scenes = [R.make_scene(rig, "plain", np.random.default_rng([1, i])) for i in range(n)]
+    rig = make_rig()
+    render_scene(rig, make_scene(rig, "plain", 0))  # warm the caches (ray grids, texture)
+    scenes = [make_scene(rig, "plain", np.random.default_rng([1, i])) for i in range(n)]
     worst_c, worst_x, gaps = 0.0, 0.0, []
     tr = rig["truth"]
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-14)
@@ -38,7 +42,7 @@ def renderer(n):
     times = []
     for i, sc in enumerate(scenes):
         t0 = time.perf_counter()
-        _, _, truth = R.render_scene(rig, sc, seed=i, coverage=True)
+        _, _, truth = render_scene(rig, sc, seed=i, coverage=True)
         times.append(time.perf_counter() - t0)
         for side in ("left", "right"):
             cov = truth[f"coverage_{side}"].astype(float)
@@ -51,10 +55,10 @@ def renderer(n):
         nr = cv2.undistortPoints(np.array([[truth["center_px_right"]]]), tr["K2"], tr["D2"], criteria=crit).reshape(2, 1)
         X = cv2.triangulatePoints(P1, P2, nl, nr)
         worst_x = max(worst_x, float(np.linalg.norm((X[:3] / X[3]).ravel() - truth["center_left_cm"])))
-    poses = R.random_board_poses(rig, 5, 0)
+    poses = random_board_poses(rig, 5, 0)
     t0 = time.perf_counter()
     for p in poses:
-        R.render_board_view(rig, p)
+        render_board_view(rig, p)
     tb = (time.perf_counter() - t0) / len(poses)
     print("## Synthetic renderer (640x480)")
     print(f"- ball pair: median {1000 * np.median(times):.0f} ms, max {1000 * max(times):.0f} ms "
@@ -82,16 +86,16 @@ def chessboard_synthetic(n_views):
 
 
 def _target(rig, n=6):
-    poses = R.random_board_poses(rig, n, 0)
-    obj = R.board_corners_3d(9, 6, 2.5)
+    poses = random_board_poses(rig, n, 0)
+    obj = board_corners_3d(9, 6, 2.5)
     T = rig["truth"]["T_table_from_left"]
     W, L, Rr = [], [], []
     for p in poses:
         pw = T @ p
         W.append(obj @ pw[:3, :3].T + pw[:3, 3])
         pl = obj @ p[:3, :3].T + p[:3, 3]
-        L.append(R.project_points(rig["truth"]["K1"], rig["truth"]["D1"], pl))
-        Rr.append(R.project_points(rig["truth"]["K2"], rig["truth"]["D2"], pl @ rig["truth"]["R"].T + rig["truth"]["T_cm"]))
+        L.append(project_points(rig["truth"]["K1"], rig["truth"]["D1"], pl))
+        Rr.append(project_points(rig["truth"]["K2"], rig["truth"]["D2"], pl @ rig["truth"]["R"].T + rig["truth"]["T_cm"]))
     return np.concatenate(W), np.concatenate(L), np.concatenate(Rr)
 
 
@@ -106,7 +110,7 @@ def tsai_table():
              ("OpenCV k1 only", dict(distortion_left=(-0.12, 0, 0, 0), distortion_right=(-0.10, 0, 0, 0))),
              ("default rig k1 k2 p1 p2", {})]
     for name, kw in cases:
-        rig = R.make_rig(**(kw or {}))
+        rig = make_rig(**(kw or {}))
         tr = rig["truth"]
         W, L, Rr = _target(rig)
         if kw is None:  # re-project with Tsai's own model (kappa = 0.15 in normalised units)

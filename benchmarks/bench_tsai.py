@@ -28,7 +28,7 @@ import numpy as np
 from nodes.calibrators._board import board_points, detect_views
 from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.tsai import tsai_camera, tsai_project, tsai_stereo
-from nodes.sources import _render
+from nodes.sources._rig import make_rig
 from nodes.sources._synthetic_target import opencv_pixels, target_points, tsai_cameras
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 
@@ -51,7 +51,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.2, help="image-point noise sigma, px")
     ap.add_argument("--spacing", type=float, default=2.5, help="target grid spacing, cm")
     a = ap.parse_args()
-    rig = _render.make_rig()
+    rig = make_rig()
     cams = tsai_cameras(rig)
     pp = [(c["u0"], c["v0"]) for c in cams]
     print(f"## calibrator.tsai on a user-style target: {a.seeds} seeds, {a.noise} px noise, principal points known")
@@ -106,7 +106,7 @@ def opencv_lens_table(a) -> None:
               "radial k1 k2 (-0.25, 0.1)": dict(distortion_left=(-0.25, 0.1, 0, 0),
                                                  distortion_right=(-0.2, 0.08, 0, 0))}
     for name, kw in lenses.items():
-        rig = _render.make_rig(**kw)
+        rig = make_rig(**kw)
         tr = rig["truth"]
         pp = [tuple(tr["K1"][:2, 2]), tuple(tr["K2"][:2, 2])]
         truth_f = [{"f": tr["K1"][1, 1], "k1": 1.0}, {"f": tr["K2"][1, 1], "k1": 1.0}]
@@ -153,7 +153,7 @@ def tilt_table(a) -> None:
 
 def sigma_check(a) -> None:
     """Is f_sigma_rel honest? (f error) / sigma over many fits should have a standard deviation near 1."""
-    rig = _render.make_rig()
+    rig = make_rig()
     cams = tsai_cameras(rig)
     W, L, R = target_points(rig, cams, "coplanar", spacing_cm=5.0)
     z = []

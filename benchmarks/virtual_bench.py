@@ -31,7 +31,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nodes.sources import _render  # noqa: E402
+from nodes.sources._boards import render_table_board  # noqa: E402
+from nodes.sources._rig import make_rig  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs, synthetic  # noqa: E402
 from stereograph.runner import run_pipeline  # noqa: E402
 
@@ -51,8 +52,8 @@ def write_bench(folder: Path, n_scenes: int, n_views: int, seed: int) -> dict:
         shutil.rmtree(folder / sub, ignore_errors=True)
     for v in out["views"]["views"]:
         _save(folder / "calib", v["id"], v["left"], v["right"])
-    rig = _render.make_rig(**_rig_kwargs(params))
-    left, right, T_board = _render.render_table_board(rig)
+    rig = make_rig(**_rig_kwargs(params))
+    left, right, T_board = render_table_board(rig)
     _save(folder / "table", "table", left, right)
     hidden = {}
     with (folder / "truth.csv").open("w", newline="") as fh:

@@ -6,14 +6,15 @@ import pytest
 
 from nodes.calibrators.table_frame import TableFrameParams, table_frame
 from nodes.calibrators.truth import truth_calibration
-from nodes.sources import _render
+from nodes.sources._boards import render_table_board
+from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
 from stereograph.api import NodeError
 
 
 @pytest.fixture(scope="module")
 def rig():
-    return _render.make_rig(**_rig_kwargs(SyntheticParams(n_scenes=0, n_views=0, seed=0)))
+    return make_rig(**_rig_kwargs(SyntheticParams(n_scenes=0, n_views=0, seed=0)))
 
 
 def _views(left, right):
@@ -28,7 +29,7 @@ def _frame(rig, left, right, **kw):
 @pytest.mark.parametrize("yaw", [0, 180, 90])
 def test_frame_matches_the_board_on_the_rig(rig, yaw):
     # A board turned by 90 or 180 degrees gives the frame of its own corner nearest the cameras on the left.
-    left, right, T_true = _render.render_table_board(rig, yaw_deg=yaw)
+    left, right, T_true = render_table_board(rig, yaw_deg=yaw)
     tf = _frame(rig, left, right)
     T = tf["T_table_from_left"]
     assert np.abs(T[:3, 3] - T_true[:3, 3]).max() < 0.05
@@ -38,7 +39,7 @@ def test_frame_matches_the_board_on_the_rig(rig, yaw):
 
 
 def test_board_not_found_and_ambiguous_board_are_clear_errors(rig):
-    left, right, _ = _render.render_table_board(rig, yaw_deg=45)
+    left, right, _ = render_table_board(rig, yaw_deg=45)
     with pytest.raises(NodeError, match="ambiguous"):
         _frame(rig, left, right)
     blank = np.full((480, 640, 3), 128, np.uint8)
@@ -48,7 +49,7 @@ def test_board_not_found_and_ambiguous_board_are_clear_errors(rig):
 
 
 def test_a_calibration_that_does_not_fit_is_refused(rig):
-    left, right, _ = _render.render_table_board(rig)
+    left, right, _ = render_table_board(rig)
     cal = truth_calibration(rig["truth"])
     cal["T_cm"] = cal["T_cm"] * 1.1  # baseline 10 % off: the two views put the board in different places
     with pytest.raises(NodeError, match="differ by"):

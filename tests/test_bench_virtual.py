@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nodes.sources import _render
+from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
 from stereograph.runner import run_pipeline
 
@@ -53,7 +53,7 @@ def bench(tmp_path_factory):
     written = _load_benchmark().write_bench(root, N_SCENES, N_VIEWS, seed=0)
     T_board = written["T_board_from_left"]
     # the arm base's pose in the board's table frame: the board frame is the rig's, shifted
-    rig = _render.make_rig(**_rig_kwargs(SyntheticParams(seed=0)))
+    rig = make_rig(**_rig_kwargs(SyntheticParams(seed=0)))
     T_rig_from_board = np.asarray(rig["truth"]["T_table_from_left"]) @ np.linalg.inv(T_board)
     base_in_board = (np.linalg.inv(T_rig_from_board) @ [*BASE_IN_RIG_TABLE, 1.0])[:3]
     return {"root": root, "truth": written["hidden"], "T_board_from_left": T_board, "base_in_board": base_in_board}
@@ -172,7 +172,7 @@ def test_virtual_bench(bench):
     assert abs(rms_table - rms_cam) < 0.05
     # the hand-eye from the board puts the arm base where it stands
     he = final.outputs("he", "hand_eye")
-    rig_T = np.asarray(_render.make_rig(**_rig_kwargs(SyntheticParams(seed=0)))["truth"]["T_table_from_left"])
+    rig_T = np.asarray(make_rig(**_rig_kwargs(SyntheticParams(seed=0)))["truth"]["T_table_from_left"])
     base_in_left = np.linalg.inv(he["T_base_from_left"])[:3, 3]
     assert np.abs((rig_T[:3, :3] @ base_in_left + rig_T[:3, 3]) - BASE_IN_RIG_TABLE).max() < 0.1
     assert any(t.get("found") for t in final.outputs("ik", "target").values())

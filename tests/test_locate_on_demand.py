@@ -16,7 +16,7 @@ import pytest
 from nodes.calibrators.truth import truth_calibration
 from nodes.contracts.views import RectifiedView, pair_views
 from nodes.rectifiers.opencv import rectify_calibration
-from nodes.segmenters._common import masked_pixels
+from nodes.segmenters._pixels import masked_pixels
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.runner import run_pipeline
 

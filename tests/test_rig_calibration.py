@@ -11,7 +11,9 @@ from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.truth import truth as truth_node
 from nodes.calibrators.tsai import TsaiParams, tsai, tsai_camera, tsai_k1_of_opencv, tsai_project
 from nodes.rectifiers.opencv import RectifyParams, opencv
-from nodes.sources import _render as R
+from nodes.sources._boards import board_corners_3d, random_board_poses
+from nodes.sources._lens import project_points
+from nodes.sources._rig import make_rig
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 from nodes.sources.synthetic import SyntheticParams, synthetic
 
@@ -57,20 +59,20 @@ def test_tsai_through_views_feeds_rectifier(synth):
 
 
 def _multi_plane_target(rig, n=6):
-    poses = R.random_board_poses(rig, n, 0)
-    obj = R.board_corners_3d(9, 6, 2.5)
+    poses = random_board_poses(rig, n, 0)
+    obj = board_corners_3d(9, 6, 2.5)
     T = rig["truth"]["T_table_from_left"]
     W, L = [], []
     for p in poses:
         pw = T @ p
         W.append(obj @ pw[:3, :3].T + pw[:3, 3])
-        L.append(R.project_points(rig["truth"]["K1"], rig["truth"]["D1"], obj @ p[:3, :3].T + p[:3, 3]))
+        L.append(project_points(rig["truth"]["K1"], rig["truth"]["D1"], obj @ p[:3, :3].T + p[:3, 3]))
     return np.concatenate(W), np.concatenate(L)
 
 
 def test_tsai_exact_model_noise_free():
     """Points made with Tsai's own model: f and k1 come back (f within 1 %, k1 within 10 %)."""
-    rig = R.make_rig()
+    rig = make_rig()
     W, _ = _multi_plane_target(rig)
     T = rig["truth"]["T_table_from_left"]
     Rw = T[:3, :3].T
@@ -88,7 +90,7 @@ def test_tsai_exact_model_noise_free():
 
 def test_tsai_on_opencv_camera_and_noise():
     """An OpenCV-model camera with k1 only: f within 1 %, k1 within 10 % of the equivalent Tsai k1; 0.2 px noise."""
-    rig = R.make_rig(distortion_left=(-0.12, 0, 0, 0))
+    rig = make_rig(distortion_left=(-0.12, 0, 0, 0))
     W, px = _multi_plane_target(rig)
     K = rig["truth"]["K1"]
     r_max = np.hypot(320 / K[0, 0], 240 / K[1, 1])

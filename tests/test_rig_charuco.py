@@ -8,7 +8,9 @@ import pytest
 
 from nodes.calibrators.charuco import CharucoParams, charuco, detect_charuco
 from nodes.contracts.board import charuco_board
-from nodes.sources import _render
+from nodes.sources._boards import board_corners_3d, random_board_poses, render_board_view
+from nodes.sources._lens import project_points
+from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.api import NodeError
 
@@ -23,22 +25,22 @@ def views():
 
 def _partial_view(views):
     """A board pushed half out of the left image's right edge (still partly in both images)."""
-    rig = _render.make_rig()
-    pose = _render.random_board_poses(rig, 1, np.random.default_rng(99))[0]
+    rig = make_rig()
+    pose = random_board_poses(rig, 1, np.random.default_rng(99))[0]
     K, D = rig["truth"]["K1"], rig["truth"]["D1"]
-    pts = _render.board_corners_3d(9, 6, 2.5)
-    while (_render.project_points(K, D, pts @ pose[:3, :3].T + pose[:3, 3])[:, 0] > 640).mean() < 0.3:
+    pts = board_corners_3d(9, 6, 2.5)
+    while (project_points(K, D, pts @ pose[:3, :3].T + pose[:3, 3])[:, 0] > 640).mean() < 0.3:
         pose[0, 3] += 0.5  # cm to the right, until a third of the corners have left the left image
-    left, right, corners = _render.render_board_view(rig, pose, seed=5, charuco=CHARUCO)
+    left, right, corners = render_board_view(rig, pose, seed=5, charuco=CHARUCO)
     return {"id": "partial", "left": left, "right": right}, corners
 
 
 def test_charuco_views_rendered(views):
     assert views["board"] == {"cols": 9, "rows": 6, "square_cm": 2.5, "type": "charuco",
                               "dictionary": "DICT_4X4_50", "marker_fraction": 0.7}
-    rig = _render.make_rig()
-    pose = _render.random_board_poses(rig, 1, np.random.default_rng(3))[0]
-    left, _, corners = _render.render_board_view(rig, pose, seed=1, charuco=CHARUCO)
+    rig = make_rig()
+    pose = random_board_poses(rig, 1, np.random.default_rng(3))[0]
+    left, _, corners = render_board_view(rig, pose, seed=1, charuco=CHARUCO)
     board = charuco_board(9, 6, 2.5)
     ids, px = detect_charuco(left, cv2.aruco.CharucoDetector(board))
     assert len(ids) == 54

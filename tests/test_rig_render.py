@@ -4,12 +4,15 @@ import cv2
 import numpy as np
 import pytest
 
-from nodes.sources import _render as R
+from nodes.sources._lens import project_points, undistort_pixels
+from nodes.sources._render import render_scene
+from nodes.sources._rig import make_rig
+from nodes.sources._scenes import SCENE_KINDS, make_scene
 
 
 @pytest.fixture(scope="module")
 def rig():
-    return R.make_rig()
+    return make_rig()
 
 
 def _centroid(cov):
@@ -21,8 +24,8 @@ def test_rendered_centroid_matches_exact_silhouette(rig):
     """Coverage centroid vs the exact (distorted) silhouette's area centroid, many placements, both cameras."""
     gaps = []
     for i in range(10):
-        scene = R.make_scene(rig, "plain", np.random.default_rng([5, i]))
-        _, _, t = R.render_scene(rig, scene, seed=i, noise_sigma=0, coverage=True)
+        scene = make_scene(rig, "plain", np.random.default_rng([5, i]))
+        _, _, t = render_scene(rig, scene, seed=i, noise_sigma=0, coverage=True)
         for side in ("left", "right"):
             sil = t[f"silhouette_{side}"]
             err = _centroid(t[f"coverage_{side}"].astype(float)) - sil["centroid_px"]
@@ -35,10 +38,10 @@ def test_rendered_centroid_matches_exact_silhouette(rig):
 
 def test_ideal_camera_silhouette_is_tangent_cone_ellipse():
     """Without distortion the rendered outline's centroid is the tangent-cone ellipse's centre."""
-    rig = R.make_rig(distortion_left=(0, 0, 0, 0), distortion_right=(0, 0, 0, 0))
+    rig = make_rig(distortion_left=(0, 0, 0, 0), distortion_right=(0, 0, 0, 0))
     for i in range(4):
-        scene = R.make_scene(rig, "plain", np.random.default_rng([9, i]))
-        _, _, t = R.render_scene(rig, scene, seed=i, noise_sigma=0, coverage=True)
+        scene = make_scene(rig, "plain", np.random.default_rng([9, i]))
+        _, _, t = render_scene(rig, scene, seed=i, noise_sigma=0, coverage=True)
         sil = t["silhouette_left"]
         ell = sil["ellipse_px"]
         assert np.allclose(sil["centroid_px"], ell["center_px"], atol=1e-3)
@@ -53,8 +56,8 @@ def test_triangulating_true_centres_returns_true_centre(rig):
     P1 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P2 = np.hstack([tr["R"], tr["T_cm"].reshape(3, 1)])
     for i in range(10):
-        scene = R.make_scene(rig, "plain", np.random.default_rng([11, i]))
-        _, _, t = R.render_scene(rig, scene, seed=i)
+        scene = make_scene(rig, "plain", np.random.default_rng([11, i]))
+        _, _, t = render_scene(rig, scene, seed=i)
         nl = cv2.undistortPoints(np.array([[t["center_px_left"]]]), tr["K1"], tr["D1"], criteria=crit).reshape(2, 1)
         nr = cv2.undistortPoints(np.array([[t["center_px_right"]]]), tr["K2"], tr["D2"], criteria=crit).reshape(2, 1)
         X = cv2.triangulatePoints(P1, P2, nl, nr)
@@ -68,18 +71,18 @@ def test_triangulating_true_centres_returns_true_centre(rig):
 def test_camera_model_inverse_is_exact(rig):
     cam = rig["cams"][0]
     px = np.random.default_rng(0).uniform([0, 0], [639, 479], (500, 2))
-    xy = R.undistort_pixels(cam["K"], cam["D"], px)
-    back = R.project_points(cam["K"], cam["D"], np.column_stack([xy, np.ones(len(xy))]))
+    xy = undistort_pixels(cam["K"], cam["D"], px)
+    back = project_points(cam["K"], cam["D"], np.column_stack([xy, np.ones(len(xy))]))
     assert np.abs(back - px).max() < 1e-9
     ref, _ = cv2.projectPoints(np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), cam["K"], cam["D"])
     assert np.abs(ref.reshape(-1, 2) - px).max() < 1e-6
 
 
 def test_deterministic_and_noisy(rig):
-    scene = R.make_scene(rig, "plain", 3)
-    a = R.render_scene(rig, scene, seed=1)
-    b = R.render_scene(rig, scene, seed=1)
-    c = R.render_scene(rig, scene, seed=2)
+    scene = make_scene(rig, "plain", 3)
+    a = render_scene(rig, scene, seed=1)
+    b = render_scene(rig, scene, seed=1)
+    c = render_scene(rig, scene, seed=2)
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     assert not np.array_equal(a[0], c[0])
     assert a[0].shape == (480, 640, 3) and a[0].dtype == np.uint8
@@ -91,9 +94,9 @@ def test_deterministic_and_noisy(rig):
 
 def test_hard_scene_kinds(rig):
     rng = np.random.default_rng(4)
-    for kind in R.SCENE_KINDS:
-        scene = R.make_scene(rig, kind, rng)
-        left, right, t = R.render_scene(rig, scene, seed=0)
+    for kind in SCENE_KINDS:
+        scene = make_scene(rig, kind, rng)
+        left, right, t = render_scene(rig, scene, seed=0)
         if kind == "empty":
             assert t is None
             continue
@@ -119,7 +122,7 @@ def test_hard_scene_kinds(rig):
 def test_explicit_scene_and_bad_colour(rig):
     scene = {"ball": {"center_cm": [0.0, 5.0], "radius_cm": 2.5, "color": [0, 200, 0]},
              "objects": [{"type": "cylinder", "center_cm": [8, 8], "radius_cm": 1.5, "height_cm": 6, "color": "blue"}]}
-    _, _, t = R.render_scene(rig, scene)
+    _, _, t = render_scene(rig, scene)
     assert t["radius_cm"] == 2.5 and t["center_table_cm"] == [0.0, 5.0, 2.5]
     with pytest.raises(ValueError, match="unknown colour"):
-        R.render_scene(rig, {"ball": {"center_cm": [0, 5], "color": "mauve"}})
+        render_scene(rig, {"ball": {"center_cm": [0, 5], "color": "mauve"}})

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from nodes.calibrators.tsai import TsaiParams, tsai, tsai_project, tsai_stereo
-from nodes.sources import _render
+from nodes.sources._rig import make_rig
 from nodes.sources._synthetic_target import target_points, tsai_cameras
 from nodes.sources.target_points import TargetPointsParams, write_target_csv
 from nodes.sources.target_points import target_points as target_node
@@ -29,7 +29,7 @@ EXAMPLE = ROOT / "pipelines" / "examples" / "tsai-target"
 
 @pytest.fixture(scope="module")
 def rig():
-    r = _render.make_rig()
+    r = make_rig()
     return r, tsai_cameras(r)
 
 

@@ -19,8 +19,12 @@ import math
 import cv2
 import numpy as np
 
-from . import _common as C
+from ._candidates import candidates
+from ._color import color_distance_map, hue_mask, object_color_score
 from ._partial import fit_partial
+from ._pixels import fill_holes, max_hole_area, structuring_element
+from ._shadow import suppress_shadow, suppress_shadow_regions
+from ._subpixel import refine_contour
 
 _MAX_TRIED = 4  # candidate regions refined at full resolution, largest first
 
@@ -42,10 +46,10 @@ def partial_region(view, mask_fn, params, r_range_px, s: int, K: np.ndarray,
     m = np.ascontiguousarray(m)
     if params.shadow.enabled:
         a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = C.suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
+        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
     a_min, a_max = math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2
     # A ball 40 % visible at the far end, up to one merged with an object twice its size.
-    cands = [c for c in C.candidates(m, min_area_px=0.25 * a_min) if c["area_px"] <= 3.0 * a_max]
+    cands = [c for c in candidates(m, min_area_px=0.25 * a_min) if c["area_px"] <= 3.0 * a_max]
     if window is not None:
         u0, v0, u1, v1 = window
         cands = [c for c in cands if c["bbox"][0] * sx <= u1 and c["bbox"][2] * sx >= u0
@@ -84,7 +88,7 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
     rm = mask_fn(_pad(roi, sides), params, r_range_px, 1, True)
     rm = np.ascontiguousarray(rm[sides[0]: rm.shape[0] - sides[1], sides[2]: rm.shape[1] - sides[3]])
     if params.shadow.enabled:
-        rm = C.suppress_shadow(roi, rm, params.shadow, params.object)
+        rm = suppress_shadow(roi, rm, params.shadow, params.object)
     rm = _split_by_colour(roi, rm, params, r_range_px)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     centre = (float(cand["centroid_px"][0] * sx - u0), float(cand["centroid_px"][1] * sy - v0))
@@ -95,7 +99,7 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
     chosen = max(inside or cnts, key=cv2.contourArea)
     region_mask = np.zeros(rm.shape, np.uint8)
     cv2.drawContours(region_mask, [chosen], -1, 255, cv2.FILLED)
-    pts = C.refine_contour(roi, region_mask, params.edge_search_px, chosen) if params.subpixel else None
+    pts = refine_contour(roi, region_mask, params.edge_search_px, chosen) if params.subpixel else None
     if pts is None:
         pts = chosen.reshape(-1, 2).astype(np.float32)
     pts = pts.astype(np.float64) + [u0, v0]
@@ -110,12 +114,12 @@ def _split_by_colour(roi: np.ndarray, rm: np.ndarray, params, r_range_px) -> np.
     if roi.ndim != 3 or (obj.color_bgr is None and obj.hue_range_deg is None):
         return rm
     if obj.color_bgr is not None:
-        col = cv2.compare(C.color_distance_map(roi, obj.color_bgr), obj.color_tolerance, cv2.CMP_LE)
+        col = cv2.compare(color_distance_map(roi, obj.color_bgr), obj.color_tolerance, cv2.CMP_LE)
     else:
-        col = C.hue_mask(roi, obj.hue_range_deg, obj.min_saturation)
-    col = C.fill_holes(col, C.max_hole_area(r_range_px))
-    col = cv2.morphologyEx(col, cv2.MORPH_OPEN, C.structuring_element(int(max(3.0, 0.2 * r_range_px[0])) | 1))
-    col = cv2.dilate(col, C.structuring_element(3))
+        col = hue_mask(roi, obj.hue_range_deg, obj.min_saturation)
+    col = fill_holes(col, max_hole_area(r_range_px))
+    col = cv2.morphologyEx(col, cv2.MORPH_OPEN, structuring_element(int(max(3.0, 0.2 * r_range_px[0])) | 1))
+    col = cv2.dilate(col, structuring_element(3))
     split = cv2.bitwise_and(rm, col)
     # Only when the colour leaves a ball-sized part (a dark rim or a dim view may fail the test).
     if cv2.countNonZero(split) < 0.25 * math.pi * r_range_px[0] ** 2:
@@ -157,7 +161,7 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         return None, None, "the arc fitted to the region's outline is not filled by the region (not a ball)"
     score = None
     if params.object.color_bgr is not None or params.object.hue_range_deg is not None:
-        score = C.object_color_score(roi, both, params.object)
+        score = object_color_score(roi, both, params.object)
         if score is None or score > 1.0:
             return None, None, "the round part of the region has another colour than the object"
     if fit["second"] >= params.partial.ambiguous_second_arc:
@@ -168,7 +172,7 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
             cv2.ellipse(d2, ((e2["center_px"][0] - u0, e2["center_px"][1] - v0),
                              (2 * e2["axes_px"][0], 2 * e2["axes_px"][1]), e2["angle_deg"]), 255, cv2.FILLED)
             d2 = cv2.bitwise_and(d2, cv2.bitwise_not(disc))
-            s2 = C.object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
+            s2 = object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
             same = s2 is not None and s2 <= 1.0
         if same:
             return None, None, ("ambiguous: 2 round objects of similar size "

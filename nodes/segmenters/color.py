@@ -4,7 +4,7 @@ Pixels close to the object's colour -- the distance of the normalised chromatici
 (b, g, r) / (b + g + r) to that of ``object.color_bgr`` (brightness-invariant, so the shaded side
 of the ball matches too) or an HSV hue range
 ``object.hue_range_deg`` -- form the mask; holes (specular highlight) are filled and a small
-opening removes speckle. Selection, sub-pixel refinement and checks are those of ``_common``.
+opening removes speckle. Selection, sub-pixel refinement and checks are the shared ones (``_pair``).
 """
 
 from __future__ import annotations
@@ -14,17 +14,10 @@ import numpy as np
 
 from stereograph.api import Field, NodeError, node
 
-from ._common import (
-    SEGMENTER_INPUTS,
-    SEGMENTER_OUTPUTS,
-    SegmenterParams,
-    color_distance_map,
-    fill_holes,
-    hue_mask,
-    max_hole_area,
-    segment_pair,
-    structuring_element,
-)
+from ._color import color_distance_map, hue_mask
+from ._pair import segment_pair
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._pixels import fill_holes, max_hole_area, structuring_element
 
 
 class ColorParams(SegmenterParams):

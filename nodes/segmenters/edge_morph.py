@@ -3,7 +3,7 @@
 Edges (Canny or a Sobel magnitude threshold on the smoothed gray image) are dilated to
 close gaps in the outline, the holes are filled (a closed outline becomes a solid region),
 the result is eroded back and opened to cut thin structures (texture, shadow bridges), and
-the largest plausible region is kept (see ``_common`` for selection, refinement and checks).
+the largest plausible region is kept (see ``_pair`` for the shared plan: selection, refinement and checks).
 Structuring-element sizes default to fractions of the smallest expected ball radius, which
 comes from the calibration's focal length, the object's radius and the working range.
 """
@@ -19,17 +19,9 @@ import numpy as np
 from stereograph.api import Field, node
 
 from ._channel import best_plane, normalize_exposure, plane
-from ._common import (
-    SEGMENTER_INPUTS,
-    SEGMENTER_OUTPUTS,
-    Channel,
-    SegmenterParams,
-    fill_holes,
-    max_hole_area,
-    segment_pair,
-    structuring_element,
-    to_channel,
-)
+from ._pair import segment_pair
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._pixels import Channel, fill_holes, max_hole_area, structuring_element, to_channel
 
 
 class EdgeMorphParams(SegmenterParams):

@@ -20,16 +20,9 @@ import numpy as np
 
 from stereograph.api import Field, node
 
-from ._common import (
-    SEGMENTER_INPUTS,
-    SEGMENTER_OUTPUTS,
-    SegmenterParams,
-    fill_holes,
-    max_hole_area,
-    segment_pair,
-    structuring_element,
-    to_channel,
-)
+from ._pair import segment_pair
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 
 
 class OtsuParams(SegmenterParams):

@@ -15,7 +15,7 @@ visible" without guessing. Kinds (``make_hard_scene(rig, kind, rng, ...)``):
 ``same_color``     a second ball of the *same* colour and about the same size, touching or close:
                    the right answer is "ambiguous" (not found).
 
-Pure functions of the rig and the random generator; the older kinds in :mod:`._render` are not
+Pure functions of the rig and the random generator; the older kinds in :mod:`._scenes` are not
 touched (their renders stay byte-identical).
 """
 
@@ -32,7 +32,7 @@ _N_RAYS = 600  # rays per view for the visibility estimate (binomial sd ~2 % at 
 
 
 def _objects(scene: dict) -> list[dict]:
-    from nodes.sources._render import _objects_of
+    from nodes.sources._raycast import _objects_of
 
     return _objects_of(scene)
 
@@ -44,7 +44,8 @@ def visible_fraction(rig: dict, scene: dict, cam_index: int, rng_seed: int = 0) 
     of a few degrees is its image area up to < 1 %): a ray counts when its pixel lies inside the
     image and no other object is hit before the ball.
     """
-    from nodes.sources._render import _hit_box, _hit_cylinder, _hit_sphere, project_points
+    from nodes.sources._lens import project_points
+    from nodes.sources._raycast import _hit_box, _hit_cylinder, _hit_sphere
 
     objs = _objects(scene)
     ball = objs[0]
@@ -80,7 +81,7 @@ def visible_fraction(rig: dict, scene: dict, cam_index: int, rng_seed: int = 0) 
 
 
 def _other_colors(color: Any) -> list[str]:
-    from nodes.sources._render import COLORS
+    from nodes.sources._materials import COLORS
 
     own = color if isinstance(color, str) else ""
     # Not orange's neighbours either: "another colour" means one a colour test can tell apart.
@@ -91,7 +92,7 @@ def _other_colors(color: Any) -> list[str]:
 def make_hard_scene(rig: dict, kind: str, rng: np.random.Generator, radius_cm: float, color: Any,
                     draw_ball, inside_both) -> dict:
     """One scene of ``kind`` (see the module docstring); ``draw_ball(accept)`` and ``inside_both``
-    are :func:`nodes.sources._render.make_scene`'s ball sampler and its "inside both images" test."""
+    are :func:`nodes.sources._scenes.make_scene`'s ball sampler and its "inside both images" test."""
     r = float(radius_cm)
     others = _other_colors(color)
     w, _ = rig["truth"]["image_size"]

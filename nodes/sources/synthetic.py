@@ -14,7 +14,11 @@ import numpy as np
 from pydantic import field_validator, model_validator
 
 from nodes.contracts.board import charuco_board
-from nodes.sources import _render
+from nodes.sources._boards import random_board_poses, render_board_view
+from nodes.sources._materials import color_bgr
+from nodes.sources._render import render_scene
+from nodes.sources._rig import make_rig
+from nodes.sources._scenes import SCENE_KINDS, make_scene
 from stereograph.api import Field, NodeError, Out, Params, node
 
 HardCase = Literal["clutter", "second_ball", "border", "occluded", "hidden", "empty",
@@ -96,7 +100,7 @@ class SyntheticParams(Params):
     @field_validator("ball_color")
     @classmethod
     def _check_color(cls, value):
-        _render.color_bgr(value)  # ValueError naming the known colours
+        color_bgr(value)  # ValueError naming the known colours
         return value
 
 
@@ -114,7 +118,7 @@ def _rig_kwargs(p: SyntheticParams) -> dict:
 
 def synthetic_rig(params: SyntheticParams) -> dict:
     """The rig (cameras, pose over the table, light) described by the node's params."""
-    return _render.make_rig(**_rig_kwargs(params))
+    return make_rig(**_rig_kwargs(params))
 
 
 @node(
@@ -150,11 +154,11 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
     try:
         for i in range(params.n_scenes):
             rng = np.random.default_rng([params.seed, 1, i])
-            specs.append((f"s{i:03d}", _render.make_scene(rig, "plain", rng, **scene_kw)))
+            specs.append((f"s{i:03d}", make_scene(rig, "plain", rng, **scene_kw)))
         for kind in params.hard_cases:
             for i in range(params.n_hard_each):
-                rng = np.random.default_rng([params.seed, 2, _render.SCENE_KINDS.index(kind), i])
-                specs.append((f"{kind}{i:03d}", _render.make_scene(rig, kind, rng, **scene_kw)))
+                rng = np.random.default_rng([params.seed, 2, SCENE_KINDS.index(kind), i])
+                specs.append((f"{kind}{i:03d}", make_scene(rig, kind, rng, **scene_kw)))
     except RuntimeError as exc:
         raise NodeError(f"source.synthetic: {exc}.",
                         hint="check camera_height_cm / tilt and the distance range") from exc
@@ -177,7 +181,7 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
     for k, (pid, scene) in enumerate(specs):
         report(k, len(specs), "scenes")
         try:
-            left, right, truth = _render.render_scene(rig, scene, seed=params.seed * 100003 + k,
+            left, right, truth = render_scene(rig, scene, seed=params.seed * 100003 + k,
                                                       coverage=params.truth_masks)
         except (ValueError, KeyError, TypeError) as exc:
             raise NodeError(f"source.synthetic: scene {pid!r} is malformed: {exc}",
@@ -190,7 +194,7 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
     poses_table = {}
     if params.n_views:
         try:
-            poses = _render.random_board_poses(
+            poses = random_board_poses(
                 rig, params.n_views, np.random.default_rng([params.seed, 4]), params.board_cols, params.board_rows,
                 params.square_cm)
         except RuntimeError as exc:
@@ -200,7 +204,7 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
         for j, pose in enumerate(poses):
             report(j, len(poses), "views")
             vid = f"v{j:02d}"
-            left, right, corners = _render.render_board_view(
+            left, right, corners = render_board_view(
                 rig, pose, params.board_cols, params.board_rows, params.square_cm, seed=params.seed * 7919 + j,
                 charuco=charuco)
             views.append({"id": vid, "left": left, "right": right})

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.sources import _render
+from nodes.sources._rig import make_rig
 from nodes.sources._synthetic_target import target_points, tsai_cameras
 from nodes.sources.target_points import write_target_csv
 
@@ -30,7 +30,7 @@ OUT = Path(__file__).resolve().parent / "tsai-target"
 
 
 def main(out: Path = OUT, noise_px: float = 0.2, seed: int = 0) -> None:
-    rig = _render.make_rig()
+    rig = make_rig()
     cams = tsai_cameras(rig)
     rng = np.random.default_rng(seed)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,149 @@
+"""Left/right checks of a segmented pair (rows, size, shape, partial views) and of the pair's
+input (rectified or raw).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stereograph.api import NodeError
+
+from ._params import SegmenterParams
+
+
+def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None) -> str | None:
+    """Reason why a left/right pair of regions cannot be trusted, or None.
+
+    With a ``rectification`` also: the silhouettes' size must give the stereo distance for a
+    ball of ``object.radius_cm`` (``max_size_mismatch``), and a partly visible ball (region with
+    ``partial``) must be located within ``partial.max_sigma_z_cm`` by its fitted arcs.
+    """
+    if rectification is not None and rectification.get("P1") is not None:
+        why = _check_size_and_partial(left, right, params, rectification)
+        if why is not None:
+            return why
+    if left.get("partial") or right.get("partial"):
+        return None  # border, size and shape were judged on the fitted sphere images above
+    if left["touches_border"] or right["touches_border"]:
+        side = "left" if left["touches_border"] else "right"
+        return f"region touches the {side} image border (object cut off)"
+    ra = max(left["area_px"], right["area_px"]) / max(min(left["area_px"], right["area_px"]), 1e-9)
+    if ra > params.max_area_ratio:
+        return (
+            f"left/right regions differ in size (areas {left['area_px']:.0f} vs {right['area_px']:.0f} px,"
+            f" ratio {ra:.2f} > {params.max_area_ratio}): occluded or a different object"
+        )
+    dv = abs(left["centroid_px"][1] - right["centroid_px"][1])
+    if dv > params.max_row_offset_px + 0.05 * math.sqrt(max(left["area_px"], 1.0) / math.pi):
+        return f"left/right regions are on different rows (dv = {dv:.1f} px): not the same object"
+    el, er = left.get("ellipse"), right.get("ellipse")
+    if el and er:
+        ql = el["axes_px"][1] / max(el["axes_px"][0], 1e-9)
+        qr = er["axes_px"][1] / max(er["axes_px"][0], 1e-9)
+        if abs(ql - qr) > 0.15:
+            return f"left/right regions differ in shape (axis ratios {ql:.2f} vs {qr:.2f})"
+    if left["centroid_px"][0] < right["centroid_px"][0]:
+        return "negative disparity: the right region lies right of the left one"
+    return None
+
+
+def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, rectification: dict) -> str | None:
+    from nodes.contracts.sphere import ellipse_to_conic, sphere_from_silhouette
+
+    el, er = left.get("ellipse"), right.get("ellipse")
+    if not el or not er:
+        return None
+    P1, P2 = np.asarray(rectification["P1"], float), np.asarray(rectification["P2"], float)
+    try:
+        cones = [sphere_from_silhouette(ellipse_to_conic(e["center_px"], e["axes_px"], e["angle_deg"]), K)
+                 for e, K in ((el, P1[:, :3]), (er, P2[:, :3]))]
+    except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
+        return "the silhouettes are not the images of a sphere"
+    fb = -float(P2[0, 3])  # P2[0, 3] = -f B (rectified right camera)
+    d = (cones[0]["center_px"][0] - float(P1[0, 2])) - (cones[1]["center_px"][0] - float(P2[0, 2]))
+    if d <= 0 or fb <= 0:
+        return None  # the disparity estimator reports a negative disparity
+    z_stereo = fb / d
+    R = params.object.radius_cm
+    z_size = [R / max(math.sin(c["half_angle_rad"]), 1e-9) * c["axis"][2] for c in cones]
+    worst = max(abs(z / z_stereo - 1.0) for z in z_size)
+    if worst > params.max_size_mismatch:
+        return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
+                f"{z_size[0]:.1f} cm, stereo {z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
+    if left.get("partial") or right.get("partial"):
+        s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
+        # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
+        # whose size disagrees with the stereo distance by more than both can be off.
+        for reg, z in ((left, z_size[0]), (right, z_size[1])):
+            part = reg.get("partial")
+            if not part:
+                continue
+            tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
+            if abs(z / z_stereo - 1.0) > tol:
+                side = "left" if reg is left else "right"
+                return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
+                        f"outline visible: the arc fitted to it gives {z:.1f} cm from its size but {z_stereo:.1f} cm "
+                        f"by stereo (> {100 * tol:.1f} %): not trusted")
+        s_z = z_stereo**2 * s_d / fb
+        if s_z > params.partial.max_sigma_z_cm:
+            part = left.get("partial") or right.get("partial")
+            side = "left" if left.get("partial") else "right"
+            return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
+                    f"outline visible: too little to locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
+                    f"{params.partial.max_sigma_z_cm:g})")
+    return None
+
+
+def _partial_words(part: dict) -> str:
+    cause = part.get("cause", "")
+    if cause.startswith("border: "):
+        return f"cut by the {cause[8:]} image border"
+    return "occluded or touching another object"
+
+
+def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> str | None:
+    """Reason why a pair cannot be segmented (shape problems), or None.
+
+    ``raw``: the pair holds camera images (a ``StereoPair``) to be rectified on request, so
+    their size must be the calibration's source size.
+    """
+    if not isinstance(pair, dict) or "left" not in pair or "right" not in pair:
+        raise NodeError(
+            "segmenter input is not a RectifiedPair or StereoPair (a dict with 'left' and 'right' images).",
+            hint="wire the segmenter's `pair` input to a rectifier.remap output or a source's pairs.",
+        )
+    L, R = np.asarray(pair["left"]), np.asarray(pair["right"])
+    for side, im in (("left", L), ("right", R)):
+        if im.dtype != np.uint8 or im.ndim not in (2, 3) or im.size == 0:
+            return f"{side} image is not a uint8 image (dtype {im.dtype}, shape {im.shape})"
+    if L.shape != R.shape:
+        return f"mismatched image sizes: left {L.shape[1]}x{L.shape[0]} vs right {R.shape[1]}x{R.shape[0]}"
+    if rectification is not None:
+        size = rectification.get("source_size", rectification.get("image_size")) if raw \
+            else rectification.get("image_size")
+        if size is not None:
+            w, h = (int(x) for x in size)
+            if (L.shape[1], L.shape[0]) != (w, h):
+                return f"image size {L.shape[1]}x{L.shape[0]} differs from the calibration's {w}x{h}"
+    return None
+
+
+def pair_is_raw(ctx, rectification: dict | None) -> bool:
+    """True when the segmenter's ``pair`` input is wired to camera images (a ``StereoPair``).
+
+    Those are rectified on request (see :mod:`nodes.contracts.views`), which needs the
+    Rectification's maps.
+    """
+    wired = getattr(ctx, "input_types", None) or {}
+    if wired.get("pair") != "StereoPair":
+        return False
+    if rectification is None or "map_left_x" not in rectification:
+        raise NodeError(
+            "the segmenter's `pair` input gives raw camera images (StereoPair) but no Rectification "
+            "with remap maps is wired to rectify them.",
+            hint="wire `rectification: <rectifier.opencv node>.rectification`, or wire `pair` to a "
+                 "rectifier.remap output.",
+        )
+    return True

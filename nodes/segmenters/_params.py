@@ -1,0 +1,154 @@
+"""Parameters and the port interface every segmenter shares: the object model, shadow and
+partial-view settings, and the type of a method's mask function.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from stereograph.api import Field, In, Out, Params, PositiveRange
+
+# mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
+# ``scale`` is the downscale factor of ``image_bgr`` (1 = full resolution): divide sizes given in
+# full-resolution pixels by it. ``roi`` is True for the small full-resolution window around a
+# detected object (whose border is background) and False for a whole image.
+MaskFn = Callable[[np.ndarray, "SegmenterParams", tuple[float, float], int, bool], np.ndarray]
+
+
+class ObjectSpec(Params):
+    """What the object looks like (YAML: ``object: {radius_cm: 2.0, color_bgr: [30, 40, 200]}``)."""
+
+    radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
+    color_bgr: tuple[int, int, int] | None = Field(
+        None, description="Expected colour of the ball, B, G, R in 0-255. Give it: None = unknown colour, and then "
+                          "any second round object of a ball's size makes the result ambiguous (not found)."
+    )
+    hue_range_deg: tuple[float, float] | None = Field(
+        None,
+        description="Accepted hue range in degrees (0-360, wraps if lo > hi), alternative to color_bgr.",
+    )
+    color_tolerance: float = Field(
+        0.15, gt=0, le=2, description="Max L1 distance of normalised (b,g,r) chromaticity to color_bgr's (unitless)."
+    )
+    min_saturation: int = Field(
+        60, ge=0, le=255, description="Min HSV saturation (0-255) of object pixels for hue ranges."
+    )
+
+
+# Every segmenter has this interface, so that swapping methods is a one-line YAML change.
+SEGMENTER_INPUTS = {
+    "pair": In("RectifiedPair | StereoPair",
+               description="Rectified pair, or camera images rectified on request (needs `rectification`)."),
+    "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+}
+SEGMENTER_OUTPUTS = {
+    "segmentation": Out("Segmentation", description="Masks and region properties."),
+    "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+}
+
+class ShadowParams(Params):
+    """Shadow suppression: drop dark, low-saturation pixels that the mask took from the table."""
+
+    enabled: bool = Field(True, description="Remove shadow pixels attached to the object (bool).")
+    max_removed_fraction: float = Field(
+        0.8,
+        gt=0,
+        le=1,
+        description="Keep a region unchanged if more than this share would go (a dark object, not a shadow; ratio).",
+    )
+    max_brightness_ratio: float = Field(
+        0.8,
+        gt=0,
+        lt=1,
+        description="A shadow pixel is at most this fraction of the local background brightness (ratio).",
+    )
+    max_saturation_gain: int = Field(
+        30,
+        ge=0,
+        le=255,
+        description="A shadow pixel is at most this much more saturated than the background (HSV S, 0-255).",
+    )
+    max_chroma_shift: float = Field(
+        0.12,
+        gt=0,
+        description="Max change of normalised chromaticity (b,g,r)/sum vs the background (unitless).",
+    )
+
+
+class PartialParams(Params):
+    """Balls cut by the image border, partly hidden or touching another object (issue 15)."""
+
+    enabled: bool = Field(
+        True, description="When no whole ball is found, fit the sphere's image to the true part of a region's "
+                          "outline (bool); see nodes/segmenters/_partial.py.")
+    max_sigma_z_cm: float = Field(
+        0.25, gt=0, description="Report a partly seen ball only if the depth uncertainty predicted from the fit of "
+                                "its visible arc (1 sigma, both views) is at most this (cm); 4 sigma = 1 cm.")
+    min_disc_coverage: float = Field(
+        0.4, gt=0, le=1, description="Share of the fitted ball's in-image disc the region must cover (ratio): an arc "
+                                     "that the region does not fill is not a ball.")
+    size_tolerance: float = Field(
+        0.01, ge=0, le=0.5, description="Besides the fits' own 3 sigma, how far (ratio) a partly seen ball's distance "
+                                        "from its fitted size may differ from the stereo distance (the radius's and "
+                                        "the calibration's error).")
+    ambiguous_second_arc: float = Field(
+        0.3, gt=0, le=1, description="A merged region whose remaining outline holds this share (ratio) of a second "
+                                     "ball image of similar size, of the same colour or with no colour given, is "
+                                     "refused as ambiguous.")
+
+
+class SegmenterParams(Params):
+    """Parameters common to every segmenter."""
+
+    object: ObjectSpec = Field(default_factory=ObjectSpec, description="Object model (radius in cm, colour).")
+    working_range_cm: PositiveRange = Field(
+        (20.0, 80.0), description="Nearest and farthest distance of the object from the cameras (cm)."
+    )
+    radius_px_range: PositiveRange | None = Field(
+        None,
+        description="Expected image radius range (px) when no Rectification is wired; None = 3 px .. half the image.",
+    )
+    min_roundness: float = Field(
+        0.72,
+        ge=0,
+        le=1,
+        description="Min area / (pi * r_max^2) of a candidate, 1 = disc (unitless).",
+    )
+    ambiguity_ratio: float = Field(
+        0.1,
+        gt=0,
+        le=1,
+        description="Second-best plausible candidate (ball-sized, round, the object's colour when given) area / best "
+                    "area at or above which the choice is ambiguous (ratio). Size alone cannot tell two balls apart "
+                    "(a nearer one looks bigger), so the default 0.1 counts any second ball down to a third of the "
+                    "first's image radius.",
+    )
+    max_area_ratio: float = Field(
+        1.25, ge=1, description="Max ratio of the left and right region areas (ratio)."
+    )
+    max_row_offset_px: float = Field(
+        2.0, ge=0, description="Max |v_left - v_right| of the two centroids in rectified images (px)."
+    )
+    detect_downscale: int | None = Field(
+        None, ge=1, le=8, description="Downscale factor for detection; None = from the smallest expected radius."
+    )
+    coarse_first: bool = Field(
+        True,
+        description="With an automatic detect_downscale, look first at a level twice as coarse when the largest "
+                    "expected ball is >= 8 px there, and fall back to the regular level when no plausible region of "
+                    ">= 4 px radius is found there (bool; faster for near and mid-range balls).",
+    )
+    subpixel: bool = Field(True, description="Refine the contour to sub-pixel accuracy (bool).")
+    edge_search_px: float = Field(
+        3.0, ge=0.5, le=20, description="Half length of the normal search for the sub-pixel edge (px); "
+                                        "at least half a pixel, or it samples nothing."
+    )
+    shadow: ShadowParams = Field(default_factory=ShadowParams, description="Shadow suppression options.")
+    partial: PartialParams = Field(default_factory=PartialParams, description="Partly visible / touching balls.")
+    max_size_mismatch: float = Field(
+        0.15, gt=0, le=1, description="Max relative difference between the distance the silhouette's size gives for "
+                                      "a ball of object.radius_cm and the stereo distance (ratio); above -> not found "
+                                      "(another object, or the wrong radius in the YAML).")
+    overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")

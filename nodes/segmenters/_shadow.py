@@ -1,0 +1,109 @@
+"""Shadow suppression: drop the pixels of a mask that look like the ball's shadow on the table.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ._candidates import roundness
+from ._color import _chroma_distance, _ONES_1x3, hue_mask
+from ._params import ObjectSpec, ShadowParams
+from ._pixels import fast_median, masked_pixels, structuring_element
+
+
+def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
+    """Remove shadow pixels from a mask.
+
+    A cast shadow on the table is the table's own colour, darker: a brightness well below that
+    of the surrounding background, no more saturated than the background (a low saturation
+    compared with a coloured ball) and about the same normalised chromaticity. Such pixels
+    inside the mask are dropped; pixels that match the object's colour (when configured) are
+    always kept. A small opening then cuts the thin bridges
+    that remain between ball and shadow.
+
+    Parameters
+    ----------
+    img_bgr : uint8 HxWx3
+    mask : uint8 HxW, 0/255
+    shadow, obj : the options and the object model.
+
+    Returns
+    -------
+    uint8 HxW, 0/255 : the mask without shadow pixels.
+    """
+    n_sel = cv2.countNonZero(mask)
+    if n_sel == 0 or n_sel == mask.size:
+        return mask
+    sel = mask > 0
+    # Local background: a ring just outside the mask (fallback: everything outside).
+    ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
+    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, ~sel)
+    bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
+    bg_v = float(bg.max())
+    if bg_v < 1:
+        return mask
+    bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
+    # Only the region's pixels are classified: a 1xNx3 image of them keeps the cv2 calls.
+    px = masked_pixels(img_bgr, sel)[None]
+    hsv = cv2.cvtColor(px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    v, s = hsv[..., 2], hsv[..., 1]
+    f = px.astype(np.float32)
+    total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
+    dchroma = _chroma_distance(f, total, bg).reshape(v.shape)
+    dark = v < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
+    dchroma[dark] = 0.0
+    drop = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
+    drop &= dchroma <= shadow.max_chroma_shift
+    if obj.color_bgr is not None:
+        d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(v.shape)
+        d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
+        drop &= d_obj > obj.color_tolerance
+    elif obj.hue_range_deg is not None:
+        drop &= hue_mask(px, obj.hue_range_deg, obj.min_saturation) == 0
+    drop = drop[0]
+    if drop.sum() > shadow.max_removed_fraction * drop.size:
+        return mask  # most of the region looks like shadow: a dark neutral object, keep it
+    out = mask.copy()
+    kept = out[sel]
+    kept[drop] = 0
+    out[sel] = kept
+    # Cut thin bridges left between the object and remaining shadow specks.
+    out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
+    return out
+
+
+def suppress_shadow_regions(
+    img_bgr: np.ndarray, mask: np.ndarray, area_range_px: tuple[float, float], shadow: ShadowParams, obj: ObjectSpec,
+    min_roundness: float | None = None,
+) -> np.ndarray:
+    """:func:`suppress_shadow` applied region by region, in a window around each region.
+
+    Only regions that could hold the object (area from the smallest plausible ball to four
+    times the largest -- ball plus shadow) are processed; each gets its own local background.
+    Working in windows keeps this cheap on whole images. With ``min_roundness``, a region that
+    already has a ball's area and is at least that round is left as it is: a shadow attached
+    to it is too small to change the choice, and the full-resolution pass removes it.
+    """
+    cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    out = mask.copy()
+    h, w = mask.shape
+    for c in cnts:
+        x, y, bw, bh = cv2.boundingRect(c)
+        if bw * bh < area_range_px[0]:
+            continue
+        area = cv2.contourArea(c)
+        if not (0.5 * area_range_px[0] <= area <= 4 * area_range_px[1]):
+            continue
+        if min_roundness is not None and area_range_px[0] <= area <= area_range_px[1] \
+                and roundness(c, cv2.moments(c), area + 0.5 * cv2.arcLength(c, True)) >= min_roundness:
+            continue
+        m = 6
+        x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)
+        sub = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.drawContours(sub, [c - np.int32([x0, y0])], -1, 255, cv2.FILLED)
+        sub &= mask[y0:y1, x0:x1]
+        kept = suppress_shadow(img_bgr[y0:y1, x0:x1], sub, shadow, obj)
+        removed = (sub > 0) & (kept == 0)
+        out[y0:y1, x0:x1][removed] = 0
+    return out

@@ -1,0 +1,202 @@
+"""Sub-pixel refinement: outline points moved to the colour-gradient peak, a robust ellipse fit
+and the region's properties.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from ._params import SegmenterParams
+from ._pixels import _channels, fast_median, structuring_element
+
+
+def _color_gradient(img_bgr: np.ndarray, sigma: float = 1.0) -> np.ndarray:
+    """Colour gradient magnitude (sqrt of the sum over channels of |grad|^2), float32."""
+    f = cv2.GaussianBlur(img_bgr, (0, 0), sigma)
+    gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
+    g2 = cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy))
+    if g2.ndim == 3:
+        g2 = cv2.transform(g2, np.ones((1, 3), np.float32))
+    return cv2.sqrt(g2)
+
+
+def refine_contour(
+    img_bgr: np.ndarray, mask: np.ndarray, search_px: float = 3.0, contour: np.ndarray | None = None
+) -> np.ndarray | None:
+    """Sub-pixel outline of the (single) region in ``mask``.
+
+    Each boundary pixel is moved along the outward normal of the contour to the maximum
+    of the colour-gradient magnitude within +-``search_px`` (parabolic interpolation of the
+    peak). Anti-aliased edges put that maximum on the true outline; points without a clear
+    peak are dropped.
+
+    Parameters
+    ----------
+    img_bgr : uint8 HxWx3 (or HxW)
+    mask : uint8 HxW, 0/255, one region
+    search_px : float
+        Half length of the search along the normal (px).
+    contour : Nx1x2 int array, optional
+        The region's outer contour if already known (saves a findContours).
+
+    Returns
+    -------
+    float32 Nx2 array of (u, v) points in ``img_bgr`` coordinates, or None if too few points.
+    """
+    if contour is None:
+        cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not cnts:
+            return None
+        contour = max(cnts, key=len)
+    c = contour.reshape(-1, 2).astype(np.float32)
+    if len(c) < 12:
+        return None
+    # Normals from the contour's tangent over +-3 points (smooths the pixel staircase),
+    # oriented away from the region's centre.
+    cc = np.concatenate((c[-3:], c, c[:3]))  # wrap around the closed outline
+    t = cc[6:] - cc[:-6]  # c[i + 3] - c[i - 3]
+    n = t[:, ::-1] * np.float32([1.0, -1.0])  # (t_y, -t_x)
+    # Outward when sum((c - mean) . n) > 0; that sum is 2 sum(x_i y_i+3 - x_i+3 y_i), a
+    # lagged shoelace area, cheaper as two dot products.
+    c64, c3 = c.astype(np.float64), cc[6:].astype(np.float64)
+    if float(c64[:, 0] @ c3[:, 1] - c3[:, 0] @ c64[:, 1]) < 0:
+        n = -n
+    norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
+    good = norm[:, 0] > 1e-6
+    c, n = c[good], n[good] / norm[good]
+    # The gradient is needed only along the outline: crop to it. Samples lie within
+    # search_px + 1 px of the outline and the blur and Sobel reach 4 px, so a margin of
+    # search_px + 6 px gives the values of the whole image's gradient.
+    hh, ww = img_bgr.shape[:2]
+    m = int(math.ceil(search_px)) + 6
+    x0, y0 = max(0, int(c[:, 0].min()) - m), max(0, int(c[:, 1].min()) - m)
+    x1, y1 = min(ww, int(c[:, 0].max()) + m + 1), min(hh, int(c[:, 1].max()) + m + 1)
+    grad = _color_gradient(img_bgr[y0:y1, x0:x1])
+    step = 0.25
+    t = np.arange(-search_px, search_px + step / 2, step, dtype=np.float32)
+    mx = (c[:, 0:1] - x0 + n[:, 0:1] * t[None, :]).astype(np.float32, copy=False)
+    my = (c[:, 1:2] - y0 + n[:, 1:2] * t[None, :]).astype(np.float32, copy=False)
+    prof = cv2.remap(grad, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    k = prof.argmax(axis=1)
+    inner = (k > 0) & (k < len(t) - 1)
+    peak = prof[np.arange(len(k)), k]
+    inner &= peak > 0.25 * fast_median(peak)
+    k = np.minimum(np.maximum(k, 1), len(t) - 2)
+    rows = np.arange(len(k))
+    y0, y1, y2 = prof[rows, k - 1], prof[rows, k], prof[rows, k + 1]
+    den = y0 - 2 * y1 + y2
+    off = np.where(np.abs(den) > 1e-9, 0.5 * (y0 - y2) / np.where(den == 0, 1, den), 0.0)
+    tt = t[k] + np.clip(off, -0.5, 0.5) * step
+    pts = c + n * tt[:, None]
+    pts = pts[inner]
+    if len(pts) < 12:
+        return None
+    return pts.astype(np.float32)
+
+
+def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
+    """Ellipse through sub-pixel outline points, trimming outliers (occlusion, shadow specks).
+
+    Returns ``{"center_px": [u, v], "axes_px": [a, b], "angle_deg": float, "rms_px": float}``
+    with a >= b the semi-axes (px); ``angle_deg`` is OpenCV's angle of the first axis.
+    """
+    if pts is None or len(pts) < 6:
+        return None
+    keep = np.ones(len(pts), bool)
+    refit = True
+    for _ in range(3):
+        (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
+        if w <= 0 or h <= 0:
+            return None
+        # Approximate geometric distance: scale the algebraic residual by the local radius.
+        th = math.radians(ang)
+        ct, st = math.cos(th), math.sin(th)
+        du, dv = pts[:, 0] - cu, pts[:, 1] - cv_
+        x = du * ct + dv * st
+        y = -du * st + dv * ct
+        rr = np.sqrt((x / (w / 2)) ** 2 + (y / (h / 2)) ** 2)
+        res = (rr - 1.0) * 0.5 * (w + h) / 2
+        mad = fast_median(np.abs(res[keep])) * 1.4826 + 1e-3
+        new = np.abs(res) <= max(3.0 * mad, 0.3)
+        if new.sum() < 6 or (new == keep).all():
+            refit = False  # converged (or too few inliers): the last fit used ``keep``
+            break
+        keep = new
+    if refit:
+        (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
+    rms = float(np.sqrt(np.mean(res[keep] ** 2)))
+    a, b = max(w, h) / 2, min(w, h) / 2
+    if h > w:  # report the angle of the major axis
+        ang = (ang + 90.0) % 180.0
+    return {
+        "center_px": [float(cu), float(cv_)],
+        "axes_px": [float(a), float(b)],
+        "angle_deg": float(ang),
+        "rms_px": rms,
+        "inliers": int(keep.sum()),
+    }
+
+
+def region_properties(
+    img_bgr: np.ndarray,
+    mask: np.ndarray,
+    offset: tuple[int, int],
+    image_size: tuple[int, int],
+    params: SegmenterParams,
+    contour: np.ndarray | None = None,
+    search_extra_px: float = 0.0,
+) -> dict:
+    """Region dict (see docs/artifacts.md) of the single region in ``mask`` (ROI coordinates).
+
+    ``offset`` = (u0, v0) of the ROI in the image; ``image_size`` = (w, h) of the full image.
+    With ``params.subpixel`` the centroid and area come from the polygon moments of the
+    sub-pixel outline (Green's theorem), otherwise from the pixel moments.
+    """
+    u0, v0 = offset
+    w, h = image_size
+    m = cv2.moments(mask, binaryImage=True)
+    area = float(m["m00"])
+    cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    if contour is None:
+        cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        contour = max(cnts, key=len)
+    x, y, bw, bh = cv2.boundingRect(contour)
+    bbox = [x + u0, y + v0, x + bw - 1 + u0, y + bh - 1 + v0]
+    touches = bbox[0] <= 0 or bbox[1] <= 0 or bbox[2] >= w - 1 or bbox[3] >= h - 1
+    if not touches:
+        # A rectified image has a black (exactly 0) fill outside the camera's field of view:
+        # a region next to it is cut by the view's border just as by the frame's.
+        ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+        black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))  # every channel 0
+        if cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3:
+            touches = True
+    pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
+    sigma_c = None
+    method = "pixels"
+    if pts is not None:
+        pm = cv2.moments(pts)
+        if pm["m00"] > 0.5 * area:
+            area, cu, cv_ = float(pm["m00"]), pm["m10"] / pm["m00"], pm["m01"] / pm["m00"]
+            method = "subpixel_contour"
+    else:
+        pts = contour.reshape(-1, 2).astype(np.float32)
+    ell = fit_ellipse_robust(pts)
+    if ell is not None:
+        ell["center_px"] = [ell["center_px"][0] + u0, ell["center_px"][1] + v0]
+        # Centroid noise: outline noise (rms) averaged over the points, sqrt(2/N) per coordinate.
+        sigma_c = ell["rms_px"] * math.sqrt(2.0 / max(ell["inliers"], 1))
+    contour = pts + np.float32([u0, v0])
+    return {
+        "area_px": float(area),
+        "centroid_px": [float(cu + u0), float(cv_ + v0)],
+        "bbox": bbox,
+        "ellipse": ell,
+        "touches_border": bool(touches),
+        "contour_px": contour.astype(np.float64),
+        "centroid_method": method,
+        "sigma_centroid_px": sigma_c,
+    }

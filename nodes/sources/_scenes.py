@@ -1,0 +1,169 @@
+"""Scene descriptions of the synthetic rig: plain ball placements and the hard kinds
+(clutter, border, occlusion, ...), with their exact truth.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from nodes.sources._hard_scenes import HARD_KINDS, make_hard_scene
+from nodes.sources._materials import COLORS
+from nodes.sources._silhouette import silhouette
+
+#: Scene kinds understood by :func:`make_scene`.
+SCENE_KINDS = ("plain", "clutter", "second_ball", "border", "occluded", "hidden", "empty", *HARD_KINDS)
+
+
+
+
+def _table_to_cam(rig: dict, cam_index: int, pts_table: np.ndarray) -> np.ndarray:
+    cam = rig["cams"][cam_index]
+    return (np.atleast_2d(pts_table) - cam["origin_table"]) @ cam["R_table_from_cam"]
+
+
+def _bbox_inside(rig, sil: dict, margin: float) -> bool:
+    w, h = rig["truth"]["image_size"]
+    u0, v0, u1, v1 = sil["bbox_px"]
+    return u0 >= margin and v0 >= margin and u1 <= w - 1 - margin and v1 <= h - 1 - margin
+
+
+def _ball_sils(rig, center_table, radius):
+    out = []
+    for i in (0, 1):
+        cc = _table_to_cam(rig, i, np.asarray(center_table, float))[0]
+        if cc[2] <= radius:
+            return None
+        out.append(silhouette(rig["cams"][i]["K"], rig["cams"][i]["D"], cc, radius, n_boundary=256))
+    return out
+
+
+def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | None = None,
+               radius_cm: float = 2.0, color: Any = "orange", min_distance_cm: float = 30.0,
+               max_distance_cm: float = 60.0, border_margin_px: float = 4.0,
+               region_cm: tuple[float, float, float, float] | None = None) -> dict:
+    """Draw a random scene of a given kind (see the module docstring).
+
+    Parameters
+    ----------
+    rig : dict
+        From :func:`make_rig`.
+    kind : str
+        One of :data:`SCENE_KINDS`.
+    rng : Generator or int or None
+        Random source (or seed).
+    radius_cm : float
+        Ball radius, cm.
+    color : str or [b, g, r]
+        Ball colour.
+    min_distance_cm, max_distance_cm : float
+        Range of the ball centre's distance from the left camera, cm.
+    border_margin_px : float
+        For non-border kinds, the ball's silhouette stays this far inside both images.
+    region_cm : (x, y, r_min, r_max) or None
+        Keep the ball centre in this annulus of the table plane (table frame, cm): e.g. the
+        part of the table a robot arm standing at (x, y) can reach.
+
+    Returns
+    -------
+    scene : dict (plain data)
+    """
+    if kind not in SCENE_KINDS:
+        raise ValueError(f"unknown scene kind {kind!r}; use one of {SCENE_KINDS}")
+    rng = np.random.default_rng(rng)
+    ball = {"radius_cm": float(radius_cm), "color": color}
+    C1 = rig["cams"][0]["origin_table"]
+    w, h = rig["truth"]["image_size"]
+
+    def draw_ball(accept):
+        for _ in range(4000):
+            # Uniform in distance and bearing, then checked against both images.
+            dist = rng.uniform(min_distance_cm, max_distance_cm)
+            dz = C1[2] - radius_cm
+            if dist <= dz:
+                continue
+            ground = math.sqrt(dist * dist - dz * dz)
+            bearing = rng.uniform(-0.7, 0.7)
+            c = np.array([C1[0] + ground * math.sin(bearing), C1[1] + ground * math.cos(bearing), radius_cm])
+            if region_cm is not None:
+                rho = math.hypot(c[0] - region_cm[0], c[1] - region_cm[1])
+                if not region_cm[2] <= rho <= region_cm[3]:
+                    continue
+            sils = _ball_sils(rig, c, radius_cm)
+            if sils is not None and accept(c, sils):
+                return c, sils
+        raise RuntimeError(f"could not place a ball for scene kind {kind!r}; widen the distance range"
+                           + (" or the placement region" if region_cm is not None else ""))
+
+    def inside_both(c, sils):
+        return all(_bbox_inside(rig, s, border_margin_px) for s in sils)
+
+    if kind in HARD_KINDS:  # issue 15's kinds, measured visibility (nodes/sources/_hard_scenes.py)
+        return make_hard_scene(rig, kind, rng, radius_cm, color, draw_ball, inside_both)
+    scene: dict = {"kind": kind, "ball": None, "objects": []}
+    others = [n for n in COLORS if n not in (color if isinstance(color, str) else "", "white", "black")]
+    if kind == "empty":
+        c, _ = draw_ball(inside_both)
+        scene["objects"].append({"type": "box", "center_cm": [float(c[0]), float(c[1])],
+                                 "size_cm": [5.0, 4.0, 3.0], "yaw_deg": float(rng.uniform(0, 90)),
+                                 "color": str(rng.choice(others))})
+        return scene
+    if kind == "border":
+        side = rng.choice([0, 1])
+
+        def cut(c, sils):
+            s = sils[0]
+            u0, v0, u1, v1 = s["bbox_px"]
+            inside_v = v0 > border_margin_px and v1 < h - 1 - border_margin_px
+            if side == 0:  # cut by the left border of the left image
+                return inside_v and u0 < 0 < (u0 + u1) / 2 and _bbox_inside(rig, sils[1], -1e9)
+            return inside_v and (u0 + u1) / 2 < w - 1 < u1
+        c, _ = draw_ball(cut)
+    else:
+        c, _ = draw_ball(inside_both)
+    ball["center_cm"] = [float(c[0]), float(c[1])]
+    scene["ball"] = ball
+    r = radius_cm
+    if kind == "clutter":
+        for _ in range(int(rng.integers(2, 5))):
+            ang = rng.uniform(0, 2 * np.pi)
+            d = rng.uniform(3.5 * r, 8 * r)
+            pos = [float(c[0] + d * math.cos(ang)), float(c[1] + d * math.sin(ang))]
+            if rng.random() < 0.5:
+                scene["objects"].append({"type": "box", "center_cm": pos,
+                                         "size_cm": [float(rng.uniform(2, 6)), float(rng.uniform(2, 6)),
+                                                     float(rng.uniform(1.5, 6))],
+                                         "yaw_deg": float(rng.uniform(0, 90)), "color": str(rng.choice(others))})
+            else:
+                scene["objects"].append({"type": "cylinder", "center_cm": pos,
+                                         "radius_cm": float(rng.uniform(1, 2.5)),
+                                         "height_cm": float(rng.uniform(2, 8)), "color": str(rng.choice(others))})
+    elif kind == "second_ball":
+        ang = rng.uniform(0, 2 * np.pi)
+        d = rng.uniform(3 * r, 7 * r)
+        scene["objects"].append({"type": "ball", "center_cm": [float(c[0] + d * math.cos(ang)),
+                                                               float(c[1] + d * math.sin(ang))],
+                                 "radius_cm": float(r * rng.uniform(0.8, 1.3)), "color": str(rng.choice(others))})
+    elif kind in ("occluded", "hidden"):
+        # A box on the line of sight from the left camera, between it and the ball.
+        to_cam = C1[:2] - c[:2]
+        dist_xy = np.linalg.norm(to_cam)
+        u = to_cam / dist_xy
+        perp = np.array([-u[1], u[0]])
+        gap = r + 2.0
+        pos = c[:2] + u * (gap + 1.5)
+        # Height the line of sight needs to be blocked at that position, plus margin.
+        frac = (gap + 1.5) / dist_xy
+        sight = c[2] + (C1[2] - c[2]) * frac
+        if kind == "occluded":
+            pos = pos + perp * rng.choice([-1, 1]) * r * rng.uniform(1.0, 1.5)
+            size = [2.0 * r, 2.0, sight + r * rng.uniform(0.5, 1.2)]
+        else:
+            size = [4.0 * r, 2.0, sight + 2.0 * r]
+        scene["objects"].append({"type": "box", "center_cm": [float(pos[0]), float(pos[1])],
+                                 "size_cm": [float(s) for s in size],
+                                 "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
+                                 "color": str(rng.choice(others))})
+    return scene
