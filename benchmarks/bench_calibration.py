@@ -52,7 +52,8 @@ def renderer(n):
             worst_c = max(worst_c, float(np.hypot(*(c - sil["centroid_px"]))))
             gaps.append(float(np.hypot(*np.subtract(sil["centroid_px"], sil["center_px"]))))
         nl = cv2.undistortPoints(np.array([[truth["center_px_left"]]]), tr["K1"], tr["D1"], criteria=crit).reshape(2, 1)
-        nr = cv2.undistortPoints(np.array([[truth["center_px_right"]]]), tr["K2"], tr["D2"], criteria=crit).reshape(2, 1)
+        nr = cv2.undistortPoints(np.array([[truth["center_px_right"]]]), tr["K2"], tr["D2"],
+                                 criteria=crit).reshape(2, 1)
         X = cv2.triangulatePoints(P1, P2, nl, nr)
         worst_x = max(worst_x, float(np.linalg.norm((X[:3] / X[3]).ravel() - truth["center_left_cm"])))
     poses = random_board_poses(rig, 5, 0)
@@ -95,7 +96,8 @@ def _target(rig, n=6):
         W.append(obj @ pw[:3, :3].T + pw[:3, 3])
         pl = obj @ p[:3, :3].T + p[:3, 3]
         L.append(project_points(rig["truth"]["K1"], rig["truth"]["D1"], pl))
-        Rr.append(project_points(rig["truth"]["K2"], rig["truth"]["D2"], pl @ rig["truth"]["R"].T + rig["truth"]["T_cm"]))
+        t = rig["truth"]
+        Rr.append(project_points(t["K2"], t["D2"], pl @ t["R"].T + t["T_cm"]))
     return np.concatenate(W), np.concatenate(L), np.concatenate(Rr)
 
 
@@ -117,7 +119,8 @@ def tsai_table():
             T = tr["T_table_from_left"]
             Rw = T[:3, :3].T
             cams = []
-            for K, Rx, tx in ((tr["K1"], Rw, -Rw @ T[:3, 3]), (tr["K2"], tr["R"] @ Rw, tr["R"] @ (-Rw @ T[:3, 3]) + tr["T_cm"])):
+            cams = ((tr["K1"], Rw, -Rw @ T[:3, 3]), (tr["K2"], tr["R"] @ Rw, tr["R"] @ (-Rw @ T[:3, 3]) + tr["T_cm"]))
+            for K, Rx, tx in cams:
                 cams.append({"f": K[1, 1], "k1": 0.15 / K[1, 1] ** 2, "sx": K[0, 0] / K[1, 1], "R": Rx, "t_cm": tx,
                              "u0": K[0, 2], "v0": K[1, 2], "dx": 1.0, "dy": 1.0, "ncx_over_nfx": 1.0})
             L, Rr = tsai_project(cams[0], W), tsai_project(cams[1], W)
@@ -155,7 +158,8 @@ def real_data():
     print(f"- plain OpenCV (calibrateCamera x2 + stereoCalibrate defaults) on the same detections: RMS {ref:.4f} px")
     for refine in ("joint", "fix_intrinsic"):
         cal = chessboard(ChessboardParams(refine=refine), views=views)["calibration"]
-        line = f"- calibrator.chessboard refine={refine}: RMS {cal['rms_px']:.4f} px ({100 * (cal['rms_px'] / ref - 1):+.1f} %)"
+        line = (f"- calibrator.chessboard refine={refine}: RMS {cal['rms_px']:.4f} px "
+                f"({100 * (cal['rms_px'] / ref - 1):+.1f} %)")
         for alpha in (1.0, 0.0):
             r = opencv(RectifyParams(alpha=alpha), calibration=cal)["rectification"]
             line += (f"; alpha={alpha:g}: rectified |dy| mean {r['dy_mean_px']:.3f} / max {r['dy_max_px']:.3f} px, "

@@ -40,19 +40,23 @@ def main(argv=None) -> int:
     rows = []
 
     dt, (q, st) = timed(lambda: analytic_ik_batch(model, P))
-    rows.append(("analytic, vectorised batch", a.n / dt, (st == OK).mean(), np.linalg.norm(fk(model, q) - P, axis=1).max()))
+    err = np.linalg.norm(fk(model, q) - P, axis=1)
+    rows.append(("analytic, vectorised batch", a.n / dt, (st == OK).mean(), err.max()))
 
     def scalar_all():
         return np.array([analytic_ik(model, p) for p in P])
     dt, q = timed(scalar_all, repeat=1)
-    rows.append(("analytic, scalar (one call per target)", a.n / dt, 1.0, np.linalg.norm(fk(model, q) - P, axis=1).max()))
+    err = np.linalg.norm(fk(model, q) - P, axis=1)
+    rows.append(("analytic, scalar (one call per target)", a.n / dt, 1.0, err.max()))
 
     dt, (q, st, err) = timed(lambda: numeric_ik_batch(model, P), repeat=1)
-    rows.append(("numeric DLS, vectorised batch", a.n / dt, (st == OK).mean(), np.linalg.norm(fk(model, q) - P, axis=1)[st == OK].max()))
+    err = np.linalg.norm(fk(model, q) - P, axis=1)
+    rows.append(("numeric DLS, vectorised batch", a.n / dt, (st == OK).mean(), err[st == OK].max()))
 
     m = min(a.n_scalar_numeric, a.n)
     dt, q = timed(lambda: np.array([numeric_ik(model, p) for p in P[:m]]), repeat=1)
-    rows.append(("numeric DLS, scalar (one call per target)", m / dt, 1.0, np.linalg.norm(fk(model, q) - P[:m], axis=1).max()))
+    err = np.linalg.norm(fk(model, q) - P[:m], axis=1)
+    rows.append(("numeric DLS, scalar (one call per target)", m / dt, 1.0, err.max()))
 
     print(f"IK benchmark: {a.n} random reachable targets, arm '{model['name']}' (reach {model['reach_cm']:.1f} cm), "
           f"one process")

@@ -95,7 +95,8 @@ def row(label, locs, split):
     cells = []
     for ax in "xyz":
         s = tab[ax]
-        cells.append("–" if s["mean_cm"] is None else f"{s['mean_cm']:+.3f} / {s['std_cm']:.3f} / {s['max_abs_cm']:.3f}")
+        cells.append("–" if s["mean_cm"] is None
+                     else f"{s['mean_cm']:+.3f} / {s['std_cm']:.3f} / {s['max_abs_cm']:.3f}")
     return f"| {label} | {len(ok)}/{len(sel)} | " + " | ".join(cells) + " |"
 
 
@@ -130,7 +131,8 @@ def main(argv=None):
         sp, srect, sraw = prepare(a.shadow_n, a.seed + 1, a.calibration, shadow_strength=0.95,
                                   light_cm=(40.0, 30.0, 45.0))
         raw = sraw if a.rectify == "on-demand" else None
-        print(f"\nStrong shadow ({len(sp)} placements, shadow_strength 0.95, low light; all items), centroid disparity:\n")
+        print(f"\nStrong shadow ({len(sp)} placements, shadow_strength 0.95, low light; all items), "
+              "centroid disparity:\n")
         print(HEADER)
         for s in SEGMENTERS:
             print(row(f"{s}, suppression off, no roundness check (thesis: largest region)",

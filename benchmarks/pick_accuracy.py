@@ -75,7 +75,8 @@ def main(argv=None) -> int:
     print(f"test placements: {n_test}; planned: {len(d)}; refused / not found: {len(refused)}")
     print("distance |commanded grasp point - true ball centre| (cm):")
     q = np.percentile(d, [50, 90, 95, 99])
-    print(f"  mean {d.mean():.3f}  median {q[0]:.3f}  p90 {q[1]:.3f}  p95 {q[2]:.3f}  p99 {q[3]:.3f}  max {d.max():.3f}")
+    print(f"  mean {d.mean():.3f}  median {q[0]:.3f}  p90 {q[1]:.3f}  p95 {q[2]:.3f}  p99 {q[3]:.3f}  "
+          f"max {d.max():.3f}")
     for name, i in (("x", 0), ("y", 1), ("z", 2)):
         print(f"  {name} (arm base): mean {E[:, i].mean():+.3f}  std {E[:, i].std():.3f}")
     hist, edges = np.histogram(d, bins=[0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.75, 1.0, np.inf])

@@ -177,7 +177,8 @@ def test_nested_params_merge_into_their_default(tmp_path, capsys):
             return {"arm": params.model_dump()}
         """))
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n    params: {{yaw: {{max_deg: 90}}}}\n")
+    f.write_text(f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n"
+                 "    params: {yaw: {max_deg: 90}}\n")
     from stereograph.config import load_pipeline
     from stereograph.graph import build_graph
 

@@ -148,7 +148,8 @@ def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path
             raise NodeError("no object found in image left07.png", hint="check the lighting")
         """))
     p = write_pipeline(tmp_path, extra="  boom:\n    type: tmp.boom\n    inputs: {m: power.m}\n"
-                                       "  after:\n    type: toy.sum\n    params: {scale: 3}\n    inputs: {values: power.norm}\n")
+                                       "  after:\n    type: toy.sum\n    params: {scale: 3}\n"
+                                       "    inputs: {values: power.norm}\n")
     text = p.read_text().replace(f"plugins: [{TOY}]", f"plugins: [{TOY}, {plug}]")
     p.write_text(text)
     code = main(["run", str(p), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")])
@@ -168,7 +169,8 @@ def test_only_and_from(tmp_path):
     p = write_pipeline(tmp_path)
     r = run(p, tmp_path, only="power")
     assert r.ran == {"numbers", "power"} and r.status["total"] == "not selected"
-    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == ["power", "report.html", "run.json"]  # not its upstream
+    # not its upstream
+    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == ["power", "report.html", "run.json"]
     r = run(p, tmp_path, from_node="power")
     assert r.ran == {"power", "total", "report"} and r.status["numbers"] == "cached"
 
@@ -289,7 +291,8 @@ def test_uncacheable_node_runs_every_time(tmp_path):
 
 
 def test_include_and_defaults(tmp_path):
-    (tmp_path / "common.yaml").write_text(f"plugins: [{TOY}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 3, size: 4}}}}\n")
+    (tmp_path / "common.yaml").write_text(f"plugins: [{TOY}]\nnodes:\n"
+                                          "  numbers: {type: toy.numbers, params: {n: 3, size: 4}}\n")
     f = tmp_path / "p.yaml"
     f.write_text("name: inc\ninclude: [common.yaml]\ndefaults:\n  toy.power: {power: 3}\nnodes:\n"
                  "  power: {type: toy.power, inputs: {m: numbers.items}}\n"

@@ -92,7 +92,8 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
         add_hint = (f"add chessboard views: at least {params.min_views} are needed (10-20 recommended, the board "
                     "at several distances and tilts across the working range)")
         if not ids:
-            msg = f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of the {len(vlist)} views{named}."
+            msg = (f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of the {len(vlist)} "
+                   f"views{named}.")
             hint = board_hint
         elif not rejected:  # every view shows the board: there are just too few of them
             msg = (f"calibrator.chessboard: all {len(vlist)} views show the {cols}x{rows} board, but "

@@ -168,10 +168,11 @@ def _read_pairs(path) -> tuple[np.ndarray, np.ndarray]:
         cam = np.array([[float(r[k]) for k in ("cam_x", "cam_y", "cam_z")] for r in rows])
         arm_ = np.array([[float(r[k]) for k in ("arm_x", "arm_y", "arm_z")] for r in rows])
     except FileNotFoundError:
-        raise NodeError(f"hand-eye pairs file {path} does not exist.", hint="fix pairs_file (relative to the pipeline).")
+        raise NodeError(f"hand-eye pairs file {path} does not exist.",
+                        hint="fix pairs_file (relative to the pipeline).") from None
     except (KeyError, ValueError, TypeError) as e:
         raise NodeError(f"hand-eye pairs file {path} is not a CSV with numeric columns "
-                        f"cam_x,cam_y,cam_z,arm_x,arm_y,arm_z ({e}).", hint="fix the header / values.")
+                        f"cam_x,cam_y,cam_z,arm_x,arm_y,arm_z ({e}).", hint="fix the header / values.") from e
     return cam.reshape(-1, 3), arm_.reshape(-1, 3)
 
 
@@ -194,7 +195,7 @@ def _fit(cam, arm_pts, params: HandEyeParams, source: str):
         T, _ = fit_rigid(cam, arm_pts)
     except ValueError as e:
         raise NodeError(f"hand-eye fit from {source}: {e}.",
-                        hint="use >= 3 pairs spread over the workspace, not on one line.")
+                        hint="use >= 3 pairs spread over the workspace, not on one line.") from e
     res = residuals_cm(T, cam, arm_pts)
     rms = float(np.sqrt(np.mean(res ** 2)))
     if rms > params.max_residual_cm:

@@ -334,7 +334,8 @@ def require_span(values: np.ndarray, name: str, label: str, min_fraction: float,
     scale = float(np.median(np.abs(values)))
     if not span > max(min_fraction * scale, 1e-9 * max(scale, 1.0)):
         raise NodeError(
-            f"{label}: the training placements all lie at one {name} ({np.min(values):.4g}-{np.max(values):.4g} {unit}, "
+            f"{label}: the training placements all lie at one {name} "
+            f"({np.min(values):.4g}-{np.max(values):.4g} {unit}, "
             f"spread {span:.3g} {unit} < {min_fraction:.0%} of {scale:.4g} {unit}); a distance-dependent "
             "correction cannot be fitted from them.",
             hint="place the training objects over the working range of distances, or lower min_span_fraction.",

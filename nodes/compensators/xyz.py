@@ -80,7 +80,8 @@ def fit_xyz(
     Returns
     -------
     dict
-        ``{"exponents", "center", "half_range", "coef_x_cm", "coef_y_cm", "coef_z_cm", "depth_feature", "degree", "ridge"}``.
+        ``{"exponents", "center", "half_range", "coef_x_cm", "coef_y_cm", "coef_z_cm", "depth_feature",
+        "degree", "ridge"}``.
     """
     exponents = monomials(3, degree)
     if len(samples) < len(exponents) + 1:

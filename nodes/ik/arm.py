@@ -53,7 +53,8 @@ class GripperSpec(JointSpec):
 class Links(Params):
     """Link lengths of the chain (see nodes/ik/_model.py for the exact definition)."""
 
-    base_height_cm: float = Field(8.0, ge=0, le=200, description="Height of the shoulder axis above the mounting plane (cm).")
+    base_height_cm: float = Field(8.0, ge=0, le=200,
+                                  description="Height of the shoulder axis above the mounting plane (cm).")
     shoulder_offset_cm: float = Field(0.0, ge=-50, le=50,
                                       description="Horizontal offset of the shoulder axis from the yaw axis (cm).")
     upper_arm_cm: float = Field(12.0, gt=0, le=200, description="Shoulder axis to elbow axis (cm).")

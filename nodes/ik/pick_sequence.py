@@ -47,8 +47,9 @@ class PickParams(Params):
     lift_height_cm: float = Field(8.0, ge=0, le=100, description="Height to lift the object by (cm).")
     descend_steps: int = Field(3, ge=1, le=50,
                                description="Straight-line waypoints of the vertical descent (1 = one move).")
-    place_cm: list[float] | None = Field(None, min_length=3, max_length=3,
-                                         description="Where to put the object down (arm-base frame, cm); none = hold it.")
+    place_cm: list[float] | None = Field(
+        None, min_length=3, max_length=3,
+        description="Where to put the object down (arm-base frame, cm); none = hold it.")
     return_home: bool = Field(False, description="End with a move back to the home pose.")
     workspace_min_cm: list[float] | None = Field(
         None, min_length=3, max_length=3,
@@ -113,7 +114,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         try:
             q = solve(model, pt, target["solver"], q_init=q_prev)
         except Unreachable as e:
-            raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e))
+            raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e)) from e
         q_prev = q
         st = state.get(name, "open")
         waypoints.append({"name": name, "gripper": st, "tool_cm": [float(v) for v in pt],
