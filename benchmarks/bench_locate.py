@@ -77,9 +77,10 @@ nodes:
     inputs: {{pair: rig.pairs, rectification: rectify.rectification}}
   disparity: {{type: disparity.centroid, inputs: {{segmentation: segment.segmentation,
               rectification: rectify.rectification}}}}
-  locate: {{type: locator.triangulate, inputs: {{disparity: disparity.disparity,
+  locate: {{type: locator.triangulate, params: {{overlay: false}}, inputs: {{disparity: disparity.disparity,
            rectification: rectify.rectification}}}}
 """
+# (both overlays off: the hand-written loop draws none, and pictures are the report's job, not the locate path's)
 FULL_REMAP = PIPELINE.replace(
     "  segment:\n",
     "  remap: {{type: rectifier.remap, inputs: {{rectification: rectify.rectification, pair: rig.pairs}}}}\n"
