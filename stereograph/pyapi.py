@@ -274,7 +274,7 @@ def compare(
     set: Mapping[str, Any] | Iterable[str] | None = None,  # noqa: A002
     out_dir: str | Path | None = None,
     cache_dir: str | Path | None = None,
-    split: str = "test",
+    split: str | None = None,
     skip_invalid: bool = False,
     plots: bool = True,
     progress: Any = True,
@@ -297,7 +297,7 @@ def compare(
     Returns
     -------
     stereograph.compare.CompareResult
-        ``.rows`` (one dict per variant and final location output: settings, errors in cm,
+        ``.rows`` (one dict per variant: its settings and the metrics its nodes declare,
         times), ``.row(**settings)``, ``.variants`` (each with ``.status``, ``.ran``, ``.out_dir``),
         ``.files`` (``compare.csv``, ``compare.json``, plots).
     """

@@ -9,6 +9,7 @@ PickPlan (per item)::
      "servo_ids": [int, ...],              # every servo the plan drives, chain order
      "grasp_index": int,                   # index of the waypoint that closes the gripper on the object
      "grasp_fk_cm": [x, y, z],             # tool point of the quantised servo goals at the grasp
+     "workspace_cm": {"min": [x, y, z], "max": [x, y, z]},   # the box every waypoint was checked against
      "waypoints": [{"name": str,           # open, above, descend_k, grasp, close, lift, place_above, ...
                     "gripper": "open" | "closed",
                     "tool_cm": [x, y, z],  # tool-point target, arm-base frame
@@ -143,6 +144,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             "location_cm": target.get("location_cm"), "frame": target.get("frame"),
             "truth_base_cm": target.get("truth_base_cm"), "solver": target["solver"],
             "servo_ids": all_servo_ids(model), "grasp_index": gi, "grasp_fk_cm": waypoints[gi]["fk_cm"],
+            "workspace_cm": {"min": lo.tolist(), "max": hi.tolist()},  # the box this plan was checked against
             "waypoints": waypoints}
 
 

@@ -28,12 +28,6 @@ class PickReportParams(Params):
     ball_radius_cm: float = Field(2.0, gt=0, le=50, description="Radius of the ball drawn at the target (cm).")
     split: Literal["test", "train", "all"] = Field(
         "test", description="Without a wired log: draw the first plan not refused of this split (name).")
-    workspace_min_cm: list[float] | None = Field(
-        None, min_length=3, max_length=3,
-        description="Workspace box lower corner drawn (arm-base frame, cm); default as ik.pick_sequence's.")
-    workspace_max_cm: list[float] | None = Field(
-        None, min_length=3, max_length=3,
-        description="Workspace box upper corner drawn (cm); default as ik.pick_sequence's.")
 
 
 def chain_points(arm: dict, joints_deg: dict) -> np.ndarray:
@@ -47,13 +41,6 @@ def chain_points(arm: dict, joints_deg: dict) -> np.ndarray:
     return np.array([[r * math.cos(q0), r * math.sin(q0), z] for r, z in rz])
 
 
-def _box(arm: dict, params: PickReportParams) -> tuple[np.ndarray, np.ndarray]:
-    h0, *_, reach = geometry(arm)
-    lo = np.array(params.workspace_min_cm if params.workspace_min_cm is not None else [-reach, -reach, 0.0])
-    hi = np.array(params.workspace_max_cm if params.workspace_max_cm is not None else [reach, reach, h0 + reach])
-    return lo, hi
-
-
 def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     """Side and top views of the arm at the grasp, with the ball and the workspace box."""
     from matplotlib.patches import Circle, Rectangle
@@ -62,7 +49,7 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     pts = chain_points(arm, g["joints_deg"])
     target = np.asarray(plan["target_base_cm"], float)
     truth = plan.get("truth_base_cm")
-    lo, hi = _box(arm, params)
+    box = plan.get("workspace_cm")  # the box ik.pick_sequence checked this plan against (absent: not drawn)
     yaw = math.radians(float(g["joints_deg"]["yaw"]))
     fig = new_figure(11, 4.8)
     side, top = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
@@ -73,8 +60,11 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     side.add_patch(Circle((t_r, target[2]), params.ball_radius_cm, color="#e67e22", alpha=0.6, label="ball (located)"))
     side.plot([pts[-1, 0] * math.cos(yaw) + pts[-1, 1] * math.sin(yaw)], [pts[-1, 2]], "x", color="red", ms=10,
               mew=2, label="tool point")
-    side.add_patch(Rectangle((lo[0], lo[2]), hi[0] - lo[0], hi[2] - lo[2], fill=False, ls="--", color="#7f8c8d",
-                             label="workspace box (x extent)"))
+    if box is not None:
+        lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
+        side.add_patch(Rectangle((lo[0], lo[2]), hi[0] - lo[0], hi[2] - lo[2], fill=False, ls="--",
+                                 color="#7f8c8d", label="workspace box (x extent)"))
+        top.add_patch(Rectangle((lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"))
     side.axhline(0, color="k", lw=0.8)
     side.set_xlabel("distance from the base axis, in the arm's plane (cm)")
     side.set_ylabel("height z (cm)")
@@ -86,7 +76,6 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
         top.plot([truth[0]], [truth[1]], "+", color="green", ms=12, mew=2, label="true centre")
         side.plot([truth[0] * math.cos(yaw) + truth[1] * math.sin(yaw)], [truth[2]], "+", color="green", ms=12, mew=2,
                   label="true centre")
-    top.add_patch(Rectangle((lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"))
     top.set_xlabel("x (cm, arm base)")
     top.set_ylabel("y (cm, arm base)")
     top.set_title("top view", fontsize=10)
