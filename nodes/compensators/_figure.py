@@ -14,10 +14,11 @@ What is drawn, per corrected axis (one panel each; depth-only models have the z 
 - x: the model's own depth variable, measured z (cm) or disparity d (px);
 - y: the error the correction removes, ``truth - measured`` (cm), per placement;
 - the correction along one *reference ray*, as a line: the model's prediction for measurements
-  at the median training image position (u, v) with ``z d`` equal to the training median. For a
-  model of z alone this is the model itself; for a model that also reads u, v (``compensator.xyz``)
-  or whose correction depends on the ray (``compensator.disparity_curve`` in rectified depth) it
-  is one slice, so the model's value *at each training placement* is drawn too, as small marks.
+  at the training placements' typical image position for each depth (u, v fitted as straight
+  lines of d) with ``z d`` equal to the training median. For a model of z alone this is the model
+  itself; for a model that also reads u, v (``compensator.xyz``) or whose correction depends on
+  the ray (``compensator.disparity_curve`` in rectified depth) it is one slice, so the model's
+  value *at each training placement* is drawn too, as small marks.
 """
 
 from __future__ import annotations
@@ -91,16 +92,37 @@ def held_out(collection: Mapping[str, Mapping[str, Any]], needs: tuple[str, ...]
     return samples_from_locations(keep) if keep else None
 
 
+def _typical(d: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``values`` (an image coordinate) as a straight line of disparity ``d``, evaluated ``at``.
+
+    Balls on a table seen from above: their image row is a straight line of their disparity
+    (v - cy = f Y / z = (Y / B) d for a constant height Y), so the line keeps the reference ray
+    where the placements are; a plain median would leave that surface, where a model of
+    (u, v, d) was never constrained.
+    """
+    ok = np.isfinite(d) & np.isfinite(values)
+    if not np.any(ok):
+        return np.full(len(at), math.nan)
+    if np.count_nonzero(ok) < 3 or np.ptp(d[ok]) <= 0:
+        return np.full(len(at), float(np.median(values[ok])))
+    slope, icept = np.polyfit(d[ok], values[ok], 1)
+    return slope * at + icept
+
+
 def _reference(inliers: Samples, variable: str, grid: np.ndarray) -> Samples:
-    """Measurements along the reference ray at the grid values of ``variable``."""
+    """Measurements along the reference ray at the grid values of ``variable``.
+
+    z d is held at its training median (K), so ``z = K / d`` and, for the disparity curve in
+    rectified depth, the ray factor is 1; u and v follow the training placements (:func:`_typical`).
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         zd = inliers.xyz_cm[:, 2] * inliers.disparity_px
         k = float(np.nanmedian(zd)) if np.any(np.isfinite(zd)) else math.nan
         z = grid if variable == "z_cm" else k / grid
         d = k / grid if variable == "z_cm" else grid
     n = len(grid)
-    u = np.full(n, float(np.nanmedian(inliers.u_px)) if np.any(np.isfinite(inliers.u_px)) else math.nan)
-    v = np.full(n, float(np.nanmedian(inliers.v_px)) if np.any(np.isfinite(inliers.v_px)) else math.nan)
+    u = _typical(inliers.disparity_px, inliers.u_px, d)
+    v = _typical(inliers.disparity_px, inliers.v_px, d)
     return Samples(ids=[f"ref{i}" for i in range(n)], xyz_cm=np.column_stack([np.zeros(n), np.zeros(n), z]),
                    disparity_px=d, u_px=u, v_px=v, truth_cm=None, frame=inliers.frame)
 
@@ -180,7 +202,7 @@ def fit_picture(
              f"CV z RMS = {'n/a' if cv is None else f'{cv:.3g} cm'}")
     note = ""
     if any(p.fitted_y is not None for p in panels):
-        note = ("line: the model along the ray through the median training image position; "
+        note = ("line: the model at the training placements' typical image position (u, v) for each depth; "
                 "orange dashes: the model at each training placement")
     return FitPicture(title=title, formula=formula, variable=variable, train_x=train_x,
                       outlier_x=outliers.variable(variable) if len(outliers) else np.zeros(0),
@@ -189,19 +211,27 @@ def fit_picture(
 
 
 def _limits(p: Panel, pic: FitPicture) -> tuple[float, float]:
-    """y limits that show the fitted placements and the curve; far-off points are drawn at the edge."""
+    """y limits that show the fitted placements and the model; far-off points are drawn at the edge.
+
+    Where the line is only a slice of the model (``fitted_y`` set), the placements and the model's
+    values at them set the scale, and the line may leave the plot (:func:`draw` says so).
+    """
     inside = pic.valid is None or len(pic.grid_x) == 0
     sel = np.ones(len(pic.grid_x), bool) if inside else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
-    core = np.concatenate([p.train_y, p.curve_y[sel], p.fitted_y if p.fitted_y is not None else np.zeros(0)])
+    line = p.curve_y[sel] if p.fitted_y is None else np.zeros(0)
+    core = np.concatenate([p.train_y, line, p.fitted_y if p.fitted_y is not None else np.zeros(0)])
     core = core[np.isfinite(core)]
     if not len(core):
         core = np.array([-1.0, 1.0])
     lo, hi = float(np.min(core)), float(np.max(core))
-    span = max(hi - lo, 0.2)
+    span = max(hi - lo, 1e-3)
     near = p.test_y[(p.test_y > lo - span) & (p.test_y < hi + span)]  # test placements near the fit count too
+    if p.fitted_y is not None:  # the slice too, where it stays near the placements
+        curve = p.curve_y[sel]
+        near = np.concatenate([near, curve[np.isfinite(curve) & (curve > lo - span) & (curve < hi + span)]])
     if len(near):
         lo, hi = min(lo, float(np.min(near))), max(hi, float(np.max(near)))
-        span = max(hi - lo, 0.2)
+        span = max(hi - lo, 1e-3)
     return lo - 0.12 * span, hi + 0.12 * span
 
 
@@ -266,6 +296,15 @@ def draw(pic: FitPicture) -> np.ndarray:
                 ax.annotate(str(j + 1), (x0, y0), xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
                             textcoords="offset points", fontsize=8, fontweight="bold", color="#a11")
         ax.set_ylim(lo, hi)
+        if p.fitted_y is not None and len(pic.grid_x):
+            in_range = pic.valid is None or len(pic.grid_x) == 0
+            sel = True if in_range else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+            c = p.curve_y[np.isfinite(p.curve_y) & sel]
+            if len(c) and (np.min(c) < lo or np.max(c) > hi):
+                ax.text(0.01, 0.97, f"the line leaves the plot inside the valid range: {np.min(c):+.3g} to "
+                        f"{np.max(c):+.3g} cm (between placements the model is unconstrained)",
+                        transform=ax.transAxes, va="top", fontsize=7.5,
+                        color="#333", bbox={"fc": "white", "ec": "#bbb", "alpha": 0.85})
         ax.set_ylabel(f"{p.axis} error, truth − measured (cm)", fontsize=9)
         ax.grid(True, lw=0.4, alpha=0.5)
         if not len(p.train_y) and not len(p.outlier_y):
