@@ -27,6 +27,7 @@ from stereograph import graph_picture
 
 REPORT_NAME = "report.html"
 IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones embedded, the rest linked
+MESSAGES_SHOWN = 20  # warnings per node on the page (a hard set warns for dozens of pairs); the rest stay in run.json
 EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
 MAX_JSON_BYTES = 2 * 2**20
 _MIME = {".png": "image/png", ".svg": "image/svg+xml", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
@@ -42,7 +43,7 @@ td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
 th{background:#f0f0f0}
 td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
 figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
-figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:440px}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}
 .graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
 """
@@ -148,8 +149,12 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
         bits.append(f'<p class="err">{_e(n["error"])}</p>')
     if n.get("hint"):
         bits.append(f'<p class="hint">Fix: {_e(n["hint"])}</p>')
-    for m in (n.get("messages") or [])[:20]:
+    messages = n.get("messages") or []
+    for m in messages[:MESSAGES_SHOWN]:
         bits.append(f'<p class="hint">{_e(m)}</p>')
+    if len(messages) > MESSAGES_SHOWN:  # say that the list goes on, and where
+        bits.append(f'<p class="hint">… and {len(messages) - MESSAGES_SHOWN} more messages in '
+                    f'<a href="run.json">run.json</a></p>')
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
         imgs = [f for f in files if Path(f).suffix.lower() in _MIME]
         rest = [f for f in files if f not in imgs]

@@ -52,3 +52,13 @@ def test_graph_picture_png_and_svg(tmp_path):
     assert im is not None and im.shape[0] > 100 and im.shape[1] > 100
     text = svg.read_text()
     assert text.startswith("<svg") and text.count('class="sg-node"') == 4 and text.count("<path d=") >= 3
+
+
+def test_report_says_how_many_messages_it_left_out(tmp_path):
+    from stereograph.report import MESSAGES_SHOWN, build_html
+
+    msgs = [f"pair{i:03d}: no region found" for i in range(MESSAGES_SHOWN + 7)]
+    html = build_html({"pipeline": "x.yaml", "run_id": "r", "ok": True,
+                       "nodes": [{"node": "seg", "type": "k.t", "status": "ran", "messages": msgs}]}, tmp_path)
+    assert msgs[MESSAGES_SHOWN - 1] in html and msgs[MESSAGES_SHOWN] not in html
+    assert "7 more messages in" in html and 'href="run.json"' in html
