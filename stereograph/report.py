@@ -43,7 +43,7 @@ td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
 th{background:#f0f0f0}
 td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
 figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
-figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}figure.wide img{max-width:100%}
 .graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
 """
