@@ -140,8 +140,10 @@ def lookup(params: LookupParams, train, ctx=None):
     )
     c = model["coefficients"]
     width = np.diff(c["edges_cm"])
+    widths = f"{np.min(width):.3g}" if np.ptp(width) < 1e-3 * np.max(width) else \
+        f"{np.min(width):.3g}-{np.max(width):.3g}"
     figure = fit_figure(model, samples, predict_lookup, held_out(train, INPUTS), "z_cm", ("z",),
                         f"z correction = piecewise linear through {len(c['knots_z_cm'])} knots (bin means; bins "
-                        f"{np.min(width):.3g}-{np.max(width):.3g} cm wide, at least {params.min_per_bin} placements)",
+                        f"{widths} cm wide, at least {params.min_per_bin} placements)",
                         enabled=params.figure)
     return {"model": model, "metrics": model_metrics(model), "figure": figure}
