@@ -179,9 +179,30 @@ def _contents(nodes: list[dict[str, Any]]) -> str:
     return f"<h3>outputs</h3><ul>{''.join(links)}</ul>" if links else ""
 
 
+def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Nodes in data-flow order (each after the nodes it reads), otherwise as listed.
+
+    run.json lists nodes as the pipeline file (and its includes) define them, so a node that an
+    including file rewires can come before its inputs; the page reads top to bottom like the graph.
+    """
+    names = {n.get("node") for n in nodes}
+    deps = {}
+    for n in nodes:
+        refs = (n.get("inputs") or {}).values()
+        deps[n.get("node")] = {r[0] for r in refs if isinstance(r, (list, tuple)) and r and r[0] in names} - {
+            n.get("node")}
+    out, done, pending = [], set(), list(nodes)
+    while pending:
+        i = next((k for k, n in enumerate(pending) if deps[n.get("node")] <= done), 0)  # 0: a cycle, keep order
+        n = pending.pop(i)
+        out.append(n)
+        done.add(n.get("node"))
+    return out
+
+
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     page = _Page(run_dir)
-    nodes = [n for n in summary.get("nodes", []) if isinstance(n, dict)]
+    nodes = flow_order([n for n in summary.get("nodes", []) if isinstance(n, dict)])
     desc = {n["node"]: {"type": n.get("type", ""), "mapped": bool(n.get("mapped")), "inputs": n.get("inputs") or {}}
             for n in nodes if "node" in n}
     status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
