@@ -568,13 +568,18 @@ def compare(
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
     res.rows = _rows(res)
     res.files = _write(res, skipped, plots)
+    _write_page(res, overrides)
+    return res
+
+
+def _write_page(res: CompareResult, overrides: list[str] | None) -> None:
+    """(Re)write ``compare.html`` with the files written so far (the CLI plots after ``compare``)."""
     try:
         from stereograph.compare_report import write_compare_html
 
         res.files["html"] = write_compare_html(res, list(overrides or []))
     except Exception as e:  # the table and CSV are written: a page problem must not hide them
         print(f"note: compare.html not written: {type(e).__name__}: {e}", file=sys.stderr)
-    return res
 
 
 def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any, prog: Any,
@@ -935,6 +940,7 @@ def main(args: Any) -> int:
     patterns = patterns or None
     if not args.no_plots:
         res.files.update(_plots(res, patterns))
+        _write_page(res, args.set)  # the page was written before the plot: show it
     if args.json:
         print(res.files["json"].read_text())
     else:

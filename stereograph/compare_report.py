@@ -70,6 +70,6 @@ def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
         p = Path(path)
         if p.suffix.lower() in (".png", ".svg"):
             parts.append(f"<h2>{html.escape(name.replace('_', ' '))}</h2>"
-                         + page.image(str(p.relative_to(out)), p.name))
+                         + page.image(str(p.relative_to(out)), p.name, "wide"))  # a panel per metric: full width
     parts.append(_CHECK + "</body></html>")
     return write_html(out / COMPARE_NAME, "\n".join(parts))

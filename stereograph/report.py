@@ -27,6 +27,7 @@ from stereograph import graph_picture
 
 REPORT_NAME = "report.html"
 IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones embedded, the rest linked
+MESSAGES_SHOWN = 20  # warnings per node on the page (a hard set warns for dozens of pairs); the rest stay in run.json
 EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
 MAX_JSON_BYTES = 2 * 2**20
 _MIME = {".png": "image/png", ".svg": "image/svg+xml", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
@@ -42,7 +43,7 @@ td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
 th{background:#f0f0f0}
 td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
 figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
-figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:440px}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}figure.wide img{max-width:100%}
 .graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
 """
@@ -148,8 +149,12 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
         bits.append(f'<p class="err">{_e(n["error"])}</p>')
     if n.get("hint"):
         bits.append(f'<p class="hint">Fix: {_e(n["hint"])}</p>')
-    for m in (n.get("messages") or [])[:20]:
+    messages = n.get("messages") or []
+    for m in messages[:MESSAGES_SHOWN]:
         bits.append(f'<p class="hint">{_e(m)}</p>')
+    if len(messages) > MESSAGES_SHOWN:  # say that the list goes on, and where
+        bits.append(f'<p class="hint">… and {len(messages) - MESSAGES_SHOWN} more messages in '
+                    f'<a href="run.json">run.json</a></p>')
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
         imgs = [f for f in files if Path(f).suffix.lower() in _MIME]
         rest = [f for f in files if f not in imgs]
@@ -174,9 +179,30 @@ def _contents(nodes: list[dict[str, Any]]) -> str:
     return f"<h3>outputs</h3><ul>{''.join(links)}</ul>" if links else ""
 
 
+def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Nodes in data-flow order (each after the nodes it reads), otherwise as listed.
+
+    run.json lists nodes as the pipeline file (and its includes) define them, so a node that an
+    including file rewires can come before its inputs; the page reads top to bottom like the graph.
+    """
+    names = {n.get("node") for n in nodes}
+    deps = {}
+    for n in nodes:
+        refs = (n.get("inputs") or {}).values()
+        deps[n.get("node")] = {r[0] for r in refs if isinstance(r, (list, tuple)) and r and r[0] in names} - {
+            n.get("node")}
+    out, done, pending = [], set(), list(nodes)
+    while pending:
+        i = next((k for k, n in enumerate(pending) if deps[n.get("node")] <= done), 0)  # 0: a cycle, keep order
+        n = pending.pop(i)
+        out.append(n)
+        done.add(n.get("node"))
+    return out
+
+
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     page = _Page(run_dir)
-    nodes = [n for n in summary.get("nodes", []) if isinstance(n, dict)]
+    nodes = flow_order([n for n in summary.get("nodes", []) if isinstance(n, dict)])
     desc = {n["node"]: {"type": n.get("type", ""), "mapped": bool(n.get("mapped")), "inputs": n.get("inputs") or {}}
             for n in nodes if "node" in n}
     status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}

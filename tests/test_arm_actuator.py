@@ -221,3 +221,13 @@ def test_servos_that_never_reply_to_reads_fail_clearly_before_moving():
             execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
         assert "status return level" in str(ei.value) or "status return level" in (ei.value.hint or "")
         assert sim.writes(address=30) == []  # no goal was ever written
+
+
+def test_summary_says_why_plans_were_not_picked():
+    from nodes.actuators._plan import summary
+
+    skipped = {"s001": "max_picks 1 reached", "s002": "max_picks 1 reached", "s003": "split train",
+               "s004": "refused: out of reach (24.1 cm > 23.0 cm); fix: move the arm"}
+    s = summary([], [], skipped)
+    assert s["not_picked"] == 4
+    assert s["not_picked_why"] == {"max_picks 1 reached": 2, "split train": 1, "refused": 1}

@@ -169,3 +169,10 @@ def test_cli(pipeline, tmp_path, capsys):
     assert "[2/2] fit.type=xyz" in out.err  # progress lines when not on a terminal
     assert cli_main(["compare", str(pipeline), "--vary", "nodot=1"]) == 2
     assert cli_main(["compare", str(pipeline), "--vary", "ghost.type=a,b"]) == 2
+
+
+def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
+    # the CLI draws metrics.png after compare() wrote compare.html; the page must still show it
+    assert cli_main(["compare", str(pipeline), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 0
+    page = (tmp_path / "o" / "compare.html").read_text()
+    assert (tmp_path / "o" / "metrics.png").is_file() and 'data-file="metrics.png"' in page

@@ -26,6 +26,7 @@ FIT_NODES = {
 
 def fit(kind, locations, **params):
     fn = FIT_NODES[kind]
+    params.setdefault("figure", False)  # the figure has its own test (test_compensation_figure.py)
     return fn(fn.spec.params(**params), train=locations)["model"]
 
 

@@ -52,3 +52,27 @@ def test_graph_picture_png_and_svg(tmp_path):
     assert im is not None and im.shape[0] > 100 and im.shape[1] > 100
     text = svg.read_text()
     assert text.startswith("<svg") and text.count('class="sg-node"') == 4 and text.count("<path d=") >= 3
+
+
+def test_report_says_how_many_messages_it_left_out(tmp_path):
+    from stereograph.report import MESSAGES_SHOWN, build_html
+
+    msgs = [f"pair{i:03d}: no region found" for i in range(MESSAGES_SHOWN + 7)]
+    html = build_html({"pipeline": "x.yaml", "run_id": "r", "ok": True,
+                       "nodes": [{"node": "seg", "type": "k.t", "status": "ran", "messages": msgs}]}, tmp_path)
+    assert msgs[MESSAGES_SHOWN - 1] in html and msgs[MESSAGES_SHOWN] not in html
+    assert "7 more messages in" in html and 'href="run.json"' in html
+
+
+def test_report_sections_follow_the_data_flow(tmp_path):
+    from stereograph.report import build_html
+
+    # as an including file leaves them: 'report' rewired to read 'compensate', listed before it
+    nodes = [{"node": "locate", "inputs": {}}, {"node": "report", "inputs": {"locations": ["compensate", "location"]}},
+             {"node": "fit", "inputs": {"train": ["locate", "location"]}},
+             {"node": "compensate", "inputs": {"model": ["fit", "model"], "location": ["locate", "location"]}}]
+    html = build_html({"pipeline": "x.yaml", "run_id": "r", "ok": True,
+                       "nodes": [dict(n, type="k.t", status="ran") for n in nodes]}, tmp_path)
+    at = [html.index(f'<section class="sg-node-section" data-node="{n}"') for n in
+          ("locate", "fit", "compensate", "report")]
+    assert at == sorted(at)

@@ -106,8 +106,13 @@ def test_compare_report(tmp_path):
     # every variant's full settings, the shared --set overrides in the title and in each row
     assert all(f"fit.type={t}" in dom for t in ("none", "polynomial", "xyz"))
     assert dom.count("--set rig.n_scenes=24") >= 4
-    for vr in res.variants:
-        assert (vr.out_dir / "report.html").is_file()
+    for vr in res.variants:  # each variant is a compensate.yaml run with its fit's figure on its page
+        assert 'data-file="fit/figure.png"' in (vr.out_dir / "report.html").read_text()
+    # one of them opened: the compensation figure (curve over the training placements) loads
+    xyz = next(vr for vr in res.variants if "fit.type=xyz" in vr.variant.label)
+    shot = _shots(tmp_path) / "compensate-xyz.png"
+    dom = _browser(xyz.out_dir / "report.html", tmp_path, shot, 6400)
+    _check(dom, shot, ["fit/figure.png", "report/figure.png"])
 
 
 @needs_browser

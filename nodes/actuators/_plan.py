@@ -138,8 +138,12 @@ def _r(v, nd=2):
     return None if v is None else [round(float(x), nd) for x in v]
 
 
-def summary(picks: list[dict], plans: list[dict], n_not_picked: int) -> dict:
-    """A short, printable account of each executed pick."""
+def summary(picks: list[dict], plans: list[dict], skipped: dict[str, str]) -> dict:
+    """A short, printable account of each executed pick, and why the other plans were not executed.
+
+    ``not_picked`` counts them; ``not_picked_why`` counts them by reason (``max_picks 1 reached``,
+    ``split train``, ``refused``, ...), so that 119 plans not picked of 120 reads as the selection it is.
+    """
     out = []
     for log_, plan in zip(picks, plans):
         g = plan["waypoints"][plan["grasp_index"]]
@@ -148,4 +152,8 @@ def summary(picks: list[dict], plans: list[dict], n_not_picked: int) -> dict:
                     "grasp_joints_deg": {k: round(v, 2) for k, v in g["joints_deg"].items()},
                     "grasp_servo_goals": g["servo_units"],
                     "servo_commands": len(log_["commands"]), "ok": log_["ok"], "seconds": log_["seconds"]})
-    return {"picks": out, "not_picked": n_not_picked}
+    why: dict[str, int] = {}
+    for reason in skipped.values():
+        key = reason.split(":")[0]  # a refusal's own text is in the log; here only that it was refused
+        why[key] = why.get(key, 0) + 1
+    return {"picks": out, "not_picked": len(skipped), "not_picked_why": why}

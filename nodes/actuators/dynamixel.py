@@ -386,7 +386,7 @@ def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
         if sim is not None and not keep:
             sim.stop()
     return {"log": {"ok": all(p["ok"] for p in picks), "picks": picks, "not_picked": skipped},
-            "summary": summary(picks, chosen, len(skipped))}
+            "summary": summary(picks, chosen, skipped)}
 
 
 def _sim_record(sim: ServoSim) -> dict:

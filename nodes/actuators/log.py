@@ -62,4 +62,4 @@ def log(params: LogParams, arm, plans):
         check_plan(p, arm)
     picks = [dry_run(params, p, arm) for p in chosen]
     return {"log": {"ok": True, "picks": picks, "not_picked": skipped},
-            "summary": summary(picks, chosen, len(skipped))}
+            "summary": summary(picks, chosen, skipped)}

@@ -85,6 +85,11 @@ class FitParams(Params):
             "the fit refuses (unitless; below one half the median no longer describes the correct placements)."
         ),
     )
+    figure: bool = Field(
+        True,
+        description="Draw the fit's figure (figure.png, shown in report.html: the correction over the training "
+        "placements, the valid range, the outliers); false skips the drawing, about half a second per fit (bool).",
+    )
     max_residual_sigma: float | None = Field(
         20.0,
         gt=1,

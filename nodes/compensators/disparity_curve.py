@@ -44,6 +44,7 @@ from nodes.compensators._common import (
     resolve_along_ray,
     training_samples,
 )
+from nodes.compensators._figure import fit_figure, held_out
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["disparity_curve", "fit_disparity_curve", "predict_disparity_curve"]
@@ -170,9 +171,12 @@ class DisparityCurveParams(RayFitParams):
     "compensator.disparity_curve",
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px)."),
+             "figure": Out("Image", save=True, optional=True,
+                           description="Depth error (truth - measured, cm) vs disparity:"
+                                       " placements, fitted curve, valid range."),
              **METRICS_OUTPUT},
     params=DisparityCurveParams,
-    version="2",
+    version="3",
 )
 def disparity_curve(params: DisparityCurveParams, train, ctx=None):
     """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
@@ -193,4 +197,8 @@ def disparity_curve(params: DisparityCurveParams, train, ctx=None):
         "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
         params.model_dump(), robust=params, min_points=4 if params.with_offset else 3, ctx=ctx,
     )
-    return {"model": model, "metrics": model_metrics(model)}
+    c = model["coefficients"]
+    figure = fit_figure(model, samples, predict_disparity_curve, held_out(train, INPUTS), "disparity_px", ("z",),
+                        f"{params.depth} depth = a / (d + b) + c: a = {c['a_cm_px']:.5g} cm px, "
+                        f"b = {c['b_px']:+.3g} px, c = {c['c_cm']:+.3g} cm", enabled=params.figure)
+    return {"model": model, "metrics": model_metrics(model), "figure": figure}

@@ -28,6 +28,7 @@ from nodes.compensators._common import (
     resolve_along_ray,
     training_samples,
 )
+from nodes.compensators._figure import fit_figure, held_out
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_lookup", "lookup", "predict_lookup"]
@@ -117,9 +118,12 @@ class LookupParams(RayFitParams):
     "compensator.lookup",
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm)."),
+             "figure": Out("Image", save=True, optional=True,
+                           description="z error (truth - measured, cm) vs measured z:"
+                                       " placements, fitted table, valid range."),
              **METRICS_OUTPUT},
     params=LookupParams,
-    version="2",
+    version="3",
 )
 def lookup(params: LookupParams, train, ctx=None):
     """Fit a piecewise-linear z correction over binned measured distance on the training placements."""
@@ -134,4 +138,12 @@ def lookup(params: LookupParams, train, ctx=None):
         "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
         robust=params, min_points=2 * params.min_per_bin, ctx=ctx,
     )
-    return {"model": model, "metrics": model_metrics(model)}
+    c = model["coefficients"]
+    width = np.diff(c["edges_cm"])
+    widths = f"{np.min(width):.3g}" if np.ptp(width) < 1e-3 * np.max(width) else \
+        f"{np.min(width):.3g}-{np.max(width):.3g}"
+    figure = fit_figure(model, samples, predict_lookup, held_out(train, INPUTS), "z_cm", ("z",),
+                        f"z correction = piecewise linear through {len(c['knots_z_cm'])} knots (bin means; bins "
+                        f"{widths} cm wide, at least {params.min_per_bin} placements)",
+                        enabled=params.figure)
+    return {"model": model, "metrics": model_metrics(model), "figure": figure}

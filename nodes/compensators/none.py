@@ -21,6 +21,7 @@ from nodes.compensators._common import (
     node_label,
     training_samples,
 )
+from nodes.compensators._figure import fit_figure, held_out
 from stereograph.api import Out, node
 
 __all__ = ["fit_none", "none", "predict_none"]
@@ -46,9 +47,12 @@ class NoneParams(FitParams):
     "compensator.none",
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="Identity model + raw training error."),
+             "figure": Out("Image", save=True, optional=True,
+                           description="Raw z error (truth - measured, cm) vs measured z:"
+                                       " the baseline the others correct."),
              **METRICS_OUTPUT},
     params=NoneParams,
-    version="1",
+    version="2",
 )
 def none(params: NoneParams, train, ctx=None):
     """Baseline compensator: leaves every location as measured (reports the raw training error)."""
@@ -62,4 +66,6 @@ def none(params: NoneParams, train, ctx=None):
                  "fit_time_s": 0.0, "options": {}}
     else:
         model = build_model("none", samples, fit_none, predict_none, INPUTS, label, params.cv_folds, params.cv_seed, {})
-    return {"model": model, "metrics": model_metrics(model)}
+    figure = fit_figure(model, samples, predict_none, held_out(train, ("z_cm",)), "z_cm", ("z",),
+                        "identity: no correction (the raw training error, for comparison)", enabled=params.figure)
+    return {"model": model, "metrics": model_metrics(model), "figure": figure}

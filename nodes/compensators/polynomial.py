@@ -28,6 +28,7 @@ from nodes.compensators._common import (
     resolve_along_ray,
     training_samples,
 )
+from nodes.compensators._figure import fit_figure, held_out
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_polynomial", "polynomial", "predict_polynomial"]
@@ -97,9 +98,12 @@ class PolynomialParams(RayFitParams):
     "compensator.polynomial",
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="Polynomial of measured z (cm)."),
+             "figure": Out("Image", save=True, optional=True,
+                           description="z error (truth - measured, cm) vs measured z:"
+                                       " placements, fitted curve, valid range."),
              **METRICS_OUTPUT},
     params=PolynomialParams,
-    version="2",
+    version="3",
 )
 def polynomial(params: PolynomialParams, train, ctx=None):
     """Fit the z error (or true z) as a polynomial of measured z on the training placements."""
@@ -114,4 +118,7 @@ def polynomial(params: PolynomialParams, train, ctx=None):
         "polynomial", samples, fit, predict_polynomial, INPUTS, label, params.cv_folds, params.cv_seed,
         params.model_dump(), robust=params, min_points=params.degree + 2, ctx=ctx,
     )
-    return {"model": model, "metrics": model_metrics(model)}
+    what = "z correction" if params.target == "error" else "true z (drawn as true - measured)"
+    figure = fit_figure(model, samples, predict_polynomial, held_out(train, INPUTS), "z_cm", ("z",),
+                        f"{what} = degree-{params.degree} polynomial of measured z", enabled=params.figure)
+    return {"model": model, "metrics": model_metrics(model), "figure": figure}

@@ -30,6 +30,7 @@ from nodes.compensators._common import (
     require_span,
     training_samples,
 )
+from nodes.compensators._figure import fit_figure, held_out
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_xyz", "monomials", "predict_xyz", "xyz"]
@@ -151,9 +152,12 @@ class XyzParams(FitParams):
     "compensator.xyz",
     inputs=TRAIN_INPUT,
     outputs={"model": Out("CompensationModel", save=True, description="x, y, z error polynomials (cm)."),
+             "figure": Out("Image", save=True, optional=True,
+                           description="x, y, z error (truth - measured, cm) vs disparity, one panel per axis:"
+                                       " placements, model, valid range."),
              **METRICS_OUTPUT},
     params=XyzParams,
-    version="2",
+    version="3",
 )
 def xyz(params: XyzParams, train, ctx=None):
     """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""
@@ -169,4 +173,8 @@ def xyz(params: XyzParams, train, ctx=None):
         "xyz", samples, fit, predict_xyz, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
         robust=params, min_points=n_terms + 1, ctx=ctx,
     )
-    return {"model": model, "metrics": model_metrics(model)}
+    feature = "1/d" if params.depth_feature == "inverse_disparity" else "d"
+    figure = fit_figure(model, samples, predict_xyz, held_out(train, INPUTS), "disparity_px", ("x", "y", "z"),
+                        f"x, y, z corrections = degree-{params.degree} polynomials of image position (u, v) and "
+                        f"{feature}", enabled=params.figure)
+    return {"model": model, "metrics": model_metrics(model), "figure": figure}

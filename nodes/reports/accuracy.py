@@ -78,37 +78,38 @@ def markdown_table(axes: dict, n: int, n_found: int, n_truth: int, title: str, s
 
 
 def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np.ndarray:
-    """Histograms of the per-axis errors and error vs distance, as a BGR uint8 image."""
-    import matplotlib
+    """Histograms of the per-axis errors and error vs distance (2 x 2 panels), as a BGR uint8 image.
 
-    matplotlib.use("Agg", force=False)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    720 px wide, the width report.html shows a figure at, so its text stays legible there; the
+    axes differ in marker as well as colour in the error-vs-distance panel.
+    """
+    from nodes.contracts.drawing import figure_bgr, new_figure
 
     err = np.asarray(measured_cm, float) - np.asarray(true_cm, float)
     dist = np.linalg.norm(np.asarray(true_cm, float), axis=1) if len(err) else np.zeros(0)
-    fig = Figure(figsize=(12, 3.2), dpi=90)
-    FigureCanvasAgg(fig)
+    fig = new_figure(8.0, 6.2)
+    fig.set_layout_engine("constrained")
+    colours, markers = ("C0", "C1", "C2"), ("o", "s", "^")
     for i, ax_name in enumerate(AXES):
-        ax = fig.add_subplot(1, 4, i + 1)
+        ax = fig.add_subplot(2, 2, i + 1)
         if len(err):
-            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=("C0", "C1", "C2")[i])
-        ax.set_xlabel(f"{ax_name} error (cm)")
+            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=colours[i])
+        ax.set_xlabel(f"{ax_name} error, measured − truth (cm)")
         ax.set_ylabel("pairs")
-    ax = fig.add_subplot(1, 4, 4)
+    ax = fig.add_subplot(2, 2, 4)
     for i, ax_name in enumerate(AXES):
         if len(err):
-            ax.plot(dist, err[:, i], ".", label=ax_name, color=("C0", "C1", "C2")[i])
+            ax.plot(dist, err[:, i], markers[i], ms=4, mfc="none" if i else colours[i], label=ax_name,
+                    color=colours[i])
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("distance to the camera (cm)")
-    ax.set_ylabel("error (cm)")
+    ax.set_ylabel("error, measured − truth (cm)")
     if len(err):
         ax.legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.canvas.draw()
-    rgba = np.asarray(fig.canvas.buffer_rgba())
-    return np.ascontiguousarray(rgba[..., [2, 1, 0]])
+    else:
+        ax.text(0.5, 0.5, "no found pair with truth", transform=ax.transAxes, ha="center")
+    fig.suptitle(f"{title} ({len(err)} pairs)", fontsize=11)
+    return figure_bgr(fig)
 
 
 def location_records(locations: dict) -> list[dict]:
@@ -144,12 +145,12 @@ def raw_location_fields(loc: dict) -> dict:
     outputs={
         "report": Out("AccuracyReport", save=True, description="Per-axis error statistics (cm)."),
         "locations": Out("any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."),
-        "figure": Out("Image", save=True, description="Error histograms and error vs distance."),
+        "figure": Out("Image", save=True, description="Error histograms and error vs distance (cm)."),
         "metrics": Out("Metrics", save=True, optional=True,
                        description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat."),
     },
     params=AccuracyParams,
-    version="1",
+    version="2",
 )
 def accuracy(params: AccuracyParams, locations, ctx=None):
     """Per-axis error table (mean, std, max |err|, RMS in cm) of the located pairs against truth."""

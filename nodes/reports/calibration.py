@@ -97,7 +97,7 @@ def corners_mosaic(views: dict, cal: dict, tile_w: int, max_views: int) -> np.nd
 
 
 def board_poses(cal: dict, views: dict | None) -> list[tuple[str, np.ndarray]]:
-    """Each used view's board corners in the left-camera frame (cm), from solvePnP on its left corners."""
+    """Each used view's board corners in the left-camera frame (cm, or squares), from solvePnP on its left corners."""
     import cv2
 
     board = (views or {}).get("board") or cal.get("board") or {}
@@ -128,35 +128,40 @@ def _show(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def poses_3d(cal: dict, views: dict | None) -> np.ndarray:
-    """Both cameras (pyramids) and the board poses, left-camera frame, cm."""
+    """Both cameras (pyramids) and the board poses, left-camera frame, in the calibration's length unit.
+
+    cm, or board squares when the calibration was made without a square size (``length_unit``).
+    """
+    unit = str(cal.get("length_unit") or "cm")
     fig = new_figure(7, 5.5)
     ax = fig.add_subplot(1, 1, 1, projection="3d")
     w, h = cal["image_size"]
     boards = board_poses(cal, views)
     depth = float(np.median([b[:, 2].mean() for _, b in boards])) * 0.2 if boards else 5.0
     R, T = np.asarray(cal["R"], float), np.asarray(cal["T_cm"], float).reshape(3)
-    for name, K, Rw, C, colour in (("left", cal["K1"], np.eye(3), np.zeros(3), "#2e86c1"),
-                                   ("right", cal["K2"], R.T, -R.T @ T, "#c0392b")):
+    for name, K, Rw, C, colour, ls in (("left", cal["K1"], np.eye(3), np.zeros(3), "#2e86c1", "-"),
+                                       ("right", cal["K2"], R.T, -R.T @ T, "#c0392b", "--")):
         Kinv = np.linalg.inv(np.asarray(K, float))
         corners = [Kinv @ np.array([u, v, 1.0]) * depth for u, v in ((0, 0), (w, 0), (w, h), (0, h))]
         pts = [C + Rw @ p for p in corners]
         for p in pts:
-            ax.plot(*_show(np.array([C, p])), color=colour, lw=1)
-        ax.plot(*_show(np.array(pts + [pts[0]])), color=colour, lw=1.5, label=f"{name} camera")
+            ax.plot(*_show(np.array([C, p])), color=colour, lw=1, ls=ls)
+        ax.plot(*_show(np.array(pts + [pts[0]])), color=colour, lw=1.5, ls=ls, label=f"{name} camera")
     for vid, b in boards:
         ax.plot(*_show(b), lw=1, color="#555")
         ax.text(*[c[0] for c in _show(b[:1])], vid, fontsize=6)
-    ax.set_xlabel("x (cm)")
-    ax.set_ylabel("z, depth (cm)")
-    ax.set_zlabel("-y, up (cm)")
+    ax.set_xlabel(f"x ({unit})")
+    ax.set_ylabel(f"z, depth ({unit})")
+    ax.set_zlabel(f"-y, up ({unit})")
     ax.view_init(elev=20, azim=-60)
     try:
         ax.set_aspect("equal")
     except (NotImplementedError, ValueError):
         pass
     ax.legend(fontsize=8, loc="upper left")
+    squares = "\nno square size given: lengths in board squares" if unit != "cm" else ""
     ax.set_title(f"Cameras and {len(boards)} board poses (left-camera frame, baseline "
-                 f"{float(np.linalg.norm(T)):.2f} cm)", fontsize=10)
+                 f"{float(np.linalg.norm(T)):.2f} {unit}){squares}", fontsize=10)
     return figure_bgr(fig)
 
 
@@ -166,9 +171,9 @@ def poses_3d(cal: dict, views: dict | None) -> np.ndarray:
             "views": In("StereoViews", optional=True, description="The calibration views, for the corners mosaic.")},
     outputs={"reprojection_errors": Out("Image", save=True, description="Per-view reprojection RMS bar chart (px)."),
              "corners": Out("Image", save=True, description="Detected corners drawn on every view."),
-             "poses": Out("Image", save=True, description="Cameras and board poses in 3-D (cm).")},
+             "poses": Out("Image", save=True, description="Cameras and board poses in 3-D (cm, or board squares).")},
     params=CalibrationReportParams,
-    version="1",
+    version="2",
 )
 def calibration(params: CalibrationReportParams, calibration: dict, views: dict | None = None, ctx=None) -> dict:
     """Calibration pictures: per-view reprojection error bars, corners on each view, cameras and boards in 3-D."""

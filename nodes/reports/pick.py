@@ -51,7 +51,8 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     truth = plan.get("truth_base_cm")
     box = plan.get("workspace_cm")  # the box ik.pick_sequence checked this plan against (absent: not drawn)
     yaw = math.radians(float(g["joints_deg"]["yaw"]))
-    fig = new_figure(11, 4.8)
+    fig = new_figure(8, 4.6)  # 720 px: report.html's figure width, so the text is not scaled down
+    fig.set_layout_engine("constrained")
     side, top = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     # side view: the plane of the arm (radial distance along the yaw direction vs height)
     radial = pts[:, 0] * math.cos(yaw) + pts[:, 1] * math.sin(yaw)
@@ -80,11 +81,11 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     top.set_ylabel("y (cm, arm base)")
     top.set_title("top view", fontsize=10)
     top.set_aspect("equal", adjustable="datalim")
-    side.legend(fontsize=7, loc="upper left")
+    handles, labels = side.get_legend_handles_labels()  # under the views: inside, it hid the workspace box
+    fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
     fk_pt = plan.get("grasp_fk_cm") or pts[-1].tolist()
     fig.suptitle(f"pick {plan.get('pair')}: ball at [{target[0]:.2f}, {target[1]:.2f}, {target[2]:.2f}] cm (arm base), "
                  f"tool at [{fk_pt[0]:.2f}, {fk_pt[1]:.2f}, {fk_pt[2]:.2f}] cm", fontsize=10)
-    fig.tight_layout()
     return figure_bgr(fig)
 
 
@@ -114,7 +115,7 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
              "servo_table": Out("any", save=True,
                                 description="Joint angles (deg) and servo goals (units) at the grasp (a table).")},
     params=PickReportParams,
-    version="1",
+    version="2",
 )
 def pick(params: PickReportParams, arm: dict, plans, log: dict | None = None, ctx=None) -> dict:
     """Picture of the arm at the grasp (forward kinematics, side and top views) and its joint / servo table."""
