@@ -24,6 +24,7 @@ def make_locations(
     train_fraction: float = 0.5,
     misdetect_fraction: float = 0.0,
     misdetect_offset_cm: tuple[float, float] = (15.0, 40.0),
+    table_plane_cm: tuple[float, float] | None = None,
 ) -> dict[str, dict]:
     """Return {item_id: Location} with split, truth and the raw measurement inputs.
 
@@ -33,6 +34,8 @@ def make_locations(
     whose truth they carry: a ball ``misdetect_offset_cm`` away (random direction, kept in front
     of the camera and in the image), seen through the same imperfect rig. Those items are marked
     ``"misdetected": True``; every other item is identical to the data without mis-detections.
+    ``table_plane_cm = (a, b)`` puts every ball on a table, the plane y = a + b z (cm), as a bench's
+    training placements are (the default spreads them through the volume).
     """
     rng = np.random.default_rng(seed)
     z = rng.uniform(*z_range_cm, n)
@@ -40,6 +43,9 @@ def make_locations(
     v_true = rng.uniform(40, 2 * cy - 40, n)
     x = (u_true - cx) * z / f_px
     y = (v_true - cy) * z / f_px
+    if table_plane_cm is not None:
+        y = table_plane_cm[0] + table_plane_cm[1] * z
+        v_true = cy + f_px * y / z
     d_true = f_px * baseline_cm / z
     u = u_true + rng.normal(0, noise_px, n)
     v = v_true + rng.normal(0, noise_px, n)

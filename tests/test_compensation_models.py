@@ -223,3 +223,38 @@ def test_xy_auto_follows_the_kind_of_error(biased, kind):
     out = errors(apply_all(model, z_only))
     assert np.all(np.abs(out[:, :2]) < 1e-9)
     assert fit(kind, z_only, xy="along_ray")["coefficients"]["along_ray"] is True
+
+
+def test_xyz_model_off_the_training_surface_is_extrapolated():
+    # Balls on a table train the xyz model; inside its (u, v, d) box but 6 cm above the table it is
+    # unconstrained, so apply must flag the location (and the pick refuses it), while a test ball on
+    # the table is not flagged.
+    table = make_locations(n=120, seed=5, baseline_scale=1.02, disparity_offset_px=0.5, noise_px=0.1,
+                           table_plane_cm=(12.0, -0.1))
+    model = fit("xyz", table)
+    support = model["support"]
+    assert support["max_correction_cm"] > 0.1 and min(np.subtract(support["max_cm"], support["min_cm"])) < 0.5
+    on_table = [loc for loc in table.values() if loc["split"] == "test"]
+    flagged = [apply_model(model, loc)["extrapolated"] for loc in on_table]
+    assert sum(flagged) <= 0.05 * len(on_table)
+    # The same image position (u) and disparity, the ball 6 cm above the table: v moves by f * 6 / z.
+    base = max((loc for loc in on_table if not apply_model(model, loc)["extrapolated"]),
+               key=lambda loc: loc["v_left_px"])  # near the camera: lifted, it stays in the image rows seen
+    f_px, cy = 800.0, 240.0
+    lifted = dict(base, y_cm=base["y_cm"] - 6.0)
+    lifted["v_left_px"] = cy + f_px * lifted["y_cm"] / lifted["z_cm"]
+    vr = model["valid_range"]["v_left_px"]
+    assert vr["min"] <= lifted["v_left_px"] <= vr["max"]  # inside the box: only the surface check can tell
+    got = apply_model(model, lifted)
+    assert got["extrapolated"] is True
+    assert any("surface" in why for why in got["compensation"]["outside_range"])
+
+
+def test_support_flags_a_correction_larger_than_any_in_training(biased):
+    model = fit("polynomial", biased)
+    loc = dict(next(v for v in biased.values() if v["split"] == "test"))
+    assert apply_model(model, loc)["extrapolated"] is False
+    # Pretend the model was trained with tiny corrections: the same correction is now unsupported.
+    tight = dict(model, support=dict(model["support"], max_correction_cm=0.01, residual_rms_cm=0.001))
+    got = apply_model(tight, loc)
+    assert got["extrapolated"] is True and "larger than any in training" in got["compensation"]["outside_range"][0]

@@ -511,6 +511,7 @@ def build_model(
         every statistic is over the placements kept (``n_train`` of ``n_candidates``).
     """
     from nodes.compensators._robust import Screen, screen_outliers
+    from nodes.compensators._support import describe_support
 
     n_candidates = len(samples)
     t0 = time.perf_counter()
@@ -560,6 +561,8 @@ def build_model(
         "fit_time_s": float(fit_time),
         "options": dict(options or {}),
         "rig": samples.rig,
+        # Where the training placements say the model holds (compensator.apply flags the rest).
+        "support": describe_support(samples.xyz_cm, corrected, truth),
     }
     if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
         listed = ", ".join(

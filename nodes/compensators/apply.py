@@ -6,7 +6,9 @@ disparity curve, lookup table, 3-D polynomial, or the identity) plugs in.
 
 - ``found: false`` locations pass through unchanged.
 - A measurement whose inputs (z, disparity, image position) lie outside the
-  model's training range is still corrected, and marked ``extrapolated: true``.
+  model's training range is still corrected, and marked ``extrapolated: true``;
+  so is one inside that range but off the training placements' surface, or one
+  whose correction is far larger than any in training (``_support.py``).
 - A correction that is undefined for the measurement (the disparity curve's
   pole) turns the item into ``found: false`` with the reason, never a NaN.
 """
@@ -20,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from nodes.compensators._common import node_label, samples_from_locations
+from nodes.compensators._support import outside_support
 from nodes.compensators._table import PREDICTORS
 from stereograph.api import In, NodeError, Out, Params, node
 
@@ -95,6 +98,9 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
         value = samples.variable(name)[0]
         if value < rng["min"] or value > rng["max"]:
             outside.append(name)
+    # Inside the box of every input but off the placements' surface (an xyz model away from the table),
+    # or a correction far larger than any in training: the model is not supported there either.
+    outside += outside_support(model.get("support"), len(model.get("valid_range") or {}), raw, corrected)
     out.update(
         x_cm=float(corrected[0]),
         y_cm=float(corrected[1]),

@@ -99,6 +99,7 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
     out: dict[str, Any] = {
         "pair": location.get("pair"), "found": bool(location.get("found")) and p is not None,
         "reason": location.get("reason"), "extrapolated": bool(location.get("extrapolated", False)),
+        "outside_range": list((location.get("compensation") or {}).get("outside_range") or []),
         "location_cm": None if p is None else [float(location[k]) for k in ("x_cm", "y_cm", "z_cm")],
         "frame": location.get("frame", "left_camera"),
         "target_base_cm": None if p is None else [float(v) for v in p],

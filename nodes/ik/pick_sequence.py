@@ -80,7 +80,9 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         raise _refuse(target, f"the object was not located ({target.get('reason') or 'found: false'})",
                       "check the segmentation of this scene; the arm never moves on a failed localisation.")
     if params.refuse_extrapolated and target.get("extrapolated"):
-        raise _refuse(target, "its location is extrapolated beyond the compensation model's training range",
+        why = "; ".join(target.get("outside_range") or [])
+        raise _refuse(target, "its location is extrapolated beyond the compensation model's training range"
+                      + (f" ({why})" if why else ""),
                       "collect training scenes that cover this distance, or set refuse_extrapolated: false.")
     reach = model["reach_cm"]
     h0 = model["links"]["base_height_cm"]
