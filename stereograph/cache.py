@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 from filelock import FileLock, Timeout
 
+from stereograph.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
+
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
 
@@ -69,23 +71,6 @@ def _png_decode(data: bytes) -> np.ndarray:
     if a is None or a.dtype != np.uint8:
         raise ValueError("an image file of the entry does not decode")
     return a
-
-
-def digest(data: bytes) -> str:
-    return hashlib.blake2b(data, digest_size=16).hexdigest()
-
-
-def hash_json(obj: Any) -> str:
-    """Digest of a JSON-able object in canonical form (sorted keys, no spaces)."""
-    return digest(json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True).encode())
-
-
-def file_digest(path: Path) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- plain data <-> files
@@ -639,6 +624,10 @@ class ArtifactStore:
             for r in (self.root / "rendered" / key[:2]).glob(f"{key}-*"):
                 shutil.rmtree(r, ignore_errors=True)
             freed += size
+        if removed:  # rerun memos hard-link run-folder files: they must not keep pruned images on disk
+            from stereograph import rerun
+
+            rerun.forget(self.root)
         return removed, freed
 
     def stored_bytes(self) -> int:
@@ -655,7 +644,7 @@ class ArtifactStore:
 
     def clear(self) -> int:
         n = len(list(self._entries())) if self.objects.is_dir() else 0
-        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json"):
+        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json", "reruns"):
             p = self.root / sub
             if p.is_dir():
                 shutil.rmtree(p, ignore_errors=True)

@@ -20,9 +20,10 @@ import shutil
 import urllib.parse
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
 MARKER = "stereograph_run"  # a run.json key only stereograph writes: the folder holds its run (prepare_out_dir)
@@ -47,6 +48,8 @@ def file_name(item: Any) -> str:
 
 
 def is_image(v: Any) -> bool:
+    import numpy as np  # (here, not at the top: a replayed rerun writes its run folder without NumPy)
+
     return (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
             (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
 
@@ -58,6 +61,8 @@ def is_file_value(v: Any) -> bool:
     """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text": str, ...}``."""
     if not (isinstance(v, dict) and isinstance(v.get("file_suffix"), str) and _SUFFIX.match(v["file_suffix"])):
         return False
+    import numpy as np
+
     content = v.get("file_bytes")
     if isinstance(content, np.ndarray):
         return content.ndim == 1 and content.dtype == np.uint8
@@ -70,6 +75,8 @@ def file_content(v: dict) -> bytes:
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
+    import numpy as np
+
     if isinstance(v, np.ndarray):
         if v.size <= SMALL_ARRAY:
             return v.tolist()
@@ -104,18 +111,20 @@ def _write_bytes(path: Path, data: bytes) -> None:
 
 def write_value(path_stem: Path, value: Any) -> list[Path]:
     """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written."""
-    import cv2
-
     if is_file_value(value):
         p = path_stem.with_suffix(value["file_suffix"])
         _write_bytes(p, file_content(value))
         return [p]
     if is_image(value):
+        import cv2
+
         ok, buf = cv2.imencode(".png", value)
         if ok:
             p = _with_ext(path_stem, ".png")
             _write_bytes(p, buf.tobytes())
             return [p]
+    import numpy as np
+
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []

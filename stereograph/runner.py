@@ -37,15 +37,17 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereograph import outputs as outputs_mod
 from stereograph import project, registry
 from stereograph.api import REGISTRY, NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json
-from stereograph.config import PipelineDoc, load_pipeline
 from stereograph.errors import ConfigError
-from stereograph.graph import Graph, NodeInstance, build_graph
+
+if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+    from stereograph.config import PipelineDoc
+    from stereograph.graph import Graph, NodeInstance
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
@@ -786,6 +788,9 @@ def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict
 
 def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:
     """Load, validate and run a pipeline file. Keyword arguments as :func:`run_graph`."""
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
     doc = load_pipeline(path, overrides)
     return run_graph(build_graph(doc), **kwargs)
 
