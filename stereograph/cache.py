@@ -64,6 +64,23 @@ def _png_encode(a: np.ndarray) -> bytes | None:
     return buf.tobytes() if ok else None
 
 
+JPEG_QUALITY = 90  # a picture for people (Out(lossy=True)): no visible loss, ~6x smaller than PNG
+
+
+def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
+    """The JPEG bytes of an 8-bit image (HxW or HxWx3) and the image they decode to -- the value
+    every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values."""
+    import cv2
+
+    if not is_png_image(a) or (a.ndim == 3 and a.shape[2] != 3):
+        return None
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        return None
+    data = buf.tobytes()
+    return data, _png_decode(data)
+
+
 def _png_decode(data: bytes) -> np.ndarray:
     import cv2
 
@@ -401,7 +418,7 @@ class ArtifactStore:
                 with np.load(io.BytesIO(blobs["arrays.npz"]), allow_pickle=False) as z:
                     arrays = {k: z[k] for k in z.files}
             for name, b in blobs.items():
-                if name.endswith(".png"):
+                if name.endswith((".png", ".jpg")):
                     arrays[name[:-4]] = _png_decode(b)
             return decode(data, arrays)
         except (CorruptEntry, NotStored):
@@ -410,8 +427,8 @@ class ArtifactStore:
             raise CorruptEntry(str(e)) from e
 
     def ready_file(self, key: str, output: str) -> Path | None:
-        """The stored PNG of a top-level image ``output`` of entry ``key`` -- the very file a run folder
-        gets for it -- if it matches its digest, else None."""
+        """The stored PNG (JPEG for a lossy output) of a top-level image ``output`` of entry ``key`` -- the
+        very file a run folder gets for it -- if it matches its digest, else None."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
@@ -430,7 +447,7 @@ class ArtifactStore:
             return None
 
     def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None,
-             compute_seconds: float | None = None) -> None:
+             compute_seconds: float | None = None, encoded: dict[str, bytes] | None = None) -> None:
         """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept.
 
         On a read-only or full cache nothing is stored (the run goes on; :attr:`notes` says so).
@@ -440,6 +457,9 @@ class ArtifactStore:
         stored copy. If it is less than encoding the entry's images took (measured here, now: decoding
         costs about as much), only the manifest is kept (see :class:`NotStored`): the entry reads as
         fresh, and whoever needs its value computes it again from its cached inputs.
+
+        ``encoded``: top-level image outputs already encoded as JPEG (:func:`jpeg_roundtrip`; the
+        value in ``outputs`` is what those bytes decode to), stored as those bytes.
         """
         import io
 
@@ -452,6 +472,10 @@ class ArtifactStore:
         ready: dict[str, str] = {}
         # 8-bit images as PNG (lossless, 3-10x smaller than raw); a top-level image output's PNG
         # is also the run folder's file for it, copied as it is (no second copy under rendered/)
+        for out, ref in tree.items() if isinstance(tree, dict) else ():
+            if out in (encoded or {}) and isinstance(ref, dict) and ref.get("__ndarray__") in arrays:
+                blobs[f"{ref['__ndarray__']}.jpg"] = encoded[out]  # type: ignore[index]
+                del arrays[ref["__ndarray__"]]
         t0 = time.perf_counter()
         for name in [n for n, a in arrays.items() if is_png_image(a)]:
             png = _png_encode(arrays[name])
@@ -461,8 +485,9 @@ class ArtifactStore:
         codec_seconds = time.perf_counter() - t0
         recompute = (compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds)
         for out, ref in tree.items() if isinstance(tree, dict) else ():
-            if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}.png" in blobs:
-                ready[out] = f"{ref['__ndarray__']}.png"
+            for ext in (".png", ".jpg"):
+                if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}{ext}" in blobs:
+                    ready[out] = f"{ref['__ndarray__']}{ext}"
         if arrays:
             buf = io.BytesIO()
             # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
