@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from filelock import FileLock, Timeout
 
 from stereograph.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
 
@@ -547,6 +546,8 @@ class ArtifactStore:
 
         ``filelock`` rather than ``fcntl``: the same lock on Windows (``msvcrt``) as on POSIX.
         """
+        from filelock import FileLock, Timeout  # (here: a replayed rerun reads entries and takes no lock)
+
         path = self.locks / key[:2] / f"{key}.lock"
         try:
             if not self.writable:

@@ -254,14 +254,31 @@ def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]
     return entries
 
 
-def _print_echo(entries: list[list[str]], con) -> None:
+def _rendered_markdown(entries: list[list[str]], con) -> list[list[Any]]:
+    """The entries with each markdown text also as ``con`` renders it (its width and colours): a
+    replayed rerun on the same kind of console prints that without importing the Markdown parser."""
+    from rich.markdown import Markdown
+
+    out: list[list[Any]] = []
+    for e in entries:
+        if e[0] != "live" and e[1] == "markdown":
+            with con.capture() as cap:
+                con.print(Markdown(e[2]))
+            e = [*e[:3], {"console": [con.width, con.color_system], "text": cap.get()}]
+        out.append(e)
+    return out
+
+
+def _print_echo(entries: list[list[Any]], con) -> None:
     """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
     larger ones are only in the output folder."""
     from rich.markup import escape
 
-    for title, kind, text in [e for e in entries if e[0] != "live"][:ECHO_LIMIT]:
+    for title, kind, text, *pre in [e for e in entries if e[0] != "live"][:ECHO_LIMIT]:
         con.rule(escape(title), align="left")
-        if kind == "markdown":
+        if kind == "markdown" and pre and pre[0].get("console") == [con.width, con.color_system]:
+            con.file.write(pre[0]["text"])
+        elif kind == "markdown":
             from rich.markdown import Markdown
 
             con.print(Markdown(text))
@@ -310,7 +327,7 @@ def cmd_run(args) -> int:
     echo = _echo_entries(result, live) if not args.json else []
     if _replayable(args) and not args.json:
         try:
-            rerun.record(graph, result, echo, sys_path)
+            rerun.record(graph, result, _rendered_markdown(echo, _console()), sys_path)
         except Exception as e:  # the memo is only a fast path: the run's result stands without it
             if args.debug:
                 _console(stderr=True).print(f"note: no rerun memo recorded: {type(e).__name__}: {e}", markup=False)

@@ -49,6 +49,7 @@ FORMAT = 1
 RACY_NS = 2_000_000_000  # coarser than any file system's timestamps (FAT: 2 s), as cache.FileIndex
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
 MEMO_DIR = "reruns"
+SMALL_INPUTS_BYTES = 4 << 20  # a must-run node's inputs up to this size (as JSON) are kept in its memo
 _ENGINE_DIR = Path(__file__).resolve().parent
 
 
@@ -200,8 +201,18 @@ def _live_record(run: Any, inst: Any) -> dict[str, Any]:
             ports[port] = {"gather": [[i, run.ref_keys[rr], rr[1]] for i, rr in r]}
         else:
             ports[port] = {"key": run.ref_keys[r], "output": r[1]}
-    return {"type": inst.type, "params": inst.params.model_dump(mode="json"), "ports": ports,
-            "input_types": run.input_types(inst), "outputs": list(inst.spec.outputs)}
+    rec = {"type": inst.type, "params": inst.params.model_dump(mode="json"), "ports": ports,
+           "input_types": run.input_types(inst), "outputs": list(inst.spec.outputs)}
+    # Inputs that are small plain data (an arm, pick plans) are kept in the memo as the cache keeps
+    # them (JSON): a replay then reads one file instead of an entry per item.
+    from stereograph.cache import encode
+
+    arrays: dict[str, Any] = {}
+    with contextlib.suppress(Exception):
+        values = encode(run.inputs_for(run.input_refs(inst, None)), arrays)
+        if not arrays and len(json.dumps(values)) < SMALL_INPUTS_BYTES:
+            rec["values"] = values
+    return rec
 
 
 def _trim(root: Path) -> None:
@@ -280,17 +291,18 @@ def _check(memo: dict[str, Any], mdir: Path, cache: Path) -> dict[str, dict[str,
     for f, st in memo["inputs"].items():
         if _stamp(f) != st or (st is not None and st[1] > t_rec - RACY_NS):
             raise _Stale(f"{f} changed")
-    objects = cache / "objects"
+    objects = str(cache / "objects")  # (strings, not Paths: a thousand entries)
     for key in memo["entries"]:
-        man = objects / key[:2] / key / "manifest.json"
+        man = f"{objects}/{key[:2]}/{key}/manifest.json"
         try:
             os.utime(man)  # present, and used now (least-recently-used pruning)
         except FileNotFoundError:
             raise _Stale(f"entry {key} is gone") from None
         except OSError:  # a read-only cache: present is enough
             os.stat(man)
+    files = str(mdir / "files")
     for rel, rec in memo["files"].items():
-        p = mdir / "files" / rel
+        p = f"{files}/{rel}"
         st = _stamp(p)
         if st is None:
             raise _Stale(f"{rel} is gone")
@@ -298,11 +310,23 @@ def _check(memo: dict[str, Any], mdir: Path, cache: Path) -> dict[str, dict[str,
             if file_digest(p) != rec["digest"]:
                 raise _Stale(f"{rel} was edited")
             rec["stamp"], rec["verified_ns"] = st, time.time_ns()
+    from stereograph.errors import ConfigError
+
+    for spec in memo["live"].values():
+        try:  # the module now, before execute's clock starts (a real run imports it at graph time)
+            if memo["plugins"]:
+                registry.import_plugins(memo["plugins"], Path(memo["pipeline_dir"]))
+            registry.get(spec["type"])
+        except ConfigError as e:  # the real run reports it as it should
+            raise _Stale(str(e)) from None
     return {n: _live_inputs(cache, spec) for n, spec in memo["live"].items()}
 
 
 def _live_inputs(cache: Path, spec: dict[str, Any]) -> dict[str, Any]:
-    """A must-run node's input values, loaded from the cache (anything amiss: a real run)."""
+    """A must-run node's input values, from the memo or loaded from the cache (anything amiss: a
+    real run). (The entries they come from were checked present.)"""
+    if "values" in spec:
+        return spec["values"]
     from stereograph.cache import ArtifactStore, CorruptEntry, NotStored
 
     store = ArtifactStore(cache)
@@ -329,10 +353,19 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     outputs.prepare_out_dir(out)
     made: list[Path] = []
+    folders: set[str] = set()
+    src_root, out_root = str(mdir / "files"), str(out)
     try:
         for rel in memo["files"]:
-            outputs._link_or_copy(mdir / "files" / rel, out / rel)
-            made.append(out / rel)
+            src, dest = f"{src_root}/{rel}", f"{out_root}/{rel}"
+            if os.path.dirname(dest) not in folders:
+                os.makedirs(os.path.dirname(dest), exist_ok=True)
+                folders.add(os.path.dirname(dest))
+            try:
+                os.link(src, dest)  # (a new name in an emptied folder: atomic as it is)
+            except OSError:  # there already, or another disk: the careful way
+                outputs._link_or_copy(Path(src), Path(dest))
+            made.append(Path(dest))
     except OSError:  # (a full disk, say) leave the folder as it was and let a real run report it
         for f in made:
             f.unlink(missing_ok=True)
@@ -340,8 +373,9 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
             with contextlib.suppress(OSError):
                 os.rmdir(d)
         return None
+    files = str(mdir / "files")
     for rel, rec in memo["files"].items():  # (the link moved the ctime: the content was checked before)
-        rec["stamp"] = _stamp(mdir / "files" / rel)
+        rec["stamp"] = _stamp(f"{files}/{rel}")
     summary = memo["summary"]
     reports: dict[str, SimpleNamespace] = {}
     echo_live: dict[tuple[str, str], Any] = {}
