@@ -157,7 +157,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     memo: dict[str, Any] = {
         "format": FORMAT, "recorded_ns": t_rec, "pipeline": str(doc.path), "overrides": list(doc.overrides),
         "name": doc.name, "pipeline_dir": str(doc.directory), "plugins": list(doc.plugins),
-        "fingerprint": sys_path or fingerprint(doc.path),
+        "fingerprint": _now(sys_path, doc.path),
         "inputs": inputs, "entries": entries, "echo": echo, "files": {}, "summary": summary,
         "where": {n: str(doc.where("nodes", n)) for n in graph.nodes},
         "upstream": {n: bool(graph.upstream(n)) for n in graph.nodes},
@@ -189,6 +189,16 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
         shutil.rmtree(tmp, ignore_errors=True)
     _trim(final.parent)
     return True
+
+
+def _now(sys_path: list | None, pipeline: Path) -> list:
+    """The fingerprint now, of the folders that were on ``sys.path`` as the command started (the run
+    itself may have made the first ``runs/`` in a folder that is on it: that is no package change)."""
+    now = fingerprint(pipeline)
+    if sys_path is None:
+        return now
+    start = [p for p, _ in sys_path]
+    return [e for e in now if e[0] in start] if [e[0] for e in now if e[0] in start] == start else sys_path
 
 
 def _live_record(run: Any, inst: Any) -> dict[str, Any]:
