@@ -20,13 +20,15 @@ TOY = Path(__file__).parent / "plugins" / "toy.py"
 
 LIVE = """\
 import os
-from stereograph.api import In, Out, node
+from stereograph.api import In, NodeError, Out, node
 from helper_UID import OFFSET
 
 @node("tmp.actUID", inputs={"values": In("Number", gather=True)},
       outputs={"log": Out("Report", save=True)}, cacheable=False)
 def act(params, values):
     # a node that must run every time (an actuator): each call leaves a line behind
+    if os.environ.get("LIVE_FAIL"):
+        raise NodeError("servo 3 does not answer", hint="check its cable")
     with open(os.environ["LIVE_CALLS"], "a") as f:
         f.write("call\\n")
     return {"log": {"calls": len(open(os.environ["LIVE_CALLS"]).read().split()),
@@ -176,3 +178,20 @@ def test_a_pruned_entry_or_an_edited_result_means_a_real_run(tmp_path):
     assert _run(p, tmp_path, "o3") == 0
     assert any(n["status"] == "ran" for n in _summary(tmp_path, "o3")["nodes"])
     assert _files(tmp_path / "w" / "o3") == good
+
+
+def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_path, calls, monkeypatch, capsys):
+    p = _project(tmp_path, live=True)
+    assert _run(p, tmp_path, "o1") == 0
+    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setenv("LIVE_FAIL", "1")
+    capsys.readouterr()
+    assert _run(p, tmp_path, "o2") == 1
+    err = " ".join(capsys.readouterr().err.split())
+    line = p.read_text().splitlines().index("  act: {type: " + p.read_text().split("act: {type: ")[1].split(",")[0]
+                                            + ", inputs: {values: power.norm}}") + 1
+    assert f"p.yaml:{line}" in err and "node 'act'" in err and "servo 3 does not answer" in err
+    assert "Fix: check its cable" in err
+    s = _summary(tmp_path, "o2")
+    assert not s["ok"] and {n["node"]: n["status"] for n in s["nodes"]}["act"] == "failed"
+    assert calls.read_text().split() == ["call"]  # the failed call left nothing; the first run's line only
