@@ -10,8 +10,8 @@ run of the same command is *replayed* from the memo when all of these hold:
   project-local modules it imports (the closure the code hash covers), the engine's own modules,
   every file a node declares it reads, and the installed packages (the entry-point index's
   fingerprint). A file is unchanged when its size, ``mtime_ns``, ``ctime_ns`` and inode are the
-  recorded ones *and* its mtime was at least :data:`RACY_NS` older than the recording (an edit in
-  the same timestamp tick as the recording is not trusted: such a memo is never used). No user tool
+  recorded ones *and* its mtime and ctime were at least :data:`RACY_NS` older than the recording (an
+  edit in the same timestamp tick as the recording is not trusted: such a memo is never used). No user tool
   sets a ctime back, so an edit that restores the size and the mtime (``touch -r``) is noticed too.
 * **Entries present.** Every entry the run used is still in the cache (its manifest is touched, which
   is also the "used" mark least-recently-used pruning goes by). A pruned entry means a real run.
@@ -145,11 +145,14 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
         for p in inst.spec.reads(inst.params, doc.directory):
             rp = str(Path(p).resolve())
             st, rec = _stamp(rp), store.files.data.get(rp)
-            if st is not None and not (isinstance(rec, list) and rec[:4] == st):
+            if st is not None and not (isinstance(rec, list) and len(rec) == 6 and rec[:4] == st):
+                return False
+            # hashed within a timestamp tick of its mtime: the content now must be what was hashed
+            if st is not None and rec[5] - rec[1] < RACY_NS and (file_digest(Path(rp)) != rec[4] or _stamp(rp) != st):
                 return False
             inputs[rp] = st
-    if any(st is not None and st[1] > t_rec - RACY_NS for st in inputs.values()):
-        return False  # edited a moment ago: the next run decides for itself
+    if any(st is not None and max(st[1], st[2]) > t_rec - RACY_NS for st in inputs.values()):
+        return False  # changed a moment ago (mtime or ctime): the next run decides for itself
     entries = sorted({k for k in [*run.keys.values(), *run.ref_keys.values()]
                       if isinstance(k, str) and "/" not in k and not k.startswith("volatile")
                       and not any(k == run.keys.get((n, None)) for n in live)})
@@ -299,7 +302,7 @@ def _check(memo: dict[str, Any], mdir: Path, cache: Path) -> dict[str, dict[str,
         raise _Stale("installed packages changed")
     t_rec = memo["recorded_ns"]
     for f, st in memo["inputs"].items():
-        if _stamp(f) != st or (st is not None and st[1] > t_rec - RACY_NS):
+        if _stamp(f) != st or (st is not None and max(st[1], st[2]) > t_rec - RACY_NS):
             raise _Stale(f"{f} changed")
     objects = str(cache / "objects")  # (strings, not Paths: a thousand entries)
     for key in memo["entries"]:

@@ -7,7 +7,6 @@ import json
 import os
 import shutil
 import textwrap
-import time
 import uuid
 from pathlib import Path
 
@@ -36,13 +35,6 @@ def act(params, values):
 """
 
 
-def _backdate(*paths: Path) -> None:
-    """Files written by a test a moment ago are 'racy' (rerun.RACY_NS): make them look older."""
-    old = time.time() - 60
-    for p in paths:
-        os.utime(p, (old, old))
-
-
 def _project(tmp_path: Path, power: int = 2, live: bool = False) -> Path:
     nodes = f"""\
         numbers: {{type: toy.numbers, params: {{n: 4, size: 8}}}}
@@ -60,7 +52,6 @@ def _project(tmp_path: Path, power: int = 2, live: bool = False) -> Path:
     p = tmp_path / "p.yaml"
     (tmp_path / "w").mkdir()
     p.write_text(f"name: t\nplugins: [{', '.join(plugins)}]\nnodes:\n" + textwrap.indent(textwrap.dedent(nodes), "  "))
-    _backdate(*[f for f in tmp_path.iterdir() if f.is_file()])
     return p
 
 
@@ -78,6 +69,13 @@ def _summary(tmp_path: Path, out: str) -> dict:
 def _files(folder: Path) -> dict[str, bytes]:
     return {str(f.relative_to(folder)): f.read_bytes() for f in folder.rglob("*")
             if f.is_file() and f.name not in ("run.json", "report.html")}
+
+
+@pytest.fixture(autouse=True)
+def no_racy_wait(monkeypatch):
+    """Files a test writes are changed "a moment ago" (their ctime cannot be set back), so no memo
+    would be recorded for 2 s (rerun.RACY_NS); the test that checks that rule sets it back."""
+    monkeypatch.setattr(rerun, "RACY_NS", 0)
 
 
 @pytest.fixture
@@ -108,16 +106,21 @@ def test_a_rerun_with_nothing_changed_is_replayed_without_the_graph(tmp_path, ca
     assert png.stat().st_nlink >= 3  # cache entry, o1, o2 (and the memo): one copy on disk
 
 
-def test_a_pipeline_edit_that_keeps_size_and_mtime_is_noticed(tmp_path, capsys):
+def test_a_pipeline_edit_that_keeps_size_and_mtime_is_noticed(tmp_path, capsys, monkeypatch):
     p = _project(tmp_path, power=2)
     assert _run(p, tmp_path, "o1") == 0
     st = p.stat()
     p.write_text(p.read_text().replace("power: 2", "power: 3"))  # same size
     os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))               # and the old mtime back (touch -r)
     assert p.stat().st_size == st.st_size and p.stat().st_mtime_ns == st.st_mtime_ns
+    memo = rerun.memo_dir(tmp_path / "w" / "c", p, []) / "memo.json"
+    before = json.loads(memo.read_text())["recorded_ns"]
+    monkeypatch.setattr(rerun, "RACY_NS", 2_000_000_000)
     assert _run(p, tmp_path, "o2") == 0
     status = {n["node"]: n["status"] for n in _summary(tmp_path, "o2")["nodes"]}
     assert status["power"] == "ran" and status["numbers"] == "cached"
+    # the file changed (its ctime) a moment ago: no memo is recorded from this run, the next decides
+    assert json.loads(memo.read_text())["recorded_ns"] == before
 
 
 def test_a_code_edit_in_an_imported_helper_is_noticed(tmp_path, calls, monkeypatch):
@@ -195,3 +198,36 @@ def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_pat
     s = _summary(tmp_path, "o2")
     assert not s["ok"] and {n["node"]: n["status"] for n in s["nodes"]}["act"] == "failed"
     assert calls.read_text().split() == ["call"]  # the failed call left nothing; the first run's line only
+
+
+READER = """\
+from stereograph.api import Field, Out, Params, node
+
+class P(Params):
+    path: str = Field(..., description="A text file (path).")
+
+@node("tmp.readerUID", outputs={"text": Out("Text", save=True)}, params=P,
+      reads=lambda params, pipeline_dir: [pipeline_dir / params.path])
+def reader(params, ctx=None):
+    return {"text": ctx.path(params.path).read_text()}
+"""
+
+
+def test_an_edit_to_a_file_a_node_reads_is_noticed(tmp_path, monkeypatch):
+    uid = uuid.uuid4().hex[:8]
+    plug = tmp_path / f"reader_{uid}.py"
+    plug.write_text(READER.replace("UID", uid))
+    data = tmp_path / "data.txt"
+    data.write_text("one")
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader{uid}, params: {{path: data.txt}}}}\n")
+    (tmp_path / "w").mkdir()
+    assert _run(p, tmp_path, "o1") == 0
+    st = data.stat()
+    data.write_text("two")  # same size, old mtime back
+    os.utime(data, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert _run(p, tmp_path, "o2") == 0
+    assert (tmp_path / "w" / "o2" / "read" / "text.json").read_text().strip() == '"two"'
+    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    assert _run(p, tmp_path, "o3") == 0  # nothing changed since: replayed, with the new text
+    assert (tmp_path / "w" / "o3" / "read" / "text.json").read_text().strip() == '"two"'
