@@ -151,6 +151,11 @@ class Out:
         source's ground truth, say). Unwired outputs are otherwise warned about.
     description : str
         One line for ``stereograph nodes``.
+    lossy : bool
+        A picture for people (an overlay), not data for other nodes: an 8-bit image
+        output kept in the cache and saved as JPEG (quality 90, about 6x smaller than
+        PNG). Every reader, a downstream node included, gets what that JPEG decodes
+        to, on a fresh run as on a cached one.
     """
 
     type: str = "any"
@@ -158,6 +163,7 @@ class Out:
     save: bool = False
     optional: bool = False
     description: str = ""
+    lossy: bool = False
 
 
 @dataclass

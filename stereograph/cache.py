@@ -35,7 +35,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from filelock import FileLock, Timeout
+
+from stereograph.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
 
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
@@ -62,6 +63,23 @@ def _png_encode(a: np.ndarray) -> bytes | None:
     return buf.tobytes() if ok else None
 
 
+JPEG_QUALITY = 90  # a picture for people (Out(lossy=True)): no visible loss, ~6x smaller than PNG
+
+
+def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
+    """The JPEG bytes of an 8-bit image (HxW or HxWx3) and the image they decode to -- the value
+    every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values."""
+    import cv2
+
+    if not is_png_image(a) or (a.ndim == 3 and a.shape[2] != 3):
+        return None
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        return None
+    data = buf.tobytes()
+    return data, _png_decode(data)
+
+
 def _png_decode(data: bytes) -> np.ndarray:
     import cv2
 
@@ -69,23 +87,6 @@ def _png_decode(data: bytes) -> np.ndarray:
     if a is None or a.dtype != np.uint8:
         raise ValueError("an image file of the entry does not decode")
     return a
-
-
-def digest(data: bytes) -> str:
-    return hashlib.blake2b(data, digest_size=16).hexdigest()
-
-
-def hash_json(obj: Any) -> str:
-    """Digest of a JSON-able object in canonical form (sorted keys, no spaces)."""
-    return digest(json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=True).encode())
-
-
-def file_digest(path: Path) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- plain data <-> files
@@ -416,7 +417,7 @@ class ArtifactStore:
                 with np.load(io.BytesIO(blobs["arrays.npz"]), allow_pickle=False) as z:
                     arrays = {k: z[k] for k in z.files}
             for name, b in blobs.items():
-                if name.endswith(".png"):
+                if name.endswith((".png", ".jpg")):
                     arrays[name[:-4]] = _png_decode(b)
             return decode(data, arrays)
         except (CorruptEntry, NotStored):
@@ -425,8 +426,8 @@ class ArtifactStore:
             raise CorruptEntry(str(e)) from e
 
     def ready_file(self, key: str, output: str) -> Path | None:
-        """The stored PNG of a top-level image ``output`` of entry ``key`` -- the very file a run folder
-        gets for it -- if it matches its digest, else None."""
+        """The stored PNG (JPEG for a lossy output) of a top-level image ``output`` of entry ``key`` -- the
+        very file a run folder gets for it -- if it matches its digest, else None."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
@@ -445,7 +446,7 @@ class ArtifactStore:
             return None
 
     def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None,
-             compute_seconds: float | None = None) -> None:
+             compute_seconds: float | None = None, encoded: dict[str, bytes] | None = None) -> None:
         """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept.
 
         On a read-only or full cache nothing is stored (the run goes on; :attr:`notes` says so).
@@ -455,6 +456,9 @@ class ArtifactStore:
         stored copy. If it is less than encoding the entry's images took (measured here, now: decoding
         costs about as much), only the manifest is kept (see :class:`NotStored`): the entry reads as
         fresh, and whoever needs its value computes it again from its cached inputs.
+
+        ``encoded``: top-level image outputs already encoded as JPEG (:func:`jpeg_roundtrip`; the
+        value in ``outputs`` is what those bytes decode to), stored as those bytes.
         """
         import io
 
@@ -467,6 +471,10 @@ class ArtifactStore:
         ready: dict[str, str] = {}
         # 8-bit images as PNG (lossless, 3-10x smaller than raw); a top-level image output's PNG
         # is also the run folder's file for it, copied as it is (no second copy under rendered/)
+        for out, ref in tree.items() if isinstance(tree, dict) else ():
+            if out in (encoded or {}) and isinstance(ref, dict) and ref.get("__ndarray__") in arrays:
+                blobs[f"{ref['__ndarray__']}.jpg"] = encoded[out]  # type: ignore[index]
+                del arrays[ref["__ndarray__"]]
         t0 = time.perf_counter()
         for name in [n for n, a in arrays.items() if is_png_image(a)]:
             png = _png_encode(arrays[name])
@@ -476,8 +484,9 @@ class ArtifactStore:
         codec_seconds = time.perf_counter() - t0
         recompute = (compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds)
         for out, ref in tree.items() if isinstance(tree, dict) else ():
-            if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}.png" in blobs:
-                ready[out] = f"{ref['__ndarray__']}.png"
+            for ext in (".png", ".jpg"):
+                if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}{ext}" in blobs:
+                    ready[out] = f"{ref['__ndarray__']}{ext}"
         if arrays:
             buf = io.BytesIO()
             # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
@@ -537,6 +546,8 @@ class ArtifactStore:
 
         ``filelock`` rather than ``fcntl``: the same lock on Windows (``msvcrt``) as on POSIX.
         """
+        from filelock import FileLock, Timeout  # (here: a replayed rerun reads entries and takes no lock)
+
         path = self.locks / key[:2] / f"{key}.lock"
         try:
             if not self.writable:
@@ -639,6 +650,10 @@ class ArtifactStore:
             for r in (self.root / "rendered" / key[:2]).glob(f"{key}-*"):
                 shutil.rmtree(r, ignore_errors=True)
             freed += size
+        if removed:  # rerun memos hard-link run-folder files: they must not keep pruned images on disk
+            from stereograph import rerun
+
+            rerun.forget(self.root)
         return removed, freed
 
     def stored_bytes(self) -> int:
@@ -655,7 +670,7 @@ class ArtifactStore:
 
     def clear(self) -> int:
         n = len(list(self._entries())) if self.objects.is_dir() else 0
-        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json"):
+        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json", "reruns"):
             p = self.root / sub
             if p.is_dir():
                 shutil.rmtree(p, ignore_errors=True)

@@ -207,58 +207,107 @@ def _summary_table(result, con) -> None:
     con.print(t)
 
 
-def _echo_results(result, con) -> None:
+def echo_entry(v: Any) -> tuple[str, str] | None:
+    """How the console shows one small terminal value: ``("markdown", text)`` for a report that renders
+    itself, ``("json", text)`` for plain data, None for what only the output folder holds."""
+    from stereograph.outputs import is_file_value, to_json
+
+    if not isinstance(v, (dict, list, float, int, str)):
+        return None
+    if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
+        return None
+    if isinstance(v, dict) and isinstance(v.get("markdown"), str):
+        return "markdown", v["markdown"]  # a report that renders itself: shown as the table it is
+    arrays: dict = {}
+    text = json.dumps(to_json(v, arrays), default=str)
+    if (arrays or len(text) > 3000) and isinstance(v, dict):
+        # big artifacts (a calibration, say): show their scalar facts only
+        small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
+                 (isinstance(x, (list, tuple)) and len(x) <= 6 and
+                  all(isinstance(y, (int, float, str, bool)) for y in x))}
+        if not small:
+            return None
+        text = json.dumps(to_json(small, {}), default=str)
+    elif arrays or len(text) > 3000:
+        return None
+    return "json", text
+
+
+ECHO_LIMIT = 6
+
+
+def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]:
+    """``[title, kind, text]`` of the small terminal outputs, in order; ``["live", node, output]`` for
+    those of the nodes in ``live`` (a rerun memo fills them in when they run again)."""
+    entries: list[list[str]] = []
+    for node, out, item in list(result._values):
+        if node not in result.terminal or item is not None:
+            continue  # (decided before loading: a cached rerun reads only what it shows)
+        if node in live:
+            entries.append(["live", node, out])
+            continue
+        shown = echo_entry(result._values[(node, out, item)])
+        if shown is not None:
+            entries.append([f"{node}.{out}", *shown])
+            if sum(e[0] != "live" for e in entries) >= ECHO_LIMIT:
+                break
+    return entries
+
+
+def _rendered_markdown(entries: list[list[str]], con) -> list[list[Any]]:
+    """The entries with each markdown text also as ``con`` renders it (its width and colours): a
+    replayed rerun on the same kind of console prints that without importing the Markdown parser."""
+    from rich.markdown import Markdown
+
+    out: list[list[Any]] = []
+    for e in entries:
+        if e[0] != "live" and e[1] == "markdown":
+            with con.capture() as cap:
+                con.print(Markdown(e[2]))
+            e = [*e[:3], {"console": [con.width, con.color_system], "text": cap.get()}]
+        out.append(e)
+    return out
+
+
+def _print_echo(entries: list[list[Any]], con) -> None:
     """Print the small terminal outputs (a location, joint angles, servo commands) for the user;
     larger ones are only in the output folder."""
     from rich.markup import escape
 
-    from stereograph.outputs import is_file_value, to_json
-
-    shown = 0
-    for node, out, item in list(result._values):
-        if node not in result.terminal or item is not None:
-            continue  # (decided before loading: a cached rerun reads only what it shows)
-        v = result._values[(node, out, item)]
-        if not isinstance(v, (dict, list, float, int, str)):
-            continue
-        if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
-            continue
-        if isinstance(v, dict) and isinstance(v.get("markdown"), str):
-            # a report that renders itself: show it as the table it is
+    for title, kind, text, *pre in [e for e in entries if e[0] != "live"][:ECHO_LIMIT]:
+        con.rule(escape(title), align="left")
+        if kind == "markdown" and pre and pre[0].get("console") == [con.width, con.color_system]:
+            con.file.write(pre[0]["text"])
+        elif kind == "markdown":
             from rich.markdown import Markdown
 
-            con.rule(escape(f"{node}.{out}"), align="left")
-            con.print(Markdown(v["markdown"]))
-            shown += 1
-            continue
-        arrays: dict = {}
-        text = json.dumps(to_json(v, arrays), default=str)
-        if (arrays or len(text) > 3000) and isinstance(v, dict):
-            # big artifacts (a calibration, say): show their scalar facts only
-            small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
-                     (isinstance(x, (list, tuple)) and len(x) <= 6 and
-                      all(isinstance(y, (int, float, str, bool)) for y in x))}
-            if not small:
-                continue
-            text = json.dumps(to_json(small, {}), default=str)
-        elif arrays or len(text) > 3000:
-            continue
-        con.rule(escape(f"{node}.{out}"), align="left")
-        from rich.pretty import Pretty
+            con.print(Markdown(text))
+        else:
+            from rich.pretty import Pretty
 
-        con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
-        shown += 1
-        if shown >= 6:
-            break
+            con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
+
+
+def _replayable(args) -> bool:
+    """A plain ``run`` (no --no-cache, --only, --from or --repeat): one a rerun
+    memo may answer (stereograph.rerun; STEREOGRAPH_NO_REPLAY=1 turns it off)."""
+    return not (args.no_cache or args.only or getattr(args, "from") or args.repeat is not None
+                or os.environ.get("STEREOGRAPH_NO_REPLAY", "") not in ("", "0"))
 
 
 def cmd_run(args) -> int:
-    from rich.markup import escape
+    from stereograph import rerun
+
+    sys_path = rerun.fingerprint(args.pipeline)  # (as the command starts: a plugin may add to sys.path)
+    if _replayable(args):
+        replayed = rerun.replay(args.pipeline, args.set or [], args.cache_dir, args.out)
+        if replayed is not None:
+            return _finish_run(args, replayed, replayed.echo, lambda n: replayed.where[n],
+                               lambda n: replayed.upstream[n])
 
     from stereograph.runner import run_graph, workers_executor
 
     graph = _load_graph(args)
-    err = _console(stderr=True)  # (wiring warnings such as unused outputs: `stereograph validate`)
     con = _console()
     loop = _loop(args, con)
     interactive = sys.stdout.isatty() and not args.json and loop is None
@@ -274,12 +323,30 @@ def cmd_run(args) -> int:
                 result = run_graph(graph, progress=prog, **kw)
     finally:
         executor.close()
+    live = frozenset(n for n, i in graph.nodes.items() if not i.spec.cacheable)
+    echo = _echo_entries(result, live) if not args.json else []
+    if _replayable(args) and not args.json:
+        try:
+            rerun.record(graph, result, _rendered_markdown(echo, _console()), sys_path)
+        except Exception as e:  # the memo is only a fast path: the run's result stands without it
+            if args.debug:
+                _console(stderr=True).print(f"note: no rerun memo recorded: {type(e).__name__}: {e}", markup=False)
+    return _finish_run(args, result, _echo_entries(result) if live else echo,
+                       lambda n: graph.doc.where("nodes", n), lambda n: bool(graph.upstream(n)), loop)
+
+
+def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int:
+    """What ``run`` prints after a run (or a replayed one), and its exit code."""
+    from rich.markup import escape
+
+    err = _console(stderr=True)
+    con = _console()
     for note in result.notes:
         err.print(f"note: {note}", markup=False)
     if args.json:
         print((result.out_dir / "run.json").read_text())
     else:
-        _echo_results(result, con)
+        _print_echo(echo, con)
         _summary_table(result, con)
         if loop is not None:
             con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
@@ -289,7 +356,7 @@ def cmd_run(args) -> int:
     if not result.ok:
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
-            msg = sentence(f"{graph.doc.where('nodes', r.name)}: node '{r.name}' ({r.type}) failed: {r.error}")
+            msg = sentence(f"{where(r.name)}: node '{r.name}' ({r.type}) failed: {r.error}")
             if r.hint:
                 msg += " Fix: " + sentence(r.hint)
             elif r.unexpected and not args.debug:
@@ -299,7 +366,7 @@ def cmd_run(args) -> int:
             if args.debug and r.trace:
                 err.print(escape(r.trace))
         first = failed[0].name
-        if graph.upstream(first):
+        if has_upstream(first):
             err.print(f"What finished is cached: after the fix, run the same command again and only the nodes the "
                       f"fix changes, and what depends on them, will run (`stereograph explain` shows which; "
                       f"--from {first} forces '{first}' and its downstream).", markup=False)

@@ -1,8 +1,9 @@
 """Write a run's results into its output folder, in open formats.
 
 Written on every run, cached or not: every output declared ``Out(save=True)`` and every
-output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG; other values
-JSON (arrays as nested lists when small, else a side ``.npz``). A per-item output becomes
+output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG (JPEG for an output
+declared ``Out(lossy=True)``, a picture for people); other values JSON (arrays as nested lists
+when small, else a side ``.npz``). A per-item output becomes
 one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
 ``<node>/<output>/<item>.png`` images. A *file value* -- a dict with ``file_suffix`` (``".ply"``,
 ``".yml"``) and the file's content, encoded by the node, as ``file_bytes`` (1-D ``uint8`` array) or
@@ -20,9 +21,10 @@ import shutil
 import urllib.parse
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
 MARKER = "stereograph_run"  # a run.json key only stereograph writes: the folder holds its run (prepare_out_dir)
@@ -47,6 +49,8 @@ def file_name(item: Any) -> str:
 
 
 def is_image(v: Any) -> bool:
+    import numpy as np  # (here, not at the top: a replayed rerun writes its run folder without NumPy)
+
     return (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
             (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
 
@@ -58,6 +62,8 @@ def is_file_value(v: Any) -> bool:
     """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text": str, ...}``."""
     if not (isinstance(v, dict) and isinstance(v.get("file_suffix"), str) and _SUFFIX.match(v["file_suffix"])):
         return False
+    import numpy as np
+
     content = v.get("file_bytes")
     if isinstance(content, np.ndarray):
         return content.ndim == 1 and content.dtype == np.uint8
@@ -70,6 +76,8 @@ def file_content(v: dict) -> bytes:
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
+    import numpy as np
+
     if isinstance(v, np.ndarray):
         if v.size <= SMALL_ARRAY:
             return v.tolist()
@@ -102,20 +110,31 @@ def _write_bytes(path: Path, data: bytes) -> None:
         raise
 
 
-def write_value(path_stem: Path, value: Any) -> list[Path]:
-    """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written."""
-    import cv2
+def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
+    """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written.
+    ``lossy``: an image output declared ``Out(lossy=True)`` (a picture for people) is written as JPEG."""
+    if lossy:
+        from stereograph.cache import jpeg_roundtrip
 
+        jpeg = jpeg_roundtrip(value)
+        if jpeg is not None:
+            p = _with_ext(path_stem, ".jpg")
+            _write_bytes(p, jpeg[0])
+            return [p]
     if is_file_value(value):
         p = path_stem.with_suffix(value["file_suffix"])
         _write_bytes(p, file_content(value))
         return [p]
     if is_image(value):
+        import cv2
+
         ok, buf = cv2.imencode(".png", value)
         if ok:
             p = _with_ext(path_stem, ".png")
             _write_bytes(p, buf.tobytes())
             return [p]
+    import numpy as np
+
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []
@@ -157,8 +176,8 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
     ready = store.ready_file(key, output) if hasattr(store, "ready_file") else None
-    if ready is not None:  # the entry keeps this image as the very PNG the run folder gets
-        dest = _with_ext(stem, ".png")
+    if ready is not None:  # the entry keeps this image as the very PNG (or JPEG) the run folder gets
+        dest = _with_ext(stem, ready.suffix)
         _link_or_copy(ready, dest)
         return [dest]
     rdir = store.root / "rendered" / key[:2] / f"{key}-{output}"
@@ -318,14 +337,16 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                         for i in ids:
                             p = stem / file_name(i)
                             files += _rendered(store, run.ref_keys.get((name, out, i)), out, p,
-                                               lambda r=(name, out, i), p=p: write_value(p, run.get(r)))
+                                               lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(
+                                                   p, run.get(r), lo))
                     else:
                         files = write_collection(stem, {i: run.get((name, out, i)) for i in ids})
                 else:
                     if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
                         continue
                     files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
-                                      lambda r=(name, out, None), p=stem: write_value(p, run.get(r)))
+                                      lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(
+                                          p, run.get(r), lo))
             except Exception as e:  # an output we cannot write must not lose the others ...
                 rep = run.reports[name]
                 rep.messages.append(f"could not write output '{out}': {e}")

@@ -37,15 +37,17 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stereograph import outputs as outputs_mod
 from stereograph import project, registry
 from stereograph.api import REGISTRY, NodeError, RunContext
-from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json
-from stereograph.config import PipelineDoc, load_pipeline
+from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json, jpeg_roundtrip
 from stereograph.errors import ConfigError
-from stereograph.graph import Graph, NodeInstance, build_graph
+
+if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+    from stereograph.config import PipelineDoc
+    from stereograph.graph import Graph, NodeInstance
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
@@ -383,6 +385,12 @@ class _Run:
         delivered = inst.name in self.keep or self._saves(inst.name)
         if delivered or any(o.collection for o in inst.spec.outputs.values()):
             seconds = None
+        encoded: dict[str, bytes] = {}  # lossy outputs (pictures for people): stored as JPEG, read as decoded
+        for name, o in inst.spec.outputs.items():
+            jpeg = jpeg_roundtrip(out.get(name)) if o.lossy and not o.collection else None
+            if jpeg is not None:
+                out = {**out, name: jpeg[1]}
+                encoded[name] = jpeg[0]
         single, colls = {}, {}
         for name, val in out.items():
             if inst.spec.outputs[name].collection:
@@ -419,7 +427,7 @@ class _Run:
                                           "messages": list(messages or []),
                                           "indexes": {n: single[n] for n in colls},
                                           "indexes_digest": hash_json({n: single[n] for n in colls})},
-                            compute_seconds=seconds)
+                            compute_seconds=seconds, **({"encoded": encoded} if encoded else {}))
 
     def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
                      manifest: dict[str, Any] | None = None) -> None:
@@ -786,6 +794,9 @@ def _terminal_values(graph: Graph, run: _Run, selected: list[str]) -> tuple[dict
 
 def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:
     """Load, validate and run a pipeline file. Keyword arguments as :func:`run_graph`."""
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
     doc = load_pipeline(path, overrides)
     return run_graph(build_graph(doc), **kwargs)
 

@@ -63,7 +63,7 @@ def test_locate_pipeline_through_the_engine(tmp_path):
         assert abs(rep["axes"][ax]["mean_cm"]) < 0.1 and rep["axes"][ax]["max_abs_cm"] < 0.3
     out = tmp_path / "out"
     assert (out / "report" / "locations.json").exists() and (out / "report" / "figure.png").exists()
-    assert len(list((out / "segment" / "overlay").glob("*.png"))) == 8
+    assert len(list((out / "segment" / "overlay").glob("*.jpg"))) == 8  # Out(lossy=True): a picture, as JPEG
 
 
 def test_hard_scenes_through_the_engine_never_crash(tmp_path):

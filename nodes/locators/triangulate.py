@@ -127,7 +127,7 @@ def _record(pid, split, frame, reason=None, **kw) -> dict:
                               "board: calibrator.table_frame / load_table_frame)."),
     },
     outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame."),
-             "overlay": Out("Image", save=True,
+             "overlay": Out("Image", save=True, lossy=True,
                             description="Rectified left | right with the located point and its epipolar line, "
                                         "labelled x/y/z, sigma_z or the reason.")},
     params=TriangulateParams,

@@ -45,7 +45,7 @@ SEGMENTER_INPUTS = {
 }
 SEGMENTER_OUTPUTS = {
     "segmentation": Out("Segmentation", description="Masks and region properties."),
-    "overlay": Out("Image", save=True, description="Left|right with outline and centroid (BGR)."),
+    "overlay": Out("Image", save=True, lossy=True, description="Left|right with outline and centroid (BGR, JPEG)."),
 }
 
 class ShadowParams(Params):
