@@ -47,27 +47,31 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     # Only the region's pixels are classified: a 1xNx3 image of them keeps the cv2 calls.
     px = masked_pixels(img_bgr, sel)[None]
     hsv = cv2.cvtColor(px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
-    v, s = hsv[..., 2], hsv[..., 1]
-    f = px.astype(np.float32)
-    total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-    dchroma = _chroma_distance(f, total, bg).reshape(v.shape)
-    dark = v < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
-    dchroma[dark] = 0.0
-    drop = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
-    drop &= dchroma <= shadow.max_chroma_shift
-    if obj.color_bgr is not None:
-        d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(v.shape)
-        d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
-        drop &= d_obj > obj.color_tolerance
-    elif obj.hue_range_deg is not None:
-        drop &= hue_mask(px, obj.hue_range_deg, obj.min_saturation) == 0
-    drop = drop[0]
-    if drop.sum() > shadow.max_removed_fraction * drop.size:
+    v, s = hsv[0, :, 2], hsv[0, :, 1]
+    # The brightness and saturation tests are cheap (uint8) and usually leave few pixels (a
+    # lit ball is neither dark nor grey): only those get the chromaticity tests.
+    cand = np.flatnonzero((v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain))
+    if len(cand):
+        f = px[:, cand].astype(np.float32)
+        total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
+        dark = v[cand] < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
+        dchroma = _chroma_distance(f, total, bg).reshape(-1)
+        dchroma[dark] = 0.0
+        ok = dchroma <= shadow.max_chroma_shift
+        if obj.color_bgr is not None:
+            d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
+            d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
+            ok &= d_obj > obj.color_tolerance
+        elif obj.hue_range_deg is not None:
+            ok &= hue_mask(px[:, cand], obj.hue_range_deg, obj.min_saturation)[0] == 0
+        cand = cand[ok]
+    if len(cand) > shadow.max_removed_fraction * len(v):
         return mask  # most of the region looks like shadow: a dark neutral object, keep it
-    out = mask.copy()
-    kept = out[sel]
-    kept[drop] = 0
-    out[sel] = kept
+    out = mask
+    if len(cand):
+        ys, xs = np.nonzero(sel)  # the order of masked_pixels
+        out = mask.copy()
+        out[ys[cand], xs[cand]] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out
