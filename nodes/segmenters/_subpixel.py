@@ -158,9 +158,7 @@ def region_properties(
     """
     u0, v0 = offset
     w, h = image_size
-    m = cv2.moments(mask, binaryImage=True)
-    area = float(m["m00"])
-    cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    area = float(cv2.countNonZero(mask))  # the pixel moments' m00; their centroid only when needed
     if contour is None:
         cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         contour = max(cnts, key=len)
@@ -184,6 +182,9 @@ def region_properties(
             method = "subpixel_contour"
     else:
         pts = contour.reshape(-1, 2).astype(np.float32)
+    if method == "pixels":
+        m = cv2.moments(mask, binaryImage=True)
+        cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
     ell = fit_ellipse_robust(pts)
     if ell is not None:
         ell["center_px"] = [ell["center_px"][0] + u0, ell["center_px"][1] + v0]
