@@ -3,13 +3,15 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
 from ._candidates import roundness
 from ._color import _chroma_distance, _ONES_1x3, hue_mask
 from ._params import ObjectSpec, ShadowParams
-from ._pixels import fast_median, masked_pixels, structuring_element
+from ._pixels import structuring_element
 
 
 def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
@@ -35,26 +37,31 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     n_sel = cv2.countNonZero(mask)
     if n_sel == 0 or n_sel == mask.size:
         return mask
-    sel = mask > 0
-    # Local background: a ring just outside the mask (fallback: everything outside).
+    # Local background: a ring just outside the mask (fallback: everything outside); its
+    # per-channel median from a masked histogram (no pixel gather).
     ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
-    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, ~sel)
-    bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
+    bg_sel = ring if cv2.countNonZero(ring) > 20 else cv2.compare(mask, 0, cv2.CMP_EQ)
+    bg = np.float32([_masked_median_u8(img_bgr, c, bg_sel) for c in range(3)])
     bg_v = float(bg.max())
     if bg_v < 1:
         return mask
     bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
-    # Only the region's pixels are classified: a 1xNx3 image of them keeps the cv2 calls.
-    px = masked_pixels(img_bgr, sel)[None]
-    hsv = cv2.cvtColor(px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
-    v, s = hsv[0, :, 2], hsv[0, :, 1]
-    # The brightness and saturation tests are cheap (uint8) and usually leave few pixels (a
-    # lit ball is neither dark nor grey): only those get the chromaticity tests.
-    cand = np.flatnonzero((v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain))
-    if len(cand):
-        f = px[:, cand].astype(np.float32)
+    # The brightness and saturation tests are cheap (one HSV conversion and an inRange over the
+    # window) and usually leave few of the region's pixels (a lit ball is neither dark nor
+    # grey): only those are gathered for the chromaticity tests. V and S are integers, so
+    # v <= t is v <= floor(t).
+    hsv = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    s_max = math.floor(bg_s + shadow.max_saturation_gain)
+    v_max = math.floor(shadow.max_brightness_ratio * bg_v)
+    if s_max < 0 or v_max < 0:
+        return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
+    cand = cv2.bitwise_and(cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255))), mask)
+    ys, xs = np.nonzero(cand) if cv2.countNonZero(cand) else (np.empty(0, np.intp), np.empty(0, np.intp))
+    if len(ys):
+        px = img_bgr[ys, xs][None]  # 1xKx3: the cv2 calls below work on it as an image
+        f = px.astype(np.float32)
         total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-        dark = v[cand] < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
+        dark = hsv[ys, xs, 2] < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
         dchroma = _chroma_distance(f, total, bg).reshape(-1)
         dchroma[dark] = 0.0
         ok = dchroma <= shadow.max_chroma_shift
@@ -63,18 +70,30 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
             d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
             ok &= d_obj > obj.color_tolerance
         elif obj.hue_range_deg is not None:
-            ok &= hue_mask(px[:, cand], obj.hue_range_deg, obj.min_saturation)[0] == 0
-        cand = cand[ok]
-    if len(cand) > shadow.max_removed_fraction * len(v):
+            ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
+        ys, xs = ys[ok], xs[ok]
+    if len(ys) > shadow.max_removed_fraction * n_sel:
         return mask  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask
-    if len(cand):
-        ys, xs = np.nonzero(sel)  # the order of masked_pixels
+    if len(ys):
         out = mask.copy()
-        out[ys[cand], xs[cand]] = 0
+        out[ys, xs] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out
+
+
+def _masked_median_u8(img: np.ndarray, channel: int, mask: np.ndarray) -> float:
+    """Median of one uint8 channel over ``mask`` (as ``np.median``: the mean of the two middle values
+    for an even count), from a masked histogram."""
+    hist = cv2.calcHist([img], [channel], mask, [256], [0, 256]).ravel()
+    n = int(hist.sum())
+    cum = np.cumsum(hist)
+    k = n // 2
+    hi = int(np.searchsorted(cum, k + 1))  # first level whose cumulative count exceeds rank k
+    if n % 2:
+        return float(hi)
+    return 0.5 * (int(np.searchsorted(cum, k)) + hi)
 
 
 def suppress_shadow_regions(
