@@ -120,8 +120,9 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         y = -du * st + dv * ct
         rr = np.sqrt((x / (w / 2)) ** 2 + (y / (h / 2)) ** 2)
         res = (rr - 1.0) * 0.5 * (w + h) / 2
-        mad = fast_median(np.abs(res[keep])) * 1.4826 + 1e-3
-        new = np.abs(res) <= max(3.0 * mad, 0.3)
+        ares = np.abs(res)
+        mad = fast_median(ares[keep]) * 1.4826 + 1e-3
+        new = ares <= max(3.0 * mad, 0.3)
         if new.sum() < 6 or (new == keep).all():
             refit = False  # converged (or too few inliers): the last fit used ``keep``
             break
