@@ -11,7 +11,7 @@ import numpy as np
 from ._candidates import roundness
 from ._color import _chroma_distance, _ONES_1x3, hue_mask
 from ._params import ObjectSpec, ShadowParams
-from ._pixels import structuring_element
+from ._pixels import masked_pixels, structuring_element
 
 
 def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
@@ -37,11 +37,10 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     n_sel = cv2.countNonZero(mask)
     if n_sel == 0 or n_sel == mask.size:
         return mask
-    # Local background: a ring just outside the mask (fallback: everything outside); its
-    # per-channel median from a masked histogram (no pixel gather).
+    # Local background: a ring just outside the mask (fallback: everything outside).
     ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
-    bg_sel = ring if cv2.countNonZero(ring) > 20 else cv2.compare(mask, 0, cv2.CMP_EQ)
-    bg = np.float32([_masked_median_u8(img_bgr, c, bg_sel) for c in range(3)])
+    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, mask == 0)
+    bg = _median_u8_rows(bg_px.reshape(-1, 3))
     bg_v = float(bg.max())
     if bg_v < 1:
         return mask
@@ -83,17 +82,15 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     return out
 
 
-def _masked_median_u8(img: np.ndarray, channel: int, mask: np.ndarray) -> float:
-    """Median of one uint8 channel over ``mask`` (as ``np.median``: the mean of the two middle values
-    for an even count), from a masked histogram."""
-    hist = cv2.calcHist([img], [channel], mask, [256], [0, 256]).ravel()
-    n = int(hist.sum())
-    cum = np.cumsum(hist)
+def _median_u8_rows(px: np.ndarray) -> np.ndarray:
+    """Per-column median (float32, as ``np.median``: the mean of the two middle values for an even
+    count) of an Nx3 uint8 array: one partition of the bytes, no float copy of them."""
+    n = len(px)
     k = n // 2
-    hi = int(np.searchsorted(cum, k + 1))  # first level whose cumulative count exceeds rank k
     if n % 2:
-        return float(hi)
-    return 0.5 * (int(np.searchsorted(cum, k)) + hi)
+        return np.partition(px, k, axis=0)[k].astype(np.float32)
+    p = np.partition(px, (k - 1, k), axis=0)
+    return (p[k - 1].astype(np.float32) + p[k]) / 2
 
 
 def suppress_shadow_regions(
