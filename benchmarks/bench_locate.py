@@ -9,9 +9,10 @@ Four ways, same pairs, same run:
   subtracted from the run's wall time, so the figure covers the per-pair nodes plus all engine
   overhead.
 * **loop** -- a hand-written loop doing the same steps: the same on-request rectified views,
-  the same segmentation library functions (segment_image per view, the right one in the left
-  region's epipolar band, check_pair), centroid disparity, Q reprojection, R1^T rotation and
-  sigma_z; no engine, no dicts passed around.
+  the same segmentation library functions (segment_image per view with the rectified camera
+  matrix for the partial-view fallback, the right one in the left region's epipolar band,
+  check_pair with the rectification's size check), centroid disparity, Q reprojection, R1^T
+  rotation and sigma_z; no engine, no dicts passed around, no rejected outlines kept.
 * **engine, full remap** -- for context: a rectifier.remap node rectifies both whole colour
   images first (the thesis's order; same locations, ~1.3 ms per view of cv2.remap).
 * **raw cv2** -- for context, the thesis's bare steps in plain OpenCV on fully remapped images
@@ -142,13 +143,16 @@ def run_loop(pairs: list[dict], rect: dict, params: EdgeMorphParams) -> int:
     w, h = rect["image_size"]
     r_range = expected_radius_px(params, rect, (w, h))
     f, B = rect["f_px"], rect["baseline_cm"]
+    # As the segmenter node: the rectified cameras (partial-view fallback) and the pair checks
+    # that need the rectification (silhouette size vs stereo distance).
+    K1, K2 = np.asarray(rect["P1"], float)[:, :3], np.asarray(rect["P2"], float)[:, :3]
     found = 0
     for p in pairs:
         L, R = pair_views(rect, p["left"], p["right"], raw=True)
-        _, lreg, _ = segment_image(L, edge_morph_mask, params, r_range)
+        _, lreg, _ = segment_image(L, edge_morph_mask, params, r_range, K=K1)
         band = search_band(lreg, rect, params, (w, h)) if lreg is not None else None
-        _, rreg, _ = segment_image(R, edge_morph_mask, params, r_range, window=band)
-        if lreg is None or rreg is None or check_pair(lreg, rreg, params) is not None:
+        _, rreg, _ = segment_image(R, edge_morph_mask, params, r_range, window=band, K=K2)
+        if lreg is None or rreg is None or check_pair(lreg, rreg, params, rect) is not None:
             continue
         u, v, d, sd = centroid_disparity(lreg, rreg)
         xyz = triangulate_point(u, v, d, rect)
