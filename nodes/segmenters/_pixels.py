@@ -97,25 +97,12 @@ def fast_median(a: np.ndarray, axis: int | None = None) -> np.ndarray | float:
     if n == 0:
         return np.median(a, axis=0)
     k = n // 2
-    if a.dtype == np.uint8 and a.ndim <= 2 and n > 64:
-        return _median_u8(a, n, k)
     if a.dtype.kind in "iub":
         a = a.astype(np.float64)
     if n % 2:
         return np.partition(a, k, axis=0)[k]
     p = np.partition(a, (k - 1, k), axis=0)
     return (p[k - 1] + p[k]) / 2
-
-
-def _median_u8(a: np.ndarray, n: int, k: int) -> np.ndarray | float:
-    """:func:`fast_median` of uint8 values by counting: one histogram per column, no sort."""
-    cols = 1 if a.ndim == 1 else a.shape[1]
-    idx = a.astype(np.intp) if cols == 1 else a + np.arange(0, 256 * cols, 256, dtype=np.intp)
-    cum = np.bincount(idx.ravel(), minlength=256 * cols).reshape(cols, 256).cumsum(axis=1)
-    # The value of 0-based rank r is the first level whose cumulative count exceeds r.
-    hi = (cum <= k).sum(axis=1).astype(np.float64)
-    med = hi if n % 2 else ((cum <= k - 1).sum(axis=1) + hi) / 2
-    return float(med[0]) if a.ndim == 1 else med
 
 
 def _channels(img: np.ndarray) -> int:
