@@ -62,8 +62,8 @@ def sphere_from_silhouette(E: np.ndarray, K: np.ndarray) -> dict:
         w = -w
     else:
         raise ValueError("conic is not the image of a cone in front of the camera")
-    others = np.delete(w, i)
-    lam1, lam2 = w[i], float(np.mean(others))
+    others = w[[j for j in range(3) if j != i]]
+    lam1, lam2 = w[i], float(others[0] + others[1]) / 2  # as np.mean of the two
     a = V[:, i]
     if a[2] < 0:
         a = -a

@@ -51,6 +51,14 @@ def disparity_range_px(rectification: dict | None, params: DisparityParams) -> t
     return fb / (z1 * (1 + params.range_slack)), fb / (z0 * (1 - min(params.range_slack, 0.9)))
 
 
+REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
+
+
+def _rejected(seg) -> dict:
+    """The segmenter's rejected-candidate outlines, passed on for the locator's overlay (when present)."""
+    return {k: seg[k] for k in REJECTED_KEYS if k in seg} if isinstance(seg, dict) else {}
+
+
 def not_found(seg_or_id, reason: str, method: str) -> dict:
     """A Disparity record with ``found: False``."""
     sid = seg_or_id["id"] if isinstance(seg_or_id, dict) else str(seg_or_id)
@@ -58,7 +66,7 @@ def not_found(seg_or_id, reason: str, method: str) -> dict:
     return {
         "id": sid, "found": False, "reason": reason, "u_left_px": None, "v_left_px": None,
         "disparity_px": None, "sigma_disparity_px": None, "method": method, "split": split,
-        "depth_offset_cm": 0.0,
+        "depth_offset_cm": 0.0, **_rejected(seg_or_id),
     }
 
 
@@ -75,7 +83,7 @@ def finish(seg: dict, u: float, v: float, d: float, sigma_d: float, method: str,
         rec = {
             "id": seg["id"], "found": True, "reason": None, "u_left_px": float(u), "v_left_px": float(v),
             "disparity_px": float(d), "sigma_disparity_px": float(max(sigma_d, params.min_sigma_disparity_px)),
-            "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0,
+            "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0, **_rejected(seg),
         }
         rec.update(extra)
     if not rec["found"] and ctx is not None:

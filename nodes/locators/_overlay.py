@@ -2,9 +2,10 @@
 
 Left | right rectified images; the located image point in the left view and the matching point
 ``u - d`` in the right (red circles), joined by their epipolar line (yellow: matching points of a
-rectified pair share a row); above them the pair id with x / y / z (cm) and sigma_z, or the whole
-refusal reason (labels: ``nodes/reports/overlay.py``). A camera pair (``StereoPair``) is
-remapped with the rectification's maps first, so the marks sit on the pixels they refer to.
+rectified pair share a row); the segmenter's rejected candidates outlined in orange with the word
+why; above them the pair id with x / y / z (cm) and sigma_z, or the whole refusal reason
+(labels: ``nodes/reports/overlay.py``). A camera pair (``StereoPair``) is remapped with the
+rectification's maps first, so the marks sit on the pixels they refer to.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from nodes.reports.overlay import label_pair, location_text
+from nodes.reports.overlay import draw_rejected, label_pair, location_text
 
 
 def _bgr(img: np.ndarray) -> np.ndarray:
@@ -47,6 +48,9 @@ def location_overlay(loc: dict, disparity: dict, rect: dict, pair: dict | None, 
         R = cv2.resize(R, (L.shape[1], L.shape[0]))
     w = L.shape[1]
     img = np.hstack([L, R])
+    # The segmenter's rejected candidates (orange, passed on by the disparity estimator).
+    draw_rejected(img, disparity.get("rejected_left_px"), reasons=disparity.get("rejected_left_why"))
+    draw_rejected(img, disparity.get("rejected_right_px"), offset_u=w, reasons=disparity.get("rejected_right_why"))
     u, v, d = disparity.get("u_left_px"), disparity.get("v_left_px"), disparity.get("disparity_px")
     if u is not None and v is not None and np.isfinite([u, v]).all():
         y = int(round(v))

@@ -8,8 +8,9 @@ One place for every node that draws a left | right overlay (segmenters, ``locato
   so the chosen region (green, drawn by the node) stands out from the ones that lost.
 
 A segmenter that keeps its rejected candidates may put their outlines in its Segmentation as
-``rejected_left_px`` / ``rejected_right_px`` (lists of Nx2 contours, rectified px); the segmenters'
-``draw_overlay`` passes them here.
+``rejected_left_px`` / ``rejected_right_px`` (lists of Nx2 contours, rectified px) with one-word reasons
+in ``rejected_left_why`` / ``rejected_right_why``; the segmenters' ``draw_overlay`` passes them here, and the
+disparity estimators copy them into the Disparity for ``locator.triangulate``'s overlay.
 """
 
 from __future__ import annotations
@@ -43,16 +44,25 @@ def label_pair(img: np.ndarray, pair_id: Any, found: bool, reason: str | None, d
     return caption(img, lines)
 
 
-def draw_rejected(img: np.ndarray, contours: Any, offset_u: int = 0) -> int:
-    """Outline rejected candidate regions (Nx2 px contours) on ``img`` in orange, in place; returns how many."""
+def draw_rejected(img: np.ndarray, contours: Any, offset_u: int = 0, reasons: Any = None) -> int:
+    """Outline rejected candidate regions (Nx2 px contours) on ``img`` in orange, in place; returns how many.
+
+    ``reasons``, optional: one word per contour (why it lost: size, round, colour, ...), written
+    beside its outline.
+    """
     import cv2
 
     n = 0
-    for c in contours or []:
+    reasons = list(reasons or [])
+    for i, c in enumerate(contours or []):
         c = np.asarray(c, np.float64).reshape(-1, 2)
         if len(c) < 3:
             continue
         pts = np.round(c + [offset_u, 0]).astype(np.int32).reshape(-1, 1, 2)
         cv2.polylines(img, [pts], True, REJECTED_BGR, 1, cv2.LINE_AA)
+        if i < len(reasons) and reasons[i]:
+            x, y = int(pts[:, 0, 0].min()), int(pts[:, 0, 1].min())
+            cv2.putText(img, str(reasons[i]), (x, max(10, y - 3)), cv2.FONT_HERSHEY_SIMPLEX, 0.35, REJECTED_BGR, 1,
+                        cv2.LINE_AA)
         n += 1
     return n

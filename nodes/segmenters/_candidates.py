@@ -78,6 +78,9 @@ def select_candidate(
     consistent with the colour, else the largest (the thesis's rule). Two survivors of
     near-equal area and no colour to tell them apart -> ambiguous.
 
+    Every candidate that is not the one returned gets a one-word ``rejected`` tag (size,
+    round, colour, smaller, ambiguous) for the overlays' rejected outlines.
+
     Returns
     -------
     (candidate or None, reason or None)
@@ -90,10 +93,11 @@ def select_candidate(
     ok = []
     for c in cands:
         if not (a_min <= c["area_px"] <= a_max):
+            c["rejected"] = "size"
             rejected.append(f"area {c['area_px']:.0f} px outside {a_min:.0f}-{a_max:.0f}")
             continue
         if c["roundness"] < params.min_roundness:
-            c["_why"] = "round"
+            c["_why"] = c["rejected"] = "round"
             rejected.append(f"roundness {c['roundness']:.2f} < {params.min_roundness}")
             continue
         x0, y0, x1, y1 = c["bbox"]
@@ -102,6 +106,7 @@ def select_candidate(
             score = object_color_score(img_bgr[y0 : y1 + 1, x0 : x1 + 1], _filled(c["contour"], c["bbox"]),
                                        params.object)
         if score is not None and score > 1.0:
+            c["rejected"] = "colour"
             rejected.append("colour differs from the object's")
             continue
         c["color_score"] = score
@@ -122,6 +127,7 @@ def select_candidate(
         rivals = [c for c in cands if c is not a and c.get("_why") == "round"
                   and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max]
         if rivals:
+            a["rejected"] = rivals[0]["rejected"] = "ambiguous"
             return None, (f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
                           f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
                           "object.color_bgr to tell them apart")
@@ -130,9 +136,14 @@ def select_candidate(
         if b["area_px"] >= params.ambiguity_ratio * a["area_px"]:
             if a.get("color_score") is not None and abs(a["color_score"] - b["color_score"]) > 0.25:
                 ok.sort(key=lambda c: c["color_score"])
+                for c in ok[1:]:
+                    c["rejected"] = "colour"
                 return ok[0], None
+            a["rejected"] = b["rejected"] = "ambiguous"
             what = "and colour " if a.get("color_score") is not None else ""
             hint = "" if what else "; give object.color_bgr to tell them apart"
             return None, (f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
                           f"{b['area_px']:.0f} px){hint}")
+    for c in ok[1:]:
+        c["rejected"] = "smaller"
     return ok[0], None

@@ -69,10 +69,12 @@ def _detect(
     s: int,
     window: tuple[int, int, int, int] | None,
     min_radius_px: float = 0.0,
+    rejected: dict | None = None,
 ) -> tuple[dict | None, str | None, tuple[float, float, int, int]]:
     """Coarse detection: the chosen candidate (coarse coordinates), the reason, and
     (sx, sy, u_off, v_off) mapping coarse to full-resolution pixels. ``min_radius_px``
-    (coarse px) raises the smallest plausible radius at this level."""
+    (coarse px) raises the smallest plausible radius at this level. ``rejected``, optional:
+    filled with the outlines of the candidates that lost (:func:`rejected_outlines`)."""
     h, w = view.shape[:2]
     if window is None:
         wu0, wv0, wu1, wv1 = 0, 0, w, h
@@ -96,7 +98,35 @@ def _detect(
                  if not ((c["bbox"][0] <= 0 < wu0) or (c["bbox"][1] <= 0 < wv0)
                          or (c["bbox"][2] >= sw - 1 and wu1 < w) or (c["bbox"][3] >= sh - 1 and wv1 < h))]
     best, reason = select_candidate(cands, small, r_small, params)
+    if rejected is not None:
+        rejected.clear()
+        rejected.update(rejected_outlines(cands, best, (sx, sy, wu0, wv0)))
     return best, reason, (sx, sy, wu0, wv0)
+
+
+# Rejected outlines kept per image for the overlays: few and small, so that they cost nothing
+# next to the detection and stay small in the Segmentation.
+MAX_REJECTED = 8  # outlines per image
+MAX_REJECTED_POINTS = 64  # points per outline
+_REJECTED_ORDER = {"ambiguous": 0, "colour": 1, "smaller": 2, "round": 3, "size": 4}
+
+
+def rejected_outlines(cands: list[dict], best: dict | None, to_full: tuple[float, float, int, int]) -> dict:
+    """``{"px": [Nx2 int32], "why": [str]}``: the outlines (full-resolution rectified px, at most
+    ``MAX_REJECTED`` of ``MAX_REJECTED_POINTS`` points) of the candidates other than ``best``, the
+    most telling first (ambiguous, wrong colour, smaller, not round, wrong size; then larger first)."""
+    sx, sy, ou, ov = to_full
+    lost = [c for c in cands if c is not best]
+    lost.sort(key=lambda c: (_REJECTED_ORDER.get(c.get("rejected", "smaller"), 5), -c["area_px"]))
+    px, why = [], []
+    for c in lost[:MAX_REJECTED]:
+        pts = c["contour"].reshape(-1, 2)
+        pts = pts[:: -(-len(pts) // MAX_REJECTED_POINTS)]
+        # A coarse pixel centre i sits at full-resolution (i + 0.5) s - 0.5.
+        full = (pts + 0.5) * (sx, sy) - 0.5 + (ou, ov)
+        px.append(np.round(full).astype(np.int32))
+        why.append(c.get("rejected", "smaller"))
+    return {"px": px, "why": why}
 
 
 # A whole ball's outline is all true edge and fills its ellipse (area within the sub-pixel
@@ -109,6 +139,18 @@ _MAX_EDGE_RMS_PX = 0.5  # a sub-pixel outline of one ellipse scatters by a few t
 _MIN_RADIUS_COARSE_PX = 4.0  # smallest ball radius a coarse-first pass trusts (px at its level)
 
 
+def _drop_inside(rejected: dict, mask: np.ndarray) -> None:
+    """Remove from ``rejected`` the outlines whose mean point lies in ``mask`` (the found region)."""
+    h, w = mask.shape
+    keep = []
+    for i, c in enumerate(rejected["px"]):
+        u, v = (int(round(x)) for x in c.mean(axis=0))
+        if not (0 <= u < w and 0 <= v < h and mask[v, u]):
+            keep.append(i)
+    rejected["px"] = [rejected["px"][i] for i in keep]
+    rejected["why"] = [rejected["why"][i] for i in keep]
+
+
 def segment_image(
     img_bgr: np.ndarray | RectifiedView,
     mask_fn: MaskFn,
@@ -116,6 +158,7 @@ def segment_image(
     r_range_px: tuple[float, float],
     window: tuple[int, int, int, int] | None = None,
     K: np.ndarray | None = None,
+    rejected: dict | None = None,
 ) -> tuple[np.ndarray, dict | None, str | None]:
     """Find the object in one rectified image.
 
@@ -125,6 +168,9 @@ def segment_image(
     found there, the whole image is searched (so reasons are the whole image's). ``K`` (the
     view's rectified camera matrix), optional: when no whole ball is found, look for a partly
     visible or touching one (:mod:`._partial_pass`; the region then has a ``partial`` entry).
+    ``rejected`` (a dict), optional: filled with the outlines and one-word reasons of the
+    candidates that lost in the detection pass that decided (``{"px": [...], "why": [...]}``,
+    see :func:`rejected_outlines`).
 
     Returns
     -------
@@ -147,7 +193,8 @@ def segment_image(
     passes.append((s, None, 0.0))
     best = None
     for level, where, r_floor in passes:
-        best, why, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, level, where, r_floor)
+        best, why, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, level, where, r_floor,
+                                              rejected)
         if r_floor == 0.0:
             reason = why
         if best is not None:
@@ -160,6 +207,8 @@ def segment_image(
 
             pmask, pregion, pwhy = partial_region(view, mask_fn, params, r_range_px, s, K, window)
             if pregion is not None:
+                if rejected:  # the partial pass found the ball in a region the coarse pass had turned down
+                    _drop_inside(rejected, pmask)
                 return pmask, pregion, None
             reason = f"{reason}; partial view: {pwhy}"
         return full_mask, None, reason

@@ -17,6 +17,8 @@ to the object) differs between methods:
    contour -- each boundary point moved along the mask normal to the maximum of the colour
    gradient (parabolic peak) -- whose polygon moments give area and centroid and whose points
    give the ellipse (``cv2.fitEllipse`` after trimming outliers).
+   The candidates that lost keep their outlines (``rejected_left_px`` / ``rejected_right_px``,
+   with one-word reasons in ``rejected_*_why``) for the overlays.
 4. **Check** the two regions against each other (rectified: same rows, similar size/shape) and
    against the image border; an untrustworthy result is ``found: False`` with a reason.
 
@@ -49,7 +51,7 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
     out = []
     for side, img in (("left", left), ("right", right)):
         im = as_bgr(img).copy()
-        draw_rejected(im, seg.get(f"rejected_{side}_px"))
+        draw_rejected(im, seg.get(f"rejected_{side}_px"), reasons=seg.get(f"rejected_{side}_why"))
         mask = seg.get(f"{side}_mask")
         reg = seg.get(side)
         if mask is not None and mask.any():
@@ -100,6 +102,7 @@ def segment_pair(
         "method": method,
         "object_radius_cm": float(params.object.radius_cm),
         "split": pair.get("split"),
+        "rejected_left_px": [], "rejected_left_why": [], "rejected_right_px": [], "rejected_right_why": [],
     }
     L, R = as_bgr(np.asarray(pair["left"])), as_bgr(np.asarray(pair["right"]))
     if reason is None:
@@ -109,10 +112,13 @@ def segment_pair(
         K1 = K2 = None
         if rectification is not None and rectification.get("P1") is not None:
             K1, K2 = np.asarray(rectification["P1"], float)[:, :3], np.asarray(rectification["P2"], float)[:, :3]
-        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1)
+        rej_l, rej_r = {}, {}
+        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1, rejected=rej_l)
         band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
-        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band, K=K2)
-        seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg)
+        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band, K=K2, rejected=rej_r)
+        seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg,
+                   rejected_left_px=rej_l.get("px", []), rejected_left_why=rej_l.get("why", []),
+                   rejected_right_px=rej_r.get("px", []), rejected_right_why=rej_r.get("why", []))
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
         else:

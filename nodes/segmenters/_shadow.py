@@ -3,13 +3,15 @@
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
 from ._candidates import roundness
 from ._color import _chroma_distance, _ONES_1x3, hue_mask
 from ._params import ObjectSpec, ShadowParams
-from ._pixels import fast_median, masked_pixels, structuring_element
+from ._pixels import masked_pixels, structuring_element
 
 
 def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
@@ -35,42 +37,60 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     n_sel = cv2.countNonZero(mask)
     if n_sel == 0 or n_sel == mask.size:
         return mask
-    sel = mask > 0
     # Local background: a ring just outside the mask (fallback: everything outside).
     ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
-    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, ~sel)
-    bg = np.asarray(fast_median(bg_px.reshape(-1, 3), axis=0), np.float32)
+    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, mask == 0)
+    bg = _median_u8_rows(bg_px.reshape(-1, 3))
     bg_v = float(bg.max())
     if bg_v < 1:
         return mask
     bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
-    # Only the region's pixels are classified: a 1xNx3 image of them keeps the cv2 calls.
-    px = masked_pixels(img_bgr, sel)[None]
-    hsv = cv2.cvtColor(px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
-    v, s = hsv[..., 2], hsv[..., 1]
-    f = px.astype(np.float32)
-    total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-    dchroma = _chroma_distance(f, total, bg).reshape(v.shape)
-    dark = v < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
-    dchroma[dark] = 0.0
-    drop = (v <= shadow.max_brightness_ratio * bg_v) & (s <= bg_s + shadow.max_saturation_gain)
-    drop &= dchroma <= shadow.max_chroma_shift
-    if obj.color_bgr is not None:
-        d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(v.shape)
-        d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
-        drop &= d_obj > obj.color_tolerance
-    elif obj.hue_range_deg is not None:
-        drop &= hue_mask(px, obj.hue_range_deg, obj.min_saturation) == 0
-    drop = drop[0]
-    if drop.sum() > shadow.max_removed_fraction * drop.size:
+    # The brightness and saturation tests are cheap (one HSV conversion and an inRange over the
+    # window) and usually leave few of the region's pixels (a lit ball is neither dark nor
+    # grey): only those are gathered for the chromaticity tests. V and S are integers, so
+    # v <= t is v <= floor(t).
+    hsv = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    s_max = math.floor(bg_s + shadow.max_saturation_gain)
+    v_max = math.floor(shadow.max_brightness_ratio * bg_v)
+    if s_max < 0 or v_max < 0:
+        return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
+    cand = cv2.bitwise_and(cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255))), mask)
+    ys, xs = np.nonzero(cand) if cv2.countNonZero(cand) else (np.empty(0, np.intp), np.empty(0, np.intp))
+    if len(ys):
+        px = img_bgr[ys, xs][None]  # 1xKx3: the cv2 calls below work on it as an image
+        f = px.astype(np.float32)
+        total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
+        dark = hsv[ys, xs, 2] < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
+        dchroma = _chroma_distance(f, total, bg).reshape(-1)
+        dchroma[dark] = 0.0
+        ok = dchroma <= shadow.max_chroma_shift
+        if obj.color_bgr is not None:
+            d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
+            d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
+            ok &= d_obj > obj.color_tolerance
+        elif obj.hue_range_deg is not None:
+            ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
+        ys, xs = ys[ok], xs[ok]
+    if len(ys) > shadow.max_removed_fraction * n_sel:
         return mask  # most of the region looks like shadow: a dark neutral object, keep it
-    out = mask.copy()
-    kept = out[sel]
-    kept[drop] = 0
-    out[sel] = kept
+    out = mask
+    if len(ys):
+        out = mask.copy()
+        out[ys, xs] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out
+
+
+def _median_u8_rows(px: np.ndarray) -> np.ndarray:
+    """Per-column median (float32, as ``np.median``: the mean of the two middle values for an even
+    count) of an Nx3 uint8 array: one partition of the bytes, no float copy of them."""
+    n = len(px)
+    k = n // 2
+    if n % 2:
+        return np.partition(px, k, axis=0)[k].astype(np.float32)
+    p = np.partition(px, (k - 1, k), axis=0)
+    return (p[k - 1].astype(np.float32) + p[k]) / 2
 
 
 def suppress_shadow_regions(

@@ -120,8 +120,9 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         y = -du * st + dv * ct
         rr = np.sqrt((x / (w / 2)) ** 2 + (y / (h / 2)) ** 2)
         res = (rr - 1.0) * 0.5 * (w + h) / 2
-        mad = fast_median(np.abs(res[keep])) * 1.4826 + 1e-3
-        new = np.abs(res) <= max(3.0 * mad, 0.3)
+        ares = np.abs(res)
+        mad = fast_median(ares[keep]) * 1.4826 + 1e-3
+        new = ares <= max(3.0 * mad, 0.3)
         if new.sum() < 6 or (new == keep).all():
             refit = False  # converged (or too few inliers): the last fit used ``keep``
             break
@@ -158,9 +159,7 @@ def region_properties(
     """
     u0, v0 = offset
     w, h = image_size
-    m = cv2.moments(mask, binaryImage=True)
-    area = float(m["m00"])
-    cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    area = float(cv2.countNonZero(mask))  # the pixel moments' m00; their centroid only when needed
     if contour is None:
         cnts, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         contour = max(cnts, key=len)
@@ -184,6 +183,9 @@ def region_properties(
             method = "subpixel_contour"
     else:
         pts = contour.reshape(-1, 2).astype(np.float32)
+    if method == "pixels":
+        m = cv2.moments(mask, binaryImage=True)
+        cu, cv_ = m["m10"] / m["m00"], m["m01"] / m["m00"]
     ell = fit_ellipse_robust(pts)
     if ell is not None:
         ell["center_px"] = [ell["center_px"][0] + u0, ell["center_px"][1] + v0]
