@@ -898,6 +898,9 @@ def add_subcommand(subparsers: Any) -> Any:
     sp.add_argument("--best", metavar="METRIC[:max]",
                     help="show the row with the lowest (or with :max the highest) METRIC in bold green")
     sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--dask", metavar="ADDRESS", help="run every variant's per-item work on a Dask cluster "
+                    "('local' starts one with --workers processes; the cache and run folder must be on "
+                    "storage every worker sees: docs/parallel.md)")
     sp.add_argument("--skip-invalid", action="store_true",
                     help="leave out combinations whose config does not validate instead of refusing")
     sp.add_argument("--no-plots", action="store_true", help="do not write metrics.png")
@@ -919,7 +922,7 @@ def main(args: Any) -> int:
     wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
     con = Console(highlight=False, soft_wrap=True, width=wide)
     err = Console(stderr=True, highlight=False, soft_wrap=True)
-    executor = workers_executor(args.workers)
+    executor = workers_executor(args.workers, getattr(args, "dask", None))
     kw = {"overrides": args.set, "cache_dir": args.cache_dir, "split": args.split, "executor": executor,
           "skip_invalid": args.skip_invalid, "plots": False}
     try:

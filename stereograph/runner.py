@@ -30,6 +30,7 @@ import concurrent.futures as cf
 import contextlib
 import contextvars
 import os
+import shutil
 import time
 import traceback
 import uuid
@@ -190,7 +191,20 @@ class ProcessExecutor:
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         tasks = list(tasks)
-        futures = [self.pool.submit(fn, t) for t in tasks]
+        return self._results(fn, tasks, [self.pool.submit(fn, t) for t in tasks])
+
+    def start(self, fn: Callable[[Any], Any], tasks: list[Any]) -> list[cf.Future]:
+        """Submit tasks now, to run while this process goes on with other work (see
+        :func:`stereograph.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
+        return [self.pool.submit(fn, t) for t in tasks]
+
+    @staticmethod
+    def stop(futures: list[cf.Future]) -> None:
+        for fut in futures:
+            fut.cancel()
+        cf.wait(futures)
+
+    def _results(self, fn: Callable[[Any], Any], tasks: list[Any], futures: list[cf.Future]) -> Iterable[Any]:
         for k, fut in enumerate(futures):
             try:
                 yield fut.result()
@@ -377,6 +391,7 @@ class _Run:
         self.sub = False                        # a part of a run (stereograph.streaming): records nothing
         self.streaming: set[str] = set()        # per-item nodes run in streamed regions
         self.selected: set[str] = set(graph.nodes)
+        self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)
 
     # ---- keys
 
@@ -669,7 +684,8 @@ class _Run:
         producer = self.producer(inst)
         if producer and items is None:  # its other outputs, then (unless a streamed region does) its items
             try:
-                self.declared[inst.name] = self.produced_ids(inst)
+                if inst.name not in self.declared:  # (known already where items are made ahead)
+                    self.declared[inst.name] = self.produced_ids(inst)
             except NodeError as e:
                 self.fail_item(inst, None, e.message, e.hint)
                 rep.seconds = time.perf_counter() - t0
@@ -893,12 +909,20 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
         if cycles is not None:
             cycles(run, selected)
         else:
-            for unit in _units(run, selected):
+            units = _units(run, selected)
+            heads = {u.source: u for u in units if not isinstance(u, str) and u.source}
+            for unit in units:
                 if isinstance(unit, str):
+                    if unit in heads:  # the pool makes its items while this process runs the head
+                        streaming.start_ahead(run, heads[unit])
                     run.run_node(graph.nodes[unit])
                 else:
                     streaming.run_region(run, unit, write_outputs)
     finally:
+        for source in list(run.ahead):
+            streaming.stop_ahead(run, source)
+        if (out / streaming.AHEAD_DIR).exists():
+            shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
         close_resources(run.resources)
         _PROGRESS.reset(progress_token)
         if own_executor:

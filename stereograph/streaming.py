@@ -135,6 +135,7 @@ class Chunk:
     back: set[tuple[str, str]]        # outputs whose item values the run needs back (read outside, kept)
     deliver: set[tuple[str, str]]     # outputs the run folder gets (saved, terminal)
     store: Any = None                 # the run's own store, when run in its process
+    ahead: dict[str, str] = field(default_factory=dict)   # item -> file of an item made ahead
 
 
 @dataclass
@@ -149,6 +150,8 @@ class ChunkResult:
     files: dict[tuple[str, str], dict[str, list[str]]]
     notes: list[str]
     seconds: float
+    stored_bytes: int = 0   # what the task stored in the cache (the run's budget check counts it)
+    messages: dict[str, list[str]] = field(default_factory=dict)  # about nodes outside (a corrupt entry read)
 
 
 _STORES: dict[str, Any] = {}   # a worker's stores, by root: opened once per process
@@ -172,6 +175,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         store = _STORES.get(chunk.cache_root)
         if store is None:
             store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
+    written0 = store._written if store is not None else 0
     run = _Run(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
     run.sub = True
     run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
@@ -191,6 +195,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     inside = set(members) | ({reg.source} if reg.source else set())
     run.remaining_consumers = {n: set(graph.consumers(n)) & set(members) for n in graph.nodes}
     for name in ([reg.source] if reg.source else []) + members:
+        run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
         if name == reg.source:
             run.declared[name] = list(chunk.items)
         run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
@@ -225,7 +230,9 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         keys={k: v for k, v in run.keys.items() if k[0] in inside},
         values=values, files=files,
         notes=list(store.notes) if store is not None and chunk.store is None else [],
-        seconds=time.perf_counter() - t0)
+        seconds=time.perf_counter() - t0,
+        stored_bytes=store._written - written0 if store is not None and chunk.store is None else 0,
+        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages})
 
 
 def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
@@ -330,6 +337,9 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     if run.progress:
         run.progress.node_started(label, len(ids))
     first = reg.source or members[0]
+    made = stop_ahead(run, reg.source)
+    for chunk in chunks:
+        chunk.ahead = {i: made[i] for i in chunk.items if i in made}
     skipped: dict[str, str] = {}
     lost: list[Chunk] = []
     for chunk, res in zip(chunks, run.executor.map(run_chunk, chunks)):
@@ -409,6 +419,8 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
             skipped.setdefault(n, r.error or "upstream did not finish")
         elif rep.error is None and r.error:
             rep.error, rep.hint, rep.trace, rep.unexpected = r.error, r.hint, r.trace, r.unexpected
+    for n, msgs in res.messages.items():
+        run.reports[n].messages += [m for m in msgs if m not in run.reports[n].messages]
     for k, got in res.items.items():
         run.items.setdefault(k, []).extend(got)
     run.failed_items.update(res.failed)
@@ -420,3 +432,118 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
         run.streamed.setdefault(k, {}).update({i: [Path(f) for f in fs] for i, fs in by_item.items()})
     if run.store is not None:
         run.store.notes += [m for m in res.notes if m not in run.store.notes]
+        run.store._written += res.stored_bytes
+
+
+# ---------------------------------------------------------------- items made ahead
+
+AHEAD_DIR = ".stereograph-ahead"   # in the run folder, removed when the run ends
+
+
+@dataclass
+class AheadTask:
+    """Make some of a source's items while the run's head (calibration, ...) is still running."""
+
+    graph: bytes
+    plugins: list[str]
+    pipeline_dir: str
+    source: str
+    items: list[str]
+    folder: str
+    out_dir: str
+
+
+def produce_ahead(task: AheadTask) -> list[str]:
+    """(In a worker) make the items and leave each in a file of its own; returns those made.
+
+    An item that fails is left to its region task, which makes it again and reports why."""
+    from stereograph import outputs as outputs_mod
+    from stereograph.runner import Task, execute
+
+    if task.plugins:
+        registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+    graph = pickle.loads(task.graph)
+    inst = graph.nodes[task.source]
+    done = []
+    for i in task.items:
+        res = execute(Task(inst.type, list(task.plugins), inst.params.model_dump(), {}, inst.name, i,
+                           task.out_dir, task.pipeline_dir, {}, None, True))
+        if not res.ok:
+            continue
+        path = Path(task.folder) / f"{outputs_mod.file_name(i)}.pkl"
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_bytes(pickle.dumps((res.outputs, res.messages, res.seconds), protocol=pickle.HIGHEST_PROTOCOL))
+        tmp.replace(path)  # whole or absent: a cancelled run leaves no half item
+        done.append(i)
+    return done
+
+
+def start_ahead(run: Any, reg: Region) -> None:
+    """Set the pool making the region's items now, while this process runs the head (the
+    source's own part, calibration, rectification): that head is serial, and the workers would
+    otherwise wait for it. Only for a process pool (it runs on this machine), only items not
+    already cached; the region task takes each item made ahead from its file."""
+    from stereograph import outputs as outputs_mod
+    from stereograph.api import NodeError
+
+    ex, inst = run.executor, run.g.nodes[reg.source]
+    if not hasattr(ex, "start") or inst.inputs:
+        return
+    try:
+        ids = run.declared[reg.source] = run.produced_ids(inst)
+    except NodeError:
+        return  # the source's own run says why
+    if run.store is not None and inst.spec.cacheable and reg.source not in run.force:
+        base = run.node_components(inst)
+        refs = run.input_refs(inst, None)
+        ids = [i for i in ids if run.store.complete(run.entry_key(base, refs, i)) is None]
+    if not ids:
+        return
+    folder = Path(run.out_dir) / AHEAD_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    graph = pickle.dumps(run.g)
+    tasks = [AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, ids[k:k + 2],
+                       str(folder), str(run.out_dir)) for k in range(0, len(ids), 2)]
+    run.ahead[reg.source] = (ex.start(produce_ahead, tasks), folder, outputs_mod.file_name)
+
+
+def stop_ahead(run: Any, source: str | None) -> dict[str, str]:
+    """Cancel the ahead tasks not begun, wait for the others; {item: file} of the items made."""
+    got = run.ahead.pop(source, None) if source else None
+    if got is None:
+        return {}
+    futures, folder, name = got
+    run.executor.stop(futures)
+    made: dict[str, str] = {}
+    for fut in futures:
+        if fut.cancelled() or fut.exception() is not None:
+            continue
+        for i in fut.result():
+            made[i] = str(folder / f"{name(i)}.pkl")
+    return made
+
+
+class _Ahead:
+    """A region task's executor for its source: an item made ahead is read from its file."""
+
+    def __init__(self, files: dict[str, str]):
+        self.files = files
+
+    def map(self, fn: Any, tasks: list[Any]) -> Any:
+        from stereograph.runner import TaskResult
+
+        for t in tasks:
+            path = self.files.get(t.item) if t.producing else None
+            if path is None:
+                yield fn(t)
+                continue
+            try:
+                outputs, messages, seconds = pickle.loads(Path(path).read_bytes())
+                Path(path).unlink(missing_ok=True)
+            except (OSError, pickle.UnpicklingError, EOFError, ValueError):
+                yield fn(t)  # gone or damaged: make it here
+                continue
+            yield TaskResult(True, outputs, seconds, messages)
+
+    def close(self) -> None:
+        pass
