@@ -191,18 +191,29 @@ class ProcessExecutor:
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         tasks = list(tasks)
-        return self._results(fn, tasks, [self.pool.submit(fn, t) for t in tasks])
+        try:
+            futures = [self.pool.submit(fn, t) for t in tasks]
+        except cf.process.BrokenProcessPool:  # broken by an earlier task (one made ahead, say)
+            return self._alone(fn, tasks)
+        return self._results(fn, tasks, futures)
 
     def start(self, fn: Callable[[Any], Any], tasks: list[Any]) -> list[cf.Future]:
         """Submit tasks now, to run while this process goes on with other work (see
         :func:`stereograph.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
-        return [self.pool.submit(fn, t) for t in tasks]
+        futures: list[cf.Future] = []
+        try:
+            for t in tasks:
+                futures.append(self.pool.submit(fn, t))
+        except cf.process.BrokenProcessPool:
+            self._restart()
+        return futures
 
-    @staticmethod
-    def stop(futures: list[cf.Future]) -> None:
+    def stop(self, futures: list[cf.Future]) -> None:
         for fut in futures:
             fut.cancel()
         cf.wait(futures)
+        if any(not f.cancelled() and isinstance(f.exception(), cf.process.BrokenProcessPool) for f in futures):
+            self._restart()  # a worker died making items ahead: their region tasks make them again
 
     def _results(self, fn: Callable[[Any], Any], tasks: list[Any], futures: list[cf.Future]) -> Iterable[Any]:
         for k, fut in enumerate(futures):

@@ -22,6 +22,7 @@ import dataclasses
 import math
 import pickle
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -136,6 +137,7 @@ class Chunk:
     deliver: set[tuple[str, str]]     # outputs the run folder gets (saved, terminal)
     store: Any = None                 # the run's own store, when run in its process
     ahead: dict[str, str] = field(default_factory=dict)   # item -> file of an item made ahead
+    shared: str | None = None         # file of the whole values every chunk reads (sent once per process)
 
 
 @dataclass
@@ -155,6 +157,14 @@ class ChunkResult:
 
 
 _STORES: dict[str, Any] = {}   # a worker's stores, by root: opened once per process
+_SHARED: dict[str, dict] = {}  # a worker's copy of a region's whole inputs, by file: read once per process
+
+
+def _shared_values(path: str) -> dict:
+    if path not in _SHARED:
+        _SHARED.clear()  # (one region at a time)
+        _SHARED[path] = pickle.loads(Path(path).read_bytes())
+    return _SHARED[path]
 
 
 def run_chunk(chunk: Chunk) -> ChunkResult:
@@ -184,6 +194,8 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     run.keep = {n for n, _ in chunk.back} | {n for n, _ in chunk.deliver}
     for name, status in chunk.statuses.items():
         run.reports[name].status = status
+    if chunk.shared:
+        run.mem.update(_shared_values(chunk.shared))
     for ref, (key, ident, value) in chunk.inputs.items():
         run.ref_keys[ref] = key
         if ident:
@@ -333,6 +345,19 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                             statuses, dict(run.code), dict(run.code_files),
                             str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
                             back, deliver, run.store if local else None))
+    if not local and chunks:
+        # what every chunk reads whole (the rectification and its maps, ~9 MB) goes once into a
+        # file of the run folder, read once per worker process, instead of pickled into every task
+        whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
+                 if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)}
+        if whole:
+            folder = Path(run.out_dir) / AHEAD_DIR
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / f"whole-{uuid.uuid4().hex}.pkl"
+            path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
+            for chunk in chunks:
+                chunk.shared = str(path)
+                chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
     label = _label(reg)
     if run.progress:
         run.progress.node_started(label, len(ids))

@@ -84,6 +84,7 @@ def test_process_pool_gives_the_serial_result(tmp_path):
         pooled = run(p, tmp_path, use_cache=False, executor=ex)
         assert pooled.ok and pooled.reports["src"].items_ran == 12 and pooled.reports["power"].items_ran == 12
         assert pooled.outputs("total", "total") == serial  # bit for bit
+        assert not (tmp_path / "out" / ".stereograph-ahead").exists()  # items made ahead: files gone
         cached = run(p, tmp_path, executor=ex)  # workers store the entries; a rerun adopts them all
         assert cached.outputs("total", "total") == serial
         assert set(run(p, tmp_path, executor=ex).status.values()) == {"cached"}

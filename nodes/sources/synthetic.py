@@ -220,7 +220,13 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
         if ctx.item not in ids:
             raise NodeError(f"source.synthetic: no scene {ctx.item!r} in this rig")
         return {"pairs": _render_pair(params, ids.index(ctx.item))}
-    rig = _plan(params.model_dump_json())[0]
+    if per_item:  # the scenes are planned where the pairs are made (a worker): here the rig only
+        try:
+            rig = synthetic_rig(params)
+        except ValueError as exc:
+            raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
+    else:
+        rig = _plan(params.model_dump_json())[0]
     report = ctx.progress if ctx is not None else (lambda *a: None)
     pairs = {}
     if not per_item:
