@@ -553,7 +553,11 @@ def compare(
     results: list[VariantResult] = []
     code: dict[Any, str] = {}
     shared: set[str] | None = None  # fingerprints of the first variant's nodes
-    for i, (v, graph) in enumerate(graphs, 1):
+    # The first variant alone (the others reuse what it caches), then, with --workers N or
+    # --dask, the others N at a time: each sends its per-item work to the same pool, and their
+    # own nodes (fits, reports) overlap. Their per-node progress is not shown (it would interleave).
+    lanes = max(1, int(getattr(executor, "workers", 1) or 1)) if getattr(executor, "remote", False) else 1
+    for i, (v, graph) in enumerate(graphs[:1] if lanes > 1 else graphs, 1):
         if hasattr(prog, "variant_started"):
             prog.variant_started(i, len(graphs), v.label)
         lin = _lineages(graph, code)
@@ -564,6 +568,21 @@ def compare(
         results.append(vr)
         if hasattr(prog, "variant_done"):
             prog.variant_done(vr)
+    if lanes > 1 and len(graphs) > 1:
+        import concurrent.futures as cf
+
+        with cf.ThreadPoolExecutor(lanes) as threads:
+            pending = []
+            for i, (v, graph) in enumerate(graphs[1:], 2):
+                if hasattr(prog, "variant_started"):
+                    prog.variant_started(i, len(graphs), v.label)
+                pending.append(threads.submit(_run_variant, v, graph, cache, out / "variants" / v.slug, executor,
+                                              None, timings, run_graph, _lineages(graph, code), shared))
+            for fut in pending:
+                vr = fut.result()
+                results.append(vr)
+                if hasattr(prog, "variant_done"):
+                    prog.variant_done(vr)
     timings.save()
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
     res.rows = _rows(res)

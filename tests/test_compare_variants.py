@@ -169,3 +169,20 @@ def test_cli(pipeline, tmp_path, capsys):
     assert "[2/2] fit.type=xyz" in out.err  # progress lines when not on a terminal
     assert cli_main(["compare", str(pipeline), "--vary", "nodot=1"]) == 2
     assert cli_main(["compare", str(pipeline), "--vary", "ghost.type=a,b"]) == 2
+
+
+def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
+    from stereograph.runner import ProcessExecutor
+
+    vary = ["fit.type=none,polynomial,lookup"]
+    serial = compare(pipeline, vary, tmp_path / "o1", cache_dir=tmp_path / "c1", plots=False)
+    ex = ProcessExecutor(2)
+    try:  # the first variant, then the other two at once, their per-item work in the same pool
+        par = compare(pipeline, vary, tmp_path / "o2", cache_dir=tmp_path / "c2", plots=False, executor=ex)
+    finally:
+        ex.close()
+    assert [v.variant.label for v in par.variants] == [v.variant.label for v in serial.variants]
+    assert all(v.ok for v in par.variants)
+    for v in serial.variants:
+        assert par.row(**v.variant.settings)["z_rms_cm"] == serial.row(**v.variant.settings)["z_rms_cm"]
+    assert [v.ran for v in par.variants] == [v.ran for v in serial.variants]
