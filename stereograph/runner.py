@@ -312,6 +312,9 @@ def _sees(paths: list[str], token: str) -> bool:
         return False
 
 
+_HERE = SerialExecutor()
+
+
 # --------------------------------------------------------------------------- results
 
 
@@ -504,9 +507,9 @@ class _Run:
                 vals[port] = self.get(r)
         return vals
 
-    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any]) -> Task:
+    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None) -> Task:
         # a params model may come from a plugin module another process has not imported yet
-        remote = getattr(self.executor, "remote", False)
+        remote = getattr(self.executor, "remote", False) if remote is None else remote
         params = inst.params.model_dump() if remote else inst.params
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
                     str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
@@ -731,7 +734,10 @@ class _Run:
         if store_on and not self.sub and not (inst.mapped and inst.name in self.streaming):
             self.record(inst, base)
 
-        # Lock what we compute so a concurrent run waits and then shares the result.
+        # Lock what we compute so a concurrent run waits and then shares the result. A node called
+        # once (calibration, a report) runs here: shipping its inputs to a worker would only add
+        # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
+        ex = self.executor if inst.mapped or any(item is not None for item, _, _ in todo) else _HERE
         tasks, metas = [], []
         for item, key, refs in todo:
             try:
@@ -740,9 +746,9 @@ class _Run:
                 self.fail_item(inst, item, e.message, e.hint)
                 self._advance(inst)
                 continue
-            tasks.append(self.task(inst, item, values))
+            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False)))
             metas.append((item, key))
-        results = self._run_locked(inst, tasks, metas, cacheable)
+        results = self._run_locked(inst, tasks, metas, cacheable, ex)
         volatile = not store_on or not inst.spec.cacheable
         for (item, key), (res, stored) in zip(metas, results):
             ok = True
@@ -801,12 +807,12 @@ class _Run:
         comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
         self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
 
-    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool) -> list:
+    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any) -> list:
         """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
         if not tasks:
             return []
         if not cacheable:
-            return [(r, False) for r in self._advancing(inst, self.executor.map(execute, tasks))]
+            return [(r, False) for r in self._advancing(inst, ex.map(execute, tasks))]
         # Take each entry's lock without blocking: ours to compute; busy ones are being computed
         # by another run right now, so wait for those afterwards and reuse their result.
         results: list[Any] = [None] * len(tasks)
@@ -815,7 +821,7 @@ class _Run:
             for idx, (_item, key) in enumerate(metas):
                 got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
                 (mine if got else busy).append(idx)
-            for idx, res in zip(mine, self._advancing(inst, self.executor.map(execute, [tasks[i] for i in mine]))):
+            for idx, res in zip(mine, self._advancing(inst, ex.map(execute, [tasks[i] for i in mine]))):
                 stored = False
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
