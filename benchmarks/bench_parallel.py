@@ -137,8 +137,8 @@ def main() -> int:
               "(per-item nodes: summed over workers)")
     if "split" in rows:
         sp = rows["split"]
-        print(f"CPU of a 2-worker run: the stereograph process itself {sp['parent_cpu_s']:.1f} s (every node call "
-              f"goes to the pool), its workers {sp['workers_cpu_s']:.1f} s")
+        print(f"CPU of a 2-worker run: the stereograph process itself {sp['parent_cpu_s']:.1f} s (imports, the "
+              f"head: views, calibration; the tail: the report), its workers {sp['workers_cpu_s']:.1f} s")
     if "node_s" in w2:
         # the tail (nodes after the last per-item node: the report) runs alone; the rest can use both cores
         names = list(w2["node_s"])

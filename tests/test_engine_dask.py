@@ -77,3 +77,23 @@ def test_a_cluster_reached_by_address_checks_it_sees_our_files(tmp_path, dask_lo
         remote.close()
     assert r.ok and r.reports["src"].items_ran == 3
     assert not list(tmp_path.rglob(".stereograph-probe-*"))  # the probes are cleaned up
+
+
+def test_a_cluster_that_does_not_see_our_files_is_refused_before_anything_runs(tmp_path):
+    # A cluster whose workers lack the shared storage cannot be made on one machine, so the
+    # workers' answer is given here: every worker reports that it cannot read the probe file.
+    from stereograph.errors import ConfigError
+
+    class BlindClient:
+        def run(self, fn, *args):
+            return {"tcp://10.0.0.7:4000": False, "tcp://10.0.0.8:4000": True}
+
+    ex = DaskExecutor.__new__(DaskExecutor)
+    ex.client, ex.cluster, ex.workers = BlindClient(), None, 2
+    p = write_pipeline(tmp_path, "{n: 3}")
+    with pytest.raises(ConfigError) as e:
+        run(p, tmp_path, "o", cache_dir=tmp_path / "cache", executor=ex)
+    assert "10.0.0.7" in e.value.message and "10.0.0.8" not in e.value.message
+    assert "network file system" in (e.value.hint or "")
+    assert not (tmp_path / "cache" / "objects").exists()  # nothing ran, nothing was stored
+    assert not list(tmp_path.rglob(".stereograph-probe-*"))
