@@ -135,6 +135,7 @@ class Chunk:
     force: set[str]
     back: set[tuple[str, str]]        # outputs whose item values the run needs back (read outside, kept)
     deliver: set[tuple[str, str]]     # outputs the run folder gets (saved, terminal)
+    keep: set[str] = field(default_factory=set)   # the run's kept nodes (terminal, --only) in the region
     store: Any = None                 # the run's own store, when run in its process
     ahead: dict[str, str] = field(default_factory=dict)   # item -> file of an item made ahead
     shared: str | None = None         # file of the whole values every chunk reads (sent once per process)
@@ -191,7 +192,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
     reg = chunk.region
     members = list(reg.nodes)
-    run.keep = {n for n, _ in chunk.back} | {n for n, _ in chunk.deliver}
+    run.keep = set(chunk.keep)  # (what the cache may keep as a manifest only follows the whole run's rule)
     for name, status in chunk.statuses.items():
         run.reports[name].status = status
     if chunk.shared:
@@ -206,6 +207,8 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         run.items[coll] = list(ids)
     inside = set(members) | ({reg.source} if reg.source else set())
     run.remaining_consumers = {n: set(graph.consumers(n)) & set(members) for n in graph.nodes}
+    for n, _ in chunk.back:  # read outside the region too: held until the task returns it
+        run.remaining_consumers[n].add("\0outside")
     for name in ([reg.source] if reg.source else []) + members:
         run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
         if name == reg.source:
@@ -344,7 +347,7 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
         chunks.append(Chunk(graph_arg, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
                             statuses, dict(run.code), dict(run.code_files),
                             str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
-                            back, deliver, run.store if local else None))
+                            back, deliver, keep=run.keep & inside, store=run.store if local else None))
     if not local and chunks:
         # what every chunk reads whole (the rectification and its maps, ~9 MB) goes once into a
         # file of the run folder, read once per worker process, instead of pickled into every task
