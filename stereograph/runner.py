@@ -282,9 +282,12 @@ class DaskExecutor:
         token = uuid.uuid4().hex
         probes = []
         for d in folders:
-            d.mkdir(parents=True, exist_ok=True)
             p = d / f".stereograph-probe-{token}"
-            p.write_text(token)
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+                p.write_text(token)
+            except OSError:
+                continue  # a read-only cache: nothing to probe with (the workers only read it)
             probes.append(str(p))
         try:
             seen = self.client.run(_sees, probes, token)
