@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -110,6 +111,7 @@ def main() -> int:
     ap.add_argument("--pairs", type=int, default=120, help="pairs of the speed runs (default 120)")
     ap.add_argument("--big", type=int, default=480, help="pairs of the memory run (default 480)")
     ap.add_argument("--skip", default="", help="comma list of cases to skip: split, nodebynode, 480, dask")
+    ap.add_argument("--keep", action="store_true", help="keep the run folders (printed at the end)")
     a = ap.parse_args()
     skip = set(filter(None, a.skip.split(",")))
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at start")
@@ -165,7 +167,10 @@ def main() -> int:
             print(f"{rows[key]['case']} vs 1 worker: locations max |difference| {d:.2g} cm, "
                   f"{len(other)} non-numbers differ; segment overlays byte-identical {same}/{total}")
     print("(two serial runs differ by ~1e-10 cm too: OpenCV's calibration uses threads)")
-    print(f"run folders under {tmp}")
+    if a.keep:
+        print(f"run folders under {tmp}")
+    else:
+        shutil.rmtree(tmp, ignore_errors=True)  # ~1 GB of overlays for 480 pairs
     return 0
 
 
