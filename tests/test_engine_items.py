@@ -173,3 +173,54 @@ def test_files_read_item_by_item_skip_a_bad_pair(tmp_path):
     assert r.ok and r.status["src"] == "ran" and list(pairs) == ["a", "c"]
     assert any("pair b skipped" in m for m in r.reports["src"].messages)
     assert int(pairs["c"]["left"][0, 0, 0]) == ord("c") and pairs["a"]["split"] == "train"
+
+
+def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(tmp_path, monkeypatch):
+    """src -> power -> picture (saved) and power -> total (all items) -> scale (per item, reads the
+    total): scale cannot run with its items' first region, so it runs in a second one, fed the
+    first region's values; streamed, pooled and node-by-node runs agree."""
+    import numpy as np
+
+    f = tmp_path / "two.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: two
+        plugins: [{', '.join(str(p) for p in PLUGINS)}]
+        nodes:
+          src: {{type: toy.produce, params: {{n: 7, size: 6}}}}
+          power: {{type: toy.power, inputs: {{m: src.items}}}}
+          picture: {{type: toy.picture, inputs: {{m: power.m}}}}
+          total: {{type: toy.sum, inputs: {{values: power.norm}}}}
+          scale: {{type: toy.scale, inputs: {{m: power.m, k: total.total}}}}
+          report: {{type: toy.table, inputs: {{m: scale.m}}}}
+        """))
+    from stereograph import streaming
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+    from stereograph.runner import SerialExecutor, _Run
+
+    g = build_graph(load_pipeline(f))
+    regions = streaming.plan_regions(g, list(g.order), _Run(g, None, tmp_path, SerialExecutor(), set(), None).producer)
+    assert [(r.source, r.nodes) for r in regions] == [("src", ["power", "picture"]), (None, ["scale"])]
+
+    def outcome(sub, **kw):
+        r = run_pipeline(f, [], out_dir=tmp_path / sub, keep={"scale"}, **kw)
+        assert r.ok, {n: x.error for n, x in r.reports.items() if x.error}
+        pictures = sorted(p.name for p in (tmp_path / sub / "picture" / "picture").iterdir())
+        return r, r.outputs("scale", "m"), pictures
+
+    streamed, scaled, pics = outcome("s", use_cache=False)
+    assert pics == [f"m{i:03d}.png" for i in range(7)]  # written by the region, item by item
+    img = streamed.outputs("picture", "picture")["m003"]  # read back from the run folder
+    assert img.dtype == np.uint8 and img.shape == (24, 24)  # (toy.picture draws 4 px per element)
+    ex = ProcessExecutor(2)
+    try:
+        pooled = outcome("p", cache_dir=tmp_path / "cache", executor=ex)
+    finally:
+        ex.close()
+    monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
+    plain = outcome("n", use_cache=False)
+    for other in (pooled, plain):
+        assert other[2] == pics and sorted(other[1]) == sorted(scaled)
+        assert all(np.array_equal(other[1][i], scaled[i]) for i in scaled)
+        assert np.array_equal(other[0].outputs("picture", "picture")["m003"], img)
+        assert {n: x.items for n, x in other[0].reports.items()} == {n: x.items for n, x in streamed.reports.items()}

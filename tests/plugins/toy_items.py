@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereograph.api import Field, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, Out, Params, node
 
 
 class ProduceParams(Params):
@@ -46,3 +46,9 @@ def produce(params: ProduceParams, ctx=None):
 
 def _one(params: ProduceParams, item: str) -> np.ndarray:
     return np.random.default_rng(int(item[1:])).normal(size=(params.size, params.size))
+
+
+@node("toy.scale", inputs={"m": In("Matrix"), "k": In("Number")}, outputs={"m": Out("Matrix")})
+def scale(params, m, k):
+    """One item's matrix over a whole value (here: a sum over every item)."""
+    return {"m": m / k}
