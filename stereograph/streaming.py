@@ -313,7 +313,6 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
             run.items[(n, o)] = []
     statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
     local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
-    graph_arg = g if local else pickle.dumps(g)
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
     size = chunk_size(len(ids), workers)
     chunks = []
@@ -344,11 +343,30 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                         except (KeyError, Exception):
                             value = _MISSING
                     inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), value)
-        chunks.append(Chunk(graph_arg, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
+        chunks.append(Chunk(g, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
                             statuses, dict(run.code), dict(run.code_files),
                             str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
-                            back, deliver, keep=run.keep & inside, store=run.store if local else None))
+                            back, deliver, keep=run.keep & inside, store=run.store))
+    label = _label(reg)
+    if run.progress:
+        run.progress.node_started(label, len(ids))
+    first = reg.source or members[0]
+    made = stop_ahead(run, reg.source)
+    for chunk in chunks:
+        chunk.ahead = {i: made[i] for i in chunk.items if i in made}
+    skipped: dict[str, str] = {}
+    if not local and store_on and not made and chunks:
+        # A rerun finds most items cached: try the first chunk here; if it computed nothing, the
+        # others most likely will not either, and need no worker (start-up, copies) at all.
+        probe = run_chunk(chunks[0])
+        _settle(run, reg, chunks[0], probe, skipped, label, g.nodes[first])
+        chunks = chunks[1:]
+        if not any(r.items_ran for r in probe.reports.values()):
+            local = True
     if not local and chunks:
+        graph_bytes = pickle.dumps(g)
+        for chunk in chunks:  # for another process: the graph as bytes, its own store
+            chunk.graph, chunk.store = graph_bytes, None
         # what every chunk reads whole (the rectification and its maps, ~9 MB) goes once into a
         # file of the run folder, read once per worker process, instead of pickled into every task
         whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
@@ -361,16 +379,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
             for chunk in chunks:
                 chunk.shared = str(path)
                 chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
-    label = _label(reg)
-    if run.progress:
-        run.progress.node_started(label, len(ids))
-    first = reg.source or members[0]
-    made = stop_ahead(run, reg.source)
-    for chunk in chunks:
-        chunk.ahead = {i: made[i] for i in chunk.items if i in made}
-    skipped: dict[str, str] = {}
     lost: list[Chunk] = []
-    for chunk, res in zip(chunks, run.executor.map(run_chunk, chunks)):
+    for chunk, res in zip(chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)):
         if isinstance(res, TaskLost) and len(chunk.items) > 1:
             lost.append(chunk)  # its worker died: run its items again one per task, below
             continue
