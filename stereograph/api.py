@@ -188,6 +188,10 @@ class RunContext:
         A node whose input accepts alternatives (``In("A | B")``) reads which one it got here.
     resources : dict or None
         Objects kept open for the whole run (every cycle of ``--repeat``); see :meth:`resource`.
+    producing_items : bool
+        True when the engine produces this node's collection outputs item by item (the node
+        declared ``items=``, see :func:`node`): a call with ``item`` None then returns only the
+        other outputs, a call with ``item`` set that item's value of each collection output.
     """
 
     node_name: str
@@ -198,6 +202,7 @@ class RunContext:
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None
     on_progress: Callable[[float, float, str], None] | None = field(default=None, repr=False, compare=False)
+    producing_items: bool = False
 
     def resource(self, key: str, open_fn: Callable[[], Any]) -> Any:
         """An object (a device, a connection) opened once and kept for the whole run.
@@ -251,6 +256,7 @@ class NodeSpec:
     cacheable: bool
     reads: Callable[[Params, Path], list[Path]] | None
     description: str
+    items: Callable[[Params, RunContext], list[str]] | None = None
 
     @property
     def kind(self) -> str:
@@ -282,6 +288,7 @@ def node(
     version: str = "1",
     cacheable: bool = True,
     reads: Callable[[Params, Path], list[Path]] | None = None,
+    items: Callable[[Params, RunContext], list[str]] | None = None,
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Declare a function as a stereograph node type.
 
@@ -302,6 +309,16 @@ def node(
     reads : callable, optional
         ``reads(params, pipeline_dir) -> [Path, ...]``: the files the node will
         read, so that the cache key follows their content.
+    items : callable, optional
+        ``items(params, ctx) -> [item_id, ...]``: the ids of the node's collection outputs,
+        found cheaply (file names, scene numbers) without producing the items. A source that
+        declares it is run item by item: its items are produced in the pool (``--workers``,
+        ``--dask``), each item flowing on through the per-item nodes downstream before the next
+        ones are made (docs/parallel.md). The engine calls the function once with ``ctx.item``
+        None (return the non-collection outputs) and once per id with ``ctx.item`` set (return
+        ``{collection_output: that item's value}``, or ``{}`` to drop the item after
+        ``ctx.warn``-ing why); ``ctx.producing_items`` is then True. Called directly (``ctx``
+        None), the node returns everything at once. Only for nodes without per-item inputs.
 
     Returns
     -------
@@ -319,6 +336,7 @@ def node(
             version=str(version),
             cacheable=cacheable,
             reads=reads,
+            items=items,
             description=doc.split("\n\n", 1)[0].replace("\n", " "),
         )
         sig = inspect.signature(fn)

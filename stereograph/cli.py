@@ -513,7 +513,8 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.add_argument("--from", metavar="NODE", help="recompute NODE and its downstream even if cached")
     sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
-                    "('local' starts one with --workers processes; needs the 'dask' extra)")
+                    "('local' starts one with --workers processes; needs the 'dask' extra; a remote cluster must "
+                    "see the cache and run folder on shared storage: docs/parallel.md)")
     sp.add_argument("--repeat", type=_non_negative_int, metavar="N", help="run the live part (uncacheable nodes and "
                     "their downstream) N times, 0 = until stopped; each cycle in cycles.jsonl")
     sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")

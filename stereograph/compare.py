@@ -553,7 +553,11 @@ def compare(
     results: list[VariantResult] = []
     code: dict[Any, str] = {}
     shared: set[str] | None = None  # fingerprints of the first variant's nodes
-    for i, (v, graph) in enumerate(graphs, 1):
+    # The first variant alone (the others reuse what it caches), then, with --workers N or
+    # --dask, the others N at a time: each sends its per-item work to the same pool, and their
+    # own nodes (fits, reports) overlap. Their per-node progress is not shown (it would interleave).
+    lanes = max(1, int(getattr(executor, "workers", 1) or 1)) if getattr(executor, "remote", False) else 1
+    for i, (v, graph) in enumerate(graphs[:1] if lanes > 1 else graphs, 1):
         if hasattr(prog, "variant_started"):
             prog.variant_started(i, len(graphs), v.label)
         lin = _lineages(graph, code)
@@ -564,6 +568,21 @@ def compare(
         results.append(vr)
         if hasattr(prog, "variant_done"):
             prog.variant_done(vr)
+    if lanes > 1 and len(graphs) > 1:
+        import concurrent.futures as cf
+
+        with cf.ThreadPoolExecutor(lanes) as threads:
+            pending = []
+            for i, (v, graph) in enumerate(graphs[1:], 2):
+                if hasattr(prog, "variant_started"):
+                    prog.variant_started(i, len(graphs), v.label)
+                pending.append(threads.submit(_run_variant, v, graph, cache, out / "variants" / v.slug, executor,
+                                              None, timings, run_graph, _lineages(graph, code), shared))
+            for fut in pending:
+                vr = fut.result()
+                results.append(vr)
+                if hasattr(prog, "variant_done"):
+                    prog.variant_done(vr)
     timings.save()
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
     res.rows = _rows(res)
@@ -903,6 +922,9 @@ def add_subcommand(subparsers: Any) -> Any:
     sp.add_argument("--best", metavar="METRIC[:max]",
                     help="show the row with the lowest (or with :max the highest) METRIC in bold green")
     sp.add_argument("--workers", type=int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--dask", metavar="ADDRESS", help="run every variant's per-item work on a Dask cluster "
+                    "('local' starts one with --workers processes; the cache and run folder must be on "
+                    "storage every worker sees: docs/parallel.md)")
     sp.add_argument("--skip-invalid", action="store_true",
                     help="leave out combinations whose config does not validate instead of refusing")
     sp.add_argument("--no-plots", action="store_true", help="do not write metrics.png")
@@ -924,7 +946,7 @@ def main(args: Any) -> int:
     wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
     con = Console(highlight=False, soft_wrap=True, width=wide)
     err = Console(stderr=True, highlight=False, soft_wrap=True)
-    executor = workers_executor(args.workers)
+    executor = workers_executor(args.workers, getattr(args, "dask", None))
     kw = {"overrides": args.set, "cache_dir": args.cache_dir, "split": args.split, "executor": executor,
           "skip_invalid": args.skip_invalid, "plots": False}
     try:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stereograph.api import NodeError
 from stereograph.cache import ArtifactStore
 from stereograph.graph import Graph
 from stereograph.runner import SerialExecutor, _Run, default_cache_dir
@@ -84,6 +85,12 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
         missing, n_entries = 0, 0
         if computable:
             entries = run.item_ids(inst) if inst.mapped else [None]
+            if run.producer(inst):  # its items are entries of their own (items=)
+                try:
+                    entries += run.produced_ids(inst)
+                except NodeError:
+                    computable = False
+                    entries = []
             n_entries = len(entries)
             for item in entries:
                 try:
@@ -101,8 +108,8 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                     for out, o in inst.spec.outputs.items():
                         if not o.collection:
                             run.ref_keys[(name, out, item)] = key
-                if inst.mapped:
-                    for out in inst.spec.outputs:
+                for out in run.item_outputs(inst, item):
+                    if inst.mapped or (name, out, item) in run.ref_keys:
                         run.items.setdefault((name, out), []).append(item)  # type: ignore[arg-type]
         fresh = computable and not missing and inst.spec.cacheable
         v = Verdict(name, inst.type, fresh)

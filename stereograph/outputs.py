@@ -327,7 +327,12 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
             stem = out_dir / name / out
             store = run.store
             try:
-                if graph.is_collection(name, out):
+                streamed = getattr(run, "streamed", {}).get((name, out), {})
+                if graph.is_collection(name, out) and streamed and \
+                        all(i in streamed for i in run.items.get((name, out), [])):
+                    # written item by item as each finished (stereograph.streaming)
+                    files = [f for i in run.items.get((name, out), []) for f in streamed[i]]
+                elif graph.is_collection(name, out):
                     ids = run.items.get((name, out), [])
                     # an image per item is known from the first entry's manifest, without loading it
                     ready = (store is not None and ids and hasattr(store, "ready_file") and

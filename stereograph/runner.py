@@ -30,6 +30,7 @@ import concurrent.futures as cf
 import contextlib
 import contextvars
 import os
+import shutil
 import time
 import traceback
 import uuid
@@ -40,7 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stereograph import outputs as outputs_mod
-from stereograph import project, registry
+from stereograph import project, registry, streaming
 from stereograph.api import REGISTRY, NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json, jpeg_roundtrip
 from stereograph.errors import ConfigError
@@ -81,6 +82,7 @@ class Task:
     pipeline_dir: str
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
+    producing: bool = False  # the node produces its collections item by item (``items=``)
 
 
 @dataclass
@@ -112,10 +114,12 @@ def execute(task: Task) -> TaskResult:
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
                              Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
-                             on_progress=_progress_hook(task.node_name))
+                             on_progress=_progress_hook(task.node_name), producing_items=task.producing)
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
-        if not isinstance(out, dict) or set(out) != set(spec.outputs):
+        if task.producing:
+            _check_part(spec, task.item, out)
+        elif not isinstance(out, dict) or set(out) != set(spec.outputs):
             if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
                 out = {next(iter(spec.outputs)): out}
             elif not isinstance(out, dict):
@@ -135,10 +139,38 @@ def execute(task: Task) -> TaskResult:
                           traceback.format_exc(), False)
 
 
-class SerialExecutor:
-    """Runs tasks one after another in this process."""
+def _check_part(spec: Any, item: str | None, out: Any) -> None:
+    """An item-producing node returns its collections' values for one item, or its other outputs."""
+    colls = {n for n, o in spec.outputs.items() if o.collection}
+    want = colls if item is not None else set(spec.outputs) - colls
+    got = set(out) if isinstance(out, dict) else None
+    if got is None or not got <= want or (item is None and got != want):
+        raise TypeError(f"{spec.name} produces items: called for " + (f"item {item!r} it must return a dict with "
+                        f"keys among {sorted(want)} (or {{}} to drop the item)" if item is not None else
+                        f"its other outputs it must return a dict of {sorted(want)}") +
+                        f", got {sorted(got) if got is not None else type(out).__name__}")
 
-    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
+
+@dataclass
+class TaskLost:
+    """A task whose worker died (killed, out of memory) or whose cluster failed: not the node's fault."""
+
+    error: str
+    hint: str = ("a worker ran out of memory or was killed: run again (finished items are cached), "
+                 "with fewer --workers or more memory per worker")
+
+    def as_result(self) -> TaskResult:
+        return TaskResult(False, error=self.error, hint=self.hint)
+
+
+def _lost_as_failed(results: Iterable[Any]) -> Iterable[TaskResult]:
+    return (r.as_result() if isinstance(r, TaskLost) else r for r in results)
+
+
+class SerialExecutor:
+    """Runs tasks one after another in this process, each when the caller asks for its result."""
+
+    def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         return (fn(t) for t in tasks)
 
     def close(self) -> None:
@@ -146,15 +178,65 @@ class SerialExecutor:
 
 
 class ProcessExecutor:
-    """Runs item tasks in a pool of worker processes (results in order)."""
+    """Runs tasks in a pool of worker processes (results in order).
+
+    A worker that dies (killed, out of memory) breaks Python's pool; the tasks then unfinished
+    are run again one at a time in a fresh pool, so that a task which kills its worker every
+    time comes back alone as :class:`TaskLost` and the others finish.
+    """
 
     remote = True
 
     def __init__(self, workers: int):
+        self.workers = workers
         self.pool = cf.ProcessPoolExecutor(max_workers=workers)
 
-    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
-        return self.pool.map(fn, tasks, chunksize=max(1, len(tasks) // 32))
+    def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
+        tasks = list(tasks)
+        try:
+            futures = [self.pool.submit(fn, t) for t in tasks]
+        except cf.process.BrokenProcessPool:  # broken by an earlier task (one made ahead, say)
+            return self._alone(fn, tasks)
+        return self._results(fn, tasks, futures)
+
+    def start(self, fn: Callable[[Any], Any], tasks: list[Any]) -> list[cf.Future]:
+        """Submit tasks now, to run while this process goes on with other work (see
+        :func:`stereograph.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
+        futures: list[cf.Future] = []
+        try:
+            for t in tasks:
+                futures.append(self.pool.submit(fn, t))
+        except cf.process.BrokenProcessPool:
+            self._restart()
+        return futures
+
+    def stop(self, futures: list[cf.Future]) -> None:
+        for fut in futures:
+            fut.cancel()
+        cf.wait(futures)
+        if any(not f.cancelled() and isinstance(f.exception(), cf.process.BrokenProcessPool) for f in futures):
+            self._restart()  # a worker died making items ahead: their region tasks make them again
+
+    def _results(self, fn: Callable[[Any], Any], tasks: list[Any], futures: list[cf.Future]) -> Iterable[Any]:
+        for k, fut in enumerate(futures):
+            try:
+                yield fut.result()
+            except cf.process.BrokenProcessPool:
+                yield from self._alone(fn, tasks[k:])
+                return
+
+    def _alone(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
+        self._restart()
+        for t in tasks:
+            try:
+                yield self.pool.submit(fn, t).result()
+            except cf.process.BrokenProcessPool as e:
+                yield TaskLost(f"its worker process died ({type(e).__name__})")
+                self._restart()
+
+    def _restart(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers)
 
     def close(self) -> None:
         self.pool.shutdown()
@@ -180,15 +262,62 @@ class DaskExecutor:
         self.cluster = None if address else LocalCluster(n_workers=workers, threads_per_worker=1,
                                                          processes=True, dashboard_address=None)
         self.client = Client(address or self.cluster)
+        self.workers = max(1, len(self.client.scheduler_info().get("workers", {})) or workers)
 
-    def map(self, fn: Callable[[Task], TaskResult], tasks: list[Task]) -> Iterable[TaskResult]:
-        # pure=False: two equal tasks are two calls (the cache, not Dask, deduplicates)
-        return self.client.gather(self.client.map(fn, tasks, pure=False))
+    def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
+        # pure=False: two equal tasks are two calls (the cache, not Dask, deduplicates). A worker
+        # killed mid-task has its task run again elsewhere (Dask's allowed-failures); a task that
+        # keeps killing workers comes back as TaskLost, alone.
+        futures = self.client.map(fn, list(tasks), pure=False)
+        for fut in futures:
+            try:
+                yield fut.result()
+            except Exception as e:  # KilledWorker, a lost connection: not the node's fault
+                yield TaskLost(f"the Dask cluster lost it ({type(e).__name__}: {e})",
+                               "a worker died or the cluster failed: run again (finished items are cached)")
+
+    def check_shared(self, folders: list[Path]) -> None:
+        """Refuse a cluster whose workers do not see ``folders`` (the cache and the run folder).
+
+        Workers read the cache and write items' files there themselves, so they must be on storage
+        every worker sees (one machine, or a network file system mounted at the same path)."""
+        token = uuid.uuid4().hex
+        probes = []
+        for d in folders:
+            p = d / f".stereograph-probe-{token}"
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+                p.write_text(token)
+            except OSError:
+                continue  # a read-only cache: nothing to probe with (the workers only read it)
+            probes.append(str(p))
+        try:
+            seen = self.client.run(_sees, probes, token)
+        finally:
+            for p in probes:
+                Path(p).unlink(missing_ok=True)
+        blind = sorted(w for w, ok in seen.items() if not ok)
+        if blind:
+            raise ConfigError(f"Dask workers {', '.join(blind[:3])} do not see this run's cache and run folder "
+                              f"({', '.join(str(d) for d in folders)})",
+                              hint="put --cache-dir and --out on storage every worker mounts at the same path "
+                                   "(a network file system), or use --dask local / --workers N")
 
     def close(self) -> None:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def _sees(paths: list[str], token: str) -> bool:
+    """(On a Dask worker) whether every probe file is there with our token."""
+    try:
+        return all(Path(p).read_text() == token for p in paths)
+    except OSError:
+        return False
+
+
+_HERE = SerialExecutor()
 
 
 # --------------------------------------------------------------------------- results
@@ -274,6 +403,14 @@ class _Run:
         self.keep = set(graph.terminal())
         self.resources: dict[str, Any] = {}   # RunContext.resource objects, closed when the run ends
         self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.loop)
+        self.ref_ids: dict[Ref, str] = {}       # ref -> content key of a produced item (see ident)
+        self.declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
+        self.deferred: set[str] = set()         # producers whose items a streamed region makes
+        self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}  # (node, out) -> item -> files
+        self.sub = False                        # a part of a run (stereograph.streaming): records nothing
+        self.streaming: set[str] = set()        # per-item nodes run in streamed regions
+        self.selected: set[str] = set(graph.nodes)
+        self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)
 
     # ---- keys
 
@@ -317,10 +454,19 @@ class _Run:
             if r is None:
                 ins[port] = None
             elif isinstance(r, list):
-                ins[port] = hash_json([[i, self.ref_keys[rr], rr[1]] for i, rr in r])
+                ins[port] = hash_json([[i, self.ident(rr), rr[1]] for i, rr in r])
             else:
-                ins[port] = [self.ref_keys[r], r[1]]
+                ins[port] = [self.ident(r), r[1]]
         return hash_json({**base, "inputs": ins, "item": item})
+
+    def ident(self, ref: Ref) -> str:
+        """What a downstream key says of an input: its content key where known (an item produced
+        by a source is content-addressed, so an unchanged item keeps its downstream cached)."""
+        return self.ref_ids.get(ref) or self.ref_keys[ref]
+
+    def producer(self, inst: NodeInstance) -> bool:
+        """The node produces its collections item by item (declared ``items=``)."""
+        return inst.spec.items is not None and not inst.mapped and inst.spec.wants_ctx
 
     # ---- values
 
@@ -328,6 +474,9 @@ class _Run:
         if ref in self.mem:
             return self.mem[ref]
         node, out, item = ref
+        files = self.streamed.get((node, out), {}).get(item)  # type: ignore[arg-type]
+        if files and (self.store is None or ref not in self.ref_keys):
+            return _read_back(files)  # an image written to the run folder as its item finished
         key = self.ref_keys[ref]
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
@@ -341,7 +490,8 @@ class _Run:
             self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
             self.store.delete(key)  # type: ignore[union-attr]
             # an item of a collection (or its index) comes from the one entry of the node that yields it
-            self.recompute(node, None if self.g.nodes[node].spec.outputs[out].collection else item)
+            inst = self.g.nodes[node]
+            self.recompute(node, None if inst.spec.outputs[out].collection and not self.producer(inst) else item)
             if ref not in self.mem:
                 raise NodeError(f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
                                 f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
@@ -362,13 +512,13 @@ class _Run:
                 vals[port] = self.get(r)
         return vals
 
-    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any]) -> Task:
+    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None) -> Task:
         # a params model may come from a plugin module another process has not imported yet
-        remote = getattr(self.executor, "remote", False)
+        remote = getattr(self.executor, "remote", False) if remote is None else remote
         params = inst.params.model_dump() if remote else inst.params
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
                     str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
-                    None if remote else self.resources)
+                    None if remote else self.resources, self.producer(inst))
 
     def input_types(self, inst: NodeInstance) -> dict[str, str]:
         """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
@@ -382,6 +532,9 @@ class _Run:
         cheaper than reading back (:meth:`ArtifactStore.save`); never for an output the run folder
         gets, nor for collections (their items are content-addressed entries of their own).
         """
+        if self.producer(inst) and item is not None:
+            self._store_item(inst, item, key, out, messages)
+            return
         delivered = inst.name in self.keep or self._saves(inst.name)
         if delivered or any(o.collection for o in inst.spec.outputs.values()):
             seconds = None
@@ -429,6 +582,22 @@ class _Run:
                                           "indexes_digest": hash_json({n: single[n] for n in colls})},
                             compute_seconds=seconds, **({"encoded": encoded} if encoded else {}))
 
+    def _store_item(self, inst: NodeInstance, item: str, key: str | None, out: dict[str, Any],
+                    messages: list[str] | None) -> None:
+        """One item of an item-producing node: stored under its own key, known downstream by its
+        content key (as the items of a whole collection are). ``{}`` (the node dropped the item)
+        stores nothing."""
+        content = {}
+        for name, v in out.items():
+            ref = (inst.name, name, item)
+            self.ref_keys[ref] = key or f"{inst.name}/{name}/{item}"
+            self.mem[ref] = v
+            if key is not None:
+                content[name] = self.ref_ids[ref] = content_key(v)
+        if out and self.store is not None and key is not None:
+            self.store.save(key, out, {"type": inst.type, "node": inst.name, "item": item,
+                                       "messages": list(messages or []), "content": content})
+
     def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
                      manifest: dict[str, Any] | None = None) -> None:
         """Register a cached entry's refs without loading big values (collections: load the index).
@@ -439,7 +608,16 @@ class _Run:
             manifest = self.store.meta(key)
         meta = (manifest or {}).get("meta", {})
         self.reports[inst.name].messages += meta.get("messages", [])  # warnings the node gave when it ran
+        if self.producer(inst) and item is not None:
+            content = meta.get("content")
+            for name, ck in (content.items() if isinstance(content, dict) else []):
+                if name in inst.spec.outputs and isinstance(ck, str):
+                    self.ref_keys[(inst.name, name, item)] = key
+                    self.ref_ids[(inst.name, name, item)] = ck
+            return
         for name, o in inst.spec.outputs.items():
+            if o.collection and self.producer(inst):
+                continue  # produced item by item: not in this entry
             self.ref_keys[(inst.name, name, item)] = key
             if o.collection:
                 indexes = meta.get("indexes")
@@ -480,7 +658,45 @@ class _Run:
                 ids = list(these) if ids is None else [i for i in ids if i in set(these)]
         return ids or []
 
-    def run_node(self, inst: NodeInstance) -> None:
+    def item_outputs(self, inst: NodeInstance, item: str | None) -> list[str]:
+        """The outputs an entry of this node adds one item to."""
+        if item is None:
+            return []
+        if inst.mapped:
+            return list(inst.spec.outputs)
+        return [n for n, o in inst.spec.outputs.items() if o.collection]
+
+    def produced_ids(self, inst: NodeInstance) -> list[str]:
+        """The item ids an item-producing node declares (cheap: no item is produced)."""
+        ctx = RunContext(inst.name, None, self.out_dir / inst.name, self.g.doc.directory,
+                         input_types=self.input_types(inst), producing_items=True)
+        try:
+            ids = [str(i) for i in inst.spec.items(inst.params, ctx)]  # type: ignore[misc]
+        except NodeError:
+            raise
+        except (ValueError, RuntimeError, OSError) as e:
+            raise NodeError(f"listing its items failed: {e}") from e
+        seen: set[str] = set()
+        dup = sorted({i for i in ids if i in seen or seen.add(i)})  # type: ignore[func-returns-value]
+        if dup:
+            raise NodeError(f"it declares item ids more than once: {', '.join(dup[:5])}",
+                            hint="give every item (scene, file) its own id")
+        self.reports[inst.name].messages += ctx.messages
+        return ids
+
+    def check_produced(self, inst: NodeInstance) -> None:
+        """A producer none of whose declared items came out has failed as a whole."""
+        rep = self.reports[inst.name]
+        ids = self.declared.get(inst.name, [])
+        if ids and (inst.name, None) not in self.failed_items and \
+                not any(self.items.get((inst.name, o)) for o in self.item_outputs(inst, "")):
+            why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[:400] \
+                or "; ".join(rep.messages[:5])
+            self.fail_item(inst, None, f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
+                           "see the messages above; fix or remove the inputs they name")
+
+    def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
+        """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``."""
         rep = self.reports[inst.name]
         t0 = time.perf_counter()
         bad = self.upstream_failed(inst)
@@ -490,10 +706,23 @@ class _Run:
         store_on = self.store is not None and inst.name not in self.memory_only
         base = self.node_components(inst) if store_on else None
         entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
-        if inst.mapped:
-            for out in inst.spec.outputs:
-                self.items[(inst.name, out)] = []
-        rep.items = len(entries) if inst.mapped else 0
+        producer = self.producer(inst)
+        if producer and items is None:  # its other outputs, then (unless a streamed region does) its items
+            try:
+                if inst.name not in self.declared:  # (known already where items are made ahead)
+                    self.declared[inst.name] = self.produced_ids(inst)
+            except NodeError as e:
+                self.fail_item(inst, None, e.message, e.hint)
+                rep.seconds = time.perf_counter() - t0
+                return
+            if inst.name not in self.deferred:
+                entries += self.declared[inst.name]
+        elif producer:
+            entries = list(items)
+        makes_items = inst.mapped or (producer and (items is not None or inst.name not in self.deferred))
+        for out in self.item_outputs(inst, "") if makes_items else []:
+            self.items[(inst.name, out)] = []
+        rep.items = len(entries) if inst.mapped else len(self.declared.get(inst.name, [])) if producer else 0
         if self.progress:
             self.progress.node_started(inst.name, len(entries))
         todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
@@ -506,22 +735,20 @@ class _Run:
             manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
             if manifest is not None:
                 self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
-                if inst.mapped:
-                    for out in inst.spec.outputs:
+                for out in self.item_outputs(inst, item):
+                    if (inst.name, out, item) in self.ref_keys:
                         self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
                 if self.progress:
                     self.progress.advance(inst.name)
             else:
                 todo.append((item, key, refs))
-        if store_on:
-            comps = dict(base or {})
-            comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
-            comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
-            comps["code_files"] = self.code_files.get(inst.type, {})
-            comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
-            self.store.record(self.pipeline_id, inst.name, comps)
+        if store_on and not self.sub and not (inst.mapped and inst.name in self.streaming):
+            self.record(inst, base)
 
-        # Lock what we compute so a concurrent run waits and then shares the result.
+        # Lock what we compute so a concurrent run waits and then shares the result. A node called
+        # once (calibration, a report) runs here: shipping its inputs to a worker would only add
+        # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
+        ex = self.executor if inst.mapped or any(item is not None for item, _, _ in todo) else _HERE
         tasks, metas = [], []
         for item, key, refs in todo:
             try:
@@ -530,9 +757,9 @@ class _Run:
                 self.fail_item(inst, item, e.message, e.hint)
                 self._advance(inst)
                 continue
-            tasks.append(self.task(inst, item, values))
+            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False)))
             metas.append((item, key))
-        results = self._run_locked(inst, tasks, metas, cacheable)
+        results = self._run_locked(inst, tasks, metas, cacheable, ex)
         volatile = not store_on or not inst.spec.cacheable
         for (item, key), (res, stored) in zip(metas, results):
             ok = True
@@ -550,21 +777,27 @@ class _Run:
                         self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
                         ok = False
                 rep.messages += res.messages
-                rep.items_ran += 1
+                if inst.mapped or item is not None or not producer:
+                    rep.items_ran += 1
             else:
                 self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error)
                 ok = False
-            if ok and inst.mapped:
-                for out in inst.spec.outputs:
-                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-        if inst.mapped:  # keep the items in source order
-            for out in inst.spec.outputs:
+            if ok:
+                for out in self.item_outputs(inst, item):
+                    if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
+                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+        if makes_items:  # keep the items in source order
+            for out in self.item_outputs(inst, ""):
                 done = set(self.items[(inst.name, out)])
                 self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
+        if producer and items is None and inst.name not in self.deferred:
+            self.check_produced(inst)
         rep.seconds = time.perf_counter() - t0
         n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
         rep.items_failed = n_failed
-        if inst.mapped and n_failed and n_failed < len(entries):
+        if (inst.name, None) in self.failed_items:
+            rep.status = "failed"
+        elif (inst.mapped or producer) and n_failed and n_failed < len(entries):
             rep.status = "partial"
         elif n_failed:
             rep.status = "failed"
@@ -576,12 +809,21 @@ class _Run:
             rep.messages.append("no items to process (upstream produced none)")
         self.release(inst.name)
 
-    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool) -> list:
+    def record(self, inst: NodeInstance, base: dict[str, Any] | None) -> None:
+        """What this node's entries were made from, for ``explain`` (what changed since)."""
+        comps = dict(base or {})
+        comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
+        comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
+        comps["code_files"] = self.code_files.get(inst.type, {})
+        comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
+        self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
+
+    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any) -> list:
         """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
         if not tasks:
             return []
         if not cacheable:
-            return [(r, False) for r in self._advancing(inst, self.executor.map(execute, tasks))]
+            return [(r, False) for r in self._advancing(inst, ex.map(execute, tasks))]
         # Take each entry's lock without blocking: ours to compute; busy ones are being computed
         # by another run right now, so wait for those afterwards and reuse their result.
         results: list[Any] = [None] * len(tasks)
@@ -590,7 +832,7 @@ class _Run:
             for idx, (_item, key) in enumerate(metas):
                 got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
                 (mine if got else busy).append(idx)
-            for idx, res in zip(mine, self._advancing(inst, self.executor.map(execute, [tasks[i] for i in mine]))):
+            for idx, res in zip(mine, self._advancing(inst, ex.map(execute, [tasks[i] for i in mine]))):
                 stored = False
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
@@ -619,7 +861,7 @@ class _Run:
 
     def _advancing(self, inst: NodeInstance, results: Iterable[TaskResult]) -> Iterable[TaskResult]:
         """The executor's results, advancing the progress display as each one arrives."""
-        for res in results:
+        for res in _lost_as_failed(results):
             self._advance(inst)
             yield res
 
@@ -683,18 +925,32 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                           "(0: no limit)") from None
     own_executor = executor is None
     executor = executor or SerialExecutor()
+    if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
+        executor.check_shared([out] + ([store.root] if store is not None else []))
     run = _Run(graph, store, out, executor, force, progress)
     if only is not None:
         run.keep = {only}
     run.keep |= set(keep or ())
+    run.selected = set(selected)
     progress_token = _PROGRESS.set(progress)
     try:
         if cycles is not None:
             cycles(run, selected)
         else:
-            for name in selected:
-                run.run_node(graph.nodes[name])
+            units = _units(run, selected)
+            heads = {u.source: u for u in units if not isinstance(u, str) and u.source}
+            for unit in units:
+                if isinstance(unit, str):
+                    if unit in heads:  # the pool makes its items while this process runs the head
+                        streaming.start_ahead(run, heads[unit])
+                    run.run_node(graph.nodes[unit])
+                else:
+                    streaming.run_region(run, unit, write_outputs)
     finally:
+        for source in list(run.ahead):
+            streaming.stop_ahead(run, source)
+        if (out / streaming.AHEAD_DIR).exists():
+            shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
         close_resources(run.resources)
         _PROGRESS.reset(progress_token)
         if own_executor:
@@ -720,6 +976,34 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def _units(run: _Run, selected: list[str]) -> list[Any]:
+    """The run's steps: nodes, and regions of per-item nodes streamed a chunk of items at a time
+    (:mod:`stereograph.streaming`); node by node where ``STEREOGRAPH_STREAM=0``."""
+    if os.environ.get("STEREOGRAPH_STREAM", "1") == "0":
+        return list(selected)
+    regions = streaming.plan_regions(run.g, selected, run.producer)
+    units = streaming.unit_order(run.g, selected, regions) if regions else None
+    if units is None:
+        return list(selected)
+    for reg in regions:
+        run.streaming |= set(reg.nodes)
+        if reg.source:
+            run.deferred.add(reg.source)
+    return units
+
+
+def _read_back(files: list[Path]) -> Any:
+    """An item's image as written to the run folder (PNG is lossless: the very array)."""
+    import cv2
+
+    png = next((f for f in files if f.suffix == ".png"), None)
+    img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED) if png is not None else None
+    if img is None:
+        raise NodeError(f"the image written to {files[0] if files else '?'} can no longer be read",
+                        hint="run again (the run folder was changed while the run went on)")
+    return img
 
 
 def close_resources(resources: dict[str, Any]) -> None:

@@ -176,3 +176,20 @@ def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
     assert cli_main(["compare", str(pipeline), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 0
     page = (tmp_path / "o" / "compare.html").read_text()
     assert (tmp_path / "o" / "metrics.png").is_file() and 'data-file="metrics.png"' in page
+
+
+def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
+    from stereograph.runner import ProcessExecutor
+
+    vary = ["fit.type=none,polynomial,lookup"]
+    serial = compare(pipeline, vary, tmp_path / "o1", cache_dir=tmp_path / "c1", plots=False)
+    ex = ProcessExecutor(2)
+    try:  # the first variant, then the other two at once, their per-item work in the same pool
+        par = compare(pipeline, vary, tmp_path / "o2", cache_dir=tmp_path / "c2", plots=False, executor=ex)
+    finally:
+        ex.close()
+    assert [v.variant.label for v in par.variants] == [v.variant.label for v in serial.variants]
+    assert all(v.ok for v in par.variants)
+    for v in serial.variants:
+        assert par.row(**v.variant.settings)["z_rms_cm"] == serial.row(**v.variant.settings)["z_rms_cm"]
+    assert [v.ran for v in par.variants] == [v.ran for v in serial.variants]

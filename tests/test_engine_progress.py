@@ -74,13 +74,14 @@ def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     lines = []
     for line in proc.stdout:
         lines.append(line.rstrip("\n"))
-        if first_progress_while_running is None and " scenes" in line:
+        if first_progress_while_running is None and (" scenes" in line or " items" in line):
             first_progress_while_running = proc.poll() is None
     proc.wait(timeout=300)
     err = proc.stderr.read()
     assert proc.returncode == 0, err
     text = "\n".join(lines)
     assert "rig: started" in text and "rig: finished" in text, text
-    assert any(ln.startswith("rig ") and "/12 scenes" in ln for ln in lines), text
+    # the pairs are rendered one per call (items=): 12 items and the whole part (the views)
+    assert any(ln.startswith("rig ") and ("/12 scenes" in ln or "/13 items" in ln) for ln in lines), text
     assert first_progress_while_running, "progress lines came only after the run had ended"
     assert "\x1b" not in text + err

@@ -48,45 +48,74 @@ def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
     return paths
 
 
+def _pair_ids(params: FilesParams, ctx) -> list[str]:
+    """The pair ids, from the file names alone (the engine reads the pairs one per call)."""
+    return [pid for pid, _, _ in list_pairs(ctx.path(params.folder), params.left_glob, params.right_glob)]
+
+
+def _read_pair(params: FilesParams, pid: str, lp: Path, rp: Path, truth: dict, split: str) -> dict:
+    """One pair; NodeError if it cannot be read."""
+    kw = {"max_mpx": params.max_image_mpx, "expect_size": params.image_size_px}
+    left, right = read_image(lp, **kw), read_image(rp, **kw)
+    if left.shape != right.shape:
+        raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
+                        f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
+    return {"id": pid, "left": left, "right": right, "truth": truth.get(pid), "split": split,
+            "left_path": str(lp), "right_path": str(rp)}
+
+
 @node(
     "source.files",
     outputs={"pairs": Out("StereoPair", collection=True, description="Stereo pairs read from files.")},
     params=FilesParams,
     version="1",
     reads=_reads,
+    items=_pair_ids,
 )
 def files(params: FilesParams, ctx=None) -> dict:
-    """Read stereo pairs from a folder (left/right matched by name), with optional ground truth."""
+    """Read stereo pairs from a folder (left/right matched by name), with optional ground truth.
+
+    In a run the engine reads the pairs one per call (``items=``), in the worker pool when there
+    is one; a pair that cannot be read is skipped with a warning.
+    """
     resolve = ctx.path if ctx is not None else (lambda v: Path(v).expanduser())
     pairs_list = list_pairs(resolve(params.folder), params.left_glob, params.right_glob)
+    per_item = ctx is not None and ctx.producing_items
     splits = None
     truth: dict[str, dict] = {}
     if params.truth:  # the truth file decides the split (listed = train, or its split column); no random split
         truth, explicit = read_truth_file(resolve(params.truth))
         splits, warnings = truth_split([pid for pid, _, _ in pairs_list], truth, explicit, resolve(params.truth))
-        if ctx is not None:
+        if ctx is not None and not (per_item and ctx.item is not None):  # said once, not per pair
             for w in warnings:
                 ctx.warn(w)
-    rng = np.random.default_rng([params.seed, 3])
+    # drawn for every pair, in order: a skipped pair leaves the others' split as it was
+    draws = np.random.default_rng([params.seed, 3]).random(len(pairs_list))
+    split_of = {pid: splits[pid] if splits else "train" if d < params.train_fraction else "test"
+                for (pid, _, _), d in zip(pairs_list, draws)}
+    if per_item and ctx.item is not None:
+        found = [(pid, lp, rp) for pid, lp, rp in pairs_list if pid == ctx.item]
+        if not found:
+            ctx.warn(f"pair {ctx.item} skipped: its files are gone")
+            return {}
+        pid, lp, rp = found[0]
+        try:
+            return {"pairs": _read_pair(params, pid, lp, rp, truth, split_of[pid])}
+        except NodeError as exc:  # one bad pair costs that pair only
+            ctx.warn(f"pair {pid} skipped: {exc.message}")
+            return {}
+    if per_item:
+        return {}
     out, skipped = {}, {}
     for k, (pid, lp, rp) in enumerate(pairs_list):
         if ctx is not None:
             ctx.progress(k, len(pairs_list), "pairs")
-        split = "train" if rng.random() < params.train_fraction else "test"  # drawn for every pair: a skip
-        try:                                                                # leaves the others' split as it was
-            kw = {"max_mpx": params.max_image_mpx, "expect_size": params.image_size_px}
-            left, right = read_image(lp, **kw), read_image(rp, **kw)
-            if left.shape != right.shape:
-                raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
-                                f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
+        try:
+            out[pid] = _read_pair(params, pid, lp, rp, truth, split_of[pid])
         except NodeError as exc:  # one bad pair costs that pair only
             skipped[pid] = exc.message
             if ctx is not None:
                 ctx.warn(f"pair {pid} skipped: {exc.message}")
-            continue
-        out[pid] = {"id": pid, "left": left, "right": right, "truth": truth.get(pid),
-                    "split": splits[pid] if splits else split,
-                    "left_path": str(lp), "right_path": str(rp)}
     if not out:
         raise NodeError(f"none of the {len(pairs_list)} pairs could be read: "
                         + "; ".join(f"{k}: {v}" for k, v in list(skipped.items())[:5]),

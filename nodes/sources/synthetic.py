@@ -8,6 +8,8 @@ cameras, the ball's centre and its exact silhouette come with every render.
 
 from __future__ import annotations
 
+import copy
+import functools
 from typing import Literal
 
 import numpy as np
@@ -121,27 +123,13 @@ def synthetic_rig(params: SyntheticParams) -> dict:
     return make_rig(**_rig_kwargs(params))
 
 
-@node(
-    "source.synthetic",
-    outputs={
-        # a synthetic rig offers all three; each pipeline wires what it needs
-        "pairs": Out("StereoPair", collection=True, optional=True, description="Ball scenes with ground truth."),
-        "views": Out("StereoViews", optional=True,
-                     description="Chessboard calibration views (with the board poses)."),
-        "truth": Out("RigTruth", optional=True, description="The rig's true cameras and table pose."),
-    },
-    params=SyntheticParams,
-    version="1",
-)
-def synthetic(params: SyntheticParams, ctx=None) -> dict:
-    """Render a synthetic stereo rig: ball scenes, chessboard views and the true cameras.
+@functools.lru_cache(maxsize=4)
+def _plan(params_json: str) -> tuple[dict, list[tuple[str, dict]], list[str]]:
+    """The rig, every scene's description and split, in id order (cheap: nothing is rendered).
 
-    Each pair carries ``split`` (train/test, seeded) and ``truth`` (see
-    ``docs/artifacts.md``; also ``silhouette_left/right``, ``visible_fraction_*``,
-    ``touches_border_*`` and ``kind``). The views carry ``board_poses_table``
-    (``T_table_from_board`` per view, cm), so the Tsai calibrator can use them
-    as one multi-plane 3-D target.
+    Cached by the params' JSON, so that a process producing many items plans once.
     """
+    params = SyntheticParams.model_validate_json(params_json)
     try:
         rig = synthetic_rig(params)
     except ValueError as exc:
@@ -165,7 +153,6 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
     for i, sc in enumerate(params.scenes):
         specs.append((str(sc.get("id", f"custom{i:03d}")), dict(sc)))
 
-    split_rng = np.random.default_rng([params.seed, 3])
     forced_train: set[str] = set()
     if params.split_mode == "span" and params.train_fraction > 0:
         plain = [(pid, sc) for pid, sc in specs if sc.get("kind") == "plain" and sc.get("ball")]
@@ -176,19 +163,77 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
             dist = {pid: float((R.T @ (np.array([*sc["ball"]["center_cm"], sc["ball"]["radius_cm"]]) - C1))[2])
                     for pid, sc in plain}
             forced_train = {min(dist, key=dist.get), max(dist, key=dist.get)}
-    pairs = {}
-    report = ctx.progress if ctx is not None else (lambda *a: None)
-    for k, (pid, scene) in enumerate(specs):
-        report(k, len(specs), "scenes")
+    # one draw per scene in order, as if drawn one by one (a per-item call gets the same split)
+    draws = np.random.default_rng([params.seed, 3]).random(len(specs))
+    splits = ["train" if (draws[k] < params.train_fraction or pid in forced_train) else "test"
+              for k, (pid, _) in enumerate(specs)]
+    return rig, specs, splits
+
+
+def _scene_ids(params: SyntheticParams, ctx=None) -> list[str]:
+    """The pair ids, in the plan's order, without placing or rendering anything (the engine
+    produces the pairs one per call)."""
+    ids = [f"s{i:03d}" for i in range(params.n_scenes)]
+    ids += [f"{kind}{i:03d}" for kind in params.hard_cases for i in range(params.n_hard_each)]
+    return ids + [str(sc.get("id", f"custom{i:03d}")) for i, sc in enumerate(params.scenes)]
+
+
+def _render_pair(params: SyntheticParams, k: int) -> dict:
+    """Render scene number ``k`` of the plan (its noise seed depends on ``k`` only)."""
+    rig, specs, splits = _plan(params.model_dump_json())
+    pid, scene = specs[k]
+    try:
+        left, right, truth = render_scene(rig, copy.deepcopy(scene), seed=params.seed * 100003 + k,
+                                          coverage=params.truth_masks)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise NodeError(f"source.synthetic: scene {pid!r} is malformed: {exc}",
+                        hint="see the scene description in nodes/sources/_render.py") from exc
+    return {"id": pid, "left": left, "right": right, "truth": truth, "split": splits[k]}
+
+
+@node(
+    "source.synthetic",
+    outputs={
+        # a synthetic rig offers all three; each pipeline wires what it needs
+        "pairs": Out("StereoPair", collection=True, optional=True, description="Ball scenes with ground truth."),
+        "views": Out("StereoViews", optional=True,
+                     description="Chessboard calibration views (with the board poses)."),
+        "truth": Out("RigTruth", optional=True, description="The rig's true cameras and table pose."),
+    },
+    params=SyntheticParams,
+    version="1",
+    items=_scene_ids,
+)
+def synthetic(params: SyntheticParams, ctx=None) -> dict:
+    """Render a synthetic stereo rig: ball scenes, chessboard views and the true cameras.
+
+    Each pair carries ``split`` (train/test, seeded) and ``truth`` (see
+    ``docs/artifacts.md``; also ``silhouette_left/right``, ``visible_fraction_*``,
+    ``touches_border_*`` and ``kind``). The views carry ``board_poses_table``
+    (``T_table_from_board`` per view, cm), so the Tsai calibrator can use them
+    as one multi-plane 3-D target. In a run the engine renders the pairs one per
+    call (``items=``), in the worker pool when there is one.
+    """
+    per_item = ctx is not None and ctx.producing_items
+    if per_item and ctx.item is not None:
+        ids = _scene_ids(params)
+        if ctx.item not in ids:
+            raise NodeError(f"source.synthetic: no scene {ctx.item!r} in this rig")
+        return {"pairs": _render_pair(params, ids.index(ctx.item))}
+    if per_item:  # the scenes are planned where the pairs are made (a worker): here the rig only
         try:
-            left, right, truth = render_scene(rig, scene, seed=params.seed * 100003 + k,
-                                                      coverage=params.truth_masks)
-        except (ValueError, KeyError, TypeError) as exc:
-            raise NodeError(f"source.synthetic: scene {pid!r} is malformed: {exc}",
-                            hint="see the scene description in nodes/sources/_render.py") from exc
-        pairs[pid] = {"id": pid, "left": left, "right": right, "truth": truth,
-                      "split": "train" if (split_rng.random() < params.train_fraction or pid in forced_train)
-                      else "test"}
+            rig = synthetic_rig(params)
+        except ValueError as exc:
+            raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
+    else:
+        rig = _plan(params.model_dump_json())[0]
+    report = ctx.progress if ctx is not None else (lambda *a: None)
+    pairs = {}
+    if not per_item:
+        ids = _scene_ids(params)
+        for k, pid in enumerate(ids):
+            report(k, len(ids), "scenes")
+            pairs[pid] = _render_pair(params, k)
 
     views = []
     poses_table = {}
@@ -209,15 +254,17 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
                 charuco=charuco)
             views.append({"id": vid, "left": left, "right": right})
             poses_table[vid] = corners["T_table_from_board"]
-    truth = rig["truth"]
+    truth = copy.deepcopy(rig["truth"])  # the plan is cached: hand out a copy
     board = {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm,
              "type": params.board_type}
     if params.board_type == "charuco":
         board.update(dictionary=params.aruco_dict, marker_fraction=params.marker_fraction)
-    return {
-        "pairs": pairs,
+    out = {
         "views": {"views": views, "image_size": list(truth["image_size"]),
                   "board": board,
                   "truth": truth, "board_poses_table": poses_table},
         "truth": truth,
     }
+    if not per_item:
+        out["pairs"] = pairs
+    return out

@@ -1,0 +1,587 @@
+"""Streamed regions: the per-item part of a graph, run a chunk of items at a time.
+
+A *region* is a chain (any sub-DAG) of per-item nodes, headed by the item part of a source that
+declares ``items=`` when there is one. Instead of running node after node over the whole
+collection, the runner hands the region a chunk of items at a time: one task takes its items
+through every node of the region (in this process, in a ``--workers`` process, or on a Dask
+worker), writes their saved images into the run folder itself, and sends back only what nodes
+outside the region need (small per-item results; keys). So
+
+- images never travel between processes (no pickled copies; a worker renders, rectifies and
+  segments a pair in its own memory), and the parent has no per-image work left to serialise;
+- memory holds a chunk's images, not the collection's: it does not grow with the item count.
+
+Inside a task the region runs as a small :class:`stereograph.runner._Run` of its own over the
+chunk's items, with the same cache (the same keys, locks and entries as a node-by-node run:
+a cached item is adopted, not recomputed) and the same per-item failure rules.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pickle
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import networkx as nx
+
+from stereograph import registry
+
+Ref = tuple[str, str, "str | None"]
+_MISSING = "__stereograph_missing__"
+
+
+@dataclass
+class Region:
+    """Per-item nodes run together, item chunk by item chunk."""
+
+    source: str | None            # the item-producing node whose items the region makes, if any
+    nodes: list[str] = field(default_factory=list)   # per-item nodes, in run order
+
+
+def _item_consumers(graph: Any, src: str) -> set[str]:
+    return {c for c in graph.consumers(src)
+            if any(s == src and graph.is_collection(s, o) for s, o in graph.nodes[c].inputs.values())}
+
+
+def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]:
+    """Group the selected per-item nodes into regions (see the module docstring).
+
+    A per-item node joins the region of its collection inputs when nothing it reads depends on
+    that region's items (else it starts a region of its own, fed from the run's memory)."""
+    sel = set(selected)
+    regions: list[Region] = []
+    of: dict[str, Region] = {}
+    claimed: set[str] = set()
+
+    def depends(p: str, reg: Region) -> bool:
+        heads = set(reg.nodes) | (_item_consumers(graph, reg.source) if reg.source else set())
+        return bool(({p} | graph.upstream(p)) & heads)
+
+    for name in graph.order:
+        inst = graph.nodes[name]
+        if name not in sel or not inst.mapped:
+            continue
+        colls = [(port, s, o) for port, (s, o) in inst.inputs.items()
+                 if graph.is_collection(s, o) and not inst.spec.inputs[port].gather]
+        reg = next((of[s] for _p, s, _o in colls if s in of), None)
+        ok = reg is not None
+        for port, (s, o) in inst.inputs.items():
+            if not ok:
+                break
+            if graph.is_collection(s, o) and not inst.spec.inputs[port].gather:
+                ok = s in reg.nodes or s == reg.source
+            else:  # read whole: must not wait for the region's items
+                ok = s not in reg.nodes and not (s == reg.source and graph.is_collection(s, o)) \
+                    and not depends(s, reg)
+        if not ok:
+            src = next((s for _p, s, _o in colls if s in sel and producer(graph.nodes[s]) and s not in claimed), None)
+            reg = Region(src)
+            if src:
+                claimed.add(src)
+            regions.append(reg)
+        reg.nodes.append(name)
+        of[name] = reg
+    return regions
+
+
+def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[Any] | None:
+    """Selected nodes and regions in an order that runs each after everything it reads
+    (None if grouping would need a cycle: then the run goes node by node)."""
+    of = {n: k for k, r in enumerate(regions) for n in r.nodes}
+    unit = {n: ("r", of[n]) if n in of else ("n", n) for n in selected}
+    dag = nx.DiGraph()
+    dag.add_nodes_from(set(unit.values()))
+    for a, b in graph.dag.edges:
+        if a in unit and b in unit and unit[a] != unit[b]:
+            dag.add_edge(unit[a], unit[b])
+    for k, r in enumerate(regions):
+        if r.source in unit:
+            dag.add_edge(unit[r.source], ("r", k))
+    if not nx.is_directed_acyclic_graph(dag):
+        return None
+    pos = {n: i for i, n in enumerate(graph.order)}
+    first = {u: min(pos[n] for n in selected if unit[n] == u) for u in dag.nodes}
+    return [regions[u[1]] if u[0] == "r" else u[1]
+            for u in nx.lexicographical_topological_sort(dag, key=lambda u: first[u])]
+
+
+def chunk_size(n_items: int, workers: int) -> int:
+    """Items per task: about four tasks per worker (the last ones balance the load), at most 8
+    (what one task holds in memory at once)."""
+    return max(1, min(8, math.ceil(n_items / max(1, workers * 4))))
+
+
+@dataclass
+class Chunk:
+    """One task: a chunk of items through a region (picklable for the pools)."""
+
+    graph: Any                   # the Graph (in this process) or its pickle (for another one)
+    plugins: list[str]
+    pipeline_dir: str
+    region: Region
+    items: list[str]
+    inputs: dict[Ref, tuple[str, str | None, Any]]   # ref -> (key, content key, value or _MISSING)
+    collections: dict[tuple[str, str], list[str]]    # outside collections: (node, out) -> this chunk's ids
+    statuses: dict[str, str]
+    code: dict[str, str]
+    code_files: dict[str, dict[str, str]]
+    cache_root: str | None
+    out_dir: str
+    force: set[str]
+    back: set[tuple[str, str]]        # outputs whose item values the run needs back (read outside, kept)
+    deliver: set[tuple[str, str]]     # outputs the run folder gets (saved, terminal)
+    keep: set[str] = field(default_factory=set)   # the run's kept nodes (terminal, --only) in the region
+    store: Any = None                 # the run's own store, when run in its process
+    ahead: dict[str, str] = field(default_factory=dict)   # item -> file of an item made ahead
+    shared: str | None = None         # file of the whole values every chunk reads (sent once per process)
+
+
+@dataclass
+class ChunkResult:
+    reports: dict[str, Any]
+    items: dict[tuple[str, str], list[str]]
+    failed: dict[tuple[str, str | None], str]
+    ref_keys: dict[Ref, str]
+    ref_ids: dict[Ref, str]
+    keys: dict[tuple[str, str | None], str]
+    values: dict[Ref, Any]
+    files: dict[tuple[str, str], dict[str, list[str]]]
+    notes: list[str]
+    seconds: float
+    stored_bytes: int = 0   # what the task stored in the cache (the run's budget check counts it)
+    messages: dict[str, list[str]] = field(default_factory=dict)  # about nodes outside (a corrupt entry read)
+
+
+_STORES: dict[str, Any] = {}   # a worker's stores, by root: opened once per process
+_SHARED: dict[str, dict] = {}  # a worker's copy of a region's whole inputs, by file: read once per process
+
+
+def _shared_values(path: str) -> dict:
+    if path not in _SHARED:
+        _SHARED.clear()  # (one region at a time)
+        _SHARED[path] = pickle.loads(Path(path).read_bytes())
+    return _SHARED[path]
+
+
+def run_chunk(chunk: Chunk) -> ChunkResult:
+    """Take a chunk of items through its region (see the module docstring); never raises for a
+    node's failure (those are item failures in the result)."""
+    from stereograph import outputs as outputs_mod
+    from stereograph.cache import ArtifactStore
+    from stereograph.runner import SerialExecutor, _Run
+
+    t0 = time.perf_counter()
+    graph = chunk.graph
+    if isinstance(graph, bytes):  # another process: its plugins' classes must exist to unpickle
+        if chunk.plugins:
+            registry.import_plugins(chunk.plugins, Path(chunk.pipeline_dir))
+        graph = pickle.loads(graph)
+    store = chunk.store
+    if store is None and chunk.cache_root is not None:
+        store = _STORES.get(chunk.cache_root)
+        if store is None:
+            store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
+    written0 = store._written if store is not None else 0
+    run = _Run(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
+    run.sub = True
+    run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
+    reg = chunk.region
+    members = list(reg.nodes)
+    run.keep = set(chunk.keep)  # (what the cache may keep as a manifest only follows the whole run's rule)
+    for name, status in chunk.statuses.items():
+        run.reports[name].status = status
+    if chunk.shared:
+        run.mem.update(_shared_values(chunk.shared))
+    for ref, (key, ident, value) in chunk.inputs.items():
+        run.ref_keys[ref] = key
+        if ident:
+            run.ref_ids[ref] = ident
+        if not (isinstance(value, str) and value == _MISSING):
+            run.mem[ref] = value
+    for coll, ids in chunk.collections.items():
+        run.items[coll] = list(ids)
+    inside = set(members) | ({reg.source} if reg.source else set())
+    run.remaining_consumers = {n: set(graph.consumers(n)) & set(members) for n in graph.nodes}
+    for n, _ in chunk.back:  # read outside the region too: held until the task returns it
+        run.remaining_consumers[n].add("\0outside")
+    for name in ([reg.source] if reg.source else []) + members:
+        run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
+        if name == reg.source:
+            run.declared[name] = list(chunk.items)
+        run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
+        if run.reports[name].status == "failed" and (name, None) not in run.failed_items:
+            run.reports[name].status = "partial"  # all of this chunk's items: the others go on downstream
+    files: dict[tuple[str, str], dict[str, list[str]]] = {}
+    values: dict[Ref, Any] = {}
+    for node, out in sorted(chunk.deliver | chunk.back):
+        ids = run.items.get((node, out), [])
+        written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
+        for i in ids:
+            ref = (node, out, i)
+            if written:
+                stem = Path(chunk.out_dir) / node / out / outputs_mod.file_name(i)
+                try:
+                    files.setdefault((node, out), {})[i] = [str(p) for p in outputs_mod._rendered(
+                        store, run.ref_keys.get(ref), out, stem, lambda r=ref, p=stem: outputs_mod.write_value(
+                            p, run.get(r)))]
+                except Exception as e:  # the run folder writes it again, and says why if it cannot
+                    run.reports[node].messages.append(f"could not write output '{out}' of item {i}: {e}")
+                    files.get((node, out), {}).pop(i, None)
+                    written = False
+            if not written and ref in run.mem and (node, out) in chunk.back | chunk.deliver:
+                values[ref] = run.mem[ref]
+    mine = lambda ref: ref[0] in inside  # noqa: E731
+    return ChunkResult(
+        reports={n: run.reports[n] for n in inside},
+        items={k: v for k, v in run.items.items() if k[0] in inside},
+        failed={k: v for k, v in run.failed_items.items() if k[0] in inside},
+        ref_keys={r: k for r, k in run.ref_keys.items() if mine(r)},
+        ref_ids={r: k for r, k in run.ref_ids.items() if mine(r)},
+        keys={k: v for k, v in run.keys.items() if k[0] in inside},
+        values=values, files=files,
+        notes=list(store.notes) if store is not None and chunk.store is None else [],
+        seconds=time.perf_counter() - t0,
+        stored_bytes=store._written - written0 if store is not None and chunk.store is None else 0,
+        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages})
+
+
+def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
+    """Whether this output goes to the run folder as one image file per item."""
+    from stereograph import outputs as outputs_mod
+
+    store, key = run.store, run.ref_keys.get((node, out, first), "")
+    if store is not None and hasattr(store, "ready_file") and store.ready_file(key, out) is not None:
+        return True
+    try:
+        return outputs_mod.is_image(run.get((node, out, first)))
+    except Exception:
+        return False
+
+
+def _label(reg: Region) -> str:
+    names = ([reg.source] if reg.source else []) + reg.nodes
+    return names[0] if len(names) == 1 else f"{names[0]} → {names[-1]}"
+
+
+def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
+    """Run a region for the parent run ``run`` (a :class:`stereograph.runner._Run`): plan its
+    chunks, hand them to the run's executor, and merge what comes back as if each node had run."""
+    from stereograph.runner import SerialExecutor, TaskLost
+
+    g = run.g
+    members = reg.nodes
+    inside = set(members) | ({reg.source} if reg.source else set())
+    store_on = run.store is not None
+    bases = {n: run.node_components(g.nodes[n]) for n in members} if store_on else {}
+    # the items the region iterates over, in order: the source's, or those of its outside collections
+    outside_colls: list[tuple[str, str]] = []
+    for n in members:
+        inst = g.nodes[n]
+        for port, (s, o) in inst.inputs.items():
+            if s not in inside and g.is_collection(s, o) and not inst.spec.inputs[port].gather \
+                    and (s, o) not in outside_colls:
+                outside_colls.append((s, o))
+    if reg.source:
+        ok_source = run.reports[reg.source].status not in ("failed", "skipped")
+        ids = list(run.declared.get(reg.source, [])) if ok_source else []
+        for o in run.item_outputs(g.nodes[reg.source], ""):
+            run.items[(reg.source, o)] = []
+    else:
+        seen: dict[str, None] = {}
+        for c in outside_colls:
+            seen.update(dict.fromkeys(run.items.get(c, [])))
+        ids = list(seen)
+    selected = run.selected
+    back, deliver = set(), set()
+    terminal = set(g.terminal())
+    for n in inside:
+        inst = g.nodes[n]
+        outs = run.item_outputs(inst, "")
+        for o in outs:
+            if any(c not in inside and c in selected and (n, o) in g.nodes[c].inputs.values() for c in g.consumers(n)) \
+                    or n in run.keep:
+                back.add((n, o))
+            if inst.spec.outputs[o].save or n in terminal or n in run.keep:
+                (deliver if write_outputs else back).add((n, o))
+    for n in members:
+        for o in g.nodes[n].spec.outputs:
+            run.items[(n, o)] = []
+    statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
+    local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
+    workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
+    size = chunk_size(len(ids), workers)
+    chunks = []
+    for k in range(0, len(ids), size):
+        part = ids[k:k + size]
+        inputs: dict[Ref, tuple[str, str | None, Any]] = {}
+        colls = {}
+        for n in members:
+            for (s, o) in g.nodes[n].inputs.values():
+                if s in inside:
+                    continue
+                if g.is_collection(s, o):
+                    want = set(part)
+                    colls[(s, o)] = [i for i in run.items.get((s, o), []) if i in want]
+                    refs = [(s, o, i) for i in colls[(s, o)]]
+                else:
+                    refs = [(s, o, None)]
+                for ref in refs:
+                    if ref in inputs:
+                        continue
+                    if ref in run.mem:
+                        value = run.mem[ref]
+                    elif store_on and ref in run.ref_keys:
+                        value = _MISSING  # read from the cache where it is needed
+                    else:
+                        try:
+                            value = run.get(ref)
+                        except (KeyError, Exception):
+                            value = _MISSING
+                    inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), value)
+        chunks.append(Chunk(g, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
+                            statuses, dict(run.code), dict(run.code_files),
+                            str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
+                            back, deliver, keep=run.keep & inside, store=run.store))
+    label = _label(reg)
+    if run.progress:
+        run.progress.node_started(label, len(ids))
+    first = reg.source or members[0]
+    made = stop_ahead(run, reg.source)
+    for chunk in chunks:
+        chunk.ahead = {i: made[i] for i in chunk.items if i in made}
+    skipped: dict[str, str] = {}
+    if not local and store_on and not made and chunks:
+        # A rerun finds most items cached: try the first chunk here; if it computed nothing, the
+        # others most likely will not either, and need no worker (start-up, copies) at all.
+        probe = run_chunk(chunks[0])
+        _settle(run, reg, chunks[0], probe, skipped, label, g.nodes[first])
+        chunks = chunks[1:]
+        if not any(r.items_ran for r in probe.reports.values()):
+            local = True
+    if not local and chunks:
+        graph_bytes = pickle.dumps(g)
+        for chunk in chunks:  # for another process: the graph as bytes, its own store
+            chunk.graph, chunk.store = graph_bytes, None
+        # what every chunk reads whole (the rectification and its maps, ~9 MB) goes once into a
+        # file of the run folder, read once per worker process, instead of pickled into every task
+        whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
+                 if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)}
+        if whole:
+            folder = Path(run.out_dir) / AHEAD_DIR
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / f"whole-{uuid.uuid4().hex}.pkl"
+            path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
+            for chunk in chunks:
+                chunk.shared = str(path)
+                chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
+    lost: list[Chunk] = []
+    for chunk, res in zip(chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)):
+        if isinstance(res, TaskLost) and len(chunk.items) > 1:
+            lost.append(chunk)  # its worker died: run its items again one per task, below
+            continue
+        _settle(run, reg, chunk, res, skipped, label, g.nodes[first])
+    # one item per task, so that an item that kills its worker every time is lost alone
+    alone = [dataclasses.replace(c, items=[i], collections={k: [j for j in v if j == i]
+                                                             for k, v in c.collections.items()})
+             for c in lost for i in c.items]
+    for chunk, res in zip(alone, run.executor.map(run_chunk, alone)):
+        _settle(run, reg, chunk, res, skipped, label, g.nodes[first])
+    order = {i: k for k, i in enumerate(ids)}
+    for (n, o), got in list(run.items.items()):
+        if n in inside:
+            run.items[(n, o)] = sorted(dict.fromkeys(got), key=lambda i: order.get(i, len(order)))
+    if reg.source:
+        src = g.nodes[reg.source]
+        rep = run.reports[reg.source]
+        run.check_produced(src)
+        n_failed = sum(1 for (n, i) in run.failed_items if n == reg.source and i is not None)
+        rep.items_failed = n_failed
+        if (reg.source, None) in run.failed_items:
+            rep.status = "failed"
+        elif n_failed:
+            rep.status = "partial"
+        elif rep.items_ran:
+            rep.status = "ran"
+    for n in members:
+        inst = g.nodes[n]
+        rep = run.reports[n]
+        n_failed = sum(1 for (m, _) in run.failed_items if m == n)
+        rep.items_failed = n_failed
+        bad = run.upstream_failed(inst)
+        if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
+            rep.status, rep.error = "skipped", skipped.get(n) or f"upstream node '{bad}' did not finish"
+            continue
+        if (n, None) in run.failed_items:
+            rep.status = "failed"
+        elif n_failed and n_failed < rep.items:
+            rep.status = "partial"
+        elif n_failed:
+            rep.status = "failed"
+        else:
+            rep.status = "ran" if rep.items_ran else "cached"
+        if not rep.items:
+            rep.messages.append("no items to process (upstream produced none)")
+        if store_on and n not in run.memory_only:
+            run.record(inst, bases[n])
+    for n in ([reg.source] if reg.source else []) + members:
+        run.release(n)
+
+
+def _settle(run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any) -> None:
+    from stereograph.runner import TaskLost
+
+    if isinstance(res, TaskLost):
+        for i in chunk.items:
+            run.fail_item(first, i, res.error, res.hint)
+    else:
+        _merge(run, reg, res, skipped)
+    if run.progress:
+        for _ in chunk.items:
+            run.progress.advance(label)
+
+
+def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> None:
+    for n, r in res.reports.items():
+        rep = run.reports[n]
+        rep.seconds += r.seconds
+        if n != reg.source:
+            rep.items += r.items
+        rep.items_ran += r.items_ran
+        rep.messages += [m for m in r.messages if m not in rep.messages]
+        if r.status == "skipped":
+            skipped.setdefault(n, r.error or "upstream did not finish")
+        elif rep.error is None and r.error:
+            rep.error, rep.hint, rep.trace, rep.unexpected = r.error, r.hint, r.trace, r.unexpected
+    for n, msgs in res.messages.items():
+        run.reports[n].messages += [m for m in msgs if m not in run.reports[n].messages]
+    for k, got in res.items.items():
+        run.items.setdefault(k, []).extend(got)
+    run.failed_items.update(res.failed)
+    run.ref_keys.update(res.ref_keys)
+    run.ref_ids.update(res.ref_ids)
+    run.keys.update(res.keys)
+    run.mem.update(res.values)
+    for k, by_item in res.files.items():
+        run.streamed.setdefault(k, {}).update({i: [Path(f) for f in fs] for i, fs in by_item.items()})
+    if run.store is not None:
+        run.store.notes += [m for m in res.notes if m not in run.store.notes]
+        run.store._written += res.stored_bytes
+
+
+# ---------------------------------------------------------------- items made ahead
+
+AHEAD_DIR = ".stereograph-ahead"   # in the run folder, removed when the run ends
+
+
+@dataclass
+class AheadTask:
+    """Make some of a source's items while the run's head (calibration, ...) is still running."""
+
+    graph: bytes
+    plugins: list[str]
+    pipeline_dir: str
+    source: str
+    items: list[str]
+    folder: str
+    out_dir: str
+
+
+def produce_ahead(task: AheadTask) -> list[str]:
+    """(In a worker) make the items and leave each in a file of its own; returns those made.
+
+    An item that fails is left to its region task, which makes it again and reports why."""
+    from stereograph import outputs as outputs_mod
+    from stereograph.runner import Task, execute
+
+    if task.plugins:
+        registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+    graph = pickle.loads(task.graph)
+    inst = graph.nodes[task.source]
+    done = []
+    for i in task.items:
+        res = execute(Task(inst.type, list(task.plugins), inst.params.model_dump(), {}, inst.name, i,
+                           task.out_dir, task.pipeline_dir, {}, None, True))
+        if not res.ok:
+            continue
+        path = Path(task.folder) / f"{outputs_mod.file_name(i)}.pkl"
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_bytes(pickle.dumps((res.outputs, res.messages, res.seconds), protocol=pickle.HIGHEST_PROTOCOL))
+        tmp.replace(path)  # whole or absent: a cancelled run leaves no half item
+        done.append(i)
+    return done
+
+
+def start_ahead(run: Any, reg: Region) -> None:
+    """Set the pool making the region's items now, while this process runs the head (the
+    source's own part, calibration, rectification): that head is serial, and the workers would
+    otherwise wait for it. Only for a process pool (it runs on this machine), only items not
+    already cached; the region task takes each item made ahead from its file."""
+    from stereograph import outputs as outputs_mod
+    from stereograph.api import NodeError
+
+    ex, inst = run.executor, run.g.nodes[reg.source]
+    if not hasattr(ex, "start") or inst.inputs:
+        return
+    try:
+        ids = run.declared[reg.source] = run.produced_ids(inst)
+    except NodeError:
+        return  # the source's own run says why
+    if run.store is not None and inst.spec.cacheable and reg.source not in run.force:
+        base = run.node_components(inst)
+        refs = run.input_refs(inst, None)
+        ids = [i for i in ids if run.store.complete(run.entry_key(base, refs, i)) is None]
+    if not ids:
+        return
+    folder = Path(run.out_dir) / AHEAD_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    graph = pickle.dumps(run.g)
+    tasks = [AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, ids[k:k + 2],
+                       str(folder), str(run.out_dir)) for k in range(0, len(ids), 2)]
+    run.ahead[reg.source] = (ex.start(produce_ahead, tasks), folder, outputs_mod.file_name)
+
+
+def stop_ahead(run: Any, source: str | None) -> dict[str, str]:
+    """Cancel the ahead tasks not begun, wait for the others; {item: file} of the items made."""
+    got = run.ahead.pop(source, None) if source else None
+    if got is None:
+        return {}
+    futures, folder, name = got
+    run.executor.stop(futures)
+    made: dict[str, str] = {}
+    for fut in futures:
+        if fut.cancelled() or fut.exception() is not None:
+            continue
+        for i in fut.result():
+            made[i] = str(folder / f"{name(i)}.pkl")
+    return made
+
+
+class _Ahead:
+    """A region task's executor for its source: an item made ahead is read from its file."""
+
+    def __init__(self, files: dict[str, str]):
+        self.files = files
+
+    def map(self, fn: Any, tasks: list[Any]) -> Any:
+        from stereograph.runner import TaskResult
+
+        for t in tasks:
+            path = self.files.get(t.item) if t.producing else None
+            if path is None:
+                yield fn(t)
+                continue
+            try:
+                outputs, messages, seconds = pickle.loads(Path(path).read_bytes())
+                Path(path).unlink(missing_ok=True)
+            except (OSError, pickle.UnpicklingError, EOFError, ValueError):
+                yield fn(t)  # gone or damaged: make it here
+                continue
+            yield TaskResult(True, outputs, seconds, messages)
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,226 @@
+"""Sources that produce their collections item by item (``items=``): caching, drops, failures, pools."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+from stereograph.runner import ProcessExecutor, run_pipeline
+
+PLUGINS = [Path(__file__).parent / "plugins" / "toy.py", Path(__file__).parent / "plugins" / "toy_items.py"]
+
+
+def write_pipeline(tmp_path: Path, params: str = "{n: 5}") -> Path:
+    f = tmp_path / "p.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: items
+        plugins: [{', '.join(str(p) for p in PLUGINS)}]
+        nodes:
+          src:
+            type: toy.produce
+            params: {params}
+          power:
+            type: toy.power
+            inputs: {{m: src.items}}
+          total:
+            type: toy.sum
+            inputs: {{values: power.norm}}
+          report:
+            type: toy.table
+            inputs: {{m: power.m}}
+        """))
+    return f
+
+
+def run(path: Path, tmp_path: Path, *overrides: str, **kw):
+    kw.setdefault("cache_dir", tmp_path / "cache")
+    return run_pipeline(path, list(overrides), out_dir=tmp_path / "out", **kw)
+
+
+def test_items_are_produced_and_cached_one_by_one(tmp_path):
+    p = write_pipeline(tmp_path)
+    r1 = run(p, tmp_path)
+    assert r1.ok and r1.reports["src"].items == 5 and r1.reports["src"].items_ran == 5
+    assert r1.outputs("report", "report")["items"] == [f"m{i:03d}" for i in range(5)]
+    r2 = run(p, tmp_path)
+    assert set(r2.status.values()) == {"cached"}
+    assert r2.outputs("total", "total") == r1.outputs("total", "total")
+    # one more item: every item is produced again (the params changed), but the unchanged ones
+    # keep their content key, so downstream only the new item runs
+    r3 = run(p, tmp_path, "src.n=6")
+    assert r3.reports["src"].items_ran == 6 and r3.reports["power"].items_ran == 1
+
+
+def test_direct_call_returns_everything():
+    from tests.plugins.toy_items import ProduceParams, produce
+
+    out = produce(ProduceParams(n=3))
+    assert sorted(out["items"]) == ["m000", "m001", "m002"] and out["count"] == 3
+
+
+def test_dropped_and_failed_items(tmp_path):
+    p = write_pipeline(tmp_path, "{n: 5, drop: [m001], fail: [m003]}")
+    r = run(p, tmp_path)
+    assert r.status["src"] == "partial" and r.reports["src"].items_failed == 1
+    assert "m003 is broken" in r.reports["src"].error
+    assert any("m001 dropped" in m for m in r.reports["src"].messages)
+    assert r.outputs("report", "report")["items"] == ["m000", "m002", "m004"]
+    assert r.status["power"] == "ran"
+
+
+def test_every_item_dropped_fails_the_node_clearly(tmp_path):
+    p = write_pipeline(tmp_path, "{n: 2, drop: [m000, m001]}")
+    r = run(p, tmp_path)
+    assert r.status["src"] == "failed" and r.status["power"] == "skipped"
+    assert "none of its 2 items could be produced" in r.reports["src"].error
+    assert "m000 dropped" in r.reports["src"].error
+
+
+def test_process_pool_gives_the_serial_result(tmp_path):
+    p = write_pipeline(tmp_path, "{n: 12, size: 16}")
+    serial = run(p, tmp_path, use_cache=False).outputs("total", "total")
+    ex = ProcessExecutor(2)
+    try:
+        pooled = run(p, tmp_path, use_cache=False, executor=ex)
+        assert pooled.ok and pooled.reports["src"].items_ran == 12 and pooled.reports["power"].items_ran == 12
+        assert pooled.outputs("total", "total") == serial  # bit for bit
+        assert not (tmp_path / "out" / ".stereograph-ahead").exists()  # items made ahead: files gone
+        cached = run(p, tmp_path, executor=ex)  # workers store the entries; a rerun adopts them all
+        assert cached.outputs("total", "total") == serial
+        assert set(run(p, tmp_path, executor=ex).status.values()) == {"cached"}
+    finally:
+        ex.close()
+
+
+def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
+    p = write_pipeline(tmp_path, "{n: 9, drop: [m004]}")
+    streamed = run(p, tmp_path, use_cache=False)
+    monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
+    plain = run(p, tmp_path, use_cache=False)
+    assert streamed.status == plain.status and streamed.outputs("total", "total") == plain.outputs("total", "total")
+    assert streamed.outputs("report", "report") == plain.outputs("report", "report")
+    assert {n: r.items for n, r in streamed.reports.items()} == {n: r.items for n, r in plain.reports.items()}
+
+
+def test_a_worker_process_that_dies_fails_its_items_not_the_run(tmp_path):
+    p = write_pipeline(tmp_path, "{n: 6, kill_always: m002}")
+    ex = ProcessExecutor(2)
+    try:
+        r = run(p, tmp_path, use_cache=False, executor=ex)
+    finally:
+        ex.close()
+    assert r.status["src"] == "partial"
+    assert "worker process died" in r.reports["src"].error
+    # the tasks in flight with it are run again alone: only the one that kills its worker is lost
+    assert set(r.item_errors) == {("src", "m002")}
+    assert r.outputs("report", "report")["items"] == ["m000", "m001", "m003", "m004", "m005"]
+
+
+def _engine_pairs(tmp_path: Path, node_yaml: str, sub: str, **kw):
+    f = tmp_path / f"{sub}.yaml"
+    f.write_text(f"name: {sub}\nnodes:\n  src:\n{node_yaml}")
+    r = run_pipeline(f, [], out_dir=tmp_path / sub, cache_dir=tmp_path / "cache", keep={"src"}, **kw)
+    return r, r.outputs("src", "pairs")
+
+
+def _same(a, b) -> None:
+    import numpy as np
+
+    if isinstance(a, dict):
+        assert set(a) == set(b)
+        for k in a:
+            _same(a[k], b[k])
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            _same(x, y)
+    else:
+        assert a == b
+
+
+def test_synthetic_pairs_item_by_item_are_the_one_call_pairs(tmp_path):
+    from nodes.sources.synthetic import SyntheticParams, synthetic
+
+    params = dict(image_width_px=96, image_height_px=72, focal_length_px=84, n_scenes=5, n_views=0,
+                  hard_cases=["border"], n_hard_each=1, min_distance_cm=30, max_distance_cm=60, seed=4)
+    direct = synthetic(SyntheticParams(**params))["pairs"]
+    yaml = "    type: source.synthetic\n    params: " + str(params).replace("'", "") + "\n"
+    r, pairs = _engine_pairs(tmp_path, yaml, "synth")
+    assert r.ok and r.reports["src"].items == 6 and list(pairs) == list(direct)
+    _same({k: dict(v) for k, v in pairs.items()}, direct)  # pixels, truth and split, bit for bit
+    ex = ProcessExecutor(2)
+    try:  # rendered in the workers, from a cold cache
+        r2, pooled = _engine_pairs(tmp_path, yaml, "synth2", executor=ex, use_cache=False)
+    finally:
+        ex.close()
+    _same(pooled, direct)
+
+
+def test_files_read_item_by_item_skip_a_bad_pair(tmp_path):
+    import cv2
+    import numpy as np
+
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for n in ("a", "b", "c"):
+        for side in ("left", "right"):
+            cv2.imwrite(str(d / f"{side}_{n}.png"), np.full((24, 32, 3), ord(n), np.uint8))
+    (d / "left_b.png").write_bytes(b"not a png")
+    r, pairs = _engine_pairs(tmp_path, f"    type: source.files\n    params: {{folder: {d}, train_fraction: 1}}\n",
+                             "files")
+    assert r.ok and r.status["src"] == "ran" and list(pairs) == ["a", "c"]
+    assert any("pair b skipped" in m for m in r.reports["src"].messages)
+    assert int(pairs["c"]["left"][0, 0, 0]) == ord("c") and pairs["a"]["split"] == "train"
+
+
+def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(tmp_path, monkeypatch):
+    """src -> power -> picture (saved) and power -> total (all items) -> scale (per item, reads the
+    total): scale cannot run with its items' first region, so it runs in a second one, fed the
+    first region's values; streamed, pooled and node-by-node runs agree."""
+    import numpy as np
+
+    f = tmp_path / "two.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: two
+        plugins: [{', '.join(str(p) for p in PLUGINS)}]
+        nodes:
+          src: {{type: toy.produce, params: {{n: 7, size: 6}}}}
+          power: {{type: toy.power, inputs: {{m: src.items}}}}
+          picture: {{type: toy.picture, inputs: {{m: power.m}}}}
+          total: {{type: toy.sum, inputs: {{values: power.norm}}}}
+          scale: {{type: toy.scale, inputs: {{m: power.m, k: total.total}}}}
+          report: {{type: toy.table, inputs: {{m: scale.m}}}}
+        """))
+    from stereograph import streaming
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+    from stereograph.runner import SerialExecutor, _Run
+
+    g = build_graph(load_pipeline(f))
+    regions = streaming.plan_regions(g, list(g.order), _Run(g, None, tmp_path, SerialExecutor(), set(), None).producer)
+    assert [(r.source, r.nodes) for r in regions] == [("src", ["power", "picture"]), (None, ["scale"])]
+
+    def outcome(sub, **kw):
+        r = run_pipeline(f, [], out_dir=tmp_path / sub, keep={"scale"}, **kw)
+        assert r.ok, {n: x.error for n, x in r.reports.items() if x.error}
+        pictures = sorted(p.name for p in (tmp_path / sub / "picture" / "picture").iterdir())
+        return r, r.outputs("scale", "m"), pictures
+
+    streamed, scaled, pics = outcome("s", use_cache=False)
+    assert pics == [f"m{i:03d}.png" for i in range(7)]  # written by the region, item by item
+    img = streamed.outputs("picture", "picture")["m003"]  # read back from the run folder
+    assert img.dtype == np.uint8 and img.shape == (24, 24)  # (toy.picture draws 4 px per element)
+    ex = ProcessExecutor(2)
+    try:
+        pooled = outcome("p", cache_dir=tmp_path / "cache", executor=ex)
+    finally:
+        ex.close()
+    monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
+    plain = outcome("n", use_cache=False)
+    for other in (pooled, plain):
+        assert other[2] == pics and sorted(other[1]) == sorted(scaled)
+        assert all(np.array_equal(other[1][i], scaled[i]) for i in scaled)
+        assert np.array_equal(other[0].outputs("picture", "picture")["m003"], img)
+        assert {n: x.items for n, x in other[0].reports.items()} == {n: x.items for n, x in streamed.reports.items()}
