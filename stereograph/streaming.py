@@ -221,6 +221,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     for node, out in sorted(chunk.deliver | chunk.back):
         ids = run.items.get((node, out), [])
         written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
+        lossy = bool(getattr(graph.nodes[node].spec.outputs.get(out), "lossy", False))  # pictures for people: JPEG
         for i in ids:
             ref = (node, out, i)
             if written:
@@ -228,7 +229,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
                 try:
                     files.setdefault((node, out), {})[i] = [str(p) for p in outputs_mod._rendered(
                         store, run.ref_keys.get(ref), out, stem, lambda r=ref, p=stem: outputs_mod.write_value(
-                            p, run.get(r)))]
+                            p, run.get(r), lossy))]
                 except Exception as e:  # the run folder writes it again, and says why if it cannot
                     run.reports[node].messages.append(f"could not write output '{out}' of item {i}: {e}")
                     files.get((node, out), {}).pop(i, None)
