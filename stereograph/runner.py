@@ -995,10 +995,12 @@ def _units(run: _Run, selected: list[str]) -> list[Any]:
 
 
 def _read_back(files: list[Path]) -> Any:
-    """An item's image as written to the run folder (PNG is lossless: the very array)."""
+    """An item's image as written to the run folder: PNG is lossless (the very array); a lossy output's
+    JPEG decodes to the very array too, since every reader of a lossy output gets the decoded JPEG."""
     import cv2
 
-    png = next((f for f in files if f.suffix == ".png"), None)
+    png = next((f for f in files if f.suffix == ".png"), None) or next(
+        (f for f in files if f.suffix == ".jpg"), None)
     img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED) if png is not None else None
     if img is None:
         raise NodeError(f"the image written to {files[0] if files else '?'} can no longer be read",
