@@ -100,7 +100,8 @@ def max_difference(a: list[dict], b: list[dict]) -> tuple[float, list[str]]:
 
 
 def same_files(a: str, b: str, sub: str) -> tuple[int, int]:
-    fa = sorted((Path(a) / sub).glob("*.png"))
+    folder = Path(a) / sub
+    fa = sorted(f for f in folder.iterdir() if f.suffix in (".png", ".jpg")) if folder.is_dir() else []
     same = sum((Path(b) / sub / f.name).is_file() and (Path(b) / sub / f.name).read_bytes() == f.read_bytes()
                for f in fa)
     return same, len(fa)

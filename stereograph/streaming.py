@@ -228,8 +228,8 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
                 stem = Path(chunk.out_dir) / node / out / outputs_mod.file_name(i)
                 try:
                     files.setdefault((node, out), {})[i] = [str(p) for p in outputs_mod._rendered(
-                        store, run.ref_keys.get(ref), out, stem, lambda r=ref, p=stem: outputs_mod.write_value(
-                            p, run.get(r), lossy))]
+                        store, run.ref_keys.get(ref), out, stem,
+                        lambda r=ref, p=stem, lo=lossy: outputs_mod.write_value(p, run.get(r), lo))]
                 except Exception as e:  # the run folder writes it again, and says why if it cannot
                     run.reports[node].messages.append(f"could not write output '{out}' of item {i}: {e}")
                     files.get((node, out), {}).pop(i, None)
