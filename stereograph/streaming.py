@@ -27,8 +27,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
-
 from stereograph import registry
 
 Ref = tuple[str, str, "str | None"]
@@ -92,6 +90,8 @@ def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]
 def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[Any] | None:
     """Selected nodes and regions in an order that runs each after everything it reads
     (None if grouping would need a cycle: then the run goes node by node)."""
+    import networkx as nx  # here, not at import: a replayed rerun imports this module but schedules nothing
+
     of = {n: k for k, r in enumerate(regions) for n in r.nodes}
     unit = {n: ("r", of[n]) if n in of else ("n", n) for n in selected}
     dag = nx.DiGraph()
