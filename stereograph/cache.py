@@ -66,18 +66,33 @@ def _png_encode(a: np.ndarray) -> bytes | None:
 JPEG_QUALITY = 90  # a picture for people (Out(lossy=True)): no visible loss, ~6x smaller than PNG
 
 
+# id(decoded image) -> (a weak reference to it, the JPEG bytes it was decoded from): writing a lossy
+# output that is already a decoded JPEG writes those very bytes, not a second generation (which
+# differs by up to 32 grey levels), so the run folder's file decodes to the array its readers got.
+_DECODED_FROM: dict[int, tuple[Any, bytes]] = {}
+
+
 def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
     """The JPEG bytes of an 8-bit image (HxW or HxWx3) and the image they decode to -- the value
-    every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values."""
+    every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values.
+    An image this function decoded gives back its own bytes and itself."""
+    import weakref
+
     import cv2
 
     if not is_png_image(a) or (a.ndim == 3 and a.shape[2] != 3):
         return None
+    known = _DECODED_FROM.get(id(a))
+    if known is not None and known[0]() is a:
+        return known[1], a
     ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     if not ok:
         return None
     data = buf.tobytes()
-    return data, _png_decode(data)
+    decoded = _png_decode(data)
+    key = id(decoded)
+    _DECODED_FROM[key] = (weakref.ref(decoded, lambda _r, k=key: _DECODED_FROM.pop(k, None)), data)
+    return data, decoded
 
 
 def _png_decode(data: bytes) -> np.ndarray:

@@ -65,3 +65,5 @@ def test_a_lossy_picture_is_one_jpeg_and_reads_the_same_fresh_or_cached(tmp_path
     assert (tmp_path / "o3" / "draw" / "picture.jpg").is_file()
     assert nocache.outputs("digest", "digest") == fresh.outputs("digest", "digest")
     assert jpg.stat().st_size < 0.5 * (fresh.outputs("draw", "picture").nbytes)
+    # ... whose file is the very JPEG its readers decoded (not a second generation of it)
+    assert (tmp_path / "o3" / "draw" / "picture.jpg").read_bytes() == jpg.read_bytes()
