@@ -316,6 +316,16 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
     size = chunk_size(len(ids), workers)
+    # The keys of everything upstream of the region's outside inputs go along (values read on
+    # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
+    outside = {s for n in members for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
+    upstream, stack = set(outside), list(outside)
+    while stack:
+        for p in g.dag.predecessors(stack.pop()):
+            if p not in upstream:
+                upstream.add(p)
+                stack.append(p)
+    upstream -= inside
     chunks = []
     for k in range(0, len(ids), size):
         part = ids[k:k + size]
@@ -344,6 +354,10 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                         except (KeyError, Exception):
                             value = _MISSING
                     inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), value)
+        want = set(part)
+        for ref, key in run.ref_keys.items():
+            if ref[0] in upstream and ref not in inputs and (ref[2] is None or ref[2] in want):
+                inputs[ref] = (key, run.ref_ids.get(ref), _MISSING)
         chunks.append(Chunk(g, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
                             statuses, dict(run.code), dict(run.code_files),
                             str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
