@@ -9,7 +9,7 @@ import math
 import cv2
 import numpy as np
 
-from ._color import object_color_score
+from ._color import object_color_score, object_pixel_count
 from ._params import SegmenterParams
 
 
@@ -131,6 +131,7 @@ def select_candidate(
             return None, (f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
                           f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
                           "object.color_bgr to tell them apart")
+    winner = ok[0]
     if len(ok) > 1:
         a, b = ok[0], ok[1]
         if b["area_px"] >= params.ambiguity_ratio * a["area_px"]:
@@ -138,12 +139,44 @@ def select_candidate(
                 ok.sort(key=lambda c: c["color_score"])
                 for c in ok[1:]:
                     c["rejected"] = "colour"
-                return ok[0], None
-            a["rejected"] = b["rejected"] = "ambiguous"
-            what = "and colour " if a.get("color_score") is not None else ""
-            hint = "" if what else "; give object.color_bgr to tell them apart"
-            return None, (f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
-                          f"{b['area_px']:.0f} px){hint}")
-    for c in ok[1:]:
-        c["rejected"] = "smaller"
-    return ok[0], None
+                winner = ok[0]
+            else:
+                a["rejected"] = b["rejected"] = "ambiguous"
+                what = "and colour " if a.get("color_score") is not None else ""
+                hint = "" if what else "; give object.color_bgr to tell them apart"
+                return None, (f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
+                              f"{b['area_px']:.0f} px){hint}")
+        else:
+            for c in ok[1:]:
+                c["rejected"] = "smaller"
+    if winner.get("color_score") is not None:
+        rival = _object_coloured_rival(cands, winner, img_bgr, a_min, a_max, params)
+        if rival is not None:
+            winner["rejected"] = rival["rejected"] = "ambiguous"
+            return None, (f"ambiguous: another region holds as much of the ball's colour ({rival['_object_px']:.0f} "
+                          f"px of it, the chosen one {winner['area_px']:.0f} px): a second ball of that colour, "
+                          "merged with its shadow or with what it touches?")
+    return winner, None
+
+
+def _object_coloured_rival(cands: list[dict], winner: dict, img_bgr: np.ndarray, a_min: float, a_max: float,
+                           params: SegmenterParams) -> dict | None:
+    """A candidate other than ``winner`` that holds a ball-sized patch of the object's colour, or None.
+
+    A region's median colour is not enough: a second ball of the object's colour whose outline
+    merged with its shadow (or a touching object) has a median pulled away from the colour -- or
+    fails the roundness test -- and would leave the other ball as a confident, possibly wrong,
+    answer. Counted here are the pixels within the colour tolerance (or hue range); a region with
+    at least ``ambiguity_ratio`` of the winner's area of them, and at least the smallest ball's
+    area, may be a second ball.
+    """
+    need = max(a_min, params.ambiguity_ratio * winner["area_px"])
+    for c in sorted(cands, key=lambda c: -c["area_px"]):
+        if c is winner or c["area_px"] < need or c["area_px"] > 3.0 * a_max:
+            continue
+        x0, y0, x1, y1 = c["bbox"]
+        n = object_pixel_count(img_bgr[y0: y1 + 1, x0: x1 + 1], _filled(c["contour"], c["bbox"]), params.object)
+        if n >= need:
+            c["_object_px"] = n
+            return c
+    return None

@@ -77,3 +77,17 @@ def object_color_score(img_bgr: np.ndarray, mask: np.ndarray, obj: ObjectSpec) -
         return dist / obj.color_tolerance
     hm = hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)
     return float(1.0 - (hm[sel] > 0).mean()) * 2.0  # 50 % outside the range -> score 1
+
+
+def object_pixel_count(img_bgr: np.ndarray, mask: np.ndarray, obj: ObjectSpec) -> int:
+    """How many pixels of the region ``mask`` have the object's colour (within ``color_tolerance`` of
+    ``color_bgr``, or inside the hue range); 0 when no colour is set."""
+    sel = mask > 0
+    if not sel.any():
+        return 0
+    if obj.color_bgr is not None:
+        dist = color_distance_map(masked_pixels(img_bgr, sel)[None], obj.color_bgr)
+        return int(np.count_nonzero(dist <= obj.color_tolerance))
+    if obj.hue_range_deg is not None:
+        return int(np.count_nonzero(hue_mask(img_bgr, obj.hue_range_deg, obj.min_saturation)[sel]))
+    return 0
