@@ -16,6 +16,7 @@ Usage::
     .venv/bin/python benchmarks/locate_hard.py                 # 40 scenes per kind
     .venv/bin/python benchmarks/locate_hard.py --n 10 --old    # quicker, plus the issue-4 kinds
     .venv/bin/python benchmarks/locate_hard.py --segmenters edge_morph color --disparity ellipse
+    .venv/bin/python benchmarks/locate_hard.py --learn         # also the colour learned from training truth
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.locate_matrix import SEGMENTERS, locate_all, prepare  # noqa: E402
+from nodes.segmenters.appearance import AppearanceParams, learn_appearance  # noqa: E402
 from nodes.sources._hard_scenes import HARD_KINDS  # noqa: E402
 
 OLD_KINDS = ("clutter", "second_ball", "border", "occluded", "hidden", "empty")
@@ -93,6 +95,8 @@ def main(argv=None):
     ap.add_argument("--segmenters", nargs="+", default=["edge_morph", "color"], choices=list(SEGMENTERS))
     ap.add_argument("--disparity", nargs="+", default=["centroid", "ellipse"], choices=["centroid", "ellipse"])
     ap.add_argument("--plain", type=int, default=0, help="also this many plain scenes (one ball, nothing else)")
+    ap.add_argument("--learn", action="store_true",
+                    help="also the colour learned from the training placements' truth (segmenter.appearance)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="pickle file: reuse the rendered, rectified pairs from there (written when absent)")
     a = ap.parse_args(argv)
@@ -106,14 +110,20 @@ def main(argv=None):
         pairs, raw, kinds = pairs + p2, raw + r2, kinds + ["plain"]
     print(f"{len(pairs)} hard pairs ({a.n} per kind), {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
           f"B = {rect['baseline_cm']:.2f} cm; rendered in {time.time() - t0:.0f} s\n")
+    modes = {"given": {"radius_cm": 2.0, "color_bgr": COLOR}, "unset": {"radius_cm": 2.0, "color_bgr": None}}
+    if a.learn:
+        learned = learn_appearance({p["id"]: p for p in pairs}, rect, AppearanceParams(), raw=False)
+        modes["learned"] = {"radius_cm": 2.0, "color_bgr": learned["color_bgr"],
+                            "color_tolerance": learned["color_tolerance"]}
+        print(f"learned from {learned['n_pairs']} training placements: color_bgr {learned['color_bgr']}, "
+              f"tolerance {learned['color_tolerance']:.3f}; left out {len(learned['left_out'])}\n")
     for seg in a.segmenters:
-        for given in (True, False):
-            if seg == "color" and not given:
+        for mode, obj in modes.items():
+            if seg == "color" and mode == "unset":
                 continue  # segmenter.color refuses to run without a colour (NodeError)
-            obj = {"radius_cm": 2.0, "color_bgr": COLOR if given else None}
             for disp in a.disparity:
                 locs = locate_all(pairs, rect, seg, disp, object_=obj)
-                print(f"**{seg} + {disp}, colour {'given' if given else 'unset'}**\n")
+                print(f"**{seg} + {disp}, colour {mode}**\n")
                 print("| kind | found | found, >= 50 % visible | found > 1 cm off | max err cm "
                       "| main reasons (not found) |")
                 print("|---|---:|---:|---:|---:|---|")

@@ -77,6 +77,7 @@ def segment_pair(
     mask_fn: MaskFn,
     method: str,
     ctx=None,
+    color_from: str | None = "params",
 ) -> dict:
     """Run a segmenter's mask function on both images of a rectified pair.
 
@@ -85,8 +86,9 @@ def segment_pair(
     object's full-resolution window only (see :mod:`nodes.contracts.views`); the masks and
     regions are in rectified pixels either way.
 
-    Returns the node's outputs ``{"segmentation": Segmentation, "overlay": BGR uint8}``; a pair
-    that cannot be trusted gives ``found: False`` with a reason, never an exception.
+    ``color_from`` says where ``params.object``'s colour came from (``"params"``, ``"appearance"``),
+    recorded in the Segmentation. Returns the node's outputs ``{"segmentation": Segmentation,
+    "overlay": BGR uint8}``; a pair that cannot be trusted gives ``found: False`` with a reason, never an exception.
     """
     raw = pair_is_raw(ctx, rectification)
     reason = reason_shape = validate_pair(pair, rectification, raw)
@@ -101,6 +103,9 @@ def segment_pair(
         "right": None,
         "method": method,
         "object_radius_cm": float(params.object.radius_cm),
+        # where the object's colour came from: the YAML ("params"), learned ("appearance"), or none
+        "color_from": color_from if (params.object.color_bgr is not None
+                                     or params.object.hue_range_deg is not None) else None,
         "split": pair.get("split"),
         "rejected_left_px": [], "rejected_left_why": [], "rejected_right_px": [], "rejected_right_why": [],
     }

@@ -42,6 +42,9 @@ SEGMENTER_INPUTS = {
     "pair": In("RectifiedPair | StereoPair",
                description="Rectified pair, or camera images rectified on request (needs `rectification`)."),
     "rectification": In("Rectification", optional=True, description="For the expected ball size."),
+    "appearance": In("ObjectAppearance", optional=True,
+                     description="The ball's colour learned from training truth (segmenter.appearance); used when "
+                                 "object.color_bgr and hue_range_deg are unset."),
 }
 SEGMENTER_OUTPUTS = {
     "segmentation": Out("Segmentation", description="Masks and region properties."),
@@ -152,3 +155,29 @@ class SegmenterParams(Params):
                                       "a ball of object.radius_cm and the stereo distance (ratio); above -> not found "
                                       "(another object, or the wrong radius in the YAML).")
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
+
+
+def apply_appearance(params: SegmenterParams, appearance: dict | None) -> tuple[SegmenterParams, str | None]:
+    """``params`` with the learned colour when the YAML gives none, and where the colour comes from.
+
+    Returns ``(params, source)``, ``source`` being ``"params"`` (the YAML's colour or hue range
+    wins), ``"appearance"`` (learned, ``segmenter.appearance``) or None (no colour at all).
+    """
+    obj = params.object
+    if obj.color_bgr is not None or obj.hue_range_deg is not None:
+        return params, "params"
+    if appearance is None:
+        return params, None
+    try:
+        colour = tuple(int(c) for c in appearance["color_bgr"])
+        tol = float(appearance["color_tolerance"])
+        if len(colour) != 3 or not all(0 <= c <= 255 for c in colour) or not 0 < tol <= 2:
+            raise ValueError
+    except (KeyError, TypeError, ValueError):
+        from stereograph.api import NodeError
+
+        raise NodeError("the segmenter's `appearance` input is not an ObjectAppearance (color_bgr: 3 values "
+                        "0-255, color_tolerance in (0, 2]).",
+                        hint="wire `appearance` to segmenter.appearance's `appearance` output.") from None
+    learned = obj.model_copy(update={"color_bgr": colour, "color_tolerance": tol})
+    return params.model_copy(update={"object": learned}), "appearance"

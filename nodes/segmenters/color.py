@@ -16,7 +16,7 @@ from stereograph.api import Field, NodeError, node
 
 from ._color import color_distance_map, hue_mask
 from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
 from ._pixels import fill_holes, max_hole_area, structuring_element
 
 
@@ -50,11 +50,12 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
     params=ColorParams,
     version="1",
 )
-def color(params: ColorParams, pair, rectification=None, ctx=None):
+def color(params: ColorParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range)."""
+    params, color_from = apply_appearance(params, appearance)
     if params.object.color_bgr is None and params.object.hue_range_deg is None:
         raise NodeError(
             "segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both unset.",
             hint="set e.g. `object: {color_bgr: [40, 60, 200]}` or `object: {hue_range_deg: [340, 20]}` in its params.",
         )
-    return segment_pair(pair, rectification, params, color_mask, "color", ctx)
+    return segment_pair(pair, rectification, params, color_mask, "color", ctx, color_from)

@@ -20,7 +20,7 @@ from stereograph.api import Field, node
 
 from ._channel import best_plane, normalize_exposure, plane
 from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
 from ._pixels import Channel, fill_holes, max_hole_area, structuring_element, to_channel
 
 
@@ -155,11 +155,12 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     params=EdgeMorphParams,
     version="1",
 )
-def edge_morph(params: EdgeMorphParams, pair, rectification=None, ctx=None):
+def edge_morph(params: EdgeMorphParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
     give object.color_bgr, else look-alikes are refused as ambiguous.
 
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.
     """
-    return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx)
+    params, color_from = apply_appearance(params, appearance)
+    return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx, color_from)

@@ -21,7 +21,7 @@ import numpy as np
 from stereograph.api import Field, node
 
 from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 
 
@@ -113,11 +113,12 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
     params=OtsuParams,
     version="1",
 )
-def otsu(params: OtsuParams, pair, rectification=None, ctx=None):
+def otsu(params: OtsuParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball with an Otsu threshold of the gray image's difference from its background;
     give object.color_bgr, else look-alikes are refused as ambiguous.
 
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.
     """
-    return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx)
+    params, color_from = apply_appearance(params, appearance)
+    return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx, color_from)
