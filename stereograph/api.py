@@ -279,6 +279,23 @@ class _NoParams(Params):
     pass
 
 
+def type_name(ann: Any) -> str:
+    """A parameter's type as a person reads it: ``'train' | 'all'``, ``float | None``, ``tuple[float, float]``
+    (constraints such as ``PositiveRange``'s validator are left out: the description states them)."""
+    import typing
+
+    origin = typing.get_origin(ann)
+    if origin is typing.Annotated:
+        return type_name(typing.get_args(ann)[0])
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in typing.get_args(ann))
+    if origin is not None:
+        args = [type_name(a) for a in typing.get_args(ann)]
+        name = getattr(origin, "__name__", str(origin).replace("typing.", ""))
+        return " | ".join(args) if name in ("Union", "UnionType") else f"{name}[{', '.join(args)}]"
+    return "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
+
+
 def node(
     name: str,
     *,

@@ -110,23 +110,12 @@ def cmd_report(args) -> int:
     return 0
 
 
-def _type_name(ann: Any) -> str:
-    import typing
-
-    origin = typing.get_origin(ann)
-    if origin is typing.Literal:
-        return " | ".join(repr(a) for a in typing.get_args(ann))
-    if origin is not None:
-        args = [_type_name(a) for a in typing.get_args(ann)]
-        name = getattr(origin, "__name__", str(origin).replace("typing.", ""))
-        return " | ".join(args) if name in ("Union", "UnionType") else f"{name}[{', '.join(args)}]"
-    return "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
-
-
 def _describe_params(model, prefix: str = "", defaults: Any = None) -> list[tuple[str, str, str, str]]:
     """Rows (name, type, default, description [range]); nested models expand to dotted names,
     showing the defaults the parent gives them."""
     from pydantic import BaseModel
+
+    from stereograph.api import type_name
 
     rows = []
     symbols = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
@@ -144,7 +133,7 @@ def _describe_params(model, prefix: str = "", defaults: Any = None) -> list[tupl
         bounds = [f"{sym} {getattr(m, attr)}" for m in f.metadata for attr, sym in symbols.items()
                   if getattr(m, attr, None) is not None]
         desc = (f.description or "") + (f" [{', '.join(bounds)}]" if bounds else "")
-        rows.append((prefix + name, _type_name(ann), default, desc))
+        rows.append((prefix + name, type_name(ann), default, desc))
     return rows
 
 

@@ -16,7 +16,7 @@ import networkx as nx
 import pydantic
 
 from stereograph import registry
-from stereograph.api import NodeSpec, Params
+from stereograph.api import NodeSpec, Params, type_name
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
@@ -127,8 +127,7 @@ def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: s
     elif loc and loc[0] in fields:
         f = fields[loc[0]]
         desc = f.description or ""
-        ann = getattr(f.annotation, "__name__", str(f.annotation))
-        hint = f"'{loc[0]}' is {ann}" + (f": {desc}" if desc else "")
+        hint = f"'{loc[0]}' is {type_name(f.annotation)}" + (f": {desc}" if desc else "")
     return ConfigError(f"{spec.name} parameter '{field_name}': {msg}", doc.where("nodes", node, "params", *loc),
                        node, hint)
 

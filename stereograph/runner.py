@@ -395,7 +395,7 @@ class _Run:
         self.mem: dict[Ref, Any] = {}
         self.items: dict[tuple[str, str], list[str]] = {}       # collection output -> item ids (ok ones)
         self.failed_items: dict[tuple[str, str], str] = {}      # (node, item) -> message
-        self.reports = {n: NodeReport(n, i.type) for n, i in graph.nodes.items()}
+        self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}  # the table reads in run order
         self.pipeline_id = hash_json(str(graph.doc.path))
         self.code: dict[str, str] = {}
         self.code_files: dict[str, dict[str, str]] = {}

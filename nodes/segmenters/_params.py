@@ -157,14 +157,19 @@ class SegmenterParams(Params):
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
 
 
-def apply_appearance(params: SegmenterParams, appearance: dict | None) -> tuple[SegmenterParams, str | None]:
+def apply_appearance(params: SegmenterParams, appearance: dict | None,
+                     ctx=None) -> tuple[SegmenterParams, str | None]:
     """``params`` with the learned colour when the YAML gives none, and where the colour comes from.
 
     Returns ``(params, source)``, ``source`` being ``"params"`` (the YAML's colour or hue range
-    wins), ``"appearance"`` (learned, ``segmenter.appearance``) or None (no colour at all).
+    wins; with ``ctx``, a warning says the learned one is not used), ``"appearance"`` (learned,
+    ``segmenter.appearance``) or None (no colour at all).
     """
     obj = params.object
     if obj.color_bgr is not None or obj.hue_range_deg is not None:
+        if appearance is not None and ctx is not None:
+            ctx.warn("object.color_bgr / hue_range_deg is given in the YAML: the colour learned by the wired "
+                     "`appearance` input is not used (remove one of the two)")
         return params, "params"
     if appearance is None:
         return params, None

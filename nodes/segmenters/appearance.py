@@ -38,7 +38,8 @@ class AppearanceParams(Params):
     """Parameters of ``segmenter.appearance``."""
 
     split: Literal["train", "all"] = Field(
-        "train", description="Which placements with truth to learn from: train = the training split only (name).")
+        "train", description="Which placements with truth to learn from: train = those of the training split, all = "
+                             "every pair with truth (name).")
     radius_cm: float = Field(
         2.0, gt=0, le=100, description="Ball radius when the truth does not give one (cm).")
     disc_fraction: float = Field(
@@ -91,12 +92,14 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
                      T_table_from_left=None) -> dict:
     """The ``ObjectAppearance`` of the ball from the placements with truth (see the module docstring)."""
     colours, used, left_out = [], [], {}
+    considered = 0
     for pid, pair in sorted(pairs.items()):
         if not isinstance(pair, dict):
             continue
         if params.split == "train" and pair.get("split") != "train":
             continue
         truth = pair.get("truth")
+        considered += bool(truth)
         X = _truth_centre(truth, T_table_from_left)
         if X is None:
             if truth:
@@ -144,16 +147,21 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
     n_keep = int(keep.sum())
     if n_keep < params.min_pairs:
         raise NodeError(
-            f"segmenter.appearance: only {n_keep} placement(s) agree on the ball's colour (min_pairs "
-            f"{params.min_pairs}){_first_reasons(left_out)}.",
+            f"segmenter.appearance: {n_keep} of the {considered} {params.split} placement(s) with truth give the "
+            f"ball's colour, fewer than min_pairs {params.min_pairs}{_first_reasons(left_out)}.",
             hint="add training placements with ground truth, lower `min_pairs`, or give object.color_bgr to the "
                  "segmenter.")
     colour = np.median(colours[keep], axis=0)
     d_keep = _distances(colours[keep], colour)
-    tol = float(np.clip(3.0 * 1.4826 * float(np.median(d_keep)), MIN_TOLERANCE, MAX_TOLERANCE))
+    spread_tol = 3.0 * 1.4826 * float(np.median(d_keep))
+    tol = float(np.clip(spread_tol, MIN_TOLERANCE, MAX_TOLERANCE))
     return {
         "color_bgr": [int(round(c)) for c in colour],
         "color_tolerance": tol,
+        "tolerance_widened": bool(spread_tol > MIN_TOLERANCE),  # the placements' colours spread more than 0.15
+        "note": "color_bgr is the median of the ball's lit and shaded pixels: darker than its paint, with the "
+                "same chromaticity, which is what the segmenters compare (distance: chromaticity L1, 0-2)",
+        "n_considered": considered,
         "n_pairs": n_keep,
         "pairs": [p for p, k in zip(used, keep, strict=True) if k],
         "distance": {p: float(d) for p, d in zip(used, dist, strict=True)},
@@ -208,6 +216,10 @@ def appearance(params: AppearanceParams, pair, rectification, rig=None, ctx=None
                             hint="wire `rectification` to rectifier.opencv's output.")
     raw = pair_is_raw(ctx, rectification)
     out = learn_appearance(pair, rectification, params, raw, (rig or {}).get("T_table_from_left"))
-    if ctx is not None and out["left_out"]:
-        ctx.warn(f"{len(out['left_out'])} placement(s) left out of the colour{_first_reasons(out['left_out'])}")
+    if ctx is not None:
+        b, g, r = out["color_bgr"]
+        ctx.warn(f"learned BGR ({b}, {g}, {r}), tolerance {out['color_tolerance']:.2f}, from {out['n_pairs']}/"
+                 f"{out['n_considered']} {params.split} placements with truth")
+        if out["left_out"]:
+            ctx.warn(f"{len(out['left_out'])} placement(s) left out of the colour{_first_reasons(out['left_out'])}")
     return {"appearance": out}

@@ -52,7 +52,7 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
 )
 def color(params: ColorParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range)."""
-    params, color_from = apply_appearance(params, appearance)
+    params, color_from = apply_appearance(params, appearance, ctx)
     if params.object.color_bgr is None and params.object.hue_range_deg is None:
         raise NodeError(
             "segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both unset.",

@@ -162,5 +162,5 @@ def edge_morph(params: EdgeMorphParams, pair, rectification=None, appearance=Non
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.
     """
-    params, color_from = apply_appearance(params, appearance)
+    params, color_from = apply_appearance(params, appearance, ctx)
     return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx, color_from)

@@ -120,5 +120,5 @@ def otsu(params: OtsuParams, pair, rectification=None, appearance=None, ctx=None
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.
     """
-    params, color_from = apply_appearance(params, appearance)
+    params, color_from = apply_appearance(params, appearance, ctx)
     return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx, color_from)
