@@ -22,8 +22,10 @@ class ObjectSpec(Params):
 
     radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
     color_bgr: tuple[int, int, int] | None = Field(
-        None, description="Expected colour of the ball, B, G, R in 0-255. Give it: None = unknown colour, and then "
-                          "any second round object of a ball's size makes the result ambiguous (not found)."
+        None, description="Expected colour of the ball, B, G, R in 0-255. Give it, or wire the segmenter's "
+                          "`appearance` input (segmenter.appearance learns it from training truth): None = unknown "
+                          "colour, and then any second round object of a ball's size makes the result ambiguous "
+                          "(not found)."
     )
     hue_range_deg: tuple[float, float] | None = Field(
         None,

@@ -157,7 +157,8 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
 )
 def edge_morph(params: EdgeMorphParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
-    give object.color_bgr, else look-alikes are refused as ambiguous.
+    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
+    refused as ambiguous.
 
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.

@@ -115,7 +115,8 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
 )
 def otsu(params: OtsuParams, pair, rectification=None, appearance=None, ctx=None):
     """Segment the ball with an Otsu threshold of the gray image's difference from its background;
-    give object.color_bgr, else look-alikes are refused as ambiguous.
+    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
+    refused as ambiguous.
 
     Without object.color_bgr two round objects of similar size are refused as ambiguous
     (not found), and a ball touching another object cannot be split from it.
