@@ -220,3 +220,16 @@ def test_coarse_first_finds_near_and_far_balls_like_the_regular_level():
         assert a["found"] and b["found"], (a["reason"], b["reason"])
         for side in ("left", "right"):
             np.testing.assert_allclose(a[side]["centroid_px"], b[side]["centroid_px"], atol=0.05)
+
+
+def test_a_working_range_within_the_balls_radius_is_a_clear_parameter_error():
+    """Found by the locate fuzzer: `--set segment.object.radius_cm=100` (or a working range in mm
+    given as cm) crashed every item with "math domain error"; it is a parameter error."""
+    import pydantic
+
+    from nodes.segmenters.edge_morph import EdgeMorphParams
+
+    for bad in ({"object": {"radius_cm": 100}}, {"working_range_cm": [0.1, 0.2]}):
+        with pytest.raises(pydantic.ValidationError, match="within the ball's own radius"):
+            EdgeMorphParams(**bad)
+    EdgeMorphParams(object={"radius_cm": 30}, working_range_cm=[40, 90])  # a big ball far enough: fine

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from pydantic import model_validator
 
 from stereograph.api import Field, In, Out, Params, PositiveRange
 
@@ -157,6 +158,15 @@ class SegmenterParams(Params):
                                       "a ball of object.radius_cm and the stereo distance (ratio); above -> not found "
                                       "(another object, or the wrong radius in the YAML).")
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
+
+    @model_validator(mode="after")
+    def _ball_fits_the_working_range(self) -> SegmenterParams:
+        far = max(self.working_range_cm)
+        if far <= self.object.radius_cm:
+            raise ValueError(f"working_range_cm ends at {far:g} cm, within the ball's own radius (object.radius_cm "
+                             f"{self.object.radius_cm:g} cm): the cameras would be inside the ball; give the "
+                             "distances from the cameras to the ball's centre, in cm")
+        return self
 
 
 def apply_appearance(params: SegmenterParams, appearance: dict | None,
