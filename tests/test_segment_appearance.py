@@ -49,6 +49,20 @@ def test_learns_the_balls_colour_from_the_training_placements(rig):
     assert every["n_pairs"] == len(pairs)
 
 
+def test_camera_pairs_and_table_frame_truth_give_the_same_colour(rig):
+    pairs, rect = rig
+    src = synthetic(SyntheticParams(n_scenes=8, n_views=0, seed=3))
+    ref = learn_appearance(pairs, rect, AppearanceParams(), raw=False)
+    raw = learn_appearance(src["pairs"], rect, AppearanceParams(), raw=True)  # rectified on request
+    assert raw["color_bgr"] == ref["color_bgr"] and raw["pairs"] == ref["pairs"]
+    table_only = {k: {**p, "truth": {"center_table_cm": p["truth"]["center_table_cm"]}} for k, p in pairs.items()}
+    T = src["truth"]["T_table_from_left"]
+    assert learn_appearance(table_only, rect, AppearanceParams(), raw=False, T_table_from_left=T)["color_bgr"] \
+        == ref["color_bgr"]
+    with pytest.raises(NodeError, match="wire `rig` for a table-frame one"):
+        learn_appearance(table_only, rect, AppearanceParams(), raw=False)
+
+
 def test_a_placement_whose_truth_is_wrong_is_left_out_and_listed(rig):
     pairs, rect = rig
     pairs = dict(pairs)
