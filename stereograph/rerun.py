@@ -175,6 +175,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     shutil.rmtree(trash, ignore_errors=True)
     tmp = store.tmp / f"memo-{uuid.uuid4().hex}"
     try:
+        tmp.mkdir(parents=True)  # (a run that saved no file has no files/ folder to make it)
         for node in summary["nodes"]:
             if node["node"] in live:
                 continue
@@ -425,7 +426,7 @@ def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path
               plugins: list[str]) -> tuple[SimpleNamespace, dict[str, Any]]:
     """Run a node that must run, as the runner does (same ``execute``), and write its outputs."""
     from stereograph import outputs
-    from stereograph.runner import Task, close_resources, execute
+    from stereograph.calls import Task, close_resources, execute
 
     resources: dict[str, Any] = {}
     try:

@@ -497,7 +497,7 @@ def produce_ahead(task: AheadTask) -> list[str]:
 
     An item that fails is left to its region task, which makes it again and reports why."""
     from stereograph import outputs as outputs_mod
-    from stereograph.runner import Task, execute
+    from stereograph.calls import Task, execute
 
     if task.plugins:
         registry.import_plugins(task.plugins, Path(task.pipeline_dir))
@@ -569,7 +569,7 @@ class _Ahead:
         self.files = files
 
     def map(self, fn: Any, tasks: list[Any]) -> Any:
-        from stereograph.runner import TaskResult
+        from stereograph.calls import TaskResult
 
         for t in tasks:
             path = self.files.get(t.item) if t.producing else None
