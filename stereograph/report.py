@@ -94,7 +94,12 @@ class _Page:
         try:
             if p.stat().st_size > MAX_JSON_BYTES:
                 return _link(rel)
-            value = json.loads(p.read_text())
+            data = p.read_bytes()
+            # Only a table or a markdown value is shown: a file without their keys is linked unparsed
+            # (json.dumps writes a key's ASCII letters as they are; a run's records are most of its JSON).
+            if not ((b'"columns"' in data and b'"rows"' in data) or b'"markdown"' in data):
+                return _link(rel)
+            value = json.loads(data)
         except (OSError, ValueError):
             return _link(rel)
         if is_table(value):
