@@ -255,15 +255,14 @@ def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]
 
 
 def _rendered_markdown(entries: list[list[str]], con) -> list[list[Any]]:
-    """The entries with each markdown text also as ``con`` renders it (its width and colours): a
-    replayed rerun on the same kind of console prints that without importing the Markdown parser."""
-    from rich.markdown import Markdown
-
+    """The entries with each text also as ``con`` renders it (its width and colours): a replayed
+    rerun on the same kind of console prints that without parsing the Markdown or laying out the
+    data again."""
     out: list[list[Any]] = []
     for e in entries:
-        if e[0] != "live" and e[1] == "markdown":
+        if e[0] != "live":
             with con.capture() as cap:
-                con.print(Markdown(e[2]))
+                _print_entry(con, e[1], e[2])
             e = [*e[:3], {"console": [con.width, con.color_system], "text": cap.get()}]
         out.append(e)
     return out
@@ -276,16 +275,21 @@ def _print_echo(entries: list[list[Any]], con) -> None:
 
     for title, kind, text, *pre in [e for e in entries if e[0] != "live"][:ECHO_LIMIT]:
         con.rule(escape(title), align="left")
-        if kind == "markdown" and pre and pre[0].get("console") == [con.width, con.color_system]:
+        if pre and pre[0].get("console") == [con.width, con.color_system]:
             con.file.write(pre[0]["text"])
-        elif kind == "markdown":
-            from rich.markdown import Markdown
-
-            con.print(Markdown(text))
         else:
-            from rich.pretty import Pretty
+            _print_entry(con, kind, text)
 
-            con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
+
+def _print_entry(con, kind: str, text: str) -> None:
+    if kind == "markdown":
+        from rich.markdown import Markdown
+
+        con.print(Markdown(text))
+    else:
+        from rich.pretty import Pretty
+
+        con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
 
 
 def _replayable(args) -> bool:
