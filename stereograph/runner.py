@@ -80,6 +80,22 @@ class SerialExecutor:
         pass
 
 
+# Libraries' own thread pools, one thread each in a worker process: the pool's processes are the
+# parallelism, and more threads than cores only cost CPU (switching, spinning: ~1 s of a 2-worker
+# locate.yaml run). Each library reads its variable when it first starts its threads, so a worker
+# forked before the parent used them gets one; one forked after keeps what it inherited (no call
+# into a library's pool from a forked child: that can deadlock on a lock a parent thread held).
+ONE_THREAD = {"OPENCV_FOR_THREADS_NUM": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+              "MKL_NUM_THREADS": "1"}
+
+
+def one_thread_each() -> None:
+    """One thread per library pool in this process (and those it starts), unless the user set the
+    variable: for a worker process, and for a ``--workers`` command's own process."""
+    for k, v in ONE_THREAD.items():
+        os.environ.setdefault(k, v)
+
+
 class ProcessExecutor:
     """Runs tasks in a pool of worker processes (results in order).
 
@@ -92,7 +108,7 @@ class ProcessExecutor:
 
     def __init__(self, workers: int):
         self.workers = workers
-        self.pool = cf.ProcessPoolExecutor(max_workers=workers)
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, initializer=one_thread_each)
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         tasks = list(tasks)
@@ -139,7 +155,7 @@ class ProcessExecutor:
 
     def _restart(self) -> None:
         self.pool.shutdown(wait=False, cancel_futures=True)
-        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers)
+        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=one_thread_each)
 
     def close(self) -> None:
         self.pool.shutdown()

@@ -18,6 +18,7 @@ a cached item is adopted, not recomputed) and the same per-item failure rules.
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import dataclasses
 import math
 import pickle
@@ -541,9 +542,19 @@ def start_ahead(run: Any, reg: Region) -> None:
     folder = Path(run.out_dir) / AHEAD_DIR
     folder.mkdir(parents=True, exist_ok=True)
     graph = pickle.dumps(run.g)
-    tasks = [AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, ids[k:k + 2],
-                       str(folder), str(run.out_dir)) for k in range(0, len(ids), 2)]
-    run.ahead[reg.source] = (ex.start(produce_ahead, tasks), folder, outputs_mod.file_name)
+
+    def task(items: list[str]) -> AheadTask:
+        return AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, items, str(folder),
+                         str(run.out_dir))
+
+    # The first item is made here, before the pool's processes start (a pool forks them at its
+    # first task): what the node prepares once per process for its items (source.synthetic: the
+    # scene plan, the cameras' ray grids, the table's texture and render, ~2 s) is then inherited
+    # by every worker instead of being prepared again in each one.
+    here: cf.Future = cf.Future()
+    here.set_result(produce_ahead(task(ids[:1])))
+    later = ex.start(produce_ahead, [task(ids[k:k + 2]) for k in range(1, len(ids), 2)])
+    run.ahead[reg.source] = ([here, *later], folder, outputs_mod.file_name)
 
 
 def stop_ahead(run: Any, source: str | None) -> dict[str, str]:

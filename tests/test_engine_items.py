@@ -92,6 +92,27 @@ def test_process_pool_gives_the_serial_result(tmp_path):
         ex.close()
 
 
+def test_workers_inherit_what_the_source_prepares_and_use_one_library_thread(tmp_path):
+    """The first item is made in this process before the pool starts its processes, so what a source
+    prepares once per process is prepared once, not again in every worker; workers run the
+    libraries' own thread pools with one thread (the pool is the parallelism)."""
+    import os
+
+    log = tmp_path / "calls.txt"
+    p = write_pipeline(tmp_path, f"{{n: 12, log: {log}}}")
+    ex = ProcessExecutor(2)  # a new pool: its processes start at its first task
+    try:
+        r = run(p, tmp_path, use_cache=False, executor=ex)
+    finally:
+        ex.close()
+    assert r.ok and r.reports["src"].items_ran == 12
+    calls = [line.split() for line in log.read_text().splitlines()]
+    assert len(calls) == 12
+    assert [c for c in calls if c[1] == "1"] == [[str(os.getpid()), "1", os.environ.get("OPENCV_FOR_THREADS_NUM", "-")]]
+    workers = [c for c in calls if c[0] != str(os.getpid())]
+    assert workers and {c[2] for c in workers} == {"1"}
+
+
 def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
     p = write_pipeline(tmp_path, "{n: 9, drop: [m004]}")
     streamed = run(p, tmp_path, use_cache=False)
