@@ -117,6 +117,17 @@ def chunk_size(n_items: int, workers: int) -> int:
     return max(1, min(8, math.ceil(n_items / max(1, workers * 4))))
 
 
+def chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
+    """``[start, end)`` of each task's items: :func:`chunk_size` items, and with several workers
+    the last ``2 x workers`` tasks a quarter of that, so that the workers finish together (one
+    worker alone on a last full chunk leaves the others idle for up to a chunk's time)."""
+    size = chunk_size(n_items, workers)
+    small = max(1, size // 4)
+    tail = min(n_items, 2 * workers * small) if workers > 1 else 0
+    bounds = [(k, min(k + size, n_items - tail)) for k in range(0, n_items - tail, size)]
+    return bounds + [(k, min(k + small, n_items)) for k in range(n_items - tail, n_items, small)]
+
+
 @dataclass
 class Chunk:
     """One task: a chunk of items through a region (picklable for the pools)."""
@@ -316,10 +327,9 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
     local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
-    size = chunk_size(len(ids), workers)
     chunks = []
-    for k in range(0, len(ids), size):
-        part = ids[k:k + size]
+    for k, end in chunk_bounds(len(ids), workers):
+        part = ids[k:end]
         inputs: dict[Ref, tuple[str, str | None, Any]] = {}
         colls = {}
         for n in members:
