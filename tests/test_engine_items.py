@@ -245,3 +245,17 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
         assert all(np.array_equal(other[1][i], scaled[i]) for i in scaled)
         assert np.array_equal(other[0].outputs("picture", "picture")["m003"], img)
         assert {n: x.items for n, x in other[0].reports.items()} == {n: x.items for n, x in streamed.reports.items()}
+
+
+def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
+    from stereograph.streaming import chunk_bounds, chunk_size
+
+    for n, workers in [(120, 2), (120, 1), (9, 2), (5, 3), (1, 2), (0, 2), (480, 4)]:
+        bounds = chunk_bounds(n, workers)
+        assert [i for a, b in bounds for i in range(a, b)] == list(range(n))
+        sizes = [b - a for a, b in bounds]
+        assert all(0 < s <= chunk_size(n, workers) for s in sizes)
+        if workers > 1 and n >= 2 * workers * chunk_size(n, workers):
+            # the workers finish together: the last tasks are a quarter chunk
+            assert sizes[-2 * workers:] == [max(1, chunk_size(n, workers) // 4)] * (2 * workers)
+    assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 14 + [2] * 4
