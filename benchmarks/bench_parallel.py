@@ -134,6 +134,9 @@ def main() -> int:
     w1, w2 = rows["w1"], rows["w2"]
     print(f"speed-up, 2 workers over 1: {w1['wall_s'] / w2['wall_s']:.2f}x wall "
           f"(target >= 1.7x); CPU {w1['cpu_s']:.1f} s vs {w2['cpu_s']:.1f} s")
+    print(f"  the 1-worker run used {w1['cpu_s'] / w1['wall_s']:.2f} cores (the libraries' threads), so 2 workers are "
+          f"at most 2 x {w1['wall_s']:.1f} / {w2['cpu_s']:.1f} = {2 * w1['wall_s'] / w2['cpu_s']:.2f}x faster "
+          "even with nothing in the run alone")
     if "node_s" in w1:
         print("  node seconds, 1 worker :", json.dumps({k: round(v, 2) for k, v in w1["node_s"].items()}))
         print("  node seconds, 2 workers:", json.dumps({k: round(v, 2) for k, v in w2.get("node_s", {}).items()}),

@@ -244,15 +244,14 @@ def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]
 
 
 def _rendered_markdown(entries: list[list[str]], con) -> list[list[Any]]:
-    """The entries with each markdown text also as ``con`` renders it (its width and colours): a
-    replayed rerun on the same kind of console prints that without importing the Markdown parser."""
-    from rich.markdown import Markdown
-
+    """The entries with each text also as ``con`` renders it (its width and colours): a replayed
+    rerun on the same kind of console prints that without parsing the Markdown or laying out the
+    data again."""
     out: list[list[Any]] = []
     for e in entries:
-        if e[0] != "live" and e[1] == "markdown":
+        if e[0] != "live":
             with con.capture() as cap:
-                con.print(Markdown(e[2]))
+                _print_entry(con, e[1], e[2])
             e = [*e[:3], {"console": [con.width, con.color_system], "text": cap.get()}]
         out.append(e)
     return out
@@ -265,16 +264,21 @@ def _print_echo(entries: list[list[Any]], con) -> None:
 
     for title, kind, text, *pre in [e for e in entries if e[0] != "live"][:ECHO_LIMIT]:
         con.rule(escape(title), align="left")
-        if kind == "markdown" and pre and pre[0].get("console") == [con.width, con.color_system]:
+        if pre and pre[0].get("console") == [con.width, con.color_system]:
             con.file.write(pre[0]["text"])
-        elif kind == "markdown":
-            from rich.markdown import Markdown
-
-            con.print(Markdown(text))
         else:
-            from rich.pretty import Pretty
+            _print_entry(con, kind, text)
 
-            con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
+
+def _print_entry(con, kind: str, text: str) -> None:
+    if kind == "markdown":
+        from rich.markdown import Markdown
+
+        con.print(Markdown(text))
+    else:
+        from rich.pretty import Pretty
+
+        con.print(Pretty(json.loads(text), indent_guides=False, max_string=200))
 
 
 def _replayable(args) -> bool:
@@ -294,12 +298,14 @@ def cmd_run(args) -> int:
             return _finish_run(args, replayed, replayed.echo, lambda n: replayed.where[n],
                                lambda n: replayed.upstream[n])
 
-    from stereograph.runner import run_graph, workers_executor
+    from stereograph.runner import one_thread_each, run_graph, workers_executor
 
     graph = _load_graph(args)
     con = _console()
     loop = _loop(args, con)
     interactive = sys.stdout.isatty() and not args.json and loop is None
+    if args.workers and args.workers > 1 and not args.dask:
+        one_thread_each()  # this process too: its head shares the cores with the workers
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor, cycles=loop)
@@ -551,7 +557,21 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv is not None:  # called from Python (tests, scripts): the process goes on
+        return _main(argv)
+    try:
+        return _main(sys.argv[1:])
+    finally:
+        # The command's process ends next: its objects need not be traced by the collections the
+        # interpreter runs while it shuts down (~50 ms with pydantic and rich loaded); they are still
+        # freed, files closed, atexit handlers run.
+        import gc
+
+        gc.freeze()
+
+
+def _main(argv: list[str]) -> int:
+    argv = list(argv)
     parser = build_parser(lazy="compare" not in argv)
     if argv and argv[0] in registry.commands():
         ep = registry.commands()[argv[0]]

@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
+import sys
 import urllib.parse
 import uuid
 from pathlib import Path
@@ -48,10 +50,15 @@ def file_name(item: Any) -> str:
     return enc or "%00"
 
 
-def is_image(v: Any) -> bool:
-    import numpy as np  # (here, not at the top: a replayed rerun writes its run folder without NumPy)
+def _numpy() -> Any:
+    """NumPy if something imported it, else None: then no value is an array (a replayed rerun writes
+    its run folder without importing NumPy)."""
+    return sys.modules.get("numpy")
 
-    return (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
+
+def is_image(v: Any) -> bool:
+    np = _numpy()
+    return np is not None and (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
             (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
 
 
@@ -62,10 +69,9 @@ def is_file_value(v: Any) -> bool:
     """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text": str, ...}``."""
     if not (isinstance(v, dict) and isinstance(v.get("file_suffix"), str) and _SUFFIX.match(v["file_suffix"])):
         return False
-    import numpy as np
-
+    np = _numpy()
     content = v.get("file_bytes")
-    if isinstance(content, np.ndarray):
+    if np is not None and isinstance(content, np.ndarray):
         return content.ndim == 1 and content.dtype == np.uint8
     return isinstance(v.get("file_text"), str)
 
@@ -76,17 +82,17 @@ def file_content(v: dict) -> bytes:
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
-    import numpy as np
-
-    if isinstance(v, np.ndarray):
-        if v.size <= SMALL_ARRAY:
-            return v.tolist()
-        big[path or "array"] = v
-        return {"npz": path or "array", "shape": list(v.shape), "dtype": str(v.dtype)}
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return v.item()
-    if isinstance(v, float) and not np.isfinite(v):
-        return None if np.isnan(v) else (1e308 if v > 0 else -1e308)
+    np = _numpy()
+    if np is not None:
+        if isinstance(v, np.ndarray):
+            if v.size <= SMALL_ARRAY:
+                return v.tolist()
+            big[path or "array"] = v
+            return {"npz": path or "array", "shape": list(v.shape), "dtype": str(v.dtype)}
+        if isinstance(v, (np.floating, np.integer, np.bool_)):
+            return v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None if math.isnan(v) else (1e308 if v > 0 else -1e308)
     if isinstance(v, dict):
         return {str(k): to_json(x, big, f"{path}.{k}" if path else str(k)) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
@@ -133,16 +139,16 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
             p = _with_ext(path_stem, ".png")
             _write_bytes(p, buf.tobytes())
             return [p]
-    import numpy as np
-
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []
     p = _with_ext(path_stem, ".json")
     _write_bytes(p, json.dumps(data, indent=1).encode())
     files.append(p)
-    if big:
+    if big:  # (arrays: NumPy is imported)
         import io
+
+        import numpy as np
 
         buf = io.BytesIO()
         np.savez_compressed(buf, **{k.replace("/", "_"): a for k, a in big.items()})

@@ -19,6 +19,7 @@ import base64
 import html
 import json
 import os
+import re
 import uuid
 from pathlib import Path
 from typing import Any
@@ -94,7 +95,12 @@ class _Page:
         try:
             if p.stat().st_size > MAX_JSON_BYTES:
                 return _link(rel)
-            value = json.loads(p.read_text())
+            data = p.read_bytes()
+            # Only a table or a markdown value is shown: a file without their keys is linked unparsed
+            # (json.dumps writes a key's ASCII letters as they are; a run's records are most of its JSON).
+            if not ((b'"columns"' in data and b'"rows"' in data) or b'"markdown"' in data):
+                return _link(rel)
+            value = json.loads(data)
         except (OSError, ValueError):
             return _link(rel)
         if is_table(value):
@@ -126,12 +132,17 @@ def table_html(t: dict[str, Any], css_class: str = "sg-table") -> str:
     return f'<table class="{css_class}">{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
 
 
+def _parts(rel: str) -> list[str]:
+    """``Path(rel).parts`` of a run-folder path, without making a Path (hundreds of files a page)."""
+    return [p for p in re.split(r"[\\/]", rel) if p and p != "."]
+
+
 def _group(files: list[str]) -> dict[str, list[str]]:
     """Files by output: ``node/out.png`` -> ``out``; ``node/out/item.png`` -> ``out``."""
     groups: dict[str, list[str]] = {}
     for f in files:
-        parts = Path(f).parts
-        key = parts[1] if len(parts) > 2 else Path(parts[-1]).stem
+        parts = _parts(f)
+        key = parts[1] if len(parts) > 2 else os.path.splitext(parts[-1])[0]
         groups.setdefault(key, []).append(f)
     return groups
 
@@ -156,10 +167,10 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
         bits.append(f'<p class="hint">… and {len(messages) - MESSAGES_SHOWN} more messages in '
                     f'<a href="run.json">run.json</a></p>')
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
-        imgs = [f for f in files if Path(f).suffix.lower() in _MIME]
+        imgs = [f for f in files if os.path.splitext(f)[1].lower() in _MIME]
         rest = [f for f in files if f not in imgs]
         bits.append(f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(out)}</h3>')
-        per_item = len(Path(imgs[0]).parts) > 2 if imgs else False
+        per_item = len(_parts(imgs[0])) > 2 if imgs else False
         for f in imgs[:IMAGES_PER_OUTPUT]:
             bits.append(page.image(f, f, "item" if per_item else ""))
         if len(imgs) > IMAGES_PER_OUTPUT:

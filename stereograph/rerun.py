@@ -49,6 +49,7 @@ FORMAT = 1
 RACY_NS = 2_000_000_000  # coarser than any file system's timestamps (FAT: 2 s), as cache.FileIndex
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
 MEMO_DIR = "reruns"
+STAMPS = "stamps.json"  # beside memo.json: the stamps its files have now (see _restamp)
 SMALL_INPUTS_BYTES = 4 << 20  # a must-run node's inputs up to this size (as JSON) are kept in its memo
 _ENGINE_DIR = Path(__file__).resolve().parent
 
@@ -175,6 +176,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     shutil.rmtree(trash, ignore_errors=True)
     tmp = store.tmp / f"memo-{uuid.uuid4().hex}"
     try:
+        tmp.mkdir(parents=True)  # (a run that saved no file has no files/ folder to make it)
         for node in summary["nodes"]:
             if node["node"] in live:
                 continue
@@ -285,6 +287,7 @@ def replay(pipeline: str | Path, overrides: list[str], cache_dir: str | Path | N
         if not isinstance(memo, dict) or memo.get("format") != FORMAT or memo.get("pipeline") != str(path) \
                 or memo.get("overrides") != list(overrides):
             return None
+        _restamp(memo, mdir)
         live_inputs = _check(memo, mdir, cache)
     except (_Stale, OSError, ValueError, TypeError, KeyError, AttributeError):
         return None
@@ -387,8 +390,14 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
                 os.rmdir(d)
         return None
     files = str(mdir / "files")
+    stamps = {}
     for rel, rec in memo["files"].items():  # (the link moved the ctime: the content was checked before)
         rec["stamp"] = _stamp(f"{files}/{rel}")
+        stamps[rel] = [rec["stamp"], rec["verified_ns"]]
+    with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
+        tmp = mdir / f".stamps.{uuid.uuid4().hex}.tmp"
+        tmp.write_text(json.dumps(stamps))
+        os.replace(tmp, mdir / STAMPS)
     summary = memo["summary"]
     reports: dict[str, SimpleNamespace] = {}
     echo_live: dict[tuple[str, str], Any] = {}
@@ -414,18 +423,24 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
     outputs._write_bytes(out / "run.json", json.dumps(summary, indent=1).encode())
     outputs.write_report_quietly(out, result)
-    with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
-        tmp = mdir / f".memo.{uuid.uuid4().hex}.tmp"
-        tmp.write_text(json.dumps(memo))
-        os.replace(tmp, mdir / "memo.json")
     return result
+
+
+def _restamp(memo: dict[str, Any], mdir: Path) -> None:
+    """The run-folder files' stamps as the last replay left them (its links moved their ctimes):
+    ``stamps.json``, a small file beside the memo, so that a replay does not rewrite the memo with
+    the inputs it keeps for the nodes that must run (half a megabyte for pick.yaml's plans)."""
+    with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
+        for rel, (stamp, verified_ns) in json.loads((mdir / STAMPS).read_text()).items():
+            if rel in memo["files"] and isinstance(verified_ns, int):
+                memo["files"][rel].update(stamp=stamp, verified_ns=verified_ns)
 
 
 def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path, pipeline_dir: Path,
               plugins: list[str]) -> tuple[SimpleNamespace, dict[str, Any]]:
     """Run a node that must run, as the runner does (same ``execute``), and write its outputs."""
     from stereograph import outputs
-    from stereograph.runner import Task, close_resources, execute
+    from stereograph.calls import Task, close_resources, execute
 
     resources: dict[str, Any] = {}
     try:

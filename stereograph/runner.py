@@ -28,11 +28,9 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
-import contextvars
 import os
 import shutil
 import time
-import traceback
 import uuid
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -41,9 +39,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stereograph import outputs as outputs_mod
-from stereograph import project, registry, streaming
-from stereograph.api import REGISTRY, NodeError, RunContext
+from stereograph import project, streaming
+from stereograph.api import NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json, jpeg_roundtrip
+from stereograph.calls import _PROGRESS, Task, TaskResult, close_resources, execute  # noqa: F401  (re-exported)
 from stereograph.errors import ConfigError
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
@@ -52,103 +51,7 @@ if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node wit
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
-# The run's progress display, for nodes that report progress inside a call (ctx.progress). A
-# context variable, not a Task field: the display cannot travel to worker processes (there
-# ctx.progress is a no-op and the per-item count still advances).
-_PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar("stereograph_progress", default=None)
-
-
-def _progress_hook(node_name: str) -> Callable[[float, float, str], None] | None:
-    report = getattr(_PROGRESS.get(), "item_progress", None)
-    if report is None:
-        return None
-    return lambda done, total, unit: report(node_name, done, total, unit)
-
-
 # --------------------------------------------------------------------------- executors
-
-
-@dataclass
-class Task:
-    """One call of a node function (picklable, for process pools)."""
-
-    node_type: str
-    plugins: list[str]
-    params: Any
-    inputs: dict[str, Any]
-    node_name: str
-    item: str | None
-    out_dir: str
-    pipeline_dir: str
-    input_types: dict[str, str] = field(default_factory=dict)
-    resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
-    producing: bool = False  # the node produces its collections item by item (``items=``)
-
-
-@dataclass
-class TaskResult:
-    ok: bool
-    outputs: dict[str, Any] | None = None
-    seconds: float = 0.0
-    messages: list[str] = field(default_factory=list)
-    error: str | None = None
-    hint: str | None = None
-    trace: str | None = None
-    user_error: bool = False
-
-
-def execute(task: Task) -> TaskResult:
-    """Run one node call; never raises (failures come back as a TaskResult)."""
-    t0 = time.perf_counter()
-    try:
-        spec = REGISTRY.get(task.node_type)
-        if spec is None:  # first call in a worker process
-            if task.plugins:
-                registry.import_plugins(task.plugins, Path(task.pipeline_dir))
-            spec = registry.get(task.node_type)
-        params = task.params
-        if isinstance(params, dict):  # sent as plain data to another process: validate again there
-            params = spec.params.model_validate(params)
-        kwargs = dict(task.inputs)
-        ctx = None
-        if spec.wants_ctx:
-            ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
-                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
-                             on_progress=_progress_hook(task.node_name), producing_items=task.producing)
-            kwargs["ctx"] = ctx
-        out = spec.fn(params, **kwargs)
-        if task.producing:
-            _check_part(spec, task.item, out)
-        elif not isinstance(out, dict) or set(out) != set(spec.outputs):
-            if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
-                out = {next(iter(spec.outputs)): out}
-            elif not isinstance(out, dict):
-                raise TypeError(f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs")
-            else:
-                missing = set(spec.outputs) - set(out)
-                extra = set(out) - set(spec.outputs)
-                raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
-                                + (f", unexpected {sorted(extra)}" if extra else ""))
-        return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
-    except NodeError as e:
-        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True)
-    except ConfigError as e:
-        return TaskResult(False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True)
-    except Exception as e:  # a bug in a node: keep the traceback for --debug
-        return TaskResult(False, None, time.perf_counter() - t0, [], f"{type(e).__name__}: {e}", None,
-                          traceback.format_exc(), False)
-
-
-def _check_part(spec: Any, item: str | None, out: Any) -> None:
-    """An item-producing node returns its collections' values for one item, or its other outputs."""
-    colls = {n for n, o in spec.outputs.items() if o.collection}
-    want = colls if item is not None else set(spec.outputs) - colls
-    got = set(out) if isinstance(out, dict) else None
-    if got is None or not got <= want or (item is None and got != want):
-        raise TypeError(f"{spec.name} produces items: called for " + (f"item {item!r} it must return a dict with "
-                        f"keys among {sorted(want)} (or {{}} to drop the item)" if item is not None else
-                        f"its other outputs it must return a dict of {sorted(want)}") +
-                        f", got {sorted(got) if got is not None else type(out).__name__}")
 
 
 @dataclass
@@ -177,6 +80,22 @@ class SerialExecutor:
         pass
 
 
+# Libraries' own thread pools, one thread each in a worker process: the pool's processes are the
+# parallelism, and more threads than cores only cost CPU (switching, spinning: ~1 s of a 2-worker
+# locate.yaml run). Each library reads its variable when it first starts its threads, so a worker
+# forked before the parent used them gets one; one forked after keeps what it inherited (no call
+# into a library's pool from a forked child: that can deadlock on a lock a parent thread held).
+ONE_THREAD = {"OPENCV_FOR_THREADS_NUM": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+              "MKL_NUM_THREADS": "1"}
+
+
+def one_thread_each() -> None:
+    """One thread per library pool in this process (and those it starts), unless the user set the
+    variable: for a worker process, and for a ``--workers`` command's own process."""
+    for k, v in ONE_THREAD.items():
+        os.environ.setdefault(k, v)
+
+
 class ProcessExecutor:
     """Runs tasks in a pool of worker processes (results in order).
 
@@ -189,7 +108,7 @@ class ProcessExecutor:
 
     def __init__(self, workers: int):
         self.workers = workers
-        self.pool = cf.ProcessPoolExecutor(max_workers=workers)
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, initializer=one_thread_each)
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         tasks = list(tasks)
@@ -236,7 +155,7 @@ class ProcessExecutor:
 
     def _restart(self) -> None:
         self.pool.shutdown(wait=False, cancel_futures=True)
-        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers)
+        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=one_thread_each)
 
     def close(self) -> None:
         self.pool.shutdown()
@@ -1006,16 +925,6 @@ def _read_back(files: list[Path]) -> Any:
         raise NodeError(f"the image written to {files[0] if files else '?'} can no longer be read",
                         hint="run again (the run folder was changed while the run went on)")
     return img
-
-
-def close_resources(resources: dict[str, Any]) -> None:
-    """Close what nodes kept open with ``ctx.resource`` (last opened first); never raises."""
-    for obj in reversed(list(resources.values())):
-        close = getattr(obj, "close", None) or getattr(obj, "release", None)
-        if close is not None:
-            with contextlib.suppress(Exception):
-                close()
-    resources.clear()
 
 
 class _LazyValues(dict):

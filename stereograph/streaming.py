@@ -18,6 +18,7 @@ a cached item is adopted, not recomputed) and the same per-item failure rules.
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import dataclasses
 import math
 import pickle
@@ -114,6 +115,17 @@ def chunk_size(n_items: int, workers: int) -> int:
     """Items per task: about four tasks per worker (the last ones balance the load), at most 8
     (what one task holds in memory at once)."""
     return max(1, min(8, math.ceil(n_items / max(1, workers * 4))))
+
+
+def chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
+    """``[start, end)`` of each task's items: :func:`chunk_size` items, and with several workers
+    the last ``2 x workers`` tasks a quarter of that, so that the workers finish together (one
+    worker alone on a last full chunk leaves the others idle for up to a chunk's time)."""
+    size = chunk_size(n_items, workers)
+    small = max(1, size // 4)
+    tail = min(n_items, 2 * workers * small) if workers > 1 else 0
+    bounds = [(k, min(k + size, n_items - tail)) for k in range(0, n_items - tail, size)]
+    return bounds + [(k, min(k + small, n_items)) for k in range(n_items - tail, n_items, small)]
 
 
 @dataclass
@@ -315,7 +327,6 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
     local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
-    size = chunk_size(len(ids), workers)
     # The keys of everything upstream of the region's outside inputs go along (values read on
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
     outside = {s for n in members for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
@@ -327,8 +338,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                 stack.append(p)
     upstream -= inside
     chunks = []
-    for k in range(0, len(ids), size):
-        part = ids[k:k + size]
+    for k, end in chunk_bounds(len(ids), workers):
+        part = ids[k:end]
         inputs: dict[Ref, tuple[str, str | None, Any]] = {}
         colls = {}
         for n in members:
@@ -511,7 +522,7 @@ def produce_ahead(task: AheadTask) -> list[str]:
 
     An item that fails is left to its region task, which makes it again and reports why."""
     from stereograph import outputs as outputs_mod
-    from stereograph.runner import Task, execute
+    from stereograph.calls import Task, execute
 
     if task.plugins:
         registry.import_plugins(task.plugins, Path(task.pipeline_dir))
@@ -555,9 +566,19 @@ def start_ahead(run: Any, reg: Region) -> None:
     folder = Path(run.out_dir) / AHEAD_DIR
     folder.mkdir(parents=True, exist_ok=True)
     graph = pickle.dumps(run.g)
-    tasks = [AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, ids[k:k + 2],
-                       str(folder), str(run.out_dir)) for k in range(0, len(ids), 2)]
-    run.ahead[reg.source] = (ex.start(produce_ahead, tasks), folder, outputs_mod.file_name)
+
+    def task(items: list[str]) -> AheadTask:
+        return AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, items, str(folder),
+                         str(run.out_dir))
+
+    # The first item is made here, before the pool's processes start (a pool forks them at its
+    # first task): what the node prepares once per process for its items (source.synthetic: the
+    # scene plan, the cameras' ray grids, the table's texture and render, ~2 s) is then inherited
+    # by every worker instead of being prepared again in each one.
+    here: cf.Future = cf.Future()
+    here.set_result(produce_ahead(task(ids[:1])))
+    later = ex.start(produce_ahead, [task(ids[k:k + 2]) for k in range(1, len(ids), 2)])
+    run.ahead[reg.source] = ([here, *later], folder, outputs_mod.file_name)
 
 
 def stop_ahead(run: Any, source: str | None) -> dict[str, str]:
@@ -583,7 +604,7 @@ class _Ahead:
         self.files = files
 
     def map(self, fn: Any, tasks: list[Any]) -> Any:
-        from stereograph.runner import TaskResult
+        from stereograph.calls import TaskResult
 
         for t in tasks:
             path = self.files.get(t.item) if t.producing else None

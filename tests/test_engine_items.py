@@ -92,6 +92,27 @@ def test_process_pool_gives_the_serial_result(tmp_path):
         ex.close()
 
 
+def test_workers_inherit_what_the_source_prepares_and_use_one_library_thread(tmp_path):
+    """The first item is made in this process before the pool starts its processes, so what a source
+    prepares once per process is prepared once, not again in every worker; workers run the
+    libraries' own thread pools with one thread (the pool is the parallelism)."""
+    import os
+
+    log = tmp_path / "calls.txt"
+    p = write_pipeline(tmp_path, f"{{n: 12, log: {log}}}")
+    ex = ProcessExecutor(2)  # a new pool: its processes start at its first task
+    try:
+        r = run(p, tmp_path, use_cache=False, executor=ex)
+    finally:
+        ex.close()
+    assert r.ok and r.reports["src"].items_ran == 12
+    calls = [line.split() for line in log.read_text().splitlines()]
+    assert len(calls) == 12
+    assert [c for c in calls if c[1] == "1"] == [[str(os.getpid()), "1", os.environ.get("OPENCV_FOR_THREADS_NUM", "-")]]
+    workers = [c for c in calls if c[0] != str(os.getpid())]
+    assert workers and {c[2] for c in workers} == {"1"}
+
+
 def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
     p = write_pipeline(tmp_path, "{n: 9, drop: [m004]}")
     streamed = run(p, tmp_path, use_cache=False)
@@ -224,3 +245,17 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
         assert all(np.array_equal(other[1][i], scaled[i]) for i in scaled)
         assert np.array_equal(other[0].outputs("picture", "picture")["m003"], img)
         assert {n: x.items for n, x in other[0].reports.items()} == {n: x.items for n, x in streamed.reports.items()}
+
+
+def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
+    from stereograph.streaming import chunk_bounds, chunk_size
+
+    for n, workers in [(120, 2), (120, 1), (9, 2), (5, 3), (1, 2), (0, 2), (480, 4)]:
+        bounds = chunk_bounds(n, workers)
+        assert [i for a, b in bounds for i in range(a, b)] == list(range(n))
+        sizes = [b - a for a, b in bounds]
+        assert all(0 < s <= chunk_size(n, workers) for s in sizes)
+        if workers > 1 and n >= 2 * workers * chunk_size(n, workers):
+            # the workers finish together: the last tasks are a quarter chunk
+            assert sizes[-2 * workers:] == [max(1, chunk_size(n, workers) // 4)] * (2 * workers)
+    assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 14 + [2] * 4

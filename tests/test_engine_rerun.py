@@ -231,3 +231,45 @@ def test_an_edit_to_a_file_a_node_reads_is_noticed(tmp_path, monkeypatch):
     monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
     assert _run(p, tmp_path, "o3") == 0  # nothing changed since: replayed, with the new text
     assert (tmp_path / "w" / "o3" / "read" / "text.json").read_text().strip() == '"two"'
+
+
+PLAIN = """\
+from stereograph.api import In, Out, node
+
+@node("tmp.countUID", outputs={"n": Out("Number")})
+def count(params):
+    return {"n": 3}
+
+@node("tmp.actUID", inputs={"n": In("Number")}, outputs={"log": Out("Report", save=True)}, cacheable=False)
+def act(params, n):
+    return {"log": {"moves": n}}
+"""
+
+
+def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_path):
+    """The replay of an actuator-like node (plain-data inputs and outputs) runs it and writes its run
+    folder without NumPy: a replayed rerun costs the node's own modules, not the engine's codecs."""
+    import subprocess
+    import sys
+
+    uid = uuid.uuid4().hex[:8]
+    (tmp_path / f"plain_{uid}.py").write_text(PLAIN.replace("UID", uid))
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: t\nplugins: [plain_{uid}]\nnodes:\n  count: {{type: tmp.count{uid}}}\n"
+                 f"  act: {{type: tmp.act{uid}, inputs: {{n: count.n}}}}\n")
+    (tmp_path / "w").mkdir()
+    code = ("import sys; from stereograph import rerun; rerun.RACY_NS = 0; from stereograph.cli import main; "
+            f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'w' / 'c')!r}, "
+            "'--out', sys.argv[1]]); print('NUMPY', 'numpy' in sys.modules); sys.exit(rc)")
+    env = dict(os.environ, STEREOGRAPH_NO_REPLAY="")
+    outs = []
+    for out in ("o1", "o2"):
+        r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "w" / out)], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+        outs.append(r.stdout)
+    assert "NUMPY True" in outs[0]  # the real run: the cache's codecs
+    assert "NUMPY False" in outs[1], outs[1]
+    s2 = _summary(tmp_path, "o2")
+    assert {n["node"]: n["status"] for n in s2["nodes"]} == {"count": "cached", "act": "ran"}
+    assert json.loads((tmp_path / "w" / "o2" / "act" / "log.json").read_text()) == {"moves": 3}

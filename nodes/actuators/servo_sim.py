@@ -37,6 +37,7 @@ Command line: ``stereograph servo-sim --ids 1,2,3,4,5 [--link /tmp/ttyDXL]`` (se
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -359,6 +360,7 @@ class ServoSim:
         self._thread: threading.Thread | None = None
         self._busy = False  # between reading bytes off the pty and handling them (see drain)
         self.master = self.slave = None
+        self._wake: tuple[int, int] | None = None
         self.port_path: str | None = None
         self.t0 = time.monotonic()
 
@@ -374,22 +376,26 @@ class ServoSim:
             path = self.link
         self.port_path = path
         self._stop.clear()
+        self._wake = os.pipe()  # stop() writes a byte: the serving thread ends at once, not at its next poll
         self._thread = threading.Thread(target=self._serve, name="servo-sim", daemon=True)
         self._thread.start()
         return self
 
     def stop(self) -> None:
         self._stop.set()
+        if self._wake is not None:
+            with contextlib.suppress(OSError):
+                os.write(self._wake[1], b"x")
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
-        for fd in (self.master, self.slave):
+        for fd in (self.master, self.slave, *(self._wake or ())):
             if fd is not None:
                 try:
                     os.close(fd)
                 except OSError:
                     pass
-        self.master = self.slave = None
+        self.master = self.slave = self._wake = None
         if self.link and os.path.islink(self.link):
             os.unlink(self.link)
 
@@ -468,10 +474,10 @@ class ServoSim:
         t_last_byte = time.monotonic()
         while not self._stop.is_set():
             try:
-                r, _, _ = select.select([self.master], [], [], 0.05)
-            except (OSError, ValueError):
+                r, _, _ = select.select([self.master, self._wake[0]], [], [], 0.05)
+            except (OSError, ValueError, TypeError):
                 return
-            if not r:
+            if self.master not in r:
                 if buf and time.monotonic() - t_last_byte > 0.1:
                     buf.clear()  # an incomplete packet: drop it, like the servo's packet timeout
                 continue

@@ -30,9 +30,10 @@ Moving speed: 1 unit = 0.111 rpm = 0.666 deg/s, 0 = "as fast as possible" (no sp
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # NumPy is imported by the functions that compute with it: the actuator, which
+    import numpy as np  # converts joint angles to servo units only, runs a replayed rerun without it
 
 UNITS_PER_DEG = 1023.0 / 300.0
 """AX-12A position units per degree (0..1023 spans 300 deg)."""
@@ -72,6 +73,8 @@ def joint(model: dict[str, Any], name: str) -> dict[str, Any]:
 
 def limits_rad(model: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (rad) of the three positioning joints, shape (3,) each."""
+    import numpy as np
+
     lo = np.array([math.radians(joint(model, n)["min_deg"]) for n in JOINTS])
     hi = np.array([math.radians(joint(model, n)["max_deg"]) for n in JOINTS])
     return lo, hi
@@ -107,6 +110,8 @@ def fk(model: dict[str, Any], q: np.ndarray) -> np.ndarray:
     ndarray, shape (3,) or (N, 3)
         ``[x, y, z]`` in cm.
     """
+    import numpy as np
+
     h0, r0, l1, a, b, _ = geometry(model)
     q = np.asarray(q, dtype=float)
     q0, q1, q2 = q[..., 0], q[..., 1], q[..., 2]
@@ -118,6 +123,8 @@ def fk(model: dict[str, Any], q: np.ndarray) -> np.ndarray:
 
 def fk_jacobian(model: dict[str, Any], q: np.ndarray) -> np.ndarray:
     """Jacobian d(tool point)/dq (cm/rad), shape (..., 3, 3), of :func:`fk`."""
+    import numpy as np
+
     h0, r0, l1, a, b, _ = geometry(model)
     q = np.asarray(q, dtype=float)
     q0, q1, q2 = q[..., 0], q[..., 1], q[..., 2]

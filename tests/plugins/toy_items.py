@@ -17,6 +17,12 @@ class ProduceParams(Params):
     fail: list[str] = Field(default_factory=list, description="Item ids the node fails on (NodeError).")
     kill_once: str | None = Field(None, description="Marker file: the first call for item m001 kills its process.")
     kill_always: str | None = Field(None, description="Item id whose every call kills its process.")
+    log: str | None = Field(None, description="File: each item call appends its process id, whether the process "
+                                              "prepared for items then (once per process) and its OpenCV thread "
+                                              "setting.")
+
+
+_PREPARED: set[str] = set()  # logs this process has prepared for (see ``log``)
 
 
 def _ids(params: ProduceParams, ctx) -> list[str]:
@@ -36,6 +42,11 @@ def produce(params: ProduceParams, ctx=None):
         os._exit(3)  # the worker dies mid-task
     if ctx.item == params.kill_always:
         os._exit(3)
+    if params.log:  # what a process prepares once for its items (a plan, lookup tables), like source.synthetic
+        fresh = params.log not in _PREPARED
+        _PREPARED.add(params.log)
+        with open(params.log, "a") as f:
+            f.write(f"{os.getpid()} {int(fresh)} {os.environ.get('OPENCV_FOR_THREADS_NUM', '-')}\n")
     if ctx.item in params.fail:
         raise NodeError(f"item {ctx.item} is broken (on purpose)")
     if ctx.item in params.drop:

@@ -1,0 +1,127 @@
+"""One call of a node function: :class:`Task` in, :class:`TaskResult` out (:func:`execute`).
+
+A module of its own, apart from the scheduler (:mod:`stereograph.runner`, which re-exports these
+names), so that running one node without the scheduler -- a replayed rerun's node that must run
+(:mod:`stereograph.rerun`) -- imports the node API and the registry only: not the cache's codecs,
+NumPy or the streaming machinery.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stereograph import registry
+from stereograph.api import REGISTRY, NodeError, RunContext
+from stereograph.errors import ConfigError
+
+# The run's progress display, for nodes that report progress inside a call (ctx.progress). A
+# context variable, not a Task field: the display cannot travel to worker processes (there
+# ctx.progress is a no-op and the per-item count still advances).
+_PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar("stereograph_progress", default=None)
+
+
+def _progress_hook(node_name: str) -> Callable[[float, float, str], None] | None:
+    report = getattr(_PROGRESS.get(), "item_progress", None)
+    if report is None:
+        return None
+    return lambda done, total, unit: report(node_name, done, total, unit)
+
+
+@dataclass
+class Task:
+    """One call of a node function (picklable, for process pools)."""
+
+    node_type: str
+    plugins: list[str]
+    params: Any
+    inputs: dict[str, Any]
+    node_name: str
+    item: str | None
+    out_dir: str
+    pipeline_dir: str
+    input_types: dict[str, str] = field(default_factory=dict)
+    resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
+    producing: bool = False  # the node produces its collections item by item (``items=``)
+
+
+@dataclass
+class TaskResult:
+    ok: bool
+    outputs: dict[str, Any] | None = None
+    seconds: float = 0.0
+    messages: list[str] = field(default_factory=list)
+    error: str | None = None
+    hint: str | None = None
+    trace: str | None = None
+    user_error: bool = False
+
+
+def execute(task: Task) -> TaskResult:
+    """Run one node call; never raises (failures come back as a TaskResult)."""
+    t0 = time.perf_counter()
+    try:
+        spec = REGISTRY.get(task.node_type)
+        if spec is None:  # first call in a worker process
+            if task.plugins:
+                registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+            spec = registry.get(task.node_type)
+        params = task.params
+        if isinstance(params, dict):  # sent as plain data to another process: validate again there
+            params = spec.params.model_validate(params)
+        kwargs = dict(task.inputs)
+        ctx = None
+        if spec.wants_ctx:
+            ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
+                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
+                             on_progress=_progress_hook(task.node_name), producing_items=task.producing)
+            kwargs["ctx"] = ctx
+        out = spec.fn(params, **kwargs)
+        if task.producing:
+            _check_part(spec, task.item, out)
+        elif not isinstance(out, dict) or set(out) != set(spec.outputs):
+            if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
+                out = {next(iter(spec.outputs)): out}
+            elif not isinstance(out, dict):
+                raise TypeError(f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs")
+            else:
+                missing = set(spec.outputs) - set(out)
+                extra = set(out) - set(spec.outputs)
+                raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
+                                + (f", unexpected {sorted(extra)}" if extra else ""))
+        return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
+    except NodeError as e:
+        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True)
+    except ConfigError as e:
+        return TaskResult(False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True)
+    except Exception as e:  # a bug in a node: keep the traceback for --debug
+        return TaskResult(False, None, time.perf_counter() - t0, [], f"{type(e).__name__}: {e}", None,
+                          traceback.format_exc(), False)
+
+
+def _check_part(spec: Any, item: str | None, out: Any) -> None:
+    """An item-producing node returns its collections' values for one item, or its other outputs."""
+    colls = {n for n, o in spec.outputs.items() if o.collection}
+    want = colls if item is not None else set(spec.outputs) - colls
+    got = set(out) if isinstance(out, dict) else None
+    if got is None or not got <= want or (item is None and got != want):
+        raise TypeError(f"{spec.name} produces items: called for " + (f"item {item!r} it must return a dict with "
+                        f"keys among {sorted(want)} (or {{}} to drop the item)" if item is not None else
+                        f"its other outputs it must return a dict of {sorted(want)}") +
+                        f", got {sorted(got) if got is not None else type(out).__name__}")
+
+
+def close_resources(resources: dict[str, Any]) -> None:
+    """Close what nodes kept open with ``ctx.resource`` (last opened first); never raises."""
+    for obj in reversed(list(resources.values())):
+        close = getattr(obj, "close", None) or getattr(obj, "release", None)
+        if close is not None:
+            with contextlib.suppress(Exception):
+                close()
+    resources.clear()
