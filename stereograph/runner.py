@@ -178,8 +178,10 @@ class DaskExecutor:
         except ImportError:
             raise ConfigError("the Dask executor needs the 'dask' extra",
                               hint="pip install -e '.[dask]', or use --workers N for a local process pool") from None
+        # One library thread per worker process, as in the process pool (see ONE_THREAD).
         self.cluster = None if address else LocalCluster(n_workers=workers, threads_per_worker=1,
-                                                         processes=True, dashboard_address=None)
+                                                         processes=True, dashboard_address=None,
+                                                         env={k: os.environ.get(k, v) for k, v in ONE_THREAD.items()})
         self.client = Client(address or self.cluster)
         self.workers = max(1, len(self.client.scheduler_info().get("workers", {})) or workers)
 
