@@ -48,3 +48,28 @@ def test_sgbm_object_disparity_matches_ground_truth_on_aloe():
     # JPEG images, textured and untextured patches alike: most within half a pixel, all within 2 px
     assert np.median(errors) < 0.5, errors
     assert (errors < 2.0).mean() >= 0.9, errors
+
+
+BOARD = ALOE.parent / "opencv-stereo-chessboard"
+
+
+@pytest.mark.skipif(not (BOARD / "left01.jpg").exists(), reason="../shared/data not present")
+def test_no_ball_is_found_in_real_images_without_one():
+    """Real photographs with no ball (OpenCV's chessboard pairs, Middlebury Aloe), no calibration wired:
+    every segmenter refuses, colour given or not -- and segmenter.otsu's background median no longer
+    crashes when the default radius range asks for a window beyond OpenCV's 8-bit limit."""
+    import cv2
+
+    from nodes.segmenters.color import ColorParams, color
+    from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph
+    from nodes.segmenters.otsu import OtsuParams, otsu
+
+    pairs = [(BOARD / f"left{i:02d}.jpg", BOARD / f"right{i:02d}.jpg") for i in (1, 2, 3, 4)]
+    pairs.append((ALOE / "aloeL.jpg", ALOE / "aloeR.jpg"))
+    runs = [(edge_morph, EdgeMorphParams, None), (edge_morph, EdgeMorphParams, [20, 120, 245]),
+            (otsu, OtsuParams, None), (otsu, OtsuParams, [20, 120, 245]), (color, ColorParams, [20, 120, 245])]
+    for left, right in pairs:
+        pair = {"id": left.stem, "left": cv2.imread(str(left)), "right": cv2.imread(str(right))}
+        for fn, P, colour in runs:
+            seg = fn(P(object={"radius_cm": 2.0, "color_bgr": colour}, overlay=False), pair)["segmentation"]
+            assert not seg["found"] and seg["reason"], (left.name, fn.__name__, colour)

@@ -13,6 +13,7 @@ neutral or textured table separates in saturation, a white ball on a dark table 
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import cv2
@@ -60,6 +61,24 @@ def otsu_separability(img: np.ndarray) -> float:
     return float(np.nanmax(sb[:-1]) / var_t)
 
 
+# cv2.medianBlur's 8-bit path for large kernels counts a window in 16-bit histograms: a window of
+# more than 65535 pixels (255 x 255) fails its assertion on some images.
+_MAX_MEDIAN_KSIZE = 255
+
+
+def _median_background(gray: np.ndarray, k: int) -> np.ndarray:
+    """Median-filtered background of a uint8 image with a k x k window (k odd); a window larger than
+    OpenCV's 8-bit limit is taken on a copy shrunk by the needed factor, then scaled back."""
+    if k <= _MAX_MEDIAN_KSIZE:
+        return cv2.medianBlur(gray, k)
+    f = math.ceil(k / _MAX_MEDIAN_KSIZE)
+    h, w = gray.shape[:2]
+    small = cv2.resize(gray, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
+    ks = min(_MAX_MEDIAN_KSIZE, (k // f) | 1, (min(small.shape) - 1) | 1 if min(small.shape) % 2 == 0
+             else min(small.shape))
+    return cv2.resize(cv2.medianBlur(small, max(ks, 3)), (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> np.ndarray:
     """The image's difference from its background (polarity applied), uint8."""
     if roi:
@@ -68,7 +87,7 @@ def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> 
     else:
         k = int(2.2 * r_range_px[1]) | 1
         k = min(k, (min(gray.shape) - 1) | 1 if min(gray.shape) % 2 == 0 else min(gray.shape))
-        bg = cv2.medianBlur(gray, max(k, 3))
+        bg = _median_background(gray, max(k, 3))
     if params.polarity == "bright":
         return cv2.subtract(gray, bg)
     if params.polarity == "dark":
