@@ -329,14 +329,11 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
     # The keys of everything upstream of the region's outside inputs go along (values read on
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
+    import networkx as nx  # (the graph is built: NetworkX is loaded already)
+
     outside = {s for n in members for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
-    upstream, stack = set(outside), list(outside)
-    while stack:
-        for p in g.dag.predecessors(stack.pop()):
-            if p not in upstream:
-                upstream.add(p)
-                stack.append(p)
-    upstream -= inside
+    upstream = (outside.union(*(nx.ancestors(g.dag, s) for s in outside))) - inside
+    upstream_keys = [(ref, key) for ref, key in run.ref_keys.items() if ref[0] in upstream]
     chunks = []
     for k, end in chunk_bounds(len(ids), workers):
         part = ids[k:end]
@@ -366,8 +363,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                             value = _MISSING
                     inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), value)
         want = set(part)
-        for ref, key in run.ref_keys.items():
-            if ref[0] in upstream and ref not in inputs and (ref[2] is None or ref[2] in want):
+        for ref, key in upstream_keys:
+            if ref not in inputs and (ref[2] is None or ref[2] in want):
                 inputs[ref] = (key, run.ref_ids.get(ref), _MISSING)
         chunks.append(Chunk(g, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
                             statuses, dict(run.code), dict(run.code_files),

@@ -65,6 +65,12 @@ def _filled(contour: np.ndarray, bbox) -> np.ndarray:
     return sub
 
 
+def _region(img_bgr: np.ndarray, c: dict) -> tuple[np.ndarray, np.ndarray]:
+    """A candidate's bbox crop of the image and its filled mask there."""
+    x0, y0, x1, y1 = c["bbox"]
+    return img_bgr[y0 : y1 + 1, x0 : x1 + 1], _filled(c["contour"], c["bbox"])
+
+
 def select_candidate(
     cands: list[dict],
     img_bgr: np.ndarray,
@@ -100,11 +106,9 @@ def select_candidate(
             c["_why"] = c["rejected"] = "round"
             rejected.append(f"roundness {c['roundness']:.2f} < {params.min_roundness}")
             continue
-        x0, y0, x1, y1 = c["bbox"]
         score = None
         if params.object.color_bgr is not None or params.object.hue_range_deg is not None:
-            score = object_color_score(img_bgr[y0 : y1 + 1, x0 : x1 + 1], _filled(c["contour"], c["bbox"]),
-                                       params.object)
+            score = object_color_score(*_region(img_bgr, c), params.object)
         if score is not None and score > 1.0:
             c["rejected"] = "colour"
             rejected.append("colour differs from the object's")
@@ -174,8 +178,7 @@ def _object_coloured_rival(cands: list[dict], winner: dict, img_bgr: np.ndarray,
     for c in sorted(cands, key=lambda c: -c["area_px"]):
         if c is winner or c["area_px"] < need or c["area_px"] > 3.0 * a_max:
             continue
-        x0, y0, x1, y1 = c["bbox"]
-        n = object_pixel_count(img_bgr[y0: y1 + 1, x0: x1 + 1], _filled(c["contour"], c["bbox"]), params.object)
+        n = object_pixel_count(*_region(img_bgr, c), params.object)
         if n >= need:
             c["_object_px"] = n
             return c

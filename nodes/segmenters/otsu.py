@@ -66,6 +66,11 @@ def otsu_separability(img: np.ndarray) -> float:
 _MAX_MEDIAN_KSIZE = 255
 
 
+def _odd_at_most(n: int) -> int:
+    """The largest odd number <= ``n``."""
+    return n if n % 2 else n - 1
+
+
 def _median_background(gray: np.ndarray, k: int) -> np.ndarray:
     """Median-filtered background of a uint8 image with a k x k window (k odd); a window larger than
     OpenCV's 8-bit limit is taken on a copy shrunk by the needed factor, then scaled back."""
@@ -74,8 +79,7 @@ def _median_background(gray: np.ndarray, k: int) -> np.ndarray:
     f = math.ceil(k / _MAX_MEDIAN_KSIZE)
     h, w = gray.shape[:2]
     small = cv2.resize(gray, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA)
-    ks = min(_MAX_MEDIAN_KSIZE, (k // f) | 1, (min(small.shape) - 1) | 1 if min(small.shape) % 2 == 0
-             else min(small.shape))
+    ks = min(_MAX_MEDIAN_KSIZE, (k // f) | 1, _odd_at_most(min(small.shape)))
     return cv2.resize(cv2.medianBlur(small, max(ks, 3)), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
@@ -86,7 +90,7 @@ def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> 
         bg = np.full_like(gray, int(np.median(border)))
     else:
         k = int(2.2 * r_range_px[1]) | 1
-        k = min(k, (min(gray.shape) - 1) | 1 if min(gray.shape) % 2 == 0 else min(gray.shape))
+        k = min(k, _odd_at_most(min(gray.shape)))
         bg = _median_background(gray, max(k, 3))
     if params.polarity == "bright":
         return cv2.subtract(gray, bg)
