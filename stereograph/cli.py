@@ -26,8 +26,11 @@ def _console(stderr: bool = False):
 
     stream = sys.stderr if stderr else sys.stdout
     # logs and pipes get a wide table rather than rich's 80-column default
-    width = None if stream.isatty() else 160
+    width = None if stream.isatty() else PIPE_WIDTH
     return Console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
+
+
+PIPE_WIDTH = 160  # columns of what a log, pipe or file gets
 
 
 def _load_graph(args):
@@ -173,14 +176,12 @@ def cmd_nodes(args) -> int:
     return 0
 
 
-def _summary_table(result, con) -> None:
-    from rich.markup import escape
-    from rich.table import Table
+SUMMARY_COLUMNS = ("node", "type", "status", "items", "seconds", "note")
 
-    colours = {"ran": "green", "cached": "cyan", "failed": "red", "partial": "yellow", "skipped": "magenta",
-               "not selected": "dim"}
-    t = Table("node", "type", "status", "items", "seconds", "note", title=f"run {result.run_id}",
-              title_justify="left")
+
+def _summary_rows(result) -> list[list[str]]:
+    """The run summary's rows, plain text (SUMMARY_COLUMNS)."""
+    rows = []
     for r in result.reports.values():
         items = "" if not r.items else (f"{r.items_ran} ran / {r.items}" +
                                         (f", {r.items_failed} failed" if r.items_failed else ""))
@@ -191,9 +192,42 @@ def _summary_table(result, con) -> None:
             note = r.messages[0][:90] + (f" (+{more} more in run.json)" if more else "")
         else:
             note = ""
-        t.add_row(escape(r.name), escape(r.type), f"[{colours.get(r.status, 'white')}]{r.status}[/]", items,
-                  f"{r.seconds:.2f}", escape(note[:160]))
+        rows.append([r.name, r.type, r.status, items, f"{r.seconds:.2f}", note[:160]])
+    return rows
+
+
+def _summary_table(result, con) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    colours = {"ran": "green", "cached": "cyan", "failed": "red", "partial": "yellow", "skipped": "magenta",
+               "not selected": "dim"}
+    t = Table(*SUMMARY_COLUMNS, title=f"run {result.run_id}", title_justify="left")
+    for name, type_, status, items, seconds, note in _summary_rows(result):
+        t.add_row(escape(name), escape(type_), f"[{colours.get(status, 'white')}]{status}[/]", items, seconds,
+                  escape(note))
     con.print(t)
+
+
+def _plain_closing(echo: list, result, loop, width: int) -> str | None:
+    """What :func:`_print_echo`, :func:`_summary_table` and the last lines print, as plain text
+    for a console that is not a terminal (stereograph.plaintext); None where rich must lay it out."""
+    from stereograph import plaintext
+
+    parts: list[str | None] = []
+    for title, kind, text, *pre in [e for e in echo if e[0] != "live"][:ECHO_LIMIT]:
+        parts.append(plaintext.rule(title, width))
+        if pre and pre[0].get("console") == [width, None]:
+            parts.append(pre[0]["text"].removesuffix("\n"))
+        elif kind == "json":
+            parts.append(plaintext.pretty(json.loads(text), width))
+        else:
+            return None
+    parts.append(plaintext.table(f"run {result.run_id}", list(SUMMARY_COLUMNS), _summary_rows(result), width))
+    if loop is not None:
+        parts.append(plaintext.line(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
+    parts.append(plaintext.line(f"outputs: {result.out_dir}"))
+    return None if None in parts else "\n".join(parts) + "\n"
 
 
 def echo_entry(v: Any) -> tuple[str, str] | None:
@@ -332,23 +366,35 @@ def cmd_run(args) -> int:
 
 def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int:
     """What ``run`` prints after a run (or a replayed one), and its exit code."""
-    from rich.markup import escape
-
-    err = _console(stderr=True)
-    con = _console()
-    for note in result.notes:
-        err.print(f"note: {note}", markup=False)
+    if result.notes:
+        err = _console(stderr=True)
+        for note in result.notes:
+            err.print(f"note: {note}", markup=False)
     if args.json:
         print((result.out_dir / "run.json").read_text())
     else:
-        _print_echo(echo, con)
-        _summary_table(result, con)
-        if loop is not None:
-            con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
-        con.print(f"outputs: {result.out_dir}", markup=False)
+        from stereograph import plaintext
+
+        width = plaintext.plain_width(sys.stdout, PIPE_WIDTH)
+        plain = _plain_closing(echo, result, loop, width) if width else None
+        if plain is not None:  # (a log or pipe: rich would print the same, without colours)
+            sys.stdout.write(plain)
+            sys.stdout.flush()
+        else:
+            from rich.markup import escape
+
+            con = _console()
+            _print_echo(echo, con)
+            _summary_table(result, con)
+            if loop is not None:
+                con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
+            con.print(f"outputs: {result.out_dir}", markup=False)
     if loop is not None and (loop.interrupted or loop.completed):
         return 130 if loop.interrupted else 0
     if not result.ok:
+        from rich.markup import escape
+
+        err = _console(stderr=True)
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
             msg = sentence(f"{where(r.name)}: node '{r.name}' ({r.type}) failed: {r.error}")
