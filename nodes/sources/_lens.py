@@ -51,19 +51,33 @@ def undistort_normalized(xyd: np.ndarray, D, iterations: int = 12, guess: np.nda
         x, y = xd.copy(), yd.copy()
     else:
         x, y = guess[..., 0].astype(float), guess[..., 1].astype(float)
+    shape = x.shape
+    x, y, xd, yd = x.ravel(), y.ravel(), xd.ravel(), yd.ravel()
+    # Points whose Newton step came out exactly zero are fixed points: every later iteration would
+    # compute the same zero step, so they leave the active set and the result is bit for bit that of
+    # running all ``iterations`` on every point (most of a 640x480 grid converges in ~4).
+    active = np.arange(x.size)
+    xa, ya, xda, yda = x, y, xd, yd
     for _ in range(iterations):
-        r2 = x * x + y * y
+        r2 = xa * xa + ya * ya
         radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         dradial = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        fx = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
-        fy = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
-        j11 = radial + 2 * x * x * dradial + 2 * p1 * y + 6 * p2 * x
-        j12 = 2 * x * y * dradial + 2 * p1 * x + 2 * p2 * y
-        j22 = radial + 2 * y * y * dradial + 6 * p1 * y + 2 * p2 * x
+        fx = xa * radial + 2 * p1 * xa * ya + p2 * (r2 + 2 * xa * xa) - xda
+        fy = ya * radial + p1 * (r2 + 2 * ya * ya) + 2 * p2 * xa * ya - yda
+        j11 = radial + 2 * xa * xa * dradial + 2 * p1 * ya + 6 * p2 * xa
+        j12 = 2 * xa * ya * dradial + 2 * p1 * xa + 2 * p2 * ya
+        j22 = radial + 2 * ya * ya * dradial + 6 * p1 * ya + 2 * p2 * xa
         det = j11 * j22 - j12 * j12
-        x = x - (j22 * fx - j12 * fy) / det
-        y = y - (j11 * fy - j12 * fx) / det
-    return np.stack([x, y], axis=-1)
+        sx = (j22 * fx - j12 * fy) / det
+        sy = (j11 * fy - j12 * fx) / det
+        xa, ya = xa - sx, ya - sy
+        x[active], y[active] = xa, ya
+        moving = (sx != 0) | (sy != 0) | np.isnan(sx) | np.isnan(sy)
+        if not moving.all():
+            active, xa, ya, xda, yda = active[moving], xa[moving], ya[moving], xda[moving], yda[moving]
+            if not active.size:
+                break
+    return np.stack([x.reshape(shape), y.reshape(shape)], axis=-1)
 
 
 def project_points(K: np.ndarray, D, pts_cam: np.ndarray) -> np.ndarray:
