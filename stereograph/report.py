@@ -66,7 +66,14 @@ window.addEventListener('load', function () {
 
 
 def _e(x: Any) -> str:
-    return html.escape(str(x))
+    return _ascii(html.escape(str(x)))
+
+
+def _ascii(text: str) -> str:
+    """Non-ASCII characters as character references: the page is ASCII, so joining and writing its
+    megabytes of embedded pictures stays a byte copy (a single "—" would make Python store and
+    encode the whole page at two bytes a character)."""
+    return text if text.isascii() else text.encode("ascii", "xmlcharrefreplace").decode("ascii")
 
 
 class _Page:
@@ -164,7 +171,7 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
     for m in messages[:MESSAGES_SHOWN]:
         bits.append(f'<p class="hint">{_e(m)}</p>')
     if len(messages) > MESSAGES_SHOWN:  # say that the list goes on, and where
-        bits.append(f'<p class="hint">… and {len(messages) - MESSAGES_SHOWN} more messages in '
+        bits.append(f'<p class="hint">&#8230; and {len(messages) - MESSAGES_SHOWN} more messages in '
                     f'<a href="run.json">run.json</a></p>')
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
         imgs = [f for f in files if os.path.splitext(f)[1].lower() in _MIME]
@@ -175,7 +182,8 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
             bits.append(page.image(f, f, "item" if per_item else ""))
         if len(imgs) > IMAGES_PER_OUTPUT:
             folder = Path(imgs[0]).parent.as_posix()
-            bits.append(f'<p>… and {len(imgs) - IMAGES_PER_OUTPUT} more in <a href="{_e(folder)}">{_e(folder)}</a></p>')
+            bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
+                        f'<a href="{_e(folder)}">{_e(folder)}</a></p>')
         for f in rest:
             bits.append(page.json_block(f) if f.endswith(".json") else _link(f))
         bits.append("</div>")
@@ -230,7 +238,8 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
              '<p id="sg-images" data-ok="unknown">image check did not run</p>']
     for note in summary.get("notes") or []:
         parts.append(f'<p class="hint">note: {_e(note)}</p>')
-    parts.append(f'<div class="graph-row"><div class="graph" id="sg-graph">{graph_picture.to_svg(desc, status)}</div>'
+    svg = _ascii(graph_picture.to_svg(desc, status))
+    parts.append(f'<div class="graph-row"><div class="graph" id="sg-graph">{svg}</div>'
                  f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>")
     for n in nodes:
         parts.append(f'<section class="sg-node-section" data-node="{_e(n.get("node", ""))}">'
