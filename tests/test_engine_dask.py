@@ -97,3 +97,21 @@ def test_a_cluster_that_does_not_see_our_files_is_refused_before_anything_runs(t
     assert "network file system" in (e.value.hint or "")
     assert not (tmp_path / "cache" / "objects").exists()  # nothing ran, nothing was stored
     assert not list(tmp_path.rglob(".stereograph-probe-*"))
+
+
+def _trim_threshold():
+    import os
+
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+_TRIM_BEFORE = _trim_threshold()  # (a Nanny writes its workers' settings into this process's environment too)
+
+
+def test_local_workers_keep_the_allocators_adaptive_threshold(dask_local):
+    """Dask's default MALLOC_TRIM_THRESHOLD_ made every image a fresh mmap (8 s of kernel time per
+    worker on locate.yaml): our local workers start without it, unless the environment sets it."""
+    dask_local.client.wait_for_workers(2, timeout=60)  # (one may still restart after the kill tests)
+    seen = dask_local.client.run(_trim_threshold)
+    assert len(seen) == 2
+    assert set(seen.values()) == {_TRIM_BEFORE}
