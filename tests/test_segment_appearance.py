@@ -136,6 +136,7 @@ def test_locate_learn_pipeline_finds_distractor_scenes_with_no_colour_given(tmp_
     locs = json.loads((tmp_path / "a" / "report" / "locations.json").read_text())
     found = [v for v in locs if v["found"]]
     assert len(found) >= 0.75 * len(locs)
+    assert {v["color_from"] for v in locs} == {"appearance"}  # each result says where its colour came from
     for v in found:
         err = np.linalg.norm(np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"]))
         assert err < 1.0, (v["pair"], err)

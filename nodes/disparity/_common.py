@@ -55,8 +55,9 @@ REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "
 
 
 def _rejected(seg) -> dict:
-    """The segmenter's rejected-candidate outlines, passed on for the locator's overlay (when present)."""
-    return {k: seg[k] for k in REJECTED_KEYS if k in seg} if isinstance(seg, dict) else {}
+    """What a Disparity passes on from its Segmentation: the rejected-candidate outlines (for the
+    locator's overlay) and where the object's colour came from (``color_from``), when present."""
+    return {k: seg[k] for k in (*REJECTED_KEYS, "color_from") if k in seg} if isinstance(seg, dict) else {}
 
 
 def not_found(seg_or_id, reason: str, method: str) -> dict:

@@ -165,13 +165,15 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
         if T_known is not None:
             tc = np.asarray(t["center_table_cm"], float)
             truth = (tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])).tolist()
+    # where the segmenter's object colour came from (given, learned): kept beside each result
+    seen = {"color_from": disparity["color_from"]} if "color_from" in disparity else {}
     if not disparity["found"]:
-        return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth)
+        return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth, **seen)
     d = float(disparity["disparity_px"])
     u, v = float(disparity["u_left_px"]), float(disparity["v_left_px"])
     f, B = float(rectification["f_px"]), float(rectification["baseline_cm"])
     # The rig it was measured with travels along, so that a model fitted on it can be checked later.
-    base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth, rig=rig_fingerprint(rectification))
+    base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth, rig=rig_fingerprint(rectification), **seen)
     if d <= 0:
         return _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)
     p = triangulate_point(u, v, d, rectification, float(disparity.get("depth_offset_cm") or 0.0))

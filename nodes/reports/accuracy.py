@@ -115,7 +115,7 @@ def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np
 def location_records(locations: dict) -> list[dict]:
     """The ``locations.json`` records, one per pair, ordered by pair id."""
     keys = ("pair", "found", "reason", "x_cm", "y_cm", "z_cm", "sigma_z_cm", "frame", "split", "truth_cm",
-            "disparity_px", "method")
+            "disparity_px", "method", "color_from")
     out = []
     for item, loc in locations.items():
         rec = {k: loc.get(k) for k in keys}
