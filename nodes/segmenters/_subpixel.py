@@ -9,13 +9,14 @@ import math
 import cv2
 import numpy as np
 
+from ._blur import gaussian_blur
 from ._params import SegmenterParams
 from ._pixels import _channels, fast_median, structuring_element
 
 
 def _color_gradient(img_bgr: np.ndarray, sigma: float = 1.0) -> np.ndarray:
     """Colour gradient magnitude (sqrt of the sum over channels of |grad|^2), float32."""
-    f = cv2.GaussianBlur(img_bgr, (0, 0), sigma)
+    f = gaussian_blur(img_bgr, sigma)
     gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
     g2 = cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy))
