@@ -55,7 +55,8 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     if s_max < 0 or v_max < 0:
         return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
     cand = cv2.bitwise_and(cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255))), mask)
-    ys, xs = np.nonzero(cand) if cv2.countNonZero(cand) else (np.empty(0, np.intp), np.empty(0, np.intp))
+    where = cv2.findNonZero(cand)  # (u, v) in row-major order, as np.nonzero; None if none (OpenCV 4: Nx1x2, 5: Nx2)
+    ys, xs = (np.empty(0, np.intp),) * 2 if where is None else (where[..., 1].ravel(), where[..., 0].ravel())
     if len(ys):
         px = img_bgr[ys, xs][None]  # 1xKx3: the cv2 calls below work on it as an image
         f = px.astype(np.float32)

@@ -169,11 +169,12 @@ def region_properties(
     touches = bbox[0] <= 0 or bbox[1] <= 0 or bbox[2] >= w - 1 or bbox[3] >= h - 1
     if not touches:
         # A rectified image has a black (exactly 0) fill outside the camera's field of view:
-        # a region next to it is cut by the view's border just as by the frame's.
-        ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+        # a region next to it is cut by the view's border just as by the frame's. (Most windows
+        # have no black pixel at all: then the ring around the region need not be drawn.)
         black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))  # every channel 0
-        if cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3:
-            touches = True
+        if cv2.countNonZero(black) >= 3:
+            ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+            touches = cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3
     pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
     sigma_c = None
     method = "pixels"
