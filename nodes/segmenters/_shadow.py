@@ -55,13 +55,16 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     if s_max < 0 or v_max < 0:
         return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
     cand = cv2.bitwise_and(cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255))), mask)
-    ys, xs = np.nonzero(cand) if cv2.countNonZero(cand) else (np.empty(0, np.intp), np.empty(0, np.intp))
-    if len(ys):
-        px = img_bgr[ys, xs][None]  # 1xKx3: the cv2 calls below work on it as an image
+    # The candidates' flat indices and pixels, both in row-major order (one boolean gather each:
+    # cheaper than indexing by row and column arrays).
+    sel = cand > 0
+    where = np.flatnonzero(sel)
+    if len(where):
+        px = masked_pixels(img_bgr, sel)[None]  # 1xKx3: the cv2 calls below work on it as an image
         f = px.astype(np.float32)
         total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-        dark = hsv[ys, xs, 2] < 25  # chromaticity is noise in the darkest pixels: it must not veto (shadow test) ...
-        dchroma = _chroma_distance(f, total, bg).reshape(-1)
+        dark = px[0].max(axis=1) < 25  # (V = the largest channel) chromaticity is noise in the darkest
+        dchroma = _chroma_distance(f, total, bg).reshape(-1)  # pixels: it must not veto (shadow test) ...
         dchroma[dark] = 0.0
         ok = dchroma <= shadow.max_chroma_shift
         if obj.color_bgr is not None:
@@ -70,13 +73,13 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
             ok &= d_obj > obj.color_tolerance
         elif obj.hue_range_deg is not None:
             ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
-        ys, xs = ys[ok], xs[ok]
-    if len(ys) > shadow.max_removed_fraction * n_sel:
+        where = where[ok]
+    if len(where) > shadow.max_removed_fraction * n_sel:
         return mask  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask
-    if len(ys):
+    if len(where):
         out = mask.copy()
-        out[ys, xs] = 0
+        out.reshape(-1)[where] = 0
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out

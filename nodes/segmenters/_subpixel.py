@@ -9,13 +9,14 @@ import math
 import cv2
 import numpy as np
 
+from ._blur import gaussian_blur
 from ._params import SegmenterParams
 from ._pixels import _channels, fast_median, structuring_element
 
 
 def _color_gradient(img_bgr: np.ndarray, sigma: float = 1.0) -> np.ndarray:
     """Colour gradient magnitude (sqrt of the sum over channels of |grad|^2), float32."""
-    f = cv2.GaussianBlur(img_bgr, (0, 0), sigma)
+    f = gaussian_blur(img_bgr, sigma)
     gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(f, cv2.CV_32F, 0, 1, ksize=3)
     g2 = cv2.add(cv2.multiply(gx, gx), cv2.multiply(gy, gy))
@@ -168,11 +169,12 @@ def region_properties(
     touches = bbox[0] <= 0 or bbox[1] <= 0 or bbox[2] >= w - 1 or bbox[3] >= h - 1
     if not touches:
         # A rectified image has a black (exactly 0) fill outside the camera's field of view:
-        # a region next to it is cut by the view's border just as by the frame's.
-        ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+        # a region next to it is cut by the view's border just as by the frame's. (Most windows
+        # have no black pixel at all: then the ring around the region need not be drawn.)
         black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))  # every channel 0
-        if cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3:
-            touches = True
+        if cv2.countNonZero(black) >= 3:
+            ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
+            touches = cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3
     pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
     sigma_c = None
     method = "pixels"

@@ -18,6 +18,7 @@ import numpy as np
 
 from stereograph.api import Field, node
 
+from ._blur import gaussian_blur
 from ._channel import best_plane, normalize_exposure, plane
 from ._pair import segment_pair
 from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
@@ -124,7 +125,7 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
             gray = normalize_exposure(gray)
     sigma = params.blur_sigma_px / scale
     if sigma > 0.3:
-        gray = cv2.GaussianBlur(gray, (0, 0), sigma)
+        gray = gaussian_blur(gray, sigma)
     # A blurred edge is steeper per pixel at a coarse level: scale the thresholds so that
     # detection there finds the edges found at full size.
     gain = gradient_gain(scale, params.blur_sigma_px)

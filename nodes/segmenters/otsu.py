@@ -21,6 +21,7 @@ import numpy as np
 
 from stereograph.api import Field, node
 
+from ._blur import gaussian_blur
 from ._pair import segment_pair
 from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
@@ -107,7 +108,7 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
     for ch in planes:
         g = to_channel(img_bgr, "gray" if ch == "auto" else ch)
         if sigma > 0.3:
-            g = cv2.GaussianBlur(g, (0, 0), sigma)
+            g = gaussian_blur(g, sigma)
         if params.flatten_background:
             g = _difference(g, params, r_range_px, roi)
         eta = otsu_separability(g) if len(planes) > 1 else 1.0
