@@ -236,8 +236,8 @@ def _local_cluster(LocalCluster: Any, workers: int) -> Any:
     system sooner). Setting that turns off glibc's adaptive threshold, so every image-sized array
     is a fresh ``mmap`` and page-faulted in again: on ``locate.yaml`` the two workers spent 8 s each in
     the kernel (of 22 s of CPU) and the Dask run was slower than a serial one. Our items are
-    released after each chunk anyway, so the shipped default is dropped -- a value the user
-    configured (Dask config or the environment) is kept.
+    released after each chunk anyway, so the shipped default is dropped -- another value in the
+    Dask config, or the variable in this process's environment (which workers inherit), is kept.
     """
     import dask
 
