@@ -77,15 +77,15 @@ def table(title: str, columns: list[str], rows: list[list[str]], width: int) -> 
     if sum(widths) + 3 * len(widths) + 1 > width or len(title) > width:
         return None
 
-    def line(left: str, fill: str, mid: str, right: str) -> str:
+    def edge(left: str, fill: str, mid: str, right: str) -> str:
         return left + mid.join(fill * (w + 2) for w in widths) + right
 
     def row(r: list[str], bar: str) -> str:
         return bar + bar.join(f" {c.ljust(w)} " for c, w in zip(r, widths)) + bar
 
-    out = [title, line("┏", "━", "┳", "┓"), row(columns, "┃"), line("┡", "━", "╇", "┩")]
+    out = [title, edge("┏", "━", "┳", "┓"), row(columns, "┃"), edge("┡", "━", "╇", "┩")]
     out += [row(r, "│") for r in rows]
-    out.append(line("└", "─", "┴", "┘"))
+    out.append(edge("└", "─", "┴", "┘"))
     return "\n".join(out)
 
 

@@ -54,7 +54,7 @@ def disparity_range_px(rectification: dict | None, params: DisparityParams) -> t
 REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
 
 
-def _rejected(seg) -> dict:
+def _passed_on(seg) -> dict:
     """What a Disparity passes on from its Segmentation: the rejected-candidate outlines (for the
     locator's overlay) and where the object's colour came from (``color_from``), when present."""
     return {k: seg[k] for k in (*REJECTED_KEYS, "color_from") if k in seg} if isinstance(seg, dict) else {}
@@ -67,7 +67,7 @@ def not_found(seg_or_id, reason: str, method: str) -> dict:
     return {
         "id": sid, "found": False, "reason": reason, "u_left_px": None, "v_left_px": None,
         "disparity_px": None, "sigma_disparity_px": None, "method": method, "split": split,
-        "depth_offset_cm": 0.0, **_rejected(seg_or_id),
+        "depth_offset_cm": 0.0, **_passed_on(seg_or_id),
     }
 
 
@@ -84,7 +84,7 @@ def finish(seg: dict, u: float, v: float, d: float, sigma_d: float, method: str,
         rec = {
             "id": seg["id"], "found": True, "reason": None, "u_left_px": float(u), "v_left_px": float(v),
             "disparity_px": float(d), "sigma_disparity_px": float(max(sigma_d, params.min_sigma_disparity_px)),
-            "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0, **_rejected(seg),
+            "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0, **_passed_on(seg),
         }
         rec.update(extra)
     if not rec["found"] and ctx is not None:
