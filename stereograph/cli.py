@@ -19,6 +19,7 @@ from typing import Any
 from stereograph import __version__, registry
 from stereograph.errors import ConfigError, sentence
 from stereograph.progress import PlainProgress, RichProgress  # noqa: F401  (RichProgress: the old home)
+from stereograph.threads import one_thread_each, pool_requested
 
 
 def _console(stderr: bool = False):
@@ -332,14 +333,12 @@ def cmd_run(args) -> int:
             return _finish_run(args, replayed, replayed.echo, lambda n: replayed.where[n],
                                lambda n: replayed.upstream[n])
 
-    from stereograph.runner import one_thread_each, run_graph, workers_executor
+    from stereograph.runner import run_graph, workers_executor
 
     graph = _load_graph(args)
     con = _console()
     loop = _loop(args, con)
     interactive = sys.stdout.isatty() and not args.json and loop is None
-    if args.workers and args.workers > 1 and not args.dask:
-        one_thread_each()  # this process too: its head shares the cores with the workers
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor, cycles=loop)
@@ -618,6 +617,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str]) -> int:
     argv = list(argv)
+    if pool_requested(argv):
+        one_thread_each()  # this process too (its head shares the cores with the workers), before NumPy loads
     parser = build_parser(lazy="compare" not in argv)
     if argv and argv[0] in registry.commands():
         ep = registry.commands()[argv[0]]

@@ -44,6 +44,7 @@ from stereograph.api import NodeError, RunContext
 from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json, jpeg_roundtrip
 from stereograph.calls import _PROGRESS, Task, TaskResult, close_resources, execute  # noqa: F401  (re-exported)
 from stereograph.errors import ConfigError
+from stereograph.threads import ONE_THREAD, one_thread_each  # noqa: F401  (re-exported)
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
     from stereograph.config import PipelineDoc
@@ -80,22 +81,10 @@ class SerialExecutor:
         pass
 
 
-# Libraries' own thread pools, one thread each in a worker process: the pool's processes are the
-# parallelism, and more threads than cores only cost CPU (switching, spinning: ~1 s of a 2-worker
-# locate.yaml run). Each library reads its variable when it first starts its threads, so a worker
-# forked before the parent used them gets one; one forked after keeps what it inherited (no call
-# into a library's pool from a forked child: that can deadlock on a lock a parent thread held).
-ONE_THREAD = {"OPENCV_FOR_THREADS_NUM": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-              "MKL_NUM_THREADS": "1"}
-
-
-def one_thread_each() -> None:
-    """One thread per library pool in this process (and those it starts), unless the user set the
-    variable: for a worker process, and for a ``--workers`` command's own process."""
-    for k, v in ONE_THREAD.items():
-        os.environ.setdefault(k, v)
-
-
+# Libraries' own thread pools run one thread each in a worker process (stereograph.threads): the
+# pool's processes are the parallelism. A worker forked after the parent started a library's threads
+# keeps what it inherited (no call into a library's pool from a forked child: that can deadlock on a
+# lock a parent thread held); the command line sets the variables before NumPy loads (cli).
 class ProcessExecutor:
     """Runs tasks in a pool of worker processes (results in order).
 

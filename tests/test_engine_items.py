@@ -259,3 +259,54 @@ def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
             # the workers finish together: the last tasks are a quarter chunk
             assert sizes[-2 * workers:] == [max(1, chunk_size(n, workers) // 4)] * (2 * workers)
     assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 14 + [2] * 4
+
+
+_FIRST_NUMPY_IMPORT = """
+import os, sys
+seen = []
+
+class Watch:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy" and not seen:
+            seen.append(os.environ.get("OPENBLAS_NUM_THREADS", "-"))
+        return None
+
+sys.meta_path.insert(0, Watch())
+from stereograph.cli import main
+rc = main(sys.argv[1:])
+print("OPENBLAS_NUM_THREADS when NumPy loaded:", seen[0] if seen else "not loaded")
+sys.exit(rc)
+"""
+
+
+def test_a_workers_command_loads_numpy_with_one_blas_thread(tmp_path):
+    """OpenBLAS reads its thread count once, when NumPy loads, and its idle threads spin: a
+    ``--workers N`` command sets one thread per library pool before anything imports NumPy (its own
+    process shares the cores with the workers). One worker keeps the libraries' defaults."""
+    import os
+    import subprocess
+    import sys
+
+    p = write_pipeline(tmp_path, "{n: 4}")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                            "OPENCV_FOR_THREADS_NUM", "MKL_NUM_THREADS")}
+    seen = {}
+    for workers in ("1", "2"):
+        out = subprocess.run([sys.executable, "-c", _FIRST_NUMPY_IMPORT, "run", str(p), "--allow-plugins",
+                              "--no-cache", "--workers", workers, "--out", str(tmp_path / f"out{workers}")],
+                             capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        seen[workers] = out.stdout.rsplit("NumPy loaded:", 1)[1].strip()
+    assert seen == {"1": "-", "2": "1"}
+
+
+def test_pool_requested_reads_the_raw_command_line():
+    from stereograph.threads import pool_requested
+
+    assert pool_requested(["run", "p.yaml", "--workers", "2"])
+    assert pool_requested(["compare", "p.yaml", "--workers=3", "--json"])
+    assert not pool_requested(["run", "p.yaml", "--workers", "1"])
+    assert not pool_requested(["run", "p.yaml", "--workers", "2", "--dask", "local"])
+    assert not pool_requested(["run", "p.yaml", "--workers", "two"])  # the parser says what is wrong
+    assert not pool_requested(["run", "p.yaml", "--workers"])
+    assert not pool_requested(["run", "p.yaml"])
