@@ -257,6 +257,7 @@ class NodeSpec:
     reads: Callable[[Params, Path], list[Path]] | None
     description: str
     items: Callable[[Params, RunContext], list[str]] | None = None
+    prepare: Callable[[], Any] | None = None
 
     @property
     def kind(self) -> str:
@@ -306,6 +307,7 @@ def node(
     cacheable: bool = True,
     reads: Callable[[Params, Path], list[Path]] | None = None,
     items: Callable[[Params, RunContext], list[str]] | None = None,
+    prepare: Callable[[], Any] | None = None,
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Declare a function as a stereograph node type.
 
@@ -336,6 +338,12 @@ def node(
         ``{collection_output: that item's value}``, or ``{}`` to drop the item after
         ``ctx.warn``-ing why); ``ctx.producing_items`` is then True. Called directly (``ctx``
         None), the node returns everything at once. Only for nodes without per-item inputs.
+    prepare : callable, optional
+        ``prepare()``: load what the node's first call needs and every call shares (a heavy
+        library, a table), nothing that depends on params or inputs. The engine may call it
+        ahead, in another thread, while this process only waits for a worker pool (a ``--workers``
+        run's per-item part), so that the node does not load it alone afterwards. Optional to
+        call: the node must work without it; its errors are ignored (the node's call reports them).
 
     Returns
     -------
@@ -354,6 +362,7 @@ def node(
             cacheable=cacheable,
             reads=reads,
             items=items,
+            prepare=prepare,
             description=doc.split("\n\n", 1)[0].replace("\n", " "),
         )
         sig = inspect.signature(fn)

@@ -30,6 +30,7 @@ import concurrent.futures as cf
 import contextlib
 import os
 import shutil
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable
@@ -867,12 +868,14 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
         else:
             units = _units(run, selected)
             heads = {u.source: u for u in units if not isinstance(u, str) and u.source}
-            for unit in units:
+            for k, unit in enumerate(units):
                 if isinstance(unit, str):
                     if unit in heads:  # the pool makes its items while this process runs the head
                         streaming.start_ahead(run, heads[unit])
                     run.run_node(graph.nodes[unit])
                 else:
+                    if hasattr(executor, "start"):  # a local pool: this process only waits
+                        _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)])
                     streaming.run_region(run, unit, write_outputs)
     finally:
         for source in list(run.ahead):
@@ -904,6 +907,29 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
+
+
+_PREPARED: set[str] = set()  # node types whose prepare() ran (or runs) in this process
+
+
+def _prepare_ahead(specs: list[Any]) -> None:
+    """Call the ``prepare()`` of these node types in a background thread (once per type and process).
+
+    For the nodes that run in this process after a region whose work is in a pool's processes:
+    this process only waits meanwhile, so what they load (a plotting library: ~1 s) is loaded on
+    a core that would be idle at the run's end, when they run alone.
+    """
+    todo = [s for s in specs if s.prepare is not None and s.name not in _PREPARED]
+    if not todo:
+        return
+    _PREPARED.update(s.name for s in todo)
+
+    def prepare_all() -> None:
+        for spec in todo:
+            with contextlib.suppress(Exception):  # optional: the node's own call reports a failure
+                spec.prepare()
+
+    threading.Thread(target=prepare_all, name="stereograph-prepare", daemon=True).start()
 
 
 def _units(run: _Run, selected: list[str]) -> list[Any]:

@@ -310,3 +310,30 @@ def test_pool_requested_reads_the_raw_command_line():
     assert not pool_requested(["run", "p.yaml", "--workers", "two"])  # the parser says what is wrong
     assert not pool_requested(["run", "p.yaml", "--workers"])
     assert not pool_requested(["run", "p.yaml"])
+
+
+def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, monkeypatch):
+    """A node's ``prepare()`` (heavy imports) runs in a background thread of this process while the
+    pool works through the region before it -- once per process -- and not at all in a serial run,
+    where this process has no idle time to give it."""
+    import time
+
+    from stereograph import registry, runner
+
+    p = write_pipeline(tmp_path, "{n: 6}")
+    monkeypatch.setattr(runner, "_PREPARED", set())  # (other tests' pooled runs prepared it already)
+    r = run(p, tmp_path, use_cache=False)  # serial (this also imports the plugin)
+    prepared = registry.get("toy.table").fn.__globals__["PREPARED"]
+    prepared.clear()
+    r = run(p, tmp_path, use_cache=False)
+    assert r.ok and prepared == []
+    ex = ProcessExecutor(2)
+    try:
+        r = run(p, tmp_path, use_cache=False, executor=ex)
+    finally:
+        ex.close()
+    for _ in range(100):  # (a daemon thread: it may still be finishing when a tiny run ends)
+        if prepared:
+            break
+        time.sleep(0.05)
+    assert r.ok and prepared == ["stereograph-prepare"]

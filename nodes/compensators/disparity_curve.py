@@ -45,6 +45,7 @@ from nodes.compensators._common import (
     training_samples,
 )
 from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["disparity_curve", "fit_disparity_curve", "predict_disparity_curve"]
@@ -177,6 +178,7 @@ class DisparityCurveParams(RayFitParams):
              **METRICS_OUTPUT},
     params=DisparityCurveParams,
     version="3",
+    prepare=load_figures,
 )
 def disparity_curve(params: DisparityCurveParams, train, ctx=None):
     """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""

@@ -29,6 +29,7 @@ from nodes.compensators._common import (
     training_samples,
 )
 from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_lookup", "lookup", "predict_lookup"]
@@ -124,6 +125,7 @@ class LookupParams(RayFitParams):
              **METRICS_OUTPUT},
     params=LookupParams,
     version="3",
+    prepare=load_figures,
 )
 def lookup(params: LookupParams, train, ctx=None):
     """Fit a piecewise-linear z correction over binned measured distance on the training placements."""

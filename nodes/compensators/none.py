@@ -22,6 +22,7 @@ from nodes.compensators._common import (
     training_samples,
 )
 from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Out, node
 
 __all__ = ["fit_none", "none", "predict_none"]
@@ -53,6 +54,7 @@ class NoneParams(FitParams):
              **METRICS_OUTPUT},
     params=NoneParams,
     version="2",
+    prepare=load_figures,
 )
 def none(params: NoneParams, train, ctx=None):
     """Baseline compensator: leaves every location as measured (reports the raw training error)."""

@@ -29,6 +29,7 @@ from nodes.compensators._common import (
     training_samples,
 )
 from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_polynomial", "polynomial", "predict_polynomial"]
@@ -104,6 +105,7 @@ class PolynomialParams(RayFitParams):
              **METRICS_OUTPUT},
     params=PolynomialParams,
     version="3",
+    prepare=load_figures,
 )
 def polynomial(params: PolynomialParams, train, ctx=None):
     """Fit the z error (or true z) as a polynomial of measured z on the training placements."""

@@ -31,6 +31,7 @@ from nodes.compensators._common import (
     training_samples,
 )
 from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Field, NodeError, Out, node
 
 __all__ = ["fit_xyz", "monomials", "predict_xyz", "xyz"]
@@ -158,6 +159,7 @@ class XyzParams(FitParams):
              **METRICS_OUTPUT},
     params=XyzParams,
     version="3",
+    prepare=load_figures,
 )
 def xyz(params: XyzParams, train, ctx=None):
     """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""

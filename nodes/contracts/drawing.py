@@ -64,6 +64,17 @@ def caption(img: np.ndarray, lines: Iterable[str | tuple[str, tuple[int, int, in
     return np.ascontiguousarray(np.vstack([band, base]))
 
 
+def load_figures() -> None:
+    """Import what :func:`new_figure` and :func:`figure_bgr` use (~1 s: matplotlib, its Agg canvas and
+    font list). A node that draws declares it as its ``prepare`` (stereograph.api.node): a run may
+    then load it while the process would wait for its workers, not alone at the end."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import matplotlib.figure  # noqa: F401
+
+
 def new_figure(width_in: float, height_in: float, dpi: int = 90) -> Any:
     """A matplotlib Figure on the Agg canvas (no pyplot, no global state)."""
     import matplotlib

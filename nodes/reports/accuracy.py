@@ -14,6 +14,7 @@ from typing import Literal
 
 import numpy as np
 
+from nodes.contracts.drawing import load_figures
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 
@@ -151,6 +152,7 @@ def raw_location_fields(loc: dict) -> dict:
     },
     params=AccuracyParams,
     version="2",
+    prepare=load_figures,
 )
 def accuracy(params: AccuracyParams, locations, ctx=None):
     """Per-axis error table (mean, std, max |err|, RMS in cm) of the located pairs against truth."""

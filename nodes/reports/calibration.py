@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nodes.contracts.drawing import caption, figure_bgr, new_figure
+from nodes.contracts.drawing import caption, figure_bgr, load_figures, new_figure
 from stereograph.api import Field, In, Out, Params, node
 
 
@@ -174,6 +174,7 @@ def poses_3d(cal: dict, views: dict | None) -> np.ndarray:
              "poses": Out("Image", save=True, description="Cameras and board poses in 3-D (cm, or board squares).")},
     params=CalibrationReportParams,
     version="2",
+    prepare=load_figures,
 )
 def calibration(params: CalibrationReportParams, calibration: dict, views: dict | None = None, ctx=None) -> dict:
     """Calibration pictures: per-view reprojection error bars, corners on each view, cameras and boards in 3-D."""

@@ -18,7 +18,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.contracts.arm import geometry
-from nodes.contracts.drawing import figure_bgr, new_figure
+from nodes.contracts.drawing import figure_bgr, load_figures, new_figure
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 
@@ -116,6 +116,7 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
                                 description="Joint angles (deg) and servo goals (units) at the grasp (a table).")},
     params=PickReportParams,
     version="2",
+    prepare=load_figures,
 )
 def pick(params: PickReportParams, arm: dict, plans, log: dict | None = None, ctx=None) -> dict:
     """Picture of the arm at the grasp (forward kinematics, side and top views) and its joint / servo table."""

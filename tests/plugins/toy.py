@@ -46,9 +46,19 @@ def total(params: SumParams, values):
     return {"total": params.scale * float(sum(values.values()))}
 
 
-@node("toy.table", inputs={"m": In("Matrix", gather=True)}, outputs={"report": Out("Report")})
+PREPARED: list[str] = []  # the threads toy.table's prepare() ran in (the test process's runs)
+
+
+def _prepare_table() -> None:
+    import threading
+
+    PREPARED.append(threading.current_thread().name)
+
+
+@node("toy.table", inputs={"m": In("Matrix", gather=True)}, outputs={"report": Out("Report")},
+      prepare=_prepare_table)
 def table(params, m):
-    """Shape report of all items."""
+    """Shape report of all items (its ``prepare`` only records where it ran)."""
     return {"report": {"n": len(m), "items": sorted(m)}}
 
 
