@@ -60,9 +60,11 @@ def test_windows_are_the_full_remap_pixels_and_coarse_is_its_pyramid(rig):
         assert got.shape == ref.shape
         inner = (slice(8, -8), slice(8, -8))
         assert np.abs(got[inner].astype(int) - ref[inner]).mean() < 2.0  # gray levels
-        # A band (cropped raw pyramid) equals the same band of the whole-image coarse level.
-        band = view.coarse(scale, 64, 96, 320, 224)
-        assert np.array_equal(band, got[96 // scale:224 // scale, 64 // scale:320 // scale])
+        # A band (cropped raw pyramid, bounded by the map positions the level samples) equals
+        # the same band of the whole-image coarse level, inside the image and at its corners.
+        for u0, v0, u1, v1 in [(64, 96, 320, 224), (0, 0, 128, 96), (512, 384, 640, 480), (200, 8, 456, 121)]:
+            band = view.coarse(scale, u0, v0, u1, v1)
+            assert np.array_equal(band, got[v0 // scale:-(-v1 // scale), u0 // scale:-(-u1 // scale)])
     # An already rectified image is sliced and pyrDown'ed.
     plain = RectifiedView(full)
     assert not plain.is_raw and np.array_equal(plain.window(5, 6, 50, 60), full[6:60, 5:50])
@@ -126,3 +128,17 @@ def test_edge_morph_canny_equals_cv2_canny(rig):
             assert np.array_equal(canny(blurred, lo, hi), cv2.Canny(blurred, lo, hi, L2gradient=True))
             gray = cv2.cvtColor(blurred, cv2.COLOR_BGR2GRAY)
             assert np.array_equal(canny(gray, lo, hi), cv2.Canny(gray, lo, hi, L2gradient=True))
+
+
+def test_band_pyramid_margin_holds_on_texture(rig):
+    """On noise (no smooth area to hide a border effect) a band's cropped pyramid still equals the
+    whole-image coarse level: the crop's margin covers pyrDown's reach at every level."""
+    _, rect = rig
+    noise = np.random.default_rng(1).integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    maps = {"x": rect["map_left_x"], "y": rect["map_left_y"],
+            "fixed": rect.get("map_left_fixed"), "interp": rect.get("map_left_interp")}
+    for scale in (2, 4, 8):
+        whole = RectifiedView(noise, maps).coarse(scale, 0, 0, 640, 480)
+        for u0, v0, u1, v1 in [(64, 96, 320, 224), (200, 8, 456, 121), (512, 384, 640, 480), (328, 240, 413, 301)]:
+            band = RectifiedView(noise, maps).coarse(scale, u0, v0, u1, v1)
+            assert np.array_equal(band, whole[v0 // scale:-(-v1 // scale), u0 // scale:-(-u1 // scale)])

@@ -112,8 +112,10 @@ class RectifiedView:
         if (u1 - u0) * (v1 - v0) < 0.5 * w * h and len(self._levels) <= level:
             # A small window (the epipolar band): build the pyramid of just the raw pixels it
             # reads. The crop starts on the level's grid and has a margin of 4 level pixels,
-            # so its pyramid equals the whole image's wherever the maps sample it.
-            xs, ys = self.maps["x"][v0:v1, u0:u1], self.maps["y"][v0:v1, u0:u1]
+            # so its pyramid equals the whole image's wherever the maps sample it. The level's
+            # maps read the full maps at every ``scale``-th row and column from (u0, v0) (both
+            # on that grid): only those positions are sampled, so only they bound the crop.
+            xs, ys = self.maps["x"][v0:v1:scale, u0:u1:scale], self.maps["y"][v0:v1:scale, u0:u1:scale]
             ih, iw = self.image.shape[:2]
             pad = 4 * scale
             x0 = max(0, int(math.floor(float(xs.min()))) - pad) // scale * scale

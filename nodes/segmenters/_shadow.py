@@ -37,30 +37,57 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     n_sel = cv2.countNonZero(mask)
     if n_sel == 0 or n_sel == mask.size:
         return mask
+    # Every step below reads the mask's pixels or those within the ring's reach (4 px) of
+    # them, so it runs on the mask's bounding box plus a 5 px frame (all 0 in the mask, so the
+    # morphology's border handling at the crop's edge sees what the whole window has there):
+    # the same pixels, the same result, on a ball's window about a third of the pixels.
+    h, w = mask.shape
+    x, y, bw, bh = cv2.boundingRect(mask)
+    x0, y0, x1, y1 = max(0, x - _FRAME_PX), max(0, y - _FRAME_PX), min(w, x + bw + _FRAME_PX), \
+        min(h, y + bh + _FRAME_PX)
+    if (x1 - x0) * (y1 - y0) < h * w:
+        kept = _suppress(img_bgr[y0:y1, x0:x1], mask[y0:y1, x0:x1], n_sel, shadow, obj, img_bgr, mask)
+        if kept is None:
+            return mask
+        out = np.zeros_like(mask)
+        out[y0:y1, x0:x1] = kept
+        return out
+    kept = _suppress(img_bgr, mask, n_sel, shadow, obj, img_bgr, mask)
+    return mask if kept is None else kept
+
+
+_FRAME_PX = 5  # the shadow ring's reach (9 px element: 4 px) + 1 px of background for the opening
+
+
+def _suppress(img_bgr: np.ndarray, mask: np.ndarray, n_sel: int, shadow: ShadowParams, obj: ObjectSpec,
+              whole_img: np.ndarray, whole_mask: np.ndarray) -> np.ndarray | None:
+    """:func:`suppress_shadow` on a crop holding the whole mask and its ring (``whole_*``: the
+    uncropped window, for the fallback background); None = keep the mask unchanged."""
     # Local background: a ring just outside the mask (fallback: everything outside).
     ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
-    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 else masked_pixels(img_bgr, mask == 0)
+    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 \
+        else masked_pixels(whole_img, whole_mask == 0)
     bg = _median_u8_rows(bg_px.reshape(-1, 3))
     bg_v = float(bg.max())
     if bg_v < 1:
-        return mask
+        return None
     bg_s = (bg_v - float(bg.min())) / max(bg_v, 1.0) * 255.0
-    # The brightness and saturation tests are cheap (one HSV conversion and an inRange over the
-    # window) and usually leave few of the region's pixels (a lit ball is neither dark nor
-    # grey): only those are gathered for the chromaticity tests. V and S are integers, so
-    # v <= t is v <= floor(t).
-    hsv = cv2.cvtColor(img_bgr, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    # The brightness and saturation tests run on the region's pixels only (gathered once, in
+    # row-major order with their flat indices) and usually leave few of them (a lit ball is
+    # neither dark nor grey): only those go on to the chromaticity tests. V and S are
+    # integers, so v <= t is v <= floor(t).
     s_max = math.floor(bg_s + shadow.max_saturation_gain)
     v_max = math.floor(shadow.max_brightness_ratio * bg_v)
     if s_max < 0 or v_max < 0:
         return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
-    cand = cv2.bitwise_and(cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255))), mask)
-    # The candidates' flat indices and pixels, both in row-major order (one boolean gather each:
-    # cheaper than indexing by row and column arrays).
-    sel = cand > 0
+    sel = mask > 0
     where = np.flatnonzero(sel)
+    region_px = masked_pixels(img_bgr, sel)[None]  # 1xKx3: the cv2 calls below work on it as an image
+    hsv = cv2.cvtColor(region_px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
+    cand = cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255)))[0] > 0
+    where = where[cand]
     if len(where):
-        px = masked_pixels(img_bgr, sel)[None]  # 1xKx3: the cv2 calls below work on it as an image
+        px = masked_pixels(region_px, cand[None])[None]
         f = px.astype(np.float32)
         total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
         dark = px[0].max(axis=1) < 25  # (V = the largest channel) chromaticity is noise in the darkest
@@ -75,7 +102,7 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
             ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
         where = where[ok]
     if len(where) > shadow.max_removed_fraction * n_sel:
-        return mask  # most of the region looks like shadow: a dark neutral object, keep it
+        return None  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask
     if len(where):
         out = mask.copy()

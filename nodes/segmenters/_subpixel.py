@@ -68,14 +68,20 @@ def refine_contour(
         n = -n
     norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
     good = norm[:, 0] > 1e-6
-    c, n = c[good], n[good] / norm[good]
+    if good.all():  # the usual case: no copies, and the outline's bounds are its bounding box
+        n = n / norm
+        bx, by, bw, bh = cv2.boundingRect(contour)
+        cx0, cy0, cx1, cy1 = bx, by, bx + bw - 1, by + bh - 1
+    else:
+        c, n = c[good], n[good] / norm[good]
+        cx0, cy0, cx1, cy1 = int(c[:, 0].min()), int(c[:, 1].min()), int(c[:, 0].max()), int(c[:, 1].max())
     # The gradient is needed only along the outline: crop to it. Samples lie within
     # search_px + 1 px of the outline and the blur and Sobel reach 4 px, so a margin of
     # search_px + 6 px gives the values of the whole image's gradient.
     hh, ww = img_bgr.shape[:2]
     m = int(math.ceil(search_px)) + 6
-    x0, y0 = max(0, int(c[:, 0].min()) - m), max(0, int(c[:, 1].min()) - m)
-    x1, y1 = min(ww, int(c[:, 0].max()) + m + 1), min(hh, int(c[:, 1].max()) + m + 1)
+    x0, y0 = max(0, cx0 - m), max(0, cy0 - m)
+    x1, y1 = min(ww, cx1 + m + 1), min(hh, cy1 + m + 1)
     grad = _color_gradient(img_bgr[y0:y1, x0:x1])
     step = 0.25
     t = np.arange(-search_px, search_px + step / 2, step, dtype=np.float32)
@@ -84,11 +90,12 @@ def refine_contour(
     prof = cv2.remap(grad, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     k = prof.argmax(axis=1)
     inner = (k > 0) & (k < len(t) - 1)
-    peak = prof[np.arange(len(k)), k]
+    peak = prof.max(axis=1)  # = the profile at k
     inner &= peak > 0.25 * fast_median(peak)
     k = np.minimum(np.maximum(k, 1), len(t) - 2)
-    rows = np.arange(len(k))
-    y0, y1, y2 = prof[rows, k - 1], prof[rows, k], prof[rows, k + 1]
+    flat = prof.reshape(-1)
+    at = np.arange(0, flat.size, len(t)) + k  # flat index of (row, k)
+    y0, y1, y2 = flat[at - 1], flat[at], flat[at + 1]
     den = y0 - 2 * y1 + y2
     off = np.where(np.abs(den) > 1e-9, 0.5 * (y0 - y2) / np.where(den == 0, 1, den), 0.0)
     tt = t[k] + np.clip(off, -0.5, 0.5) * step
@@ -107,10 +114,10 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
     """
     if pts is None or len(pts) < 6:
         return None
-    keep = np.ones(len(pts), bool)
+    keep = None  # None: all points (saves the copies of the first, usually the only, pass)
     refit = True
     for _ in range(3):
-        (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
+        (cu, cv_), (w, h), ang = cv2.fitEllipse(pts if keep is None else pts[keep])
         if w <= 0 or h <= 0:
             return None
         # Approximate geometric distance: scale the algebraic residual by the local radius.
@@ -122,15 +129,19 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         rr = np.sqrt((x / (w / 2)) ** 2 + (y / (h / 2)) ** 2)
         res = (rr - 1.0) * 0.5 * (w + h) / 2
         ares = np.abs(res)
-        mad = fast_median(ares[keep]) * 1.4826 + 1e-3
+        mad = fast_median(ares if keep is None else ares[keep]) * 1.4826 + 1e-3
         new = ares <= max(3.0 * mad, 0.3)
-        if new.sum() < 6 or (new == keep).all():
+        n_new = int(np.count_nonzero(new))
+        if n_new < 6 or (n_new == len(pts) if keep is None else (new == keep).all()):
             refit = False  # converged (or too few inliers): the last fit used ``keep``
             break
         keep = new
     if refit:
         (cu, cv_), (w, h), ang = cv2.fitEllipse(pts[keep])
-    rms = float(np.sqrt(np.mean(res[keep] ** 2)))
+    if keep is None:
+        rms, n_in = float(np.sqrt(np.mean(res**2))), len(pts)
+    else:
+        rms, n_in = float(np.sqrt(np.mean(res[keep] ** 2))), int(keep.sum())
     a, b = max(w, h) / 2, min(w, h) / 2
     if h > w:  # report the angle of the major axis
         ang = (ang + 90.0) % 180.0
@@ -139,7 +150,7 @@ def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
         "axes_px": [float(a), float(b)],
         "angle_deg": float(ang),
         "rms_px": rms,
-        "inliers": int(keep.sum()),
+        "inliers": n_in,
     }
 
 
