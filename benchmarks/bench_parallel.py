@@ -3,6 +3,8 @@
     python benchmarks/bench_parallel.py                 # 120 pairs: 1 vs 2 workers, node-by-node,
                                                         # 480 pairs peak RSS, Dask LocalCluster
     python benchmarks/bench_parallel.py --skip 480,dask # the quick part only
+    python benchmarks/bench_parallel.py --skip split,nodebynode,480,dask --repeat 5
+                                                        # the 2-vs-1 ratio, median of 5 back-to-back pairs
 
 Each case is ``stereograph run pipelines/locate.yaml --no-cache`` in a child process; wall time
 is measured around it, CPU time (user + system, the child and its worker processes) and peak
@@ -17,6 +19,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -113,6 +116,9 @@ def main() -> int:
     ap.add_argument("--big", type=int, default=480, help="pairs of the memory run (default 480)")
     ap.add_argument("--skip", default="", help="comma list of cases to skip: split, nodebynode, 480, dask")
     ap.add_argument("--keep", action="store_true", help="keep the run folders (printed at the end)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="pairs of 1- and 2-worker runs, back to back (order alternating); the median ratio is "
+                         "printed too: a shared VM's speed drifts between minutes (default 1)")
     a = ap.parse_args()
     skip = set(filter(None, a.skip.split(",")))
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at start")
@@ -121,6 +127,15 @@ def main() -> int:
     rows = {}
     rows["w1"] = run_case(f"{a.pairs} pairs, --workers 1", n, tmp / "w1")
     rows["w2"] = run_case(f"{a.pairs} pairs, --workers 2", n + ["--workers", "2"], tmp / "w2")
+    ratios = [rows["w1"]["wall_s"] / rows["w2"]["wall_s"]]
+    for k in range(1, a.repeat):
+        order = ("2", "1") if k % 2 else ("1", "2")  # each pair back to back, the first run alternating
+        walls = {}
+        for w in order:
+            walls[w] = run_case(f"{a.pairs} pairs, --workers {w} (repeat {k + 1})", n + ["--workers", w],
+                                tmp / f"r{k}w{w}")["wall_s"]
+            shutil.rmtree(tmp / f"r{k}w{w}", ignore_errors=True)
+        ratios.append(walls["1"] / walls["2"])
     if "split" not in skip:
         rows["split"] = split_cpu(a.pairs, tmp / "split")
     if "nodebynode" not in skip:
@@ -134,6 +149,9 @@ def main() -> int:
     w1, w2 = rows["w1"], rows["w2"]
     print(f"speed-up, 2 workers over 1: {w1['wall_s'] / w2['wall_s']:.2f}x wall "
           f"(target >= 1.7x); CPU {w1['cpu_s']:.1f} s vs {w2['cpu_s']:.1f} s")
+    if len(ratios) > 1:
+        print(f"  {len(ratios)} back-to-back pairs: " + ", ".join(f"{r:.2f}x" for r in ratios)
+              + f"; median {statistics.median(ratios):.2f}x")
     print(f"  the 1-worker run used {w1['cpu_s'] / w1['wall_s']:.2f} cores (the libraries' threads), so 2 workers are "
           f"at most 2 x {w1['wall_s']:.1f} / {w2['cpu_s']:.1f} = {2 * w1['wall_s'] / w2['cpu_s']:.2f}x faster "
           "even with nothing in the run alone")
@@ -152,9 +170,9 @@ def main() -> int:
         tail = sum(w2["node_s"][n] for n in names[last + 1:])
         bound = tail + (w2["cpu_s"] - tail) / 2
         print(f"on an idle 2-core machine the 2-worker run needs at least tail + (CPU - tail) / 2 = {tail:.1f} + "
-              f"({w2['cpu_s']:.1f} - {tail:.1f}) / 2 = {bound:.1f} s, the 1-worker run about its CPU "
-              f"{w1['cpu_s']:.1f} s: a speed-up of at most {w1['cpu_s'] / bound:.2f}x (a bound, not a measurement: "
-              "it leaves out start-up and the wait for the last task)")
+              f"({w2['cpu_s']:.1f} - {tail:.1f}) / 2 = {bound:.1f} s against the 1-worker run's "
+              f"{w1['wall_s']:.1f} s: a speed-up of at most {w1['wall_s'] / bound:.2f}x (a bound, not a measurement: "
+              "it leaves out start-up, which runs alone, and the wait for the last task)")
     if "nbn" in rows:
         r = rows["nbn"]
         print(f"serial, streamed vs node by node: {w1['wall_s']:.1f} s vs {r['wall_s']:.1f} s wall, "
