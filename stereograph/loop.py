@@ -14,7 +14,9 @@ of new input) fails, since no cycle can follow; when a node outside the live par
 cycle 1; at the first failed cycle with ``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C,
 and SIGTERM, which ``stereograph run`` turns into one). An interrupt propagates through the node
 that is running, so that node cleans up on its way out; the loop then records the interrupted
-cycle and returns normally, so the run's summary and ``run.json`` are still written.
+cycle and returns normally, so the run's summary and ``run.json`` are still written; one that
+arrives between cycles ends the loop after the last cycle logged (``run.json`` counts exactly the
+lines of ``cycles.jsonl``: a signal waits while a cycle is being logged).
 
 Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
 keeps the cycles before it): per live node its status, seconds and error, and its outputs' small
@@ -26,9 +28,12 @@ PNG (an image inside a dict, such as a pair's ``left``: ``<output>_<key>.png``),
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,20 +144,28 @@ class Loop:
         return self.stopped.startswith("ran the ")
 
     def _cycles(self, run: Any, selected: list[str], live: set[str], log_path: Path) -> None:
-        g = run.g
-        roots = {n for n in self.live if not (set(g.dag.predecessors(n)) & live)}
         log_path.parent.mkdir(parents=True, exist_ok=True)
         log_path.write_text("")
+        try:
+            self._loop(run, selected, live, log_path)
+        except KeyboardInterrupt:  # outside any node: between two cycles, or while one was being logged
+            self.interrupted = True
+            k = len(self.cycles)
+            self.stopped = f"stopped by an interrupt between cycles {k} and {k + 1}"
+
+    def _loop(self, run: Any, selected: list[str], live: set[str], log_path: Path) -> None:
+        g = run.g
+        roots = {n for n in self.live if not (set(g.dag.predecessors(n)) & live)}
         k = 0
         while self.repeat == 0 or k < self.repeat:
             k += 1
             cycle = Cycle(k)
             order = selected if k == 1 else self.live
-            if k > 1:
-                _reset(run, self.live)
             t0 = time.perf_counter()
             current = None
             try:
+                if k > 1:
+                    _reset(run, self.live)
                 for name in order:
                     current = name
                     run.run_node(g.nodes[name])
@@ -164,12 +177,11 @@ class Loop:
                 cycle.status, cycle.failed_node = "interrupted", current
                 self.interrupted = True
             cycle.seconds = time.perf_counter() - t0
-            try:
+            # The log line and the count in run.json must agree: a signal here waits until both are done.
+            with _signals_deferred():
                 self._record(run, cycle, order, log_path)
-                if self.on_cycle is not None:
-                    self.on_cycle(cycle)
-            except KeyboardInterrupt:  # between cycles: this one is logged as far as it got
-                self.interrupted = True
+            if self.on_cycle is not None:
+                self.on_cycle(cycle)
             if self.interrupted:
                 self.stopped = f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
                 return
@@ -215,6 +227,23 @@ class Loop:
         with log_path.open("a") as f:
             f.write(json.dumps(rec, default=str) + "\n")
         self.cycles.append(cycle)
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back for the block; one that arrived is raised right after it.
+
+    Only where the platform can (POSIX) and in the main thread, where Python runs its handlers.
+    """
+    can = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    held = {signal.SIGINT, signal.SIGTERM}
+    if can:
+        signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        if can:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
 
 
 def _value(run: Any, node: str, out: str, collection: bool) -> Any:
