@@ -54,10 +54,25 @@ def _table_texture(seed: int) -> np.ndarray:
         return cv2.resize(small, (n, n), interpolation=cv2.INTER_CUBIC)
 
     yy = np.arange(n, dtype=np.float32)[:, None] * (_TEX_CM / n)
-    grain = np.sin(2 * np.pi * (yy / 0.9 + 0.8 * noise(12)))  # planks' grain along x
-    tone = 1.0 + 0.10 * noise(8) + 0.10 * grain + 0.06 * noise(200) + 0.05 * noise(700)
+    # tone = 1 + 0.10 noise(8) + 0.10 grain + 0.06 noise(200) + 0.05 noise(700), in that order
+    # (the draws and the float32 sums are those of the one-line expression), computed in place:
+    # every temporary of that expression is a fresh 16 MB array, and this runs before any pair.
+    grain = noise(12)  # planks' grain along x: sin(2 pi (y / 0.9 + 0.8 noise(12)))
+    grain *= np.float32(0.8)
+    grain += yy / np.float32(0.9)
+    grain *= np.float32(2 * np.pi)
+    np.sin(grain, out=grain)
+    tone = np.float32(0.10) * noise(8)
+    tone += np.float32(1.0)
+    grain *= np.float32(0.10)
+    tone += grain
+    for cells, weight in ((200, 0.06), (700, 0.05)):
+        fine = noise(cells)
+        fine *= np.float32(weight)
+        tone += fine
     base = np.array([0.42, 0.58, 0.70], dtype=np.float32)  # light wood, BGR
-    tex = np.clip(tone[..., None] * base, 0.0, 1.0)
+    tex = np.multiply(tone[..., None], base)
+    np.clip(tex, 0.0, 1.0, out=tex)
     tex.setflags(write=False)
     return tex
 
