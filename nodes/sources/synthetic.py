@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import threading
 from typing import Literal
 
 import numpy as np
@@ -17,8 +18,8 @@ from pydantic import field_validator, model_validator
 
 from nodes.contracts.board import charuco_board
 from nodes.sources._boards import random_board_poses, render_board_view
-from nodes.sources._materials import color_bgr
-from nodes.sources._render import render_scene
+from nodes.sources._materials import _table_texture, color_bgr
+from nodes.sources._render import _empty_table, render_scene
 from nodes.sources._rig import make_rig
 from nodes.sources._scenes import SCENE_KINDS, make_scene
 from stereograph.api import Field, NodeError, Out, Params, node
@@ -124,17 +125,48 @@ def synthetic_rig(params: SyntheticParams) -> dict:
 
 
 @functools.lru_cache(maxsize=4)
-def _plan(params_json: str) -> tuple[dict, list[tuple[str, dict]], list[str]]:
-    """The rig, every scene's description and split, in id order (cheap: nothing is rendered).
-
-    Cached by the params' JSON, so that a process producing many items plans once.
-    """
+def _shared_rig(params_json: str) -> dict:
+    """The rig of these params, one per process: the scene plan and the calibration views share
+    it, and with it the lit empty table each camera renders once (``rig["_cache"]``)."""
     params = SyntheticParams.model_validate_json(params_json)
     try:
-        rig = synthetic_rig(params)
+        return synthetic_rig(params)
     except ValueError as exc:
         raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
 
+
+def _light_empty_tables(rig: dict) -> None:
+    """The table's texture and each camera's ray grid and lit empty table: what every render of
+    this rig starts from (~0.5 s). Large-array NumPy/OpenCV work that releases the GIL, so it runs
+    in a thread beside the scene plan's small per-scene computations. A failure here is left to
+    the render that needs the table, which computes it again and says what went wrong."""
+    try:
+        tex = _table_texture(int(rig["params"]["texture_seed"]))
+        for i in (0, 1):
+            _empty_table(rig, i, tex)
+    except Exception:  # noqa: BLE001 -- only a head start: the render reports the error
+        pass
+
+
+@functools.lru_cache(maxsize=4)
+def _plan(params_json: str) -> tuple[dict, list[tuple[str, dict]], list[str]]:
+    """The rig, every scene's description and split, in id order (cheap: nothing is rendered).
+
+    Cached by the params' JSON, so that a process producing many items plans once. The rig's
+    empty tables are lit meanwhile in a second thread (the first render needs them).
+    """
+    params = SyntheticParams.model_validate_json(params_json)
+    rig = _shared_rig(params_json)
+    lighting = threading.Thread(target=_light_empty_tables, args=(rig,), name="stereograph-synthetic-tables",
+                                daemon=True)
+    lighting.start()
+    try:
+        return _plan_scenes(params, rig)
+    finally:
+        lighting.join()  # before anything renders, and before a pool forks this process
+
+
+def _plan_scenes(params: SyntheticParams, rig: dict) -> tuple[dict, list[tuple[str, dict]], list[str]]:
     specs: list[tuple[str, dict]] = []
     scene_kw = {"radius_cm": params.ball_radius_cm, "color": params.ball_color,
                 "min_distance_cm": params.min_distance_cm, "max_distance_cm": params.max_distance_cm,
@@ -221,10 +253,7 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
             raise NodeError(f"source.synthetic: no scene {ctx.item!r} in this rig")
         return {"pairs": _render_pair(params, ids.index(ctx.item))}
     if per_item:  # the scenes are planned where the pairs are made (a worker): here the rig only
-        try:
-            rig = synthetic_rig(params)
-        except ValueError as exc:
-            raise NodeError(f"source.synthetic: {exc}", hint="fix the parameter in the pipeline YAML") from exc
+        rig = _shared_rig(params.model_dump_json())
     else:
         rig = _plan(params.model_dump_json())[0]
     report = ctx.progress if ctx is not None else (lambda *a: None)
