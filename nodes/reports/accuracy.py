@@ -94,7 +94,8 @@ def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np
     for i, ax_name in enumerate(AXES):
         ax = fig.add_subplot(2, 2, i + 1)
         if len(err):
-            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=colours[i])
+            # one filled outline, not a rectangle per bin: looks the same, draws and lays out faster
+            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=colours[i], histtype="stepfilled")
         ax.set_xlabel(f"{ax_name} error, measured − truth (cm)")
         ax.set_ylabel("pairs")
     ax = fig.add_subplot(2, 2, 4)
