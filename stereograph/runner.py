@@ -33,7 +33,7 @@ import shutil
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -820,12 +820,16 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
               use_cache: bool = True, only: str | None = None, from_node: str | None = None,
               executor: Any = None, progress: Any = None, run_id: str | None = None,
               write_outputs: bool = True, keep: set[str] | None = None,
-              cycles: Callable[[_Run, list[str]], None] | None = None) -> RunResult:
+              cycles: Callable[[_Run, list[str]], None] | None = None,
+              prepare: Sequence[Callable[[], Any]] = ()) -> RunResult:
     """Run a validated graph; see the module docstring.
 
     ``keep`` names extra (non-terminal) nodes whose outputs the result should hold.
     ``cycles(run, selected)``, if given, runs the selected nodes instead of the single pass
     (:func:`stereograph.loop.repeat`); objects nodes kept open are closed afterwards either way.
+    ``prepare``: functions of no arguments that load what the caller needs once the run is over
+    (what it prints with); with a local pool they run in the background thread that runs the
+    nodes' own ``prepare`` while this process waits for the pool, else never.
     """
     t0 = time.perf_counter()
     doc = graph.doc
@@ -875,7 +879,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                     run.run_node(graph.nodes[unit])
                 else:
                     if hasattr(executor, "start"):  # a local pool: this process only waits
-                        _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)])
+                        _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
                     streaming.run_region(run, unit, write_outputs)
     finally:
         for source in list(run.ahead):
@@ -910,24 +914,28 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
 
 
 _PREPARED: set[str] = set()  # node types whose prepare() ran (or runs) in this process
+_PREPARED_EXTRA: set[Callable[[], Any]] = set()  # run_graph(prepare=...) functions called in this process
 
 
-def _prepare_ahead(specs: list[Any]) -> None:
-    """Call the ``prepare()`` of these node types in a background thread (once per type and process).
+def _prepare_ahead(specs: list[Any], extra: Sequence[Callable[[], Any]] = ()) -> None:
+    """Call the ``prepare()`` of these node types in a background thread (once per type and process),
+    then the ``extra`` functions (once per function and process).
 
     For the nodes that run in this process after a region whose work is in a pool's processes:
     this process only waits meanwhile, so what they load (a plotting library: ~1 s) is loaded on
     a core that would be idle at the run's end, when they run alone.
     """
-    todo = [s for s in specs if s.prepare is not None and s.name not in _PREPARED]
+    todo = [s.prepare for s in specs if s.prepare is not None and s.name not in _PREPARED]
+    _PREPARED.update(s.name for s in specs if s.prepare is not None)
+    todo += [f for f in extra if f not in _PREPARED_EXTRA]
+    _PREPARED_EXTRA.update(extra)
     if not todo:
         return
-    _PREPARED.update(s.name for s in todo)
 
     def prepare_all() -> None:
-        for spec in todo:
+        for fn in todo:
             with contextlib.suppress(Exception):  # optional: the node's own call reports a failure
-                spec.prepare()
+                fn()
 
     threading.Thread(target=prepare_all, name="stereograph-prepare", daemon=True).start()
 

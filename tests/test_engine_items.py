@@ -316,6 +316,7 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
     """A node's ``prepare()`` (heavy imports) runs in a background thread of this process while the
     pool works through the region before it -- once per process -- and not at all in a serial run,
     where this process has no idle time to give it."""
+    import threading
     import time
 
     from stereograph import registry, runner
@@ -325,15 +326,20 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
     r = run(p, tmp_path, use_cache=False)  # serial (this also imports the plugin)
     prepared = registry.get("toy.table").fn.__globals__["PREPARED"]
     prepared.clear()
-    r = run(p, tmp_path, use_cache=False)
-    assert r.ok and prepared == []
+    callers = []  # the caller's own prepare (the CLI: what it prints with), after the nodes'
+
+    def caller_prepare():
+        callers.append(threading.current_thread().name)
+
+    r = run(p, tmp_path, use_cache=False, prepare=[caller_prepare])
+    assert r.ok and prepared == [] and callers == []
     ex = ProcessExecutor(2)
     try:
-        r = run(p, tmp_path, use_cache=False, executor=ex)
+        r = run(p, tmp_path, use_cache=False, executor=ex, prepare=[caller_prepare])
     finally:
         ex.close()
     for _ in range(100):  # (a daemon thread: it may still be finishing when a tiny run ends)
-        if prepared:
+        if prepared and callers:
             break
         time.sleep(0.05)
-    assert r.ok and prepared == ["stereograph-prepare"]
+    assert r.ok and prepared == ["stereograph-prepare"] and callers == ["stereograph-prepare"]
