@@ -128,13 +128,15 @@ class _BoundedLoader(_SafeBase):
         try:
             if self._depth > MAX_YAML_DEPTH:
                 mark = self.peek_event().start_mark
-                raise ConfigError(f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep",
-                                  Where(self._filename, mark.line + 1, mark.column + 1),
-                                  hint="a pipeline needs a few levels; flatten the data or put it in a file a "
-                                       "node reads")
+                raise _too_deep(Where(self._filename, mark.line + 1, mark.column + 1))
             return super().compose_node(parent, index)
         finally:
             self._depth -= 1
+
+
+def _too_deep(where: Where) -> ConfigError:
+    return ConfigError(f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep", where,
+                       hint="a pipeline needs a few levels; flatten the data or put it in a file a node reads")
 
 
 def _expanded_size(root: yaml.Node, filename: str) -> int:
@@ -180,6 +182,8 @@ def _yaml_error(e: yaml.YAMLError, filename: str, text: str) -> ConfigError:
         err.syntax = True  # type: ignore[attr-defined]
         return err
     what = getattr(e, "problem", None) or getattr(e, "context", None) or str(e)
+    if "nesting depth" in what:  # libyaml >= 0.2.6 stops at its own limit (1000) while scanning ahead
+        return _too_deep(Where(filename, line, col))  # (a bound, not a syntax error: never taken as text)
     err = ConfigError(f"not valid YAML: {what}", Where(filename, line, col),
                       hint="check indentation and quoting around that line")
     err.syntax = True  # type: ignore[attr-defined]  # (a --set value that is not YAML is taken as text)
