@@ -258,6 +258,7 @@ class NodeSpec:
     description: str
     items: Callable[[Params, RunContext], list[str]] | None = None
     prepare: Callable[[], Any] | None = None
+    check: Callable[[Params, frozenset[str]], None] | None = None
 
     @property
     def kind(self) -> str:
@@ -308,6 +309,7 @@ def node(
     reads: Callable[[Params, Path], list[Path]] | None = None,
     items: Callable[[Params, RunContext], list[str]] | None = None,
     prepare: Callable[[], Any] | None = None,
+    check: Callable[[Params, frozenset[str]], None] | None = None,
 ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Declare a function as a stereograph node type.
 
@@ -344,6 +346,11 @@ def node(
         ahead, in another thread, while this process only waits for a worker pool (a ``--workers``
         run's per-item part), so that the node does not load it alone afterwards. Optional to
         call: the node must work without it; its errors are ignored (the node's call reports them).
+    check : callable, optional
+        ``check(params, wired)``: a problem of the params that depends on which inputs the
+        pipeline wires (``wired``: the names of the wired input ports), raised as
+        ``NodeError(message, hint=...)`` when the pipeline is validated, before anything runs
+        (a colour that must come from the params or from an optional input, say).
 
     Returns
     -------
@@ -363,6 +370,7 @@ def node(
             reads=reads,
             items=items,
             prepare=prepare,
+            check=check,
             description=doc.split("\n\n", 1)[0].replace("\n", " "),
         )
         sig = inspect.signature(fn)

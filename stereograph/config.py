@@ -481,5 +481,8 @@ def apply_override(doc: PipelineDoc, text: str) -> None:
                 target[f] = nxt
             target = nxt
         target[fields[-1]] = value
-    doc.lines[("nodes", node, "params", *fields)] = where
+    key = ("nodes", node, "params", *fields)
+    for stale in [k for k in doc.lines if k[:len(key)] == key]:  # lines of the value it replaces
+        del doc.lines[stale]
+    doc.lines[key] = where
     doc.overrides.append(text)

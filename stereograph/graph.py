@@ -16,7 +16,7 @@ import networkx as nx
 import pydantic
 
 from stereograph import registry
-from stereograph.api import NodeSpec, Params, type_name
+from stereograph.api import NodeError, NodeSpec, Params, type_name
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
@@ -111,11 +111,30 @@ def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node:
         raise  # pragma: no cover - pydantic never raises without an error
 
 
+def _with_sets(doc: PipelineDoc, node: str) -> str:
+    """`` (with --set ...)`` naming the overrides of this node, for a problem of its params as a whole."""
+    sets = [o for o in doc.overrides if o.split("=", 1)[0].split(".")[0] == node]
+    return f" (with --set {', '.join(sets)})" if sets else ""
+
+
+def _deepest_field(model: type[pydantic.BaseModel], loc: tuple) -> tuple[str, Any]:
+    """The innermost field a pydantic error location names (``object.color_bgr`` for
+    ``('object', 'color_bgr', 0)``), with its dotted name: its description is the fix to show."""
+    names, f = [], None
+    for part in loc:
+        fields = model.model_fields if isinstance(model, type) and issubclass(model, pydantic.BaseModel) else {}
+        if part not in fields:
+            break
+        f = fields[part]
+        names.append(str(part))
+        model = f.annotation
+    return ".".join(names), f
+
+
 def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: str) -> ConfigError:
     """One parameter problem as a located error with the fix."""
     if not loc:  # the params as a whole: say which --set contributed, if any
-        sets = [o for o in doc.overrides if o.split("=", 1)[0].split(".")[0] == node]
-        return ConfigError(f"{spec.name} parameters: {msg}" + (f" (with --set {', '.join(sets)})" if sets else ""),
+        return ConfigError(f"{spec.name} parameters: {msg}{_with_sets(doc, node)}",
                            doc.where("nodes", node, "params"), node, f"see `stereograph nodes {spec.name}`")
     field_name = ".".join(str(p) for p in loc)
     fields = spec.params.model_fields
@@ -125,9 +144,9 @@ def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: s
         hint = (f"did you mean '{close[0]}'?" if close else
                 f"{spec.name} takes {sorted(fields) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
     elif loc and loc[0] in fields:
-        f = fields[loc[0]]
+        name, f = _deepest_field(spec.params, loc)
         desc = f.description or ""
-        hint = f"'{loc[0]}' is {type_name(f.annotation)}" + (f": {desc}" if desc else "")
+        hint = f"'{name}' is {type_name(f.annotation)}" + (f": {desc}" if desc else "")
     return ConfigError(f"{spec.name} parameter '{field_name}': {msg}", doc.where("nodes", node, "params", *loc),
                        node, hint)
 
@@ -213,6 +232,12 @@ def build_graph(doc: PipelineDoc) -> Graph:
                 problems.append(ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
                                             doc.where("nodes", name), name,
                                             f"add 'inputs: {{{port}: some_node.output}}'"))
+        if inst.spec.check is not None:
+            try:
+                inst.spec.check(inst.params, frozenset(decl.get("inputs") or {}))
+            except NodeError as e:
+                problems.append(ConfigError(f"{inst.type}: {e.message}{_with_sets(doc, name)}",
+                                            doc.where("nodes", name, "params"), name, e.hint))
     raise_all(problems)
 
     if not nx.is_directed_acyclic_graph(dag):

@@ -193,3 +193,55 @@ def test_unused_outputs_are_warned_unless_optional(tmp_path, capsys):
     assert code == 0
     assert "node 'power': output 'm' is never used" in msg  # power.norm is wired, power.m is not
     assert "'items' is never used" not in msg
+
+
+LOCATE = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
+
+
+def _validate(*argv: str, capsys, pipeline: Path = LOCATE) -> tuple[int, str]:
+    code = main(["validate", str(pipeline), *argv])
+    out = capsys.readouterr()
+    return code, " ".join((out.out + out.err).split())
+
+
+def test_a_set_list_value_is_blamed_on_the_set_not_on_the_file_line_it_replaced(capsys):
+    # dense-aloe.yaml gives dense.working_range_cm as a list in the node's params; an error in the
+    # value given by --set must not point at that line (the lines of its items were the file's)
+    dense = LOCATE.parent / "dense-aloe.yaml"
+    code, msg = _validate("--set", "dense.working_range_cm=[.nan,200]", capsys=capsys, pipeline=dense)
+    assert code == 2 and msg.startswith("error: --set dense.working_range_cm=[.nan,200]:") and ".yaml:" not in msg
+    code, msg = _validate("--set", "dense.working_range_cm=[120]", capsys=capsys, pipeline=dense)
+    assert code == 2 and msg.startswith("error: --set dense.working_range_cm=[120]:") and ".yaml:" not in msg
+
+
+def test_a_nested_parameter_error_shows_the_nested_fields_own_description(capsys):
+    code, msg = _validate("--set", "segment.shadow.max_brightness_ratio=3", capsys=capsys)
+    assert code == 2 and "Fix: 'shadow.max_brightness_ratio' is float: A shadow pixel is at most" in msg
+    code, msg = _validate("--set", "segment.object.color_bgr=[300,0,0]", capsys=capsys)
+    assert code == 2 and "'object.color_bgr.0'" in msg and "less than or equal to 255" in msg
+    assert "Fix: 'object.color_bgr' is" in msg and "B, G, R in 0-255" in msg
+
+
+@pytest.mark.parametrize("value", ["[-20,120,245]", "[20,120,256]"])
+def test_a_colour_outside_0_255_is_refused_before_anything_runs(value, capsys):
+    # (it was accepted, and every pair then failed "colour differs from the object's")
+    code, msg = _validate("--set", f"segment.object.color_bgr={value}", capsys=capsys)
+    assert code == 2 and "node 'segment'" in msg
+    code, msg = _validate("--set", "segment.object.hue_range_deg=[400,20]", capsys=capsys)
+    assert code == 2 and "less than or equal to 360" in msg
+
+
+def test_a_node_check_on_its_wiring_runs_at_validation(capsys):
+    # segmenter.color needs a colour from its params or its `appearance` input: said by `validate`
+    # (exit 2, the node and the --set named), not found when every item fails
+    # (locate.yaml's defaults give every segmenter type the colour: unset it)
+    code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
+                          capsys=capsys)
+    assert code == 2 and "node 'segment'" in msg and "needs the object's colour" in msg
+    assert "segment.object.color_bgr=null" in msg and "appearance" in msg
+    code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
+                          "--set", "segment.object.hue_range_deg=[10,40]", capsys=capsys)
+    assert code == 0, msg
+    code, msg = _validate("--set", "segment.type=segmenter.edge_morph", "--set", "segment.object.color_bgr=null",
+                          capsys=capsys)
+    assert code == 0, msg  # (edge_morph works without a colour: look-alikes are refused as ambiguous)

@@ -5,6 +5,7 @@ partial-view settings, and the type of a method's mask function.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Annotated
 
 import numpy as np
 from pydantic import model_validator
@@ -17,18 +18,21 @@ from stereograph.api import Field, In, Out, Params, PositiveRange
 # detected object (whose border is background) and False for a whole image.
 MaskFn = Callable[[np.ndarray, "SegmenterParams", tuple[float, float], int, bool], np.ndarray]
 
+_Channel = Annotated[int, Field(ge=0, le=255)]  # one 8-bit colour channel
+_HueDeg = Annotated[float, Field(ge=0, le=360)]
+
 
 class ObjectSpec(Params):
     """What the object looks like (YAML: ``object: {radius_cm: 2.0, color_bgr: [30, 40, 200]}``)."""
 
     radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
-    color_bgr: tuple[int, int, int] | None = Field(
+    color_bgr: tuple[_Channel, _Channel, _Channel] | None = Field(
         None, description="Expected colour of the ball, B, G, R in 0-255. Give it, or wire the segmenter's "
                           "`appearance` input (segmenter.appearance learns it from training truth): None = unknown "
                           "colour, and then any second round object of a ball's size makes the result ambiguous "
-                          "(not found)."
+                          "(not found); segmenter.color needs a colour (this, hue_range_deg or `appearance`)."
     )
-    hue_range_deg: tuple[float, float] | None = Field(
+    hue_range_deg: tuple[_HueDeg, _HueDeg] | None = Field(
         None,
         description="Accepted hue range in degrees (0-360, wraps if lo > hi), alternative to color_bgr.",
     )

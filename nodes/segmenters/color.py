@@ -43,19 +43,30 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
     return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
 
 
+_NO_COLOUR_HINT = ("set e.g. `object: {color_bgr: [40, 60, 200]}` or `object: {hue_range_deg: [340, 20]}` in its "
+                   "params, or wire `appearance` to a segmenter.appearance node (the colour learned from training "
+                   "truth); or use segmenter.edge_morph, which works without a colour")
+
+
+def _needs_a_colour(params: ColorParams, wired: frozenset[str]) -> None:
+    if params.object.color_bgr is None and params.object.hue_range_deg is None and "appearance" not in wired:
+        raise NodeError("needs the object's colour: object.color_bgr and object.hue_range_deg are both unset and "
+                        "no `appearance` input is wired", hint=_NO_COLOUR_HINT)
+
+
 @node(
     "segmenter.color",
     inputs=SEGMENTER_INPUTS,
     outputs=SEGMENTER_OUTPUTS,
     params=ColorParams,
     version="1",
+    check=_needs_a_colour,
 )
 def color(params: ColorParams, pair, rectification=None, appearance=None, ctx=None):
-    """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range)."""
+    """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range); needs the colour:
+    object.color_bgr, object.hue_range_deg or a wired `appearance` input."""
     params, color_from = apply_appearance(params, appearance, ctx)
-    if params.object.color_bgr is None and params.object.hue_range_deg is None:
-        raise NodeError(
-            "segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both unset.",
-            hint="set e.g. `object: {color_bgr: [40, 60, 200]}` or `object: {hue_range_deg: [340, 20]}` in its params.",
-        )
+    if params.object.color_bgr is None and params.object.hue_range_deg is None:  # (called directly, not validated)
+        raise NodeError("segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both "
+                        "unset.", hint=_NO_COLOUR_HINT)
     return segment_pair(pair, rectification, params, color_mask, "color", ctx, color_from)
