@@ -90,8 +90,8 @@ def test_dense_node_outputs_and_clear_errors(tmp_path):
 
     with pytest.raises(NodeError, match="at most 1024"):
         dense(DenseParams(working_range_cm=(1.0, 400.0)), pair=pair, rectification=rect)
-    with pytest.raises(NodeError, match="must exceed p1_factor"):
-        dense(DenseParams(p1_factor=40.0), pair=pair, rectification=rect)
+    with pytest.raises(ValueError, match="must exceed p1_factor"):  # (pydantic's ValidationError)
+        DenseParams(p1_factor=40.0)
     small = dict(pair, left=left[:100], right=right[:100])
     with pytest.raises(NodeError, match="rectification is for 160x120"):
         dense(DenseParams(), pair=small, rectification=rect)
@@ -171,3 +171,18 @@ def test_disparity_score_names_a_missing_or_mismatched_truth(tmp_path):
     cv2.imwrite(str(tmp_path / "small.png"), truth[:2])
     with pytest.raises(NodeError, match="6x2 px"):
         disparity_score(DisparityScoreParams(truth=str(tmp_path / "small.png")), maps)
+
+
+@pytest.mark.parametrize("setting, expected", [
+    ("dense.working_range_cm=[-10,200]", "must start above 0"),
+    ("dense.working_range_cm=[200,120]", "first value must be below the second"),
+    ("dense.disparity_range_px=[80,20]", "first value must be below the second"),
+    ("dense.p2_factor=4", "p2_factor (4) must exceed p1_factor (8)"),
+    ("dense.block_size_px=4", "block size must be odd"),
+])
+def test_dense_params_are_refused_when_the_pipeline_is_validated(setting, expected, capsys):
+    # (these were found only when the node ran, after its upstream nodes: exit 1, not 2)
+    code = cli_main(["validate", str(ROOT / "pipelines" / "dense-aloe.yaml"), "--set", setting])
+    out = capsys.readouterr()
+    msg = " ".join((out.out + out.err).split())
+    assert code == 2 and expected in msg and "node 'dense'" in msg and setting in msg

@@ -23,9 +23,22 @@ f B / Z_c for the sphere's centre -- no perspective bias, unlike the silhouette 
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
+from pydantic import AfterValidator
 
 from stereograph.api import Field, Params, PositiveRange
+
+
+def _odd(value: int) -> int:
+    if value % 2 == 0:
+        raise ValueError(f"a block size must be odd (got {value}; OpenCV centres the block on the pixel)")
+    return value
+
+
+OddSize = Annotated[int, AfterValidator(_odd)]
+"""An odd block size (px): the matched block is centred on its pixel."""
 
 
 class DisparityParams(Params):

@@ -29,9 +29,11 @@ from typing import Literal
 
 import cv2
 import numpy as np
+from pydantic import model_validator
 
+from nodes.disparity._common import OddSize
 from nodes.disparity._ply import encode_ply
-from stereograph.api import Field, In, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, OrderedRange, Out, Params, PositiveRange, node
 
 __all__ = ["DenseParams", "bad_pixels", "colorize", "dense", "dense_disparity", "point_cloud", "search_range_px",
            "wls_filter"]
@@ -47,13 +49,15 @@ MAX_DISPARITIES = 1024
 class DenseParams(Params):
     """Parameters of ``disparity.dense``; SGBM's names in OpenCV are given in brackets."""
 
-    working_range_cm: tuple[float, float] = Field(
+    working_range_cm: PositiveRange = Field(
         (20.0, 200.0), description="Nearest and farthest scene depth to match (cm); sets the disparity search range."
     )
-    disparity_range_px: tuple[float, float] | None = Field(
-        None, description="Search range of disparities (px), overriding working_range_cm; null = from the range."
+    disparity_range_px: OrderedRange | None = Field(
+        None, description="Search range of disparities (px, lowest first), overriding working_range_cm; null = from "
+                          "the range. Image disparities x_left - x_right, without the principal points' offset "
+                          "(doffs); the span is rounded up to a multiple of 16 as OpenCV's SGBM requires."
     )
-    block_size_px: int = Field(3, ge=1, le=21, description="Matched block size [blockSize] (px, odd; 3-11 usual).")
+    block_size_px: OddSize = Field(3, ge=1, le=21, description="Matched block size [blockSize] (px, odd; 3-11 usual).")
     mode: Literal["sgbm", "hh", "sgbm_3way", "hh4"] = Field(
         "sgbm", description="SGBM variant [mode]: sgbm (5 paths), hh (full 8 paths, slow, memory-hungry), "
                             "sgbm_3way, hh4 (name)."
@@ -84,19 +88,23 @@ class DenseParams(Params):
     cloud_stride_px: int = Field(1, ge=1, le=64, description="Keep every n-th pixel in x and y in the point "
                                                              "cloud (px).")
 
+    @model_validator(mode="after")
+    def _p2_above_p1(self) -> DenseParams:
+        if self.p2_factor <= self.p1_factor:
+            raise ValueError(f"p2_factor ({self.p2_factor:g}) must exceed p1_factor ({self.p1_factor:g}): OpenCV's "
+                             "SGBM needs P2 > P1 (recommended 32 and 8)")
+        return self
+
 
 def search_range_px(rectification: dict, params: DenseParams) -> tuple[int, int]:
     """(minDisparity, numDisparities) of the search, px: d = f B / z - doffs over the working range."""
     if params.disparity_range_px is not None:
-        lo, hi = sorted(float(v) for v in params.disparity_range_px)
+        lo, hi = (float(v) for v in params.disparity_range_px)
         source = f"disparity_range_px {list(params.disparity_range_px)}"
     else:
         fb = float(rectification["f_px"]) * float(rectification["baseline_cm"])
         doffs = float(rectification.get("cx_right_px", rectification["cx_px"])) - float(rectification["cx_px"])
-        z0, z1 = sorted(float(v) for v in params.working_range_cm)
-        if z0 <= 0:
-            raise NodeError(f"disparity.dense: working_range_cm must be positive, got {list(params.working_range_cm)}.",
-                            hint="give the nearest and farthest scene depth in cm, e.g. [30, 150]")
+        z0, z1 = (float(v) for v in params.working_range_cm)  # (0 < z0 < z1: checked by the params)
         lo, hi = fb / z1 - doffs, fb / z0 - doffs
         source = f"working_range_cm {list(params.working_range_cm)} with f B = {fb:.4g} px cm, doffs {doffs:.4g} px"
     d_min = int(math.floor(lo))
@@ -110,10 +118,7 @@ def search_range_px(rectification: dict, params: DenseParams) -> tuple[int, int]
 
 
 def _matcher(params: DenseParams, d_min: int, num: int, channels: int):
-    bs = params.block_size_px | 1
-    if params.p2_factor <= params.p1_factor:
-        raise NodeError(f"disparity.dense: p2_factor ({params.p2_factor}) must exceed p1_factor ({params.p1_factor}).",
-                        hint="OpenCV recommends p1_factor 8, p2_factor 32")
+    bs = params.block_size_px
     return cv2.StereoSGBM_create(
         minDisparity=d_min, numDisparities=num, blockSize=bs,
         P1=int(round(params.p1_factor * channels * bs * bs)), P2=int(round(params.p2_factor * channels * bs * bs)),

@@ -24,13 +24,13 @@ import numpy as np
 from nodes.disparity.dense import wls_filter
 from stereograph.api import Field, In, NodeError, Out, node
 
-from ._common import DisparityParams, disparity_range_px, finish, not_found, seg_reason
+from ._common import DisparityParams, OddSize, disparity_range_px, finish, not_found, seg_reason
 
 
 class SgbmParams(DisparityParams):
     """Parameters of ``disparity.sgbm``."""
 
-    block_size: int = Field(5, ge=1, le=21, description="SGBM matched block size (px, odd).")
+    block_size: OddSize = Field(5, ge=1, le=21, description="SGBM matched block size (px, odd).")
     uniqueness_ratio: int = Field(5, ge=0, le=100, description="SGBM uniqueness margin (percent).")
     speckle_window: int = Field(0, ge=0, description="SGBM speckle filter window (px area; 0 = off).")
     wls: bool = Field(False, description="Apply the ximgproc WLS filter to the disparity map (bool).")
@@ -61,7 +61,7 @@ def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray,
     d_min = max(0, int(math.floor(d_range[0])))
     num = int(math.ceil((d_range[1] - d_min + 1) / 16.0)) * 16
     u0, v0, u1, v1 = bbox
-    bs = params.block_size | 1
+    bs = params.block_size
     m = params.margin_px + bs
     # SGBM leaves the first minDisparity + numDisparities columns invalid: crop so that the
     # candidate matches are inside, and pad both images on the left by the same amount
