@@ -325,7 +325,8 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     terminal = set(graph.terminal())
     for name in selected:
         inst = graph.nodes[name]
-        if run.reports[name].status in ("failed", "skipped", "not selected") and not inst.mapped:
+        status = run.reports[name].status
+        if status in ("failed", "skipped", "not selected") and not inst.mapped:
             continue
         for out, decl in inst.spec.outputs.items():
             if not (decl.save or name in terminal or name in run.keep):
@@ -340,6 +341,8 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     files = [f for i in run.items.get((name, out), []) for f in streamed[i]]
                 elif graph.is_collection(name, out):
                     ids = run.items.get((name, out), [])
+                    if not ids and status in ("failed", "skipped"):
+                        continue  # (the items that did finish are kept; none is not an empty result)
                     # an image per item is known from the first entry's manifest, without loading it
                     ready = (store is not None and ids and hasattr(store, "ready_file") and
                              store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None)

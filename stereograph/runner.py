@@ -622,7 +622,8 @@ class _Run:
             why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[:400] \
                 or "; ".join(rep.messages[:5])
             self.fail_item(inst, None, f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
-                           "see the messages above; fix or remove the inputs they name")
+                           "fix or remove the inputs these reasons name" if why else
+                           "see the node's messages in run.json")
 
     def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
         """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``."""

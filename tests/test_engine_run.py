@@ -468,3 +468,23 @@ def test_node_learns_which_alternative_is_wired(tmp_path):
     finally:
         ex.close()
     assert {v["wired"] for v in r2.outputs("per_item", "kind").values()} == {"Matrix"}
+
+
+def test_a_per_item_node_that_made_no_item_writes_no_output_file(tmp_path):
+    # a terminal per-item node whose every item failed (or that was skipped) once wrote an empty
+    # `[]` JSON per output: a file that looks like a result
+    f = tmp_path / "p.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: t
+        plugins: [{TOY}]
+        nodes:
+          numbers: {{type: toy.numbers, params: {{n: 2, size: 4}}}}
+          power: {{type: toy.power, inputs: {{m: numbers.items}}}}
+        """))
+    r = run(f, tmp_path, "power.fail_on=m000", "numbers.n=1")
+    assert not r.ok and r.status["power"] == "failed"
+    assert not (tmp_path / "out" / "power").exists()
+    r = run(f, tmp_path, "power.fail_on=m000")  # the items that finished are still written
+    norm = json.loads((tmp_path / "out" / "power" / "norm.json").read_text())
+    assert sorted(p.name for p in (tmp_path / "out" / "power").iterdir()) == ["m.json", "norm.json"]
+    assert "m001" in json.dumps(norm) and "m000" not in json.dumps(norm)

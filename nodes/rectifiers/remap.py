@@ -21,7 +21,8 @@ def remap_pair(rect: dict, left: np.ndarray, right: np.ndarray, interpolation: s
     for side, im in (("left", left), ("right", right)):
         if im.shape[1] != w or im.shape[0] != h:
             raise NodeError(f"rectifier.remap: the {side} image is {im.shape[1]}x{im.shape[0]} but the calibration "
-                            f"is for {w}x{h}.", hint="calibrate with images from the same cameras and resolution")
+                            f"is for {w}x{h}.", hint="calibrate with images from the same cameras and "
+                            "resolution (a rectifier.given camera: set its image_size to the images' size)")
     flag = _INTERP[interpolation]
     if "map_left_fixed" in rect:
         ml = (rect["map_left_fixed"], rect["map_left_interp"])
