@@ -89,12 +89,17 @@ class NodeError(Exception):
         What went wrong, in one sentence; name the file or value involved.
     hint : str, optional
         How to fix it. The engine prints it after the message.
+    lasting : bool
+        The failure will come back on every later call until a person fixes something (a serial
+        port that cannot be opened, a missing file): a ``--repeat`` loop stops instead of failing
+        every cycle the same way.
     """
 
-    def __init__(self, message: str, hint: str | None = None):
+    def __init__(self, message: str, hint: str | None = None, lasting: bool = False):
         super().__init__(message)
         self.message = message
         self.hint = hint
+        self.lasting = lasting
 
     def __str__(self) -> str:  # pragma: no cover - trivial
         return self.message if not self.hint else f"{self.message} Fix: {self.hint}"

@@ -61,6 +61,7 @@ class TaskResult:
     hint: str | None = None
     trace: str | None = None
     user_error: bool = False
+    lasting: bool = False  # NodeError(lasting=True): every later call would fail the same way
 
 
 def execute(task: Task) -> TaskResult:
@@ -97,7 +98,8 @@ def execute(task: Task) -> TaskResult:
                                 + (f", unexpected {sorted(extra)}" if extra else ""))
         return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
     except NodeError as e:
-        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True)
+        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True,
+                          e.lasting)
     except ConfigError as e:
         return TaskResult(False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True)
     except Exception as e:  # a bug in a node: keep the traceback for --debug

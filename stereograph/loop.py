@@ -11,7 +11,9 @@ A cycle in which a live node fails is logged with the reason and the loop goes o
 cycle; nodes downstream of the failure do not run in that cycle. The loop stops when the count
 is reached, when a node that starts the live part (one with no live node upstream — the source
 of new input) fails, since no cycle can follow; when a node outside the live part failed in
-cycle 1; at the first failed cycle with ``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C,
+cycle 1 (that cycle is logged as failed at it); when a node fails with ``NodeError(...,
+lasting=True)`` (a port that cannot be opened: every later cycle would fail the same way, as
+fast as it can); at the first failed cycle with ``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C,
 and SIGTERM, which ``stereograph run`` turns into one). An interrupt propagates through the node
 that is running, so that node cleans up on its way out; the loop then records the interrupted
 cycle and returns normally, so the run's summary and ``run.json`` are still written; one that
@@ -192,6 +194,9 @@ class Loop:
             if cycle.status == "failed" and cycle.failed_node in roots:
                 self.stopped = f"stopped: '{cycle.failed_node}' gave no new input"
                 return
+            if cycle.status == "failed" and run.reports[cycle.failed_node].lasting:
+                self.stopped = f"stopped: '{cycle.failed_node}' failed in a way no later cycle can change"
+                return
             if cycle.status == "failed" and self.stop_on_failure:
                 self.stopped = f"stopped at the first failed cycle ({k})"
                 return
@@ -200,9 +205,11 @@ class Loop:
     def _record(self, run: Any, cycle: Cycle, order: list[str], log_path: Path) -> None:
         g = run.g
         for name in order:
-            if name not in self.live:
-                continue
             r = run.reports[name]
+            if name not in self.live:  # (cycle 1 runs the rest too: its failure leaves the live part skipped)
+                if cycle.status == "running" and r.status == "failed":
+                    cycle.status, cycle.failed_node, cycle.error = "failed", name, r.error
+                continue
             cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error}
             if cycle.status == "running" and r.status in ("failed", "partial"):
                 cycle.status, cycle.failed_node, cycle.error = "failed", name, r.error

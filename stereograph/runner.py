@@ -266,6 +266,7 @@ class NodeReport:
     trace: str | None = None
     unexpected: bool = False  # a bug in the node rather than bad input
     messages: list[str] = field(default_factory=list)
+    lasting: bool = False  # its failure would come back on every later call (NodeError(lasting=True))
 
 
 @dataclass
@@ -710,7 +711,8 @@ class _Run:
                 if inst.mapped or item is not None or not producer:
                     rep.items_ran += 1
             else:
-                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error)
+                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error,
+                               res.lasting)
                 ok = False
             if ok:
                 for out in self.item_outputs(inst, item):
@@ -796,9 +798,10 @@ class _Run:
             yield res
 
     def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
-                  unexpected: bool = False):
+                  unexpected: bool = False, lasting: bool = False):
         rep = self.reports[inst.name]
         self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
+        rep.lasting |= lasting
         if rep.error is None:
             rep.error = (f"item '{item}': " if item is not None else "") + msg
             rep.hint, rep.trace, rep.unexpected = hint, trace, unexpected

@@ -128,3 +128,30 @@ def test_stop_on_failure_stops_at_the_first_failed_cycle(tmp_path, capsys):
     assert main(["run", str(f), "--repeat", "5", "--stop-on-failure", "--out", str(tmp_path / "out")]) == 1
     assert [c["status"] for c in cycles(tmp_path / "out")] == ["ok", "failed"]
     assert "stopped at the first failed cycle (2)" in capsys.readouterr().out
+
+
+def test_a_lasting_failure_ends_the_loop_instead_of_failing_every_cycle(tmp_path, capsys):
+    # (a serial port that cannot be opened failed 1286 cycles in 15 s with --repeat 0)
+    f = pipeline(tmp_path, check="{lasting_from: 3}")
+    code = main(["run", str(f), "--repeat", "0", "--out", str(tmp_path / "out")])
+    assert code == 1
+    log = cycles(tmp_path / "out")
+    assert [c["status"] for c in log] == ["ok", "ok", "failed"] and log[2]["failed_node"] == "check"
+    out = capsys.readouterr()
+    assert "no later cycle can change" in out.out and "the device behind tick 3 is gone" in out.err
+    # an ordinary failure still lets the loop go on
+    f = pipeline(tmp_path, check="{fail_on_multiple_of: 3}")
+    assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out2")]) == 0
+    assert [c["status"] for c in cycles(tmp_path / "out2")] == ["ok", "ok", "failed", "ok"]
+
+
+def test_a_failure_outside_the_live_part_makes_cycle_1_failed_not_ok(tmp_path, capsys):
+    # (a refused calibration file left every live node skipped, and the cycle was logged "ok")
+    f = pipeline(tmp_path)
+    f.write_text(f.read_text().replace("const: {type: toy.constant}",
+                                       "const: {type: toy.constant, params: {fail: true}}"))
+    code = main(["run", str(f), "--repeat", "3", "--out", str(tmp_path / "out")])
+    assert code == 1
+    log = cycles(tmp_path / "out")
+    assert len(log) == 1 and log[0]["status"] == "failed" and log[0]["failed_node"] == "const"
+    assert "0 ok, 1 failed" in capsys.readouterr().out

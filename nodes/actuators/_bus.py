@@ -183,12 +183,13 @@ class Bus:
                         "use port: sim to run on the emulator.")
             else:
                 hint = "check the adapter and that no other program has the port open."
-            raise NodeError(f"cannot open serial port {self.port_path}: {text}", hint=hint) from None
+            raise NodeError(f"cannot open serial port {self.port_path}: {text}", hint=hint, lasting=True) from None
         if not ok or not self.port.setBaudRate(self.baud):
             with contextlib.suppress(Exception):
                 self.port.closePort()
             raise NodeError(f"cannot set serial port {self.port_path} to {self.baud} baud.",
-                            hint="use a rate the SDK supports (AX-12A default 1000000; also 57600, 115200, ...).")
+                            hint="use a rate the SDK supports (AX-12A default 1000000; also 57600, 115200, ...).",
+                            lasting=True)
 
     def close(self) -> None:
         """Close the port and forget the setup (a reopened port is checked again); never raises."""
@@ -218,12 +219,13 @@ class Bus:
             time.sleep(0.0005)
         return bytes(got)
 
-    def _listen_late(self, sid: int, t_sent: float, n_data: int) -> tuple[float | None, int]:
+    def _listen_late(self, sid: int, t_sent: float, n_data: int,
+                     window_s: float | None = None) -> tuple[float | None, int]:
         """After a timeout: the delay (ms) of a status packet from ``sid`` that arrives within the late
-        window (None if none), and how many bytes came at all."""
+        window (or ``window_s``; None if none), and how many bytes came at all."""
         got = bytearray()
         want = 6 + n_data
-        end = t_sent + self.late_window_s
+        end = t_sent + (self.late_window_s if window_s is None else window_s)
         t_byte = 0.0
         while time.monotonic() < end:
             chunk = self.port.readPort(64)
@@ -347,8 +349,13 @@ class Bus:
         for sid in ids:
             try:
                 self._log("WRITE", sid, ADDR_TORQUE, 0)
+                t_sent = time.monotonic()
                 self.ph.write1ByteTxOnly(self.port, sid, ADDR_TORQUE, 0)
                 self.port.is_using = False
+                if self.status_level.get(sid, 2) >= 2:
+                    # It answers WRITEs too (the AX-12's default): take that status packet off the line,
+                    # or the read-back below would read it as its own reply and call a healthy servo faulty.
+                    self._listen_late(sid, t_sent, 0, window_s=min(self.late_window_s, 0.05))
                 t, data = self._once(sid, INST_READ, [ADDR_TORQUE, 1], 1)
                 if t.outcome not in ("ok", "error_bits"):
                     notes.append(f"servo {sid}: not confirmed ({_TRY_WORDS[t.outcome]} to the read-back)")

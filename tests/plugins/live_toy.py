@@ -38,18 +38,27 @@ def ticker(params: TickParams, ctx=None):
 
 class CheckParams(Params):
     fail_on_multiple_of: int = Field(0, ge=0, description="Fail when the tick is a multiple of this (0: never).")
+    lasting_from: int = Field(0, ge=0, description="From this tick on, fail for good (NodeError lasting; 0: never).")
 
 
 @node("toy.check", inputs={"tick": In("Number"), "offset": In("Number")},
       outputs={"result": Out("Number")}, params=CheckParams)
 def check(params: CheckParams, tick, offset):
     """tick + offset, or a failure on chosen ticks (a 'nothing found' cycle)."""
+    if params.lasting_from and tick >= params.lasting_from:
+        raise NodeError(f"the device behind tick {tick} is gone", hint="plug it in", lasting=True)
     if params.fail_on_multiple_of and tick % params.fail_on_multiple_of == 0:
         raise NodeError(f"tick {tick} refused", hint="none needed")
     return {"result": tick + offset}
 
 
-@node("toy.constant", outputs={"value": Out("Number")}, params=CheckParams)
-def constant(params: CheckParams):
+class ConstantParams(Params):
+    fail: bool = Field(False, description="Fail instead (a file that cannot be loaded, say).")
+
+
+@node("toy.constant", outputs={"value": Out("Number")}, params=ConstantParams)
+def constant(params: ConstantParams):
     """A cacheable upstream value (counts its own runs in an environment-free way: it is just 7)."""
+    if params.fail:
+        raise NodeError("the constant could not be loaded", hint="none")
     return {"value": 7}
