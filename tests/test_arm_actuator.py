@@ -160,6 +160,9 @@ def test_persistent_fault_mid_motion_turns_torque_off(fault, tmp_path):
             assert "servo 4's replies to the read-back of the goal position arrive corrupted" in msg
             assert "noise" in ei.value.hint
         assert all(sim.register(i, "torque_enable") == 0 for i in (1, 2, 3, 4, 5))
+        # the healthy servos' torque-off is confirmed: their status packets to the WRITE are not taken
+        # for replies to the read-back (they were: "servo 1: not confirmed (corrupted status packet ...)")
+        assert not any(f"servo {i}: not confirmed" in msg for i in (1, 2, 3, 5)), msg
         assert ei.value.partial_log["ok"] is False
         assert_goals_within_limits(sim)
 
