@@ -71,6 +71,21 @@ def test_ros_camera_info_round_trip_in_metres(tmp_path):
     _assert_same(read_ros_pair(paths["camera_info_left"], paths["camera_info_right"]), cal)
 
 
+def test_a_ros_pair_calibrated_without_a_square_size_needs_cm_per_unit(tmp_path):
+    # (it loaded as centimetres, silently: a 3.3-square baseline became 3.3 cm)
+    cal = dict(_calibration(), T_cm=np.array([-3.3, 0.02, 0.05]), length_unit="squares")
+    paths = _write_exports(cal, tmp_path)
+    assert paths["camera_info_left"].read_text().startswith("# projection_matrix lengths are in squares/100")
+    with pytest.raises(NodeError, match="board squares.*give cm_per_unit"):
+        read_calibration_file(paths["camera_info_left"], paths["camera_info_right"])
+    got = read_calibration_file(paths["camera_info_left"], paths["camera_info_right"], cm_per_unit=2.5)
+    assert np.abs(got["T_cm"] - 2.5 * cal["T_cm"]).max() < 1e-9  # squares x 2.5 cm
+    plain = _write_exports(_calibration(), tmp_path / "plain")  # metres: the default, or cm_per_unit 100
+    for cm in (None, 100.0):
+        _assert_same(read_calibration_file(plain["camera_info_left"], plain["camera_info_right"], cm_per_unit=cm),
+                     _calibration())
+
+
 def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
     # What OpenCV's stereo_calib sample writes: intrinsics.yml and extrinsics.yml, no size, no unit.
     cal = _calibration()

@@ -17,6 +17,7 @@ Reading a pair of ROS files back gives the stereo pose exactly: the right camera
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -259,8 +260,32 @@ def read_ros(path: Path) -> dict:
     return doc
 
 
-def read_ros_pair(left_path: Path, right_path: Path) -> dict:
-    """A ``StereoCalibration`` from the left and right cameras' ROS camera_info files (metres -> cm)."""
+_ROS_UNIT_FLAG = re.compile(r"^# projection_matrix lengths are in (\w+)/100, not metres")
+
+
+def _ros_flagged_unit(path: Path) -> str | None:
+    """The unit a camera_info file of ours says its lengths are in when not metres (``squares``), else None."""
+    for line in path.read_text().splitlines():
+        if not line.startswith("#"):
+            return None
+        m = _ROS_UNIT_FLAG.match(line)
+        if m:
+            return m.group(1)
+    return None
+
+
+def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None = None) -> dict:
+    """A ``StereoCalibration`` from the left and right cameras' ROS camera_info files (metres -> cm).
+
+    ``cm_per_unit``: centimetres per unit of the files' lengths (default 100: ROS's metres). A pair
+    written from a calibration without a square size says so in a comment (lengths in squares/100):
+    it is refused without ``cm_per_unit``, then the square's size in cm.
+    """
+    flagged = {u for u in (_ros_flagged_unit(left_path), _ros_flagged_unit(right_path)) if u}
+    if flagged and cm_per_unit is None:
+        raise ValueError(f"its lengths are in board {'/'.join(sorted(flagged))} (calibrated without a square size, "
+                         "as the files' first line says), not metres; give cm_per_unit = the square's size in cm")
+    scale_cm = 100.0 if cm_per_unit is None else (100.0 * cm_per_unit if flagged else float(cm_per_unit))
     L, Rd = read_ros(left_path), read_ros(right_path)
     K1, K2 = _ros_mat(L, "camera_matrix", (3, 3), left_path), _ros_mat(Rd, "camera_matrix", (3, 3), right_path)
     D1 = _ros_mat(L, "distortion_coefficients", None, left_path)
@@ -277,7 +302,7 @@ def read_ros_pair(left_path: Path, right_path: Path) -> dict:
     if not np.any(t_m):
         raise ValueError(f"{right_path}'s projection_matrix has no baseline (P[0,3] = 0): is it the right camera's?")
     R = R2.T @ R1
-    T_cm = (R2.T @ t_m) * 100.0
+    T_cm = (R2.T @ t_m) * scale_cm
     return {"K1": K1, "D1": D1, "K2": K2, "D2": D2, "R": R, "T_cm": T_cm, "image_size": size_l, "rms_px": None,
             "per_view_rms_px": {}, "rejected_views": []}
 

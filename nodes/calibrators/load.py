@@ -88,7 +88,7 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                 if right_path is None:
                     raise NodeError(f"{label}: {path} is a ROS camera_info file (one camera); the right camera's "
                                     "is needed too.", hint="set right_path to the right camera's camera_info YAML")
-                cal = read_ros_pair(path, right_path)
+                cal = read_ros_pair(path, right_path, cm_per_unit)
                 fmt = "ros"
             else:
                 cal = read_opencv(path, cm_per_unit, image_size, extra=right_path)
@@ -116,7 +116,9 @@ class LoadParams(Params):
                                                      "extrinsics.yml beside intrinsics.yml).")
     cm_per_unit: float | None = Field(
         None, gt=0, description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the square "
-                                "size in cm for a file in squares); default: the file's `unit` entry.")
+                                "size in cm for a file in squares); default: the file's `unit` entry. For a ROS "
+                                "camera_info pair: default 100 (metres); the square's size in cm for a pair "
+                                "written without a square size (its first line says so).")
     image_size: tuple[int, int] | None = Field(
         None, description="Image width, height (px), for OpenCV files that do not state it (stereo_calib's do "
                           "not); checked against the file's when both exist.")
