@@ -9,6 +9,7 @@ All problems are :class:`~stereograph.errors.ConfigError` naming file:line and n
 from __future__ import annotations
 
 import difflib
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -313,4 +314,24 @@ def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph
         graph = build_graph(doc)
     except ConfigError as e:
         return None, in_file_order(problems + [e])
+    if not problems:
+        _warn_missing_reads(graph)
     return (None if problems else graph), problems
+
+
+def _warn_missing_reads(graph: Graph) -> None:
+    """A warning per file a node declares it reads (``reads=``) that is not there: it may be written
+    by another pipeline before this one runs, so it is not an error here; the run names it if not."""
+    for name in graph.order:
+        inst = graph.nodes[name]
+        if inst.spec.reads is None:
+            continue
+        try:
+            paths = inst.spec.reads(inst.params, graph.doc.directory)
+        except Exception:  # noqa: BLE001 - the node's own run reports what is wrong with its params
+            continue
+        for p in paths:
+            if not p.exists():
+                graph.warnings.append(f"{graph.doc.where('nodes', name)}: node '{name}': it will read "
+                                      f"{os.path.normpath(p)}, which "
+                                      "does not exist (yet): the run fails unless it is there by then")

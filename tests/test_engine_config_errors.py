@@ -245,3 +245,11 @@ def test_a_node_check_on_its_wiring_runs_at_validation(capsys):
     code, msg = _validate("--set", "segment.type=segmenter.edge_morph", "--set", "segment.object.color_bgr=null",
                           capsys=capsys)
     assert code == 0, msg  # (edge_morph works without a colour: look-alikes are refused as ambiguous)
+
+
+def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys):
+    live = LOCATE.parent / "pick-live.yaml"
+    code, msg = _validate("--set", "calibration.path=no-such-calibration.yml", capsys=capsys, pipeline=live)
+    assert code == 0 and "warning:" in msg and "node 'calibration'" in msg and "no-such-calibration.yml" in msg
+    code, msg = _validate(capsys=capsys, pipeline=live)
+    assert code == 0 and "warning:" not in msg
