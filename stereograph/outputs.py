@@ -13,6 +13,7 @@ nodes only). ``run.json`` summarises the run.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -304,6 +305,12 @@ def prepare_out_dir(out_dir: Path) -> None:
             parents.update(q for q in p.parents if root in q.parents)
     summary.unlink()
     (out_dir / "report.html").unlink(missing_ok=True)  # written from that run.json (stereograph.report)
+    # stereograph never makes symbolic links: one inside the folder was put there since, and writing
+    # through it (a node's folder linked elsewhere) would write outside the run's folder
+    for dirpath, dirnames, filenames in os.walk(out_dir):  # (does not follow links)
+        for name in dirnames + filenames:
+            if (Path(dirpath) / name).is_symlink():
+                (Path(dirpath) / name).unlink()
     for d in sorted(parents, key=lambda p: -len(p.parts)):  # only folders the run's files were in
         try:
             d.rmdir()
@@ -369,14 +376,29 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
-    summary = {
-        MARKER: {"format": 1, "run_id": result.run_id},
-        "run_id": result.run_id,
-        "pipeline": result.pipeline,
+    summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
+                       list(getattr(result, "notes", [])), written)
+    try:
+        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
+    except OSError as e:
+        from stereograph.errors import ConfigError
+
+        raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
+                          hint="free space on that disk, or choose another --out") from None
+    write_report_quietly(out_dir, result)
+
+
+def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok: bool, notes: list[str],
+             written: dict[str, list[str]]) -> dict[str, Any]:
+    """``run.json``'s content."""
+    return {
+        MARKER: {"format": 1, "run_id": run_id},
+        "run_id": run_id,
+        "pipeline": pipeline,
         "out_dir": str(out_dir),
         "overrides": list(graph.doc.overrides),
-        "ok": result.ok,
-        "notes": list(getattr(result, "notes", [])),
+        "ok": ok,
+        "notes": notes,
         "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
                    "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
                    "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, []),
@@ -386,14 +408,24 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
         **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),  # stereograph.loop
     }
-    try:
-        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
-    except OSError as e:
-        from stereograph.errors import ConfigError
 
-        raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
-                          hint="free space on that disk, or choose another --out") from None
-    write_report_quietly(out_dir, result)
+
+def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path) -> None:
+    """A ``run.json`` for a run stopped by Ctrl-C / SIGTERM: the nodes' states and the files written so far
+    (the items streamed into the folder), so that the same command with the same ``--out`` can reuse the
+    folder -- emptied of those files first -- while the cache resumes the work. Never raises."""
+    for rep in run.reports.values():
+        if rep.status in ("pending", "running"):
+            rep.status = "interrupted"
+    written: dict[str, list[str]] = {}
+    with contextlib.suppress(Exception):
+        for (name, _out), per_item in dict(getattr(run, "streamed", {})).items():
+            for files in per_item.values():
+                written.setdefault(name, []).extend(str(Path(f).relative_to(out_dir)) for f in files)
+        notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
+        out_dir.mkdir(parents=True, exist_ok=True)
+        summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)
+        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
 
 
 def _wiring(graph: Any, name: str) -> dict[str, Any]:

@@ -885,6 +885,10 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                     if hasattr(executor, "start"):  # a local pool: this process only waits
                         _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
                     streaming.run_region(run, unit, write_outputs)
+    except KeyboardInterrupt:
+        if write_outputs:  # the same command resumes into this folder (it is recognised as ours)
+            outputs_mod.write_interrupted_summary(graph, run, run_id, str(doc.path), out)
+        raise
     finally:
         for source in list(run.ahead):
             streaming.stop_ahead(run, source)

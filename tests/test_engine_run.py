@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -488,3 +489,32 @@ def test_a_per_item_node_that_made_no_item_writes_no_output_file(tmp_path):
     norm = json.loads((tmp_path / "out" / "power" / "norm.json").read_text())
     assert sorted(p.name for p in (tmp_path / "out" / "power").iterdir()) == ["m.json", "norm.json"]
     assert "m001" in json.dumps(norm) and "m000" not in json.dumps(norm)
+
+
+def test_an_interrupted_run_leaves_a_folder_the_same_command_resumes_into(tmp_path, capsys):
+    # (Ctrl-C said "run again to resume", and the same command with --out then refused the folder:
+    # "not the folder of an earlier stereograph run")
+    p = write_pipeline(tmp_path, n=6)
+    out = tmp_path / "out"
+    args = ["run", str(p), "--out", str(out), "--cache-dir", str(tmp_path / "cache")]
+    assert main([*args, "--set", "power.interrupt_on=m003"]) == 130
+    summary = json.loads((out / "run.json").read_text())
+    assert summary["ok"] is False and "interrupted" in " ".join(summary["notes"])
+    assert {n["node"]: n["status"] for n in summary["nodes"]}["total"] == "interrupted"
+    assert main(["report", str(out)]) == 0  # a page of what was done
+    capsys.readouterr()
+    assert main(args) == 0
+    again = json.loads((out / "run.json").read_text())
+    assert again["ok"] is True and {n["node"]: n["status"] for n in again["nodes"]}["total"] == "ran"
+
+
+def test_a_symbolic_link_put_into_an_earlier_runs_folder_is_not_written_through(tmp_path):
+    p = write_pipeline(tmp_path, n=3)
+    assert run(p, tmp_path).ok
+    victim = tmp_path / "victim"
+    victim.mkdir()
+    node_dir = tmp_path / "out" / "total"
+    shutil.rmtree(node_dir)
+    node_dir.symlink_to(victim, target_is_directory=True)
+    assert run(p, tmp_path).ok
+    assert list(victim.iterdir()) == [] and node_dir.is_dir() and not node_dir.is_symlink()

@@ -23,12 +23,15 @@ def numbers(params: NumbersParams):
 class PowerParams(Params):
     power: int = Field(2, ge=1, le=64, description="Matrix power (unitless).")
     fail_on: str | None = Field(None, description="Item id to fail on (for tests).")
+    interrupt_on: str | None = Field(None, description="Item id to raise KeyboardInterrupt on, as Ctrl-C (tests).")
 
 
 @node("toy.power", inputs={"m": In("Matrix")}, outputs={"m": Out("Matrix"), "norm": Out("Number")},
       params=PowerParams)
 def power(params: PowerParams, m, ctx=None):
     """Matrix power (real work: a few matrix products)."""
+    if params.interrupt_on is not None and ctx is not None and ctx.item == params.interrupt_on:
+        raise KeyboardInterrupt
     if params.fail_on is not None and ctx is not None and ctx.item == params.fail_on:
         raise NodeError(f"asked to fail on {ctx.item}", hint="unset fail_on")
     out = np.linalg.matrix_power(m / np.linalg.norm(m), params.power)
