@@ -637,10 +637,10 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
                 continue
             value = result.outputs(name, port)
             stem = out / name / port
-            if graph.is_collection(name, port):
-                written = outputs_mod.write_collection(stem, value or {})
+            if graph.is_collection(name, port):  # (a picture for people is JPEG here too, as in a run)
+                written = outputs_mod.write_collection(stem, value or {}, decl.lossy)
             elif value is not None:
-                written = outputs_mod.write_value(stem, value)
+                written = outputs_mod.write_value(stem, value, decl.lossy)
             else:
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)

@@ -159,15 +159,16 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     return files
 
 
-def write_collection(stem: Path, items: dict[str, Any]) -> list[Path]:
-    """Write a per-item output: a folder of PNG images, or one JSON list of records."""
+def write_collection(stem: Path, items: dict[str, Any], lossy: bool = False) -> list[Path]:
+    """Write a per-item output: a folder of PNG images (JPEG for a ``lossy`` output), or one JSON list of
+    records."""
     if not items:
         return write_value(stem, [])
     first = next(iter(items.values()))
     if is_image(first) or is_file_value(first):
         out = []
         for i, v in items.items():
-            out += write_value(stem / file_name(i), v)
+            out += write_value(stem / file_name(i), v, lossy)
         return out
     records = []
     for i, v in items.items():

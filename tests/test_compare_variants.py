@@ -193,3 +193,15 @@ def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
     for v in serial.variants:
         assert par.row(**v.variant.settings)["z_rms_cm"] == serial.row(**v.variant.settings)["z_rms_cm"]
     assert [v.ran for v in par.variants] == [v.ran for v in serial.variants]
+
+
+def test_every_variant_writes_a_lossy_output_as_jpeg(tmp_path):
+    # (the first variant wrote segment/overlay/*.jpg, the others lossless PNG: ~6x the disk, and
+    # report.html pages of 16 MB)
+    locate = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
+    code = cli_main(["compare", str(locate), "--set", "rig.n_scenes=3", "--vary",
+                     "segment.type=segmenter.edge_morph,segmenter.otsu", "--vary", "disparity.type=disparity.centroid",
+                     "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "cache"), "--no-plots"])
+    assert code == 0
+    overlays = sorted((tmp_path / "o" / "variants").glob("*/segment/overlay/*"))
+    assert len(overlays) == 6 and {p.suffix for p in overlays} == {".jpg"}
