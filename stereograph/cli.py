@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -531,6 +532,33 @@ def _non_negative_int(text: str) -> int:
     return _positive_int(text, 0, "0 (until stopped) or more")
 
 
+def _size_gb(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of GB") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a size in GB, 0 or more (got {text}; 0 empties the cache)")
+    return value
+
+
+def _cache_positionals_first(argv: list[str]) -> list[str]:
+    """``cache prune --max-gb 5 PIPELINE`` as ``cache prune PIPELINE --max-gb 5``: argparse takes a
+    sub-command's positionals in one run, so one after an option was refused as unrecognised."""
+    head, options, rest = argv[:1], [], argv[1:]
+    positionals = []
+    i = 0
+    while i < len(rest):
+        a = rest[i]
+        if a in ("--max-gb", "--cache-dir") and i + 1 < len(rest):
+            options += rest[i:i + 2]
+            i += 2
+            continue
+        (options if a.startswith("-") else positionals).append(a)
+        i += 1
+    return head + positionals + options
+
+
 def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     """The command's parser; ``lazy`` leaves out what needs heavy imports (``compare``'s own options:
     ``main`` builds the full parser when the line names it), so ``--help`` starts fast."""
@@ -588,7 +616,8 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.set_defaults(fn=cmd_nodes)
     sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
     sp.add_argument("action", choices=["info", "prune", "clear"])
-    sp.add_argument("--max-gb", type=float, help="prune: keep the most recently used entries up to this size (GB)")
+    sp.add_argument("--max-gb", type=_size_gb,
+                    help="prune: keep the most recently used entries up to this size (GB, 0 or more)")
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
     sp.add_argument("--cache-dir")
     sp.set_defaults(fn=cmd_cache)
@@ -634,6 +663,8 @@ def _main(argv: list[str]) -> int:
     # a global option, accepted anywhere on the line (every sub-command loads pipelines)
     allow_plugins = "--allow-plugins" in argv or os.environ.get("STEREOGRAPH_ALLOW_PLUGINS", "") in ("1", "yes", "true")
     argv = [a for a in argv if a != "--allow-plugins"]
+    if argv and argv[0] == "cache":
+        argv = _cache_positionals_first(argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as e:

@@ -448,6 +448,12 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
     assert removed > 0 and before - freed <= before // 2
     assert set(run(p, tmp_path).status.values()) == {"cached"}  # the latest settings survived
     assert run(p, tmp_path, "power.power=3").status["power"] == "ran"  # the older ones did not
+    entries = ArtifactStore(tmp_path / "cache").info()["entries"]
+    for bad in ("-1", "nan", "inf", "five"):  # (-1 emptied the cache; nan was an "internal error")
+        assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", bad]) == 2
+    assert ArtifactStore(tmp_path / "cache").info()["entries"] == entries
+    # the pipeline after the option, as `--help` shows it (was: "unrecognized arguments")
+    assert main(["cache", "prune", "--max-gb", "100", str(p), "--cache-dir", str(tmp_path / "cache")]) == 0
     assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", "0"]) == 0
     assert ArtifactStore(tmp_path / "cache").info()["entries"] == 0
 
