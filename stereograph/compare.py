@@ -868,11 +868,19 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     con = console or Console(highlight=False)
     keys = _varying_keys(res)
     fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
+    # A mistake in --metrics / --best is known only now that the variants ran: the table is printed
+    # anyway (every metric, nothing marked), then the mistake is reported.
+    mistakes: list[UsageError] = []
     names = select_metrics(res.metric_names, metrics)
     if not names:
-        raise UsageError("--metrics matches no metric", hint="choose among " + ", ".join(res.metric_names))
+        mistakes.append(UsageError("--metrics matches no metric", hint="choose among " + ", ".join(res.metric_names)))
+        names = select_metrics(res.metric_names, None)
+    try:
+        top = _best(res, best)
+    except UsageError as e:
+        mistakes.append(e)
+        top = None
     narrow = con.width < 150
-    top = _best(res, best)
     chunks = _chunks(res, keys, names, con.width, narrow)
     for i, chunk in enumerate(chunks):
         title = (f"compare {Path(res.pipeline).name}" + (f" — split {res.split}" if res.split else "")
@@ -884,18 +892,23 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
             t.add_column(escape(k), no_wrap=True)
         for name in chunk:
             t.add_column(_header(name), justify="right", no_wrap=True)
+        if top is not None:  # (the colour alone is lost in a log or a pipe)
+            t.add_column("", no_wrap=True)
         for r in res.rows:
             cells = [escape(_show(r["settings"][k])) for k in keys]
+            is_best = top is not None and r.get(top[0]) == top[1]
+            mark = [f"<- best {top[0]}" if is_best else ""] if top is not None else []
             if not r["ok"] and not any(isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR):
-                t.add_row(*cells, *(["–"] * len(chunk)), style="red")
+                t.add_row(*cells, *(["–"] * len(chunk)), *mark, style="red")
                 continue
-            style = ("bold green" if top is not None and r.get(top[0]) == top[1]
-                     else ("red" if not r["ok"] else None))
-            t.add_row(*cells, *(_cell(n, r.get(n)) for n in chunk), style=style)
+            style = "bold green" if is_best else ("red" if not r["ok"] else None)
+            t.add_row(*cells, *(_cell(n, r.get(n)) for n in chunk), *mark, style=style)
         con.print(t)
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
+    if mistakes:
+        raise mistakes[0]
 
 
 # --------------------------------------------------------------------------- CLI

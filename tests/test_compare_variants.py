@@ -205,3 +205,19 @@ def test_every_variant_writes_a_lossy_output_as_jpeg(tmp_path):
     assert code == 0
     overlays = sorted((tmp_path / "o" / "variants").glob("*/segment/overlay/*"))
     assert len(overlays) == 6 and {p.suffix for p in overlays} == {".jpg"}
+
+
+def test_a_mistaken_best_or_metrics_still_prints_the_table_and_best_is_marked_in_plain_text(pipeline, tmp_path,
+                                                                                            capsys):
+    args = ["compare", str(pipeline), "--vary", "fit.type=none,xyz", "--cache-dir", str(tmp_path / "c"),
+            "--out", str(tmp_path / "o"), "--no-plots"]
+    capsys.readouterr()
+    assert cli_main([*args, "--best", "zz_rms"]) == 2  # (known only once the variants ran)
+    out = capsys.readouterr()
+    assert "z_rms_cm" in out.out and "xyz" in out.out and "no metric 'zz_rms'" in out.err
+    assert cli_main([*args, "--metrics", "nothing*"]) == 2
+    out = capsys.readouterr()
+    assert "z_rms_cm" in out.out and "--metrics matches no metric" in out.err
+    assert cli_main([*args, "--best", "z_rms_cm"]) == 0
+    out = capsys.readouterr().out  # not a terminal: no colour, so the row says it
+    assert out.count("<- best z_rms_cm") == 1
