@@ -358,11 +358,12 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
                               hint="list YAML files relative to this file, e.g. [common.yaml]")
         inc_path = (path.parent / inc)
         try:
-            ok = inc_path.is_file()
+            ok, there = inc_path.is_file(), inc_path.exists()
         except (OSError, ValueError):
-            ok = False
+            ok = there = False
         if not ok:
-            raise ConfigError(f"included file not found: {inc}", at,
+            raise ConfigError(f"included {inc} is not a regular file (a folder or a device)" if there else
+                              f"included file not found: {inc}", at,
                               hint="paths in include: are relative to this file and name a YAML file")
         sub = load_pipeline(inc_path, None, _stack + (path,), budget)
         doc.plugins += sub.plugins

@@ -118,6 +118,29 @@ def _with_sets(doc: PipelineDoc, node: str) -> str:
     return f" (with --set {', '.join(sets)})" if sets else ""
 
 
+def _model_at(model: Any, path: tuple) -> Any:
+    """The pydantic model a params path leads to (list indices and optional types passed through), or None."""
+    for part in path:
+        if isinstance(part, int):
+            continue  # an item of a list of models: the same model
+        fields = model.model_fields if isinstance(model, type) and issubclass(model, pydantic.BaseModel) else {}
+        if part not in fields:
+            return None
+        model = _model_in(fields[part].annotation)
+    return model if isinstance(model, type) and issubclass(model, pydantic.BaseModel) else None
+
+
+def _model_in(annotation: Any) -> Any:
+    """``SceneSpec`` for ``SceneSpec``, ``list[SceneSpec]`` or ``SceneSpec | None``; the annotation otherwise."""
+    if isinstance(annotation, type) and issubclass(annotation, pydantic.BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()):
+        found = _model_in(arg)
+        if isinstance(found, type) and issubclass(found, pydantic.BaseModel):
+            return found
+    return annotation
+
+
 def _deepest_field(model: type[pydantic.BaseModel], loc: tuple) -> tuple[str, Any]:
     """The innermost field a pydantic error location names (``object.color_bgr`` for
     ``('object', 'color_bgr', 0)``), with its dotted name: its description is the fix to show."""
@@ -141,9 +164,12 @@ def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: s
     fields = spec.params.model_fields
     hint = None
     if msg == "unknown parameter":
-        close = difflib.get_close_matches(str(loc[0]), list(fields), n=1)
+        inner = _model_at(spec.params, loc[:-1])  # the (nested) model the unknown key was given to
+        known = list(inner.model_fields) if inner is not None else list(fields)
+        close = difflib.get_close_matches(str(loc[-1]), known, n=1)
+        where_ = spec.name if len(loc) == 1 or inner is None else f"'{'.'.join(map(str, loc[:-1]))}'"
         hint = (f"did you mean '{close[0]}'?" if close else
-                f"{spec.name} takes {sorted(fields) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
+                f"{where_} takes {sorted(known) or 'no parameters'} (see `stereograph nodes {spec.name}`)")
     elif loc and loc[0] in fields:
         name, f = _deepest_field(spec.params, loc)
         desc = f.description or ""

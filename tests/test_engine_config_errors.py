@@ -253,3 +253,11 @@ def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys):
     assert code == 0 and "warning:" in msg and "node 'calibration'" in msg and "no-such-calibration.yml" in msg
     code, msg = _validate(capsys=capsys, pipeline=live)
     assert code == 0 and "warning:" not in msg
+
+
+def test_a_misspelt_nested_key_is_matched_against_its_own_model(capsys):
+    # (the suggestion came from the top-level parameters: `shadow.enabeld` got no useful hint)
+    code, msg = _validate("--set", "segment.shadow.enabeld=true", capsys=capsys)
+    assert code == 2 and "did you mean 'enabled'?" in msg
+    code, msg = _validate("--set", "rig.scenes=[{ball: {center_cm: [0, 40], colour: red}}]", capsys=capsys)
+    assert code == 2 and "'scenes.0.ball.colour'" in msg and "did you mean 'color'?" in msg

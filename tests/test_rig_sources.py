@@ -122,3 +122,19 @@ def test_too_few_views_says_add_views():
         chessboard(ChessboardParams(), views=views)
     assert "only 2 of 3 views" in e.value.message and "(blank: no 9x6 board found in left image)" in e.value.message
     assert "cols/rows" in e.value.hint and "add chessboard views" in e.value.hint
+
+
+def test_explicit_scenes_are_validated_and_rendered():
+    # (a misspelt key was ignored: `scenes: [{x: 1}]` rendered an empty scene without a word)
+    p = SyntheticParams(n_scenes=0, n_views=0, scenes=[
+        {"id": "mine", "ball": {"center_cm": [0, 40], "color": [20, 120, 245]},
+         "objects": [{"type": "box", "center_cm": [6, 40], "size_cm": [4, 4, 4]}]},
+        {"ball": {"center_cm": [3, 42]}}])
+    pairs = synthetic(p)["pairs"]
+    assert sorted(pairs) == ["custom001", "mine"]
+    assert pairs["mine"]["truth"]["radius_cm"] == 2.0 and pairs["mine"]["left"].shape == (480, 640, 3)
+    for bad, word in (({"x": 1}, "x"), ({"ball": {"center_cm": [0, 40], "colour": "red"}}, "colour"),
+                      ({"objects": [{"type": "cylinder", "center_cm": [0, 1]}]}, "radius_cm and height_cm"),
+                      ({"objects": [{"type": "box", "center_cm": [0, 1]}]}, "size_cm")):
+        with pytest.raises(ValidationError, match=word):
+            SyntheticParams(scenes=[bad])

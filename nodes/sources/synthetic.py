@@ -21,6 +21,7 @@ from nodes.sources._boards import random_board_poses, render_board_view
 from nodes.sources._materials import _table_texture, color_bgr
 from nodes.sources._render import _empty_table, render_scene
 from nodes.sources._rig import _ray_grid, make_rig
+from nodes.sources._scene_spec import SceneSpec
 from nodes.sources._scenes import SCENE_KINDS, make_scene
 from stereograph.api import Field, NodeError, Out, Params, node
 
@@ -31,7 +32,7 @@ HardCase = Literal["clutter", "second_ball", "border", "occluded", "hidden", "em
 class SyntheticParams(Params):
     image_width_px: int = Field(640, ge=64, le=4096, description="Image width, pixels.")
     image_height_px: int = Field(480, ge=48, le=4096, description="Image height, pixels.")
-    focal_length_px: float = Field(560.0, gt=50, description="Left camera focal length, pixels.")
+    focal_length_px: float = Field(560.0, gt=50, le=100_000, description="Left camera focal length, pixels.")
     focal_ratio_right: float = Field(1.006, gt=0.5, lt=2, description="Right / left focal length (unitless).")
     distortion_left: tuple[float, float, float, float] = Field(
         (-0.12, 0.06, 0.0008, -0.0005), description="Left camera k1, k2, p1, p2 (OpenCV model, unitless).")
@@ -61,8 +62,10 @@ class SyntheticParams(Params):
                                           "touching_ball, distractor, same_color -- see "
                                           "nodes/sources/_hard_scenes.py).")
     n_hard_each: int = Field(10, ge=0, le=1000, description="Scenes per hard case (count).")
-    scenes: list[dict] = Field(
-        default_factory=list, description="Explicit scene descriptions (see nodes/sources/_render.py), appended.")
+    scenes: list[SceneSpec] = Field(
+        default_factory=list, description="Explicit scenes, appended: {id, kind, ball: {center_cm, radius_cm, color}, "
+                                          "objects: [{type: box|cylinder|ball, center_cm, size_cm, ...}]} "
+                                          "(nodes/sources/_scene_spec.py).")
     n_views: int = Field(16, ge=0, le=200, description="Chessboard calibration views (count).")
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
@@ -188,7 +191,7 @@ def _plan_scenes(params: SyntheticParams, rig: dict) -> tuple[dict, list[tuple[s
         raise NodeError(f"source.synthetic: {exc}.",
                         hint="check camera_height_cm / tilt and the distance range") from exc
     for i, sc in enumerate(params.scenes):
-        specs.append((str(sc.get("id", f"custom{i:03d}")), dict(sc)))
+        specs.append((sc.id or f"custom{i:03d}", sc.model_dump(exclude_none=True, exclude={"id"})))
 
     forced_train: set[str] = set()
     if params.split_mode == "span" and params.train_fraction > 0:
@@ -212,7 +215,7 @@ def _scene_ids(params: SyntheticParams, ctx=None) -> list[str]:
     produces the pairs one per call)."""
     ids = [f"s{i:03d}" for i in range(params.n_scenes)]
     ids += [f"{kind}{i:03d}" for kind in params.hard_cases for i in range(params.n_hard_each)]
-    return ids + [str(sc.get("id", f"custom{i:03d}")) for i, sc in enumerate(params.scenes)]
+    return ids + [sc.id or f"custom{i:03d}" for i, sc in enumerate(params.scenes)]
 
 
 def _render_pair(params: SyntheticParams, k: int) -> dict:
@@ -277,7 +280,8 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
                 rig, params.n_views, np.random.default_rng([params.seed, 4]), params.board_cols, params.board_rows,
                 params.square_cm)
         except RuntimeError as exc:
-            raise NodeError(f"source.synthetic: {exc}.", hint="use a smaller board or a longer focal length") from exc
+            raise NodeError(f"source.synthetic: {exc}.", hint="use a smaller board (board_cols, board_rows, square_cm) "
+                                                            "or a shorter focal_length_px (a wider view)") from exc
         charuco = ({"dictionary": params.aruco_dict, "marker_fraction": params.marker_fraction}
                    if params.board_type == "charuco" else None)
         for j, pose in enumerate(poses):
