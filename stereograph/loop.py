@@ -55,6 +55,7 @@ class Cycle:
     seconds: float = 0.0
     failed_node: str | None = None
     error: str | None = None
+    hint: str | None = None  # the failed node's fix
     nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
     values: dict[str, Any] = field(default_factory=dict)
 
@@ -64,7 +65,7 @@ class Cycle:
                           if d["status"] in ("ran", "partial", "failed"))
         head = f"cycle {self.index}: {self.status} in {self.seconds:.2f} s"
         if self.status == "failed":
-            head += f" at {self.failed_node}: {self.error}"
+            head += f" at {self.failed_node}: {self.error}" + (f" Fix: {self.hint}" if self.hint else "")
         elif self.status == "interrupted":
             head += f" (during {self.failed_node})"
         return head + (f"  [{times}]" if times else "")
@@ -208,11 +209,11 @@ class Loop:
             r = run.reports[name]
             if name not in self.live:  # (cycle 1 runs the rest too: its failure leaves the live part skipped)
                 if cycle.status == "running" and r.status == "failed":
-                    cycle.status, cycle.failed_node, cycle.error = "failed", name, r.error
+                    cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
                 continue
             cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error}
             if cycle.status == "running" and r.status in ("failed", "partial"):
-                cycle.status, cycle.failed_node, cycle.error = "failed", name, r.error
+                cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
             for out in g.nodes[name].spec.outputs:
                 v = _value(run, name, out, g.is_collection(name, out))
                 if v is None:
@@ -229,7 +230,7 @@ class Loop:
         if cycle.status == "running":
             cycle.status = "ok"
         rec = {"cycle": cycle.index, "status": cycle.status, "seconds": round(cycle.seconds, 5),
-               "failed_node": cycle.failed_node, "error": cycle.error, "time": time.time(),
+               "failed_node": cycle.failed_node, "error": cycle.error, "hint": cycle.hint, "time": time.time(),
                "nodes": cycle.nodes, "values": cycle.values}
         with log_path.open("a") as f:
             f.write(json.dumps(rec, default=str) + "\n")

@@ -178,6 +178,15 @@ def test_missing_servo_fails_before_any_write(tmp_path):
         assert sim.log == []
 
 
+def test_a_bus_where_no_servo_answers_is_named_as_such():
+    # (a silent bus -- supply off, adapter unplugged at the servo end -- was "servo ID 1 did not answer a ping")
+    plan = make_plan()
+    with ServoSim([], time_scale=50.0) as sim:  # nothing on the bus
+        with pytest.raises(NodeError, match=r"no servo answers on .* at 1000000 baud.*IDs 1, 2, 3, 4, 5") as ei:
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert "supply is on" in ei.value.hint and sim.log == []
+
+
 def test_servo_angle_limits_are_checked_before_moving():
     plan = make_plan()
     with ServoSim([1, 2, 3, 4, 5]) as sim:

@@ -68,6 +68,7 @@ def test_a_failed_cycle_is_logged_and_the_loop_goes_on(tmp_path):
     log = cycles(tmp_path / "out")
     assert [c["status"] for c in log] == ["ok", "failed", "ok", "failed", "ok"]
     assert log[1]["failed_node"] == "check" and log[1]["error"] == "tick 2 refused"
+    assert log[1]["hint"] == "none needed"  # the fix is kept with the reason (it was lost in a loop)
     assert "check.result" not in log[1]["values"]  # nothing from the failed node
 
 
@@ -139,6 +140,7 @@ def test_a_lasting_failure_ends_the_loop_instead_of_failing_every_cycle(tmp_path
     assert [c["status"] for c in log] == ["ok", "ok", "failed"] and log[2]["failed_node"] == "check"
     out = capsys.readouterr()
     assert "no later cycle can change" in out.out and "the device behind tick 3 is gone" in out.err
+    assert "cycle 3: failed" in out.out and "Fix: plug it in" in out.out
     # an ordinary failure still lets the loop go on
     f = pipeline(tmp_path, check="{fail_on_multiple_of: 3}")
     assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out2")]) == 0

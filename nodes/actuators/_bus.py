@@ -313,6 +313,15 @@ class Bus:
         that a lost READ reply is not blamed on the PING, nor the other way round.)"""
         self.request(sid, INST_PING, [], 0, "ping")
 
+    def answers_ping(self, sid: int) -> bool:
+        """One PING, no retry, never raises: whether ``sid`` answers at all (a diagnosis)."""
+        try:
+            t, _ = self._once(sid, INST_PING, [], 0)
+            return t.outcome in ("ok", "error_bits")
+        except Exception:  # noqa: BLE001 - a diagnosis must not fail
+            self.port.is_using = False
+            return False
+
     def read(self, sid: int, addr: int, n: int, what: str) -> int:
         """Read ``n`` bytes (1, 2 or 4) at ``addr`` as one little-endian value."""
         data = self.request(sid, INST_READ, [addr, n], n, what)

@@ -86,6 +86,15 @@ def head_and_hint(e: ServoFailure, *, moving: bool, baud: int) -> tuple[str, str
             CABLE_HINT.format(sid=sid, baud=baud))
 
 
+def silent_bus(port: str, ids: list[int], baud: int) -> tuple[str, str]:
+    """No servo of the arm answers a PING: the bus, not one servo."""
+    return (f"no servo answers on {port} at {baud} baud (PING to IDs {', '.join(map(str, ids))}: nothing came back, "
+            "not even late)",
+            f"check that the servos' 9-12 V supply is on, that the adapter's cable reaches the first servo (a "
+            f"USB2Dynamixel's switch on TTL for AX-12s) and that the servos run at {baud} baud (Dynamixel Wizard / "
+            "RoboPlus scans every rate and ID).")
+
+
 def after_ping(bus: Bus, sid: int, e: ServoFailure, baud: int) -> tuple[str, str]:
     """A servo answered PING, then a READ failed. Tell a lost READ reply from status return level 0.
 

@@ -86,8 +86,9 @@ class SimFaults(Params):
 
 
 class DynamixelParams(Selection):
-    port: str = Field("/dev/ttyUSB0", description="Serial port of the USB2Dynamixel / U2D2, or 'sim' to start the "
-                                                  "AX-12A emulator on a pseudo-terminal.")
+    port: str = Field("/dev/ttyUSB0", min_length=1, description="Serial port of the USB2Dynamixel / U2D2 "
+                                                                "(/dev/ttyUSB0, COM3), or 'sim' to start the AX-12A "
+                                                                "emulator on a pseudo-terminal.")
     baud: int = Field(1_000_000, description="Baud rate (bit/s); AX-12A default 1000000.")
     retries: int = Field(3, ge=0, le=20, description="Re-sends after a missing, late or corrupted reply (count).")
     late_window_ms: float = Field(250.0, ge=0, le=2000, description="After dynamixel-sdk's reply timeout "
@@ -139,10 +140,13 @@ def _check_servos(bus: Bus, ids: list[int], plan: dict, params: DynamixelParams)
 
 def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
     """PING and READ every servo, read its status return level and CW/CCW limits into ``bus.limits``."""
-    for sid in ids:
+    for k, sid in enumerate(ids):
         try:
             bus.ping(sid)
         except ServoFailure as e:
+            if k == 0 and e.exchange is not None and e.exchange.kind == "no_reply" and \
+                    not any(bus.answers_ping(other) for other in ids[1:]):
+                raise NodeError(*_diagnose.silent_bus(bus.port_path, ids, params.baud)) from None
             raise NodeError(*_diagnose.head_and_hint(e, moving=False, baud=params.baud)) from None
         try:
             model = bus.read(sid, 0, 2, "read of the model number")
