@@ -302,7 +302,7 @@ def test_unreadable_calibration_view_is_rejected_with_its_reason(tmp_path):
     (b"include: 5\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "'include' must be"),
     (b"include: [null]\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "not a file name"),
     (b"include: [5]\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "not a file name"),
-    (b"include: [/dev/zero]\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "included file not found"),
+    (b"include: [/dev/zero]\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "is not a regular file"),
     (b"a: &a [1, *a]\nnodes:\n  x: {type: source.synthetic}\n", "p.yaml:1", "alias refers to"),
     (b"nodes:\n  x: {type: [source.synthetic]}\n", "p.yaml:2", "'type' must be"),
     (b"nodes:\n  x: {type: source.synthetic, params: {1: 2}}\n", "p.yaml:2", "parameter '1'"),
