@@ -95,6 +95,7 @@ class Variant:
     index: int
     settings: dict[str, Any]  # "node.field" -> value (as given)
     overrides: list[str] = field(default_factory=list)  # what was applied to the document
+    varying: tuple[str, ...] | None = None  # the keys whose value differs between variants (None: all)
 
     @property
     def label(self) -> str:
@@ -102,7 +103,9 @@ class Variant:
 
     @property
     def slug(self) -> str:
-        text = "_".join(f"{k}-{_show(v)}" for k, v in self.settings.items())
+        # the folder name: the settings that tell the variants apart (a key with one value says nothing)
+        keys = [k for k in self.settings if self.varying is None or k in self.varying] or list(self.settings)
+        text = "_".join(f"{k}-{_show(self.settings[k])}" for k in keys)
         return f"v{self.index:02d}_" + re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80]
 
 
@@ -167,7 +170,9 @@ def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]
         raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",
                          hint="add --vary node.field=v1,v2 (e.g. --vary fit.type=none,polynomial)")
     keys = list(space)
-    return [Variant(i + 1, dict(zip(keys, combo))) for i, combo in enumerate(itertools.product(*space.values()))]
+    varying = tuple(k for k in keys if len(space[k]) > 1)
+    return [Variant(i + 1, dict(zip(keys, combo)), varying=varying)
+            for i, combo in enumerate(itertools.product(*space.values()))]
 
 
 def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
@@ -535,8 +540,8 @@ def compare(
         except ConfigError as e:
             if not skip_invalid:
                 e.message = f"variant {v.label}: {e.message}"
-                if not e.hint:
-                    e.hint = "fix the value, or pass --skip-invalid to leave such combinations out"
+                skip = "pass --skip-invalid to leave such combinations out"
+                e.hint = f"{e.hint.rstrip('.')}; or {skip}" if e.hint else f"fix the value, or {skip}"
                 raise
             skipped.append((v, str(e)))
     if not graphs:

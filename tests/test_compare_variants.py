@@ -221,3 +221,10 @@ def test_a_mistaken_best_or_metrics_still_prints_the_table_and_best_is_marked_in
     assert cli_main([*args, "--best", "z_rms_cm"]) == 0
     out = capsys.readouterr().out  # not a terminal: no colour, so the row says it
     assert out.count("<- best z_rms_cm") == 1
+
+
+def test_a_variant_folder_is_named_by_the_settings_that_vary():
+    # (keys with one value filled the 80 characters and the varying one was cut: 'fit.type-non')
+    locate = Path(__file__).resolve().parent.parent / "pipelines" / "compare-compensation.yaml"
+    slugs = [v.slug for v in expand_variants(load_pipeline(locate))]
+    assert slugs[:2] == ["v01_fit.type-none", "v02_fit.type-polynomial"] and len(set(slugs)) == len(slugs)
