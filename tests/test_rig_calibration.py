@@ -16,6 +16,7 @@ from nodes.sources._lens import project_points
 from nodes.sources._rig import make_rig
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 from nodes.sources.synthetic import SyntheticParams, synthetic
+from stereograph.api import NodeError
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
 
@@ -132,3 +133,25 @@ def test_real_chessboard_pairs_match_plain_opencv():
     assert abs(cal["rms_px"] / ref - 1) < 0.05
     rect = opencv(RectifyParams(), calibration=cal, views=views)["rectification"]
     assert rect["dy_mean_px"] <= 0.5
+
+
+def test_swapped_left_and_right_images_are_refused(synth):
+    # (accepted with exit 0: the same RMS, T_x of the wrong sign, a negative rectified baseline)
+    vs = synth["views"]
+    swapped = {**vs, "views": [{**v, "left": v["right"], "right": v["left"]} for v in vs["views"]]}
+    with pytest.raises(NodeError, match="to the LEFT of the left camera: the left and right images"):
+        chessboard(ChessboardParams(), views=swapped)
+
+
+def test_a_mismatched_pair_is_dropped_and_a_calibration_that_does_not_fit_is_refused(synth):
+    # (one right image of another view: RMS 8 px and the baseline ~50 % off, with exit 0 and no word)
+    vs = synth["views"]
+    bad = [dict(v) for v in vs["views"]]
+    bad[3]["right"] = vs["views"][4]["right"]
+    shuffled = {**vs, "views": bad}
+    good = chessboard(ChessboardParams(), views=vs)["calibration"]
+    cal = chessboard(ChessboardParams(), views=shuffled)["calibration"]
+    assert cal["rejected_views"] == [bad[3]["id"]] and "dropped" in cal["rejected_reasons"][bad[3]["id"]]
+    assert abs(cal["baseline_cm"] - good["baseline_cm"]) < 0.01 and cal["rms_px"] < 0.3
+    with pytest.raises(NodeError, match=r"reprojection RMS is .*over max_rms_px 2.*worst views " + bad[3]["id"]):
+        chessboard(ChessboardParams(max_view_rms_px=1000.0), views=shuffled)

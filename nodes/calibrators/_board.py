@@ -160,3 +160,56 @@ def stereo_calibrate_points(ids: list[str], obj: list[np.ndarray], left: list[np
         "per_view_rms_px": {i: float(np.sqrt((e[0] ** 2 + e[1] ** 2) / 2)) for i, e in zip(ids, per_view)},
         "rejected_views": [], "mono_rms_px": [float(rms1), float(rms2)],
     }
+
+
+#: A view fitting this many times worse than the median view is an outlier (a mismatched pair, a
+#: board that moved between the two exposures, a wrong corner order) -- above an absolute floor, so
+#: that a calibration at 0.05 px does not drop a 0.2 px view.
+OUTLIER_VIEW_FACTOR = 5.0
+OUTLIER_VIEW_FLOOR_PX = 0.5
+
+
+def drop_outlier_views(calibrate, ids: list[str], min_views: int, max_view_rms_px: float | None,
+                       rejected: dict[str, str], ctx=None) -> dict:
+    """Calibrate from ``ids`` (``calibrate(ids) -> StereoCalibration``), then drop the worst-fitting view
+    and calibrate again while it fits worse than ``max_view_rms_px`` (default: 5x the median view and
+    0.5 px), one view at a time, since one bad view pulls every other view's error up with it.
+    Dropped views are added to ``rejected`` with the reason; never below ``min_views`` (said by a warning).
+    """
+    keep = list(ids)
+    cal = calibrate(keep)
+    while True:
+        per = {i: e for i, e in cal["per_view_rms_px"].items() if i in keep}
+        if not per:
+            return cal
+        worst = max(per, key=per.get)
+        if max_view_rms_px is not None:
+            limit, why = max_view_rms_px, f"max_view_rms_px {max_view_rms_px:g}"
+        else:
+            limit = max(OUTLIER_VIEW_FLOOR_PX, OUTLIER_VIEW_FACTOR * float(np.median(list(per.values()))))
+            why = f"{OUTLIER_VIEW_FACTOR:g}x the median view"
+        if per[worst] <= limit:
+            return cal
+        if len(keep) - 1 < min_views:
+            if ctx is not None:
+                ctx.warn(f"view {worst} fits at {per[worst]:.2f} px (over {limit:.2f} px, {why}) but is kept: "
+                         f"dropping it would leave fewer than min_views ({min_views}) views")
+            return cal
+        rejected[worst] = f"reprojection RMS {per[worst]:.3f} px > {limit:.3f} px ({why}), dropped"
+        keep.remove(worst)
+        cal = calibrate(keep)
+
+
+def check_overall_rms(cal: dict, max_rms_px: float, label: str) -> None:
+    """Refuse a calibration whose views do not fit one rig (RMS over ``max_rms_px``), naming the worst views."""
+    from stereograph.api import NodeError
+
+    if cal["rms_px"] <= max_rms_px:
+        return
+    per = sorted(cal["per_view_rms_px"].items(), key=lambda kv: -kv[1])[:3]
+    raise NodeError(f"{label}: the reprojection RMS is {cal['rms_px']:.2f} px (over max_rms_px {max_rms_px:g}; a good "
+                    f"calibration is under 0.5 px): the views do not fit one pair of cameras; worst views "
+                    + ", ".join(f"{i} ({e:.2f} px)" for i, e in per) + ".",
+                    hint="check that each left image and its right image were taken at the same moment and belong "
+                         "together (file names, order), that the cameras did not move during the captures, and the "
+                         "board's cols/rows/square_cm; drop the worst views, or raise max_rms_px for a poor lens")

@@ -338,6 +338,21 @@ def export_texts(cal: dict) -> dict:
     return {k: {"file_text": t, "file_suffix": _SUFFIX[k]} for k, t in texts.items()}
 
 
+def _check_left_is_left(cal: dict) -> None:
+    """Refuse a calibration whose right camera sits to the left of the left one (swapped images or cameras):
+    its rectified baseline is negative and every depth from it would be wrong."""
+    from stereograph.api import NodeError
+
+    centre = -np.asarray(cal["R"], float).T @ np.asarray(cal["T_cm"], float).ravel()  # right camera, left frame
+    if centre[0] < 0 and abs(centre[0]) >= 0.5 * float(np.linalg.norm(centre)):
+        unit = cal.get("length_unit", "cm")
+        raise NodeError(f"the right camera's centre is at x = {centre[0]:+.3g} {unit} in the left camera's frame, to "
+                        "the LEFT of the left camera: the left and right images (or cameras) are swapped.",
+                        hint="swap left and right (left_glob / right_glob, the camera indices, the CSV's pixel "
+                             "columns or the files) and calibrate again: the left camera is the one on the left, "
+                             "seen from behind the cameras")
+
+
 def calibration_outputs(cal: dict, ctx=None, board: dict | None = None) -> dict:
     """What a calibrator returns: the calibration (with ``baseline_cm``, ``dy_mean_px``) and its exports.
 
@@ -348,6 +363,7 @@ def calibration_outputs(cal: dict, ctx=None, board: dict | None = None) -> dict:
     """
     if board is not None and board.get("length_unit"):
         cal["length_unit"] = str(board["length_unit"])
+    _check_left_is_left(cal)
     if cal.get("length_unit", "cm") != "cm" and ctx is not None:
         ctx.warn(f"lengths are in {cal['length_unit']}, not cm (no square size given): give the board's square_cm "
                  "to calibrate in real units; the ROS camera_info files cannot state this unit")

@@ -13,7 +13,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from nodes.calibrators._board import stereo_calibrate_points, to_gray
+from nodes.calibrators._board import check_overall_rms, stereo_calibrate_points, to_gray
 from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from nodes.contracts.board import charuco_board
 from stereograph.api import Field, In, NodeError, Out, Params, node
@@ -142,6 +142,9 @@ class CharucoParams(Params):
     fix_k3: bool = Field(False, description="Hold the 6th-order radial term k3 at 0 (unitless switch).")
     min_corners: int = Field(8, ge=4, description="Fewest corners seen in both images for a view to count (count).")
     min_views: int = Field(3, ge=3, description="Fewest usable views to calibrate from (count).")
+    max_rms_px: float = Field(
+        2.0, gt=0, description="Refuse a calibration whose overall reprojection RMS exceeds this (px): its views do "
+                               "not fit one pair of cameras (a mismatched pair, a camera moved); good is < 0.5.")
 
 
 @node(
@@ -187,6 +190,7 @@ def charuco(params: CharucoParams, views: dict, ctx=None) -> dict:
             f"{params.min_views} are needed" + (f" ({named})." if named else "."),
             hint="check the board's inner-corner count, dictionary and marker fraction, the lighting and focus; "
                  "or add views (10-20, the board at several distances and tilts)")
+    check_overall_rms(cal, params.max_rms_px, "calibrator.charuco")
     cal["rejected_views"] = sorted(rejected)
     cal["rejected_reasons"] = rejected
     if rejected and ctx is not None:

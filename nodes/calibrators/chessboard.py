@@ -6,7 +6,13 @@ from typing import Literal
 
 import numpy as np
 
-from nodes.calibrators._board import board_points, detect_views, stereo_calibrate_points
+from nodes.calibrators._board import (
+    board_points,
+    check_overall_rms,
+    detect_views,
+    drop_outlier_views,
+    stereo_calibrate_points,
+)
 from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -61,7 +67,11 @@ class ChessboardParams(Params):
                                        "spacing).")
     min_views: int = Field(3, ge=2, description="Fewest usable views to calibrate from (count).")
     max_view_rms_px: float | None = Field(
-        None, gt=0, description="Drop views whose reprojection RMS exceeds this, pixels, and recalibrate once.")
+        None, gt=0, description="Drop the worst view while its reprojection RMS exceeds this (px), recalibrating "
+                                "after each; default: a view fitting 5x worse than the median view and over 0.5 px.")
+    max_rms_px: float = Field(
+        2.0, gt=0, description="Refuse a calibration whose overall reprojection RMS exceeds this (px): its views do "
+                               "not fit one pair of cameras (a mismatched pair, a camera moved); good is < 0.5.")
 
 
 @node(
@@ -104,15 +114,14 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
                    f"{params.min_views} are needed{named}.")
             hint = f"{board_hint}; or {add_hint}"
         raise NodeError(msg, hint=hint)
-    cal = calibrate_stereo(ids, left, right, views["image_size"], cols, rows, sq, params.refine, params.fix_k3)
-    if params.max_view_rms_px is not None:
-        bad = [i for i, e in cal["per_view_rms_px"].items() if e > params.max_view_rms_px]
-        keep = [k for k, i in enumerate(ids) if i not in bad]
-        if bad and len(keep) >= params.min_views:
-            for i in bad:
-                rejected[i] = f"reprojection RMS {cal['per_view_rms_px'][i]:.3f} px > {params.max_view_rms_px} px"
-            cal = calibrate_stereo([ids[k] for k in keep], [left[k] for k in keep], [right[k] for k in keep],
-                                   views["image_size"], cols, rows, sq, params.refine, params.fix_k3)
+    at = {i: k for k, i in enumerate(ids)}
+
+    def calibrate(keep: list[str]) -> dict:
+        return calibrate_stereo(keep, [left[at[i]] for i in keep], [right[at[i]] for i in keep], views["image_size"],
+                                cols, rows, sq, params.refine, params.fix_k3)
+
+    cal = drop_outlier_views(calibrate, ids, params.min_views, params.max_view_rms_px, rejected, ctx)
+    check_overall_rms(cal, params.max_rms_px, "calibrator.chessboard")
     cal["rejected_views"] = sorted(rejected)
     cal["rejected_reasons"] = rejected
     if rejected and ctx is not None:

@@ -416,6 +416,12 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
                             hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
                                  "right-handed")
     cal["target"] = cal["tsai_left"]["target"]
+    assumed = [s for s, pp in (("left", params.principal_point_left_px), ("right", params.principal_point_right_px))
+               if pp is None]
+    if assumed and ctx is not None:  # Tsai's method does not estimate it (docs/rig.md: 1-3 % on T when it is off)
+        ctx.warn(f"the {' and '.join(assumed)} principal point{'s are' if len(assumed) > 1 else ' is'} assumed at the "
+                 "image centre; give principal_point_*_px (from a chessboard calibration of the same camera, say) "
+                 "if it is known")
     thick = cal["tsai_left"]["thickness"]
     if cal["target"] == "non_coplanar" and thick < COPLANAR_THICKNESS and ctx is not None:
         ctx.warn(f"the target is nearly flat (out-of-plane spread {100 * thick:.1f} % of its size): the non-coplanar "
