@@ -258,3 +258,37 @@ def test_support_flags_a_correction_larger_than_any_in_training(biased):
     tight = dict(model, support=dict(model["support"], max_correction_cm=0.01, residual_rms_cm=0.001))
     got = apply_model(tight, loc)
     assert got["extrapolated"] is True and "larger than any in training" in got["compensation"]["outside_range"][0]
+
+
+def test_a_correction_that_cross_validates_worse_than_none_is_refused():
+    # (degree 8 on 13 placements: fitted residual 0.02 cm, held-out error 1.15 cm -- accepted silently)
+    few = make_locations(n=26, seed=5, noise_px=0.3, baseline_scale=1.0)
+    with pytest.raises(NodeError, match="makes the results worse than none"):
+        fit("polynomial", few, degree=8, outlier_mad=None)
+    ok = fit("polynomial", make_locations(n=160, seed=3, baseline_scale=1.02, disparity_offset_px=0.5), degree=2)
+    assert "skipped" not in ok["cv"]
+
+
+def test_a_skipped_cross_validation_is_said(tmp_path):
+    from stereograph.api import RunContext
+
+    ctx = RunContext("fit", None, tmp_path, tmp_path)
+    tiny = make_locations(n=8, seed=1, baseline_scale=1.02)
+    fn = FIT_NODES["polynomial"]
+    fn(fn.spec.params(figure=False, degree=1), train=tiny, ctx=ctx)
+    assert any("cross-validation skipped" in m for m in ctx.messages)
+
+
+def test_a_lookup_table_with_empty_bins_says_so_and_holds_only_where_its_bins_had_data(tmp_path):
+    # (2 of 12 bins used 6 of 18 placements, and valid_range still claimed the whole training range)
+    from stereograph.api import RunContext
+
+    ctx = RunContext("fit", None, tmp_path, tmp_path)
+    locs = make_locations(n=36, seed=2, baseline_scale=1.02)
+    fn = FIT_NODES["lookup"]
+    model = fn(fn.spec.params(figure=False, n_bins=12, outlier_mad=None), train=locs, ctx=ctx)["model"]
+    z_train = [v["z_cm"] for v in locs.values() if v["split"] == "train"]
+    kept = len(model["coefficients"]["knots_z_cm"])
+    assert kept < 12 and any(f"only {kept} of 12 distance bins" in m for m in ctx.messages)
+    rng = model["valid_range"]["z_cm"]
+    assert rng["max"] - rng["min"] < max(z_train) - min(z_train)

@@ -82,3 +82,25 @@ def test_hard_scenes_through_the_engine_never_crash(tmp_path):
     for r in locs.values():  # whatever is reported as found must be right
         if r["found"]:
             assert np.linalg.norm(np.subtract([r["x_cm"], r["y_cm"], r["z_cm"]], r["truth_cm"])) < 0.5
+
+
+def test_the_markdown_table_is_an_output_and_names_extrapolated_results():
+    # (accuracy.md was written beside the outputs only when the node computed: a cached report's run
+    # folder had none; extrapolated results were averaged into it without a word)
+    locs = {"a": _loc("a", "test", True, [1.0, 2.0, 40.5], [1.0, 2.0, 40.0]),
+            "b": {**_loc("b", "test", True, [0.0, 0.0, 70.3], [0.0, 0.0, 70.0]), "extrapolated": True}}
+    out = accuracy(AccuracyParams(), locations=locs)
+    md = out["accuracy"]["file_text"]
+    assert out["accuracy"]["file_suffix"] == ".md" and md.startswith("### ") and "| axis |" in md
+    assert "1 of the 2 evaluated results were corrected outside the range" in md
+    assert out["report"]["markdown"] == md
+
+
+def test_a_cached_report_still_writes_accuracy_md(tmp_path):
+    from stereograph.runner import run_pipeline
+
+    locate = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
+    for out in ("o1", "o2"):  # the second run: every node from the cache
+        r = run_pipeline(locate, ["rig.n_scenes=4"], cache_dir=tmp_path / "c", out_dir=tmp_path / out)
+        assert r.ok
+    assert r.status["report"] == "cached" and (tmp_path / "o2" / "report" / "accuracy.md").is_file()

@@ -462,6 +462,47 @@ def kfold_cv(
     return {"k": k, "n": n, "axes": axis_stats(errors), "fold_rms_z_cm": fold_rms}
 
 
+#: A correction whose held-out error is this many times the uncorrected error makes results worse: refused.
+WORSE_THAN_NONE = 2.0
+#: A held-out z error this many times the training residual: the model follows the placements' noise.
+OVERFIT_RATIO = 3.0
+
+
+def _total_rms(axes: Mapping[str, Any] | None) -> float | None:
+    if not axes:
+        return None
+    return float(np.sqrt(sum(float(axes[a]["rms_cm"]) ** 2 for a in AXES)))
+
+
+def judge_cross_validation(model: Mapping[str, Any], label: str, model_type: str, ctx: Any = None) -> None:
+    """Say what cross-validation says about a fitted model (the honest estimate of its error on new
+    placements): refuse one that makes results worse than no correction, warn of one that overfits or
+    could not be cross-validated."""
+    warn = ctx.warn if ctx is not None and hasattr(ctx, "warn") else (lambda _msg: None)
+    cv = model.get("cv") or {}
+    if cv.get("skipped"):
+        warn(f"cross-validation skipped ({cv['skipped']}): the correction's error on new placements is unknown")
+        return
+    held, before = _total_rms(cv.get("axes")), _total_rms(model.get("train_before_cm"))
+    if held is None or before is None:
+        return
+    n = model.get("n_train")
+    if held > WORSE_THAN_NONE * before:
+        raise NodeError(f"{label}: cross-validated on its {n} training placements, this {model_type} correction makes "
+                        f"the results worse than none (held-out RMS error {held:.3g} cm against {before:.3g} cm "
+                        "uncorrected): it follows the placements' noise, not the error.",
+                        hint="use fewer coefficients (a lower degree, fewer bins) or more training placements over "
+                             "the working range; compensator.none if the rig needs no correction")
+    cv_z = float(cv["axes"]["z"]["rms_cm"])
+    fit_z = float(((model.get("train_residual_cm") or {}).get("z") or {}).get("rms_cm", np.nan))
+    if held > before:
+        warn(f"in cross-validation this correction does not improve on none (held-out RMS {held:.3g} cm, "
+             f"uncorrected {before:.3g} cm)")
+    elif np.isfinite(fit_z) and cv_z > OVERFIT_RATIO * fit_z:
+        warn(f"the correction fits its training placements far better than held-out ones (z RMS {fit_z:.3g} cm "
+             f"fitted, {cv_z:.3g} cm cross-validated): it may follow their noise; fewer coefficients would be safer")
+
+
 def build_model(
     model_type: str,
     samples: Samples,
@@ -564,6 +605,7 @@ def build_model(
         # Where the training placements say the model holds (compensator.apply flags the rest).
         "support": describe_support(samples.xyz_cm, corrected, truth),
     }
+    judge_cross_validation(model, label, model_type, ctx)
     if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
         listed = ", ".join(
             f"{o['item']} ({o['residual_cm']:.3g} cm)" if o["residual_cm"] is not None else f"{o['item']} (undefined)"

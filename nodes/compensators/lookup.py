@@ -105,6 +105,26 @@ def predict_lookup(coefficients: Mapping[str, Any], samples: Samples) -> np.ndar
     return along_ray(samples.xyz_cm, z_new, samples.frame, coefficients.get("along_ray", True))
 
 
+def _only_where_bins_hold_data(model: dict[str, Any], samples: Samples, min_per_bin: int, ctx=None) -> None:
+    """The table holds only where its bins had ``min_per_bin`` placements: narrow ``valid_range`` to the
+    placements of those bins (outside, ``compensator.apply`` flags the result as extrapolated), and say how
+    many placements and bins the table could not use."""
+    c = model["coefficients"]
+    edges = np.asarray(c["edges_cm"], float)
+    z = samples.xyz_cm[:, 2]
+    which = np.clip(np.searchsorted(edges, z, side="right") - 1, 0, len(edges) - 2)
+    counts = np.bincount(which[(z >= edges[0]) & (z <= edges[-1])], minlength=len(edges) - 1)
+    used = np.isin(which, np.flatnonzero(counts >= min_per_bin)) & (z >= edges[0]) & (z <= edges[-1])
+    if np.any(used):
+        model["valid_range"]["z_cm"] = {"min": float(np.min(z[used])), "max": float(np.max(z[used]))}
+    n_bins, n_kept = len(edges) - 1, len(c["knots_z_cm"])
+    if n_kept < n_bins and ctx is not None:
+        ctx.warn(f"only {n_kept} of {n_bins} distance bins hold at least {min_per_bin} training placements: the table "
+                 f"uses {int(np.count_nonzero(used))} of {len(z)} placements, and holds over measured z "
+                 f"{model['valid_range']['z_cm']['min']:.3g}-{model['valid_range']['z_cm']['max']:.3g} cm only; "
+                 "fewer bins (n_bins) or more placements would use them all")
+
+
 class LookupParams(RayFitParams):
     """Options of ``compensator.lookup``."""
 
@@ -141,6 +161,7 @@ def lookup(params: LookupParams, train, ctx=None):
         robust=params, min_points=2 * params.min_per_bin, ctx=ctx,
     )
     c = model["coefficients"]
+    _only_where_bins_hold_data(model, samples, params.min_per_bin, ctx)
     width = np.diff(c["edges_cm"])
     widths = f"{np.min(width):.3g}" if np.ptp(width) < 1e-3 * np.max(width) else \
         f"{np.min(width):.3g}-{np.max(width):.3g}"

@@ -151,9 +151,11 @@ def raw_location_fields(loc: dict) -> dict:
         "figure": Out("Image", save=True, description="Error histograms and error vs distance (cm)."),
         "metrics": Out("Metrics", save=True, optional=True,
                        description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat."),
+        "accuracy": Out("TextFile", save=True, optional=True,
+                        description="The table as Markdown (accuracy.md), thesis-style."),
     },
     params=AccuracyParams,
-    version="2",
+    version="3",
     prepare=load_figures,
 )
 def accuracy(params: AccuracyParams, locations, ctx=None):
@@ -185,13 +187,19 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         "frame": frames[0] if len(frames) == 1 else frames, "axes": axes, "markdown": md,
         "not_found_reasons": reasons,
     }
-    if ctx is not None:
-        ctx.out_dir.mkdir(parents=True, exist_ok=True)
-        (ctx.out_dir / "accuracy.md").write_text(md)
     fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
     n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)
+    if n_extrapolated:  # corrected outside the range the compensation was fitted on: said where people read
+        note = (f"{n_extrapolated} of the {len(with_truth)} evaluated results were corrected outside the range the "
+                "compensation was fitted on (`extrapolated` in locations.json).")
+        md = f"{md.rstrip()}\n\n{note}\n"
+        report["markdown"] = md
+        if ctx is not None:
+            ctx.warn(note)
+    # (an output, so that a cached report's run folder gets it too, and a later run clears it)
     return {"report": report, "locations": location_records(locations), "figure": fig,
-            "metrics": accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated)}
+            "metrics": accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
+            "accuracy": {"file_text": md, "file_suffix": ".md"}}
 
 
 def accuracy_metrics(axes: dict, n: int, n_found: int, n_truth: int, n_extrapolated: int) -> dict:
