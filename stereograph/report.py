@@ -113,7 +113,7 @@ class _Page:
         if is_table(value):
             return table_html(value)
         if isinstance(value, dict) and isinstance(value.get("markdown"), str):
-            return f"<pre>{_e(value['markdown'])}</pre>{_link(rel)}"
+            return markdown_html(value["markdown"]) + _link(rel)
         return _link(rel)
 
 
@@ -137,6 +137,33 @@ def table_html(t: dict[str, Any], css_class: str = "sg-table") -> str:
     head = "".join(f"<th>{_e(c)}</th>" for c in t["columns"])
     body = "".join("<tr>" + "".join(f"<td>{_e(cell(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
     return f'<table class="{css_class}">{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+
+
+def markdown_html(md: str) -> str:
+    """The little Markdown a node writes -- ``#`` headings, pipe tables, paragraphs -- as HTML (escaped);
+    anything else in it stays text. A table read as monospace text is hard to scan."""
+    out: list[str] = []
+    lines = md.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i].strip()
+        if line.startswith("|"):
+            block = []
+            while i < len(lines) and lines[i].strip().startswith("|"):
+                block.append([c.strip() for c in lines[i].strip().strip("|").split("|")])
+                i += 1
+            rows = [r for r in block if not all(re.fullmatch(r":?-{3,}:?", c) for c in r if c)]
+            if rows:
+                out.append(table_html({"columns": rows[0], "rows": rows[1:]}))
+            continue
+        heading = re.match(r"(#{1,6})\s+(.*)", line)
+        if heading:
+            level = min(6, len(heading.group(1)) + 2)  # under the page's own h1 / h2
+            out.append(f"<h{level}>{_e(heading.group(2))}</h{level}>")
+        elif line:
+            out.append(f"<p>{_e(line)}</p>")
+        i += 1
+    return "".join(out)
 
 
 def _parts(rel: str) -> list[str]:

@@ -76,3 +76,13 @@ def test_report_sections_follow_the_data_flow(tmp_path):
     at = [html.index(f'<section class="sg-node-section" data-node="{n}"') for n in
           ("locate", "fit", "compensate", "report")]
     assert at == sorted(at)
+
+
+def test_a_markdown_value_is_shown_as_html_with_its_table():
+    # (it was shown as monospace text: `| axis | mean error (cm) | ...` to read by eye)
+    from stereograph.report import markdown_html
+
+    md = "### Error <b>\n\nsplit: test\n\n| axis | mean (cm) |\n|---|---:|\n| z | -0.059 |\n"
+    page = markdown_html(md)
+    assert page.startswith("<h5>Error &lt;b&gt;</h5><p>split: test</p><table")
+    assert "<th>axis</th><th>mean (cm)</th>" in page and "<td>z</td><td>-0.059</td>" in page and "---" not in page

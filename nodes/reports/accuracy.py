@@ -99,6 +99,7 @@ def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np
             ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=colours[i], histtype="stepfilled")
         ax.set_xlabel(f"{ax_name} error, measured − truth (cm)")
         ax.set_ylabel("pairs")
+        ax.locator_params(axis="x", nbins=5)  # (matplotlib's default crowded '−0.075−0.050' into each other)
     ax = fig.add_subplot(2, 2, 4)
     for i, ax_name in enumerate(AXES):
         if len(err):
