@@ -191,11 +191,28 @@ def _summary_rows(result) -> list[list[str]]:
             note = r.error
         elif r.messages:
             more = len(r.messages) - 1
-            note = r.messages[0][:90] + (f" (+{more} more in run.json)" if more else "")
+            note = r.messages[0][:90] + (f" (+{more} more below)" if more else "")
         else:
             note = ""
         rows.append([r.name, r.type, r.status, items, f"{r.seconds:.2f}", note[:160]])
+
     return rows
+
+
+NOTES_PER_NODE = 3  # a node's further messages printed under the table (a per-item node may have dozens)
+
+
+def _more_notes(result) -> list[str]:
+    """A node's messages after the first (the table's note column shows the first): a warning such as
+    'rejected 1 view(s): 03' must not be only in run.json."""
+    lines = []
+    for r in result.reports.values():
+        rest = [] if r.error else r.messages[1:]
+        for m in rest[:NOTES_PER_NODE]:
+            lines.append(f"note: {r.name}: {m}")
+        if len(rest) > NOTES_PER_NODE:
+            lines.append(f"note: {r.name}: +{len(rest) - NOTES_PER_NODE} more in run.json")
+    return lines
 
 
 def _summary_table(result, con) -> None:
@@ -226,6 +243,7 @@ def _plain_closing(echo: list, result, loop, width: int) -> str | None:
         else:
             return None
     parts.append(plaintext.table(f"run {result.run_id}", list(SUMMARY_COLUMNS), _summary_rows(result), width))
+    parts += [plaintext.line(n) for n in _more_notes(result)]
     if loop is not None:
         parts.append(plaintext.line(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
     parts.append(plaintext.line(f"outputs: {result.out_dir}"))
@@ -394,6 +412,8 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
             con = _console()
             _print_echo(echo, con)
             _summary_table(result, con)
+            for n in _more_notes(result):
+                con.print(n, markup=False, highlight=False)
             if loop is not None:
                 con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
             con.print(f"outputs: {result.out_dir}", markup=False)

@@ -343,3 +343,15 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
             break
         time.sleep(0.05)
     assert r.ok and prepared == ["stereograph-prepare"] and callers == ["stereograph-prepare"]
+
+
+def test_a_nodes_further_messages_are_printed_under_the_summary(tmp_path, capsys):
+    # (only the first was shown, then '(+N more in run.json)': a warning such as 'rejected 1 view(s): 03'
+    # never reached the console)
+    from stereograph.cli import main
+
+    p = write_pipeline(tmp_path, "{n: 8, drop: [m001, m002, m003, m004, m005]}")
+    assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 0
+    out = capsys.readouterr().out
+    assert "(+4 more below)" in out and "note: src: item m002 dropped (on purpose)" in out
+    assert "note: src: item m004 dropped (on purpose)" in out and "note: src: +1 more in run.json" in out
