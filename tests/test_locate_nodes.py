@@ -110,12 +110,19 @@ def test_no_object_is_not_found_with_reason():
         assert loc["found"] is False and loc["x_cm"] is None and loc["reason"]
 
 
-def test_mismatched_pair_sizes_give_a_reason_not_a_crash():
+def test_image_sizes_that_do_not_fit_the_setup_fail_the_node_for_good():
+    # (it was "not found" pair after pair: a live loop refused every cycle, 368 in 25 s, and exited 0)
     pair = make_pair(CAL, (0.0, 0.0, 40.0), bgr=RED)
     pair["right"] = pair["right"][:400]
-    seg = _seg("edge_morph", pair)["segmentation"]
-    assert not seg["found"] and "mismatched image sizes" in seg["reason"]
-    assert _locate(seg, pair)["found"] is False
+    with pytest.raises(NodeError, match="the two cameras must give images of one size") as e:
+        _seg("edge_morph", pair)
+    assert e.value.lasting
+    big = {**make_pair(CAL, (0.0, 0.0, 40.0), bgr=RED)}
+    big["left"] = np.concatenate([big["left"], big["left"]], axis=0)
+    big["right"] = np.concatenate([big["right"], big["right"]], axis=0)
+    with pytest.raises(NodeError, match="but the calibration is for") as e:
+        _seg("edge_morph", big)
+    assert e.value.lasting
 
 
 def test_two_equal_balls_are_ambiguous_without_colour_and_resolved_with_it():

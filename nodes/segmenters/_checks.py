@@ -118,15 +118,24 @@ def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> 
     for side, im in (("left", L), ("right", R)):
         if im.dtype != np.uint8 or im.ndim not in (2, 3) or im.size == 0:
             return f"{side} image is not a uint8 image (dtype {im.dtype}, shape {im.shape})"
-    if L.shape != R.shape:
-        return f"mismatched image sizes: left {L.shape[1]}x{L.shape[0]} vs right {R.shape[1]}x{R.shape[0]}"
+    # Sizes are the setup's, not one pair's: every later pair would be refused the same way (a live
+    # loop would refuse every cycle), so they fail the node with the fix instead of giving "not found".
+    if L.shape[:2] != R.shape[:2]:
+        raise NodeError(f"the left image is {L.shape[1]}x{L.shape[0]} px and the right one {R.shape[1]}x{R.shape[0]}: "
+                        "the two cameras must give images of one size.",
+                        hint="set both cameras to the resolution they were calibrated at (source.camera: width_px / "
+                             "height_px), or give image pairs of one size", lasting=True)
     if rectification is not None:
         size = rectification.get("source_size", rectification.get("image_size")) if raw \
             else rectification.get("image_size")
         if size is not None:
             w, h = (int(x) for x in size)
             if (L.shape[1], L.shape[0]) != (w, h):
-                return f"image size {L.shape[1]}x{L.shape[0]} differs from the calibration's {w}x{h}"
+                raise NodeError(f"the images are {L.shape[1]}x{L.shape[0]} px but the calibration is for {w}x{h}.",
+                                hint="use the cameras at the resolution they were calibrated at (source.camera: "
+                                     "width_px / height_px), or calibrate at this one", lasting=True)
+    if L.shape != R.shape:
+        return f"mismatched images: left {L.shape} vs right {R.shape} (one colour, one grey?)"
     return None
 
 
