@@ -33,6 +33,13 @@ def test_listed_pairs_train_others_are_targets_with_warnings(tmp_path):
     assert any("03" in m and "no row" in m for m in msgs)
 
 
+def test_a_truth_file_that_matches_no_pair_is_refused(tmp_path):
+    # (accepted: an accuracy report with every figure blank, the mismatch only in run.json)
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"none of the 3 pairs has a row in truth.csv: its ids \(s01, s02\)"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm\ns01,1,2,40\ns02,0,0,45\n", train_fraction=0.0)
+
+
 def test_split_column_rules(tmp_path):
     _folder(tmp_path)
     csv = "id,table_x_cm,table_y_cm,table_z_cm,split\n01,1,2,2,test\n02,0,5,2,train\n03,3,3,2,\n"

@@ -145,6 +145,14 @@ def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | 
     warnings : list of str
         Truth ids without images; images without truth.
     """
+    if truth and ids and not set(truth) & set(ids):
+        # (every figure of the accuracy report would be blank, and the compensation would have nothing to fit)
+        theirs = ", ".join(sorted(truth)[:5]) + (" ..." if len(truth) > 5 else "")
+        ours = ", ".join(sorted(ids)[:5]) + (" ..." if len(ids) > 5 else "")
+        raise NodeError(f"none of the {len(ids)} pairs has a row in {path.name}: its ids ({theirs}) are not the "
+                        f"pairs' ({ours}).",
+                        hint="the truth file's id column must hold the pair names the image files give (left_s000.png "
+                             "-> s000)")
     if split is None:
         splits = {pid: "train" if pid in truth else "test" for pid in ids}
     else:
