@@ -61,3 +61,15 @@ def test_bad_truth_rows_name_file_and_line(tmp_path):
 
 def test_pair_id_rule():
     assert pair_key("left01") == "01" and pair_key("007_left") == "007" and pair_key("scene3-R") == "scene3"
+
+
+def test_no_match_for_the_globs_suggests_the_globs_the_names_need(tmp_path):
+    # (s000_left.png, a naming docs/bench.md gives, met "no images match 'left*'" and no more)
+    from nodes.sources._files import list_pairs
+
+    img = np.full((24, 32, 3), 90, np.uint8)
+    for side in ("left", "right"):
+        cv2.imwrite(str(tmp_path / f"s000_{side}.png"), img)
+    with pytest.raises(NodeError) as e:
+        list_pairs(tmp_path, "left*", "right*")
+    assert "left_glob: '*left*'" in e.value.hint and "s000_left.png" in e.value.hint

@@ -62,8 +62,15 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
                                                                        "start at the pipeline file's folder)")
     lefts, rights = _glob(folder, left_glob), _glob(folder, right_glob)
     if not lefts and not rights:
-        raise NodeError(f"no images match {left_glob!r} / {right_glob!r} in {folder}.",
-                        hint=f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs")
+        images = [p.name for p in sorted(folder.iterdir())[:2000] if p.suffix.lower() in IMAGE_SUFFIXES] \
+            if folder.is_dir() else []
+        sided = [n for n in images if "left" in n.lower()]
+        hint = (f"the folder holds {len(images)} images named like {sided[0]!r}: set left_glob: '*left*' and "
+                "right_glob: '*right*' (or globs of your own)" if sided else
+                f"the folder holds {len(images)} images ({', '.join(images[:3])}{' ...' if len(images) > 3 else ''}): "
+                "fix the globs" if images else
+                f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs")
+        raise NodeError(f"no images match {left_glob!r} / {right_glob!r} in {folder}.", hint=hint)
     if len(lefts) != len(rights):
         lk = {pair_key(p.stem) for p in lefts}
         rk = {pair_key(p.stem) for p in rights}
