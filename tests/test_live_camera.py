@@ -126,3 +126,15 @@ def test_what_counts_as_a_recording():
 
     assert _is_file("left.avi") and _is_file("rec/left_%03d.png")
     assert not any(_is_file(s) for s in (0, "/dev/video2", "rtsp://cam/1", "v4l2src ! videoconvert ! appsink"))
+
+
+def test_recordings_of_different_lengths_are_said_when_they_rewind(tmp_path, scenes):
+    # (a 4-frame left and a 2-frame right both rewound after 2 frames: the left's last two, silently unused)
+    left, right = tmp_path / "left.avi", tmp_path / "right.avi"
+    write_video((s["left"] for s in scenes), left, 30.0, "FFV1")
+    write_video((s["right"] for s in scenes[:2]), right, 30.0, "FFV1")
+    ctx = RunContext("cam", None, tmp_path / "out", tmp_path, resources={})
+    p = CameraParams(left=str(left), right=str(right), at_end="rewind", n_frames=3)
+    assert list(camera(p, ctx=ctx)["pairs"]) == ["cam00000", "cam00001", "cam00000@1"]
+    assert any("the right recording ended after 2 frames while the other goes on" in m for m in ctx.messages)
+    close_resources(ctx.resources)

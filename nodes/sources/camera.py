@@ -115,6 +115,7 @@ class StereoCapture:
         self.caps: list[cv2.VideoCapture] = []
         self.frame = -1  # index of the last frame grabbed from each side
         self.lap = 0  # times a recording was rewound (keeps pair ids unique)
+        self.notes: list[str] = []  # said once, then taken by the node (ctx.warn)
         self.tmp: tempfile.TemporaryDirectory | None = None  # a recording's folder outside a run
         try:
             for which, src in zip(("left", "right"), self.sources):
@@ -154,6 +155,11 @@ class StereoCapture:
             ok.append(c.grab())
             times.append(time.monotonic())
         if not all(ok) and self.files and self.p.at_end == "rewind" and self.frame >= 0:
+            if any(ok) and self.lap == 0:  # one side went on: its later frames are never played
+                ended = [w for w, g in zip(("left", "right"), ok) if not g]
+                self.notes.append(f"the {ended[0]} recording ended after {self.frame + 1} frames while the other goes "
+                                  "on: both rewind there, so the longer one's later frames are never used (record "
+                                  "both sides together, or trim them to one length)")
             for c in self.caps:
                 c.set(cv2.CAP_PROP_POS_FRAMES, 0)
             self.frame = -1
@@ -257,7 +263,10 @@ def camera(params: CameraParams, recording=None, ctx=None) -> dict:
 
     cap = ctx.resource("capture", open_capture) if ctx is not None else None
     if cap is not None:
-        return {"pairs": grab_pairs(params, cap)}
+        pairs = grab_pairs(params, cap)
+        while cap.notes:
+            ctx.warn(cap.notes.pop(0))
+        return {"pairs": pairs}
     cap = open_capture()
     try:
         return {"pairs": grab_pairs(params, cap)}
