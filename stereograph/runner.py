@@ -738,7 +738,7 @@ class _Run:
         else:
             rep.status = "cached"
         if inst.mapped and not entries:
-            rep.messages.append("no items to process (upstream produced none)")
+            rep.messages.append(streaming.NO_ITEMS)
         self.release(inst.name)
 
     def record(self, inst: NodeInstance, base: dict[str, Any] | None) -> None:

@@ -30,6 +30,8 @@ from typing import Any
 
 from stereograph import registry
 
+NO_ITEMS = "no items to process (upstream produced none)"
+
 Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"
 
@@ -448,7 +450,7 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
         else:
             rep.status = "ran" if rep.items_ran else "cached"
         if not rep.items:
-            rep.messages.append("no items to process (upstream produced none)")
+            rep.messages.append(NO_ITEMS)
         if store_on and n not in run.memory_only:
             run.record(inst, bases[n])
     for n in ([reg.source] if reg.source else []) + members:
@@ -475,7 +477,8 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
         if n != reg.source:
             rep.items += r.items
         rep.items_ran += r.items_ran
-        rep.messages += [m for m in r.messages if m not in rep.messages]
+        # (a chunk whose items were all dropped upstream says NO_ITEMS; the region's end says it if true)
+        rep.messages += [m for m in r.messages if m not in rep.messages and m != NO_ITEMS]
         if r.status == "skipped":
             skipped.setdefault(n, r.error or "upstream did not finish")
         elif rep.error is None and r.error:

@@ -355,3 +355,11 @@ def test_a_nodes_further_messages_are_printed_under_the_summary(tmp_path, capsys
     out = capsys.readouterr().out
     assert "(+4 more below)" in out and "note: src: item m002 dropped (on purpose)" in out
     assert "note: src: item m004 dropped (on purpose)" in out and "note: src: +1 more in run.json" in out
+
+
+def test_a_chunk_whose_items_were_all_dropped_does_not_say_the_node_had_none(tmp_path):
+    # ("2 ran / 2" beside "no items to process (upstream produced none)": a chunk's own note)
+    drop = ", ".join(f"m{i:03d}" for i in range(12))
+    r = run(write_pipeline(tmp_path, f"{{n: 16, drop: [{drop}]}}"), tmp_path)
+    assert r.reports["power"].items == 4
+    assert not any("no items to process" in m for m in r.reports["power"].messages)
