@@ -73,3 +73,10 @@ def test_no_match_for_the_globs_suggests_the_globs_the_names_need(tmp_path):
     with pytest.raises(NodeError) as e:
         list_pairs(tmp_path, "left*", "right*")
     assert "left_glob: '*left*'" in e.value.hint and "s000_left.png" in e.value.hint
+
+
+def test_a_truth_header_without_centre_columns_is_said_as_a_header_problem(tmp_path):
+    # (`id,x_mm,y_mm,z_mm` was "line 2: pair 01 has no centre")
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"has no centre columns \(header: id, x_mm, y_mm, z_mm\)"):
+        _run(tmp_path, "id,x_mm,y_mm,z_mm\n01,10,20,400\n")

@@ -102,6 +102,13 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
                                 hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,"
                                      "table_z_cm][,split]")
             has_split = "split" in fields
+            centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or \
+                {"table_x_cm", "table_y_cm", "table_z_cm"} <= set(fields)
+            if not centre_cols:  # a header problem, said as one (it was blamed on line 2)
+                raise NodeError(f"truth file {path} has no centre columns (header: {', '.join(fields)}): the centre "
+                                "is x_cm,y_cm,z_cm (left-camera frame) or table_x_cm,table_y_cm,table_z_cm (cm).",
+                                hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
+                                     "[,split]; convert millimetres to cm")
             for row in reader:
                 row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
                 where = f"truth file {path}, line {reader.line_num}"
