@@ -138,3 +138,13 @@ def test_recordings_of_different_lengths_are_said_when_they_rewind(tmp_path, sce
     assert list(camera(p, ctx=ctx)["pairs"]) == ["cam00000", "cam00001", "cam00000@1"]
     assert any("the right recording ended after 2 frames while the other goes on" in m for m in ctx.messages)
     close_resources(ctx.resources)
+
+
+def test_an_empty_or_corrupt_video_file_is_named_as_such(tmp_path):
+    # (both said "could not open ... with backend any")
+    (tmp_path / "empty.avi").write_bytes(b"")
+    (tmp_path / "junk.avi").write_text("not a video")
+    with pytest.raises(NodeError, match=r"the file is empty: 0 bytes"):
+        camera(CameraParams(left=str(tmp_path / "empty.avi"), right=None))
+    with pytest.raises(NodeError, match=r"not a video it can read"):
+        camera(CameraParams(left=str(tmp_path / "junk.avi"), right=None))

@@ -136,10 +136,14 @@ class StereoCapture:
                 raise NodeError(f"source.camera: no {which} camera at device index {src} (cv2.VideoCapture could not "
                                 "open it).", hint=f"plug the camera in or set {field} to an existing device "
                                                   "(ls /dev/video*), a video file or an image-sequence pattern")
-            missing = _is_file(src) and "%" not in src and not Path(src).exists()
-            raise NodeError(f"source.camera: cv2.VideoCapture could not open the {which} source {src!r}"
-                            + (" (no such file)." if missing else f" with backend {self.p.backend}."),
-                            hint=f"set {field} to an existing video file, an image pattern such as left_%03d.png, "
+            plain = _is_file(src) and "%" not in src
+            missing = plain and not Path(src).exists()
+            empty = plain and not missing and Path(src).is_file() and Path(src).stat().st_size == 0
+            why = (" (no such file)." if missing else " (the file is empty: 0 bytes)." if empty else
+                   f" with backend {self.p.backend}" + (": the file is not a video it can read (corrupt, or a "
+                                                        "codec this OpenCV build lacks)." if plain else "."))
+            raise NodeError(f"source.camera: cv2.VideoCapture could not open the {which} source {src!r}{why}",
+                            hint=f"set {field} to an existing video file, an image pattern such as {field}_%03d.png, "
                                  "a stream URL or a GStreamer pipeline ending in appsink; check the codec is one "
                                  "OpenCV's build reads (cv2.getBuildInformation())")
         if self.p.width_px:
