@@ -138,6 +138,10 @@ def test_recordings_of_different_lengths_are_said_when_they_rewind(tmp_path, sce
     assert list(camera(p, ctx=ctx)["pairs"]) == ["cam00000", "cam00001", "cam00000@1"]
     assert any("the right recording ended after 2 frames while the other goes on" in m for m in ctx.messages)
     close_resources(ctx.resources)
+    ctx = RunContext("cam", None, tmp_path / "out", tmp_path, resources={})
+    camera(p.model_copy(update={"width_px": 1280, "height_px": 960}), ctx=ctx)  # (silently ignored on files)
+    assert any("a video file or image sequence keeps its own size" in m for m in ctx.messages)
+    close_resources(ctx.resources)
 
 
 def test_an_empty_or_corrupt_video_file_is_named_as_such(tmp_path):

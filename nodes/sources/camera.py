@@ -146,6 +146,9 @@ class StereoCapture:
                             hint=f"set {field} to an existing video file, an image pattern such as {field}_%03d.png, "
                                  "a stream URL or a GStreamer pipeline ending in appsink; check the codec is one "
                                  "OpenCV's build reads (cv2.getBuildInformation())")
+        if (self.p.width_px or self.p.height_px) and _is_file(src) and which != "right":
+            self.notes.append("width_px / height_px set the resolution of a camera; a video file or image sequence "
+                              "keeps its own size")
         if self.p.width_px:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.p.width_px)
         if self.p.height_px:
