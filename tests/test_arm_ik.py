@@ -256,3 +256,39 @@ def test_hand_eye_rig_and_located_modes():
     assert out["n_pairs"] == 8 and out["residual_cm"]["rms"] < 0.15
     assert np.linalg.norm(out["T_base_from_left"][:3, 3] - T_truth[:3, 3]) < 0.5
     assert np.allclose(out["T_base_from_left_truth"], T_truth)
+
+
+@pytest.mark.parametrize("solver", ["analytic_3dof", "numeric"])
+def test_a_pick_is_planned_in_one_arm_configuration(solver):
+    # (shoulder.min_deg 35: descend_2 reached in front, the grasp 2 cm lower backwards over the base --
+    # yaw 53 -> -127 deg, a 180 deg swing next to the ball, in 21 of 117 plans)
+    from nodes.ik._solvers import configuration
+    from nodes.ik._target import solve
+    from nodes.ik.pick_sequence import PickParams, plan_pick
+
+    base = ArmParams()
+    model = build_arm_model(base.model_copy(update={"shoulder": base.shoulder.model_copy(update={"min_deg": 35.0})}))
+    rng = np.random.default_rng(3)
+    planned = refused = 0
+    for _ in range(150):
+        r, a = rng.uniform(8.0, 22.0), rng.uniform(-np.pi / 2, np.pi / 2)
+        p = np.array([r * np.cos(a), r * np.sin(a), 2.0])
+        kind = {"type": solver, "params": {}}
+        try:
+            q = solve(model, p, kind)
+        except Exception:  # noqa: BLE001 - out of reach for this arm: no plan to check
+            continue
+        target = {"pair": "t", "found": True, "target_base_cm": list(p), "solver": kind,
+                  "joints_deg": dict(zip(JOINTS, np.degrees(q)))}
+        try:
+            plan = plan_pick(PickParams(), model, target)
+        except NodeError as e:
+            assert "no single arm configuration" in e.message or "unreachable" in e.message or "outside" in e.message
+            refused += 1
+            continue
+        planned += 1
+        pts = [w for w in plan["waypoints"] if w["tool_cm"] is not None and w["name"] in
+               ("above", "grasp", "close", "lift") or w["name"].startswith("descend")]
+        confs = {configuration(model, w["tool_cm"], np.radians([w["joints_deg"][n] for n in JOINTS])) for w in pts}
+        assert len({c[0] for c in confs}) == 1 and len({c[1] for c in confs if c[1]}) <= 1, (p, confs)
+    assert planned > 50

@@ -57,7 +57,18 @@ def _candidates(elbow: str, allow_back: bool) -> list[tuple[int, int]]:
     return out
 
 
-def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool = True) -> np.ndarray:
+def configuration(model: dict[str, Any], p, q) -> tuple[int, int]:
+    """The arm configuration of joint angles ``q`` (rad) reaching tool point ``p``: (branch, elbow) with
+    branch +1 reaching forwards, -1 backwards over the base, elbow -1 up, +1 down (as :func:`_candidates`)."""
+    x, y, _ = (float(v) for v in p)
+    _, _, _, a, b, _ = geometry(model)
+    branch = 1 if math.cos(float(q[0]) - math.atan2(y, x)) >= 0 or math.hypot(x, y) < 1e-9 else -1
+    psi = _wrap(float(q[2]) + math.atan2(b, a))
+    return branch, (0 if abs(psi) < 1e-6 else -1 if psi * branch < 0 else 1)  # (0: stretched, either)
+
+
+def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool = True,
+                config: tuple[int, int] | None = None) -> np.ndarray:
     """Closed-form IK for one target.
 
     yaw = atan2(y, x) (or that + 180 deg when reaching backwards over the base), then the planar
@@ -76,6 +87,9 @@ def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool 
     allow_back : bool
         Also try reaching backwards over the base (yaw + 180 deg) when the front pose is not within
         the joint limits.
+    config : (branch, elbow), optional
+        Only this configuration (see :func:`configuration`): the points of one straight move must
+        share one, or the arm swings between them.
 
     Returns
     -------
@@ -96,7 +110,7 @@ def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool 
     rho = math.hypot(x, y)
     yaw_front = math.atan2(y, x)
     violations = []
-    for branch, esign in _candidates(elbow, allow_back):
+    for branch, esign in ([config] if config is not None else _candidates(elbow, allow_back)):
         r = rho * branch
         q0 = yaw_front if branch > 0 else _wrap(yaw_front + math.pi)
         dx, dz = r - r0, z - h0
@@ -122,7 +136,8 @@ def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool 
             f"elbow {'up' if esign < 0 else 'down'})")
     p_txt = ", ".join(f"{v:.2f}" for v in (x, y, z))
     raise Unreachable(
-        f"unreachable within joint limits: target [{p_txt}] cm needs " + "; or ".join(violations),
+        f"unreachable within joint limits: target [{p_txt}] cm needs "
+        + ("; or ".join(violations) or "a pose out of reach in this configuration"),
         hint="widen the joint limits in the arm model if the hardware allows it, set elbow: auto, or move "
              "the object.")
 

@@ -39,7 +39,7 @@ from nodes.contracts.arm import (
 )
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-from ._solvers import Unreachable
+from ._solvers import Unreachable, _candidates, analytic_ik, configuration
 from ._target import ARM_HINT, solve, unreachable_hint, unreachable_reason
 
 
@@ -69,6 +69,62 @@ class PickParams(Params):
 
 def _refuse(target, why: str, hint: str) -> NodeError:
     return NodeError(f"refusing to move the arm for {target.get('pair')}: {why.rstrip('.')}.", hint=hint)
+
+
+_PICK = ("above", "descend", "grasp", "close", "lift")  # one straight vertical move: one arm configuration
+_PLACE = ("place_above", "place", "release", "retreat")
+
+
+def _segment(name: str) -> str:
+    return "pick" if name.split("_")[0] in _PICK else "place"
+
+
+def _solve_in_one_configuration(model: dict, points: list, target: dict) -> dict[str, np.ndarray]:
+    """Joint angles of every point, the points of each straight move (the pick's descent and lift, the
+    place) in one arm configuration: solved one by one, two of them may fall on different branches (the
+    preferred pose leaves a joint limit near the table), and the arm would swing -- 180 deg over the
+    base -- between two points 2 cm apart. Such a move is re-solved in one configuration, else refused."""
+    solver = target["solver"]
+    out: dict[str, np.ndarray] = {}
+    q_prev = np.radians([joint(model, n)["home_deg"] for n in JOINTS])
+    for name, pt in points:
+        try:
+            out[name] = q_prev = solve(model, pt, solver, q_init=q_prev)
+        except Unreachable as e:
+            raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e)) from e
+    for seg in ("pick", "place"):
+        names = [n for n, _ in points if _segment(n) == seg]
+        confs = {n: configuration(model, dict(points)[n], out[n]) for n in names}
+        if _compatible(list(confs.values())):
+            continue
+        fixed = None
+        if solver["type"] == "analytic_3dof":
+            kw = dict(solver.get("params") or {})
+            for cand in _candidates(kw.get("elbow", "auto"), kw.get("allow_back", True)):
+                try:
+                    fixed = {n: analytic_ik(model, dict(points)[n], config=cand) for n in names}
+                    break
+                except Unreachable:
+                    continue
+        if fixed is None:
+            a, b = next(((m, n) for i, m in enumerate(names) for n in names[i + 1:]
+                         if not _compatible([confs[m], confs[n]])), (names[0], names[-1]))
+            raise _refuse(target, f"no single arm configuration reaches every point of the {seg} within the joint "
+                                  f"limits: {a} is reached {_words(confs[a])}, {b} {_words(confs[b])}, and the arm "
+                                  "would swing between them", "widen the joint limits in the arm model if the "
+                                  "hardware allows it, or move the object")
+        out.update(fixed)
+    return out
+
+
+def _compatible(confs: list[tuple[int, int]]) -> bool:
+    """One configuration: one branch, and one elbow side where the arm is not stretched (elbow 0)."""
+    return len({c[0] for c in confs}) <= 1 and len({c[1] for c in confs if c[1] != 0}) <= 1
+
+
+def _words(conf: tuple[int, int]) -> str:
+    return (("in front" if conf[0] > 0 else "backwards over the base")
+            + ("" if conf[1] == 0 else f", elbow {'up' if conf[1] < 0 else 'down'}"))
 
 
 def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
@@ -112,13 +168,9 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     home = {n: joint(model, n)["home_deg"] for n in JOINTS}
     waypoints = [{"name": "open", "gripper": "open", "tool_cm": None,
                   "joints_deg": {**home, "gripper": grip["open"]}}]
-    q_prev = np.radians([home[n] for n in JOINTS])
+    solved = _solve_in_one_configuration(model, points, target)
     for name, pt in points:
-        try:
-            q = solve(model, pt, target["solver"], q_init=q_prev)
-        except Unreachable as e:
-            raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e)) from e
-        q_prev = q
+        q = solved[name]
         st = state.get(name, "open")
         waypoints.append({"name": name, "gripper": st, "tool_cm": [float(v) for v in pt],
                           "joints_deg": {**{n: float(math.degrees(v)) for n, v in zip(JOINTS, q)},
