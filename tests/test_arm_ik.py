@@ -292,3 +292,20 @@ def test_a_pick_is_planned_in_one_arm_configuration(solver):
         confs = {configuration(model, w["tool_cm"], np.radians([w["joints_deg"][n] for n in JOINTS])) for w in pts}
         assert len({c[0] for c in confs}) == 1 and len({c[1] for c in confs if c[1]}) <= 1, (p, confs)
     assert planned > 50
+
+
+def test_a_home_pose_below_the_table_is_refused_before_any_move():
+    # (shoulder home 0 deg put the tool at z = -8 cm; the first move drove every servo there at full speed)
+    from nodes.ik._target import solve
+    from nodes.ik.pick_sequence import PickParams, plan_pick
+
+    base = ArmParams()
+    low = build_arm_model(base.model_copy(update={"shoulder": base.shoulder.model_copy(update={"home_deg": 0.0})}))
+    p = np.array([15.0, 0.0, 2.0])
+    kind = {"type": "analytic_3dof", "params": {}}
+    target = {"pair": "t", "found": True, "target_base_cm": list(p), "solver": kind,
+              "joints_deg": dict(zip(JOINTS, np.degrees(solve(low, p, kind))))}
+    with pytest.raises(NodeError, match=r"home pose puts the tool at \[12.00, 0.00, -8.00\] cm, outside"):
+        plan_pick(PickParams(), low, target)
+    ok = {**target, "joints_deg": dict(zip(JOINTS, np.degrees(solve(MODEL, p, kind))))}
+    assert plan_pick(PickParams(), MODEL, ok)["waypoints"][0]["name"] == "open"  # the default home is above it

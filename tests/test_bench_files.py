@@ -151,6 +151,14 @@ def test_loaders_in_a_pipeline_and_wrong_files(tmp_path):
     assert r3.status["model"] == "failed" and "other_model.json" in err and "calibration.json" in err
     assert "baseline" in err
     assert r3.status["he"] == "failed" and "holds a StereoCalibration, not a HandEye" in r3.reports["he"].error
+    # a mirrored transform (one axis flipped): orthonormal, yet every target would land mirrored (it was picked)
+    write_value(tmp_path / "mirror", {"T_base_from_left": np.diag([1.0, -1.0, 1.0, 1.0]), "method": "given",
+                                      "rig": rig})
+    p3 = _pipeline(tmp_path, """
+  he: {type: calibrator.load_hand_eye, params: {path: mirror.json}}
+""")
+    r4 = run_pipeline(p3, out_dir=tmp_path / "run4", cache_dir=tmp_path / "cache")
+    assert r4.status["he"] == "failed" and "a mirror image, not a rotation" in r4.reports["he"].error
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")

@@ -154,6 +154,10 @@ def _load_matrix_artifact(params: ArtifactLoadParams, ctx, calibration, label: s
             T[3], [0, 0, 0, 1]):
         raise NodeError(f"{label}: {key} in {path} is not a rigid 4x4 transform.",
                         hint=f"give the file a run wrote for it: {made_by}")
+    if np.linalg.det(T[:3, :3]) < 0:  # orthonormal, yet a mirror: every target would land mirrored
+        raise NodeError(f"{label}: {key} in {path} is a mirror image, not a rotation (its determinant is -1): a "
+                        "left-handed frame, or one axis flipped by hand.",
+                        hint=f"give the file a run wrote for it ({made_by}), or fix the flipped axis")
     check_rig(label, art.get("rig"), path, calibration, params.rig_tolerance, ctx.warn if ctx is not None else None)
     art["source_file"] = str(path)
     return art

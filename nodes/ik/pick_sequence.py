@@ -155,6 +155,13 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         pl = np.asarray(params.place_cm, float)
         points += [("place_above", pl + params.approach_height_cm * up), ("place", pl), ("release", pl),
                    ("retreat", pl + params.approach_height_cm * up)]
+    home_tool = fk(model, np.radians([joint(model, n)["home_deg"] for n in JOINTS]))
+    if np.any(home_tool < lo - 1e-9) or np.any(home_tool > hi + 1e-9):  # (the first and last moves go there)
+        txt = ", ".join(f"{v:.2f}" for v in home_tool)
+        raise _refuse(target, f"the arm's home pose puts the tool at [{txt}] cm, outside the workspace box "
+                              f"[{', '.join(f'{v:g}' for v in lo)}] .. [{', '.join(f'{v:g}' for v in hi)}] cm (below "
+                              "the table?)", "set the joints' home_deg in the arm model (ik.arm) to a pose above "
+                                             "the table, and check it with the arm unpowered")
     for name, pt in points:
         if np.any(pt < lo - 1e-9) or np.any(pt > hi + 1e-9):
             txt = ", ".join(f"{v:.2f}" for v in pt)
