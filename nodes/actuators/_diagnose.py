@@ -91,8 +91,8 @@ def silent_bus(port: str, ids: list[int], baud: int) -> tuple[str, str]:
     return (f"no servo answers on {port} at {baud} baud (PING to IDs {', '.join(map(str, ids))}: nothing came back, "
             "not even late)",
             f"check that the servos' 9-12 V supply is on, that the adapter's cable reaches the first servo (a "
-            f"USB2Dynamixel's switch on TTL for AX-12s) and that the servos run at {baud} baud (Dynamixel Wizard / "
-            "RoboPlus scans every rate and ID).")
+            f"USB2Dynamixel's switch on TTL for AX-12s), that the servos run at {baud} baud and that their IDs are "
+            "the arm model's (ik.arm servos' id; Dynamixel Wizard / RoboPlus scans every rate and ID).")
 
 
 def after_ping(bus: Bus, sid: int, e: ServoFailure, baud: int) -> tuple[str, str]:

@@ -1,4 +1,4 @@
-"""Inverse kinematics of the arm model in ``_model.py``: closed form and damped least squares.
+"""Inverse kinematics of the arm model (``nodes/contracts/arm.py``): closed form and damped least squares.
 
 Each solver has a scalar form (one target -> one pose or an :class:`Unreachable` error naming why)
 and a vectorised batch form (N targets -> N poses + a status code per target), both on the same

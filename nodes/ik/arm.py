@@ -14,7 +14,7 @@ ArmModel (plain data, what every arm node receives)::
      "max_speed_deg_s": float,       # joint speed used for the largest move of a waypoint
      "units_per_deg": 3.41, "speed_deg_s_per_unit": 0.666}
 
-See ``nodes/ik/_model.py`` for the kinematic conventions and ``docs/arm.md`` for an example.
+See ``nodes/contracts/arm.py`` for the kinematic conventions and ``docs/arm.md`` for an example.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class GripperSpec(JointSpec):
 
 
 class Links(Params):
-    """Link lengths of the chain (see nodes/ik/_model.py for the exact definition)."""
+    """Link lengths of the chain (see nodes/contracts/arm.py for the exact definition)."""
 
     base_height_cm: float = Field(8.0, ge=0, le=200,
                                   description="Height of the shoulder axis above the mounting plane (cm).")
