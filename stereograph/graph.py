@@ -263,7 +263,7 @@ def build_graph(doc: PipelineDoc) -> Graph:
             try:
                 inst.spec.check(inst.params, frozenset(decl.get("inputs") or {}))
             except NodeError as e:
-                problems.append(ConfigError(f"{inst.type}: {e.message}{_with_sets(doc, name)}",
+                problems.append(ConfigError(f"{inst.type}: {e.message.rstrip('.')}{_with_sets(doc, name)}",
                                             doc.where("nodes", name, "params"), name, e.hint))
     raise_all(problems)
 

@@ -309,3 +309,15 @@ def test_a_home_pose_below_the_table_is_refused_before_any_move():
         plan_pick(PickParams(), low, target)
     ok = {**target, "joints_deg": dict(zip(JOINTS, np.degrees(solve(MODEL, p, kind))))}
     assert plan_pick(PickParams(), MODEL, ok)["waypoints"][0]["name"] == "open"  # the default home is above it
+
+
+def test_arm_model_problems_are_found_by_validate(capsys):
+    # (validate said OK; the run failed ~15 s later at the arm node, exit 1)
+    from pathlib import Path
+
+    from stereograph.cli import main
+
+    pick = Path(__file__).resolve().parent.parent / "pipelines" / "pick.yaml"
+    assert main(["validate", str(pick), "--set", "arm.elbow.servos=[{id: 2}]"]) == 2
+    assert "servo ID 2 is used by both shoulder and elbow" in capsys.readouterr().err
+    assert main(["validate", str(pick)]) == 0

@@ -147,8 +147,12 @@ def build_arm_model(params: ArmParams) -> dict:
     return model
 
 
+def _check_model(params: ArmParams, wired: frozenset[str]) -> None:
+    build_arm_model(params)  # its NodeError, said by `stereograph validate` before anything runs
+
+
 @node("ik.arm", outputs={"arm": Out("ArmModel", description="Arm geometry, limits and servo mapping.")},
-      params=ArmParams, version="1")
+      params=ArmParams, version="1", check=_check_model)
 def arm(params: ArmParams):
     """The arm model: joint chain, link lengths (cm), joint limits (deg) and AX-12A servo mapping."""
     return {"arm": build_arm_model(params)}
