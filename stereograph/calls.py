@@ -68,10 +68,10 @@ def execute(task: Task) -> TaskResult:
     """Run one node call; never raises (failures come back as a TaskResult)."""
     t0 = time.perf_counter()
     try:
+        if task.plugins:  # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
+            registry.import_plugins(task.plugins, Path(task.pipeline_dir))
         spec = REGISTRY.get(task.node_type)
-        if spec is None:  # first call in a worker process
-            if task.plugins:
-                registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+        if spec is None:
             spec = registry.get(task.node_type)
         params = task.params
         if isinstance(params, dict):  # sent as plain data to another process: validate again there

@@ -524,3 +524,63 @@ def test_a_symbolic_link_put_into_an_earlier_runs_folder_is_not_written_through(
     node_dir.symlink_to(victim, target_is_directory=True)
     assert run(p, tmp_path).ok
     assert list(victim.iterdir()) == [] and node_dir.is_dir() and not node_dir.is_symlink()
+
+
+def _plugin(folder: Path, name: str, body: str) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    f = folder / name
+    f.write_text(textwrap.dedent(body))
+    return f
+
+
+def test_a_plugin_edited_in_a_long_lived_process_runs_its_new_code(tmp_path):
+    # (the second run in one Python process ran the old code and cached it under the new code's key)
+    body = """\
+        from stereograph.api import node, Out
+        @node("tmp.answer", outputs={{"value": Out("Number", save=True)}})
+        def answer(params):
+            return {{"value": {v}}}
+        """
+    plug = _plugin(tmp_path, "answer.py", body.format(v=1))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: a\nplugins: [{plug}]\nnodes:\n  a: {{type: tmp.answer}}\n")
+    assert run(f, tmp_path).outputs("a", "value") == 1
+    plug.write_text(textwrap.dedent(body.format(v=2)))
+    assert run(f, tmp_path).outputs("a", "value") == 2
+    assert run(f, tmp_path).status["a"] == "cached" and run(f, tmp_path).outputs("a", "value") == 2
+
+
+def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neighbours(tmp_path):
+    one = _plugin(tmp_path / "a", "nodes.py", """\
+        from stereograph.api import node, Out
+        from helper_a import VALUE
+        @node("tmp.from_a", outputs={"value": Out("Number", save=True)})
+        def from_a(params):
+            return {"value": VALUE}
+        """)
+    _plugin(tmp_path / "a", "helper_a.py", "VALUE = 3\n")
+    two = _plugin(tmp_path / "b", "nodes.py", """\
+        from stereograph.api import node, Out
+        @node("tmp.from_b", outputs={"value": Out("Number", save=True)})
+        def from_b(params):
+            return {"value": 4}
+        """)
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: ab\nplugins: [{one}, {two}]\nnodes:\n  a: {{type: tmp.from_a}}\n  b: {{type: tmp.from_b}}\n")
+    r = run(f, tmp_path)
+    assert r.outputs("a", "value") == 3 and r.outputs("b", "value") == 4
+
+
+def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
+    plug = _plugin(tmp_path, "clash.py", """\
+        from stereograph.api import node, Out
+        @node("segmenter.color", outputs={"segmentation": Out("Segmentation")})
+        def color(params):
+            return {"segmentation": {}}
+        """)
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: c\nplugins: [{plug}]\nnodes:\n  s: {{type: source.synthetic, params: {{n_views: 0}}}}\n")
+    with pytest.raises(ConfigError, match="defines a node type 'segmenter.color', the name of an installed node"):
+        build_graph(load_pipeline(f))
+    from stereograph.registry import get
+    assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"  # the built-in is still the one
