@@ -376,8 +376,10 @@ def cmd_run(args) -> int:
         with _sigterm_as_interrupt(loop is not None):
             with prog:
                 result = run_graph(graph, progress=prog, prepare=(_load_printing,), **kw)
-    finally:
-        executor.close()
+    except BaseException:  # (Ctrl-C: a pool's workers are ended, not waited for)
+        executor.close(now=True)
+        raise
+    executor.close()
     live = frozenset(n for n, i in graph.nodes.items() if not i.spec.cacheable)
     echo = _echo_entries(result, live) if not args.json else []
     if _replayable(args) and not args.json:

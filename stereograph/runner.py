@@ -78,7 +78,7 @@ class SerialExecutor:
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         return (fn(t) for t in tasks)
 
-    def close(self) -> None:
+    def close(self, now: bool = False) -> None:
         pass
 
 
@@ -147,8 +147,20 @@ class ProcessExecutor:
         self.pool.shutdown(wait=False, cancel_futures=True)
         self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=one_thread_each)
 
-    def close(self) -> None:
-        self.pool.shutdown()
+    def close(self, now: bool = False) -> None:
+        """Wait for the workers to end; ``now`` (Ctrl-C, SIGTERM): cancel what is queued and end the
+        workers at once -- their tasks would otherwise go on for as long as the queue lasts."""
+        if not now:
+            self.pool.shutdown()
+            return
+        processes = list((getattr(self.pool, "_processes", None) or {}).values())
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for proc in processes:
+            with contextlib.suppress(Exception):
+                proc.terminate()
+        for proc in processes:
+            with contextlib.suppress(Exception):
+                proc.join(timeout=5)
 
 
 class DaskExecutor:
@@ -212,7 +224,7 @@ class DaskExecutor:
                               hint="put --cache-dir and --out on storage every worker mounts at the same path "
                                    "(a network file system), or use --dask local / --workers N")
 
-    def close(self) -> None:
+    def close(self, now: bool = False) -> None:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()

@@ -584,3 +584,37 @@ def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
         build_graph(load_pipeline(f))
     from stereograph.registry import get
     assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"  # the built-in is still the one
+
+
+def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(tmp_path):
+    # (it printed "interrupted" at once, then went on computing the queued items for 20-100 s)
+    import signal
+
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    slow = _plugin(tmp_path, "slow.py", f"""\
+        import time, uuid
+        from pathlib import Path
+        from stereograph.api import node, Out, In
+        @node("tmp.slow", inputs={{"m": In("Matrix")}}, outputs={{"v": Out("Number", save=True)}})
+        def slow(params, m):
+            time.sleep(0.5)
+            Path({str(marks)!r}, uuid.uuid4().hex).touch()
+            return {{"v": 1.0}}
+        """)
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 60, "
+                 "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n")
+    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--workers", "2", "--no-cache",
+           "--out", str(tmp_path / "out")]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    deadline = time.monotonic() + 120
+    while len(list(marks.iterdir())) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and "interrupted" in err
+    done = len(list(marks.iterdir()))
+    time.sleep(1.5)  # no worker left behind writing more
+    assert len(list(marks.iterdir())) == done and done < 30, done  # (60 items: the queue was not run out)
