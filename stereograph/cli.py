@@ -373,7 +373,7 @@ def cmd_run(args) -> int:
     prog = RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
                                                               args.progress_interval)
     try:
-        with _sigterm_as_interrupt(loop is not None):
+        with _sigterm_as_interrupt(loop is not None), _stdout_to_stderr(args.json):
             with prog:
                 result = run_graph(graph, progress=prog, prepare=(_load_printing,), **kw)
     except BaseException:  # (Ctrl-C: a pool's workers are ended, not waited for)
@@ -390,6 +390,30 @@ def cmd_run(args) -> int:
                 _console(stderr=True).print(f"note: no rerun memo recorded: {type(e).__name__}: {e}", markup=False)
     return _finish_run(args, result, _echo_entries(result) if live else echo,
                        lambda n: graph.doc.where("nodes", n), lambda n: bool(graph.upstream(n)), loop)
+
+
+@contextlib.contextmanager
+def _stdout_to_stderr(active: bool):
+    """With --json, standard output carries the JSON alone: what nodes print while they run (in this
+    process, its workers, a local cluster's) goes to standard error, at the file-descriptor level."""
+    if not active:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+        os.dup2(2, 1)
+    except OSError:  # no real descriptors (an embedding host): print() is all there is to move
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+        return
+    try:
+        with contextlib.redirect_stdout(sys.stderr):
+            yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int:

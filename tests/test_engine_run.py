@@ -618,3 +618,19 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
     done = len(list(marks.iterdir()))
     time.sleep(1.5)  # no worker left behind writing more
     assert len(list(marks.iterdir())) == done and done < 30, done  # (60 items: the queue was not run out)
+
+
+def test_json_output_stays_json_when_a_node_prints(tmp_path):
+    # (a node's print() landed above the JSON on standard output: `stereograph run --json | jq` broke)
+    printer = _plugin(tmp_path, "printer.py", """\
+        from stereograph.api import node, Out
+        @node("tmp.printer", outputs={"v": Out("Number", save=True)})
+        def printer(params):
+            print("HELLO FROM NODE")
+            return {"v": 1}
+        """)
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: pr\nplugins: [{printer}]\nnodes:\n  p: {{type: tmp.printer}}\n")
+    out = subprocess.run([sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--json",
+                          "--no-cache", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and json.loads(out.stdout)["ok"] is True and "HELLO FROM NODE" in out.stderr
