@@ -45,9 +45,10 @@ def total(params, values):
 """
 
 
-def pipeline(folder: Path, name: str = "p", scale: float = 1.0, shown: str = "") -> Path:
+def pipeline(folder: Path, name: str = "p", scale: float = 1.0, shown: str = "",
+             plugin_dir: Path | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
-    plugin = folder.parent / "diskplug.py"
+    plugin = (plugin_dir or folder.parent) / "diskplug.py"
     plugin.write_text(PLUGIN)
     p = folder / f"{name}.yaml"
     p.write_text(textwrap.dedent(f"""\
@@ -72,8 +73,10 @@ def test_pipelines_of_one_project_share_its_cache_and_runs(tmp_path, monkeypatch
     proj = tmp_path / "proj"
     proj.mkdir()
     (proj / "pyproject.toml").write_text("[project]\nname = 'x'\n")
-    a = pipeline(proj / "a" / "deep", "one")
-    b = pipeline(proj / "b", "two")
+    # (the project's one plugin file, used by both: two copies of it in two folders are two modules,
+    # whose code keys differ by their paths)
+    a = pipeline(proj / "a" / "deep", "one", plugin_dir=proj)
+    b = pipeline(proj / "b", "two", plugin_dir=proj)
     r1 = run_pipeline(a)
     assert r1.ok and r1.out_dir.parent.parent == proj / "runs"
     assert (proj / ".stereograph" / "cache" / "objects").is_dir()
