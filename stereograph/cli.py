@@ -188,7 +188,7 @@ def _summary_rows(result) -> list[list[str]]:
         items = "" if not r.items else (f"{r.items_ran} ran / {r.items}" +
                                         (f", {r.items_failed} failed" if r.items_failed else ""))
         if r.error:
-            note = r.error
+            note = r.error + (f" (+{r.items_failed - 1} more failed items: run.json)" if r.items_failed > 1 else "")
         elif r.messages:
             more = len(r.messages) - 1
             note = r.messages[0][:90] + (f" (+{more} more below)" if more else "")
@@ -451,7 +451,8 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
         err = _console(stderr=True)
         failed = [r for r in result.reports.values() if r.status in ("failed", "partial")]
         for r in failed:
-            msg = sentence(f"{where(r.name)}: node '{r.name}' ({r.type}) failed: {r.error}")
+            more = f" (and {r.items_failed - 1} more items: failed_items in run.json)" if r.items_failed > 1 else ""
+            msg = sentence(f"{where(r.name)}: node '{r.name}' ({r.type}) failed: {r.error}{more}")
             if r.hint:
                 msg += " Fix: " + sentence(r.hint)
             elif r.unexpected and not args.debug:

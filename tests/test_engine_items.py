@@ -363,3 +363,13 @@ def test_a_chunk_whose_items_were_all_dropped_does_not_say_the_node_had_none(tmp
     r = run(write_pipeline(tmp_path, f"{{n: 16, drop: [{drop}]}}"), tmp_path)
     assert r.reports["power"].items == 4
     assert not any("no items to process" in m for m in r.reports["power"].messages)
+
+
+def test_more_than_one_failed_item_is_counted_where_the_first_is_named(tmp_path, capsys):
+    # (only the first failed item was named; the second was only in run.json, without a word)
+    from stereograph.cli import main
+
+    p = write_pipeline(tmp_path, "{n: 6, fail: [m001, m004]}")
+    assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 1
+    out = capsys.readouterr()
+    assert "(+1 more failed items: run.json)" in out.out and "(and 1 more items: failed_items in run.json)" in out.err
