@@ -195,7 +195,6 @@ def _summary_rows(result) -> list[list[str]]:
         else:
             note = ""
         rows.append([r.name, r.type, r.status, items, f"{r.seconds:.2f}", note[:160]])
-
     return rows
 
 

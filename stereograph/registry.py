@@ -175,8 +175,8 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                 mod_name = f"stereograph_plugin_{path.stem}_{hashlib.sha1(str(path).encode()).hexdigest()[:8]}"
                 if not path.is_file():
                     raise FileNotFoundError(f"no such file {path}")
-                loaded = sys.modules.get(mod_name)
-                if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == _digest(path):
+                loaded, now = sys.modules.get(mod_name), _digest(path)
+                if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == now:
                     continue
                 # (a file changed since this process imported it -- a notebook, a long-lived program --
                 # is imported again: the cache key follows the file, so the code run must too)
@@ -184,7 +184,7 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                 if spec is None or spec.loader is None:
                     raise ImportError(f"{path} is not a Python module")
                 mod = importlib.util.module_from_spec(spec)
-                mod.__stereograph_digest__ = _digest(path)
+                mod.__stereograph_digest__ = now
                 sys.modules[mod_name] = mod
                 if str(path.parent) not in sys.path:  # its helper modules beside it
                     sys.path.append(str(path.parent))
