@@ -919,20 +919,10 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
 # --------------------------------------------------------------------------- CLI
 
 
-def _at_least_one(text: str) -> int:
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
-    return value
-
-
 def add_subcommand(subparsers: Any) -> Any:
     """Add ``compare`` to the ``stereograph`` command's sub-parsers."""
+    from stereograph.cli import _positive_int  # (run's own check of --workers)
+
     sp = subparsers.add_parser("compare", help="run every combination of --vary settings and tabulate the metrics "
                                                "the pipeline's nodes declare")
     sp.add_argument("pipeline", help="pipeline YAML file")
@@ -951,7 +941,7 @@ def add_subcommand(subparsers: Any) -> Any:
                          "default all (compare.csv always has all)")
     sp.add_argument("--best", metavar="METRIC[:max]",
                     help="show the row with the lowest (or with :max the highest) METRIC in bold green")
-    sp.add_argument("--workers", type=_at_least_one, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run every variant's per-item work on a Dask cluster "
                     "('local' starts one with --workers processes; the cache and run folder must be on "
                     "storage every worker sees: docs/parallel.md)")

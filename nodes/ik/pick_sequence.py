@@ -79,14 +79,14 @@ def _segment(name: str) -> str:
     return "pick" if name.split("_")[0] in _PICK else "place"
 
 
-def _solve_in_one_configuration(model: dict, points: list, target: dict) -> dict[str, np.ndarray]:
+def _solve_in_one_configuration(model: dict, points: list, target: dict, q_home: np.ndarray) -> dict[str, np.ndarray]:
     """Joint angles of every point, the points of each straight move (the pick's descent and lift, the
     place) in one arm configuration: solved one by one, two of them may fall on different branches (the
     preferred pose leaves a joint limit near the table), and the arm would swing -- 180 deg over the
     base -- between two points 2 cm apart. Such a move is re-solved in one configuration, else refused."""
-    solver = target["solver"]
+    solver, at = target["solver"], dict(points)
     out: dict[str, np.ndarray] = {}
-    q_prev = np.radians([joint(model, n)["home_deg"] for n in JOINTS])
+    q_prev = q_home
     for name, pt in points:
         try:
             out[name] = q_prev = solve(model, pt, solver, q_init=q_prev)
@@ -94,7 +94,7 @@ def _solve_in_one_configuration(model: dict, points: list, target: dict) -> dict
             raise _refuse(target, f"the {name} point is {unreachable_reason(e)}", unreachable_hint(e)) from e
     for seg in ("pick", "place"):
         names = [n for n, _ in points if _segment(n) == seg]
-        confs = {n: configuration(model, dict(points)[n], out[n]) for n in names}
+        confs = {n: configuration(model, at[n], out[n]) for n in names}
         if _compatible(list(confs.values())):
             continue
         fixed = None
@@ -102,7 +102,7 @@ def _solve_in_one_configuration(model: dict, points: list, target: dict) -> dict
             kw = dict(solver.get("params") or {})
             for cand in _candidates(kw.get("elbow", "auto"), kw.get("allow_back", True)):
                 try:
-                    fixed = {n: analytic_ik(model, dict(points)[n], config=cand) for n in names}
+                    fixed = {n: analytic_ik(model, at[n], config=cand) for n in names}
                     break
                 except Unreachable:
                     continue
@@ -155,7 +155,8 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         pl = np.asarray(params.place_cm, float)
         points += [("place_above", pl + params.approach_height_cm * up), ("place", pl), ("release", pl),
                    ("retreat", pl + params.approach_height_cm * up)]
-    home_tool = fk(model, np.radians([joint(model, n)["home_deg"] for n in JOINTS]))
+    q_home = np.radians([joint(model, n)["home_deg"] for n in JOINTS])
+    home_tool = fk(model, q_home)
     if np.any(home_tool < lo - 1e-9) or np.any(home_tool > hi + 1e-9):  # (the first and last moves go there)
         txt = ", ".join(f"{v:.2f}" for v in home_tool)
         raise _refuse(target, f"the arm's home pose puts the tool at [{txt}] cm, outside the workspace box "
@@ -175,7 +176,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     home = {n: joint(model, n)["home_deg"] for n in JOINTS}
     waypoints = [{"name": "open", "gripper": "open", "tool_cm": None,
                   "joints_deg": {**home, "gripper": grip["open"]}}]
-    solved = _solve_in_one_configuration(model, points, target)
+    solved = _solve_in_one_configuration(model, points, target, q_home)
     for name, pt in points:
         q = solved[name]
         st = state.get(name, "open")
