@@ -191,11 +191,21 @@ def _summary_rows(result) -> list[list[str]]:
             note = r.error + (f" (+{r.items_failed - 1} more failed items: run.json)" if r.items_failed > 1 else "")
         elif r.messages:
             more = len(r.messages) - 1
-            note = r.messages[0][:90] + (f" (+{more} more below)" if more else "")
+            note = _clip(r.messages[0], 90) + (f" (+{more} more below)" if more else "")
         else:
             note = ""
-        rows.append([r.name, r.type, r.status, items, f"{r.seconds:.2f}", note[:160]])
+        rows.append([r.name, r.type, r.status, items, f"{r.seconds:.2f}", _clip(note, 160)])
     return rows
+
+
+def _clip(text: str, n: int) -> str:
+    """``text`` in at most ``n`` characters, cut after a whole word and marked '…' (the whole
+    text is in run.json, and an error's under the table)."""
+    if len(text) <= n:
+        return text
+    cut = text[:n - 1]
+    space = cut.rfind(" ")
+    return (cut[:space] if space > n // 2 else cut).rstrip(" ,;:(") + "…"
 
 
 NOTES_PER_NODE = 3  # a node's further messages printed under the table (a per-item node may have dozens)

@@ -409,6 +409,10 @@ class _PlainProgress:
         if self.nodes is not None:
             self.nodes.advance(name)
 
+    def item_failed(self, name: str) -> None:
+        if self.nodes is not None:
+            self.nodes.item_failed(name)
+
     def item_progress(self, name: str, done: float, total: float, unit: str = "items") -> None:
         if self.nodes is not None:
             self.nodes.item_progress(name, done, total, unit)

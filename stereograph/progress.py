@@ -5,6 +5,8 @@ but the first two):
 
 - ``node_started(name, n_items)``: a node begins (``n_items`` entries: 1, or one per item);
 - ``advance(name)``: one entry of it finished (computed, cached or failed);
+- ``item_failed(name)``: the entry about to be advanced failed (optional: the ending line then says
+  how many failed, not only "finished");
 - ``item_progress(name, done, total, unit)``: progress *inside* one call, reported by the node
   itself through :meth:`stereograph.api.RunContext.progress` (a source rendering 120 scenes in
   one call says ``37/120 scenes``). A node that yields items one call at a time needs none: its
@@ -51,6 +53,7 @@ class _NodeState:
     total: float = 0
     unit: str = ""
     unit_started: float = 0.0  # when this unit's count began (a node may report phases: scenes, then views)
+    failed: int = 0  # entries that failed
 
     def line(self, name: str, now: float) -> str:
         parts = [name]
@@ -100,9 +103,10 @@ class PlainProgress:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2 * self.interval_s)
+        stopped = exc[0] is not None and issubclass(exc[0], (KeyboardInterrupt, SystemExit))
         with self._lock:
             for name in list(self.nodes):
-                self._finish(name)
+                self._finish(name, "interrupted" if stopped else None)
         return False
 
     def _beat(self) -> None:
@@ -144,6 +148,12 @@ class PlainProgress:
             else:
                 self._maybe_print(name, st)
 
+    def item_failed(self, name: str) -> None:
+        with self._lock:
+            st = self.nodes.get(name)
+            if st is not None:
+                st.failed += 1
+
     def item_progress(self, name: str, done: float, total: float, unit: str = "items") -> None:
         with self._lock:
             st = self.nodes.get(name)
@@ -161,12 +171,17 @@ class PlainProgress:
             self._print(st.line(name, now))
             self._last_line[name] = now
 
-    def _finish(self, name: str) -> None:
+    def _finish(self, name: str, how: str | None = None) -> None:
         st = self.nodes.pop(name, None)
         self._last_line.pop(name, None)
-        if st is not None:
-            items = f"{st.entries_done}/{st.items} items, " if st.items > 1 else ""
-            self._print(f"{name}: finished ({items}{_duration(time.monotonic() - st.started)})")
+        if st is None:
+            return
+        items = f"{st.entries_done}/{st.items} items, " if st.items > 1 else ""
+        if st.failed and st.items > 1:
+            items += f"{st.failed} failed, "
+        if how is None:
+            how = "failed" if st.failed and st.failed >= st.entries_done else "finished"
+        self._print(f"{name}: {how} ({items}{_duration(time.monotonic() - st.started)})")
 
 
 class RichProgress:

@@ -56,6 +56,14 @@ Ref = tuple[str, str, "str | None"]  # (node, output, item)
 # --------------------------------------------------------------------------- executors
 
 
+def progress_advance(progress: Any, name: str, ok: bool = True) -> None:
+    """One entry of ``name`` done on a progress display (stereograph.progress); a failed one is said
+    first to a display that counts them (``item_failed`` is optional)."""
+    if not ok and hasattr(progress, "item_failed"):
+        progress.item_failed(name)
+    progress.advance(name)
+
+
 @dataclass
 class TaskLost:
     """A task whose worker died (killed, out of memory) or whose cluster failed: not the node's fault."""
@@ -698,7 +706,7 @@ class _Run:
                 values = self.inputs_for(refs)
             except NodeError as e:
                 self.fail_item(inst, item, e.message, e.hint)
-                self._advance(inst)
+                self._advance(inst, ok=False)
                 continue
             tasks.append(self.task(inst, item, values, getattr(ex, "remote", False)))
             metas.append((item, key))
@@ -796,17 +804,17 @@ class _Run:
                     if res.ok:
                         self.store_result(inst, item, key, res.outputs or {}, res.messages)
                     results[idx] = (res, res.ok)
-            self._advance(inst)
+            self._advance(inst, ok=results[idx][0] is None or results[idx][0].ok)
         return results
 
-    def _advance(self, inst: NodeInstance) -> None:
+    def _advance(self, inst: NodeInstance, ok: bool = True) -> None:
         if self.progress:
-            self.progress.advance(inst.name)
+            progress_advance(self.progress, inst.name, ok)
 
     def _advancing(self, inst: NodeInstance, results: Iterable[TaskResult]) -> Iterable[TaskResult]:
         """The executor's results, advancing the progress display as each one arrives."""
         for res in _lost_as_failed(results):
-            self._advance(inst)
+            self._advance(inst, res.ok)
             yield res
 
     def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,

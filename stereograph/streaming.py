@@ -458,16 +458,18 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
 
 
 def _settle(run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any) -> None:
-    from stereograph.runner import TaskLost
+    from stereograph.runner import TaskLost, progress_advance
 
     if isinstance(res, TaskLost):
+        failed = set(chunk.items)
         for i in chunk.items:
             run.fail_item(first, i, res.error, res.hint)
     else:
+        failed = {i for (_n, i) in res.failed if i is not None}
         _merge(run, reg, res, skipped)
     if run.progress:
-        for _ in chunk.items:
-            run.progress.advance(label)
+        for i in chunk.items:
+            progress_advance(run.progress, label, i not in failed)
 
 
 def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> None:

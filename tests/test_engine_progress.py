@@ -85,3 +85,52 @@ def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     assert any(ln.startswith("rig ") and ("/12 scenes" in ln or "/13 items" in ln) for ln in lines), text
     assert first_progress_while_running, "progress lines came only after the run had ended"
     assert "\x1b" not in text + err
+
+
+def test_plain_progress_ending_lines_say_failed_and_interrupted():
+    """A node that failed, or whose items partly failed, or a run stopped by Ctrl-C, does not end on
+    'finished' in a log."""
+    out = io.StringIO()
+    prog = PlainProgress(out, interval_s=60)
+    prog.node_started("calib", 1)
+    prog.item_failed("calib")
+    prog.advance("calib")
+    prog.node_started("segment", 3)
+    for ok in (True, False, True):
+        if not ok:
+            prog.item_failed("segment")
+        prog.advance("segment")
+    try:
+        with prog:
+            prog.node_started("locate", 3)
+            prog.advance("locate")
+            raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        pass
+    lines = out.getvalue().splitlines()
+    assert any(ln.startswith("calib: failed (") for ln in lines), lines
+    assert any(ln.startswith("segment: finished (3/3 items, 1 failed,") for ln in lines), lines
+    assert lines[-1].startswith("locate: interrupted (1/3 items"), lines
+
+
+def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
+    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "calib",
+           "--set", "rig.n_scenes=2", "--set", "rig.n_views=8", "--set", "calib.max_rms_px=0.001", "--no-cache",
+           "--out", str(tmp_path / "out")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert any(ln.startswith("calib: failed (") for ln in lines), proc.stdout
+    assert not any(ln.startswith("calib: finished") for ln in lines), proc.stdout
+    # the summary's note is cut after a whole word, marked '…' (the whole error follows the table)
+    assert "…" in proc.stdout and "max_rms_px" in proc.stderr, proc.stdout
+
+
+def test_clip_cuts_after_a_whole_word():
+    from stereograph.cli import _clip
+
+    text = "the views do not fit one pair of cameras; worst views v03 (0.07 px), v00 (0.07 px)"
+    assert _clip(text, 200) == text
+    short = _clip(text, 40)
+    assert len(short) <= 40 and short.endswith("…") and text.startswith(short[:-1])
+    assert text[len(short) - 1] in " ,;(", short  # cut at a word's end, not inside one
