@@ -244,3 +244,16 @@ def test_opencv_json_file_loads(tmp_path):
         fs.write(name, np.asarray(cal[key], float))
     fs.release()
     _assert_same(read_calibration_file(p), cal)
+
+
+def test_a_ros_pair_of_fisheye_cameras_is_refused(tmp_path):
+    # (an `equidistant` camera_info loaded as plumb_bob: the fisheye k1..k4 read as k1 k2 p1 p2, silently)
+    paths = _write_exports(_calibration(), tmp_path)
+    for side in ("camera_info_left", "camera_info_right"):
+        doc = yaml.safe_load(paths[side].read_text())
+        doc["distortion_model"] = "equidistant"
+        doc["distortion_coefficients"] = {"rows": 1, "cols": 4, "data": [0.1, 0.01, 0.001, 0.0001]}
+        paths[side].write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(NodeError, match="distortion_model 'equidistant'") as e:
+        read_calibration_file(paths["camera_info_left"], paths["camera_info_right"])
+    assert str(paths["camera_info_left"]) in e.value.message

@@ -260,6 +260,9 @@ def read_ros(path: Path) -> dict:
     return doc
 
 
+#: ROS distortion models whose coefficients are OpenCV's (k1 k2 p1 p2 k3 [k4 k5 k6]).
+_ROS_OPENCV_MODELS = ("plumb_bob", "rational_polynomial")
+
 _ROS_UNIT_FLAG = re.compile(r"^# projection_matrix lengths are in (\w+)/100, not metres")
 
 
@@ -288,6 +291,12 @@ def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None =
     scale_cm = 100.0 if cm_per_unit is None else (100.0 * cm_per_unit if flagged else float(cm_per_unit))
     L, Rd = read_ros(left_path), read_ros(right_path)
     K1, K2 = _ros_mat(L, "camera_matrix", (3, 3), left_path), _ros_mat(Rd, "camera_matrix", (3, 3), right_path)
+    for doc, p in ((L, left_path), (Rd, right_path)):
+        model = str(doc.get("distortion_model") or "plumb_bob").strip().lower()
+        if model not in _ROS_OPENCV_MODELS:  # e.g. equidistant (fisheye): same YAML shape, other lens model
+            raise ValueError(f"{p} has distortion_model {doc.get('distortion_model')!r}, which is not OpenCV's "
+                             f"standard lens model ({' / '.join(_ROS_OPENCV_MODELS)}): its coefficients would "
+                             "be read with another meaning")
     D1 = _ros_mat(L, "distortion_coefficients", None, left_path)
     D2 = _ros_mat(Rd, "distortion_coefficients", None, right_path)
     R1, R2 = _ros_mat(L, "rectification_matrix", (3, 3), left_path), _ros_mat(Rd, "rectification_matrix", (3, 3),
