@@ -257,3 +257,13 @@ def test_a_ros_pair_of_fisheye_cameras_is_refused(tmp_path):
     with pytest.raises(NodeError, match="distortion_model 'equidistant'") as e:
         read_calibration_file(paths["camera_info_left"], paths["camera_info_right"])
     assert str(paths["camera_info_left"]) in e.value.message
+
+
+def test_a_ros_pair_whose_left_file_is_the_right_cameras_is_refused(tmp_path):
+    # (the right camera's file given as both: loaded with the right camera's K as the left's and R = I, silently)
+    paths = _write_exports(_calibration(), tmp_path)
+    for left, right in ((paths["camera_info_right"], paths["camera_info_right"]),
+                        (paths["camera_info_right"], paths["camera_info_left"])):
+        with pytest.raises(NodeError, match="has a baseline.*right camera's file") as e:
+            read_calibration_file(left, right)
+        assert str(left) in e.value.message

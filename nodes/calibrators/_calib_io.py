@@ -301,7 +301,11 @@ def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None =
     D2 = _ros_mat(Rd, "distortion_coefficients", None, right_path)
     R1, R2 = _ros_mat(L, "rectification_matrix", (3, 3), left_path), _ros_mat(Rd, "rectification_matrix", (3, 3),
                                                                               right_path)
+    P1 = _ros_mat(L, "projection_matrix", (3, 4), left_path)
     P2 = _ros_mat(Rd, "projection_matrix", (3, 4), right_path)
+    if P1[0, 3] != 0 or P1[1, 3] != 0:  # ROS puts the stereo pair's origin at the left camera: its Tx is 0
+        raise ValueError(f"{left_path}'s projection_matrix has a baseline (P[0,3] = {P1[0, 3]:g}): it is the right "
+                         "camera's file; `path` is the left camera's camera_info and `right_path` the right one's")
     size_l = [int(L.get("image_width", 0)), int(L.get("image_height", 0))]
     size_r = [int(Rd.get("image_width", 0)), int(Rd.get("image_height", 0))]
     if size_l != size_r or 0 in size_l:
