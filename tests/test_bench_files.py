@@ -267,3 +267,15 @@ def test_a_ros_pair_whose_left_file_is_the_right_cameras_is_refused(tmp_path):
         with pytest.raises(NodeError, match="has a baseline.*right camera's file") as e:
             read_calibration_file(left, right)
         assert str(left) in e.value.message
+
+
+def test_a_run_json_in_squares_takes_cm_per_unit_like_the_other_formats(tmp_path):
+    # (cm_per_unit was ignored for calibration.json: a 3.3-square baseline stayed 3.3, labelled squares)
+    cal = dict(_calibration(), T_cm=np.array([-3.3, 0.02, 0.05]), length_unit="squares")
+    write_value(tmp_path / "calibration", cal)
+    got = read_calibration_file(tmp_path / "calibration.json", cm_per_unit=2.5)
+    assert np.abs(got["T_cm"] - 2.5 * cal["T_cm"]).max() < 1e-12 and got["length_unit"] == "cm"
+    _assert_same(got, dict(cal, T_cm=2.5 * cal["T_cm"]))
+    write_value(tmp_path / "in_cm", _calibration())  # already in cm: scaling it again would be wrong
+    with pytest.raises(NodeError, match="in cm already"):
+        read_calibration_file(tmp_path / "in_cm.json", cm_per_unit=2.5)

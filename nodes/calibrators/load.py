@@ -72,6 +72,16 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                                  "FileStorage .yml/.xml, or a ROS camera_info pair")
         cal = array_keys(art, _CAL_ARRAYS)
         fmt = "json"
+        if cm_per_unit is not None:
+            unit = cal.get("length_unit", "cm")
+            if unit == "cm":
+                raise NodeError(f"{label}: {path} is in cm already; cm_per_unit would scale it again.",
+                                hint="remove cm_per_unit (it converts a calibration made in board squares)")
+            cal["T_cm"] = np.asarray(cal["T_cm"], float) * float(cm_per_unit)  # squares -> cm
+            if cal.get("T_table_from_left") is not None:
+                cal["T_table_from_left"] = np.asarray(cal["T_table_from_left"], float).copy()
+                cal["T_table_from_left"][:3, 3] *= float(cm_per_unit)
+            cal["length_unit"] = "cm"
     else:
         ros = None
         if not _is_opencv_storage(path) and suffix in (".yml", ".yaml"):
@@ -116,7 +126,8 @@ class LoadParams(Params):
                                                      "extrinsics.yml beside intrinsics.yml).")
     cm_per_unit: float | None = Field(
         None, gt=0, description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the square "
-                                "size in cm for a file in squares); default: the file's `unit` entry. For a ROS "
+                                "size in cm for a file in squares); default: the file's `unit` entry. For a run's "
+                                "calibration.json made without a square size: the square's size in cm. For a ROS "
                                 "camera_info pair: default 100 (metres); the square's size in cm for a pair "
                                 "written without a square size (its first line says so).")
     image_size: tuple[int, int] | None = Field(
