@@ -54,3 +54,17 @@ def test_a_calibration_that_does_not_fit_is_refused(rig):
     cal["T_cm"] = cal["T_cm"] * 1.1  # baseline 10 % off: the two views put the board in different places
     with pytest.raises(NodeError, match="differ by"):
         table_frame(TableFrameParams(), _views(left, right), cal)
+
+
+def test_a_calibration_in_squares_with_a_board_in_cm_is_a_clear_error(rig):
+    # (it failed as "the calibration does not fit these images", 27 % disagreement, with no word of units)
+    left, right, _ = render_table_board(rig, yaw_deg=0)
+    cal = dict(truth_calibration(rig["truth"]), length_unit="squares")
+    with pytest.raises(NodeError, match="calibration's lengths are in squares but the board's square size is in cm") \
+            as e:
+        table_frame(TableFrameParams(), _views(left, right), cal)
+    assert "cm_per_unit" in e.value.hint
+    views = _views(left, right)
+    views["board"]["length_unit"] = "squares"  # the reverse: the table pair's source without square_cm
+    with pytest.raises(NodeError, match="in cm but the board's square size is in squares"):
+        table_frame(TableFrameParams(), views, truth_calibration(rig["truth"]))

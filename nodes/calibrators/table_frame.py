@@ -191,6 +191,13 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
         raise NodeError(f"{label}: view {v['id']} is {v['left'].shape[1]}x{v['left'].shape[0]} px but the "
                         f"calibration is for {calibration['image_size'][0]}x{calibration['image_size'][1]} px.",
                         hint="use the calibration of these cameras at this resolution")
+    cal_unit, board_unit = calibration.get("length_unit", "cm"), board.get("length_unit", "cm")
+    if cal_unit != board_unit:  # a pose in squares against a calibration in cm (or the reverse) never agrees
+        raise NodeError(f"{label}: the calibration's lengths are in {cal_unit} but the board's square size is in "
+                        f"{board_unit}{' (no square_cm given)' if board_unit == 'squares' else ''}.",
+                        hint="calibrate with the board's square_cm, or load the calibration with cm_per_unit = the "
+                             "square's size in cm" if cal_unit == "squares" else
+                             "give the board's square_cm (cm) to the source of the table pair")
     pl, pr = detect_corners(v["left"], cols, rows), detect_corners(v["right"], cols, rows)
     if pl is None or pr is None:
         which = " and ".join(str(v.get(f"{s}_path", f"the {s} image")) for s, c in (("left", pl), ("right", pr))
