@@ -80,3 +80,16 @@ def test_a_truth_header_without_centre_columns_is_said_as_a_header_problem(tmp_p
     _folder(tmp_path)
     with pytest.raises(NodeError, match=r"has no centre columns \(header: id, x_mm, y_mm, z_mm\)"):
         _run(tmp_path, "id,x_mm,y_mm,z_mm\n01,10,20,400\n")
+
+
+def test_the_suggested_globs_match_capitalised_names(tmp_path):
+    # (Left01.png / Right01.png were told to use '*left*', which matches nothing: globs are case-sensitive)
+    from nodes.sources._files import list_pairs
+
+    img = np.full((24, 32, 3), 90, np.uint8)
+    for side in ("Left", "Right"):
+        cv2.imwrite(str(tmp_path / f"{side}01.png"), img)
+    with pytest.raises(NodeError) as e:
+        list_pairs(tmp_path, "left*", "right*")
+    assert "left_glob: '*Left*'" in e.value.hint and "right_glob: '*Right*'" in e.value.hint
+    assert [k for k, _, _ in list_pairs(tmp_path, "*Left*", "*Right*")] == ["01"]  # the advice works

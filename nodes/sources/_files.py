@@ -65,8 +65,9 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
         images = [p.name for p in sorted(folder.iterdir())[:2000] if p.suffix.lower() in IMAGE_SUFFIXES] \
             if folder.is_dir() else []
         sided = [n for n in images if "left" in n.lower()]
-        hint = (f"the folder holds {len(images)} images named like {sided[0]!r}: set left_glob: '*left*' and "
-                "right_glob: '*right*' (or globs of your own)" if sided else
+        hint = (f"the folder holds {len(images)} images named like {sided[0]!r}: set left_glob: "
+                f"'{_side_glob(images, 'left')}' and right_glob: '{_side_glob(images, 'right')}' (or globs of your "
+                "own)" if sided else
                 f"the folder holds {len(images)} images ({', '.join(images[:3])}{' ...' if len(images) > 3 else ''}): "
                 "fix the globs" if images else
                 f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs")
@@ -93,6 +94,12 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
         raise NodeError(f"these images have no partner: {', '.join(names)} (in {folder}).",
                         hint="every left image needs a right image of the same name")
     return [(_clean_id(k), kl[k], kr[k]) for k in sorted(kl)]
+
+
+def _side_glob(names: list[str], side: str) -> str:
+    """``*left*`` spelt as the file names spell it (``*Left*``, ``*LEFT*``): globs are case-sensitive."""
+    spelt = next((n[i: i + len(side)] for n in names for i in [n.lower().find(side)] if i >= 0), side)
+    return f"*{spelt}*"
 
 
 def _separate_dirs(lefts, rights) -> bool:
