@@ -93,3 +93,20 @@ def test_the_suggested_globs_match_capitalised_names(tmp_path):
         list_pairs(tmp_path, "left*", "right*")
     assert "left_glob: '*Left*'" in e.value.hint and "right_glob: '*Right*'" in e.value.hint
     assert [k for k, _, _ in list_pairs(tmp_path, "*Left*", "*Right*")] == ["01"]  # the advice works
+
+
+def test_names_without_a_side_token_pair_by_what_the_globs_matched(tmp_path):
+    # (cam0_01.png / cam1_01.png with globs cam0* / cam1*: "these images have no partner: cam0_01.png, ...")
+    from nodes.sources._files import list_pairs
+
+    img = np.full((24, 32, 3), 90, np.uint8)
+    for cam in ("cam0", "cam1"):
+        for i in ("01", "02", "10"):
+            cv2.imwrite(str(tmp_path / f"{cam}_{i}.png"), img)
+    for lg, rg in (("cam0*", "cam1*"), ("cam0_*.png", "cam1_*.png")):
+        got = list_pairs(tmp_path, lg, rg)
+        assert [(k, a.name, b.name) for k, a, b in got] == [(i, f"cam0_{i}.png", f"cam1_{i}.png")
+                                                            for i in ("01", "02", "10")]
+    (tmp_path / "cam1_10.png").rename(tmp_path / "cam1_11.png")  # a real mismatch is still refused, named
+    with pytest.raises(NodeError, match=r"no partner: cam0_10.png, cam1_11.png \("):
+        list_pairs(tmp_path, "cam0*", "cam1*")

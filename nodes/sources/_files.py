@@ -89,11 +89,33 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
         raise NodeError(f"image names in {folder} do not give unique pair names once left/right is removed.",
                         hint="name pairs like left01.png / right01.png or put them in left/ and right/ folders")
     missing = sorted(set(kl) ^ set(kr))
+    if missing:  # no side token in the names (cam0_01.png / cam1_01.png): what the globs' wildcards matched
+        gl, gr = _glob_keys(lefts, left_glob), _glob_keys(rights, right_glob)
+        if gl is not None and gr is not None and len(set(gl) ^ set(gr)) < len(missing):
+            kl, kr, missing = gl, gr, sorted(set(gl) ^ set(gr))
     if missing:
         names = [kl[k].name if k in kl else kr[k].name for k in missing]
         raise NodeError(f"these images have no partner: {', '.join(names)} (in {folder}).",
                         hint="every left image needs a right image of the same name")
     return [(_clean_id(k), kl[k], kr[k]) for k in sorted(kl)]
+
+
+def _glob_keys(files: list[Path], pattern: str) -> dict[str, Path] | None:
+    """{the part of each file name the glob's wildcards matched: file}, or None if not unique."""
+    name = Path(pattern).name
+    wild = [i for i, ch in enumerate(name) if ch in "*?["]
+    if not wild:
+        return None
+    prefix, suffix = name[:wild[0]], name[max(name.rfind("*"), name.rfind("?"), name.rfind("]")) + 1:]
+    keys = {}
+    for f in files:
+        n = f.name
+        if not (n.startswith(prefix) and n.endswith(suffix)) or len(n) < len(prefix) + len(suffix):
+            return None
+        core = n[len(prefix): len(n) - len(suffix)]
+        core = core[: -len(f.suffix)] if f.suffix and core.endswith(f.suffix) else core
+        keys[core.strip("_-. ")] = f
+    return keys if len(keys) == len(files) and "" not in keys else None
 
 
 def _side_glob(names: list[str], side: str) -> str:
