@@ -155,3 +155,19 @@ def test_a_mismatched_pair_is_dropped_and_a_calibration_that_does_not_fit_is_ref
     assert abs(cal["baseline_cm"] - good["baseline_cm"]) < 0.01 and cal["rms_px"] < 0.3
     with pytest.raises(NodeError, match=r"reprojection RMS is .*over max_rms_px 2.*worst views " + bad[3]["id"]):
         chessboard(ChessboardParams(max_view_rms_px=1000.0), views=shuffled)
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+def test_a_real_pair_with_left_and_right_swapped_is_dropped(tmp_path):
+    # (left03/right03 swapped: every view's error rose to 12-21 px, so view 03 (57 px) was not 5x the median and
+    # the whole calibration was refused at RMS 21 px)
+    import shutil
+
+    for f in DATA.glob("*.jpg"):
+        shutil.copy(f, tmp_path / f.name)
+    shutil.copy(DATA / "right03.jpg", tmp_path / "left03.jpg")
+    shutil.copy(DATA / "left03.jpg", tmp_path / "right03.jpg")
+    cal = chessboard(ChessboardParams(), views=calib_files(CalibFilesParams(folder=str(tmp_path)))["views"])
+    cal = cal["calibration"]
+    assert cal["rejected_views"] == ["03"] and "dropped" in cal["rejected_reasons"]["03"]
+    assert cal["rms_px"] < 0.3 and abs(cal["baseline_cm"] - 3.328) < 0.01

@@ -167,13 +167,18 @@ def stereo_calibrate_points(ids: list[str], obj: list[np.ndarray], left: list[np
 #: that a calibration at 0.05 px does not drop a 0.2 px view.
 OUTLIER_VIEW_FACTOR = 5.0
 OUTLIER_VIEW_FLOOR_PX = 0.5
+#: ... or, in a calibration over ``max_rms_px``, this many times worse than the next worst view.
+OUTLIER_VIEW_DOMINANT = 2.0
 
 
 def drop_outlier_views(calibrate, ids: list[str], min_views: int, max_view_rms_px: float | None,
-                       rejected: dict[str, str], ctx=None) -> dict:
+                       rejected: dict[str, str], ctx=None, max_rms_px: float | None = None) -> dict:
     """Calibrate from ``ids`` (``calibrate(ids) -> StereoCalibration``), then drop the worst-fitting view
     and calibrate again while it fits worse than ``max_view_rms_px`` (default: 5x the median view and
     0.5 px), one view at a time, since one bad view pulls every other view's error up with it.
+    A view can pull them up so far (a pair with left and right swapped) that it is not 5x the median
+    any more: with the default limit, while the overall RMS is over ``max_rms_px`` (the calibration
+    would be refused) a view fitting over twice as badly as the next worst is dropped too.
     Dropped views are added to ``rejected`` with the reason; never below ``min_views`` (said by a warning).
     """
     keep = list(ids)
@@ -188,6 +193,12 @@ def drop_outlier_views(calibrate, ids: list[str], min_views: int, max_view_rms_p
         else:
             limit = max(OUTLIER_VIEW_FLOOR_PX, OUTLIER_VIEW_FACTOR * float(np.median(list(per.values()))))
             why = f"{OUTLIER_VIEW_FACTOR:g}x the median view"
+        if (per[worst] <= limit and max_view_rms_px is None and max_rms_px is not None
+                and cal["rms_px"] > max_rms_px and len(per) > 1):
+            second = sorted(per.values())[-2]
+            if per[worst] > OUTLIER_VIEW_DOMINANT * second:
+                limit = OUTLIER_VIEW_DOMINANT * second
+                why = f"{OUTLIER_VIEW_DOMINANT:g}x the next worst view, overall RMS {cal['rms_px']:.2f} px"
         if per[worst] <= limit:
             return cal
         if len(keep) - 1 < min_views:

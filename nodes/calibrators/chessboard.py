@@ -120,7 +120,8 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
         return calibrate_stereo(keep, [left[at[i]] for i in keep], [right[at[i]] for i in keep], views["image_size"],
                                 cols, rows, sq, params.refine, params.fix_k3)
 
-    cal = drop_outlier_views(calibrate, ids, params.min_views, params.max_view_rms_px, rejected, ctx)
+    cal = drop_outlier_views(calibrate, ids, params.min_views, params.max_view_rms_px, rejected, ctx,
+                             params.max_rms_px)
     check_overall_rms(cal, params.max_rms_px, "calibrator.chessboard")
     cal["rejected_views"] = sorted(rejected)
     cal["rejected_reasons"] = rejected
