@@ -5,7 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["board_points", "detect_corners", "detect_views", "orient_corners", "stereo_calibrate_points", "to_gray"]
+__all__ = ["board_points", "detect_corners", "detect_views", "larger_board", "orient_corners",
+           "stereo_calibrate_points", "to_gray"]
 
 _CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-9)
 
@@ -59,6 +60,23 @@ def detect_corners(img: np.ndarray, cols: int, rows: int, subpix_window_px: int 
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
     refined = cv2.cornerSubPix(gray, corners.astype(np.float32), (subpix_window_px, subpix_window_px), (-1, -1), crit)
     return orient_corners(gray, refined.reshape(-1, 2).astype(np.float32), cols, rows)
+
+
+def larger_board(img: np.ndarray, cols: int, rows: int) -> tuple[int, int] | None:
+    """A board one corner wider or taller than ``cols x rows`` found in ``img``, or None.
+
+    ``findChessboardCorners`` finds a ``cols x rows`` part of a larger board in most real images
+    (OpenCV's 9x6 sample pairs: 12 of 13 at 8x6). A calibration from that part is still right (the
+    squares have their size), but a frame put on the board (its first corner, its centre) is off by
+    a square. Two detections of the one image: call it on one view, not on every one.
+    """
+    gray = to_gray(img)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+    for size in ((cols + 1, rows), (cols, rows + 1)):
+        found, _ = cv2.findChessboardCorners(gray, size, flags=flags)
+        if found:
+            return size
+    return None
 
 
 def orient_corners(gray: np.ndarray, c: np.ndarray, cols: int, rows: int) -> np.ndarray:

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from nodes.calibrators._board import board_points, detect_corners
+from nodes.calibrators._board import board_points, detect_corners, larger_board
 from nodes.contracts.calibration_file import rig_fingerprint
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -205,6 +205,13 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
         raise NodeError(f"{label}: no {cols}x{rows} chessboard found in {which} of view {v['id']}.",
                         hint="the whole board must be visible and sharp in both images; check cols/rows (inner "
                              "corners) of the source's board")
+    bigger = larger_board(v["left"], cols, rows)
+    if bigger is not None:  # the frame would sit on a part of the board, a square or more off
+        raise NodeError(f"{label}: view {v['id']} shows a board with more inner corners than {cols}x{rows} (a "
+                        f"{bigger[0]}x{bigger[1]} board is found too): the table frame would be put on a part of it, "
+                        "a square or more away from where you expect it.",
+                        hint="set the source's board cols/rows to the whole board's inner corners (the points where "
+                             "four squares meet, e.g. 9x6 on a board of 10x7 squares)")
     obj = board_points(cols, rows, sq).astype(float)
     try:
         pose = board_pose(obj, pl.astype(float), pr.astype(float), calibration)
