@@ -24,12 +24,13 @@ from stereograph.threads import one_thread_each, pool_requested
 
 
 def _console(stderr: bool = False):
-    from rich.console import Console
+    from stereograph.errors import console
 
     stream = sys.stderr if stderr else sys.stdout
     # logs and pipes get a wide table rather than rich's 80-column default
     width = None if stream.isatty() else PIPE_WIDTH
-    return Console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
+    # (user text is printed with its control characters escaped: a pipeline cannot drive the terminal)
+    return console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
 
 
 PIPE_WIDTH = 160  # columns of what a log, pipe or file gets
@@ -345,7 +346,9 @@ def _print_entry(con, kind: str, text: str) -> None:
     if kind == "markdown":
         from rich.markdown import Markdown
 
-        con.print(Markdown(text))
+        from stereograph.errors import printable
+
+        con.print(Markdown(printable(text)))
     else:
         from rich.pretty import Pretty
 

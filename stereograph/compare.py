@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
-from stereograph.errors import ConfigError, UsageError
+from stereograph.errors import ConfigError, UsageError, printable
 from stereograph.graph import Graph, build_graph
 
 __all__ = [
@@ -393,13 +393,13 @@ class _PlainProgress:
 
     def variant_started(self, i: int, n: int, label: str) -> None:
         if self.stream:
-            print(f"[{i}/{n}] {label} ...", file=self.stream, flush=True)
+            print(printable(f"[{i}/{n}] {label} ..."), file=self.stream, flush=True)
 
     def variant_done(self, vr: VariantResult) -> None:
         if self.stream:
             ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (all cached)"
             state = "ok" if vr.ok else f"FAILED: {vr.error}"
-            print(f"      {state}; computed: {ran} ({vr.seconds:.1f} s)", file=self.stream, flush=True)
+            print(printable(f"      {state}; computed: {ran} ({vr.seconds:.1f} s)"), file=self.stream, flush=True)
 
     def node_started(self, name: str, n_items: int) -> None:
         if self.nodes is not None:
@@ -442,7 +442,9 @@ class _RichProgress(_PlainProgress):
     def variant_started(self, i: int, n: int, label: str) -> None:
         if self.overall is None:
             self.overall = self.p.add_task("variants", total=n)
-        self.p.update(self.overall, description=f"variant {i}/{n}: {label}"[:48])
+        from rich.markup import escape
+
+        self.p.update(self.overall, description=escape(printable(f"variant {i}/{n}: {label}"[:48])))
 
     def variant_done(self, vr: VariantResult) -> None:
         self.p.advance(self.overall)
@@ -607,7 +609,7 @@ def _write_page(res: CompareResult, overrides: list[str] | None) -> None:
 
         res.files["html"] = write_compare_html(res, list(overrides or []))
     except Exception as e:  # the table and CSV are written: a page problem must not hide them
-        print(f"note: compare.html not written: {type(e).__name__}: {e}", file=sys.stderr)
+        print(printable(f"note: compare.html not written: {type(e).__name__}: {e}"), file=sys.stderr)
 
 
 def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any, prog: Any,
@@ -870,11 +872,12 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
         ``NAME`` (lowest is best) or ``NAME:max``: that row in bold green.
     """
     from rich import box
-    from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
 
-    con = console or Console(highlight=False)
+    from stereograph.errors import console as safe_console
+
+    con = console or safe_console(highlight=False)
     keys = _varying_keys(res)
     fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
     # A mistake in --metrics / --best is known only now that the variants ran: the table is printed
@@ -963,13 +966,12 @@ add_compare_subcommand = add_subcommand
 
 def main(args: Any) -> int:
     """Run ``stereograph compare`` from parsed arguments; 0 when every variant ran, 1 otherwise."""
-    from rich.console import Console
-
+    from stereograph.errors import console
     from stereograph.runner import workers_executor
 
     wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
-    con = Console(highlight=False, soft_wrap=True, width=wide)
-    err = Console(stderr=True, highlight=False, soft_wrap=True)
+    con = console(highlight=False, soft_wrap=True, width=wide)  # (user text printed with control characters escaped)
+    err = console(stderr=True, highlight=False, soft_wrap=True)
     executor = workers_executor(args.workers, getattr(args, "dask", None))
     kw = {"overrides": args.set, "cache_dir": args.cache_dir, "split": args.split, "executor": executor,
           "skip_invalid": args.skip_invalid, "plots": False}

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass
@@ -106,3 +108,32 @@ def in_file_order(errors: list[ConfigError]) -> list[ConfigError]:
         flat += e.errors if isinstance(e, ConfigErrors) else [e]
     return sorted(flat, key=lambda e: (e.where is None, e.where.file if e.where else "",
                                        (e.where.line or 0) if e.where else 0))
+
+
+# Control characters (ESC, CR, BEL, ...) and the bidirectional overrides. User text -- a value in a
+# pipeline file ("\\e[2J" is valid YAML), an image's file name, a node's message -- reaches the
+# terminal in errors and tables; these would let it clear the screen, move the cursor over a
+# warning, retitle the window or reorder what is shown.
+_UNPRINTABLE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: str) -> str:
+    """``text`` with its control characters written as escapes (``\\x1b``), newlines and tabs kept."""
+    return _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], text)
+
+
+_CONSOLE_CLASS: Any = None
+
+
+def console(**kw: Any) -> Any:
+    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay)."""
+    global _CONSOLE_CLASS
+    if _CONSOLE_CLASS is None:
+        from rich.console import Console
+
+        class _Console(Console):
+            def render_str(self, text: str, *a: Any, **k: Any) -> Any:  # print(), table cells, titles, rules
+                return super().render_str(printable(text), *a, **k)
+
+        _CONSOLE_CLASS = _Console
+    return _CONSOLE_CLASS(**kw)

@@ -329,6 +329,22 @@ def test_markup_in_user_text_is_printed_literally(tmp_path, capsys):
     assert code == 2 and "unknown node type '[bold red]a[/]b'" in msg
 
 
+def test_control_characters_in_user_text_cannot_drive_the_terminal(tmp_path, capsys):
+    # "\e" and "\r" are valid escapes in a double-quoted YAML string: ESC [2J clears the screen,
+    # ESC ]0; retitles the window, CR writes over the line
+    f = write(tmp_path / "p.yaml", 'nodes:\n  x: {type: "source.synthetic\\e[2J\\e]0;pwned\\a\\r"}\n')
+    code = main(["validate", str(f)])
+    out = capsys.readouterr()
+    assert code == 2 and "unknown node type 'source.synthetic\\x1b[2J\\x1b]0;pwned\\x07\\r'" in out.err
+    assert not any(c in out.out + out.err for c in "\x1b\x07\r")
+    # a node's own message (here naming a folder from the file) in the summary table and the error line
+    g = write(tmp_path / "q.yaml", 'nodes:\n  src: {type: source.files, params: {folder: "x\\e[2Jy\\u202e"}}\n')
+    code = main(["run", str(g), "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "c")])
+    out = capsys.readouterr()
+    assert code == 1 and "x\\x1b[2Jy\\u202e" in out.err
+    assert not any(c in out.out + out.err for c in "\x1b\u202e")
+
+
 @pytest.mark.parametrize("setting,says", [
     ("rig.focal_length_px=1e309", "finite number"),
     ("rig.focal_length_px=.inf", "finite number"),
