@@ -20,6 +20,7 @@ import html
 import json
 import os
 import re
+import urllib.parse
 import uuid
 from pathlib import Path
 from typing import Any
@@ -80,11 +81,25 @@ class _Page:
     def __init__(self, run_dir: Path):
         self.dir = run_dir
         self.budget = EMBED_BUDGET_BYTES
+        self._root: str | None = None
+
+    def inside(self, rel: str) -> bool:
+        """Whether ``rel`` names a file in the run folder. run.json may come from someone else (a run
+        folder handed over, then ``stereograph report``): a path that is absolute, climbs out with
+        ``..`` or passes through a symbolic link (stereograph makes none) must not put a file from
+        elsewhere on the page -- embedded, it would go wherever the page goes."""
+        if not isinstance(rel, str) or not rel or os.path.isabs(rel) or ".." in _parts(rel) or "\0" in rel:
+            return False
+        if self._root is None:
+            self._root = os.path.realpath(self.dir)
+        return os.path.realpath(os.path.join(self.dir, rel)) == os.path.join(self._root, *_parts(rel))
 
     def image(self, rel: str, caption: str, css_class: str = "") -> str:
         """One figure: embedded while the budget lasts, else linked (the file lies beside the page)."""
         p = self.dir / rel
         mime = _MIME.get(p.suffix.lower())
+        if not self.inside(rel):
+            return f'<p class="err">not shown: {_e(rel)} is not a file of this run folder</p>'
         try:
             size = p.stat().st_size
         except OSError:
@@ -93,12 +108,14 @@ class _Page:
             self.budget -= size
             src = f"data:{mime};base64," + base64.b64encode(p.read_bytes()).decode("ascii")
         else:
-            src = _e(Path(rel).as_posix())
+            src = _href(rel)
         return (f'<figure class="{css_class}"><img src="{src}" alt="{_e(rel)}" data-file="{_e(rel)}" loading="eager">'
                 f"<figcaption>{_e(rel)}</figcaption></figure>")
 
     def json_block(self, rel: str) -> str:
         p = self.dir / rel
+        if not self.inside(rel):
+            return f'<p class="err">not shown: {_e(rel)} is not a file of this run folder</p>'
         try:
             if p.stat().st_size > MAX_JSON_BYTES:
                 return _link(rel)
@@ -117,8 +134,14 @@ class _Page:
         return _link(rel)
 
 
+def _href(rel: str) -> str:
+    """A run-folder path as a relative URL: percent-encoded, so that an item's file name
+    (``%2E%2E%2Fx.png``) is that file, and ``javascript:...`` is a file name, not a scheme."""
+    return _e(urllib.parse.quote("/".join(_parts(rel)), safe="/"))
+
+
 def _link(rel: str) -> str:
-    return f'<div><a href="{_e(Path(rel).as_posix())}">{_e(rel)}</a></div>'
+    return f'<div><a href="{_href(rel)}">{_e(rel)}</a></div>'
 
 
 def is_table(v: Any) -> bool:
@@ -210,9 +233,11 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
         if len(imgs) > IMAGES_PER_OUTPUT:
             folder = Path(imgs[0]).parent.as_posix()
             bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
-                        f'<a href="{_e(folder)}">{_e(folder)}</a></p>')
+                        f'<a href="{_href(folder)}">{_e(folder)}</a></p>')
         for f in rest:
-            bits.append(page.json_block(f) if f.endswith(".json") else _link(f))
+            bits.append(page.json_block(f) if f.endswith(".json") else
+                        _link(f) if page.inside(f) else f'<p class="err">not shown: {_e(f)} is not a file of this '
+                                                        f'run folder</p>')
         bits.append("</div>")
     return "\n".join(bits)
 

@@ -527,3 +527,27 @@ def test_full_disk_for_out_and_for_the_cache(tmp_path):
     assert res.returncode == 0, res.stderr
     assert "cannot store more entries" in res.stderr and (tmp_path / "o" / "total" / "total.json").exists()
     assert res.stdout.split("LEFT:")[-1].strip() == ""
+
+
+def test_report_of_a_handed_run_folder_shows_only_its_own_files(tmp_path, capsys):
+    # a run folder from someone else: its run.json names files elsewhere on this machine (absolute,
+    # climbing out, through a symbolic link) and a 'javascript:' link; `stereograph report` must not
+    # embed those files into the page (it goes wherever the page goes) nor make a script link
+    secret = tmp_path / "secret.png"
+    ok, png = cv2.imencode(".png", np.full((16, 16, 3), 7, np.uint8))
+    secret.write_bytes(png.tobytes())
+    run = tmp_path / "handed"
+    (run / "a").mkdir(parents=True)
+    (run / "a" / "link.png").symlink_to(secret)
+    (run / "a" / "own.png").write_bytes(png.tobytes())
+    (run / "a" / "t.json").write_text(json.dumps({"columns": ["k"], "rows": [["mine"]]}))
+    (tmp_path / "t.json").write_text(json.dumps({"columns": ["k"], "rows": [["outside"]]}))
+    files = [str(secret), "a/../../secret.png", "a/link.png", "../t.json", "javascript:alert(1)", "a/own.png",
+             "a/t.json"]
+    (run / "run.json").write_text(json.dumps({"stereograph_run": {"format": 1}, "run_id": "x", "pipeline": "p",
+                                              "ok": True, "nodes": [{"node": "a", "type": "t", "status": "ran",
+                                                                     "files": files}]}))
+    assert main(["report", str(run)]) == 0
+    page = (run / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 1 and "outside" not in page and "mine" in page
+    assert 'href="javascript:' not in page and page.count("is not a file of this run folder") == 4
