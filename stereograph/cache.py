@@ -627,9 +627,10 @@ class ArtifactStore:
         rroot = self.root / "rendered"
         if rroot.is_dir():
             for sub in rroot.iterdir():
-                if sub.is_dir():
+                if sub.is_dir() and not sub.is_symlink():
                     for r in sub.iterdir():
-                        rendered.setdefault(r.name.split("-", 1)[0], []).append(r)
+                        if _named(r, "rendered", 1) and r.name[:2] == sub.name:  # (nothing else is pruned)
+                            rendered.setdefault(r.name.split("-", 1)[0], []).append(r)
         rows = []
         if self.objects.is_dir():
             for d in self._entries():
@@ -680,15 +681,63 @@ class ArtifactStore:
         for sub in self.objects.iterdir():
             if sub.is_dir() and not sub.is_symlink():
                 for d in sub.iterdir():
-                    if d.is_dir() and not d.is_symlink() and d.name[:2] == sub.name:
+                    if d.is_dir() and not d.is_symlink() and d.name[:2] == sub.name and _named(d, "objects", 1):
                         yield d
 
     def clear(self) -> int:
+        """Remove every entry and what a cache keeps beside them; returns the number of entries.
+
+        Only what a cache holds, named as the store names it, is removed (see :data:`_CACHE_LAYOUT`):
+        a cache folder that is a folder of yours -- ``--cache-dir ~`` by mistake, a project's
+        ``pyproject.toml`` or a symbolic link that points it there -- loses nothing else (its ``tmp/``,
+        its ``files.json``). A folder left empty is removed; one holding anything else stays."""
         n = len(list(self._entries())) if self.objects.is_dir() else 0
-        for sub in ("objects", "rendered", "tmp", "last", "locks", "files.json", "reruns"):
-            p = self.root / sub
-            if p.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
-            elif p.exists():
-                p.unlink()
+        for sub, levels in _CACHE_LAYOUT.items():
+            _sweep(self.root / sub, levels)
+        index = self.root / "files.json"
+        with contextlib.suppress(OSError, ValueError):
+            data = json.loads(index.read_text()) if index.is_file() and not index.is_symlink() else None
+            if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):  # (a FileIndex)
+                index.unlink()
         return n
+
+
+_HEX = r"[0-9a-f]"
+# What ArtifactStore.clear removes: under each folder of the cache, the names at each level down
+# to what is removed whole (an entry's folder, a lock file); anything else is left where it is.
+_CACHE_LAYOUT: dict[str, list[str]] = {
+    "objects": [f"{_HEX}{{2}}", f"c?{_HEX}{{32}}"],       # objects/ab/<key>/ (c...: a content key)
+    "rendered": [f"{_HEX}{{2}}", rf"c?{_HEX}{{32}}-[\w.-]+"],  # rendered/ab/<key>-<output>/
+    "locks": [f"{_HEX}{{2}}", rf"c?{_HEX}{{32}}\.lock"],        # locks/ab/<key>.lock
+    "last": [f"{_HEX}{{32}}", r"[\w.-]+\.json"],                 # last/<pipeline id>/<node>.json
+    "reruns": [f"{_HEX}{{24}}"],                                  # reruns/<memo id>/
+    "tmp": [rf"(?:(?:del|memo|r)-)?{_HEX}{{32}}"],                # tmp/<uuid>/ (an entry, a memo being made)
+}
+
+
+def _named(p: Path, folder: str, level: int) -> bool:
+    """Whether ``p``'s name is one the store gives at that level of ``folder`` (:data:`_CACHE_LAYOUT`)."""
+    import re
+
+    return re.fullmatch(_CACHE_LAYOUT[folder][level], p.name) is not None
+
+
+def _sweep(folder: Path, levels: list[str]) -> None:
+    """Remove what matches ``levels`` under ``folder`` (never through a symbolic link), then the
+    folders that are left empty, ``folder`` included."""
+    import re
+
+    if folder.is_symlink() or not folder.is_dir():
+        return
+    with contextlib.suppress(OSError):
+        for p in folder.iterdir():
+            if p.is_symlink() or not re.fullmatch(levels[0], p.name):
+                continue
+            if len(levels) > 1:
+                _sweep(p, levels[1:])
+            elif p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        folder.rmdir()  # (only when empty)

@@ -6,7 +6,8 @@ Every pipeline of a project then shares one cache, ``<root>/.stereograph/cache``
 another folder reuses the artifacts the others made), and one ``<root>/runs/`` for run folders.
 
 Overrides, strongest first: ``--cache-dir`` / ``--out``; the ``STEREOGRAPH_CACHE_DIR`` environment
-variable; ``[tool.stereograph] cache_dir`` in the project's ``pyproject.toml`` (relative to the root).
+variable; ``[tool.stereograph] cache_dir`` in the project's ``pyproject.toml`` (relative to the root, and
+inside the project: a project's files may come from someone else).
 
 The cache's size budget (least recently used entries are pruned after a run when it is exceeded):
 ``STEREOGRAPH_CACHE_BUDGET_GB``, else ``[tool.stereograph] cache_budget_gb``, else
@@ -62,7 +63,17 @@ def cache_dir(pipeline_dir: str | Path) -> Path:
     root = project_root(pipeline_dir)
     conf = _tool_config(root).get("cache_dir")
     if isinstance(conf, str) and conf:
-        return (root / Path(conf).expanduser()).resolve()
+        path = (root / Path(conf).expanduser()).resolve()
+        if path != root and root not in path.parents:
+            # a project's files come with the project (a repository cloned, a folder handed over): they
+            # must not point the cache -- written to by every run, emptied by `cache clear` -- at your files
+            from stereograph.errors import ConfigError
+
+            raise ConfigError(f"{root / 'pyproject.toml'}: [tool.stereograph] cache_dir = {conf!r} is outside the "
+                              f"project ({root})",
+                              hint="give a folder inside the project; for a cache elsewhere, choose it yourself "
+                                   "with --cache-dir or STEREOGRAPH_CACHE_DIR")
+        return path
     return root / ".stereograph" / "cache"
 
 

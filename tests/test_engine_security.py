@@ -551,3 +551,41 @@ def test_report_of_a_handed_run_folder_shows_only_its_own_files(tmp_path, capsys
     page = (run / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 1 and "outside" not in page and "mine" in page
     assert 'href="javascript:' not in page and page.count("is not a file of this run folder") == 4
+
+
+def test_cache_clear_removes_only_what_a_cache_holds(tmp_path, capsys):
+    # a cache folder that is a folder of yours: --cache-dir ~ by mistake, or a project's symbolic link
+    # .stereograph/cache -> ../.. (a repository can hold one); `cache clear` deleted its tmp/ and files.json
+    mine = tmp_path / "home"
+    (mine / "tmp").mkdir(parents=True)
+    (mine / "tmp" / "thesis.tex").write_text("keep")
+    (mine / "last").mkdir()
+    (mine / "last" / "notes.json").write_text("{}")
+    (mine / "files.json").write_text('{"photos": "keep"}')
+    proj = tmp_path / "proj"
+    (proj / ".stereograph").mkdir(parents=True)
+    (proj / ".stereograph" / "cache").symlink_to(mine)
+    (proj / ".git").mkdir()
+    p = write(proj / "p.yaml", f"plugins: [{TOY}]\nnodes:\n"
+                               "  numbers: {type: toy.numbers, params: {n: 2, size: 4}}\n")
+    assert cli("--allow-plugins", "run", p, "--out", tmp_path / "o", capsys=capsys)[0] == 0
+    assert any((mine / "objects").iterdir())
+    code, msg = cli("cache", "clear", p, capsys=capsys)
+    assert code == 0 and "removed 3 entries" in msg, msg
+    assert (mine / "tmp" / "thesis.tex").read_text() == "keep" and (mine / "last" / "notes.json").exists()
+    assert (mine / "files.json").read_text() == '{"photos": "keep"}'
+    assert not (mine / "objects").exists() and not (mine / "locks").exists()  # the cache's own: gone
+
+
+def test_project_file_cannot_put_the_cache_outside_the_project(tmp_path, capsys):
+    mine = tmp_path / "home"
+    (mine / "tmp").mkdir(parents=True)
+    (mine / "tmp" / "thesis.tex").write_text("keep")
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    (proj / "pyproject.toml").write_text('[tool.stereograph]\ncache_dir = "../home"\n')
+    p = write(proj / "p.yaml", "nodes:\n  rig: {type: source.synthetic, params: {n_scenes: 1}}\n")
+    for argv in (["run", p, "--out", tmp_path / "o"], ["cache", "clear", p], ["explain", p]):
+        code, msg = cli(*argv, capsys=capsys)
+        assert code == 2 and "cache_dir = '../home' is outside the project" in msg and "--cache-dir" in msg, msg
+    assert sorted(p.name for p in mine.iterdir()) == ["tmp"] and (mine / "tmp" / "thesis.tex").exists()
