@@ -40,6 +40,29 @@ def _restore(v: Any, npz) -> Any:
     return v
 
 
+# The most a file's arrays may take once decompressed. A run's arrays are a few MB (rectification maps of
+# 4000x3000 cameras: ~200 MB); an .npz is a zip, and a few MB of zeros from someone else can decompress
+# into tens of GB.
+MAX_NPZ_BYTES = 2 << 30
+
+
+def _check_npz_size(npz_path: Path, label: str) -> None:
+    """Refuse an ``.npz`` whose arrays would take more than :data:`MAX_NPZ_BYTES` (its zip directory's
+    sizes, read before anything is decompressed: a member cannot yield more than its recorded size)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(npz_path) as zf:
+            total = sum(i.file_size for i in zf.infolist())
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise ValueError(exc) from None
+    if total > MAX_NPZ_BYTES:
+        raise NodeError(f"{label}: {npz_path} would decompress into {total / 2**30:.1f} GB of arrays, more than "
+                        f"the {MAX_NPZ_BYTES / 2**30:.0f} GB a run's file holds.",
+                        hint="give the .npz the run wrote beside the JSON (a file from someone else may be a "
+                             "decompression bomb)")
+
+
 def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
     """Load one artifact a run wrote as JSON (with its ``.npz`` when there is one).
 
@@ -75,7 +98,8 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
     npz = None
     try:
         if npz_path.is_file():
-            with np.load(npz_path) as z:
+            _check_npz_size(npz_path, label)
+            with np.load(npz_path, allow_pickle=False) as z:
                 npz = {k: z[k] for k in z.files}
         return _restore(data, npz)
     except KeyError as exc:
