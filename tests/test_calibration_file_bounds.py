@@ -22,3 +22,9 @@ def test_npz_that_would_decompress_beyond_the_bound_is_refused(tmp_path, monkeyp
     monkeypatch.setattr(calibration_file, "MAX_NPZ_BYTES", 4 << 20, raising=False)
     with pytest.raises(NodeError, match="would decompress into .* more than"):
         calibration_file.read_artifact(tmp_path / "cal.json", "calibrator.load", "StereoCalibration", "a run")
+
+
+def test_json_nested_beyond_the_stack_is_a_node_error(tmp_path):
+    (tmp_path / "cal.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(NodeError, match="is not a JSON file a run wrote"):
+        calibration_file.read_artifact(tmp_path / "cal.json", "calibrator.load", "StereoCalibration", "a run")

@@ -88,7 +88,7 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
                              "file's folder")
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # (nested deeper than Python's stack)
         raise NodeError(f"{label}: {path} is not a JSON file a run wrote ({exc}).",
                         hint=f"give the {kind} file a run wrote ({made_by})") from None
     if not isinstance(data, dict):
