@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import gc
 import os
 import shutil
 import threading
@@ -107,11 +108,24 @@ class ProcessExecutor:
     def __init__(self, workers: int):
         self.workers = workers
         self.pool = cf.ProcessPoolExecutor(max_workers=workers, initializer=one_thread_each)
+        self._forked = False  # whether this pool has started its processes
+        self._froze = False
+
+    def _submit(self, fn: Callable[[Any], Any], task: Any) -> cf.Future:
+        if not self._forked:
+            # The pool forks its workers at its first task. Objects alive now are moved out of the
+            # cyclic garbage collector's reach first (Python's advice for fork without exec): a
+            # collection in a worker would otherwise write into every inherited object's header and
+            # copy each memory page holding one. Freeing by reference count is unaffected; close()
+            # gives the objects back to the collector.
+            gc.freeze()
+            self._froze = self._forked = True
+        return self.pool.submit(fn, task)
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         tasks = list(tasks)
         try:
-            futures = [self.pool.submit(fn, t) for t in tasks]
+            futures = [self._submit(fn, t) for t in tasks]
         except cf.process.BrokenProcessPool:  # broken by an earlier task (one made ahead, say)
             return self._alone(fn, tasks)
         return self._results(fn, tasks, futures)
@@ -122,7 +136,7 @@ class ProcessExecutor:
         futures: list[cf.Future] = []
         try:
             for t in tasks:
-                futures.append(self.pool.submit(fn, t))
+                futures.append(self._submit(fn, t))
         except cf.process.BrokenProcessPool:
             self._restart()
         return futures
@@ -146,7 +160,7 @@ class ProcessExecutor:
         self._restart()
         for t in tasks:
             try:
-                yield self.pool.submit(fn, t).result()
+                yield self._submit(fn, t).result()
             except cf.process.BrokenProcessPool as e:
                 yield TaskLost(f"its worker process died ({type(e).__name__})")
                 self._restart()
@@ -154,10 +168,14 @@ class ProcessExecutor:
     def _restart(self) -> None:
         self.pool.shutdown(wait=False, cancel_futures=True)
         self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=one_thread_each)
+        self._forked = False
 
     def close(self, now: bool = False) -> None:
         """Wait for the workers to end; ``now`` (Ctrl-C, SIGTERM): cancel what is queued and end the
         workers at once -- their tasks would otherwise go on for as long as the queue lasts."""
+        if self._froze:
+            gc.unfreeze()
+            self._froze = False
         if not now:
             self.pool.shutdown()
             return

@@ -113,6 +113,27 @@ def test_workers_inherit_what_the_source_prepares_and_use_one_library_thread(tmp
     assert workers and {c[2] for c in workers} == {"1"}
 
 
+def _frozen_in_worker(_):
+    import gc
+
+    return gc.get_freeze_count()
+
+
+def test_workers_start_with_the_parents_objects_out_of_the_collectors_reach():
+    """Before a pool forks, the objects alive are frozen (gc.freeze): a collection in a worker then
+    does not write into each inherited object and copy every page holding one."""
+    import gc
+
+    ex = ProcessExecutor(2)
+    try:
+        counts = list(ex.map(_frozen_in_worker, [0, 1, 2]))
+        assert gc.get_freeze_count() > 0
+    finally:
+        ex.close()
+    assert min(counts) > 1000, counts  # the workers got the modules, the graph, ... frozen
+    assert gc.get_freeze_count() == 0  # given back to the collector once the pool is closed
+
+
 def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
     p = write_pipeline(tmp_path, "{n: 9, drop: [m004]}")
     streamed = run(p, tmp_path, use_cache=False)
