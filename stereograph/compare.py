@@ -477,6 +477,55 @@ def _default_out(doc: PipelineDoc) -> Path:
     return runs_dir(doc.directory) / doc.name / f"compare-{new_run_id()}"
 
 
+MARKER = "stereograph_compare"  # a compare.json key only stereograph writes: the folder holds its comparison
+
+
+def _compare_folder(out: Path) -> bool:
+    """Whether ``out`` holds an earlier comparison: its ``compare.json`` (with :data:`MARKER`, or of the
+    shape older versions wrote), or -- one that was interrupted before writing it -- only ``variants/``
+    of run folders that stereograph wrote."""
+    from stereograph.outputs import MARKER as RUN_MARKER
+
+    try:
+        summary = json.loads((out / "compare.json").read_text())
+        older = {"pipeline", "keys", "rows", "variants"}  # (before the marker)
+        if isinstance(summary, dict) and (MARKER in summary or older <= set(summary)):
+            return True
+    except (OSError, ValueError):
+        pass
+    try:
+        if {p.name for p in out.iterdir()} != {"variants"}:
+            return False
+        for v in (out / "variants").iterdir():
+            run = json.loads((v / "run.json").read_text()) if any(v.iterdir()) else {RUN_MARKER: {}}
+            if not (isinstance(run, dict) and isinstance(run.get(RUN_MARKER), dict)):
+                return False
+    except (OSError, ValueError):
+        return False
+    return True
+
+
+def prepare_compare_dir(out: Path) -> None:
+    """Make ``out`` ready for a comparison's files, or refuse it (:class:`ConfigError`): an existing file,
+    a folder that cannot be made or written, a non-empty folder that is not an earlier comparison's
+    (its files are never overwritten: ``compare.csv``, ``variants/``)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output folder {out} is an existing file", hint="choose another --out")
+    probe = out
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"output folder {out} cannot be made: {probe} is a file", hint="choose another --out")
+    try:
+        if out.is_dir() and any(out.iterdir()) and not _compare_folder(out):
+            raise ConfigError(f"output folder {out} is not empty and is not the folder of an earlier stereograph "
+                              "comparison (no compare.json that stereograph wrote)",
+                              hint="choose another --out, or empty that folder")
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"cannot use output folder {out}: {e.strerror or e}", hint="choose another --out") from None
+
+
 def compare(
     pipeline_path: str | Path,
     vary: list[str] | None = None,
@@ -557,7 +606,7 @@ def compare(
                           hint="add a node with an output of type Metrics (`stereograph nodes` shows each node's "
                                "outputs), a report of the results, say")
     out = Path(out_dir) if out_dir is not None else _default_out(doc)
-    out.mkdir(parents=True, exist_ok=True)
+    prepare_compare_dir(out)
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir(doc)
     timings = _Timings(cache)
     prog = progress if progress is not None else _PlainProgress(None)
@@ -701,6 +750,7 @@ def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) 
             w.writerow([_csv(r["settings"][c]) if c in res.keys else _csv(r.get(c)) for c in cols])
     files["csv"] = path
     doc = {
+        MARKER: {"format": 1},
         "pipeline": res.pipeline,
         "keys": res.keys,
         "split": res.split,

@@ -228,3 +228,30 @@ def test_a_variant_folder_is_named_by_the_settings_that_vary():
     locate = Path(__file__).resolve().parent.parent / "pipelines" / "compare-compensation.yaml"
     slugs = [v.slug for v in expand_variants(load_pipeline(locate))]
     assert slugs[:2] == ["v01_fit.type-none", "v02_fit.type-polynomial"] and len(set(slugs)) == len(slugs)
+
+
+def test_out_must_be_a_folder_of_its_own(pipeline, tmp_path, capsys):
+    """--out on a file, under a file, or on a folder of someone else's files: a clear refusal (exit 2),
+    never an internal error, and no compare.csv or variants/ written among the user's files. An earlier
+    comparison's folder, finished or interrupted, is reused."""
+    (tmp_path / "a file").write_text("x")
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "compare.csv").write_text("my numbers\n")
+    base = ["compare", str(pipeline), "--vary", "fit.type=none", "--cache-dir", str(tmp_path / "c"), "--no-plots"]
+    for out, why in ((tmp_path / "a file", "is an existing file"), (tmp_path / "a file" / "sub", "is a file"),
+                     (foreign, "is not empty")):
+        assert cli_main([*base, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert why in err and "internal error" not in err, err
+    assert sorted(p.name for p in foreign.iterdir()) == ["compare.csv"]
+    assert (foreign / "compare.csv").read_text() == "my numbers\n"
+    with pytest.raises(ConfigError, match="not empty"):
+        compare(pipeline, [], foreign, cache_dir=tmp_path / "c", plots=False)
+    out = tmp_path / "o"
+    assert cli_main([*base, "--out", str(out)]) == 0
+    assert cli_main([*base, "--out", str(out)]) == 0  # its own earlier comparison
+    (out / "compare.json").unlink()  # as if interrupted before the table: only variants/ of run folders
+    for f in ("compare.csv", "compare.html"):
+        (out / f).unlink()
+    assert cli_main([*base, "--out", str(out)]) == 0, capsys.readouterr().err
