@@ -385,7 +385,7 @@ def cmd_run(args) -> int:
     prog = RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
                                                               args.progress_interval)
     try:
-        with _sigterm_as_interrupt(loop is not None), _stdout_to_stderr(args.json):
+        with _stdout_to_stderr(args.json):
             with prog:
                 result = run_graph(graph, progress=prog, prepare=(_load_printing,), **kw)
     except BaseException:  # (Ctrl-C: a pool's workers are ended, not waited for)
@@ -500,17 +500,23 @@ def _loop(args, con):
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt(enabled: bool):
-    """In a ``--repeat`` loop, SIGTERM (``kill``, a service manager) ends the run the way Ctrl-C
-    does: as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so its cleanup runs and
-    the loop's summary is written. (A single run keeps the default action, which a node may
-    replace while it does something that must end cleanly — a motion.)"""
+def _sigterm_as_interrupt():
+    """For ``run``: SIGTERM (``kill``, a service manager, a CI job's timeout) ends the
+    command the way Ctrl-C does, as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so
+    its cleanup runs, a ``--repeat`` loop's summary is written, and the run folder gets the
+    ``run.json`` of an interrupted run -- the same command then resumes into it. (The default action
+    killed a single run on the spot, leaving saved outputs without a ``run.json``: a folder the next
+    run with the same ``--out`` refused as not stereograph's.) A worker process forked while this
+    is installed keeps the default action."""
+    main_pid = os.getpid()
+
     def handler(signum, frame):
+        if os.getpid() != main_pid:  # a pool's worker: end as before (its pool is ended for it)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
         raise KeyboardInterrupt("SIGTERM")
 
-    if not enabled:
-        yield
-        return
     try:
         old = signal.signal(signal.SIGTERM, handler)
     except ValueError:  # not the main thread: leave signals alone
@@ -734,7 +740,8 @@ def _main(argv: list[str]) -> int:
     debug = getattr(args, "debug", False) or "--debug" in argv
     args.debug = debug  # `stereograph --debug run X` and `stereograph run X --debug` alike
     try:
-        with registry.plugins_allowed(allow_plugins):
+        with registry.plugins_allowed(allow_plugins), \
+                (_sigterm_as_interrupt() if args.command == "run" else contextlib.nullcontext()):
             return int(args.fn(args) or 0)
     except ConfigError as e:
         from rich.markup import escape

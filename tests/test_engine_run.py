@@ -634,3 +634,42 @@ def test_json_output_stays_json_when_a_node_prints(tmp_path):
     out = subprocess.run([sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--json",
                           "--no-cache", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and json.loads(out.stdout)["ok"] is True and "HELLO FROM NODE" in out.stderr
+
+
+def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
+    # (SIGTERM -- `kill`, a CI job's timeout -- killed a single run on the spot: its saved outputs stayed
+    # without a run.json, and the same command with the same --out was refused as "not the folder of
+    # an earlier stereograph run")
+    import signal
+
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    slow = _plugin(tmp_path, "slow.py", f"""\
+        import time, uuid
+        from pathlib import Path
+        from stereograph.api import node, Out, In
+        @node("tmp.slow", inputs={{"m": In("Matrix")}}, outputs={{"v": Out("Number", save=True)}})
+        def slow(params, m):
+            time.sleep(0.3)
+            Path({str(marks)!r}, uuid.uuid4().hex).touch()
+            return {{"v": 1.0}}
+        """)
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 8, "
+                 "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n")
+    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--cache-dir",
+           str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while len(list(marks.iterdir())) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    os.killpg(p.pid, signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err, err
+    summary = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert summary["ok"] is False and "interrupted" in {n["status"] for n in summary["nodes"]}
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr
+    summary = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert summary["ok"] is True and summary["nodes"][-1]["items"] == 8
+    assert len(list(marks.iterdir())) < 8 + 8  # (the items finished before the signal were not computed again)
