@@ -330,4 +330,9 @@ def write_report(run_dir: str | Path) -> Path:
                           ) from None
     except (OSError, ValueError) as e:
         raise ConfigError(f"cannot read {d / 'run.json'}: {e}", hint="run the pipeline again to rewrite it") from None
-    return write_html(d / REPORT_NAME, build_html(summary, d))
+    try:
+        page = build_html(summary, d)
+    except (TypeError, AttributeError, KeyError, ValueError) as e:  # a hand-edited or foreign run.json
+        raise ConfigError(f"{d / 'run.json'} is not in the form stereograph writes ({type(e).__name__}: {e})",
+                          hint="give the folder a run wrote, or run the pipeline again to rewrite it") from None
+    return write_html(d / REPORT_NAME, page)

@@ -86,3 +86,15 @@ def test_a_markdown_value_is_shown_as_html_with_its_table():
     page = markdown_html(md)
     assert page.startswith("<h5>Error &lt;b&gt;</h5><p>split: test</p><table")
     assert "<th>axis</th><th>mean (cm)</th>" in page and "<td>z</td><td>-0.059</td>" in page and "---" not in page
+
+
+def test_report_on_a_malformed_run_json_is_a_clear_error(tmp_path, capsys):
+    # (a run.json of the wrong shape -- edited by hand, another tool's -- was "internal error: TypeError")
+    bad = [{"stereograph_run": {}, "nodes": 5}, {"nodes": [{"node": "a", "files": 7}]},
+           {"nodes": [{"node": "a", "seconds": "slow"}]}, {"nodes": [{"node": "a", "inputs": [1]}]}]
+    for summary in bad:
+        (tmp_path / "run.json").write_text(json.dumps(summary))
+        assert main(["report", str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert "run.json" in err and "internal error" not in err, (summary, err)
+        assert not (tmp_path / "report.html").exists()
