@@ -469,17 +469,20 @@ def apply_override(doc: PipelineDoc, text: str) -> None:
     if fields == ["type"]:
         decl["type"] = str(value)
         decl["params"] = {}  # params of another type rarely fit; defaults apply
+        doc.lines[("nodes", node, "type")] = where  # (a problem with it is the --set's, not the file's line)
     elif fields[0] == "inputs" and len(fields) == 2:
         decl["inputs"][fields[1]] = str(value)
+        doc.lines[("nodes", node, "inputs", fields[1])] = where
     else:
         if fields[0] == "params":
             fields = fields[1:]
         target = decl.setdefault("params", {})
-        for f in fields[:-1]:
+        for k, f in enumerate(fields[:-1]):
             nxt = target.get(f)
             if not isinstance(nxt, dict):
                 nxt = {}
                 target[f] = nxt
+                doc.lines[("nodes", node, "params", *fields[:k + 1])] = where  # (the value it replaced was the file's)
             target = nxt
         target[fields[-1]] = value
     key = ("nodes", node, "params", *fields)

@@ -261,3 +261,11 @@ def test_a_misspelt_nested_key_is_matched_against_its_own_model(capsys):
     assert code == 2 and "did you mean 'enabled'?" in msg
     code, msg = _validate("--set", "rig.scenes=[{ball: {center_cm: [0, 40], colour: red}}]", capsys=capsys)
     assert code == 2 and "'scenes.0.ball.colour'" in msg and "did you mean 'color'?" in msg
+
+
+@pytest.mark.parametrize("override", ["rig.type=nosuch", "locate.inputs.pair=nosuch.x", "locate.inputs.pair=rig.nope",
+                                      "rig.n_scenes.deep=1", "segment.object.color_bgr.0=5"])
+def test_a_bad_set_is_located_at_the_set_not_at_the_file_line_it_replaced(override, capsys):
+    # (these pointed at locate.yaml's line, which holds the pipeline's own -- correct -- value)
+    code, err = _validate("--set", override, capsys=capsys)
+    assert code == 2 and err.startswith(f"error: --set {override}:"), err
