@@ -607,6 +607,16 @@ def _size_gb(text: str) -> float:
     return value
 
 
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0 (got {text})")
+    return value
+
+
 def _cache_positionals_first(argv: list[str]) -> list[str]:
     """``cache prune --max-gb 5 PIPELINE`` as ``cache prune PIPELINE --max-gb 5``: argparse takes a
     sub-command's positionals in one run, so one after an option was refused as unrecognised."""
@@ -661,7 +671,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")
     sp.add_argument("--save-cycles", action="store_true", help="--repeat: write every cycle's live outputs, images "
                     "included, into cycles/<n>/")
-    sp.add_argument("--progress-interval", type=float, default=5.0, metavar="SECONDS",
+    sp.add_argument("--progress-interval", type=_seconds, default=5.0, metavar="SECONDS",
                     help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)

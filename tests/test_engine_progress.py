@@ -134,3 +134,12 @@ def test_clip_cuts_after_a_whole_word():
     short = _clip(text, 40)
     assert len(short) <= 40 and short.endswith("…") and text.startswith(short[:-1])
     assert text[len(short) - 1] in " ,;(", short  # cut at a word's end, not inside one
+def test_progress_interval_must_be_a_positive_number_of_seconds(capsys):
+    # (0 or a negative interval printed a progress line per millisecond: 560 000 lines for a 7-pair run)
+    from stereograph.cli import main
+
+    pipeline = str(Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml")
+    for bad in ("0", "-1", "nan", "inf", "soon"):
+        assert main(["run", pipeline, "--progress-interval", bad]) == 2
+        err = capsys.readouterr().err
+        assert "--progress-interval" in err and "Traceback" not in err, err
