@@ -493,6 +493,30 @@ def test_stray_files_in_the_cache(tmp_path, capsys):
     assert code == 0
 
 
+def test_cache_clear_removes_only_what_stereograph_wrote(tmp_path, capsys):
+    """`cache clear --cache-dir` pointed at the wrong folder (or a cache that holds someone's files)
+    must not delete folders that merely share the cache's names (tmp/, last/, objects/)."""
+    p = toy_pipeline(tmp_path)
+    cache = tmp_path / "c"
+    assert cli("run", p, "--cache-dir", cache, "--out", tmp_path / "o", capsys=capsys)[0] == 0
+    mine = [cache / "tmp" / "notes.txt", cache / "last" / "plan.txt", cache / "objects" / "ab" / "abc",
+            cache / "reruns" / "keep.md", cache / "files.json"]
+    (cache / "files.json").write_text("my own list of files\n")  # (not the cache's file index)
+    for f in mine:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        if not f.exists():
+            f.write_text("mine")
+    code, msg = cli("cache", "clear", "--cache-dir", cache, capsys=capsys)
+    assert code == 0 and "removed" in msg and "removed 0 " not in msg
+    assert all(f.read_text() for f in mine)
+    assert sorted(p.name for p in cache.iterdir()) == ["files.json", "last", "objects", "reruns", "tmp"]
+    assert not list((cache / "objects").glob("*/*/manifest.json"))
+    # the cache still works, and a second clear finds nothing of its own
+    assert cli("run", p, "--cache-dir", cache, "--out", tmp_path / "o2", capsys=capsys)[0] == 0
+    assert cli("cache", "clear", "--cache-dir", cache, capsys=capsys)[0] == 0
+    assert all(f.read_text() for f in mine)
+
+
 def _on_small_tmpfs(folder: Path, kib: int, argv: list[str]) -> subprocess.CompletedProcess:
     """Run the CLI with ``folder`` on a file system of ``kib`` KiB (a real full disk)."""
     if os.geteuid() != 0 or shutil.which("unshare") is None:
