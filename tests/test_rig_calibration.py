@@ -174,22 +174,15 @@ def test_a_real_pair_with_left_and_right_swapped_is_dropped(tmp_path):
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
-def test_a_board_count_too_small_is_said_and_refused_for_a_table_frame(tmp_path):
-    """OpenCV finds an 8x6 part of the real 9x6 board in most images: a calibration from it is right
-    (warned), a table frame put on it would be a square off (refused)."""
+def test_a_board_count_too_small_is_refused_for_a_table_frame():
+    """OpenCV finds an 8x6 part of the real 9x6 board in most images: a calibration from it is right,
+    a table frame put on it would be a square off (refused)."""
     from nodes.calibrators.table_frame import TableFrameParams, table_frame
-    from stereograph.api import RunContext
 
     views = calib_files(CalibFilesParams(folder=str(DATA), board_cols=8))["views"]
-    ctx = RunContext("calib", None, tmp_path, tmp_path)
-    cal = chessboard(ChessboardParams(), views=views, ctx=ctx)["calibration"]
+    cal = chessboard(ChessboardParams(), views=views)["calibration"]
     assert cal["rms_px"] < 0.5
-    assert any("more inner corners than 8x6 (9x6 found too)" in m for m in ctx.messages), ctx.messages
     one = {**views, "views": [v for v in views["views"] if v["id"] == "02"]}
     with pytest.raises(NodeError, match="more inner corners than 8x6") as e:
         table_frame(TableFrameParams(), one, cal)
     assert "cols/rows" in e.value.hint
-    full = calib_files(CalibFilesParams(folder=str(DATA)))["views"]
-    ctx = RunContext("calib", None, tmp_path, tmp_path)
-    chessboard(ChessboardParams(), views=full, ctx=ctx)  # the right count: no word of it
-    assert not any("more inner corners" in m for m in ctx.messages), ctx.messages

@@ -68,7 +68,8 @@ def larger_board(img: np.ndarray, cols: int, rows: int) -> tuple[int, int] | Non
     ``findChessboardCorners`` finds a ``cols x rows`` part of a larger board in most real images
     (OpenCV's 9x6 sample pairs: 12 of 13 at 8x6). A calibration from that part is still right (the
     squares have their size), but a frame put on the board (its first corner, its centre) is off by
-    a square. Two detections of the one image: call it on one view, not on every one.
+    a square. Two detections of the one image, ~0.1-0.3 s when no larger board is there: a check for
+    a frame put on one view (calibrator.table_frame), not for every calibration.
     """
     gray = to_gray(img)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK

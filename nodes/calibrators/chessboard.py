@@ -11,7 +11,6 @@ from nodes.calibrators._board import (
     check_overall_rms,
     detect_views,
     drop_outlier_views,
-    larger_board,
     stereo_calibrate_points,
 )
 from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
@@ -115,11 +114,6 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
                    f"{params.min_views} are needed{named}.")
             hint = f"{board_hint}; or {add_hint}"
         raise NodeError(msg, hint=hint)
-    bigger = larger_board(next(v["left"] for v in vlist if str(v["id"]) == ids[0]), cols, rows)
-    if bigger is not None and ctx is not None:  # (the calibration itself is right: the squares have their size)
-        ctx.warn(f"view {ids[0]} shows a board with more inner corners than {cols}x{rows} ({bigger[0]}x{bigger[1]} "
-                 "found too): set the board's cols/rows to the whole board's inner corners, or a table frame or "
-                 "hand-eye from this board will be a square or more off")
     at = {i: k for k, i in enumerate(ids)}
 
     def calibrate(keep: list[str]) -> dict:
