@@ -673,3 +673,37 @@ def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     summary = json.loads((tmp_path / "out" / "run.json").read_text())
     assert summary["ok"] is True and summary["nodes"][-1]["items"] == 8
     assert len(list(marks.iterdir())) < 8 + 8  # (the items finished before the signal were not computed again)
+
+
+def test_the_command_process_ends_after_its_exit_handlers_threads_and_output(tmp_path):
+    """The `stereograph` command ends its process without Python's slow unloading, yet after its atexit
+    handlers, with its output flushed, and never under a thread that is still running."""
+    import subprocess
+    import sys
+    import textwrap
+
+    marks = tmp_path / "marks"
+    code = textwrap.dedent(f"""
+        import atexit, sys, threading, time
+        from pathlib import Path
+        marks = Path({str(marks)!r})
+        atexit.register(lambda: (marks / "atexit").write_text("ran"))
+        if sys.argv[1] == "thread":
+            def late():
+                time.sleep(0.5)
+                (marks / "thread").write_text("ran")
+            threading.Thread(target=late).start()
+        from stereograph.cli import main
+        sys.argv = ["stereograph", "nodes"]
+        sys.exit(main())
+    """)
+    for case in ("plain", "thread"):
+        marks.mkdir(exist_ok=True)
+        proc = subprocess.run([sys.executable, "-c", code, case], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        assert "source.synthetic" in proc.stdout and proc.stdout.rstrip().endswith("┘"), proc.stdout[-300:]
+        assert (marks / "atexit").read_text() == "ran"
+        if case == "thread":
+            assert (marks / "thread").read_text() == "ran"
+        for f in marks.iterdir():
+            f.unlink()
