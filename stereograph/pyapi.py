@@ -30,16 +30,38 @@ from stereograph.errors import ConfigError, sentence
 __all__ = ["NodeFailed", "Result", "check", "compare", "run"]
 
 
-def _set_texts(set_: Mapping[str, Any] | Iterable[str] | None) -> list[str]:
+def _set_texts(set_: Mapping[str, Any] | Iterable[str] | None, name: str = "set") -> list[str]:
     """``{"rig.n_scenes": 20}`` (or ``["rig.n_scenes=20"]``) -> ``--set`` texts."""
     if set_ is None:
         return []
     if isinstance(set_, str):
         return [set_]
+    example = '{"rig.n_scenes": 20}' if name == "set" else '{"segment.type": ["segmenter.color", "segmenter.otsu"]}'
     if isinstance(set_, Mapping):
-        # JSON is YAML: the value reads back as the same number, text, list or mapping
-        return [f"{key}={json.dumps(_plain(value))}" for key, value in set_.items()]
+        texts = []
+        for key, value in set_.items():
+            try:  # JSON is YAML: the value reads back as the same number, text, list or mapping
+                text = json.dumps(_plain(value), allow_nan=False)
+            except (TypeError, ValueError) as e:
+                raise ConfigError(f"{name}= value of {key!r} is not a plain value ({type(value).__name__}: {e})",
+                                  hint="give numbers, text, lists or mappings of them, as in the pipeline YAML") \
+                    from None
+            texts.append(f"{key}={text}")
+        return texts
+    if not isinstance(set_, Iterable) or isinstance(set_, bytes):
+        raise ConfigError(f"{name}= must be a mapping or a list of 'NODE.PARAM=VALUE' texts, not "
+                          f"{type(set_).__name__} ({set_!r})", hint=f"for example {name}={example}")
     return [str(s) for s in set_]
+
+
+def _workers(workers: Any) -> int | None:
+    """``workers=`` as ``--workers`` takes it: None or a whole number >= 1."""
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers= must be a whole number of processes, 1 or more (got {workers!r})",
+                          hint="workers=2 runs per-item nodes in two processes; None or 1 runs them here")
+    return workers
 
 
 def _plain(value: Any) -> Any:
@@ -237,7 +259,7 @@ def run(
     if unknown:
         raise ConfigError(f"keep= names nodes that are not in {graph.doc.path.name}: {unknown}",
                           hint=f"nodes are {sorted(graph.nodes)}")
-    executor = workers_executor(workers)
+    executor = workers_executor(_workers(workers))
     prog = _progress(progress)
     kw = dict(cache_dir=cache_dir, out_dir=out_dir, use_cache=use_cache, only=only, from_node=from_node,
               executor=executor, progress=prog, keep=kept)
@@ -304,9 +326,15 @@ def compare(
     from stereograph import compare as compare_mod
 
     if isinstance(vary, Mapping):
-        vary_texts = [f"{key}=" + ", ".join(json.dumps(_plain(v)) for v in values) for key, values in vary.items()]
+        vary_texts = []
+        for key, values in vary.items():
+            if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
+                raise ConfigError(f"vary= values of {key!r} must be a list of the values to try (got {values!r})",
+                                  hint=f'for example vary={{"{key}": [1, 2]}}')
+            vary_texts.append(f"{key}=" + ", ".join(_set_texts({key: v}, "vary")[0].split("=", 1)[1]
+                                                     for v in values))
     else:
-        vary_texts = [str(v) for v in (vary or [])]
+        vary_texts = _set_texts(vary, "vary")
     # True: a line per variant, and the per-node lines of run(), on stderr
     prog = compare_mod._PlainProgress(sys.stderr) if progress is True else (progress or None)
     kw = dict(overrides=_set_texts(set), cache_dir=cache_dir, split=split, skip_invalid=skip_invalid, plots=plots)

@@ -76,3 +76,24 @@ def test_compare_is_callable_from_the_package_and_the_module_still_imports():
     from stereograph.compare import CompareResult, compare
 
     assert callable(stereograph.compare) and callable(compare) and CompareResult
+
+
+def test_bad_arguments_of_the_python_api_are_clear_errors(project):
+    """(they were: workers=0 silently serial, workers='abc' a TypeError from inside the runner, set=5
+    "'int' object is not iterable", a set= value that is not plain a bare TypeError, and a one-string
+    vary= split letter by letter)"""
+    path = "pipelines/locate-truthcal.yaml"
+    for bad in (0, -1, "abc", 1.5, True):
+        with pytest.raises(ConfigError, match="workers= must be a whole number"):
+            stereograph.run(path, {"rig.n_scenes": 2}, workers=bad, progress=False)
+    with pytest.raises(ConfigError, match="set= must be a mapping or a list"):
+        stereograph.run(path, 5, progress=False)
+    with pytest.raises(ConfigError, match="set= value of 'rig.n_scenes' is not a plain value"):
+        stereograph.check(path, {"rig.n_scenes": object()})
+    with pytest.raises(ConfigError, match="not a plain value"):
+        stereograph.check(path, {"rig.min_distance_cm": float("nan")})
+    with pytest.raises(ConfigError, match="vary= values of 'rig.seed' must be a list"):
+        stereograph.compare(path, {"rig.seed": "1"}, progress=False)
+    from stereograph.pyapi import _set_texts
+
+    assert _set_texts("rig.seed=0,1", "vary") == ["rig.seed=0,1"]  # one --vary, not one per letter
