@@ -360,7 +360,8 @@ class ArtifactStore:
             from stereograph.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} is an existing file",
-                              hint="choose another --cache-dir (a folder), or remove that file")
+                              hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the project's "
+                                   "pyproject.toml cache_dir, whichever set this one), or remove that file")
         self.writable = self._probe()
         self.files = FileIndex(self.root)
         self._written = 0
@@ -375,7 +376,8 @@ class ArtifactStore:
             from stereograph.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
-                              hint="choose another --cache-dir")
+                              hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the "
+                                   "project's pyproject.toml cache_dir, whichever set this one)")
         dirs = [probe] + [d for d in (self.objects, self.tmp) if d.is_dir()]
         # access() reports a read-only file system (EROFS) even to root; permissions too for others
         if all(os.access(d, os.W_OK | os.X_OK) for d in dirs):
