@@ -1032,8 +1032,10 @@ def main(args: Any) -> int:
         else:
             with _PlainProgress(sys.stderr) as prog:
                 res = compare(args.pipeline, args.vary, args.out, progress=prog, **kw)
-    finally:
-        executor.close()
+    except BaseException:  # (Ctrl-C: the pool's workers are ended, not waited for through the queue)
+        executor.close(now=True)
+        raise
+    executor.close()
     patterns = [p.strip() for text in (getattr(args, "metrics", None) or []) for p in text.split(",") if p.strip()]
     patterns = patterns or None
     if not args.no_plots:

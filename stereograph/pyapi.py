@@ -269,8 +269,10 @@ def run(
                 result = run_graph(graph, **kw)
         else:
             result = run_graph(graph, **kw)
-    finally:
-        executor.close()
+    except BaseException:  # (an interrupted notebook cell: the workers are ended, not waited for)
+        executor.close(now=True)
+        raise
+    executor.close()
     return Result(result)
 
 

@@ -91,6 +91,16 @@ class SerialExecutor:
         pass
 
 
+def _worker_start() -> None:
+    """A pool worker's set-up: one thread per library pool (below), and Ctrl-C left to the process that
+    owns the pool. A terminal's Ctrl-C reaches every process of its group: a worker waiting for its
+    next task printed a KeyboardInterrupt traceback; the owner ends its workers itself (close(now=True))."""
+    import signal
+
+    one_thread_each()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 # Libraries' own thread pools run one thread each in a worker process (stereograph.threads): the
 # pool's processes are the parallelism. A worker forked after the parent started a library's threads
 # keeps what it inherited (no call into a library's pool from a forked child: that can deadlock on a
@@ -107,11 +117,14 @@ class ProcessExecutor:
 
     def __init__(self, workers: int):
         self.workers = workers
-        self.pool = cf.ProcessPoolExecutor(max_workers=workers, initializer=one_thread_each)
+        self.pool = cf.ProcessPoolExecutor(max_workers=workers, initializer=_worker_start)
         self._forked = False  # whether this pool has started its processes
         self._froze = False
+        self._ended = False  # closed at once (Ctrl-C): no pool is started again
 
     def _submit(self, fn: Callable[[Any], Any], task: Any) -> cf.Future:
+        if self._ended:  # (a thread still handing tasks over, compare's variants: each is lost at once)
+            raise cf.process.BrokenProcessPool("the run was interrupted")
         if not self._forked:
             # The pool forks its workers at its first task. Objects alive now are moved out of the
             # cyclic garbage collector's reach first (Python's advice for fork without exec): a
@@ -166,8 +179,10 @@ class ProcessExecutor:
                 self._restart()
 
     def _restart(self) -> None:
+        if self._ended:
+            return
         self.pool.shutdown(wait=False, cancel_futures=True)
-        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=one_thread_each)
+        self.pool = cf.ProcessPoolExecutor(max_workers=self.workers, initializer=_worker_start)
         self._forked = False
 
     def close(self, now: bool = False) -> None:
@@ -179,6 +194,7 @@ class ProcessExecutor:
         if not now:
             self.pool.shutdown()
             return
+        self._ended = True
         processes = list((getattr(self.pool, "_processes", None) or {}).values())
         self.pool.shutdown(wait=False, cancel_futures=True)
         for proc in processes:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+import time
 from pathlib import Path
 
 from stereograph.runner import ProcessExecutor, run_pipeline
@@ -132,6 +133,29 @@ def test_workers_start_with_the_parents_objects_out_of_the_collectors_reach():
         ex.close()
     assert min(counts) > 1000, counts  # the workers got the modules, the graph, ... frozen
     assert gc.get_freeze_count() == 0  # given back to the collector once the pool is closed
+
+
+def _sigint_ignored(_):
+    import signal
+
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_ctrl_c_is_left_to_the_pool_owner_which_ends_its_workers_for_good():
+    """A terminal's Ctrl-C reaches every process of its group: workers ignore it (one waiting for a
+    task printed a KeyboardInterrupt traceback), the owner ends them (close(now=True)), and a thread
+    still handing tasks over (compare's variants) gets each one lost at once, not a new pool."""
+    from stereograph.runner import TaskLost
+
+    ex = ProcessExecutor(2)
+    try:
+        assert all(ex.map(_sigint_ignored, [0, 1, 2]))
+    finally:
+        ex.close(now=True)
+    t0 = time.perf_counter()
+    later = list(ex.map(_sigint_ignored, [0, 1]))
+    assert all(isinstance(r, TaskLost) for r in later) and time.perf_counter() - t0 < 5
+    assert not (getattr(ex.pool, "_processes", None) or {})  # no pool was started again
 
 
 def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
