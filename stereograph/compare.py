@@ -46,6 +46,7 @@ from __future__ import annotations
 import copy
 import csv
 import fnmatch
+import io
 import itertools
 import json
 import math
@@ -61,6 +62,7 @@ import numpy as np
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, UsageError, printable
 from stereograph.graph import Graph, build_graph
+from stereograph.outputs import write_whole
 
 __all__ = [
     "METRICS_TYPE",
@@ -713,7 +715,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
                   for r in result.reports.values()],
     }
     out.mkdir(parents=True, exist_ok=True)
-    (out / "run.json").write_text(json.dumps(summary, indent=1))
+    write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     outputs_mod.write_report_quietly(out)
 
 
@@ -743,11 +745,12 @@ def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) 
     files: dict[str, Path] = {}
     cols = ["variant", *res.keys, "ok", *res.metric_names, "error"]
     path = res.out_dir / "compare.csv"
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for r in res.rows:
-            w.writerow([_csv(r["settings"][c]) if c in res.keys else _csv(r.get(c)) for c in cols])
+    text = io.StringIO(newline="")
+    w = csv.writer(text)
+    w.writerow(cols)
+    for r in res.rows:
+        w.writerow([_csv(r["settings"][c]) if c in res.keys else _csv(r.get(c)) for c in cols])
+    write_whole(path, text.getvalue().encode())  # whole or absent (an interrupt, a full disk)
     files["csv"] = path
     doc = {
         MARKER: {"format": 1},
@@ -766,9 +769,7 @@ def _write(res: CompareResult, skipped: list[tuple[Variant, str]], plots: bool) 
         "skipped_invalid": [{"label": v.label, "error": e} for v, e in skipped],
     }
     path = res.out_dir / "compare.json"
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(doc, indent=1, default=_json_default))
-    tmp.replace(path)
+    write_whole(path, json.dumps(doc, indent=1, default=_json_default).encode())
     files["json"] = path
     if plots:
         files.update(_plots(res))
@@ -840,8 +841,10 @@ def _plots(res: CompareResult, patterns: list[str] | None = None) -> dict[str, P
     fig.suptitle(f"compare {Path(res.pipeline).name}: " + ", ".join(_varying_keys(res)), fontsize=9)
     fig.tight_layout()
     path = res.out_dir / "metrics.png"
-    fig.savefig(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
     plt.close(fig)
+    write_whole(path, buf.getvalue())
     return {"metrics": path}
 
 

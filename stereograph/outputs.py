@@ -106,7 +106,9 @@ def _with_ext(stem: Path, ext: str) -> Path:
     return stem.with_name(stem.name + ext)
 
 
-def _write_bytes(path: Path, data: bytes) -> None:
+def write_whole(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file beside it: the file is whole or absent
+    (an interrupt, a full disk), and no ``.tmp`` is left behind."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
     try:
@@ -126,11 +128,11 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
         jpeg = jpeg_roundtrip(value)
         if jpeg is not None:
             p = _with_ext(path_stem, ".jpg")
-            _write_bytes(p, jpeg[0])
+            write_whole(p, jpeg[0])
             return [p]
     if is_file_value(value):
         p = path_stem.with_suffix(value["file_suffix"])
-        _write_bytes(p, file_content(value))
+        write_whole(p, file_content(value))
         return [p]
     if is_image(value):
         import cv2
@@ -138,13 +140,13 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
         ok, buf = cv2.imencode(".png", value)
         if ok:
             p = _with_ext(path_stem, ".png")
-            _write_bytes(p, buf.tobytes())
+            write_whole(p, buf.tobytes())
             return [p]
     big: dict[str, np.ndarray] = {}
     data = to_json(value, big)
     files = []
     p = _with_ext(path_stem, ".json")
-    _write_bytes(p, json.dumps(data, indent=1).encode())
+    write_whole(p, json.dumps(data, indent=1).encode())
     files.append(p)
     if big:  # (arrays: NumPy is imported)
         import io
@@ -154,7 +156,7 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
         buf = io.BytesIO()
         np.savez_compressed(buf, **{k.replace("/", "_"): a for k, a in big.items()})
         q = _with_ext(path_stem, ".npz")
-        _write_bytes(q, buf.getvalue())
+        write_whole(q, buf.getvalue())
         files.append(q)
     return files
 
@@ -194,7 +196,7 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
         files = []
         for name, data in blobs.items():
             dest = _with_ext(stem, Path(name).suffix)
-            _write_bytes(dest, data)
+            write_whole(dest, data)
             files.append(dest)
         return files
     if rdir.exists() and getattr(store, "writable", True):  # corrupt or unverifiable: render again
@@ -233,7 +235,7 @@ def _link_or_copy(src: Path, dest: Path) -> None:
         os.replace(tmp, dest)
     except OSError:
         tmp.unlink(missing_ok=True)
-        _write_bytes(dest, src.read_bytes())
+        write_whole(dest, src.read_bytes())
 
 
 RENDER_DIGESTS = "digests.json"
@@ -380,7 +382,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
                        list(getattr(result, "notes", [])), written)
     try:
-        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
+        write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
     except OSError as e:
         from stereograph.errors import ConfigError
 
@@ -426,7 +428,7 @@ def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, 
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
         summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)
-        _write_bytes(out_dir / "run.json", json.dumps(summary, indent=1).encode())
+        write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
 
 
 def _wiring(graph: Any, name: str) -> dict[str, Any]:

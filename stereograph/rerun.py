@@ -421,7 +421,7 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     result = Replayed(run_id, out, reports, _echo(memo["echo"], echo_live), memo["where"], memo["upstream"])
     summary[outputs.MARKER] = {"format": 1, "run_id": run_id}
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
-    outputs._write_bytes(out / "run.json", json.dumps(summary, indent=1).encode())
+    outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     outputs.write_report_quietly(out, result)
     return result
 
