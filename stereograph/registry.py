@@ -136,6 +136,7 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
 # pipeline file from someone else could run anything just by being validated. The command line
 # sets this from ``--allow-plugins`` (off by default); a Python program that loads pipelines is
 # trusted to have chosen its files and keeps the default (on). See docs/security.md.
+PLUGIN_PATHS: set[str] = set()  # folders put on sys.path for plugins (not installed packages)
 PLUGINS_ALLOWED = True
 
 
@@ -188,6 +189,7 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                 sys.modules[mod_name] = mod
                 if str(path.parent) not in sys.path:  # its helper modules beside it
                     sys.path.append(str(path.parent))
+                    PLUGIN_PATHS.add(str(path.parent))
                 try:
                     spec.loader.exec_module(mod)
                 except BaseException:
@@ -199,6 +201,7 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
             else:
                 if str(base_dir) not in sys.path:
                     sys.path.insert(0, str(base_dir))
+                    PLUGIN_PATHS.add(str(base_dir))
                 mod = sys.modules.get(plugin)
                 file = getattr(mod, "__file__", None)
                 if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (None, _digest(

@@ -75,16 +75,18 @@ def _stamp(path: str | Path) -> list[int] | None:
 def fingerprint(pipeline: str | Path) -> list:
     """The folders Python imports from, in order, and their mtimes: installing or removing a package
     changes one (as the entry-point index's fingerprint, with paths made absolute: ``.venv/bin`` and
-    ``/work/x/.venv/bin`` are one folder). The pipeline's own folder is left out: importing a plugin
-    by module name puts it on ``sys.path`` for the rest of the process, and the files there that
-    count are stamped one by one."""
+    ``/work/x/.venv/bin`` are one folder). The pipeline's own folder, and any folder importing a
+    plugin put on ``sys.path`` (for the rest of the process: a second run in it would otherwise
+    never be replayed), are left out: the files there that count are stamped one by one."""
     import sys
 
+    from stereograph import registry
+
     out = []
-    skip = str(Path(pipeline).resolve().parent)
+    skip = {str(Path(pipeline).resolve().parent)} | {os.path.abspath(p) for p in registry.PLUGIN_PATHS}
     for p in sys.path:
         p = os.path.abspath(p or ".")
-        if p == skip:
+        if p in skip:
             continue
         try:
             out.append([p, os.stat(p).st_mtime_ns])
