@@ -134,6 +134,19 @@ class _BoundedLoader(_SafeBase):
             self._depth -= 1
 
 
+def merge_params(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``over`` on top of ``base``, nested mappings merged field by field (neither is changed).
+
+    A node's ``object: {radius_cm: 5}`` (or ``--set segment.object.radius_cm=5``) changes the
+    radius of the ``object`` that ``defaults:`` or an included file gave, and keeps its colour,
+    as ``merge_nested_defaults`` does for a parameter model's own defaults.
+    """
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = merge_params(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
 def _too_deep(where: Where) -> ConfigError:
     return ConfigError(f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep", where,
                        hint="a pipeline needs a few levels; flatten the data or put it in a file a node reads")
@@ -368,7 +381,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         sub = load_pipeline(inc_path, None, _stack + (path,), budget)
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
-            doc.defaults.setdefault(t, {}).update(p)
+            doc.defaults[t] = merge_params(doc.defaults.get(t, {}), p)
         doc.nodes.update(copy.deepcopy(sub.nodes))
         doc.lines.update(sub.lines)
         doc.variants.update(sub.variants)
@@ -385,7 +398,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
     for t, p in (data.get("defaults") or {}).items():
         if not isinstance(p, dict):
             raise ConfigError(f"defaults for '{t}' must be a mapping of params", where("defaults", t))
-        doc.defaults.setdefault(str(t), {}).update(p)
+        doc.defaults[str(t)] = merge_params(doc.defaults.get(str(t), {}), p)
     for k, v in (data.get("variants") or {}).items():
         doc.variants[str(k)] = v if isinstance(v, list) else [v]
 
@@ -420,7 +433,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
             # a node redefined over an included one keeps the included params only if the type is the same
             base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
             merged = {"type": decl["type"],
-                      "params": {**base_params, **(decl.get("params") or {})},
+                      "params": merge_params(base_params, decl.get("params") or {}),
                       "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
             doc.nodes[name] = merged
         except ConfigError as e:

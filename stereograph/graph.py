@@ -18,7 +18,7 @@ import pydantic
 
 from stereograph import registry
 from stereograph.api import NodeError, NodeSpec, Params, type_name
-from stereograph.config import PipelineDoc, apply_override, load_pipeline
+from stereograph.config import PipelineDoc, apply_override, load_pipeline, merge_params
 from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
 
@@ -234,7 +234,7 @@ def build_graph(doc: PipelineDoc) -> Graph:
     for name, decl in doc.nodes.items():
         try:
             spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
-            raw = {**doc.defaults.get(spec.name, {}), **(decl.get("params") or {})}
+            raw = merge_params(doc.defaults.get(spec.name, {}), decl.get("params") or {})
             params = validate_params(spec, raw, doc, name)
         except ConfigError as e:
             problems.append(e)

@@ -198,6 +198,31 @@ def test_unused_outputs_are_warned_unless_optional(tmp_path, capsys):
 LOCATE = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
 
 
+def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipelines_defaults(tmp_path):
+    # locate.yaml's `defaults:` give the segmenters object: {radius_cm: 2, color_bgr: orange}; setting
+    # only the radius (a 5 cm ball) dropped the colour, and the segmenter then refused every pair of
+    # a plain 5 cm ball as "ambiguous ... give object.color_bgr" (20/20 not found, now 20/20 found)
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
+    obj = build_graph(load_pipeline(LOCATE, ["segment.object.radius_cm=5"])).nodes["segment"].params.object
+    assert obj.radius_cm == 5 and tuple(obj.color_bgr) == (20, 120, 245)
+    # the same through an include: nested params and nested defaults merge field by field
+    (tmp_path / "common.yaml").write_text(
+        "defaults:\n  segmenter.color: {object: {radius_cm: 2.0, color_bgr: [1, 2, 3]}}\n"
+        "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: {color_tolerance: 0.2}, overlay: false}\n")
+    f = tmp_path / "p.yaml"
+    f.write_text("name: n\ninclude: [common.yaml]\ndefaults:\n  segmenter.color: {object: {min_saturation: 9}}\n"
+                 "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: {radius_cm: 3.0}}\n")
+    doc = load_pipeline(f)
+    want = {"object": {"radius_cm": 2.0, "color_bgr": [1, 2, 3], "min_saturation": 9}}
+    assert doc.defaults["segmenter.color"] == want
+    assert doc.nodes["seg"]["params"] == {"object": {"color_tolerance": 0.2, "radius_cm": 3.0}, "overlay": False}
+    # null still unsets one field
+    obj = build_graph(load_pipeline(LOCATE, ["segment.object.color_bgr=null"])).nodes["segment"].params.object
+    assert obj.color_bgr is None and obj.radius_cm == 2.0
+
+
 def _validate(*argv: str, capsys, pipeline: Path = LOCATE) -> tuple[int, str]:
     code = main(["validate", str(pipeline), *argv])
     out = capsys.readouterr()
