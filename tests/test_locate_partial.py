@@ -138,3 +138,21 @@ def test_dim_scene_is_found_with_the_auto_channel_not_with_gray():
                 assert _err(loc) < 0.5
                 found[ch] += 1
     assert found["auto"] == 3 and found["gray"] < found["auto"]
+
+
+@pytest.mark.parametrize("r", [4.0, 6.0, 9.0, 15.0, 30.0])
+def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
+    # A pixel outline has ~1 point per px: 72 bins of 5 degrees left half of them empty on a
+    # whole ball of 6 px radius (far away, or small), which was then reported "42 % of the outline
+    # visible" (found on a 2 cm ball at 100-200 cm); the bins now hold >= 2 px of outline each.
+    import cv2
+
+    from nodes.segmenters._partial import coverage
+
+    c = 50.0
+    disc = np.zeros((100, 100), np.uint8)
+    cv2.circle(disc, (50, 50), int(r), 255, -1)
+    cnt = cv2.findContours(disc, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0].reshape(-1, 2).astype(float)
+    assert coverage(cnt, np.array([c, c]), r) >= 0.95
+    upper = cnt[cnt[:, 1] < c - 0.5]  # half the outline (a lower half hidden)
+    assert 0.4 <= coverage(upper, np.array([c, c]), r) <= 0.6

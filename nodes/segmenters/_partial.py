@@ -36,7 +36,8 @@ import cv2
 import numpy as np
 
 _RANSAC_ITERS = 60
-_COVERAGE_BINS = 72  # 5 degree bins for the visible share of the outline
+_COVERAGE_BINS = 72  # 5 degree bins for the visible share of the outline (fewer on a small silhouette)
+_COVERAGE_BIN_PX = 2.0  # least outline length per bin: the outline's points are 1-1.4 px apart
 
 
 def rays(pts_px: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -129,11 +130,19 @@ def cone_ellipse(w: np.ndarray, K: np.ndarray) -> dict | None:
             "angle_deg": float(ang)}
 
 
-def coverage(pts: np.ndarray, center: np.ndarray) -> float:
-    """Share (0..1) of the directions around ``center`` that the points cover (5 degree bins)."""
+def coverage(pts: np.ndarray, center: np.ndarray, radius_px: float | None = None) -> float:
+    """Share (0..1) of the directions around ``center`` that the points cover.
+
+    5 degree bins, or, on a silhouette of ``radius_px`` (its minor semi-axis) too small for that,
+    bins of at least ``_COVERAGE_BIN_PX`` of outline: a pixel outline has ~1 point per px, so a
+    whole ball of 6 px radius (38 points) could fill only half of 72 bins and read "42 % visible".
+    """
+    n_bins = _COVERAGE_BINS
+    if radius_px is not None:
+        n_bins = int(min(_COVERAGE_BINS, max(8, 2 * math.pi * radius_px // _COVERAGE_BIN_PX)))
     ang = np.arctan2(pts[:, 1] - center[1], pts[:, 0] - center[0])
-    bins = np.floor((ang + np.pi) / (2 * np.pi) * _COVERAGE_BINS).astype(int) % _COVERAGE_BINS
-    return float(len(np.unique(bins)) / _COVERAGE_BINS)
+    bins = np.floor((ang + np.pi) / (2 * np.pi) * n_bins).astype(int) % n_bins
+    return float(len(np.unique(bins)) / n_bins)
 
 
 def border_points(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image_size: tuple[int, int],
@@ -200,7 +209,7 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
     u_w = w / n
     s_size = math.sqrt(max(float(u_w @ fit["cov"] @ u_w), 0.0)) / (n * max(n * n - 1.0, 1e-12))
     true_pts = cand[inl]
-    vis = coverage(true_pts, np.asarray(ell["center_px"]))
+    vis = coverage(true_pts, np.asarray(ell["center_px"]), ell["axes_px"][1])
     n_border = int(on_border.sum())
     foreign = cand[~inl]
     cause = (f"border: {which_border(pts[on_border], image_size)}"
@@ -215,7 +224,7 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
             fit2 = fit_cone(Xf[inl2], f_px)
             e2 = cone_ellipse(fit2["w"], K)
             if e2 is not None:
-                second = coverage(foreign[inl2], np.asarray(e2["center_px"]))
+                second = coverage(foreign[inl2], np.asarray(e2["center_px"]), e2["axes_px"][1])
     ell.update(rms_px=fit["rms_px"], inliers=int(inl.sum()), sigma_center_px=s_u)
     return {"ok": True, "ellipse": ell, "center_px": centre, "sigma_u_px": s_u, "radius_px": radius_px,
             "sigma_size_rel": s_size,
