@@ -53,3 +53,25 @@ def test_centre_image_from_silhouette_is_exact(C):
 def test_non_sphere_conic_is_flagged():
     E = ellipse_to_conic((320, 240), (40, 15), 0.0)  # far too elongated for a centred sphere
     assert sphere_from_silhouette(E, K)["anisotropy"] > 0.5
+
+
+def test_centroid_disparity_refuses_a_ball_too_large_and_near_for_its_silhouette_centroid():
+    """(a 5 cm ball at ~31 cm: every pair found 0.76-0.80 cm too near, sigma_z 0.004 cm; the bias is
+    Z tan^2(alpha), read from the silhouette's size) -- refused with the estimator that has no bias."""
+    from nodes.disparity.centroid import CentroidParams, centroid
+
+    f_px, baseline_cm = 560.0, 8.0
+    rect = {"f_px": f_px, "baseline_cm": baseline_cm}
+
+    def seg(radius_cm, z_cm):
+        r_px = f_px * radius_cm / z_cm
+        d = f_px * baseline_cm / z_cm
+        region = lambda u: {"area_px": math.pi * r_px ** 2, "centroid_px": [u, 240.0], "sigma_centroid_px": 0.02}  # noqa: E731
+        return {"id": "p", "found": True, "left": region(320.0 + d / 2), "right": region(320.0 - d / 2)}
+
+    big = centroid(CentroidParams(), seg(5.0, 31.5), rect)["disparity"]
+    assert not big["found"] and "disparity.ellipse" in big["reason"] and "~0.79 cm too near" in big["reason"], big["reason"]
+    usual = centroid(CentroidParams(), seg(2.0, 30.0), rect)["disparity"]  # the shipped rig's nearest ball
+    assert usual["found"] and 0.1 < usual["sphere_bias_cm"] < 0.2
+    lenient = centroid(CentroidParams(max_sphere_bias_cm=1.0), seg(5.0, 31.5), rect)["disparity"]
+    assert lenient["found"]
