@@ -163,11 +163,20 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
 
 
 def _check_own_limits(limits: dict[int, tuple[int, int]], plan: dict) -> None:
-    """Every goal of the plan within its servo's own CW/CCW angle limits (0/0: wheel mode, unchecked)."""
+    """Every goal of the plan within its servo's own CW/CCW angle limits; none in wheel mode (0/0)."""
     for sid, (cw, ccw) in limits.items():
+        if cw == ccw == 0:
+            # Wheel (endless turn) mode: the servo ignores goal positions and turns for as long as its
+            # moving speed is non-zero: the speed of the first waypoint would spin the joint.
+            raise NodeError(f"refusing the whole plan: servo {sid} is in wheel (endless turn) mode, its CW and CCW "
+                            f"angle limits (addresses 6/8) are both 0, so it would ignore its goal positions and "
+                            f"keep turning at the moving speed; nothing was sent.",
+                            hint=f"put servo {sid} back in joint mode: CW angle limit 0 and CCW angle limit 1023 "
+                                 f"(or the joint's own range) with Dynamixel Wizard / RoboPlus, or a WRITE to "
+                                 f"addresses 6 and 8.")
         for w in plan["waypoints"]:
             g = w["servo_units"].get(str(sid))
-            if g is not None and not (cw == ccw == 0) and not cw <= g <= ccw:
+            if g is not None and not cw <= g <= ccw:
                 raise NodeError(f"refusing the whole plan: servo {sid}'s own angle limits are {cw}..{ccw} units but "
                                 f"waypoint {w['name']!r} needs {g}; nothing was sent.",
                                 hint="fix the servo's CW/CCW angle limits (addresses 6/8) or the arm model's "

@@ -1,0 +1,41 @@
+"""actuator.dynamixel against an independent Protocol 1.0 peer (``tests/dxl_peer.py``), not the bundled emulator.
+
+The peer is written from the AX-12A control table and behaves as real buses can: servo settings the
+emulator's defaults never show, other models on the bus, an adapter that echoes what it sends.
+"""
+
+import pytest
+
+pytest.importorskip("dynamixel_sdk")
+
+from dxl_peer import Peer, Servo  # noqa: E402
+from test_arm_servo_faults import ARM, PLAN  # noqa: E402
+
+from nodes.actuators.dynamixel import DynamixelParams, execute_plan  # noqa: E402
+from stereograph.api import NodeError  # noqa: E402
+
+FAST = dict(poll_interval_s=0.002, retries=2, late_window_ms=100)
+
+
+def servos(**kw):
+    return {i: Servo(**kw) for i in range(1, 6)}
+
+
+def refused(peer, **params):
+    with pytest.raises(NodeError) as ei:
+        execute_plan(DynamixelParams(port=peer.path, **{**FAST, **params}), PLAN, ARM, peer.path)
+    return ei.value
+
+
+def no_goal_written(peer):
+    return all(a > 31 or a + len(d) <= 30 for _, _, a, d in peer.log)
+
+
+def test_a_servo_in_wheel_mode_is_refused_before_anything_is_written():
+    s = servos()
+    s[1].cw = s[1].ccw = 0  # wheel mode: a moving speed would make the yaw joint turn without end
+    with Peer(s, time_scale=20) as p:
+        e = refused(p)
+        assert "servo 1 is in wheel (endless turn) mode" in e.message and "arm was not moved" in e.message
+        assert "CCW angle limit 1023" in e.hint
+        assert no_goal_written(p) and all(sv.get(24, 1) == 0 for sv in p.servos.values())
