@@ -39,3 +39,21 @@ def test_a_servo_in_wheel_mode_is_refused_before_anything_is_written():
         assert "servo 1 is in wheel (endless turn) mode" in e.message and "arm was not moved" in e.message
         assert "CCW angle limit 1023" in e.hint
         assert no_goal_written(p) and all(sv.get(24, 1) == 0 for sv in p.servos.values())
+
+
+@pytest.mark.parametrize("model, words", [(29, "an MX-28 (0-4095 over 360 deg)"), (999, "not a model this actuator")])
+def test_a_servo_whose_positions_mean_other_angles_is_refused(model, words):
+    s = servos()
+    s[4].model = model  # an MX-28 in Protocol 1.0 counts 4096 units per turn: unit 205 is 18 deg, not 60
+    with Peer(s, time_scale=20) as p:
+        e = refused(p)
+        assert f"servo 4 reports model number {model}, {words}" in e.message and "arm was not moved" in e.message
+        assert "ID 4" in e.hint and no_goal_written(p)
+
+
+def test_other_models_with_ax12_units_drive_the_arm():
+    s = servos()
+    s[2].model, s[5].model = 18, 44  # AX-18A, AX-12W
+    with Peer(s, time_scale=20) as p:
+        log = execute_plan(DynamixelParams(port=p.path, **FAST), PLAN, ARM, p.path)
+        assert log["ok"] and any("model number 18 (AX-18A)" in e for e in log["events"])

@@ -152,14 +152,36 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
             model = bus.read(sid, 0, 2, "read of the model number")
         except ServoFailure as e:
             raise NodeError(*_diagnose.after_ping(bus, sid, e, params.baud)) from None
-        if model not in (12, 18, 44, 300):
-            bus.events.append(f"servo {sid} reports model number {model}, not an AX-12A (12)")
+        if model not in SAME_UNITS_AS_AX12:
+            raise NodeError(_foreign_model(sid, model),
+                            hint=f"check that ID {sid} is the arm's servo and not another device on the bus; the "
+                                 f"arm needs AX-12A servos or models with the same position units "
+                                 f"({', '.join(sorted(set(SAME_UNITS_AS_AX12.values())))}).")
+        if model != 12:
+            bus.events.append(f"servo {sid} reports model number {model} ({SAME_UNITS_AS_AX12[model]}), not an "
+                              f"AX-12A (12): same position units")
     limits = {}
     for sid in ids:
         bus.status_level[sid] = bus.read(sid, 16, 1, "read of the status return level")
         both = bus.read(sid, ADDR_CW_LIMIT, 4, "read of the angle limits")
         limits[sid] = (both & 0xFFFF, both >> 16)
     bus.limits.update(limits)  # only once every servo passed
+
+
+# Protocol 1.0 models whose goal/present positions are 0-1023 over 300 deg, as the arm model's units.
+SAME_UNITS_AS_AX12 = {12: "AX-12A", 18: "AX-18A", 44: "AX-12W", 300: "AX-12W", 10: "RX-10", 24: "RX-24F",
+                      28: "RX-28", 64: "RX-64", 113: "DX-113", 116: "DX-116", 117: "DX-117"}
+# Models whose positions mean something else: an AX-12A goal would send them elsewhere.
+OTHER_UNITS = {29: "MX-28 (0-4095 over 360 deg)", 310: "MX-64 (0-4095 over 360 deg)",
+               320: "MX-106 (0-4095 over 360 deg)", 360: "MX-12W (0-4095 over 360 deg)",
+               107: "EX-106+ (0-4095 over 251 deg)"}
+
+
+def _foreign_model(sid: int, model: int) -> str:
+    what = (f"an {OTHER_UNITS[model]}" if model in OTHER_UNITS
+            else "not a model this actuator knows to count 0-1023 over 300 deg like the AX-12A")
+    return (f"refusing the whole plan: servo {sid} reports model number {model}, {what}; the arm model's goals are "
+            f"AX-12A units, which would turn it to other angles than planned; nothing was sent.")
 
 
 def _check_own_limits(limits: dict[int, tuple[int, int]], plan: dict) -> None:
