@@ -57,3 +57,21 @@ def test_other_models_with_ax12_units_drive_the_arm():
     with Peer(s, time_scale=20) as p:
         log = execute_plan(DynamixelParams(port=p.path, **FAST), PLAN, ARM, p.path)
         assert log["ok"] and any("model number 18 (AX-18A)" in e for e in log["events"])
+
+
+def test_an_adapter_that_echoes_what_it_sends_drives_the_arm():
+    # A half-duplex adapter without echo cancellation: dynamixel-sdk takes the echo of a PING for a
+    # status packet with the input-voltage bit, that of a READ for one with the angle-limit bit.
+    with Peer(servos(srl=1), echo=True, time_scale=20) as p:
+        log = execute_plan(DynamixelParams(port=p.path, **FAST), PLAN, ARM, p.path)
+        assert log["ok"] and any("echoes every packet" in e for e in log["events"])
+        assert all(r["max_error_units"] <= 3 for r in log["reached"])
+
+
+@pytest.mark.parametrize("present, words", [([2, 3, 4, 5], "servo ID 1 did not answer a ping"),
+                                            ([], "no servo answers on")])
+def test_missing_servos_behind_an_echoing_adapter_are_named_not_voltage_alarms(present, words):
+    with Peer({i: Servo() for i in present}, echo=True, time_scale=20) as p:
+        e = refused(p)
+        assert e.message.startswith(words) and "voltage" not in e.message + e.hint, e.message
+        assert no_goal_written(p)

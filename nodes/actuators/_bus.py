@@ -55,6 +55,7 @@ class Try:
     detail: str = ""
     late_ms: float | None = None
     error: int = 0
+    echo_like: bool = False  # the status packet was the request byte for byte (an adapter's echo?)
 
 
 @dataclass
@@ -79,6 +80,10 @@ class Exchange:
     def late_ms(self) -> float | None:
         lates = [t.late_ms for t in self.tries if t.late_ms is not None]
         return max(lates) if lates else None
+
+    @property
+    def echo_like(self) -> bool:
+        return any(t.echo_like for t in self.tries)
 
     @property
     def error(self) -> int:
@@ -154,6 +159,7 @@ class Bus:
         # a bus kept open across the cycles of a run skips that setup until a fault clears it.
         self.limits: dict[int, tuple[int, int]] = {}
         self.n_plans = 0  # plans started on this bus (begin)
+        self.echoes = False  # the adapter echoes what it sends (seen once: a copy of a request, then a reply)
 
     def begin(self, t0: float) -> None:
         """Start the log of a new plan on a bus kept open (``ctx.resource``): commands, events and
@@ -257,6 +263,9 @@ class Bus:
             self.port.is_using = False
             self._drain(0.005)
             return Try("corrupt", f"the SDK could not parse it: {type(e).__name__}"), []
+        echo_like = False
+        if comm == COMM_SUCCESS and list(rx) == tx:
+            rx, comm, err, echo_like = self._after_echo(rx, comm, err, n_data)
         if comm == COMM_SUCCESS:
             if len(rx) != 6 + n_data or rx[2] != sid:
                 # typically the late reply of an earlier request, arriving after the SDK's clearPort()
@@ -264,7 +273,8 @@ class Bus:
                 return Try("corrupt", f"{len(rx)} bytes from ID {rx[2] if len(rx) > 2 else '?'}, expected "
                                       f"{6 + n_data} from ID {sid}"), []
             if err & HARD_ERRORS:
-                return Try("error_bits", ", ".join(decode_error(err)), error=err), list(rx[5:5 + n_data])
+                return (Try("error_bits", ", ".join(decode_error(err)), error=err, echo_like=echo_like),
+                        list(rx[5:5 + n_data]))
             if err & SOFT_ERRORS:
                 return Try("corrupt", f"the servo reported {', '.join(decode_error(err & SOFT_ERRORS))}: "
                                       f"it received a damaged packet"), []
@@ -279,6 +289,23 @@ class Bus:
             return Try("corrupt", "bad checksum or incomplete"), []
         self.port.is_using = False
         return Try("corrupt", self.ph.getTxRxResult(comm)), []
+
+    def _after_echo(self, rx: list[int], comm: int, err: int, n_data: int) -> tuple[list[int], int, int, bool]:
+        """The SDK took a copy of the request as its reply: a half-duplex adapter without echo
+        cancellation hears its own bytes on the line (a PING's echo reads as an input-voltage alarm, a
+        READ's as an angle-limit alarm). The servo's reply follows the echo: read it. If nothing
+        follows on a bus not yet seen echoing, the packet was the servo's own (a reply can equal
+        its request byte for byte) and stands, flagged (the last item) as possibly an echo after all."""
+        from dynamixel_sdk import COMM_RX_TIMEOUT, COMM_SUCCESS
+        self.port.setPacketTimeout(6 + n_data)
+        rx2, comm2 = self.ph.rxPacket(self.port)
+        if comm2 == COMM_RX_TIMEOUT and not self.echoes:
+            return rx, comm, err, True
+        if not self.echoes:
+            self.echoes = True
+            self.events.append(f"{self._t():.3f}s {self.waypoint}: the adapter on {self.port_path} echoes every "
+                               f"packet it sends (no echo cancellation); the echoes are skipped")
+        return rx2, comm2, (rx2[4] if comm2 == COMM_SUCCESS and len(rx2) > 4 else 0), False
 
     def request(self, sid: int, inst: int, params: list[int], n_data: int, what: str) -> list[int]:
         """Send one instruction and return the reply's parameters, retrying missing, late and corrupted
@@ -315,12 +342,15 @@ class Bus:
 
     def answers_ping(self, sid: int) -> bool:
         """One PING, no retry, never raises: whether ``sid`` answers at all (a diagnosis)."""
+        return self.probe_ping(sid).outcome in ("ok", "error_bits")
+
+    def probe_ping(self, sid: int) -> Try:
+        """One PING, no retry, never raises: what came back (a diagnosis)."""
         try:
-            t, _ = self._once(sid, INST_PING, [], 0)
-            return t.outcome in ("ok", "error_bits")
-        except Exception:  # noqa: BLE001 - a diagnosis must not fail
+            return self._once(sid, INST_PING, [], 0)[0]
+        except Exception as e:  # noqa: BLE001 - a diagnosis must not fail
             self.port.is_using = False
-            return False
+            return Try("corrupt", f"{type(e).__name__}")
 
     def read(self, sid: int, addr: int, n: int, what: str) -> int:
         """Read ``n`` bytes (1, 2 or 4) at ``addr`` as one little-endian value."""

@@ -86,10 +86,12 @@ def head_and_hint(e: ServoFailure, *, moving: bool, baud: int) -> tuple[str, str
             CABLE_HINT.format(sid=sid, baud=baud))
 
 
-def silent_bus(port: str, ids: list[int], baud: int) -> tuple[str, str]:
-    """No servo of the arm answers a PING: the bus, not one servo."""
-    return (f"no servo answers on {port} at {baud} baud (PING to IDs {', '.join(map(str, ids))}: nothing came back, "
-            "not even late)",
+def silent_bus(port: str, ids: list[int], baud: int, echoed: bool = False) -> tuple[str, str]:
+    """No servo of the arm answers a PING: the bus, not one servo. ``echoed``: each PING came back
+    as itself, byte for byte, and nothing after it (an adapter without echo cancellation)."""
+    what = ("each came back byte for byte as sent, the adapter's echo, and nothing after it" if echoed
+            else "nothing came back, not even late")
+    return (f"no servo answers on {port} at {baud} baud (PING to IDs {', '.join(map(str, ids))}: {what})",
             f"check that the servos' 9-12 V supply is on, that the adapter's cable reaches the first servo (a "
             f"USB2Dynamixel's switch on TTL for AX-12s), that the servos run at {baud} baud and that their IDs are "
             "the arm model's (ik.arm servos' id; Dynamixel Wizard / RoboPlus scans every rate and ID).")

@@ -138,11 +138,30 @@ def _check_servos(bus: Bus, ids: list[int], plan: dict, params: DynamixelParams)
     return {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
 
 
+def _ping(bus: Bus, sid: int, ids: list[int], baud: int) -> None:
+    """PING ``sid``. An alarm in a status packet that is the PING itself byte for byte (a PING's echo
+    reads as an input-voltage alarm) is checked: if another servo's reply comes after an echo of its
+    own PING, the adapter echoes, and ``sid`` is pinged again with the echoes skipped; if every PING
+    comes back as itself and nothing else, no servo answers behind an echoing adapter."""
+    try:
+        bus.ping(sid)
+        return
+    except ServoFailure as e:
+        if e.exchange is None or not e.exchange.echo_like or bus.echoes:
+            raise
+        others = [bus.probe_ping(other) for other in ids if other != sid]
+        if not bus.echoes:
+            if all(t.echo_like for t in others):
+                raise NodeError(*_diagnose.silent_bus(bus.port_path, ids, baud, echoed=True)) from None
+            raise
+    bus.ping(sid)
+
+
 def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
     """PING and READ every servo, read its status return level and CW/CCW limits into ``bus.limits``."""
     for k, sid in enumerate(ids):
         try:
-            bus.ping(sid)
+            _ping(bus, sid, ids, params.baud)
         except ServoFailure as e:
             if k == 0 and e.exchange is not None and e.exchange.kind == "no_reply" and \
                     not any(bus.answers_ping(other) for other in ids[1:]):
