@@ -75,3 +75,12 @@ def test_missing_servos_behind_an_echoing_adapter_are_named_not_voltage_alarms(p
         e = refused(p)
         assert e.message.startswith(words) and "voltage" not in e.message + e.hint, e.message
         assert no_goal_written(p)
+
+
+def test_a_joint_that_settles_a_few_units_short_is_named_with_the_tolerance_to_set():
+    # Real AX-12s under load stop within their compliance margin: 5 units short, moving flag 0.
+    with Peer(servos(short_by=5), time_scale=20) as p:
+        e = refused(p, move_timeout_s=0.4)
+        assert "[5, 5] units from their goals" in e.message and "stopped there (moving flag 0)" in e.message
+        assert "act.tolerance_units=5" in e.hint and "compliance" in e.hint and "obstruction" not in e.hint
+        assert all(sv.get(24, 1) == 0 for sv in p.servos.values())  # torque off after a failed move, as documented

@@ -260,8 +260,13 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
         if not pending:
             break
         if time.monotonic() - t_start > timeout:
-            raise _Stalled(f"servos {pending} still {[err[s] for s in pending]} units from their goals "
-                           f"{[data[s][0] for s in pending]} after {timeout:.1f} s (at {[pos[s] for s in pending]})")
+            head = (f"servos {pending} still {[err[s] for s in pending]} units from their goals "
+                    f"{[data[s][0] for s in pending]} after {timeout:.1f} s (at {[pos[s] for s in pending]})")
+            if max(err[s] for s in pending) <= SHORT_UNITS and \
+                    all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending):
+                raise _Stalled(head + ", stopped there (moving flag 0)", hint=SHORT_HINT.format(
+                    n=max(err[s] for s in pending), tol=params.tolerance_units))
+            raise _Stalled(head)
         time.sleep(params.poll_interval_s)
     return pos, {"waypoint": w["name"], "goal_units": {str(s): data[s][0] for s in data},
                  "present_units": {str(s): int(pos[s]) for s in data}, "max_error_units": int(max(err.values())),
@@ -269,7 +274,20 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
 
 
 class _Stalled(ServoFailure):
-    """A joint did not reach its goal in time (no alarm bit): load or obstruction."""
+    """A joint did not reach its goal in time (no alarm bit): load or obstruction, or it settled a
+    few units short (``hint``)."""
+
+    def __init__(self, message: str, hint: str | None = None):
+        super().__init__(message)
+        self.hint = hint
+
+
+SHORT_UNITS = 12  # a stop this close to the goal (3.5 deg) is the servo's compliance under load, not a blockage
+SHORT_HINT = ("a joint that stops {n} units short of its goal and reports it is not moving has settled within its "
+              "compliance margin and slope (addresses 26-29) under the load it carries, which the arrival tolerance "
+              "({tol} units) does not allow: if {n} units (0.29 deg each) are acceptable for the pick, --set "
+              "act.tolerance_units={n}; otherwise lower the servo's compliance margin / slope or raise its punch "
+              "(address 48), or lighten the load.")
 
 
 STALL_HINT = ("a joint that does not reach its goal is blocked or overloaded: look for an obstruction in its path, "
@@ -280,7 +298,7 @@ STALL_HINT = ("a joint that does not reach its goal is blocked or overloaded: lo
 def _motion_failure(e: ServoFailure, bus: Bus, ids: list[int], where: str, baud: int) -> NodeError:
     notes = bus.torque_off(ids)
     if isinstance(e, _Stalled):
-        head, hint = str(e), STALL_HINT
+        head, hint = str(e), e.hint or STALL_HINT
     else:
         head, hint = _diagnose.head_and_hint(e, moving=True, baud=baud)
     msg = (f"arm stopped during waypoint {bus.waypoint!r} on {where}: {head}. Torque was turned off on all servos "
