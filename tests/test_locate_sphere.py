@@ -70,7 +70,8 @@ def test_centroid_disparity_refuses_a_ball_too_large_and_near_for_its_silhouette
         return {"id": "p", "found": True, "left": region(320.0 + d / 2), "right": region(320.0 - d / 2)}
 
     big = centroid(CentroidParams(), seg(5.0, 31.5), rect)["disparity"]
-    assert not big["found"] and "disparity.ellipse" in big["reason"] and "~0.79 cm too near" in big["reason"], big["reason"]
+    assert not big["found"] and "disparity.ellipse" in big["reason"], big["reason"]
+    assert "~0.79 cm too near" in big["reason"], big["reason"]
     usual = centroid(CentroidParams(), seg(2.0, 30.0), rect)["disparity"]  # the shipped rig's nearest ball
     assert usual["found"] and 0.1 < usual["sphere_bias_cm"] < 0.2
     lenient = centroid(CentroidParams(max_sphere_bias_cm=1.0), seg(5.0, 31.5), rect)["disparity"]
