@@ -441,9 +441,18 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
             doc.broken.add(name)
             doc.nodes.pop(name, None)
     raise_all(problems, doc)
-    for ov in overrides or []:
+    for ov in types_first(overrides or []):
         apply_override(doc, ov)
     return doc
+
+
+def types_first(overrides: list[str]) -> list[str]:
+    """``--set`` texts with the type swaps (``NODE.type=NAME``) first, the rest in their order: a swap
+    resets the node's params, so a param set before it on the line was silently dropped."""
+    def is_type(text: str) -> bool:
+        return text.split("=", 1)[0].strip().split(".")[1:] == ["type"]
+
+    return [t for t in overrides if is_type(t)] + [t for t in overrides if not is_type(t)]
 
 
 def parse_override(text: str) -> tuple[str, list[str], Any]:

@@ -18,7 +18,7 @@ import pydantic
 
 from stereograph import registry
 from stereograph.api import NodeError, NodeSpec, Params, type_name
-from stereograph.config import PipelineDoc, apply_override, load_pipeline, merge_params
+from stereograph.config import PipelineDoc, apply_override, load_pipeline, merge_params, types_first
 from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
 
@@ -329,7 +329,7 @@ def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph
         if e.doc is None:
             return None, e.errors
         doc, problems = e.doc, list(e.errors)
-        for ov in overrides or []:  # load_pipeline stopped before the overrides
+        for ov in types_first(overrides or []):  # load_pipeline stopped before the overrides
             try:
                 apply_override(doc, ov)
             except ConfigError as oe:

@@ -294,3 +294,17 @@ def test_a_bad_set_is_located_at_the_set_not_at_the_file_line_it_replaced(overri
     # (these pointed at locate.yaml's line, which holds the pipeline's own -- correct -- value)
     code, err = _validate("--set", override, capsys=capsys)
     assert code == 2 and err.startswith(f"error: --set {override}:"), err
+
+
+def test_a_type_swap_on_the_command_line_keeps_params_set_before_it():
+    """`--set segment.object.radius_cm=5 --set segment.type=segmenter.color` dropped the radius (the swap
+    reset the node's params, in command-line order); type swaps now go first, wherever they stand."""
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+
+    locate = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
+    for order in (["segment.object.radius_cm=5", "segment.type=segmenter.color"],
+                  ["segment.type=segmenter.color", "segment.object.radius_cm=5"]):
+        seg = build_graph(load_pipeline(locate, order)).nodes["segment"]
+        assert seg.type == "segmenter.color" and seg.params.object.radius_cm == 5.0, order
+        assert seg.params.object.color_bgr is not None  # (and the colour from defaults: for the new type)
