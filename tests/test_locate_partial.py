@@ -156,3 +156,20 @@ def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
     assert coverage(cnt, np.array([c, c]), r) >= 0.95
     upper = cnt[cnt[:, 1] < c - 0.5]  # half the outline (a lower half hidden)
     assert 0.4 <= coverage(upper, np.array([c, c]), r) <= 0.6
+
+
+def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_path):
+    """(plain 2 cm balls at 100-200 cm, nothing in front of them, were refused as "occluded or touching
+    another object"; the cause is a ~6 px silhouette: too few outline pixels)"""
+    from pathlib import Path
+
+    import stereograph
+
+    far = {"rig.n_scenes": 20, "rig.camera_height_cm": 40, "rig.camera_tilt_deg": 15, "rig.min_distance_cm": 100,
+           "rig.max_distance_cm": 200, "segment.working_range_cm": [80, 220], "disparity.working_range_cm": [80, 220],
+           "locate.working_range_cm": [80, 220]}
+    pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
+    res = stereograph.run(pipeline, far, use_cache=False, keep=["locate"], out_dir=tmp_path / "out", progress=False)
+    reasons = [r["reason"] for r in res.outputs("locate", "location").values() if not r["found"]]
+    assert reasons and all(r.startswith("the ball is small in the") for r in reasons), reasons
+    assert not any("occluded" in r for r in reasons)

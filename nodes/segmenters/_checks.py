@@ -90,6 +90,14 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
         if s_z > params.partial.max_sigma_z_cm:
             part = left.get("partial") or right.get("partial")
             side = "left" if left.get("partial") else "right"
+            reg = left if left.get("partial") else right
+            r_px = math.sqrt(max(float(reg.get("area_px") or 0.0), 0.0) / math.pi)
+            if part["outline_visible"] >= 0.8 and r_px <= 12:  # seen (nearly) whole, and small: not hidden
+                return (f"the ball is small in the {side} image (~{r_px:.0f} px radius at {z_stereo:.0f} cm, "
+                        f"{100 * part['outline_visible']:.0f} % of its outline seen): too few outline pixels to "
+                        f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
+                        f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer focal length or a larger "
+                        "image locate it")
             return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
                     f"outline visible: too little to locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
                     f"{params.partial.max_sigma_z_cm:g})")
