@@ -76,3 +76,26 @@ def test_centroid_disparity_refuses_a_ball_too_large_and_near_for_its_silhouette
     assert usual["found"] and 0.1 < usual["sphere_bias_cm"] < 0.2
     lenient = centroid(CentroidParams(max_sphere_bias_cm=1.0), seg(5.0, 31.5), rect)["disparity"]
     assert lenient["found"]
+
+
+def test_a_working_range_set_on_the_segmenter_holds_down_the_chain():
+    """(`--set segment.working_range_cm=[80,220]` alone: the disparity and locate nodes kept their own
+    20-80 cm and refused every far ball, 2/20 found; now they take the upstream record's unless set)"""
+    from nodes.disparity.centroid import CentroidParams, centroid
+    from nodes.locators.triangulate import TriangulateParams, triangulate
+
+    f_px, baseline_cm, z_cm = 560.0, 8.0, 150.0
+    rect = {"f_px": f_px, "baseline_cm": baseline_cm, "P1": [[f_px, 0, 320, 0], [0, f_px, 240, 0], [0, 0, 1, 0]],
+            "P2": [[f_px, 0, 320, -f_px * baseline_cm], [0, f_px, 240, 0], [0, 0, 1, 0]],
+            "Q": [[1, 0, 0, -320], [0, 1, 0, -240], [0, 0, 0, f_px], [0, 0, 1 / baseline_cm, 0]],
+            "R1": np.eye(3).tolist(), "image_size": [640, 480]}
+    d = f_px * baseline_cm / z_cm
+    region = lambda u: {"area_px": math.pi * 7.5 ** 2, "centroid_px": [u, 240.0], "sigma_centroid_px": 0.02}  # noqa: E731
+    seg = {"id": "p", "found": True, "left": region(320.0 + d), "right": region(320.0),
+           "working_range_cm": [80.0, 220.0]}
+    disp = centroid(CentroidParams(), seg, rect)["disparity"]
+    assert disp["found"] and disp["working_range_cm"] == [80.0, 220.0], disp.get("reason")
+    loc = triangulate(TriangulateParams(), disp, rect)["location"]
+    assert loc["found"] and abs(loc["z_cm"] - z_cm) < 1.0, loc.get("reason")
+    own = centroid(CentroidParams(working_range_cm=(20, 80)), seg, rect)["disparity"]  # set on the node: it wins
+    assert not own["found"] and "working range [20.0, 80.0]" in own["reason"]

@@ -28,6 +28,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import AfterValidator
 
+from nodes.contracts.working_range import working_range
 from stereograph.api import Field, Params, PositiveRange
 
 
@@ -45,8 +46,8 @@ class DisparityParams(Params):
     """Parameters shared by every disparity estimator."""
 
     working_range_cm: PositiveRange = Field(
-        (20.0, 80.0), description="Nearest and farthest plausible object distance (cm); outside -> not found."
-    )
+        (20.0, 80.0), description="Nearest and farthest plausible object distance (cm); outside -> not found. "
+                                  "Not set in the pipeline: the segmenter's, carried in its records.")
     range_slack: float = Field(
         0.25, ge=0, le=2, description="Relative slack on the working range before rejecting a disparity (ratio)."
     )
@@ -55,22 +56,25 @@ class DisparityParams(Params):
     )
 
 
-def disparity_range_px(rectification: dict | None, params: DisparityParams) -> tuple[float, float] | None:
-    """Plausible disparity range (px) from f*B and the working range, or None without calibration."""
+def disparity_range_px(rectification: dict | None, params: DisparityParams,
+                       seg: dict | None = None) -> tuple[float, float] | None:
+    """Plausible disparity range (px) from f*B and the working range (``working_range``: this node's
+    if the pipeline set it, else the Segmentation's), or None without calibration."""
     if rectification is None:
         return None
     fb = float(rectification["f_px"]) * float(rectification["baseline_cm"])
-    z0, z1 = sorted(params.working_range_cm)
+    z0, z1 = working_range(params, seg)
     return fb / (z1 * (1 + params.range_slack)), fb / (z0 * (1 - min(params.range_slack, 0.9)))
 
 
 REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
+PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm")
 
 
 def _passed_on(seg) -> dict:
     """What a Disparity passes on from its Segmentation: the rejected-candidate outlines (for the
     locator's overlay) and where the object's colour came from (``color_from``), when present."""
-    return {k: seg[k] for k in (*REJECTED_KEYS, "color_from") if k in seg} if isinstance(seg, dict) else {}
+    return {k: seg[k] for k in PASSED_ON if k in seg} if isinstance(seg, dict) else {}
 
 
 def not_found(seg_or_id, reason: str, method: str) -> dict:
@@ -87,12 +91,13 @@ def not_found(seg_or_id, reason: str, method: str) -> dict:
 def finish(seg: dict, u: float, v: float, d: float, sigma_d: float, method: str,
            rectification: dict | None, params: DisparityParams, ctx=None, **extra) -> dict:
     """A Disparity record, or a not-found one when d lies outside the plausible range."""
-    rng = disparity_range_px(rectification, params)
+    rng = disparity_range_px(rectification, params, seg)
+    used = list(working_range(params, seg))
     if not np.isfinite(d) or d <= 0:
         rec = not_found(seg, f"disparity out of range ({d:.2f} px <= 0)", method)
     elif rng is not None and not (rng[0] <= d <= rng[1]):
         rec = not_found(seg, f"disparity out of range ({d:.2f} px not in {rng[0]:.1f}-{rng[1]:.1f} px "
-                             f"= working range {params.working_range_cm} cm)", method)
+                             f"= working range {used} cm)", method)
     else:
         rec = {
             "id": seg["id"], "found": True, "reason": None, "u_left_px": float(u), "v_left_px": float(v),
@@ -100,6 +105,7 @@ def finish(seg: dict, u: float, v: float, d: float, sigma_d: float, method: str,
             "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0, **_passed_on(seg),
         }
         rec.update(extra)
+    rec["working_range_cm"] = used  # (the locator's default)
     if not rec["found"] and ctx is not None:
         ctx.warn(f"{rec['id']}: {rec['reason']}")
     return rec

@@ -129,7 +129,7 @@ def sgbm(params: SgbmParams, segmentation, pair, rectification, ctx=None):
     why = seg_reason(segmentation)
     if why is not None:
         return {"disparity": not_found(segmentation, why, "sgbm")}
-    rng = disparity_range_px(rectification, params)
+    rng = disparity_range_px(rectification, params, segmentation)
     L, R = np.asarray(pair["left"]), np.asarray(pair["right"])
     d, s, n, rho_m = sgbm_object_disparity(L, R, np.asarray(segmentation["left_mask"], bool),
                                            segmentation["left"]["bbox"], rng, params)

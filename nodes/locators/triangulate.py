@@ -19,6 +19,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.contracts.calibration_file import rig_fingerprint
+from nodes.contracts.working_range import working_range
 from nodes.locators._overlay import location_overlay
 from stereograph.api import Field, In, NodeError, Out, Params, PositiveRange, node
 
@@ -33,8 +34,8 @@ class TriangulateParams(Params):
         None, description="4x4 transform from left-camera to table frame (cm); None = take it from `rig`."
     )
     working_range_cm: PositiveRange = Field(
-        (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found."
-    )
+        (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found. Not "
+                                  "set in the pipeline: the disparity estimator's (the segmenter's), from its records.")
     overlay: bool = Field(True, description="Draw the labelled left | right overlay (bool); off = a 1x1 placeholder.")
 
 
@@ -177,7 +178,7 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
     if d <= 0:
         return _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)
     p = triangulate_point(u, v, d, rectification, float(disparity.get("depth_offset_cm") or 0.0))
-    z0, z1 = sorted(params.working_range_cm)
+    z0, z1 = working_range(params, disparity)
     if not (0.75 * z0 <= p[2] <= 1.25 * z1):
         return _record(pid, split, frame,
                                     f"depth {p[2]:.1f} cm outside the working range {z0:g}-{z1:g} cm", **base)

@@ -103,6 +103,7 @@ def segment_pair(
         "right": None,
         "method": method,
         "object_radius_cm": float(params.object.radius_cm),
+        "working_range_cm": sorted(float(z) for z in params.working_range_cm),  # (the next nodes' default)
         # where the object's colour came from: the YAML ("params"), learned ("appearance"), or none
         "color_from": color_from if (params.object.color_bgr is not None
                                      or params.object.hue_range_deg is not None) else None,
