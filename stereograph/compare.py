@@ -633,7 +633,8 @@ def compare(
     if lanes > 1 and len(graphs) > 1:
         import concurrent.futures as cf
 
-        with cf.ThreadPoolExecutor(lanes) as threads:
+        threads = cf.ThreadPoolExecutor(lanes)
+        try:
             pending = []
             for i, (v, graph) in enumerate(graphs[1:], 2):
                 if hasattr(prog, "variant_started"):
@@ -645,6 +646,12 @@ def compare(
                 results.append(vr)
                 if hasattr(prog, "variant_done"):
                     prog.variant_done(vr)
+        except BaseException:
+            # Ctrl-C, SIGTERM: the variants not begun are dropped, not run one after another before the
+            # interrupt gets through (the caller then ends the pool, and the running ones with it)
+            threads.shutdown(wait=False, cancel_futures=True)
+            raise
+        threads.shutdown()
     timings.save()
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
     res.rows = _rows(res)

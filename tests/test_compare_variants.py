@@ -255,3 +255,33 @@ def test_out_must_be_a_folder_of_its_own(pipeline, tmp_path, capsys):
     for f in ("compare.csv", "compare.html"):
         (out / f).unlink()
     assert cli_main([*base, "--out", str(out)]) == 0, capsys.readouterr().err
+
+
+def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
+    """(Ctrl-C during `compare --workers N` waited for every queued variant to run, one after another,
+    before the interrupt got through)"""
+    from stereograph.runner import ProcessExecutor
+
+    class StopAfterFirstParallel:
+        def node_started(self, name, n_items):
+            pass
+
+        def advance(self, name):
+            pass
+
+        def variant_done(self, vr):
+            if vr.variant.label != labels[0]:
+                raise KeyboardInterrupt
+
+    vary = ["fit.type=none,polynomial", "fit.cv_seed=0,1,2,3"]
+    labels: list[str] = []
+    ex = ProcessExecutor(2)
+    prog = StopAfterFirstParallel()
+    prog.variant_started = lambda i, n, label: labels.append(label)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            compare(pipeline, vary, tmp_path / "o", cache_dir=tmp_path / "c", plots=False, executor=ex, progress=prog)
+    finally:
+        ex.close(now=True)
+    ran = [p for p in (tmp_path / "o" / "variants").iterdir() if (p / "run.json").is_file()]
+    assert len(labels) > 4 and len(ran) < len(labels) - 1, (len(ran), len(labels))
