@@ -4,16 +4,20 @@ import cv2
 import numpy as np
 import pytest
 
-from nodes.sources._files import pair_key
+from nodes.sources._files import list_pairs, pair_key
 from nodes.sources.files import FilesParams, files
 from stereograph.api import NodeError, RunContext
 
 
-def _folder(tmp_path, ids=("01", "02", "03")):
+def _images(folder, names):
+    """Small grey PNGs of these file names in ``folder`` (what list_pairs matches by name)."""
     img = np.full((24, 32, 3), 90, np.uint8)
-    for i in ids:
-        cv2.imwrite(str(tmp_path / f"left{i}.png"), img)
-        cv2.imwrite(str(tmp_path / f"right{i}.png"), img)
+    for name in names:
+        cv2.imwrite(str(folder / name), img)
+
+
+def _folder(tmp_path, ids=("01", "02", "03")):
+    _images(tmp_path, [f"{side}{i}.png" for i in ids for side in ("left", "right")])
     return tmp_path
 
 
@@ -65,11 +69,7 @@ def test_pair_id_rule():
 
 def test_no_match_for_the_globs_suggests_the_globs_the_names_need(tmp_path):
     # (s000_left.png, a naming docs/bench.md gives, met "no images match 'left*'" and no more)
-    from nodes.sources._files import list_pairs
-
-    img = np.full((24, 32, 3), 90, np.uint8)
-    for side in ("left", "right"):
-        cv2.imwrite(str(tmp_path / f"s000_{side}.png"), img)
+    _images(tmp_path, ["s000_left.png", "s000_right.png"])
     with pytest.raises(NodeError) as e:
         list_pairs(tmp_path, "left*", "right*")
     assert "left_glob: '*left*'" in e.value.hint and "s000_left.png" in e.value.hint
@@ -84,11 +84,7 @@ def test_a_truth_header_without_centre_columns_is_said_as_a_header_problem(tmp_p
 
 def test_the_suggested_globs_match_capitalised_names(tmp_path):
     # (Left01.png / Right01.png were told to use '*left*', which matches nothing: globs are case-sensitive)
-    from nodes.sources._files import list_pairs
-
-    img = np.full((24, 32, 3), 90, np.uint8)
-    for side in ("Left", "Right"):
-        cv2.imwrite(str(tmp_path / f"{side}01.png"), img)
+    _images(tmp_path, ["Left01.png", "Right01.png"])
     with pytest.raises(NodeError) as e:
         list_pairs(tmp_path, "left*", "right*")
     assert "left_glob: '*Left*'" in e.value.hint and "right_glob: '*Right*'" in e.value.hint
@@ -97,12 +93,7 @@ def test_the_suggested_globs_match_capitalised_names(tmp_path):
 
 def test_names_without_a_side_token_pair_by_what_the_globs_matched(tmp_path):
     # (cam0_01.png / cam1_01.png with globs cam0* / cam1*: "these images have no partner: cam0_01.png, ...")
-    from nodes.sources._files import list_pairs
-
-    img = np.full((24, 32, 3), 90, np.uint8)
-    for cam in ("cam0", "cam1"):
-        for i in ("01", "02", "10"):
-            cv2.imwrite(str(tmp_path / f"{cam}_{i}.png"), img)
+    _images(tmp_path, [f"{cam}_{i}.png" for cam in ("cam0", "cam1") for i in ("01", "02", "10")])
     for lg, rg in (("cam0*", "cam1*"), ("cam0_*.png", "cam1_*.png")):
         got = list_pairs(tmp_path, lg, rg)
         assert [(k, a.name, b.name) for k, a, b in got] == [(i, f"cam0_{i}.png", f"cam1_{i}.png")

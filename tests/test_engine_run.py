@@ -586,10 +586,9 @@ def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
     assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"  # the built-in is still the one
 
 
-def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(tmp_path):
-    # (it printed "interrupted" at once, then went on computing the queued items for 20-100 s)
-    import signal
-
+def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, Path]:
+    """A pipeline of ``n`` items, each taking ``seconds`` and leaving a file in ``marks`` when done:
+    (marks folder, pipeline file)."""
     marks = tmp_path / "marks"
     marks.mkdir()
     slow = _plugin(tmp_path, "slow.py", f"""\
@@ -598,13 +597,21 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
         from stereograph.api import node, Out, In
         @node("tmp.slow", inputs={{"m": In("Matrix")}}, outputs={{"v": Out("Number", save=True)}})
         def slow(params, m):
-            time.sleep(0.5)
+            time.sleep({seconds})
             Path({str(marks)!r}, uuid.uuid4().hex).touch()
             return {{"v": 1.0}}
         """)
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 60, "
+    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: {n}, "
                  "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n")
+    return marks, f
+
+
+def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(tmp_path):
+    # (it printed "interrupted" at once, then went on computing the queued items for 20-100 s)
+    import signal
+
+    marks, f = _slow_items_pipeline(tmp_path, n=60, seconds=0.5)
     cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--workers", "2", "--no-cache",
            "--out", str(tmp_path / "out")]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
@@ -642,21 +649,7 @@ def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     # an earlier stereograph run")
     import signal
 
-    marks = tmp_path / "marks"
-    marks.mkdir()
-    slow = _plugin(tmp_path, "slow.py", f"""\
-        import time, uuid
-        from pathlib import Path
-        from stereograph.api import node, Out, In
-        @node("tmp.slow", inputs={{"m": In("Matrix")}}, outputs={{"v": Out("Number", save=True)}})
-        def slow(params, m):
-            time.sleep(0.3)
-            Path({str(marks)!r}, uuid.uuid4().hex).touch()
-            return {{"v": 1.0}}
-        """)
-    f = tmp_path / "p.yaml"
-    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 8, "
-                 "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n")
+    marks, f = _slow_items_pipeline(tmp_path, n=8, seconds=0.3)
     cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--cache-dir",
            str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
