@@ -62,7 +62,7 @@ import numpy as np
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, UsageError, printable
 from stereograph.graph import Graph, build_graph
-from stereograph.outputs import write_whole
+from stereograph.outputs import check_folder_path, write_whole
 
 __all__ = [
     "METRICS_TYPE",
@@ -511,13 +511,7 @@ def prepare_compare_dir(out: Path) -> None:
     """Make ``out`` ready for a comparison's files, or refuse it (:class:`ConfigError`): an existing file,
     a folder that cannot be made or written, a non-empty folder that is not an earlier comparison's
     (its files are never overwritten: ``compare.csv``, ``variants/``)."""
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"output folder {out} is an existing file", hint="choose another --out")
-    probe = out
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise ConfigError(f"output folder {out} cannot be made: {probe} is a file", hint="choose another --out")
+    check_folder_path(out)
     try:
         if out.is_dir() and any(out.iterdir()) and not _compare_folder(out):
             raise ConfigError(f"output folder {out} is not empty and is not the folder of an earlier stereograph "

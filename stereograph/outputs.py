@@ -261,6 +261,21 @@ def _verified_render(rdir: Path) -> dict[str, bytes] | None:
         return None
 
 
+def check_folder_path(out: Path) -> Path:
+    """Refuse an output folder that is an existing file or lies under one (:class:`ConfigError`);
+    returns the nearest existing folder on its path (the folder itself when it exists)."""
+    from stereograph.errors import ConfigError
+
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"output folder {out} is an existing file", hint="choose another --out")
+    probe = out
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ConfigError(f"output folder {out} cannot be made: {probe} is a file", hint="choose another --out")
+    return probe
+
+
 def prepare_out_dir(out_dir: Path) -> None:
     """Make ``out_dir`` ready for a run.
 
@@ -271,13 +286,7 @@ def prepare_out_dir(out_dir: Path) -> None:
     """
     from stereograph.errors import ConfigError
 
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ConfigError(f"output folder {out_dir} is an existing file", hint="choose another --out")
-    probe = out_dir
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise ConfigError(f"output folder {out_dir} cannot be made: {probe} is a file", hint="choose another --out")
+    probe = check_folder_path(out_dir)
     if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
         raise ConfigError(f"output folder {out_dir} cannot be written: {probe} is not writable",
                           hint="choose another --out")
