@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import contextlib
 import difflib
-import hashlib
 import importlib
 import importlib.util
 import json
@@ -19,6 +18,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from stereograph.digests import digest, file_digest
 from stereograph.errors import ConfigError, Where
 
 if TYPE_CHECKING:
@@ -173,10 +173,10 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
             if plugin.endswith(".py") or "/" in plugin:
                 path = (base_dir / plugin).resolve()
                 # one module per file (two plugins named nodes.py in two folders are two modules)
-                mod_name = f"stereograph_plugin_{path.stem}_{hashlib.sha1(str(path).encode()).hexdigest()[:8]}"
+                mod_name = f"stereograph_plugin_{path.stem}_{digest(str(path).encode())[:8]}"
                 if not path.is_file():
                     raise FileNotFoundError(f"no such file {path}")
-                loaded, now = sys.modules.get(mod_name), _digest(path)
+                loaded, now = sys.modules.get(mod_name), file_digest(path)
                 if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == now:
                     continue
                 # (a file changed since this process imported it -- a notebook, a long-lived program --
@@ -204,13 +204,13 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                     PLUGIN_PATHS.add(str(base_dir))
                 mod = sys.modules.get(plugin)
                 file = getattr(mod, "__file__", None)
-                if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (None, _digest(
-                        Path(file))):
+                if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (
+                        None, file_digest(Path(file))):
                     mod = importlib.reload(mod)
                 else:
                     mod = importlib.import_module(plugin)
                 if getattr(mod, "__file__", None):
-                    mod.__stereograph_digest__ = _digest(Path(mod.__file__))
+                    mod.__stereograph_digest__ = file_digest(Path(mod.__file__))
         except ConfigError:
             raise
         except KeyboardInterrupt:
@@ -237,8 +237,6 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                                   hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type")
 
 
-def _digest(path: Path) -> str:
-    return hashlib.sha1(path.read_bytes()).hexdigest()
 
 
 def commands() -> dict[str, EntryPoint]:

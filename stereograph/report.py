@@ -99,7 +99,7 @@ class _Page:
         p = self.dir / rel
         mime = _MIME.get(p.suffix.lower())
         if not self.inside(rel):
-            return f'<p class="err">not shown: {_e(rel)} is not a file of this run folder</p>'
+            return _not_shown(rel)
         try:
             size = p.stat().st_size
         except OSError:
@@ -115,7 +115,7 @@ class _Page:
     def json_block(self, rel: str) -> str:
         p = self.dir / rel
         if not self.inside(rel):
-            return f'<p class="err">not shown: {_e(rel)} is not a file of this run folder</p>'
+            return _not_shown(rel)
         try:
             if p.stat().st_size > MAX_JSON_BYTES:
                 return _link(rel)
@@ -132,6 +132,10 @@ class _Page:
         if isinstance(value, dict) and isinstance(value.get("markdown"), str):
             return markdown_html(value["markdown"]) + _link(rel)
         return _link(rel)
+
+
+def _not_shown(rel: str) -> str:
+    return f'<p class="err">not shown: {_e(rel)} is not a file of this run folder</p>'
 
 
 def _href(rel: str) -> str:
@@ -236,8 +240,7 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
                         f'<a href="{_href(folder)}">{_e(folder)}</a></p>')
         for f in rest:
             bits.append(page.json_block(f) if f.endswith(".json") else
-                        _link(f) if page.inside(f) else f'<p class="err">not shown: {_e(f)} is not a file of this '
-                                                        f'run folder</p>')
+                        _link(f) if page.inside(f) else _not_shown(f))
         bits.append("</div>")
     return "\n".join(bits)
 
