@@ -139,13 +139,29 @@ def _shared_rig(params_json: str) -> dict:
 
 
 def _light_empty_table(rig: dict, i: int) -> None:
-    """The table's texture and camera ``i``'s ray grid and lit empty table: what every render of
-    this rig starts from. Large-array NumPy/OpenCV work that releases the GIL, so it can run in a
-    thread beside the scene plan's small per-scene computations. A failure here is left to the
-    render that needs the table, which computes it again and says what went wrong."""
+    """Camera ``i``'s lit empty table: what every render of this rig starts from. Large-array
+    NumPy/OpenCV work that releases the GIL, so the two cameras' run on two threads. A failure
+    here is left to the render that needs the table, which computes it again and says what went
+    wrong."""
     try:
         _empty_table(rig, i, _table_texture(int(rig["params"]["texture_seed"])))
     except Exception:  # noqa: BLE001 -- only a head start: the render reports the error
+        pass
+
+
+def _head_start(rig: dict, jobs: list, lock: threading.Lock, texture: bool) -> None:
+    """Make the table's texture (``texture``), then take the cameras' ray grids off ``jobs`` until
+    none is left: what the first render needs, see :func:`_plan`. Errors as above."""
+    try:
+        if texture:
+            _table_texture(int(rig["params"]["texture_seed"]))
+        while True:
+            with lock:
+                if not jobs:
+                    return
+                cam = jobs.pop(0)
+            _ray_grid(cam, tuple(rig["truth"]["image_size"]))
+    except Exception:  # noqa: BLE001 -- only a head start
         pass
 
 
@@ -153,24 +169,30 @@ def _light_empty_table(rig: dict, i: int) -> None:
 def _plan(params_json: str) -> tuple[dict, list[tuple[str, dict]], list[str]]:
     """The rig, every scene's description and split, in id order (cheap: nothing is rendered).
 
-    Cached by the params' JSON, so that a process producing many items plans once. Meanwhile a
-    second thread makes the texture and the left camera's empty table, and this one, after the
-    plan, the right camera's ray grid: the first render needs them all (~0.7 s alone).
+    Cached by the params' JSON, so that a process producing many items plans once. The first
+    render needs the table's texture, both cameras' ray grids and both lit empty tables (~0.6 s
+    of CPU), made here on two threads: the texture (large-array work that releases the GIL) on
+    one while this one plans the scenes, each then undistorting a camera's ray grid; then one
+    camera's table on each. Before a pool forks this process, so its workers inherit all of it.
     """
     params = SyntheticParams.model_validate_json(params_json)
     rig = _shared_rig(params_json)
-    left = threading.Thread(target=_light_empty_table, args=(rig, 0), name="stereograph-synthetic-table",
-                            daemon=True)
-    left.start()
+    jobs, lock = list(rig["cams"]), threading.Lock()
+    other = threading.Thread(target=_head_start, args=(rig, jobs, lock, True), name="stereograph-synthetic-texture",
+                             daemon=True)
+    other.start()
     try:
         plan = _plan_scenes(params, rig)
-        try:
-            _ray_grid(rig["cams"][1], tuple(rig["truth"]["image_size"]))
-        except Exception:  # noqa: BLE001 -- only a head start, as in _light_empty_table
-            pass
+        _head_start(rig, jobs, lock, False)
     finally:
-        left.join()  # before anything renders, and before a pool forks this process
-    _light_empty_table(rig, 1)  # the texture is made by now
+        other.join()  # before anything renders, and before a pool forks this process
+    right = threading.Thread(target=_light_empty_table, args=(rig, 1), name="stereograph-synthetic-table",
+                             daemon=True)
+    right.start()
+    try:
+        _light_empty_table(rig, 0)
+    finally:
+        right.join()
     return plan
 
 
