@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_disk_startup import bytecode  # (this folder is on sys.path: the script's own)
+
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "locate.yaml"
 MAPPED = {"remap", "segment", "disparity", "locate"}  # locate.yaml's per-item nodes
@@ -119,9 +121,11 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=1,
                     help="pairs of 1- and 2-worker runs, back to back (order alternating); the median ratio is "
                          "printed too: a shared VM's speed drifts between minutes (default 1)")
+    ap.add_argument("--no-compile", action="store_true", help="leave the project's bytecode as it is")
     a = ap.parse_args()
     skip = set(filter(None, a.skip.split(",")))
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at start")
+    bytecode(not a.no_compile)  # (start-up runs alone: stale bytecode would weigh on the 2-worker run most)
     tmp = Path(tempfile.mkdtemp(prefix="bench_parallel-"))
     n = ["--set", f"rig.n_scenes={a.pairs}"]
     rows = {}

@@ -121,13 +121,17 @@ def chunk_size(n_items: int, workers: int) -> int:
 
 def chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
     """``[start, end)`` of each task's items: :func:`chunk_size` items, and with several workers
-    the last ``2 x workers`` tasks a quarter of that, so that the workers finish together (one
-    worker alone on a last full chunk leaves the others idle for up to a chunk's time)."""
+    the last ``2 x workers`` tasks a quarter of that and the very last ``workers`` tasks one item
+    each, so that the workers finish together (one worker alone on a last full chunk leaves the
+    others idle for up to a chunk's time)."""
     size = chunk_size(n_items, workers)
     small = max(1, size // 4)
-    tail = min(n_items, 2 * workers * small) if workers > 1 else 0
-    bounds = [(k, min(k + size, n_items - tail)) for k in range(0, n_items - tail, size)]
-    return bounds + [(k, min(k + small, n_items)) for k in range(n_items - tail, n_items, small)]
+    ones = min(n_items, workers) if workers > 1 and small > 1 else 0
+    tail = min(n_items - ones, 2 * workers * small) if workers > 1 else 0
+    end_big, end_small = n_items - ones - tail, n_items - ones
+    bounds = [(k, min(k + size, end_big)) for k in range(0, end_big, size)]
+    bounds += [(k, min(k + small, end_small)) for k in range(end_big, end_small, small)]
+    return bounds + [(k, k + 1) for k in range(end_small, n_items)]
 
 
 @dataclass

@@ -300,10 +300,13 @@ def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
         assert [i for a, b in bounds for i in range(a, b)] == list(range(n))
         sizes = [b - a for a, b in bounds]
         assert all(0 < s <= chunk_size(n, workers) for s in sizes)
-        if workers > 1 and n >= 2 * workers * chunk_size(n, workers):
-            # the workers finish together: the last tasks are a quarter chunk
-            assert sizes[-2 * workers:] == [max(1, chunk_size(n, workers) // 4)] * (2 * workers)
-    assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 14 + [2] * 4
+        if workers > 1 and n >= 3 * workers * chunk_size(n, workers):
+            # the workers finish together: the last tasks are a quarter chunk, the very last one item
+            quarter = max(1, chunk_size(n, workers) // 4)
+            ones = workers if quarter > 1 else 0
+            assert sizes[-2 * workers - ones:] == [quarter] * (2 * workers) + [1] * ones
+            assert sizes == sorted(sizes, reverse=True)
+    assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 13 + [6] + [2] * 4 + [1] * 2
 
 
 _FIRST_NUMPY_IMPORT = """
