@@ -616,7 +616,9 @@ class ArtifactStore:
             size += s
             cnt, sz = by_node.get(t, (0, 0))
             by_node[t] = (cnt + 1, sz + s)
-        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node, "budget": budget}
+        left = self.abandoned()
+        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node, "budget": budget,
+                "abandoned": len(left), "abandoned_bytes": sum(b for _d, b in left)}
 
     def _usage(self) -> list[tuple[float, int, str, Path | None]]:
         """(last use, bytes, key, entry folder or None) per entry, its rendered files counted with it."""
@@ -646,19 +648,42 @@ class ArtifactStore:
             rows.append((0.0, sum(du(r) for r in dirs), key, None))
         return rows
 
+    def abandoned(self) -> list[tuple[Path, int]]:
+        """(folder, bytes) of each ``tmp/`` folder a killed run left behind (SIGKILL, power cut, out
+        of memory): one untouched for :data:`ABANDONED_AFTER_S`. An entry is written in seconds, so
+        such a folder has no writer; nothing else would ever remove it."""
+        if not self.tmp.is_dir() or self.tmp.is_symlink():
+            return []
+        now, out = time.time(), []
+        with contextlib.suppress(OSError):
+            for d in self.tmp.iterdir():
+                if d.is_symlink() or not d.is_dir() or not _named(d, "tmp", 0):
+                    continue
+                try:
+                    stats = [d.stat(), *(f.stat() for f in d.rglob("*"))]
+                except OSError:  # (being removed now)
+                    continue
+                if now - max(st.st_mtime for st in stats) > ABANDONED_AFTER_S:
+                    out.append((d, sum(st.st_size for st in stats[1:])))
+        return out
+
     def prune(self, max_bytes: int) -> tuple[int, int]:
         """Delete the least recently used entries until the store holds at most ``max_bytes``.
 
         Returns (entries removed, bytes freed). Rendered output files go with their entry. An entry
         in use by a run stays readable: that run holds its value in memory, or recomputes it.
+        What killed runs left in ``tmp/`` (:meth:`abandoned`) goes first, whatever the budget.
         """
         if not self.writable:
             from stereograph.errors import ConfigError
 
             raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
-        rows = self._usage()
-        total = sum(r[1] for r in rows)
         removed = freed = 0
+        for d, size in self.abandoned():
+            shutil.rmtree(d, ignore_errors=True)
+            freed += size
+        rows = self._usage()
+        total = sum(r[1] for r in rows) + freed
         for _used, size, key, d in sorted(rows, key=lambda r: r[0]):
             if total - freed <= max_bytes:
                 break
@@ -705,6 +730,7 @@ class ArtifactStore:
 
 
 _HEX = r"[0-9a-f]"
+ABANDONED_AFTER_S = 3600.0  # a tmp/ folder untouched this long was left by a killed run (see abandoned())
 # What ArtifactStore.clear removes: under each folder of the cache, the names at each level down
 # to what is removed whole (an entry's folder, a lock file); anything else is left where it is.
 _CACHE_LAYOUT: dict[str, list[str]] = {

@@ -564,8 +564,12 @@ def cmd_cache(args) -> int:
     if args.action == "prune":
         if args.max_gb is None:
             raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
+        left = sum(b for _d, b in store.abandoned()) if store.writable else 0
         n, freed = store.prune(int(args.max_gb * 1e9))
-        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
+        con.print(f"removed {n} least recently used entries ({(freed - left) / 1e6:.1f} MB) from {root}", markup=False)
+        if left:
+            con.print(f"removed {left / 1e6:.1f} MB of unfinished entries killed runs had left in {store.tmp}",
+                      markup=False)
         return 0
     from stereograph.project import budget_bytes
 
@@ -580,6 +584,10 @@ def cmd_cache(args) -> int:
     con.print(f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB{limit}", markup=False)
     for t, (n, b) in sorted(info["by_type"].items()):
         con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB", markup=False)
+    if info["abandoned"]:
+        con.print(f"  {info['abandoned']} unfinished entries killed runs left in {store.tmp}: "
+                  f"{info['abandoned_bytes'] / 1e6:.1f} MB (the next prune removes them: `stereograph cache prune "
+                  f"--max-gb N`, or any run that stores something under a budget)", markup=False)
     return 0
 
 

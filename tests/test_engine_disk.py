@@ -190,3 +190,47 @@ def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, 
     registry._all_groups.cache_clear()
     assert "only.this" not in registry.names() and "rectifier.remap" in registry.names()
     registry._all_groups.cache_clear()
+
+
+def _left_by_a_killed_run(store: ArtifactStore, age_s: float, size: int = 50_000) -> Path:
+    """A tmp/ folder as a run killed while writing an entry leaves it, last touched ``age_s`` ago."""
+    import os
+    import time
+    import uuid
+
+    d = store.tmp / uuid.uuid4().hex
+    d.mkdir(parents=True)
+    (d / "image.png").write_bytes(b"\0" * size)
+    then = time.time() - age_s
+    for p in (d / "image.png", d):
+        os.utime(p, (then, then))
+    return d
+
+
+def test_what_killed_runs_left_in_tmp_is_reported_and_pruned(tmp_path, monkeypatch, capsys):
+    from stereograph.cli import main
+
+    p = pipeline(tmp_path / "x", "one")
+    assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1").ok
+    store = ArtifactStore(tmp_path / "c")
+    entries = store.info()["entries"]
+    old = _left_by_a_killed_run(store, 2 * cache_mod.ABANDONED_AFTER_S)
+    writing = _left_by_a_killed_run(store, 1.0)  # a run writing now: not touched
+    mine = store.tmp / "notes"  # not a name the store gives: not the store's to remove
+    mine.mkdir()
+    info = store.info()
+    assert (info["abandoned"], info["abandoned_bytes"], info["entries"]) == (1, 50_000, entries)
+    assert main(["cache", "info", "--cache-dir", str(tmp_path / "c")]) == 0
+    assert "1 unfinished entries killed runs left" in " ".join(capsys.readouterr().out.split())
+    assert main(["cache", "prune", "--max-gb", "100", "--cache-dir", str(tmp_path / "c")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "removed 0 least recently used entries (0.0 MB)" in said and "removed 0.1 MB of unfinished" in said
+    assert not old.exists() and writing.exists() and mine.exists()
+    assert store.info()["entries"] == entries
+
+    # a run that stores something under a budget sweeps them too
+    old = _left_by_a_killed_run(store, 2 * cache_mod.ABANDONED_AFTER_S)
+    monkeypatch.setenv("STEREOGRAPH_CACHE_BUDGET_GB", "5")
+    assert run_pipeline(pipeline(tmp_path / "x", "one", scale=2.0), cache_dir=tmp_path / "c",
+                        out_dir=tmp_path / "o2").ok
+    assert not old.exists() and writing.exists()
