@@ -876,17 +876,32 @@ def _cell(name: str, v: Any) -> str:
     return _fmt(v, name)
 
 
-def _best(res: CompareResult, best: str | None) -> tuple[str, float] | None:
-    """``(metric, value)`` of the best row for ``--best NAME`` (lowest) or ``NAME:max`` (highest)."""
+#: ``--best NAME:HOW``: the row's value that ranks it (lowest ranked value is best).
+_RANK = {"min": lambda v: v, "max": lambda v: -v, "abs": abs}
+
+
+def _best(res: CompareResult, best: str | None) -> tuple[str, str, float] | None:
+    """``(metric, how, ranked value)`` of the best row for ``--best NAME`` (lowest), ``NAME:max`` (highest)
+    or ``NAME:abs`` (closest to zero); None when no variant that ran to the end has a value."""
     if not best:
         return None
     name, _, how = best.partition(":")
+    how = how or "min"
     if name not in res.metric_names:
         raise UsageError(f"--best {best}: no metric '{name}'", hint="choose one of " + ", ".join(res.metric_names))
-    vals = [r[name] for r in res.rows if isinstance(r.get(name), (int, float))]
-    if not vals:
-        return None
-    return name, (max(vals) if how == "max" else min(vals))
+    if how not in _RANK:
+        raise UsageError(f"--best {best}: '{how}' is not a way to rank", hint=f"use {name}, {name}:max (highest is "
+                         f"best) or {name}:abs (closest to zero is best)")
+    # Only a variant that ran to the end can be best: a failed one's numbers cover the items that got
+    # through (its hardest ones may be the ones missing), so they are shown but never ranked.
+    vals = [_RANK[how](r[name]) for r in res.rows if r.get("ok") and isinstance(r.get(name), (int, float))]
+    return (name, how, min(vals)) if vals else None
+
+
+def _is_best(top: tuple[str, str, float] | None, row: dict[str, Any]) -> bool:
+    if top is None or not row["ok"] or not isinstance(row.get(top[0]), (int, float)):
+        return False
+    return _RANK[top[1]](row[top[0]]) == top[2]
 
 
 def _chunks(res: CompareResult, keys: list[str], names: list[str], width: int, narrow: bool) -> list[list[str]]:
@@ -923,7 +938,8 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     metrics : list of str, optional
         Shell-style patterns of the metric columns to show (default: all; compare.csv has all).
     best : str, optional
-        ``NAME`` (lowest is best) or ``NAME:max``: that row in bold green.
+        ``NAME`` (lowest is best), ``NAME:max`` (highest) or ``NAME:abs`` (closest to zero): that row in
+        bold green, among the variants that ran to the end (a failed one is marked FAILED, never best).
     """
     from rich import box
     from rich.markup import escape
@@ -948,6 +964,7 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
         top = None
     narrow = con.width < 150
     chunks = _chunks(res, keys, names, con.width, narrow)
+    failed = any(not r["ok"] for r in res.rows)
     for i, chunk in enumerate(chunks):
         title = (f"compare {Path(res.pipeline).name}" + (f" — split {res.split}" if res.split else "")
                  + (f"; fixed: {', '.join(fixed)}" if fixed else "")
@@ -958,12 +975,13 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
             t.add_column(escape(k), no_wrap=True)
         for name in chunk:
             t.add_column(_header(name), justify="right", no_wrap=True)
-        if top is not None:  # (the colour alone is lost in a log or a pipe)
+        if top is not None or failed:  # (the colour alone is lost in a log or a pipe)
             t.add_column("", no_wrap=True)
         for r in res.rows:
             cells = [escape(_show(r["settings"][k])) for k in keys]
-            is_best = top is not None and r.get(top[0]) == top[1]
-            mark = [f"<- best {top[0]}" if is_best else ""] if top is not None else []
+            is_best = _is_best(top, r)
+            mark = ([f"<- best {top[0]}" if is_best else "" if r["ok"] else "FAILED (see below)"]
+                    if top is not None or failed else [])
             if not r["ok"] and not any(isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR):
                 t.add_row(*cells, *(["–"] * len(chunk)), *mark, style="red")
                 continue
@@ -973,6 +991,11 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
+    if top is not None and top[1] == "min" and any(
+            isinstance(r.get(top[0]), (int, float)) and r[top[0]] < 0 for r in res.rows):
+        # a signed metric (a mean error, say): its lowest value is the farthest below zero
+        con.print(f"note: {top[0]} has negative values, and --best {top[0]} marks the lowest (the most negative); "
+                  f"--best {top[0]}:abs marks the one closest to zero", markup=False)
     if mistakes:
         raise mistakes[0]
 
@@ -1000,8 +1023,9 @@ def add_subcommand(subparsers: Any) -> Any:
     sp.add_argument("--metrics", action="append", default=[], metavar="PATTERN",
                     help="metric columns to print and plot, shell-style, comma-separated (z_*,'*rms*'); repeatable; "
                          "default all (compare.csv always has all)")
-    sp.add_argument("--best", metavar="METRIC[:max]",
-                    help="show the row with the lowest (or with :max the highest) METRIC in bold green")
+    sp.add_argument("--best", metavar="METRIC[:max|:abs]",
+                    help="show the row with the lowest (:max the highest, :abs the closest to zero) METRIC in "
+                         "bold green, among the variants that ran to the end")
     sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run every variant's per-item work on a Dask cluster "
                     "('local' starts one with --workers processes; the cache and run folder must be on "

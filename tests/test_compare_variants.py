@@ -285,3 +285,65 @@ def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
         ex.close(now=True)
     ran = [p for p in (tmp_path / "o" / "variants").iterdir() if (p / "run.json").is_file()]
     assert len(labels) > 4 and len(ran) < len(labels) - 1, (len(ran), len(labels))
+
+
+GATE = '''
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+class GateParams(Params):
+    max_z_cm: float = Field(1000.0, gt=0, description="Farthest location let through (cm).")
+
+@node("toygate.max_z", params=GateParams, inputs={"location": In("Location")}, outputs={"location": Out("Location")})
+def max_z(params, location, ctx=None):
+    """Fails on a location farther than max_z_cm (as a node with a bug on the hard items would)."""
+    if location["z_cm"] > params.max_z_cm:
+        raise NodeError("too far")
+    return {"location": location}
+'''
+
+
+def test_a_failed_variant_is_never_best_and_is_marked_failed(tmp_path, capsys):
+    """(a variant that failed on its far -- worst -- items had the lowest z RMS over the items left,
+    and `--best z_rms_cm` marked it best; in a log nothing told its row from the others)"""
+    (tmp_path / "gate.py").write_text(GATE)
+    p = tmp_path / "gate.yaml"
+    p.write_text(f"""
+name: gated
+plugins: [{PLUGIN}, gate.py]
+variants:
+  gate.max_z_cm: [1000, 60]
+nodes:
+  scenes: {{type: toy.scenes, params: {{n: 60}}}}
+  locate: {{type: toy.triangulate, params: {{baseline_scale: 1.02}}, inputs: {{scene: scenes.scenes}}}}
+  gate: {{type: toygate.max_z, inputs: {{location: locate.location}}}}
+  report: {{type: report.accuracy, params: {{figure: false}}, inputs: {{locations: gate.location}}}}
+""")
+    args = ["compare", str(p), "--allow-plugins", "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"),
+            "--no-plots", "--metrics", "n,z_mean_cm,z_rms_cm"]
+    assert cli_main([*args, "--best", "z_rms_cm"]) == 1
+    out = capsys.readouterr().out
+    rows = {line.strip("│ ").split()[0]: line for line in out.splitlines()
+            if line.strip("│ ").startswith(("1000", "60"))}
+    assert "<- best z_rms_cm" in rows["1000"] and "FAILED" in rows["60"] and "best" not in rows["60"], out
+    # (the numbers that made it look best: fewer items, a lower error)
+    res = json.loads((tmp_path / "o" / "compare.json").read_text())["rows"]
+    assert res[1]["n"] < res[0]["n"] and res[1]["z_rms_cm"] < res[0]["z_rms_cm"]
+
+
+def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
+    """--best NAME:abs ranks by closeness to zero; the plain lowest of a metric with negative values is
+    said to be the most negative; an unknown way to rank is refused."""
+    from stereograph.compare import _best, _is_best
+
+    res = compare(pipeline, ["fit.type=none,polynomial"], tmp_path / "o", cache_dir=tmp_path / "c", plots=False)
+    for r, v in zip(res.rows, (0.3, -0.01)):
+        r["z_mean_cm"] = v
+    res.rows.append({**res.rows[0], "z_mean_cm": -0.5})
+    assert [_is_best(_best(res, "z_mean_cm:abs"), r) for r in res.rows] == [False, True, False]
+    assert [_is_best(_best(res, "z_mean_cm"), r) for r in res.rows] == [False, False, True]
+    with pytest.raises(UsageError, match="not a way to rank"):
+        _best(res, "z_mean_cm:ab")
+    from stereograph.compare import print_table
+
+    print_table(res, None, metrics=["z_mean_cm"], best="z_mean_cm")
+    assert "most negative" in capsys.readouterr().out
