@@ -351,6 +351,8 @@ class CompareResult:
     variants: list[VariantResult]
     rows: list[dict[str, Any]]
     files: dict[str, Path]
+    #: ``(label, why)`` of each combination left out by ``skip_invalid`` (its config did not validate)
+    skipped: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -396,6 +398,10 @@ class _PlainProgress:
     def variant_started(self, i: int, n: int, label: str) -> None:
         if self.stream:
             print(printable(f"[{i}/{n}] {label} ..."), file=self.stream, flush=True)
+
+    def variant_skipped(self, label: str, why: str) -> None:
+        if self.stream:
+            print(printable(f"left out (its settings do not validate): {label}: {why}"), file=self.stream, flush=True)
 
     def variant_done(self, vr: VariantResult) -> None:
         if self.stream:
@@ -597,6 +603,9 @@ def compare(
             skipped.append((v, str(e)))
     if not graphs:
         raise ConfigError(f"no variant of {doc.path.name} is valid: {skipped[0][1]}")
+    for v, why in skipped:
+        if hasattr(progress, "variant_skipped"):
+            progress.variant_skipped(v.label, why)
     if not metrics_outputs(graphs[0][1]):
         raise ConfigError(f"{doc.path.name} declares no metrics to compare",
                           hint="add a node with an output of type Metrics (`stereograph nodes` shows each node's "
@@ -647,7 +656,8 @@ def compare(
             raise
         threads.shutdown()
     timings.save()
-    res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {})
+    res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {},
+                        [(v.label, e) for v, e in skipped])
     res.rows = _rows(res)
     res.files = _write(res, skipped, plots)
     _write_page(res, overrides)
@@ -991,6 +1001,8 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
+    for label, why in res.skipped:
+        con.print(f"left out (--skip-invalid): {label}: {why}", markup=False)
     if top is not None and top[1] == "min" and any(
             isinstance(r.get(top[0]), (int, float)) and r[top[0]] < 0 for r in res.rows):
         # a signed metric (a mean error, say): its lowest value is the farthest below zero

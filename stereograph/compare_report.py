@@ -66,6 +66,9 @@ def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
         if not vr.ok:
             parts.append(f'<p class="err">variant {html.escape(vr.variant.label)} failed: '
                          f"{html.escape(str(vr.error))}</p>")
+    for label, why in res.skipped:
+        parts.append(f'<p class="err">left out (its settings do not validate): {html.escape(label)}: '
+                     f"{html.escape(why)}</p>")
     for name, path in (res.files or {}).items():
         p = Path(path)
         if p.suffix.lower() in (".png", ".svg"):

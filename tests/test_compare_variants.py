@@ -347,3 +347,17 @@ def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
 
     print_table(res, None, metrics=["z_mean_cm"], best="z_mean_cm")
     assert "most negative" in capsys.readouterr().out
+
+
+def test_combinations_left_out_by_skip_invalid_are_named(pipeline, tmp_path, capsys):
+    """(--skip-invalid dropped a combination with no word in the table, the progress lines or compare.html:
+    only compare.json listed it)"""
+    args = ["compare", str(pipeline), "--vary", "fit.type=polynomial,lookup", "--vary", "fit.degree=1",
+            "--skip-invalid", "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"), "--no-plots"]
+    assert cli_main(args) == 0
+    out = capsys.readouterr()
+    for text in (out.out, out.err, (tmp_path / "o" / "compare.html").read_text()):
+        assert "fit.type=lookup, fit.degree=1" in text and "degree" in text, text
+    res = compare(pipeline, ["fit.type=polynomial,lookup", "fit.degree=1"], tmp_path / "o2", cache_dir=tmp_path / "c",
+                  skip_invalid=True, plots=False)
+    assert [label for label, _ in res.skipped] == ["fit.type=lookup, fit.degree=1"]
