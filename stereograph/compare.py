@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from stereograph import registry
 from stereograph.config import PipelineDoc, apply_override, load_pipeline
 from stereograph.errors import ConfigError, UsageError, printable
 from stereograph.graph import Graph, build_graph
@@ -98,6 +99,7 @@ class Variant:
     settings: dict[str, Any]  # "node.field" -> value (as given)
     overrides: list[str] = field(default_factory=list)  # what was applied to the document
     varying: tuple[str, ...] | None = None  # the keys whose value differs between variants (None: all)
+    sources: dict[str, str] = field(default_factory=dict)  # key -> "--vary" or "variants:" (where it was given)
 
     @property
     def label(self) -> str:
@@ -160,21 +162,39 @@ def _override_text(doc: PipelineDoc, key: str, value: Any) -> str | None:
 def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]:
     """The Cartesian product of the pipeline's ``variants:`` block and ``--vary`` options."""
     space: dict[str, list[Any]] = {}
+    sources: dict[str, str] = {}
     for k, values in (doc.variants or {}).items():
         if "." not in str(k):
             raise ConfigError(f"variants key '{k}' must be node.field", doc.where("variants", k),
                               hint="for example 'fit.type: [none, polynomial]'")
-        space[str(k)] = list(values)
+        _known_node(doc, str(k), f"variants key '{k}'", doc.where("variants", k))
+        space[str(k)], sources[str(k)] = list(values), "variants:"
     for text in vary:
         k, values = parse_vary(text)
-        space[k] = values
+        _known_node(doc, k, f"--vary '{text}'")
+        space[k], sources[k] = values, "--vary"
     if not space:
         raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",
                          hint="add --vary node.field=v1,v2 (e.g. --vary fit.type=none,polynomial)")
     keys = list(space)
     varying = tuple(k for k in keys if len(space[k]) > 1)
-    return [Variant(i + 1, dict(zip(keys, combo)), varying=varying)
+    return [Variant(i + 1, dict(zip(keys, combo)), varying=varying, sources=sources)
             for i, combo in enumerate(itertools.product(*space.values()))]
+
+
+def _known_node(doc: PipelineDoc, key: str, what: str, where: Any = None) -> None:
+    """Refuse a key whose node the pipeline does not have: every combination would fail the same way,
+    so it is not a variant's problem (nor one that --skip-invalid should leave out)."""
+    node = key.split(".", 1)[0]
+    if node in doc.nodes:
+        return
+    import difflib
+
+    close = difflib.get_close_matches(node, list(doc.nodes), n=1)
+    hint = f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}"
+    if where is None:
+        raise UsageError(f"{what}: no node named '{node}' in {doc.path.name}", hint=hint)
+    raise ConfigError(f"{what}: no node named '{node}' in {doc.path.name}", where, hint=hint)
 
 
 def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
@@ -187,7 +207,7 @@ def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:
     for key, value in ordered:
         text = _override_text(vdoc, key, value)
         if text is not None:
-            apply_override(vdoc, text)
+            apply_override(vdoc, text, variant.sources.get(key, "--set"))
             variant.overrides.append(text)
     return build_graph(vdoc)
 
@@ -582,6 +602,9 @@ def compare(
 
     overrides = list(overrides or [])
     doc = load_pipeline(pipeline_path, overrides)
+    # The plugins are the pipeline's, not a variant's: a refusal or an import error is said once, plainly
+    # (not as the first variant's problem, with --skip-invalid offered to leave out every variant).
+    registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
     if split is not None:
         extra = _split_overrides(build_graph(doc), split)
         if not extra:

@@ -477,17 +477,20 @@ def parse_override(text: str) -> tuple[str, list[str], Any]:
     return parts[0], parts[1:], value
 
 
-def apply_override(doc: PipelineDoc, text: str) -> None:
-    """Apply one ``--set`` to the document (validation happens later, with the rest)."""
+def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
+    """Apply one ``--set`` to the document (validation happens later, with the rest).
+
+    ``source`` is what a problem with it is said to come from (``--vary`` for a compared variant's setting).
+    """
     node, fields, value = parse_override(text)
     if node not in doc.nodes:
         import difflib
 
         close = difflib.get_close_matches(node, list(doc.nodes), n=1)
-        raise UsageError(f"--set '{text}': no node named '{node}' in {doc.path.name}",
+        raise UsageError(f"{source} '{text}': no node named '{node}' in {doc.path.name}",
                          hint=f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}")
     decl = doc.nodes[node]
-    where = Where(f"--set {text}")
+    where = Where(f"{source} {text}")
     if fields == ["type"]:
         decl["type"] = str(value)
         decl["params"] = {}  # params of another type rarely fit; defaults apply

@@ -361,3 +361,34 @@ def test_combinations_left_out_by_skip_invalid_are_named(pipeline, tmp_path, cap
     res = compare(pipeline, ["fit.type=polynomial,lookup", "fit.degree=1"], tmp_path / "o2", cache_dir=tmp_path / "c",
                   skip_invalid=True, plots=False)
     assert [label for label, _ in res.skipped] == ["fit.type=lookup, fit.degree=1"]
+
+
+def test_a_problem_of_every_variant_is_not_blamed_on_the_first(pipeline, tmp_path, capsys, monkeypatch):
+    """(plugins not allowed, a plugin clashing with a built-in, a --vary key naming no node: each came out as
+    'variant fit.type=none: ...' with '--skip-invalid' offered, which would have left out every variant;
+    a varied param the type does not take was called a --set)"""
+    from stereograph.registry import plugins_allowed
+
+    monkeypatch.delenv("STEREOGRAPH_ALLOW_PLUGINS")
+    base = ["compare", str(pipeline), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"), "--no-plots"]
+    assert cli_main(base) == 2  # no --allow-plugins
+    err = capsys.readouterr().err
+    assert "--allow-plugins" in err and "variant" not in err and "--skip-invalid" not in err, err
+    (tmp_path / "clash.py").write_text(GATE.replace("toygate.max_z", "report.accuracy"))
+    clash = tmp_path / "clash.yaml"
+    clash.write_text(pipeline.read_text().replace("plugins: [", "plugins: [clash.py, "))
+    with plugins_allowed(True), pytest.raises(ConfigError) as exc:
+        compare(clash, [], tmp_path / "o", cache_dir=tmp_path / "c")
+    assert "installed node type" in str(exc.value) and "skip-invalid" not in str(exc.value)
+    with plugins_allowed(True), pytest.raises(UsageError) as exc:
+        compare(pipeline, ["fitt.type=none,lookup"], tmp_path / "o", cache_dir=tmp_path / "c")
+    assert "--vary 'fitt.type=none,lookup': no node named 'fitt'" in str(exc.value) and "fit'?" in str(exc.value)
+    assert "skip-invalid" not in str(exc.value)
+    block = tmp_path / "block.yaml"
+    block.write_text(pipeline.read_text().replace("  fit.type: [none, polynomial]", "  fitt.type: [none, polynomial]"))
+    with plugins_allowed(True), pytest.raises(ConfigError) as exc:
+        compare(block, [], tmp_path / "o", cache_dir=tmp_path / "c")
+    assert "block.yaml:7" in str(exc.value) and "no node named 'fitt'" in str(exc.value)
+    with plugins_allowed(True), pytest.raises(ConfigError) as exc:
+        compare(pipeline, ["fit.degree=1"], tmp_path / "o", cache_dir=tmp_path / "c")
+    assert str(exc.value).startswith("--vary fit.degree=1: node 'fit'") and "--set" not in str(exc.value)
