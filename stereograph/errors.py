@@ -126,7 +126,7 @@ _CONSOLE_CLASS: Any = None
 
 
 def console(**kw: Any) -> Any:
-    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay)."""
+    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay), no emoji codes."""
     global _CONSOLE_CLASS
     if _CONSOLE_CLASS is None:
         from rich.console import Console
@@ -136,4 +136,5 @@ def console(**kw: Any) -> Any:
                 return super().render_str(printable(text), *a, **k)
 
         _CONSOLE_CLASS = _Console
+    kw.setdefault("emoji", False)  # (rich would show a user's ':ab:' -- in a value, a path -- as an emoji)
     return _CONSOLE_CLASS(**kw)

@@ -308,3 +308,11 @@ def test_a_type_swap_on_the_command_line_keeps_params_set_before_it():
         seg = build_graph(load_pipeline(locate, order)).nodes["segment"]
         assert seg.type == "segmenter.color" and seg.params.object.radius_cm == 5.0, order
         assert seg.params.object.color_bgr is not None  # (and the colour from defaults: for the new type)
+
+
+def test_user_text_with_colons_is_printed_as_written(tmp_path, capsys):
+    """(rich turned ':ab:' in a message into an emoji: `--set segment.type=segmenter:ab:x` was shown as
+    'segmenter🆎x', a name the user never typed)"""
+    code, msg = run_cli(tmp_path, GOOD, "--set", "power.type=toy:ab:power", capsys=capsys)
+    assert code == 2
+    assert "toy:ab:power" in msg and "\N{NEGATIVE SQUARED AB}" not in msg, msg
