@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 
 from stereograph import registry
-from stereograph.config import PipelineDoc, apply_override, load_pipeline
+from stereograph.config import PipelineDoc, apply_override, check_node_named, load_pipeline
 from stereograph.errors import ConfigError, UsageError, printable
 from stereograph.graph import Graph, build_graph
 from stereograph.outputs import check_folder_path, write_whole
@@ -167,11 +167,12 @@ def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]
         if "." not in str(k):
             raise ConfigError(f"variants key '{k}' must be node.field", doc.where("variants", k),
                               hint="for example 'fit.type: [none, polynomial]'")
-        _known_node(doc, str(k), f"variants key '{k}'", doc.where("variants", k))
+        # (a key naming no node fails every combination: not one variant's problem for --skip-invalid)
+        check_node_named(doc, str(k).split(".", 1)[0], f"variants key '{k}'", doc.where("variants", k))
         space[str(k)], sources[str(k)] = list(values), "variants:"
     for text in vary:
         k, values = parse_vary(text)
-        _known_node(doc, k, f"--vary '{text}'")
+        check_node_named(doc, k.split(".", 1)[0], f"--vary '{text}'")
         space[k], sources[k] = values, "--vary"
     if not space:
         raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",
@@ -180,21 +181,6 @@ def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]
     varying = tuple(k for k in keys if len(space[k]) > 1)
     return [Variant(i + 1, dict(zip(keys, combo)), varying=varying, sources=sources)
             for i, combo in enumerate(itertools.product(*space.values()))]
-
-
-def _known_node(doc: PipelineDoc, key: str, what: str, where: Any = None) -> None:
-    """Refuse a key whose node the pipeline does not have: every combination would fail the same way,
-    so it is not a variant's problem (nor one that --skip-invalid should leave out)."""
-    node = key.split(".", 1)[0]
-    if node in doc.nodes:
-        return
-    import difflib
-
-    close = difflib.get_close_matches(node, list(doc.nodes), n=1)
-    hint = f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}"
-    if where is None:
-        raise UsageError(f"{what}: no node named '{node}' in {doc.path.name}", hint=hint)
-    raise ConfigError(f"{what}: no node named '{node}' in {doc.path.name}", where, hint=hint)
 
 
 def variant_graph(doc: PipelineDoc, variant: Variant) -> Graph:

@@ -477,18 +477,27 @@ def parse_override(text: str) -> tuple[str, list[str], Any]:
     return parts[0], parts[1:], value
 
 
+def check_node_named(doc: PipelineDoc, node: str, what: str, where: Where | None = None) -> None:
+    """Refuse a ``node`` the pipeline does not have, as ``what`` (a ``--set``, a ``variants:`` key)
+    named it: UsageError for a command-line option, ConfigError at ``where`` for a file's line."""
+    if node in doc.nodes:
+        return
+    import difflib
+
+    close = difflib.get_close_matches(node, list(doc.nodes), n=1)
+    hint = f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}"
+    if where is None:
+        raise UsageError(f"{what}: no node named '{node}' in {doc.path.name}", hint=hint)
+    raise ConfigError(f"{what}: no node named '{node}' in {doc.path.name}", where, hint=hint)
+
+
 def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
     """Apply one ``--set`` to the document (validation happens later, with the rest).
 
     ``source`` is what a problem with it is said to come from (``--vary`` for a compared variant's setting).
     """
     node, fields, value = parse_override(text)
-    if node not in doc.nodes:
-        import difflib
-
-        close = difflib.get_close_matches(node, list(doc.nodes), n=1)
-        raise UsageError(f"{source} '{text}': no node named '{node}' in {doc.path.name}",
-                         hint=f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}")
+    check_node_named(doc, node, f"{source} '{text}'")
     decl = doc.nodes[node]
     where = Where(f"{source} {text}")
     if fields == ["type"]:
