@@ -21,8 +21,8 @@ arrives between cycles ends the loop after the last cycle logged (``run.json`` c
 lines of ``cycles.jsonl``: a signal waits while a cycle is being logged).
 
 Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
-keeps the cycles before it): per live node its status, seconds and error, and its outputs' small
-values (arrays and long values left out); ``save_cycles`` also writes every live output, images as
+keeps the cycles before it): per live node its status, seconds, error and warnings, and its outputs'
+small values (arrays and long values left out); ``save_cycles`` also writes every live output, images as
 PNG (an image inside a dict, such as a pair's ``left``: ``<output>_<key>.png``), into
 ``cycles/<n>/<node>/``. The engine knows nothing of what the nodes do: which values say
 "where" or "what moved" is up to the pipeline.
@@ -60,7 +60,7 @@ class Cycle:
     values: dict[str, Any] = field(default_factory=dict)
 
     def line(self) -> str:
-        """One line for the terminal."""
+        """One line for the terminal, then one line per warning a live node gave in this cycle."""
         times = ", ".join(f"{n} {d['seconds'] * 1000:.0f} ms" for n, d in self.nodes.items()
                           if d["status"] in ("ran", "partial", "failed"))
         head = f"cycle {self.index}: {self.status} in {self.seconds:.2f} s"
@@ -68,7 +68,8 @@ class Cycle:
             head += f" at {self.failed_node}: {self.error}" + (f" Fix: {self.hint}" if self.hint else "")
         elif self.status == "interrupted":
             head += f" (during {self.failed_node})"
-        return head + (f"  [{times}]" if times else "")
+        notes = "".join(f"\n  note: {n}: {m}" for n, d in self.nodes.items() for m in d.get("messages", []))
+        return head + (f"  [{times}]" if times else "") + notes
 
 
 @dataclass
@@ -211,7 +212,9 @@ class Loop:
                 if cycle.status == "running" and r.status == "failed":
                     cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
                 continue
-            cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error}
+            # its warnings too: the next cycle's reset drops the report, so they would reach no one
+            cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error,
+                                 "messages": list(r.messages)}
             if cycle.status == "running" and r.status in ("failed", "partial"):
                 cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
             for out in g.nodes[name].spec.outputs:

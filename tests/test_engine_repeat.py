@@ -157,3 +157,15 @@ def test_a_failure_outside_the_live_part_makes_cycle_1_failed_not_ok(tmp_path, c
     log = cycles(tmp_path / "out")
     assert len(log) == 1 and log[0]["status"] == "failed" and log[0]["failed_node"] == "const"
     assert "0 ok, 1 failed" in capsys.readouterr().out
+
+
+def test_a_warning_given_in_a_cycle_is_logged_and_printed_with_that_cycle(tmp_path, capsys):
+    # (a live node's warning -- 'the left recording ended ... while the other goes on' -- was dropped
+    # with the cycle's report when the next cycle began: in neither cycles.jsonl nor the terminal)
+    f = pipeline(tmp_path, tick="{warn_on: 2}")
+    assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out")]) == 0
+    log = cycles(tmp_path / "out")
+    assert [c["nodes"]["tick"]["messages"] for c in log] == [[], ["tick 2 came from a rewound source"], [], []]
+    out = capsys.readouterr().out
+    assert "cycle 2: ok" in out and "note: tick: tick 2 came from a rewound source" in out
+    assert out.index("note: tick: tick 2") < out.index("cycle 3: ok")  # with its cycle, not at the end

@@ -12,6 +12,7 @@ class TickParams(Params):
     stop_after: int = Field(1000, ge=0, description="Ticks before the source 'ends' (count).")
     sleep_s: float = Field(0.0, ge=0, description="Time each tick takes, seconds.")
     marker: str = Field("", description="File touched when the source is closed (tests).")
+    warn_on: int = Field(0, ge=0, description="Give a warning on this tick, as a rewound recording does (0: never).")
 
 
 class Ticker:
@@ -33,6 +34,8 @@ def ticker(params: TickParams, ctx=None):
         raise NodeError(f"the ticker ended after {t.n} ticks", hint="raise stop_after")
     time.sleep(params.sleep_s)
     t.n += 1
+    if t.n == params.warn_on:
+        ctx.warn(f"tick {t.n} came from a rewound source")
     return {"tick": t.n}
 
 
