@@ -67,7 +67,7 @@ class Cycle:
         if self.status == "failed":
             head += f" at {self.failed_node}: {self.error}" + (f" Fix: {self.hint}" if self.hint else "")
         elif self.status == "interrupted":
-            head += f" (during {self.failed_node})"
+            head += f" (during {self.failed_node})" + (f": {self.error}" if self.error else "")
         notes = "".join(f"\n  note: {n}: {m}" for n, d in self.nodes.items() for m in d.get("messages", []))
         return head + (f"  [{times}]" if times else "") + notes
 
@@ -173,7 +173,9 @@ class Loop:
                 for name in order:
                     current = name
                     run.run_node(g.nodes[name])
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as e:
+                # what the interrupted node did to end safely, as it noted on the interrupt (an arm held still)
+                cycle.error = " ".join(getattr(e, "__notes__", ())) or None
                 for name in order:  # the interrupted node and those after it did not finish
                     rep = run.reports[name]
                     if rep.status in ("pending", "running"):

@@ -169,3 +169,15 @@ def test_a_warning_given_in_a_cycle_is_logged_and_printed_with_that_cycle(tmp_pa
     out = capsys.readouterr().out
     assert "cycle 2: ok" in out and "note: tick: tick 2 came from a rewound source" in out
     assert out.index("note: tick: tick 2") < out.index("cycle 3: ok")  # with its cycle, not at the end
+
+
+def test_an_interrupted_cycle_says_what_the_interrupted_node_did(tmp_path, capsys):
+    # (an actuator holds the arm on Ctrl-C and notes it on the interrupt; the cycle's record said only
+    # 'interrupted' with error null, so cycles.jsonl could not tell whether the arm was held or left moving)
+    f = pipeline(tmp_path, tick="{interrupt_on: 2}")
+    assert main(["run", str(f), "--repeat", "0", "--out", str(tmp_path / "out")]) == 130
+    log = cycles(tmp_path / "out")
+    assert [c["status"] for c in log] == ["ok", "interrupted"]
+    assert log[1]["failed_node"] == "tick" and log[1]["error"] == "ticker: Ctrl-C during tick 2: held still"
+    assert "cycle 2: interrupted in" in (out := capsys.readouterr().out)
+    assert "(during tick): ticker: Ctrl-C during tick 2: held still" in out

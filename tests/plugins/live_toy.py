@@ -13,6 +13,8 @@ class TickParams(Params):
     sleep_s: float = Field(0.0, ge=0, description="Time each tick takes, seconds.")
     marker: str = Field("", description="File touched when the source is closed (tests).")
     warn_on: int = Field(0, ge=0, description="Give a warning on this tick, as a rewound recording does (0: never).")
+    interrupt_on: int = Field(0, ge=0, description="Be interrupted (Ctrl-C) on this tick and say how it stopped "
+                                                    "(0: never).")
 
 
 class Ticker:
@@ -34,6 +36,10 @@ def ticker(params: TickParams, ctx=None):
         raise NodeError(f"the ticker ended after {t.n} ticks", hint="raise stop_after")
     time.sleep(params.sleep_s)
     t.n += 1
+    if t.n == params.interrupt_on:  # as an actuator does: end safely, say what it did, let the interrupt go on
+        e = KeyboardInterrupt()
+        e.add_note(f"ticker: Ctrl-C during tick {t.n}: held still")
+        raise e
     if t.n == params.warn_on:
         ctx.warn(f"tick {t.n} came from a rewound source")
     return {"tick": t.n}
