@@ -105,3 +105,25 @@ def test_sigterm_from_the_engine_is_named_and_the_emulator_log_ends_with_the_hol
     assert {str(w["id"]): w["value"] for w in goals[-5:]} == saved["stop"]["goals"]
     limits = servo_limits_units(ARM)
     assert all(limits[str(w["id"])][0] <= w["value"] <= limits[str(w["id"])][1] for w in goals)
+
+
+def test_each_failed_motion_of_a_run_keeps_its_own_log(tmp_path):
+    # (in a --repeat loop every mid-motion failure wrote act/servo_log_failed.json, so an earlier
+    # cycle's message named a file that by then held a later cycle's commands)
+    ctx = RunContext("act", None, tmp_path / "act", tmp_path, resources={})
+    params = DynamixelParams(**FAST)
+    try:
+        assert dynamixel(params, arm=ARM, plans=make_plan(), ctx=ctx)["log"]["ok"]
+        sim = ctx.resources["act:emulator"]
+        paths = []
+        for pair in ("c2", "c3"):
+            # servo 4 goes silent once the plan's first goals are written: a failure during the motion
+            sim.set_faults(only_ids={4}, drop_replies=params.retries + 1, after_goal_writes=sim.n_goal_writes + 5)
+            plan = {**make_plan(), "pair": pair}
+            with pytest.raises(NodeError, match=r"servo 4 stopped answering") as err:
+                dynamixel(params, arm=ARM, plans=plan, ctx=ctx)
+            paths.append(err.value.message.rsplit(" are in ", 1)[1].rstrip("."))
+        assert [p.rsplit("/", 1)[1] for p in paths] == ["servo_log_failed.json", "servo_log_failed_2.json"]
+        assert [json.loads(open(p).read())["pair"] for p in paths] == ["c2", "c3"]
+    finally:
+        close_resources(ctx.resources)

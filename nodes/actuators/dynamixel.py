@@ -477,7 +477,13 @@ def _run(params, plan, arm, port_path, sim, ctx, bus=None) -> dict:
         if partial is not None and ctx is not None:
             partial["sim"] = _sim_record(sim) if sim is not None else None
             ctx.out_dir.mkdir(parents=True, exist_ok=True)
-            path = ctx.out_dir / "servo_log_failed.json"
+            # one file per failed motion of the run: a later cycle's failure must not overwrite the log
+            # that an earlier cycle's message names
+            failed = ctx.resource("failed logs", list)
+            n = len(failed) + 1 if failed is not None else 1
+            path = ctx.out_dir / ("servo_log_failed.json" if n == 1 else f"servo_log_failed_{n}.json")
+            if failed is not None:
+                failed.append(path)
             path.write_text(json.dumps(partial, indent=1))
             e.message += f" The commands sent so far are in {path}."
             e.args = (e.message,)
