@@ -74,6 +74,9 @@ def test_pick_with_numeric_solver_matches_analytic():
     (located(None, None, None, found=False, reason="no object in the left image"), {}, "not located.*no object"),
     (located(17.0, 4.0, 2.5, extrapolated=True), {}, "extrapolated"),
     (located(17.0, 4.0, 2.5), {"workspace_max_cm": [15.0, 20.0, 20.0]}, "outside the workspace box"),
+    # a ball below the table (a hand-eye off in z) is named by its centre, not by the descent point
+    # that first crossed the floor ('the descend_2 point [17.00, 4.00, -2.00] cm lies outside ...')
+    (located(17.0, 4.0, -4.0), {}, r"the grasp point \(the object's centre\) \[17.00, 4.00, -4.00\] cm lies outside"),
     (located(17.0, 4.0, 2.5), {"place_cm": [40.0, 0.0, 0.0], "workspace_max_cm": [50, 50, 50]},
      "place_above point is unreachable for this arm: distance"),
 ])

@@ -163,10 +163,13 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
                               f"[{', '.join(f'{v:g}' for v in lo)}] .. [{', '.join(f'{v:g}' for v in hi)}] cm (below "
                               "the table?)", "set the joints' home_deg in the arm model (ik.arm) to a pose above "
                                              "the table, and check it with the arm unpowered")
-    for name, pt in points:
+    # the object's own centre first: a ball below the table is named as such, not by the first
+    # descent point that happens to cross the floor on the way down to it
+    for name, pt in sorted(points, key=lambda np_: np_[0] != "grasp"):
         if np.any(pt < lo - 1e-9) or np.any(pt > hi + 1e-9):
             txt = ", ".join(f"{v:.2f}" for v in pt)
-            raise _refuse(target, f"the {name} point [{txt}] cm lies outside the workspace box "
+            what = "grasp point (the object's centre)" if name == "grasp" else f"{name} point"
+            raise _refuse(target, f"the {what} [{txt}] cm lies outside the workspace box "
                                   f"[{', '.join(f'{v:g}' for v in lo)}] .. [{', '.join(f'{v:g}' for v in hi)}] cm",
                           "move the object, or widen workspace_min_cm / workspace_max_cm if the space is clear.")
     g = joint(model, "gripper")
