@@ -72,6 +72,9 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
     if worst > params.max_size_mismatch:
         return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
                 f"{z_size[0]:.1f} cm, stereo {z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
+    why = _check_same_size(left, right, z_size, params)
+    if why is not None:
+        return why
     if left.get("partial") or right.get("partial"):
         s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
         # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
@@ -102,6 +105,37 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
                     f"outline visible: too little to locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
                     f"{params.partial.max_sigma_z_cm:g})")
     return None
+
+
+def _check_same_size(left: dict, right: dict, z_size: list[float], params: SegmenterParams) -> str | None:
+    """Reason why the two silhouettes cannot be one sphere's, from their sizes alone, or None.
+
+    Both rectified cameras see the sphere's centre at one depth, so the distances the two
+    silhouettes give from their size agree whatever the ball's true radius (``object.radius_cm``
+    cancels). A view that lost part of the ball -- its unlit side merged with the dark table
+    or its shadow, an occluder's edge taken for the ball's -- gives a smaller or larger sphere
+    image, and its centroid moves with the missing part: on a whole-looking outline this was
+    found 1.8 cm off (dim side light), inside ``max_size_mismatch`` and ``max_area_ratio``.
+    The tolerance is the two fits' own 3 sigma plus ``lr_size_tolerance_px`` of image radius.
+    """
+    sig, r_px = [], []
+    for reg in (left, right):
+        part, ell = reg.get("partial"), reg["ellipse"]
+        r = float(part["radius_px"]) if part else float(min(ell["axes_px"]))
+        r_px.append(max(r, 1e-9))
+        if part:
+            sig.append(float(part["sigma_size_rel"]))
+        else:  # mean of the outline residuals: rms / sqrt(N), relative to the radius
+            sig.append(float(ell.get("rms_px") or 0.0) / math.sqrt(max(int(ell.get("inliers") or 1), 1)) / r_px[-1])
+    rel = abs(z_size[0] / z_size[1] - 1.0)
+    tol = 3.0 * math.hypot(*sig) + params.lr_size_tolerance_px / min(r_px)
+    if rel <= tol:
+        return None
+    small = "left" if z_size[0] > z_size[1] else "right"
+    return (f"the left and right silhouettes are not one ball's: from their size the left one gives "
+            f"{z_size[0]:.1f} cm and the right one {z_size[1]:.1f} cm (radius {r_px[0]:.1f} vs {r_px[1]:.1f} px, "
+            f"{100 * rel:.1f} % apart > {100 * tol:.1f} %); the {small} view sees only part of the ball (its dark "
+            "side lost in a shadow or the dim table, or an occluder): not trusted")
 
 
 def _partial_words(part: dict) -> str:

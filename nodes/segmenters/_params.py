@@ -161,6 +161,10 @@ class SegmenterParams(Params):
         0.15, gt=0, le=1, description="Max relative difference between the distance the silhouette's size gives for "
                                       "a ball of object.radius_cm and the stereo distance (ratio); above -> not found "
                                       "(another object, or the wrong radius in the YAML).")
+    lr_size_tolerance_px: float = Field(
+        0.5, ge=0, description="Besides 3 sigma of the two outline fits, how far the left and right silhouettes may "
+                               "disagree in size (px of image radius; half a pixel: what a sub-pixel outline must "
+                               "beat); above -> not found (one view sees only part of the ball).")
     overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
 
     @model_validator(mode="after")
