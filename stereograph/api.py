@@ -90,9 +90,10 @@ class NodeError(Exception):
     hint : str, optional
         How to fix it. The engine prints it after the message.
     lasting : bool
-        The failure will come back on every later call until a person fixes something (a serial
-        port that cannot be opened, a missing file): a ``--repeat`` loop stops instead of failing
-        every cycle the same way.
+        No later call should be tried until a person has seen to something: the failure would come
+        back every time (a serial port that cannot be opened, a missing file), or trying again is
+        unsafe (an actuator stopped half-way through a motion). A ``--repeat`` loop stops here
+        instead of going on with the next cycle.
     """
 
     def __init__(self, message: str, hint: str | None = None, lasting: bool = False):

@@ -8,17 +8,18 @@ results stay in memory and are never stored: each cycle sees new input, so nothi
 caching it and the disk writes would add to every cycle's latency.
 
 A cycle in which a live node fails is logged with the reason and the loop goes on with the next
-cycle; nodes downstream of the failure do not run in that cycle. The loop stops when the count
-is reached, when a node that starts the live part (one with no live node upstream — the source
-of new input) fails, since no cycle can follow; when a node outside the live part failed in
-cycle 1 (that cycle is logged as failed at it); when a node fails with ``NodeError(...,
-lasting=True)`` (a port that cannot be opened: every later cycle would fail the same way, as
-fast as it can); at the first failed cycle with ``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C,
-and SIGTERM, which ``stereograph run`` turns into one). An interrupt propagates through the node
-that is running, so that node cleans up on its way out; the loop then records the interrupted
-cycle and returns normally, so the run's summary and ``run.json`` are still written; one that
-arrives between cycles ends the loop after the last cycle logged (``run.json`` counts exactly the
-lines of ``cycles.jsonl``: a signal waits while a cycle is being logged).
+cycle; nodes downstream of the failure do not run in that cycle. The loop stops when the count is
+reached, when a node that starts the live part (one with no live node upstream — the source of new
+input) fails, since no cycle can follow; when a node outside the live part failed in cycle 1 (that
+cycle is logged as failed at it); when a node fails with ``NodeError(..., lasting=True)`` (a port
+that cannot be opened: every later cycle would fail the same way, as fast as it can; a motion
+stopped half-way: the next cycle must wait for a person); at the first failed cycle with
+``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C, and SIGTERM, which ``stereograph run`` turns
+into one). An interrupt propagates through the node that is running, so that node cleans up on its
+way out; the loop then records the interrupted cycle and returns normally, so the run's summary and
+``run.json`` are still written; one that arrives between cycles ends the loop after the last cycle
+logged (``run.json`` counts exactly the lines of ``cycles.jsonl``: a signal waits while a cycle is
+being logged).
 
 Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
 keeps the cycles before it): per live node its status, seconds, error and warnings, and its outputs'
@@ -199,7 +200,8 @@ class Loop:
                 self.stopped = f"stopped: '{cycle.failed_node}' gave no new input"
                 return
             if cycle.status == "failed" and run.reports[cycle.failed_node].lasting:
-                self.stopped = f"stopped: '{cycle.failed_node}' failed in a way no later cycle can change"
+                self.stopped = (f"stopped: '{cycle.failed_node}' failed in a way no later cycle can change: a "
+                                "person must see to it before another cycle runs")
                 return
             if cycle.status == "failed" and self.stop_on_failure:
                 self.stopped = f"stopped at the first failed cycle ({k})"

@@ -112,3 +112,22 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
     for w in writes:
         lo, hi = limits[str(w["id"])]
         assert lo <= w["value"] <= hi
+
+
+def test_a_motion_that_fails_half_way_ends_the_loop_before_the_arm_moves_again(live):
+    """Servo 4 stops answering in the middle of cycle 1's motion: torque goes off and the loop ends
+    there -- the next cycle would reopen the port and move the arm as soon as every servo answered
+    again, while a person may be at the arm reseating its connector."""
+    _, _, tmp = live
+    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER[:3]}", "act.sim_time_scale=20",
+                                   "act.sim_faults={drop_reply_prob: 1.0, only_ids: [4], after_goal_writes: 12}"])
+    loop = Loop(3)
+    result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "half-way", cache_dir=tmp / "cache")
+    assert len(loop.cycles) == 1, [c.line() for c in loop.cycles]
+    first = loop.cycles[0]
+    assert first.status == "failed" and first.failed_node == "act"
+    assert "arm stopped during waypoint" in first.error and "Torque was turned off" in first.error
+    assert "a person must see to it" in loop.stopped
+    assert not loop.completed and result.reports["act"].status == "failed"
+    lines = (result.out_dir / "cycles.jsonl").read_text().splitlines()
+    assert len(lines) == 1 and json.loads(lines[0])["failed_node"] == "act"

@@ -303,7 +303,9 @@ def _motion_failure(e: ServoFailure, bus: Bus, ids: list[int], where: str, baud:
         head, hint = _diagnose.head_and_hint(e, moving=True, baud=baud)
     msg = (f"arm stopped during waypoint {bus.waypoint!r} on {where}: {head}. Torque was turned off on all servos "
            f"{ids}" + (f" ({'; '.join(notes)})" if notes else "") + ".")
-    return NodeError(msg, hint=hint)
+    # lasting: a --repeat loop ends here. The next cycle would reopen the port and move the arm as soon
+    # as every servo answered again -- while a person may be at the arm, reseating a connector.
+    return NodeError(msg, hint=hint, lasting=True)
 
 
 def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> dict:
