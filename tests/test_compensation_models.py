@@ -292,3 +292,16 @@ def test_a_lookup_table_with_empty_bins_says_so_and_holds_only_where_its_bins_ha
     assert kept < 12 and any(f"only {kept} of 12 distance bins" in m for m in ctx.messages)
     rng = model["valid_range"]["z_cm"]
     assert rng["max"] - rng["min"] < max(z_train) - min(z_train)
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
+@pytest.mark.parametrize("mistake", ["mm", "frame"])
+def test_a_truth_in_another_unit_or_frame_is_refused_not_fitted(biased, kind, mistake):
+    # A truth.csv in mm, or table-frame numbers under x_cm,y_cm,z_cm: compensator.xyz fitted either
+    # smoothly (cross-validation did not object) and moved every later ball by tens of cm.
+    def wrong(t):
+        return [10 * c for c in t] if mistake == "mm" else [t[0], t[2] - 40.0, 2.0]
+    spoiled = {k: dict(v, truth_cm=wrong(v["truth_cm"])) for k, v in biased.items()}
+    with pytest.raises(NodeError, match=r"truth is far from where the balls were located.*not mm") as exc:
+        fit(kind, spoiled)
+    assert f"compensator.{kind}" in exc.value.message

@@ -466,6 +466,49 @@ def kfold_cv(
 WORSE_THAN_NONE = 2.0
 #: A held-out z error this many times the training residual: the model follows the placements' noise.
 OVERFIT_RATIO = 3.0
+#: Training truth whose median 3-D distance from the located centres is more than this fraction of the
+#: balls' distance from the cameras is not a stereo error (a few per cent even for a poor calibration):
+#: it is a truth in another unit (mm) or frame. Fitted, it would move every later location as far.
+MAX_TRUTH_GAP_FRACTION = 0.2
+
+
+def _camera_distance_cm(samples: Samples) -> np.ndarray | None:
+    """Each placement's distance from the cameras (cm), or None where the records cannot say."""
+    if samples.frame == "left_camera":
+        return np.linalg.norm(samples.xyz_cm, axis=1)
+    rig = samples.rig or {}
+    if rig.get("fx_px") and rig.get("baseline_cm"):  # z = f B / d, near enough for a plausibility check
+        return float(rig["fx_px"]) * float(rig["baseline_cm"]) / samples.disparity_px
+    return None
+
+
+def require_plausible_truth(samples: Samples, label: str) -> None:
+    """Refuse training truth that is nowhere near the located centres (another unit or frame).
+
+    A compensation learns ``truth - measured``; a truth in millimetres, or table-frame numbers
+    given as left-camera ``x_cm, y_cm, z_cm``, fits as smoothly as a real error (cross-validation
+    does not object) and would then move every located ball by tens of centimetres.
+    """
+    if samples.truth_cm is None or len(samples) == 0:
+        return
+    gap = np.linalg.norm(samples.truth_cm - samples.xyz_cm, axis=1)
+    dist = _camera_distance_cm(samples)
+    if dist is None or not np.all(np.isfinite(dist)):
+        return
+    fraction = float(np.median(gap / dist))
+    if fraction <= MAX_TRUTH_GAP_FRACTION:
+        return
+    i = int(np.argsort(gap)[len(gap) // 2])
+    raise NodeError(
+        f"{label}: the training truth is far from where the balls were located: by {np.median(gap):.3g} cm "
+        f"(median of {len(samples)} placements), {fraction:.0%} of their distance from the cameras, where a stereo "
+        f"error is a few per cent (e.g. {samples.ids[i]}: located {np.round(samples.xyz_cm[i], 2).tolist()} cm, "
+        f"truth {np.round(samples.truth_cm[i], 2).tolist()} cm, {samples.frame} frame). A correction fitted to this "
+        "would move every later location as far.",
+        hint="check the truth file: centres in cm (not mm or m); x_cm,y_cm,z_cm only for the left-camera frame, "
+             "table_x_cm,table_y_cm,table_z_cm for the board's table frame; ids that name the right pairs; "
+             "and that the calibration and table frame are this bench's",
+    )
 
 
 def _total_rms(axes: Mapping[str, Any] | None) -> float | None:
@@ -577,6 +620,8 @@ def build_model(
             hint="use fewer coefficients or more, better spread placements.",
         ) from None
     fit_time = time.perf_counter() - t0
+    # after the screening, whose refusal of mostly mis-detected placements says more than this one's
+    require_plausible_truth(samples, label)
     corrected = predict(coefficients, samples)
     if not np.all(np.isfinite(corrected)):
         raise NodeError(
