@@ -61,6 +61,22 @@ def test_bad_truth_rows_name_file_and_line(tmp_path):
         _run(tmp_path, "id,x_cm,y_cm,z_cm,split\n01,1,2,40,train\n02,1,2,40,val\n")
     with pytest.raises(NodeError, match=r"line 2: x_cm, y_cm, z_cm must be numbers"):
         _run(tmp_path, "id,x_cm,y_cm,z_cm\n01,1,two,40\n")
+    # (a repeated pair silently replaced the earlier row; a bad radius was said without its line)
+    with pytest.raises(NodeError, match=r"truth.csv, line 4: pair 01 is listed again \(first on line 2\)"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm\n01,1,2,40\n02,0,0,45\n01,0,0,50\n")
+    with pytest.raises(NodeError, match=r"truth.csv, line 2: radius_cm must be a number, got 'two'"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm,radius_cm\n01,1,2,40,two\n")
+    with pytest.raises(NodeError, match=r"no `id` column .*separated by ';', not commas"):
+        _run(tmp_path, "id;x_cm;y_cm;z_cm\n01;1;2;40\n")
+
+
+def test_a_truth_file_saved_by_excel_with_a_byte_order_mark_is_read(tmp_path):
+    # (Excel's "CSV UTF-8" starts with U+FEFF: refused as 'no `id` column (header: id, ...)')
+    _folder(tmp_path)
+    pairs, _ = _run(tmp_path, "\ufeffid,x_cm,y_cm,z_cm\n01,1,2,40\n", train_fraction=0.0)
+    assert pairs["01"]["truth"]["center_left_cm"] == [1.0, 2.0, 40.0] and pairs["01"]["split"] == "train"
+    pairs, _ = _run(tmp_path, '\ufeff{"01": {"center_left_cm": [0, 0, 40]}}', name="t.json", train_fraction=0.0)
+    assert pairs["01"]["truth"]["center_left_cm"] == [0, 0, 40]
 
 
 def test_pair_id_rule():

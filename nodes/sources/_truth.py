@@ -77,7 +77,7 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
     has_split = False
     if path.suffix.lower() == ".json":
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(path.read_text(encoding="utf-8-sig"))
             if isinstance(data, list):
                 data = {str(r["id"]): r for r in data}
             items = {str(k): dict(v) for k, v in data.items()}
@@ -94,13 +94,16 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
             truth[pid] = rec
         return truth, (split if has_split else None)
     try:
-        with path.open(newline="") as fh:
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which would become part of `id`
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in reader.fieldnames or []]
             if "id" not in fields:
-                raise NodeError(f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'}).",
+                sep = next((c for c in ";\t" if len(fields) == 1 and c in fields[0]), None)
+                raise NodeError(f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
+                                + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
                                 hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,"
-                                     "table_z_cm][,split]")
+                                     "table_z_cm][,split], comma-separated with a decimal point")
             has_split = "split" in fields
             centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or \
                 {"table_x_cm", "table_y_cm", "table_z_cm"} <= set(fields)
@@ -109,20 +112,29 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
                                 "is x_cm,y_cm,z_cm (left-camera frame) or table_x_cm,table_y_cm,table_z_cm (cm).",
                                 hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
                                      "[,split]; convert millimetres to cm")
+            line_of: dict[str, int] = {}
             for row in reader:
                 row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
                 where = f"truth file {path}, line {reader.line_num}"
                 pid = row.get("id")
                 if not pid:
                     raise NodeError(f"{where}: the id is empty.", hint="give every row the pair id of its images")
+                if pid in line_of:  # (the later row silently replaced the earlier one)
+                    raise NodeError(f"{where}: pair {pid} is listed again (first on line {line_of[pid]}).",
+                                    hint="keep one row per pair: the ball's measured centre for those images")
+                line_of[pid] = reader.line_num
                 left = _xyz(row, ("x_cm", "y_cm", "z_cm"), where)
                 table = _xyz(row, ("table_x_cm", "table_y_cm", "table_z_cm"), where)
                 if left is None and table is None:
                     raise NodeError(f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
                                     hint="give the ball centre in the left-camera or the table frame, in cm")
                 radius = row.get("radius_cm")
-                truth[pid] = {"center_left_cm": left, "center_table_cm": table,
-                              "radius_cm": float(radius) if radius else None}
+                try:
+                    radius = float(radius) if radius else None
+                except ValueError:
+                    raise NodeError(f"{where}: radius_cm must be a number, got {radius!r}.",
+                                    hint="the ball's radius in cm, e.g. 2.0, or leave it empty") from None
+                truth[pid] = {"center_left_cm": left, "center_table_cm": table, "radius_cm": radius}
                 s = _split_value(row.get("split"), where) if has_split else None
                 if s:
                     split[pid] = s
