@@ -68,3 +68,26 @@ def test_a_calibration_in_squares_with_a_board_in_cm_is_a_clear_error(rig):
     views["board"]["length_unit"] = "squares"  # the reverse: the table pair's source without square_cm
     with pytest.raises(NodeError, match="in cm but the board's square size is in squares"):
         table_frame(TableFrameParams(), views, truth_calibration(rig["truth"]))
+
+
+def test_a_swapped_table_pair_is_named_as_swapped_not_blamed_on_the_calibration(rig):
+    # (it was refused as "the calibration does not fit these images: calibrate again")
+    left, right, _ = render_table_board(rig)
+    views = _views(right, left)
+    views["views"][0].update(left_path="table/left_table.png", right_path="table/right_table.png")
+    with pytest.raises(NodeError, match=r"exchanged, the two images agree .* view table are swapped "
+                                        r"\(table/left_table.png, table/right_table.png\)") as e:
+        table_frame(TableFrameParams(), views, truth_calibration(rig["truth"]))
+    assert "swap the table pair's left and right" in e.value.hint
+
+
+def test_a_table_board_of_another_square_size_than_the_calibration_is_named(rig):
+    # bench-table.yaml says 2.5 cm squares; a bench calibrated with its own board's square_cm was told
+    # only "the calibration does not fit these images"
+    left, right, _ = render_table_board(rig)  # 2.5 cm squares
+    cal = dict(truth_calibration(rig["truth"]), board={"cols": 9, "rows": 6, "square_cm": 2.5})
+    views = _views(left, right)
+    views["board"]["square_cm"] = 3.0
+    with pytest.raises(NodeError, match=r"made with a board of 2.5 cm squares, and this board's square_cm is 3") as e:
+        table_frame(TableFrameParams(), views, cal)
+    assert "board.square_cm=2.5" in e.value.hint

@@ -107,6 +107,19 @@ def board_pose(obj: np.ndarray, px_left: np.ndarray, px_right: np.ndarray, cal: 
                        "right": float(np.sqrt((r[1] ** 2).sum(1).mean()))}}
 
 
+def _paths(view: dict) -> str:
+    """`` (LEFT_FILE, RIGHT_FILE)`` when the source says which files the view came from, else ''."""
+    files = [str(view[k]) for k in ("left_path", "right_path") if view.get(k)]
+    return f" ({', '.join(files)})" if files else ""
+
+
+def _poses_agree(pose: dict, params: TableFrameParams) -> bool:
+    """Whether the left-only and right-only board poses agree within the parameters' tolerances."""
+    distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
+    return (pose["translation_cm"] <= params.max_disagreement_fraction * distance_cm
+            and pose["rotation_deg"] <= params.max_disagreement_deg)
+
+
 def frame_from_board_pose(T_left_from_board: np.ndarray, cols: int, rows: int, square_cm: float,
                           min_axis_margin_deg: float = 10.0) -> np.ndarray:
     """``T_table_from_left`` of a board lying on the table, by the conventions' rule.
@@ -222,12 +235,31 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
                              "fully visible in both images") from None
     dt, dr = pose["translation_cm"], pose["rotation_deg"]
     distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
-    if dt > params.max_disagreement_fraction * distance_cm or dr > params.max_disagreement_deg:
-        raise NodeError(f"{label}: the board's pose from the left image and from the right image (carried through "
-                        f"the calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
-                        f"{distance_cm:.1f} cm) and {dr:.3f} deg.",
-                        hint="the calibration does not fit these images: calibrate again with these cameras as "
-                             "they stand, or check the board's square size")
+    cal_sq = (calibration.get("board") or {}).get("square_cm")
+    other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
+    if not _poses_agree(pose, params):
+        msg = (f"{label}: the board's pose from the left image and from the right image (carried through the "
+               f"calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
+               f"{distance_cm:.1f} cm) and {dr:.3f} deg")
+        try:
+            swapped = board_pose(obj, pr.astype(float), pl.astype(float), calibration)
+        except ValueError:
+            swapped = None
+        if swapped is not None and _poses_agree(swapped, params):  # (it was blamed on the calibration)
+            raise NodeError(f"{msg}; exchanged, the two images agree ({swapped['translation_cm']:.3f} cm): the left "
+                            f"and right images of view {v['id']} are swapped{_paths(v)}.",
+                            hint="swap the table pair's left and right files (or the source's left_glob / "
+                                 "right_glob): the left image is the left camera's as the cameras look")
+        if other_square:
+            raise NodeError(f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm squares, and this "
+                            f"board's square_cm is {sq:g}.",
+                            hint="give the table pair's source the square size of the board lying on the table "
+                                 f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)")
+        raise NodeError(f"{msg}.", hint="the calibration does not fit these images: calibrate again with these "
+                                        "cameras as they stand, or check the board's square size")
+    if other_square and ctx is not None:
+        ctx.warn(f"the calibration was made with {float(cal_sq):g} cm squares, this board's square_cm is {sq:g}: "
+                 "if it is the same board, the table frame is scaled wrong")
     corners_table = (obj @ pose["T_left_from_board"][:3, :3].T + pose["T_left_from_board"][:3, 3]) @ T[:3, :3].T \
         + T[:3, 3]
     if ctx is not None:
