@@ -279,3 +279,14 @@ def test_a_run_json_in_squares_takes_cm_per_unit_like_the_other_formats(tmp_path
     write_value(tmp_path / "in_cm", _calibration())  # already in cm: scaling it again would be wrong
     with pytest.raises(NodeError, match="in cm already"):
         read_calibration_file(tmp_path / "in_cm.json", cm_per_unit=2.5)
+
+
+def test_an_opencv_file_that_states_its_unit_and_size_is_not_overridden_silently(tmp_path):
+    # cm_per_unit / image_size given for a file that states them won silently: the docs' line for a
+    # file in mm ({cm_per_unit: 0.1, image_size: [640, 480]}) on opencv.yml gave a 0.8 cm baseline
+    p = _write_exports(_calibration(), tmp_path)["opencv"]
+    with pytest.raises(NodeError, match=r"says its lengths are in cm \(unit: cm\), but cm_per_unit 0.1 was given"):
+        read_calibration_file(p, cm_per_unit=0.1)
+    with pytest.raises(NodeError, match=r"is for 640x480 px images, but image_size says 1280x960"):
+        read_calibration_file(p, image_size=[1280, 960])
+    _assert_same(read_calibration_file(p, cm_per_unit=1.0, image_size=[640, 480]), _calibration())

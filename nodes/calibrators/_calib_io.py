@@ -25,6 +25,8 @@ import cv2
 import numpy as np
 import yaml
 
+from stereograph.api import NodeError
+
 __all__ = ["CM_PER_UNIT", "EXPORT_OUTPUTS", "calibration_outputs", "calibration_summary", "export_texts", "opencv_text",
            "read_opencv", "read_ros", "read_ros_pair", "rectify_params", "ros_camera_info"]
 
@@ -170,9 +172,15 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
             raise ValueError(f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
                              "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
                              "give both files: path and right_path)")
+        u = scalar("unit", "units", "length_unit")
+        unit = u.string().strip().lower() if u is not None and u.isString() else None
+        if cm_per_unit is not None and unit in CM_PER_UNIT and abs(CM_PER_UNIT[unit] - float(cm_per_unit)) > 1e-9:
+            # (cm_per_unit won silently: 0.1 on a file in cm made an 8 cm baseline 0.8 cm)
+            raise NodeError(f"{path} says its lengths are in {unit} (unit: {unit}), but cm_per_unit {cm_per_unit:g} "
+                            f"was given ({CM_PER_UNIT[unit]:g} for {unit}).",
+                            hint="remove cm_per_unit: it is for files that do not state their unit, or are in board "
+                                 "squares")
         if cm_per_unit is None:
-            u = scalar("unit", "units", "length_unit")
-            unit = u.string().strip().lower() if u is not None and u.isString() else None
             if unit == "squares":
                 raise ValueError("its lengths are in board squares (calibrated without a square size): the unit "
                                  "of T is one square; give cm_per_unit = the square's size in cm")
@@ -180,15 +188,14 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
                 raise ValueError(f"it does not say the unit of T ({'unit: ' + repr(unit) if unit else 'no unit entry'};"
                                  f" known: mm, cm, m, in)")
             cm_per_unit = CM_PER_UNIT[unit]
-        if image_size is None:
-            wn, hn = scalar("image_width", "imageWidth"), scalar("image_height", "imageHeight")
-            if wn is not None and hn is not None:
-                image_size = [int(wn.real()), int(hn.real())]
-            else:
-                sz = mat("image_size", "imageSize")
-                if sz is None or sz.size != 2:
-                    raise ValueError("it does not give the image size (image_width / image_height)")
-                image_size = [int(v) for v in sz.ravel()]
+        wn, hn = scalar("image_width", "imageWidth"), scalar("image_height", "imageHeight")
+        if wn is not None and hn is not None:  # the file's own size wins
+            image_size = [int(wn.real()), int(hn.real())]
+        if image_size is None:  # (load.py refuses an image_size param that differs from the file's)
+            sz = mat("image_size", "imageSize")
+            if sz is None or sz.size != 2:
+                raise ValueError("it does not give the image size (image_width / image_height)")
+            image_size = [int(v) for v in sz.ravel()]
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
     finally:
@@ -354,8 +361,6 @@ def export_texts(cal: dict) -> dict:
 def _check_left_is_left(cal: dict) -> None:
     """Refuse a calibration whose right camera sits to the left of the left one (swapped images or cameras):
     its rectified baseline is negative and every depth from it would be wrong."""
-    from stereograph.api import NodeError
-
     centre = -np.asarray(cal["R"], float).T @ np.asarray(cal["T_cm"], float).ravel()  # right camera, left frame
     if centre[0] < 0 and abs(centre[0]) >= 0.5 * float(np.linalg.norm(centre)):
         unit = cal.get("length_unit", "cm")
