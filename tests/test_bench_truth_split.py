@@ -42,6 +42,9 @@ def test_a_truth_file_that_matches_no_pair_is_refused(tmp_path):
     _folder(tmp_path)
     with pytest.raises(NodeError, match=r"none of the 3 pairs has a row in truth.csv: its ids \(s01, s02\)"):
         _run(tmp_path, "id,x_cm,y_cm,z_cm\ns01,1,2,40\ns02,0,0,45\n", train_fraction=0.0)
+    # a spreadsheet turns 01 into 1
+    with pytest.raises(NodeError, match=r"match once leading zeros are ignored: a spreadsheet dropped them"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm\n1,1,2,40\n2,0,0,45\n", train_fraction=0.0)
 
 
 def test_split_column_rules(tmp_path):

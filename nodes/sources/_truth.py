@@ -168,8 +168,10 @@ def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | 
         # (every figure of the accuracy report would be blank, and the compensation would have nothing to fit)
         theirs = ", ".join(sorted(truth)[:5]) + (" ..." if len(truth) > 5 else "")
         ours = ", ".join(sorted(ids)[:5]) + (" ..." if len(ids) > 5 else "")
+        zeros = {i.lstrip("0") or "0" for i in ids} & {str(t).lstrip("0") or "0" for t in truth}
         raise NodeError(f"none of the {len(ids)} pairs has a row in {path.name}: its ids ({theirs}) are not the "
-                        f"pairs' ({ours}).",
+                        f"pairs' ({ours})" + ("; they match once leading zeros are ignored: a spreadsheet dropped "
+                                              "them (format the id column as text)." if zeros else "."),
                         hint="the truth file's id column must hold the pair names the image files give (left_s000.png "
                              "-> s000)")
     if split is None:
