@@ -68,12 +68,14 @@ def disparity_range_px(rectification: dict | None, params: DisparityParams,
 
 
 REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
-PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm")
+PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm", "object_radius_cm")
 
 
 def _passed_on(seg) -> dict:
     """What a Disparity passes on from its Segmentation: the rejected-candidate outlines (for the
-    locator's overlay) and where the object's colour came from (``color_from``), when present."""
+    locator's overlay), where the object's colour came from (``color_from``) and the ball's radius
+    (``object_radius_cm``: ik.pick_sequence checks the ball's centre is a radius above the table),
+    when present."""
     return {k: seg[k] for k in PASSED_ON if k in seg} if isinstance(seg, dict) else {}
 
 

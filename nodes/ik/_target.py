@@ -12,6 +12,11 @@ JointTarget (per item)::
      "servo_units": {str(id): int} | None,                   # goal positions of the joint servos
      "fk_cm": [x, y, z] | None,                              # tool point of the quantised servo goals
      "solver": {"type": "analytic_3dof" | "numeric", "params": {...}},
+     "object_radius_cm": float | None,                       # the ball's radius (the segmenter's), when known
+     "sigma_z_cm": float | None,                             # the location's depth uncertainty
+     "hand_eye_rms_cm": float | None,                        # the hand-eye fit's RMS residual (fitted modes)
+     "height_above_table_cm": float | None,                  # the centre's height over the table frame's z = 0,
+                                                             #   when the hand-eye places the base in it
      "split": str (copied when present)}
 """
 
@@ -88,6 +93,10 @@ def location_to_base(location: dict[str, Any], hand_eye: dict[str, Any]):
     return p, truth
 
 
+def _num(v) -> float | None:
+    return None if v is None else float(v)
+
+
 def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict[str, Any],
                  solver: dict[str, Any], on_unreachable: str = "error") -> dict[str, Any]:
     """Build the JointTarget for one located object.
@@ -96,6 +105,11 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
     ``found: false`` with the reason (``"skip"``), which ``ik.pick_sequence`` then refuses.
     """
     p, truth = location_to_base(location, hand_eye)
+    T_bt = _T(hand_eye, "T_base_from_table")
+    height = None
+    if p is not None and T_bt is not None:  # the table frame's z is up out of the table (docs/conventions.md)
+        height = float(np.linalg.solve(T_bt[:3, :3], p - T_bt[:3, 3])[2])
+    rms = (hand_eye.get("residual_cm") or {}).get("rms")
     out: dict[str, Any] = {
         "pair": location.get("pair"), "found": bool(location.get("found")) and p is not None,
         "reason": location.get("reason"), "extrapolated": bool(location.get("extrapolated", False)),
@@ -105,7 +119,9 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
         "target_base_cm": None if p is None else [float(v) for v in p],
         "truth_base_cm": None if truth is None else [float(v) for v in truth],
         "unreachable": False, "hint": None,
-        "joints_deg": None, "servo_units": None, "fk_cm": None, "solver": solver}
+        "joints_deg": None, "servo_units": None, "fk_cm": None, "solver": solver,
+        "object_radius_cm": _num(location.get("object_radius_cm")), "sigma_z_cm": _num(location.get("sigma_z_cm")),
+        "hand_eye_rms_cm": _num(rms), "height_above_table_cm": height}
     if "split" in location:
         out["split"] = location["split"]
     if p is None:

@@ -10,6 +10,8 @@ PickPlan (per item)::
      "grasp_index": int,                   # index of the waypoint that closes the gripper on the object
      "grasp_fk_cm": [x, y, z],             # tool point of the quantised servo goals at the grasp
      "workspace_cm": {"min": [x, y, z], "max": [x, y, z]},   # the box every waypoint was checked against
+     "table_check": {"height_above_table_cm": float, "radius_cm": float | None, "tolerance_cm": float,
+                     "table": str},        # the ball's centre vs one radius above the table (see _check_table)
      "waypoints": [{"name": str,           # open, above, descend_k, grasp, close, lift, place_above, ...
                     "gripper": "open" | "closed",
                     "tool_cm": [x, y, z],  # tool-point target, arm-base frame
@@ -60,6 +62,18 @@ class PickParams(Params):
         description="Upper corner of the workspace box (cm); default [reach, reach, base_height + reach].")
     refuse_extrapolated: bool = Field(True, description="Refuse a location that a compensator flagged as "
                                                         "extrapolated (outside its training range).")
+    object_radius_cm: float | None = Field(
+        None, gt=0, le=100, description="The ball's radius (cm) for the table check (its centre must be a radius "
+                                        "above the table); default the location's, i.e. the segmenter's "
+                                        "object.radius_cm.")
+    table_sigmas: float = Field(
+        3.0, ge=0, le=20, description="How many standard deviations of the located height (the location's "
+                                      "sigma_z_cm and the hand-eye fit's RMS residual, combined) the ball's centre may "
+                                      "lie below one radius above the table before the pick is refused (count).")
+    table_tolerance_cm: float = Field(
+        0.0, ge=0, le=10, description="Extra allowance below one radius above the table (cm), added to table_sigmas' "
+                                      "share: e.g. the accuracy of a hand-measured hand-eye (mode given), which the "
+                                      "run cannot know.")
     speed_deg_s: float | None = Field(None, gt=0, le=680,
                                       description="Speed of the largest joint move (deg/s); default the arm's.")
     on_refuse: Literal["error", "skip"] = Field(
@@ -127,6 +141,49 @@ def _words(conf: tuple[int, int]) -> str:
             + ("" if conf[1] == 0 else f", elbow {'up' if conf[1] < 0 else 'down'}"))
 
 
+def _check_table(params: PickParams, target: dict, p: np.ndarray, floor_cm: float) -> dict:
+    """Refuse a ball whose centre lies less than one radius above the table: the ball would be inside the
+    table, so the location is wrong (hand-eye or table frame off in z, a wrong radius, a compensation
+    fitted on other truth) and the fingers would be driven into the table. The workspace box limits the
+    tool point only.
+
+    The table is the table frame's z = 0 when the hand-eye places the arm base in it, else the workspace
+    box's floor (``workspace_min_cm`` z; by default the base's mounting plane, z = 0). The tolerance is the
+    location's own uncertainty: ``table_sigmas`` x sqrt(sigma_z_cm^2 + hand-eye RMS^2), plus
+    ``table_tolerance_cm``. Without a known radius only the centre itself is checked (radius 0).
+
+    Returns
+    -------
+    dict
+        The plan's ``table_check`` record.
+    """
+    h = target.get("height_above_table_cm")
+    table = "the table frame's z = 0, placed by the hand-eye's base_in_table"
+    if h is None:
+        h, table = float(p[2] - floor_cm), f"the workspace floor z = {floor_cm:g} cm (arm-base frame)"
+    r = params.object_radius_cm if params.object_radius_cm is not None else target.get("object_radius_cm")
+    sz, he = target.get("sigma_z_cm") or 0.0, target.get("hand_eye_rms_cm") or 0.0
+    sigma = math.hypot(sz, he)
+    tol = params.table_sigmas * sigma + params.table_tolerance_cm
+    if h < (r or 0.0) - tol:
+        size = (f"less than its radius {r:.2f} cm by {r - h:.2f} cm" if r
+                else "below the table (its radius is not known)")
+        parts = [f"sigma_z {sz:.3f} cm"] + ([f"hand-eye RMS {he:.3f} cm"] if he else [])
+        raise _refuse(target, f"the ball's centre is located {h:.2f} cm above the table ({table}), {size}, more "
+                              f"than the {tol:.2f} cm allowed ({params.table_sigmas:g} x {sigma:.3f} cm: "
+                              f"{', '.join(parts)}" + (f"; + table_tolerance_cm {params.table_tolerance_cm:g}"
+                                                       if params.table_tolerance_cm else "")
+                              + "): the ball would be inside the table, so the location is wrong and the fingers "
+                                "would hit the table",
+                      "check the hand-eye transform's z (calibrator.hand_eye: base_in_table's height, or the fitted "
+                      "pairs), the table frame (the board lying flat on the table; without one, workspace_min_cm's z "
+                      "is the table), and the ball's radius (the segmenter's object.radius_cm, pick.object_radius_cm); "
+                      "a compensation fitted on another truth shifts z too. If the hand-eye was measured by hand, set "
+                      "table_tolerance_cm to its accuracy")
+    return {"height_above_table_cm": float(h), "radius_cm": None if r is None else float(r),
+            "tolerance_cm": float(tol), "table": table}
+
+
 def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     """Plan the pick of a solved target (pure function; see the module docstring for the result)."""
     if target.get("unreachable"):
@@ -172,6 +229,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             raise _refuse(target, f"the {what} [{txt}] cm lies outside the workspace box "
                                   f"[{', '.join(f'{v:g}' for v in lo)}] .. [{', '.join(f'{v:g}' for v in hi)}] cm",
                           "move the object, or widen workspace_min_cm / workspace_max_cm if the space is clear.")
+    table_check = _check_table(params, target, p, float(lo[2]))
     g = joint(model, "gripper")
     grip = {"open": g["open_deg"], "closed": g["closed_deg"]}
     state = {"above": "open", "grasp": "open", "close": "closed", "lift": "closed", "place_above": "closed",
@@ -210,6 +268,7 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             "truth_base_cm": target.get("truth_base_cm"), "solver": target["solver"],
             "servo_ids": all_servo_ids(model), "grasp_index": gi, "grasp_fk_cm": waypoints[gi]["fk_cm"],
             "workspace_cm": {"min": lo.tolist(), "max": hi.tolist()},  # the box this plan was checked against
+            "table_check": table_check,
             "waypoints": waypoints}
 
 
@@ -217,10 +276,16 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
       inputs={"arm": In("ArmModel"), "target": In("JointTarget", description="Solved object (per item).")},
       outputs={"plan": Out("PickPlan", save=True, description="Joint-space waypoints with servo goals and speeds.")},
       params=PickParams, version="1")
-def pick_sequence(params: PickParams, arm, target):
-    """Open -> above -> descend -> close -> lift (-> place); refuses failed, extrapolated or out-of-box targets."""
+def pick_sequence(params: PickParams, arm, target, ctx=None):
+    """Open -> above -> descend -> close -> lift (-> place); refuses failed, extrapolated or out-of-box targets,
+    and a ball whose centre is less than one radius above the table."""
     try:
-        return {"plan": plan_pick(params, arm, target)}
+        plan = plan_pick(params, arm, target)
+        if ctx is not None and plan["table_check"]["radius_cm"] is None:
+            ctx.warn(f"{target.get('pair')}: the ball's radius is not known (the location carries no "
+                     "object_radius_cm and pick.object_radius_cm is not set): only its centre was checked against "
+                     "the table")
+        return {"plan": plan}
     except NodeError as e:
         if params.on_refuse == "error":
             raise

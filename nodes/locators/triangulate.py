@@ -167,7 +167,9 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
             tc = np.asarray(t["center_table_cm"], float)
             truth = (tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])).tolist()
     # where the segmenter's object colour came from (given, learned): kept beside each result
-    seen = {"color_from": disparity["color_from"]} if "color_from" in disparity else {}
+    # ... and the ball's radius the segmenter looked for (ik.pick_sequence: its centre must be a radius
+    # above the table, else the location is wrong)
+    seen = {k: disparity[k] for k in ("color_from", "object_radius_cm") if k in disparity}
     if not disparity["found"]:
         return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth, **seen)
     d = float(disparity["disparity_px"])
