@@ -120,3 +120,32 @@ def test_names_without_a_side_token_pair_by_what_the_globs_matched(tmp_path):
     (tmp_path / "cam1_10.png").rename(tmp_path / "cam1_11.png")  # a real mismatch is still refused, named
     with pytest.raises(NodeError, match=r"no partner: cam0_10.png, cam1_11.png \("):
         list_pairs(tmp_path, "cam0*", "cam1*")
+
+
+def test_unknown_truth_columns_are_refused_naming_them_and_the_known_ones(tmp_path):
+    # (`radius` for radius_cm, a typo'd tabel_z_cm beside x_cm,y_cm,z_cm: both were read as absent, silently)
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"truth.csv has column\(s\) it does not know: 'radius' \(did you mean "
+                                        r"'radius_cm'\?\); they would be ignored\. Known columns: id, x_cm"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm,radius\n01,1,2,40,2\n")
+    with pytest.raises(NodeError, match=r"'tabel_z_cm' \(did you mean 'table_z_cm'\?\)"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm,tabel_z_cm\n01,1,2,40,2\n")
+    with pytest.raises(NodeError, match=r"column\(s\) x_cm twice"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm,x_cm\n01,1,2,40,3\n")
+    with pytest.raises(NodeError, match=r"line 2: value\(s\) '7' stand under no column name"):
+        _run(tmp_path, "id,x_cm,y_cm,z_cm\n01,1,2,40,7\n")
+    # an empty trailing column (a spreadsheet's) is harmless and still read
+    pairs, _ = _run(tmp_path, "id,x_cm,y_cm,z_cm,\n01,1,2,40,\n", train_fraction=0.0)
+    assert pairs["01"]["truth"]["center_left_cm"] == [1.0, 2.0, 40.0]
+
+
+def test_duplicate_json_ids_are_refused_naming_the_id(tmp_path):
+    # (json.loads kept the last of two "01" records, silently)
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"t.json: id '01' is given twice"):
+        _run(tmp_path, '{"01": {"center_left_cm": [0, 0, 40]}, "01": {"center_left_cm": [0, 0, 50]}}', name="t.json")
+    with pytest.raises(NodeError, match=r"t.json: id '02' is given twice"):
+        _run(tmp_path, '[{"id": "02", "center_left_cm": [0, 0, 40]}, {"id": "02", "center_left_cm": [1, 0, 40]}]',
+             name="t.json")
+    with pytest.raises(NodeError, match=r"t.json: field 'center_left_cm' is given twice"):
+        _run(tmp_path, '{"01": {"center_left_cm": [0, 0, 40], "center_left_cm": [0, 0, 50]}}', name="t.json")

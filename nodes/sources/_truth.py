@@ -10,8 +10,10 @@ Formats:
 
 * CSV with a header: ``id``, the centre in the left-camera frame ``x_cm, y_cm, z_cm`` and/or in
   the table frame ``table_x_cm, table_y_cm, table_z_cm``, optionally ``radius_cm`` and ``split``.
+  Any other column is refused (it would be ignored), naming the closest known name.
 * JSON: ``{id: {"center_left_cm": [x, y, z], "center_table_cm": [...], "split": "train"}}`` or a
-  list of such records with an ``"id"`` key.
+  list of such records with an ``"id"`` key. An id (or a field of one record) given twice is refused:
+  a JSON reader keeps the last one, silently.
 
 The split (:func:`truth_split`): the pairs the file lists are the **training** placements (used to
 fit compensation and hand-eye), the others are the targets (``test``) -- unless the file has a
@@ -22,6 +24,7 @@ targets. No random split is made when a truth file is given.
 from __future__ import annotations
 
 import csv
+import difflib
 import json
 from pathlib import Path
 
@@ -30,6 +33,46 @@ from stereograph.api import NodeError
 __all__ = ["read_truth_file", "truth_split"]
 
 _SPLITS = ("train", "test")
+# every CSV column the reader knows; any other is refused (it would be ignored: `radius` for radius_cm,
+# a typo'd tabel_z_cm beside x_cm,y_cm,z_cm)
+COLUMNS = ("id", "x_cm", "y_cm", "z_cm", "table_x_cm", "table_y_cm", "table_z_cm", "radius_cm", "split")
+_HEADER_HINT = ("CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm][,split], "
+                "comma-separated with a decimal point")
+
+
+def _unknown_columns(fields: list[str], path: Path) -> None:
+    """Refuse a header with a column named twice, or with columns the reader does not know, naming each
+    with its closest known name."""
+    twice = sorted({f for f in fields if f and fields.count(f) > 1})
+    if twice:  # (the reader keeps the last column of a name, silently)
+        raise NodeError(f"truth file {path} has the column(s) {', '.join(twice)} twice (header: {', '.join(fields)}).",
+                        hint="keep one column of each name")
+    unknown = [f for f in fields if f and f not in COLUMNS]
+    if not unknown:
+        return
+    said = []
+    for f in unknown:
+        close = difflib.get_close_matches(f, COLUMNS, n=1, cutoff=0.6) or \
+            difflib.get_close_matches(f"{f}_cm", COLUMNS, n=1, cutoff=0.6)  # `radius` -> radius_cm
+        said.append(f"{f!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise NodeError(f"truth file {path} has column(s) it does not know: {', '.join(said)}; they would be ignored. "
+                    f"Known columns: {', '.join(COLUMNS)}.",
+                    hint="rename the column to one of the known names (lengths in cm: convert millimetres first), or "
+                         "delete it")
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _no_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
+    """json.loads' object hook: a key given twice is refused (the parser keeps the last, silently)."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(k)
+        out[k] = v
+    return out
 
 
 def _xyz(row: dict, keys, where: str) -> list[float] | None:
@@ -77,10 +120,20 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
     has_split = False
     if path.suffix.lower() == ".json":
         try:
-            data = json.loads(path.read_text(encoding="utf-8-sig"))
+            data = json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicate_keys)
             if isinstance(data, list):
+                ids = [str(r["id"]) for r in data]
+                twice = next((i for k, i in enumerate(ids) if i in ids[:k]), None)
+                if twice is not None:
+                    raise _DuplicateKey(twice)
                 data = {str(r["id"]): r for r in data}
             items = {str(k): dict(v) for k, v in data.items()}
+        except _DuplicateKey as exc:
+            what = "field" if str(exc) in ("center_left_cm", "center_table_cm", "radius_cm", "split", "id") else "id"
+            raise NodeError(f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader keeps only the "
+                            "last one, silently.",
+                            hint="keep one record per pair id (one value per field): the ball's measured centre for "
+                                 "those images") from None
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise NodeError(f"cannot parse truth file {path}: {exc!r}.",
                             hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id") from None
@@ -102,8 +155,7 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
                 sep = next((c for c in ";\t" if len(fields) == 1 and c in fields[0]), None)
                 raise NodeError(f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
                                 + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
-                                hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,"
-                                     "table_z_cm][,split], comma-separated with a decimal point")
+                                hint=_HEADER_HINT)
             has_split = "split" in fields
             centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or \
                 {"table_x_cm", "table_y_cm", "table_z_cm"} <= set(fields)
@@ -112,10 +164,17 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
                                 "is x_cm,y_cm,z_cm (left-camera frame) or table_x_cm,table_y_cm,table_z_cm (cm).",
                                 hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
                                      "[,split]; convert millimetres to cm")
+            _unknown_columns(fields, path)
             line_of: dict[str, int] = {}
             for row in reader:
-                row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
                 where = f"truth file {path}, line {reader.line_num}"
+                # values under no column name (an unnamed header cell, more cells than the header) would be dropped
+                extra = [x for k, v in row.items() if not (k or "").strip()
+                         for x in (v if isinstance(v, list) else [v]) if x and x.strip()]
+                row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+                if extra:
+                    raise NodeError(f"{where}: value(s) {', '.join(map(repr, extra))} stand under no column name "
+                                    f"(header: {', '.join(fields)}).", hint=_HEADER_HINT)
                 pid = row.get("id")
                 if not pid:
                     raise NodeError(f"{where}: the id is empty.", hint="give every row the pair id of its images")
