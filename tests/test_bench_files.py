@@ -86,16 +86,22 @@ def test_a_ros_pair_calibrated_without_a_square_size_needs_cm_per_unit(tmp_path)
                      _calibration())
 
 
-def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
-    # What OpenCV's stereo_calib sample writes: intrinsics.yml and extrinsics.yml, no size, no unit.
-    cal = _calibration()
-    intr, extr = tmp_path / "intrinsics.yml", tmp_path / "extrinsics.yml"
+def _stereo_calib_files(cal, folder: Path) -> tuple[Path, Path]:
+    """intrinsics.yml + extrinsics.yml as OpenCV's stereo_calib sample writes them: no size, no unit."""
+    intr, extr = folder / "intrinsics.yml", folder / "extrinsics.yml"
     for p, names in ((intr, (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"))),
                      (extr, (("R", "R"), ("T", "T_cm")))):
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
         for name, key in names:
             fs.write(name, np.asarray(cal[key], float))
         fs.release()
+    return intr, extr
+
+
+def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
+    # What OpenCV's stereo_calib sample writes: intrinsics.yml and extrinsics.yml, no size, no unit.
+    cal = _calibration()
+    intr, extr = _stereo_calib_files(cal, tmp_path)
     with pytest.raises(NodeError, match="lacks R, T") as e:
         read_calibration_file(intr)
     assert str(intr) in e.value.message
@@ -106,6 +112,23 @@ def test_stereo_calib_sample_files_need_unit_and_size(tmp_path):
         read_calibration_file(intr, extr, cm_per_unit=0.1)
     got = read_calibration_file(intr, extr, cm_per_unit=0.1, image_size=(640, 480))  # a file in mm
     assert np.allclose(got["T_cm"], cal["T_cm"] * 0.1) and np.allclose(got["K2"], cal["K2"])
+
+
+def test_an_image_size_that_does_not_fit_the_principal_points_is_refused(tmp_path):
+    # (a 640x480 calibration loaded with image_size [1280, 960] was taken: principal point (322, 238)
+    # in 1280x960 images, a quarter of the way across, with no word)
+    intr, extr = _stereo_calib_files(_calibration(), tmp_path)
+    with pytest.raises(NodeError, match=r"image_size given, 1280x960 px, does not fit it: the principal points, "
+                                        r"left \(321.7, 238.2\) px; right \(318.4, 241.0\) px, lie 25% .* "
+                                        r"images of about 643x476 px") as e:
+        read_calibration_file(intr, extr, cm_per_unit=1.0, image_size=(1280, 960))
+    assert str(intr) in e.value.message and "max_principal_offset" in e.value.hint
+    with pytest.raises(NodeError, match=r"640x360 px, does not fit it"):  # a 16:9 size for a 4:3 calibration
+        read_calibration_file(intr, extr, cm_per_unit=1.0, image_size=(640, 360))
+    assert read_calibration_file(intr, extr, cm_per_unit=1.0, image_size=(640, 480))["image_size"] == [640, 480]
+    # a truly off-centre principal point (a cropped sensor) loads once the limit is raised
+    got = read_calibration_file(intr, extr, cm_per_unit=1.0, image_size=(1280, 960), max_principal_offset=0.3)
+    assert got["image_size"] == [1280, 960]
 
 
 def _pipeline(tmp_path: Path, nodes: str) -> Path:
@@ -179,6 +202,11 @@ def test_real_chessboard_pairs_export_reads_back(tmp_path):
         read_calibration_file(p)
     got = read_calibration_file(p, cm_per_unit=2.5)  # once the user says how large a square is
     assert np.allclose(got["T_cm"], cal["T_cm"] * 2.5)
+    # the same calibration as stereo_calib writes it (no size): the right size loads, twice it is refused
+    intr, extr = _stereo_calib_files(cal, tmp_path)
+    assert read_calibration_file(intr, extr, cm_per_unit=2.5, image_size=(640, 480))["image_size"] == [640, 480]
+    with pytest.raises(NodeError, match=r"image_size given, 1280x960 px, does not fit it"):
+        read_calibration_file(intr, extr, cm_per_unit=2.5, image_size=(1280, 960))
 
 
 def test_opencv_xml_file_loads(tmp_path):

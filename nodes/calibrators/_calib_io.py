@@ -33,6 +33,38 @@ __all__ = ["CM_PER_UNIT", "EXPORT_OUTPUTS", "calibration_outputs", "calibration_
 #: Centimetres per length unit a calibration file may state.
 CM_PER_UNIT = {"mm": 0.1, "millimeter": 0.1, "millimetre": 0.1, "cm": 1.0, "centimeter": 1.0, "centimetre": 1.0,
                "m": 100.0, "meter": 100.0, "metre": 100.0, "in": 2.54, "inch": 2.54}
+# How far a principal point may lie from the image centre, as a fraction of the width / height, when
+# the image size is given by hand for a file that does not state it (LoadParams.max_principal_offset).
+# A lens's principal point lies within a few % of the centre (OpenCV's stereo sample pairs: 3.5 %); a
+# size twice as large puts it at 25 % (a 640x480 calibration read as 1280x960: (322, 238) against the
+# centre (640, 480)), a 4:3 size for a 16:9 calibration (1280x960 for 1280x720) at 12.5 %.
+MAX_PRINCIPAL_OFFSET = 0.1
+
+
+def check_principal_points(K1, K2, image_size, path: Path, max_offset: float = MAX_PRINCIPAL_OFFSET) -> None:
+    """Refuse an image size given for a file without one when either camera's principal point lies far
+    from the centre of images of that size: the size is then almost surely not the calibrated one, and
+    every rectification, working range and location made with it would be wrong.
+
+    Raises
+    ------
+    NodeError
+        Naming both principal points, the size given, the size they point to and the limit.
+    """
+    w, h = (float(v) for v in image_size)
+    pp = {side: (float(K[0, 2]), float(K[1, 2])) for side, K in (("left", K1), ("right", K2))}
+    off = max(max(abs(cx - w / 2) / w, abs(cy - h / 2) / h) for cx, cy in pp.values())
+    if off <= max_offset:
+        return
+    cx, cy = pp["left"]
+    said = "; ".join(f"{side} ({x:.1f}, {y:.1f}) px" for side, (x, y) in pp.items())
+    raise NodeError(f"{path} does not give its image size, and the image_size given, {w:.0f}x{h:.0f} px, does not "
+                    f"fit it: the principal points, {said}, lie {off:.0%} of the image size from its centre "
+                    f"({w / 2:.0f}, {h / 2:.0f}) px (at most {max_offset:.0%} is plausible). They point to images of "
+                    f"about {2 * cx:.0f}x{2 * cy:.0f} px.",
+                    hint="give image_size as the size of the images this calibration was made from (the principal "
+                         "point lies near their centre); if the principal point really is that far off-centre (a "
+                         "cropped sensor), raise max_principal_offset")
 
 _CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
@@ -111,7 +143,8 @@ def opencv_text(cal: dict) -> str:
         os.unlink(tmp)
 
 
-def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None) -> dict:
+def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None,
+                max_principal_offset: float = MAX_PRINCIPAL_OFFSET) -> dict:
     """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
 
     Parameters
@@ -123,10 +156,14 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
         Centimetres per unit of ``T`` (0.1 for mm, 100 for m, the square size in cm for a file in
         squares). Default: from the file's ``unit`` entry.
     image_size : (w, h), optional
-        Pixels; default from ``image_width`` / ``image_height`` (or ``image_size``) in the file.
+        Pixels; default from ``image_width`` / ``image_height`` (or ``image_size``) in the file. Given
+        for a file without a size, it is checked against the principal points (:func:`check_principal_points`).
     extra : Path, optional
         A second FileStorage file read with the first (stereo_calib's ``extrinsics.yml`` beside its
         ``intrinsics.yml``); an entry in both is taken from ``path``.
+    max_principal_offset : float
+        Largest distance of a principal point from the centre of images of a hand-given ``image_size``
+        (fraction of the width / height).
 
     Returns
     -------
@@ -189,13 +226,16 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
                                  f" known: mm, cm, m, in)")
             cm_per_unit = CM_PER_UNIT[unit]
         wn, hn = scalar("image_width", "imageWidth"), scalar("image_height", "imageHeight")
-        if wn is not None and hn is not None:  # the file's own size wins
+        sz = mat("image_size", "imageSize")
+        by_hand = False  # the file's own size wins (load.py refuses an image_size param that differs from it)
+        if wn is not None and hn is not None:
             image_size = [int(wn.real()), int(hn.real())]
-        if image_size is None:  # (load.py refuses an image_size param that differs from the file's)
-            sz = mat("image_size", "imageSize")
-            if sz is None or sz.size != 2:
-                raise ValueError("it does not give the image size (image_width / image_height)")
+        elif sz is not None and sz.size == 2:
             image_size = [int(v) for v in sz.ravel()]
+        elif image_size is None:
+            raise ValueError("it does not give the image size (image_width / image_height)")
+        else:
+            by_hand = True
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
     finally:
@@ -203,6 +243,8 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
             fs.release()
     if got["K1"].shape != (3, 3) or got["K2"].shape != (3, 3) or got["R"].size != 9 or got["T"].size != 3:
         raise ValueError("M1 / M2 / R must be 3x3 and T 3x1")
+    if by_hand:  # (a 640x480 calibration read as 1280x960 was taken, its principal point at a quarter)
+        check_principal_points(got["K1"], got["K2"], image_size, path, max_principal_offset)
     return {"K1": got["K1"], "D1": got["D1"].ravel(), "K2": got["K2"], "D2": got["D2"].ravel(),
             "R": got["R"].reshape(3, 3), "T_cm": got["T"].ravel() * float(cm_per_unit),
             "image_size": [int(image_size[0]), int(image_size[1])], "rms_px": rms_px,

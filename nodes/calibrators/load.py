@@ -24,7 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs, read_opencv, read_ros, read_ros_pair
+from nodes.calibrators._calib_io import (
+    EXPORT_OUTPUTS,
+    MAX_PRINCIPAL_OFFSET,
+    calibration_outputs,
+    read_opencv,
+    read_ros,
+    read_ros_pair,
+)
 from nodes.contracts.calibration_file import (
     ArtifactLoadParams,
     array_keys,
@@ -51,7 +58,8 @@ def _is_opencv_storage(path: Path) -> bool:
 
 
 def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_unit: float | None = None,
-                          image_size=None, label: str = "calibrator.load") -> dict:
+                          image_size=None, label: str = "calibrator.load",
+                          max_principal_offset: float = MAX_PRINCIPAL_OFFSET) -> dict:
     """A ``StereoCalibration`` from a run's JSON, an OpenCV FileStorage file or two ROS camera_info files.
 
     Raises
@@ -101,7 +109,8 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                 cal = read_ros_pair(path, right_path, cm_per_unit)
                 fmt = "ros"
             else:
-                cal = read_opencv(path, cm_per_unit, image_size, extra=right_path)
+                cal = read_opencv(path, cm_per_unit, image_size, extra=right_path,
+                                  max_principal_offset=max_principal_offset)
                 fmt = "opencv"
         except ValueError as exc:
             raise NodeError(f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
@@ -132,7 +141,12 @@ class LoadParams(Params):
                                 "written without a square size (its first line says so).")
     image_size: tuple[int, int] | None = Field(
         None, description="Image width, height (px), for OpenCV files that do not state it (stereo_calib's do "
-                          "not); checked against the file's when both exist.")
+                          "not); checked against the file's when both exist, else against the principal points.")
+    max_principal_offset: float = Field(
+        MAX_PRINCIPAL_OFFSET, gt=0, le=0.5,
+        description="With image_size given for a file that has none: the farthest a principal point may lie from "
+                    "the centre of images of that size (fraction of the width / height); farther -> refused as the "
+                    "wrong size.")
 
 
 def _load_reads(params: LoadParams, pipeline_dir: Path) -> list[Path]:
@@ -147,7 +161,8 @@ def load(params: LoadParams, ctx=None) -> dict:
     """Load a stereo calibration file (run JSON, OpenCV FileStorage, or a ROS camera_info pair)."""
     pdir = ctx.pipeline_dir if ctx is not None else Path.cwd()
     right = resolve_path(params.right_path, pdir) if params.right_path else None
-    cal = read_calibration_file(resolve_path(params.path, pdir), right, params.cm_per_unit, params.image_size)
+    cal = read_calibration_file(resolve_path(params.path, pdir), right, params.cm_per_unit, params.image_size,
+                                max_principal_offset=params.max_principal_offset)
     return calibration_outputs(cal, ctx)
 
 
