@@ -152,3 +152,18 @@ def test_an_empty_or_corrupt_video_file_is_named_as_such(tmp_path):
         camera(CameraParams(left=str(tmp_path / "empty.avi"), right=None))
     with pytest.raises(NodeError, match=r"not a video it can read"):
         camera(CameraParams(left=str(tmp_path / "junk.avi"), right=None))
+
+
+def test_a_dropped_frame_is_invisible_to_the_skew_check_but_the_lengths_are_said(tmp_path, scenes):
+    # (docs/live.md said a dropped frame "shows" in the skew: OpenCV's time codes are index / fps, so it
+    # does not -- pair 1 below holds left frame 1 and right frame 2 with skew 0; the lengths differ)
+    left, right = tmp_path / "left.avi", tmp_path / "right.avi"
+    write_video((s["left"] for s in scenes), left, 30.0, "FFV1")
+    write_video((s["right"] for k, s in enumerate(scenes) if k != 1), right, 30.0, "FFV1")  # frame 1 dropped
+    ctx = RunContext("cam", None, tmp_path / "out", tmp_path, resources={})
+    pairs = camera(CameraParams(left=str(left), right=str(right), n_frames=2, max_skew_ms=1.0), ctx=ctx)["pairs"]
+    second = pairs["cam00001"]
+    assert second["skew_ms"] == 0.0 and np.array_equal(second["right"], scenes[2]["right"])  # shifted, unseen
+    assert any("the left recording has 4 frames, the right 3: a frame dropped in one of them" in m
+               for m in ctx.messages), ctx.messages
+    close_resources(ctx.resources)

@@ -13,7 +13,12 @@ of two clocks:
 
 - ``stream``: the time code each stream gives its frame (``CAP_PROP_POS_MSEC``). For recordings
   this is the only meaningful clock (a file is read as fast as it decodes); two recordings whose
-  time codes disagree — different frame rates, a dropped frame — show it here.
+  time codes disagree — different frame rates — show it here. A frame dropped in one recording does
+  not: OpenCV gives a file's frame the time code index / frame rate, so both sides keep equal time
+  codes while every later pair is one frame apart. Two recordings of different lengths are said when
+  they open (the one sign of it). In a shifted pair the segmenter's left/right checks can catch a
+  ball that moved up or down between the two frames (off the epipolar line); one that moved sideways
+  only changes the disparity, and so the depth, unseen.
 - ``host``: when each ``grab()`` returned on this computer's monotonic clock. For live devices,
   whose stream time bases are unrelated to each other.
 
@@ -120,12 +125,26 @@ class StereoCapture:
         try:
             for which, src in zip(("left", "right"), self.sources):
                 self.caps.append(self._open(src, which if p.right is not None else "stereo"))
+            self._compare_lengths()
             warm = p.warmup_frames if p.warmup_frames is not None else (0 if self.files else 5)
             for _ in range(warm):
                 self._grab()
         except BaseException:
             self.close()
             raise
+
+    def _compare_lengths(self) -> None:
+        """Say when two recordings differ in length: the one sign of a frame dropped in one of them. OpenCV
+        gives a file's frame the time code index / frame rate, so the skew check cannot see a dropped frame:
+        every later pair holds a left and a right image one frame apart, with equal time codes."""
+        if not self.files or len(self.caps) != 2:
+            return
+        n = [int(c.get(cv2.CAP_PROP_FRAME_COUNT)) for c in self.caps]
+        if min(n) > 0 and n[0] != n[1]:  # (0 or -1: a count the backend does not know)
+            self.notes.append(f"the left recording has {n[0]} frames, the right {n[1]}: a frame dropped in one of "
+                              "them (or a late start) pairs every later image with another moment's, which the "
+                              "stream time codes cannot show (OpenCV computes them from the frame index and rate); "
+                              "check the recordings, or record both sides together and trim them to one length")
 
     def _open(self, src: int | str, which: str) -> cv2.VideoCapture:
         cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
