@@ -40,17 +40,23 @@ def test_a_ball_inside_the_table_is_refused_naming_height_radius_and_causes():
 
 
 def test_the_tolerance_is_the_locations_own_uncertainty():
+    exact = PickParams(table_tolerance_cm=0)  # the location's uncertainty alone
     # resting on the table, located 0.05 cm low: within 3 sigma (0.06 cm) -> picked, and the check is recorded
-    plan = pick_sequence(PickParams(), arm=ARM, target=ball(1.95, sigma_z=0.02))["plan"]
+    plan = pick_sequence(exact, arm=ARM, target=ball(1.95, sigma_z=0.02))["plan"]
     assert plan["table_check"]["radius_cm"] == 2.0 and plan["table_check"]["tolerance_cm"] == pytest.approx(0.06)
     # 0.1 cm low with the same sigma: refused; with a less certain location (sigma 0.05 cm) it is not
     with pytest.raises(NodeError, match="inside the table"):
-        pick_sequence(PickParams(), arm=ARM, target=ball(1.9, sigma_z=0.02))
-    assert not pick_sequence(PickParams(), arm=ARM, target=ball(1.9, sigma_z=0.05))["plan"]["refused"]
+        pick_sequence(exact, arm=ARM, target=ball(1.9, sigma_z=0.02))
+    assert not pick_sequence(exact, arm=ARM, target=ball(1.9, sigma_z=0.05))["plan"]["refused"]
     # the hand-eye's fit residual counts too, and a documented extra allowance
     he = {**HE, "residual_cm": {"rms": 0.05}}
-    assert not pick_sequence(PickParams(), arm=ARM, target=ball(1.9, he=he))["plan"]["refused"]
+    assert not pick_sequence(exact, arm=ARM, target=ball(1.9, he=he))["plan"]["refused"]
     assert not pick_sequence(PickParams(table_tolerance_cm=0.2), arm=ARM, target=ball(1.9))["plan"]["refused"]
+    # by default a quarter of the radius more: a grasp 0.4 cm low still closes on a 2 cm ball, 0.6 cm is refused
+    plan = pick_sequence(PickParams(), arm=ARM, target=ball(1.6))["plan"]
+    assert plan["table_check"]["tolerance_cm"] == pytest.approx(0.56)
+    with pytest.raises(NodeError, match=r"0\.56 cm allowed"):
+        pick_sequence(PickParams(), arm=ARM, target=ball(1.4))
 
 
 def test_radius_given_in_the_pick_wins_and_the_table_frame_is_used_when_known():

@@ -70,10 +70,12 @@ class PickParams(Params):
         3.0, ge=0, le=20, description="How many standard deviations of the located height (the location's "
                                       "sigma_z_cm and the hand-eye fit's RMS residual, combined) the ball's centre may "
                                       "lie below one radius above the table before the pick is refused (count).")
-    table_tolerance_cm: float = Field(
-        0.0, ge=0, le=10, description="Extra allowance below one radius above the table (cm), added to table_sigmas' "
-                                      "share: e.g. the accuracy of a hand-measured hand-eye (mode given), which the "
-                                      "run cannot know.")
+    table_tolerance_cm: float | None = Field(
+        None, ge=0, le=10, description="Extra allowance below one radius above the table (cm), added to table_sigmas' "
+                                       "share; default a quarter of the ball's radius (a grasp that much low still "
+                                       "closes on the ball: what is refused is a location off by more, the ball inside "
+                                       "the table). Raise it to the accuracy of a hand-measured hand-eye (mode given), "
+                                       "which the run cannot know.")
     speed_deg_s: float | None = Field(None, gt=0, le=680,
                                       description="Speed of the largest joint move (deg/s); default the arm's.")
     on_refuse: Literal["error", "skip"] = Field(
@@ -164,15 +166,16 @@ def _check_table(params: PickParams, target: dict, p: np.ndarray, floor_cm: floa
     r = params.object_radius_cm if params.object_radius_cm is not None else target.get("object_radius_cm")
     sz, he = target.get("sigma_z_cm") or 0.0, target.get("hand_eye_rms_cm") or 0.0
     sigma = math.hypot(sz, he)
-    tol = params.table_sigmas * sigma + params.table_tolerance_cm
+    # (the located height's sigma alone is too tight: on pick.yaml the hand-eye left heights up to 5 sigma low)
+    extra = params.table_tolerance_cm if params.table_tolerance_cm is not None else 0.25 * (r or 0.0)
+    tol = params.table_sigmas * sigma + extra
     if h < (r or 0.0) - tol:
         size = (f"less than its radius {r:.2f} cm by {r - h:.2f} cm" if r
                 else "below the table (its radius is not known)")
         parts = [f"sigma_z {sz:.3f} cm"] + ([f"hand-eye RMS {he:.3f} cm"] if he else [])
         raise _refuse(target, f"the ball's centre is located {h:.2f} cm above the table ({table}), {size}, more "
                               f"than the {tol:.2f} cm allowed ({params.table_sigmas:g} x {sigma:.3f} cm: "
-                              f"{', '.join(parts)}" + (f"; + table_tolerance_cm {params.table_tolerance_cm:g}"
-                                                       if params.table_tolerance_cm else "")
+                              f"{', '.join(parts)}" + (f"; + table_tolerance_cm {extra:.2f}" if extra else "")
                               + "): the ball would be inside the table, so the location is wrong and the fingers "
                                 "would hit the table",
                       "check the hand-eye transform's z (calibrator.hand_eye: base_in_table's height, or the fitted "
