@@ -181,6 +181,24 @@ def test_missing_servo_fails_before_any_write(tmp_path):
         assert sim.log == []
 
 
+def test_a_servo_set_to_another_id_is_named_with_the_ids_that_answer():
+    # servo 3 of the arm was renumbered 6 (or a new one left at another ID): "did not answer" alone sent
+    # people to check a cable that was fine
+    plan = make_plan()
+    with ServoSim([1, 2, 4, 5, 6], time_scale=50.0) as sim:
+        with pytest.raises(NodeError) as ei:
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        msg = " ".join(ei.value.message.split())
+        assert "servo ID 3 did not answer a ping" in msg, msg
+        assert "IDs 1, 2, 4, 5, 6 answer (0-13 pinged): ID 6 answers but is not in the arm model" in msg, msg
+        assert ei.value.hint.startswith("if ID 6 is the servo the arm model calls 3, set its ID to 3")
+        assert sim.log == []  # nothing written, nothing moved
+    with ServoSim([1, 2, 4, 5], time_scale=50.0) as sim:  # absent: only the arm's own IDs answer
+        with pytest.raises(NodeError) as ei:
+            execute_plan(DynamixelParams(**FAST), plan, ARM, sim.port_path)
+        assert "IDs 1, 2, 4, 5 answer" in ei.value.message and "not in the arm model" not in ei.value.message
+
+
 def test_a_bus_where_no_servo_answers_is_named_as_such():
     # (a silent bus -- supply off, adapter unplugged at the servo end -- was "servo ID 1 did not answer a ping")
     plan = make_plan()

@@ -97,6 +97,27 @@ def silent_bus(port: str, ids: list[int], baud: int, echoed: bool = False) -> tu
             "the arm model's (ik.arm servos' id; Dynamixel Wizard / RoboPlus scans every rate and ID).")
 
 
+def missing_servo(bus: Bus, sid: int, ids: list[int], e: ServoFailure, baud: int) -> tuple[str, str]:
+    """Servo ``sid`` did not answer a PING while others of the arm do: also say which IDs answer on the
+    bus (one PING each to 0 .. the arm's highest ID + 8, on this failure path only: ~35 ms per silent ID
+    at 1 Mbps). A servo set to another ID -- a new one still at the factory ID 1, one renumbered by
+    mistake -- then shows as an ID that answers but is not the arm model's."""
+    head, hint = head_and_hint(e, moving=False, baud=baud)
+    if e.exchange is None or e.exchange.kind != "no_reply":
+        return head, hint
+    answering = [i for i in range(min(253, max(ids) + 8) + 1) if i != sid and bus.answers_ping(i)]
+    foreign = [i for i in answering if i not in ids]
+    head += f"; on {bus.port_path} IDs {', '.join(map(str, answering)) or 'none'} answer (0-{min(253, max(ids) + 8)} " \
+            "pinged)"
+    if foreign:
+        which = ", ".join(map(str, foreign))
+        head += (f": ID{'s' if len(foreign) > 1 else ''} {which} answer{'' if len(foreign) > 1 else 's'} but "
+                 f"{'are' if len(foreign) > 1 else 'is'} not in the arm model")
+        hint = (f"if ID {foreign[0]} is the servo the arm model calls {sid}, set its ID to {sid} (Dynamixel Wizard / "
+                f"RoboPlus), or give the arm model the IDs your servos have (ik.arm servos' id). " + hint)
+    return head, hint
+
+
 def after_ping(bus: Bus, sid: int, e: ServoFailure, baud: int) -> tuple[str, str]:
     """A servo answered PING, then a READ failed. Tell a lost READ reply from status return level 0.
 

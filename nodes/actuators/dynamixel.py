@@ -166,7 +166,7 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
             if k == 0 and e.exchange is not None and e.exchange.kind == "no_reply" and \
                     not any(bus.answers_ping(other) for other in ids[1:]):
                 raise NodeError(*_diagnose.silent_bus(bus.port_path, ids, params.baud)) from None
-            raise NodeError(*_diagnose.head_and_hint(e, moving=False, baud=params.baud)) from None
+            raise NodeError(*_diagnose.missing_servo(bus, sid, ids, e, params.baud)) from None
         try:
             model = bus.read(sid, 0, 2, "read of the model number")
         except ServoFailure as e:
