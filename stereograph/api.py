@@ -283,8 +283,21 @@ class _Registry(dict):
 REGISTRY: _Registry = _Registry()
 
 
+class _UndeclaredParam(NodeError, AttributeError):
+    """A node declared without ``params=`` read a param. An AttributeError too, so that ``hasattr`` and
+    ``getattr(params, name, default)`` still work; a NodeError, so the run says it plainly."""
+
+
 class _NoParams(Params):
-    pass
+    """The params of a node declared without ``params=``: none."""
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):  # (pydantic's own private attributes)
+            return super().__getattr__(name)
+        raise _UndeclaredParam(
+            f"the node reads params.{name}, but its @node(...) declares no params model",
+            hint=f"declare one: class MyParams(Params): {name}: float = Field(..., description='... (unit)'), "
+                 "then @node(..., params=MyParams); the pipeline's params: then set it")
 
 
 def type_name(ann: Any) -> str:

@@ -316,3 +316,24 @@ def test_user_text_with_colons_is_printed_as_written(tmp_path, capsys):
     code, msg = run_cli(tmp_path, GOOD, "--set", "power.type=toy:ab:power", capsys=capsys)
     assert code == 2
     assert "toy:ab:power" in msg and "\N{NEGATIVE SQUARED AB}" not in msg, msg
+
+
+def test_a_plugin_node_without_params_that_reads_one_is_told_to_declare_them(tmp_path, capsys):
+    # was "AttributeError: '_NoParams' object has no attribute 'gain'", taken for a bug in the engine
+    plug = tmp_path / "noparams.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import Out, node
+
+        @node("mine.gain", outputs={"value": Out("Number")})
+        def gain(params):
+            assert not hasattr(params, "gain") and getattr(params, "gain", 2.0) == 2.0  # (still AttributeErrors)
+            return {"value": 3.0 * params.gain}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  g: {{type: mine.gain}}\n")
+    code = main(["run", str(f), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "out")])
+    out = capsys.readouterr()
+    msg = " ".join((out.out + out.err).split())
+    assert code == 1, msg
+    assert "the node reads params.gain, but its @node(...) declares no params model" in msg, msg
+    assert "params=MyParams" in msg and "Traceback" not in msg and "_NoParams" not in msg
