@@ -388,6 +388,10 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
+    for name in graph.nodes:
+        extra = _written_by_the_node(out_dir, name, set(written.get(name, [])))
+        if extra:
+            written.setdefault(name, []).extend(extra)
     summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
                        list(getattr(result, "notes", [])), written)
     try:
@@ -398,6 +402,23 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
         raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
                           hint="free space on that disk, or choose another --out") from None
     write_report_quietly(out_dir, result)
+
+
+def _written_by_the_node(out_dir: Path, name: str, known: set[str]) -> list[str]:
+    """Files in the node's folder that it wrote itself (through ``ctx.out_dir``: a failure log, say),
+    not among its outputs: recorded in ``run.json`` too, so that a later run into this folder removes
+    them with the rest (:func:`prepare_out_dir`) instead of leaving them beside its own results."""
+    folder = out_dir / name
+    if folder.is_symlink() or not folder.is_dir():
+        return []
+    found = []
+    for dirpath, _dirs, files in os.walk(folder):  # (does not follow links)
+        for f in files:
+            p = Path(dirpath) / f
+            rel = str(p.relative_to(out_dir))
+            if rel not in known and not f.startswith(".") and not p.is_symlink():  # (.x.tmp: being written)
+                found.append(rel)
+    return sorted(found)
 
 
 def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok: bool, notes: list[str],

@@ -407,6 +407,35 @@ def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err and (other / "notes.txt").read_text() == "keep me"
 
 
+def test_a_file_a_node_wrote_into_its_folder_itself_goes_with_its_run(tmp_path):
+    # a failure log written through ctx.out_dir was not in run.json, so a later run into the same
+    # folder left it beside its own results, naming a failure that run did not have
+    plug = tmp_path / "logger.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import Field, Out, Params, node
+
+        class LogParams(Params):
+            fail_log: bool = Field(False, description="Write a failure log (bool).")
+
+        @node("mine.logger", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
+        def logger(params, ctx=None):
+            if params.fail_log:
+                ctx.out_dir.mkdir(parents=True, exist_ok=True)
+                (ctx.out_dir / "failed_log.json").write_text("{}")
+                (ctx.out_dir / "sub").mkdir(exist_ok=True)
+                (ctx.out_dir / "sub" / "detail.txt").write_text("x")
+            return {"value": 1.0}
+        """))
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  act: {{type: mine.logger, params: {{fail_log: true}}}}\n")
+    out = tmp_path / "same"
+    assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out)]) == 0
+    files = json.loads((out / "run.json").read_text())["nodes"][0]["files"]
+    assert {"act/failed_log.json", "act/sub/detail.txt"} <= set(files)
+    assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out), "--set", "act.fail_log=false"]) == 0
+    assert not (out / "act" / "failed_log.json").exists() and not (out / "act" / "sub").exists()
+
+
 def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path, capsys):
     plug = tmp_path / "bug.py"
     plug.write_text("from stereograph.api import node, Out\n"
