@@ -411,7 +411,7 @@ class _PlainProgress:
 
     def variant_done(self, vr: VariantResult) -> None:
         if self.stream:
-            ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (all cached)"
+            ran = _computed(vr)
             state = "ok" if vr.ok else f"FAILED: {vr.error}"
             print(printable(f"      {state}; computed: {ran} ({vr.seconds:.1f} s)"), file=self.stream, flush=True)
 
@@ -462,7 +462,7 @@ class _RichProgress(_PlainProgress):
 
     def variant_done(self, vr: VariantResult) -> None:
         self.p.advance(self.overall)
-        ran = ", ".join(n for n in vr.status if n in vr.ran) or "nothing (cached)"
+        ran = _computed(vr)
         from rich.markup import escape  # labels and errors are user text: print them literally
 
         mark = "[green]ok[/]" if vr.ok else f"[red]failed[/]: {escape(str(vr.error))}"
@@ -683,6 +683,22 @@ def _write_page(res: CompareResult, overrides: list[str] | None) -> None:
         print(printable(f"note: compare.html not written: {type(e).__name__}: {e}"), file=sys.stderr)
 
 
+def _failure_words(r: Any) -> str:
+    """A failed node of a variant: its error (the first failing item's), how many items failed, its fix."""
+    words = f"{r.name}: {r.error}"
+    if r.items_failed > 1:
+        words += f" ({r.items_failed} of {r.items} items failed; run.json lists each)"
+    return words + (f" Fix: {r.hint}" if r.hint and r.hint not in words else "")
+
+
+def _computed(vr: VariantResult) -> str:
+    """What a variant computed, for its progress line: a node that failed was computed too (it is not
+    'all cached')."""
+    parts = [n for n in vr.status if n in vr.ran] + [f"{n} (failed)" for n, st in vr.status.items()
+                                                     if st == "failed" and n not in vr.ran]
+    return ", ".join(parts) or ("nothing (all cached)" if vr.ok else "nothing")
+
+
 def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any, prog: Any,
                  timings: _Timings, run_graph: Any, lin: dict[str, str], shared: set[str] | None) -> VariantResult:
     import time
@@ -696,7 +712,7 @@ def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any
     if shared is not None:
         _write_own_outputs(graph, result, out, {n for n, h in lin.items() if h not in shared})
     failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
-    error = "; ".join(f"{r.name}: {r.error}" for r in failed if r.error)[:400] or None
+    error = "; ".join(_failure_words(r) for r in failed if r.error)[:700] or None
     metrics = collect_metrics({(node, port): result.outputs(node, port) for node, port in measured})
     return VariantResult(
         variant=v, ok=result.ok, error=error, status=result.status, ran=set(result.ran), out_dir=out,

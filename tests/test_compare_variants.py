@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -321,13 +322,31 @@ nodes:
     args = ["compare", str(p), "--allow-plugins", "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"),
             "--no-plots", "--metrics", "n,z_mean_cm,z_rms_cm"]
     assert cli_main([*args, "--best", "z_rms_cm"]) == 1
-    out = capsys.readouterr().out
+    got = capsys.readouterr()
+    out = got.out
     rows = {line.strip("│ ").split()[0]: line for line in out.splitlines()
             if line.strip("│ ").startswith(("1000", "60"))}
     assert "<- best z_rms_cm" in rows["1000"] and "FAILED" in rows["60"] and "best" not in rows["60"], out
+    # how many items failed, not only the first (was "gate: item 's000': too far" alone)
+    assert re.search(r"FAILED: gate: item 's\d+': too far \(\d+ of 60 items failed; run.json lists each\); "
+                     r"computed: gate, report", got.out + got.err), got.err
     # (the numbers that made it look best: fewer items, a lower error)
     res = json.loads((tmp_path / "o" / "compare.json").read_text())["rows"]
     assert res[1]["n"] < res[0]["n"] and res[1]["z_rms_cm"] < res[0]["z_rms_cm"]
+
+
+def test_a_variant_whose_node_failed_did_not_compute_nothing():
+    # (a node that failed as a whole is not in `ran`: the progress line said "computed: nothing (all cached)")
+    from stereograph.compare import Variant, VariantResult, _computed
+
+    def result(ok, status, ran):
+        return VariantResult(variant=Variant(1, {"fit.type": "x"}), ok=ok, error=None if ok else "fit: too few",
+                             status=status, ran=set(ran), out_dir=Path("."), seconds=0.1, per_pair_s=None,
+                             metrics={})
+
+    assert _computed(result(False, {"locate": "cached", "fit": "failed", "report": "skipped"}, [])) == "fit (failed)"
+    assert _computed(result(True, {"locate": "cached", "fit": "cached"}, [])) == "nothing (all cached)"
+    assert _computed(result(True, {"locate": "cached", "fit": "ran"}, ["fit"])) == "fit"
 
 
 def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
