@@ -240,3 +240,18 @@ def test_a_working_range_within_the_balls_radius_is_a_clear_parameter_error():
         with pytest.raises(pydantic.ValidationError, match="within the ball's own radius"):
             EdgeMorphParams(**bad)
     EdgeMorphParams(object={"radius_cm": 30}, working_range_cm=[40, 90])  # a big ball far enough: fine
+
+
+@pytest.mark.parametrize("kind", ["edge_morph", "otsu"])
+def test_a_black_ball_is_found_when_its_dark_colour_is_given(kind):
+    # A black ball's pixels are mostly darker than the level below which chromaticity is noise; they
+    # were all "not the object's colour", so only its highlight was left and it was never found.
+    black = (30, 30, 30)
+    for i, (c, shadow) in enumerate([((5.0, 3.0, 35.0), 1.0), ((-4.0, 2.0, 45.0), 0.5), ((6.0, -3.0, 55.0), 1.0)]):
+        pair = make_pair(CAL, c, bgr=black, shadow_factor=shadow, seed=10 + i)
+        assert np.mean(pair["left"][pair["left"].max(axis=2) < 25]) < 25  # (most of the ball is that dark)
+        seg = _seg(kind, pair, object={"radius_cm": 2.0, "color_bgr": black})["segmentation"]
+        loc = _locate(seg, pair)
+        assert loc["found"], (kind, c, loc["reason"])
+        err = np.linalg.norm(np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"]))
+        assert err < 0.2, (kind, c, err)

@@ -21,18 +21,32 @@ def chromaticity(img_bgr: np.ndarray) -> np.ndarray:
     return f / np.maximum(f.sum(axis=-1, keepdims=True), 1.0)
 
 
+#: Gray levels below which a pixel's chromaticity is sensor noise (its largest channel, 0-255).
+DARK_LEVEL = 25
+
+
+def dark_pixel_distance(color_bgr) -> float:
+    """The colour distance given to a pixel darker than :data:`DARK_LEVEL`, whose chromaticity is noise.
+
+    2 (no match) for an object of any colour that has one; 0 (a match) for a dark object -- one whose
+    own colour is within twice that level of black (``black``, [30, 30, 30]): most of its pixels are
+    that dark, and taking them for "not the object's colour" left only its highlight (never found).
+    """
+    return 0.0 if max(float(x) for x in color_bgr) < 2 * DARK_LEVEL else 2.0
+
+
 def color_distance_map(img_bgr: np.ndarray, color_bgr) -> np.ndarray:
     """Per-pixel L1 distance of the normalised chromaticity to that of ``color_bgr`` (0-2, unitless).
 
     sum_c |x_c / S - r_c| = sum_c |x_c - r_c S| / S with S = x_b + x_g + x_r, computed with
-    cv2 channel transforms (fast). Pixels darker than 25 gray levels (chromaticity undefined
-    in the noise) get distance 2.
+    cv2 channel transforms (fast). Pixels darker than :data:`DARK_LEVEL` (chromaticity undefined
+    in the noise) get :func:`dark_pixel_distance`: 2, or 0 for a dark object.
     """
     img = np.asarray(img_bgr)
     f = img.astype(np.float32)
     d = _chroma_distance(f, cv2.max(cv2.transform(f, _ONES_1x3), 1.0), color_bgr).reshape(img.shape[:2])
     gray_max = cv2.max(cv2.max(img[..., 0], img[..., 1]), img[..., 2]).reshape(img.shape[:2])
-    d[gray_max < 25] = 2.0
+    d[gray_max < DARK_LEVEL] = dark_pixel_distance(color_bgr)
     return d
 
 

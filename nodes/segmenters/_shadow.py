@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from ._candidates import roundness
-from ._color import _chroma_distance, _ONES_1x3, hue_mask
+from ._color import DARK_LEVEL, _chroma_distance, _ONES_1x3, dark_pixel_distance, hue_mask
 from ._params import ObjectSpec, ShadowParams
 from ._pixels import masked_pixels, structuring_element
 
@@ -90,13 +90,14 @@ def _suppress(img_bgr: np.ndarray, mask: np.ndarray, n_sel: int, shadow: ShadowP
         px = masked_pixels(region_px, cand[None])[None]
         f = px.astype(np.float32)
         total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-        dark = px[0].max(axis=1) < 25  # (V = the largest channel) chromaticity is noise in the darkest
+        dark = px[0].max(axis=1) < DARK_LEVEL  # (V = the largest channel) chromaticity is noise in the darkest
         dchroma = _chroma_distance(f, total, bg).reshape(-1)  # pixels: it must not veto (shadow test) ...
         dchroma[dark] = 0.0
         ok = dchroma <= shadow.max_chroma_shift
         if obj.color_bgr is not None:
             d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
-            d_obj[dark] = 2.0  # ... nor make a dark pixel the object's colour (as color_distance_map)
+            d_obj[dark] = dark_pixel_distance(obj.color_bgr)  # ... nor decide the object's colour (as
+            # color_distance_map: not the object's, unless the object is dark itself)
             ok &= d_obj > obj.color_tolerance
         elif obj.hue_range_deg is not None:
             ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
