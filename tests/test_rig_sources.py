@@ -1,5 +1,6 @@
 """File/camera sources, bad input, the synthetic node's outputs, remapping."""
 
+import math
 from pathlib import Path
 
 import cv2
@@ -138,3 +139,20 @@ def test_explicit_scenes_are_validated_and_rendered():
                       ({"objects": [{"type": "box", "center_cm": [0, 1]}]}, "size_cm")):
         with pytest.raises(ValidationError, match=word):
             SyntheticParams(scenes=[bad])
+
+
+def test_a_distance_range_the_rig_cannot_see_is_refused_with_the_range_it_can():
+    # (was "could not place a ball ...; widen the distance range": the range was narrow enough, the
+    # cameras were too high for it)
+    from nodes.sources._rig import make_rig
+    from nodes.sources._scenes import make_scene, visible_distance_range
+
+    rig = make_rig()
+    near, far = visible_distance_range(rig, 2.0)
+    axis = rig["params"]["camera_height_cm"] / math.sin(math.radians(rig["params"]["camera_tilt_deg"]))
+    assert 28 < near < axis < far  # the optical axis meets the table ~45 cm away
+    with pytest.raises(RuntimeError) as e:
+        make_scene(rig, "plain", 0, min_distance_cm=20, max_distance_cm=28)
+    msg = str(e.value)
+    assert f"only {near:.0f} to {far:.0f} cm from the left camera" in msg and "camera_height_cm lower" in msg, msg
+    make_scene(rig, "plain", 0, min_distance_cm=near + 2, max_distance_cm=near + 6)  # within it: placed

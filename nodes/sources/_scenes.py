@@ -40,6 +40,22 @@ def _ball_sils(rig, center_table, radius):
     return out
 
 
+def visible_distance_range(rig: dict, radius_cm: float, margin_px: float = 4.0) -> tuple[float, float] | None:
+    """(nearest, farthest) distance (cm) from the left camera of a ball resting on the table whose
+    silhouette lies inside both images, over the bearings :func:`make_scene` draws; None if none does.
+    A coarse scan (2 cm steps of ground distance, ~0.2 s), for saying why a distance range holds no ball."""
+    C1 = rig["cams"][0]["origin_table"]
+    dz = C1[2] - radius_cm
+    found = []
+    for ground in np.arange(0.0, 250.0, 2.0):
+        for bearing in np.linspace(-0.7, 0.7, 7):
+            c = np.array([C1[0] + ground * math.sin(bearing), C1[1] + ground * math.cos(bearing), radius_cm])
+            sils = _ball_sils(rig, c, radius_cm)
+            if sils is not None and all(_bbox_inside(rig, s_, margin_px) for s_ in sils):
+                found.append(math.hypot(ground, dz))
+    return (min(found), max(found)) if found else None
+
+
 def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | None = None,
                radius_cm: float = 2.0, color: Any = "orange", min_distance_cm: float = 30.0,
                max_distance_cm: float = 60.0, border_margin_px: float = 4.0,
@@ -94,8 +110,16 @@ def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | 
             sils = _ball_sils(rig, c, radius_cm)
             if sils is not None and accept(c, sils):
                 return c, sils
-        raise RuntimeError(f"could not place a ball for scene kind {kind!r}; widen the distance range"
-                           + (" or the placement region" if region_cm is not None else ""))
+        seen = visible_distance_range(rig, radius_cm, border_margin_px)
+        p = rig.get("params", {})
+        where = (f"a ball on the table is in both images only {seen[0]:.0f} to {seen[1]:.0f} cm from the left "
+                 f"camera" if seen else "no ball on the table is in both images")
+        raise RuntimeError(
+            f"could not place a ball for scene kind {kind!r} {min_distance_cm:g}-{max_distance_cm:g} cm from the "
+            f"left camera: with this rig (camera_height_cm {p.get('camera_height_cm', '?')}, camera_tilt_deg "
+            f"{p.get('camera_tilt_deg', '?')}) {where}; set min_distance_cm / max_distance_cm within that"
+            + (", widen the placement region" if region_cm is not None else "")
+            + ", or move the cameras (camera_height_cm lower and camera_tilt_deg steeper bring the table nearer)")
 
     def inside_both(c, sils):
         return all(_bbox_inside(rig, s, border_margin_px) for s in sils)
