@@ -174,6 +174,19 @@ def test_too_few_points(biased, kind):
     assert "usable training placements" in exc.value.message and "needs at least" in exc.value.message
 
 
+def test_placements_not_found_for_one_shared_reason_name_it(biased):
+    # (swapped left/right ball images: every pair "not found" on different rows, and the fit said only
+    # "0 usable training placements ... (13 not found)", nothing that pointed at the swap)
+    rows = "left/right regions are on different rows (dv = 31.0 px): not the same object -- or, when every pair"
+    lost = {k: dict(v, found=False, reason=rows if i % 4 else "left image: no region found")
+            for i, (k, v) in enumerate(biased.items()) if v["split"] == "train"}
+    with pytest.raises(NodeError) as exc:
+        fit("polynomial", lost)
+    n_rows = sum(1 for v in lost.values() if v["reason"] == rows)
+    assert n_rows > len(lost) / 2
+    assert f"not found, most often ({n_rows} of {len(lost)}): {rows}" in exc.value.message
+
+
 @pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
 def test_all_at_one_distance(kind):
     one = make_locations(n=80, seed=1, z_range_cm=(50.0, 50.0), noise_px=0.05)

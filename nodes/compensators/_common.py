@@ -301,6 +301,7 @@ def training_samples(
     if not isinstance(train, Mapping):
         raise NodeError(f"{label}: input 'train' must be the gathered Location collection, got {type(train).__name__}.")
     dropped = {"not in the train split": 0, "not found": 0, "no ground truth": 0, "non-finite values": 0}
+    reasons: dict[str, int] = {}  # why the training placements were not found
     keep: dict[str, Mapping[str, Any]] = {}
     for item_id, loc in train.items():
         if loc.get("split") != "train":
@@ -308,6 +309,8 @@ def training_samples(
             continue
         if not loc.get("found"):
             dropped["not found"] += 1
+            reason = str(loc.get("reason") or "no reason given")
+            reasons[reason] = reasons.get(reason, 0) + 1
             continue
         truth = loc.get("truth_cm")
         if truth is None:
@@ -320,6 +323,9 @@ def training_samples(
         keep[item_id] = loc
     if len(keep) < min_points:
         why = ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n) or "the collection is empty"
+        if reasons:  # the locator's own words: a cause shared by every pair (swapped images ...) shows here
+            top, n_top = max(reasons.items(), key=lambda kv: kv[1])
+            why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
         raise NodeError(
             f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
             f"this model needs at least {min_points} (found, with truth_cm, split 'train', finite {', '.join(needs)}).",

@@ -37,7 +37,9 @@ def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: 
         )
     dv = abs(left["centroid_px"][1] - right["centroid_px"][1])
     if dv > params.max_row_offset_px + 0.05 * math.sqrt(max(left["area_px"], 1.0) / math.pi):
-        return f"left/right regions are on different rows (dv = {dv:.1f} px): not the same object"
+        return (f"left/right regions are on different rows (dv = {dv:.1f} px): not the same object -- or, when "
+                "every pair says so, images this calibration does not rectify (left and right swapped, another "
+                "rig's calibration)")
     el, er = left.get("ellipse"), right.get("ellipse")
     if el and er:
         ql = el["axes_px"][1] / max(el["axes_px"][0], 1e-9)
