@@ -149,3 +149,15 @@ def test_duplicate_json_ids_are_refused_naming_the_id(tmp_path):
              name="t.json")
     with pytest.raises(NodeError, match=r"t.json: field 'center_left_cm' is given twice"):
         _run(tmp_path, '{"01": {"center_left_cm": [0, 0, 40], "center_left_cm": [0, 0, 50]}}', name="t.json")
+
+
+def test_a_json_record_key_the_reader_does_not_know_is_refused(tmp_path):
+    # ('center_cm' was ignored: the pair then had no truth, and the fit or the report said little why)
+    _folder(tmp_path)
+    with pytest.raises(NodeError, match=r"t.json, id 01, has key\(s\) it does not know: 'center_cm' \(did you mean "
+                                        r"'center_left_cm'\?\)") as e:
+        _run(tmp_path, '{"01": {"center_cm": [0, 0, 40]}}', name="t.json")
+    assert "Known keys: id, center_left_cm, center_table_cm, radius_cm, split" in e.value.message
+    with pytest.raises(NodeError, match=r"'radius' \(did you mean 'radius_cm'\?\)"):
+        _run(tmp_path, '[{"id": "02", "center_left_cm": [0, 0, 40], "radius": 2}]', name="t.json")
+    _run(tmp_path, '[{"id": "02", "center_left_cm": [0, 0, 40], "radius_cm": 2, "split": "train"}]', name="t.json")

@@ -13,7 +13,7 @@ Formats:
   Any other column is refused (it would be ignored), naming the closest known name.
 * JSON: ``{id: {"center_left_cm": [x, y, z], "center_table_cm": [...], "split": "train"}}`` or a
   list of such records with an ``"id"`` key. An id (or a field of one record) given twice is refused:
-  a JSON reader keeps the last one, silently.
+  a JSON reader keeps the last one, silently; so is a key the reader does not know (``center_cm``).
 
 The split (:func:`truth_split`): the pairs the file lists are the **training** placements (used to
 fit compensation and hand-eye), the others are the targets (``test``) -- unless the file has a
@@ -36,28 +36,31 @@ _SPLITS = ("train", "test")
 # every CSV column the reader knows; any other is refused (it would be ignored: `radius` for radius_cm,
 # a typo'd tabel_z_cm beside x_cm,y_cm,z_cm)
 COLUMNS = ("id", "x_cm", "y_cm", "z_cm", "table_x_cm", "table_y_cm", "table_z_cm", "radius_cm", "split")
+# every key of a JSON record the reader knows (the same rule: `center_cm`, `centre_left_cm` would be ignored)
+FIELDS = ("id", "center_left_cm", "center_table_cm", "radius_cm", "split")
 _HEADER_HINT = ("CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm][,split], "
                 "comma-separated with a decimal point")
 
 
-def _unknown_columns(fields: list[str], path: Path) -> None:
-    """Refuse a header with a column named twice, or with columns the reader does not know, naming each
-    with its closest known name."""
+def _unknown_columns(fields: list[str], path: Path, known: tuple[str, ...] = COLUMNS, where: str = "") -> None:
+    """Refuse a header with a column named twice, or with columns (JSON: a record's keys, ``where`` naming
+    the record) the reader does not know, naming each with its closest known name."""
     twice = sorted({f for f in fields if f and fields.count(f) > 1})
     if twice:  # (the reader keeps the last column of a name, silently)
         raise NodeError(f"truth file {path} has the column(s) {', '.join(twice)} twice (header: {', '.join(fields)}).",
                         hint="keep one column of each name")
-    unknown = [f for f in fields if f and f not in COLUMNS]
+    unknown = [f for f in fields if f and f not in known]
     if not unknown:
         return
     said = []
     for f in unknown:
-        close = difflib.get_close_matches(f, COLUMNS, n=1, cutoff=0.6) or \
-            difflib.get_close_matches(f"{f}_cm", COLUMNS, n=1, cutoff=0.6)  # `radius` -> radius_cm
+        close = difflib.get_close_matches(f, known, n=1, cutoff=0.6) or \
+            difflib.get_close_matches(f"{f}_cm", known, n=1, cutoff=0.6)  # `radius` -> radius_cm
         said.append(f"{f!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-    raise NodeError(f"truth file {path} has column(s) it does not know: {', '.join(said)}; they would be ignored. "
-                    f"Known columns: {', '.join(COLUMNS)}.",
-                    hint="rename the column to one of the known names (lengths in cm: convert millimetres first), or "
+    what = "column" if known is COLUMNS else "key"
+    raise NodeError(f"truth file {path}{where} has {what}(s) it does not know: {', '.join(said)}; they would be "
+                    f"ignored. Known {what}s: {', '.join(known)}.",
+                    hint=f"rename the {what} to one of the known names (lengths in cm: convert millimetres first), or "
                          "delete it")
 
 
@@ -138,6 +141,7 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
             raise NodeError(f"cannot parse truth file {path}: {exc!r}.",
                             hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id") from None
         for pid, rec in items.items():
+            _unknown_columns(list(rec), path, FIELDS, f", id {pid},")
             if "split" in rec:
                 has_split = True
                 s = _split_value(rec.pop("split"), f"truth file {path}, id {pid}")
