@@ -181,3 +181,30 @@ def test_an_interrupted_cycle_says_what_the_interrupted_node_did(tmp_path, capsy
     assert log[1]["failed_node"] == "tick" and log[1]["error"] == "ticker: Ctrl-C during tick 2: held still"
     assert "cycle 2: interrupted in" in (out := capsys.readouterr().out)
     assert "(during tick): ticker: Ctrl-C during tick 2: held still" in out
+
+
+def test_a_cycles_images_are_not_logged_as_values_whatever_their_size(tmp_path):
+    # (a segmenter's overlay turned off is a 1x1 placeholder: cycles.jsonl logged it as [[[0, 0, 0]]])
+    plug = tmp_path / "pictures.py"
+    plug.write_text(textwrap.dedent("""\
+        import numpy as np
+        from stereograph.api import In, Out, node
+
+        @node("pic.draw", inputs={"tick": In("Number")},
+              outputs={"overlay": Out("Image"), "mask": Out("Image"), "count": Out("Number")})
+        def draw(params, tick):
+            return {"overlay": np.zeros((1, 1, 3), np.uint8), "mask": np.zeros((4, 5), np.uint8), "count": tick}
+        """))
+    f = tmp_path / "p.yaml"
+    f.write_text(textwrap.dedent(f"""\
+        name: pics
+        plugins: [{TOY}, {plug}]
+        nodes:
+          tick: {{type: toy.ticker}}
+          draw: {{type: pic.draw, inputs: {{tick: tick.tick}}}}
+        """))
+    loop = Loop(2)
+    run_graph(build_graph(load_pipeline(f)), cycles=loop, out_dir=tmp_path / "out", cache_dir=tmp_path / "c")
+    for c in cycles(tmp_path / "out"):
+        assert "draw.overlay" not in c["values"] and "draw.mask" not in c["values"], c["values"]
+        assert isinstance(c["values"]["draw.count"], (int, float))
