@@ -198,6 +198,10 @@ class RunContext:
         True when the engine produces this node's collection outputs item by item (the node
         declared ``items=``, see :func:`node`): a call with ``item`` None then returns only the
         other outputs, a call with ``item`` set that item's value of each collection output.
+    lost : dict
+        For each gathering input port (``In(..., gather=True)``): ``{item: why}`` of the items that
+        failed upstream of the gathered collection and so never reached it (``why`` names the node
+        and its reason). A node that counts items (a report) says how many it could not count.
     """
 
     node_name: str
@@ -209,6 +213,7 @@ class RunContext:
     resources: dict[str, Any] | None = None
     on_progress: Callable[[float, float, str], None] | None = field(default=None, repr=False, compare=False)
     producing_items: bool = False
+    lost: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def resource(self, key: str, open_fn: Callable[[], Any]) -> Any:
         """An object (a device, a connection) opened once and kept for the whole run.

@@ -49,6 +49,7 @@ class Task:
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
     producing: bool = False  # the node produces its collections item by item (``items=``)
+    lost: dict[str, dict[str, str]] = field(default_factory=dict)  # gather port -> {item: why} (RunContext.lost)
 
 
 @dataclass
@@ -81,7 +82,8 @@ def execute(task: Task) -> TaskResult:
         if spec.wants_ctx:
             ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
                              Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
-                             on_progress=_progress_hook(task.node_name), producing_items=task.producing)
+                             on_progress=_progress_hook(task.node_name), producing_items=task.producing,
+                             lost=task.lost)
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
         if task.producing:

@@ -432,7 +432,8 @@ class _Run:
                 refs[port] = None
         return refs
 
-    def entry_key(self, base: dict[str, Any], refs: dict[str, Any], item: str | None) -> str:
+    def entry_key(self, base: dict[str, Any], refs: dict[str, Any], item: str | None,
+                  lost: dict[str, dict[str, str]] | None = None) -> str:
         ins = {}
         for port, r in refs.items():
             if r is None:
@@ -441,7 +442,25 @@ class _Run:
                 ins[port] = hash_json([[i, self.ident(rr), rr[1]] for i, rr in r])
             else:
                 ins[port] = [self.ident(r), r[1]]
-        return hash_json({**base, "inputs": ins, "item": item})
+        # what a gathering node was told it lost is part of what it made (none: the key as before)
+        return hash_json({**base, "inputs": ins, "item": item, **({"lost": lost} if lost else {})})
+
+    def lost_items(self, inst: NodeInstance) -> dict[str, dict[str, str]]:
+        """For each gathering port: ``{item: "node: why"}`` of the items that failed at or upstream of
+        the wired node, and so are not in the collection it gathers (:attr:`RunContext.lost`)."""
+        out: dict[str, dict[str, str]] = {}
+        for port, (src, o) in inst.inputs.items():
+            if not inst.spec.inputs[port].gather or not self.failed_items:
+                continue
+            chain = {src} | self.g.upstream(src)
+            present = set(self.items.get((src, o), []))
+            lost: dict[str, str] = {}
+            for (n, i), why in self.failed_items.items():
+                if i is not None and n in chain and i not in present and i not in lost:
+                    lost[i] = f"{n}: {why}"
+            if lost:
+                out[port] = dict(sorted(lost.items()))
+        return out
 
     def ident(self, ref: Ref) -> str:
         """What a downstream key says of an input: its content key where known (an item produced
@@ -496,13 +515,14 @@ class _Run:
                 vals[port] = self.get(r)
         return vals
 
-    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None) -> Task:
+    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None,
+             lost: dict[str, dict[str, str]] | None = None) -> Task:
         # a params model may come from a plugin module another process has not imported yet
         remote = getattr(self.executor, "remote", False) if remote is None else remote
         params = inst.params.model_dump() if remote else inst.params
         return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
                     str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
-                    None if remote else self.resources, self.producer(inst))
+                    None if remote else self.resources, self.producer(inst), dict(lost or {}))
 
     def input_types(self, inst: NodeInstance) -> dict[str, str]:
         """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
@@ -712,9 +732,10 @@ class _Run:
             self.progress.node_started(inst.name, len(entries))
         todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
         cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
+        lost = self.lost_items(inst)
         for item in entries:
             refs = self.input_refs(inst, item)
-            key = self.entry_key(base, refs, item) if store_on else None
+            key = self.entry_key(base, refs, item, lost) if store_on else None
             if key is not None:
                 self.keys[(inst.name, item)] = key
             manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
@@ -742,7 +763,7 @@ class _Run:
                 self.fail_item(inst, item, e.message, e.hint)
                 self._advance(inst, ok=False)
                 continue
-            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False)))
+            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
             metas.append((item, key))
         results = self._run_locked(inst, tasks, metas, cacheable, ex)
         volatile = not store_on or not inst.spec.cacheable

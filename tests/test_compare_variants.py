@@ -303,22 +303,27 @@ def max_z(params, location, ctx=None):
 '''
 
 
-def test_a_failed_variant_is_never_best_and_is_marked_failed(tmp_path, capsys):
-    """(a variant that failed on its far -- worst -- items had the lowest z RMS over the items left,
-    and `--best z_rms_cm` marked it best; in a log nothing told its row from the others)"""
+def gated(tmp_path: Path, head: str, locate: str, gate: str, report: str) -> Path:
+    """A toy pipeline whose `gate` node fails on the far locations (GATE)."""
     (tmp_path / "gate.py").write_text(GATE)
     p = tmp_path / "gate.yaml"
     p.write_text(f"""
 name: gated
 plugins: [{PLUGIN}, gate.py]
-variants:
-  gate.max_z_cm: [1000, 60]
+{head}
 nodes:
   scenes: {{type: toy.scenes, params: {{n: 60}}}}
-  locate: {{type: toy.triangulate, params: {{baseline_scale: 1.02}}, inputs: {{scene: scenes.scenes}}}}
-  gate: {{type: toygate.max_z, inputs: {{location: locate.location}}}}
-  report: {{type: report.accuracy, params: {{figure: false}}, inputs: {{locations: gate.location}}}}
+  locate: {{type: toy.triangulate, params: {locate}, inputs: {{scene: scenes.scenes}}}}
+  gate: {{type: toygate.max_z, params: {gate}, inputs: {{location: locate.location}}}}
+  report: {{type: report.accuracy, params: {report}, inputs: {{locations: gate.location}}}}
 """)
+    return p
+
+
+def test_a_failed_variant_is_never_best_and_is_marked_failed(tmp_path, capsys):
+    """(a variant that failed on its far -- worst -- items had the lowest z RMS over the items left,
+    and `--best z_rms_cm` marked it best; in a log nothing told its row from the others)"""
+    p = gated(tmp_path, "variants:\n  gate.max_z_cm: [1000, 60]", "{baseline_scale: 1.02}", "{}", "{figure: false}")
     args = ["compare", str(p), "--allow-plugins", "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"),
             "--no-plots", "--metrics", "n,z_mean_cm,z_rms_cm"]
     assert cli_main([*args, "--best", "z_rms_cm"]) == 1
@@ -333,6 +338,25 @@ nodes:
     # (the numbers that made it look best: fewer items, a lower error)
     res = json.loads((tmp_path / "o" / "compare.json").read_text())["rows"]
     assert res[1]["n"] < res[0]["n"] and res[1]["z_rms_cm"] < res[0]["z_rms_cm"]
+
+
+def test_pairs_that_failed_before_the_report_are_counted_as_lost_not_dropped(tmp_path):
+    # (the report's n and errors covered the pairs that got through, and said nothing of the others:
+    # a variant failing on its hardest pairs looked better)
+    from stereograph.runner import run_pipeline
+
+    p = gated(tmp_path, "", "{}", "{max_z_cm: 60}", "{figure: false, split: all}")
+    r = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o")
+    n_failed = r.reports["gate"].items_failed
+    assert 0 < n_failed < 60
+    report, metrics = r.outputs("report", "report"), r.outputs("report", "metrics")
+    assert report["n"] == 60 - n_failed and report["n_lost"] == metrics["n_lost"] == n_failed
+    assert all(why == "gate: too far" for why in report["lost"].values()), report["lost"]
+    assert f"{n_failed} pair(s) failed before reaching this report" in report["markdown"]
+    assert any("failed before reaching this report" in m for m in r.reports["report"].messages)
+    # a run whose pairs all get through says nothing of the kind, and its cache key is the one it always had
+    ok = run_pipeline(p, ["gate.max_z_cm=1000"], cache_dir=tmp_path / "c", out_dir=tmp_path / "o2")
+    assert ok.outputs("report", "metrics")["n_lost"] == 0 and "lost" not in ok.outputs("report", "report")["markdown"]
 
 
 def test_a_variant_whose_node_failed_did_not_compute_nothing():

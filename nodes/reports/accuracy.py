@@ -183,10 +183,19 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         if not v.get("found"):
             r = str(v.get("reason") or "unknown")
             reasons[r] = reasons.get(r, 0) + 1
+    # Pairs that failed before reaching this report (a node's error, not a "not found") are not in `n`:
+    # their split is unknown here. Said, so that fewer pairs never look like a better method.
+    lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
+    if lost:
+        first = next(iter(lost.items()))
+        note = (f"{len(lost)} pair(s) failed before reaching this report and are not counted here (first: "
+                f"{first[0]}: {first[1]}); `lost` in report.json lists each.")
+        md = f"{md.rstrip()}\n\n{note}\n"
+        ctx.warn(note)
     report = {
         "n": len(sel), "n_found": len(found), "n_evaluated": len(with_truth), "split": params.split,
         "frame": frames[0] if len(frames) == 1 else frames, "axes": axes, "markdown": md,
-        "not_found_reasons": reasons,
+        "not_found_reasons": reasons, "n_lost": len(lost), "lost": lost,
     }
     fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
     n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)
@@ -199,7 +208,8 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
             ctx.warn(note)
     # (an output, so that a cached report's run folder gets it too, and a later run clears it)
     return {"report": report, "locations": location_records(locations), "figure": fig,
-            "metrics": accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
+            "metrics": {**accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
+                        "n_lost": len(lost)},
             "accuracy": {"file_text": md, "file_suffix": ".md"}}
 
 
