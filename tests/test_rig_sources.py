@@ -1,6 +1,7 @@
 """File/camera sources, bad input, the synthetic node's outputs, remapping."""
 
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -141,18 +142,43 @@ def test_explicit_scenes_are_validated_and_rendered():
             SyntheticParams(scenes=[bad])
 
 
+def _refusal(rig, kind, lo_cm, hi_cm):
+    """make_scene's refusal for that request, and the placeable range it names (cm)."""
+    from nodes.sources._scenes import make_scene
+
+    with pytest.raises(RuntimeError) as e:
+        make_scene(rig, kind, 0, min_distance_cm=lo_cm, max_distance_cm=hi_cm)
+    msg = str(e.value)
+    m = re.search(r"can be placed only about (\d+) to (\d+) cm from the left camera", msg)
+    assert m, msg
+    return msg, float(m.group(1)), float(m.group(2))
+
+
 def test_a_distance_range_the_rig_cannot_see_is_refused_with_the_range_it_can():
     # (was "could not place a ball ...; widen the distance range": the range was narrow enough, the
     # cameras were too high for it)
     from nodes.sources._rig import make_rig
-    from nodes.sources._scenes import make_scene, visible_distance_range
+    from nodes.sources._scenes import make_scene
 
     rig = make_rig()
-    near, far = visible_distance_range(rig, 2.0)
+    msg, near, far = _refusal(rig, "plain", 20, 28)
     axis = rig["params"]["camera_height_cm"] / math.sin(math.radians(rig["params"]["camera_tilt_deg"]))
     assert 28 < near < axis < far  # the optical axis meets the table ~45 cm away
-    with pytest.raises(RuntimeError) as e:
-        make_scene(rig, "plain", 0, min_distance_cm=20, max_distance_cm=28)
-    msg = str(e.value)
-    assert f"only {near:.0f} to {far:.0f} cm from the left camera" in msg and "camera_height_cm lower" in msg, msg
+    assert "camera_height_cm 32.0, camera_tilt_deg 45.0" in msg and "camera_height_cm lower" in msg, msg
     make_scene(rig, "plain", 0, min_distance_cm=near + 2, max_distance_cm=near + 6)  # within it: placed
+
+
+def test_the_refusal_names_the_scene_kinds_own_range_and_the_way_to_move_the_cameras():
+    # A 'border' ball (cut by an image border) needs more distance than a whole one: 34-40 cm, inside
+    # the plain range, was told "set the range within 34 to 82 cm", which it was. A range beyond the
+    # far end was told to bring the table nearer (lower, steeper): the wrong way.
+    from nodes.sources._rig import make_rig
+    from nodes.sources._scenes import make_scene
+
+    rig = make_rig()
+    msg, near, far = _refusal(rig, "border", 34, 40)
+    assert 40 < near < far and "bring the table nearer" in msg, msg
+    make_scene(rig, "border", 0, min_distance_cm=near + 1, max_distance_cm=near + 8)  # within it: placed
+    msg, near, far = _refusal(rig, "plain", 90, 100)
+    assert far < 90 and "see farther: camera_height_cm higher, camera_tilt_deg shallower" in msg, msg
+    assert "camera_height_cm lower" not in msg, msg

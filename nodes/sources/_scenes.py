@@ -40,20 +40,76 @@ def _ball_sils(rig, center_table, radius):
     return out
 
 
-def visible_distance_range(rig: dict, radius_cm: float, margin_px: float = 4.0) -> tuple[float, float] | None:
-    """(nearest, farthest) distance (cm) from the left camera of a ball resting on the table whose
-    silhouette lies inside both images, over the bearings :func:`make_scene` draws; None if none does.
-    A coarse scan (2 cm steps of ground distance, ~0.2 s), for saying why a distance range holds no ball."""
+def _ball_on_table(C1: np.ndarray, dist_cm: float, bearing_rad: float, radius_cm: float) -> np.ndarray | None:
+    """Centre (table frame, cm) of a ball resting on the table ``dist_cm`` from the left camera's
+    centre ``C1`` at ``bearing_rad`` from the table's y axis; None where the table is nearer than that."""
+    dz = C1[2] - radius_cm
+    if dist_cm <= dz:
+        return None
+    ground = math.sqrt(dist_cm * dist_cm - dz * dz)
+    return np.array([C1[0] + ground * math.sin(bearing_rad), C1[1] + ground * math.cos(bearing_rad), radius_cm])
+
+
+def _in_region(c: np.ndarray, region_cm) -> bool:
+    return region_cm is None or region_cm[2] <= math.hypot(c[0] - region_cm[0], c[1] - region_cm[1]) <= region_cm[3]
+
+
+#: Bearings (rad, from the table's y axis) :func:`make_scene` draws a ball at.
+_BEARING_RAD = 0.7
+
+
+def placeable_distance_range(rig: dict, radius_cm: float, accept, region_cm=None, n_draws: int = 3000,
+                             max_ground_cm: float = 250.0) -> tuple[float, float] | None:
+    """(nearest, farthest) distance (cm) from the left camera at which :func:`make_scene`'s sampler
+    finds a ball its scene kind accepts; None if it finds none.
+
+    The kind's own test (``accept(center, silhouettes)``: inside both images, cut by a border, ...)
+    and the placement region decide, so the range is the one the refused request had to fall in, not
+    the plain "in both images" view (a ``border`` ball needs ~46 cm and more with the default rig,
+    where a whole ball is seen from ~34 cm). A deterministic scan: distances stratified over the table
+    up to ``max_ground_cm``, random bearings (seed 0); ~1 s, run only to explain a refusal. The ends
+    are a few draws apart, a slight understatement of the range, so a range within them is placeable.
+    """
     C1 = rig["cams"][0]["origin_table"]
     dz = C1[2] - radius_cm
+    lo, hi = max(dz, 0.0), math.hypot(max_ground_cm, dz)
+    rng = np.random.default_rng(0)
     found = []
-    for ground in np.arange(0.0, 250.0, 2.0):
-        for bearing in np.linspace(-0.7, 0.7, 7):
-            c = np.array([C1[0] + ground * math.sin(bearing), C1[1] + ground * math.cos(bearing), radius_cm])
-            sils = _ball_sils(rig, c, radius_cm)
-            if sils is not None and all(_bbox_inside(rig, s_, margin_px) for s_ in sils):
-                found.append(math.hypot(ground, dz))
+    for k in range(n_draws):
+        dist = lo + (k + rng.random()) * (hi - lo) / n_draws
+        c = _ball_on_table(C1, dist, rng.uniform(-_BEARING_RAD, _BEARING_RAD), radius_cm)
+        if c is None or not _in_region(c, region_cm):
+            continue
+        sils = _ball_sils(rig, c, radius_cm)
+        if sils is not None and accept(c, sils):
+            found.append(dist)
     return (min(found), max(found)) if found else None
+
+
+def _unplaceable_message(rig: dict, kind: str, lo_cm: float, hi_cm: float, seen, region_cm) -> str:
+    """Why no ball of ``kind`` could be drawn lo_cm-hi_cm from the left camera, and the fix that
+    matches the cause: the range (beyond the rig's view of the table: which way to move the cameras),
+    the placement region, or a request overlapping too little of what can be placed."""
+    p = rig.get("params", {})
+    rig_s = (f"with this rig (camera_height_cm {p.get('camera_height_cm', '?')}, camera_tilt_deg "
+             f"{p.get('camera_tilt_deg', '?')}"
+             + (f", placement region {list(region_cm)}" if region_cm is not None else "") + ")")
+    head = f"could not place a ball for scene kind {kind!r} {lo_cm:g}-{hi_cm:g} cm from the left camera: {rig_s}"
+    region_fix = ", widen the placement region" if region_cm is not None else ""
+    if seen is None:
+        return (f"{head} no such ball can be placed at any distance"
+                + (" in the placement region" if region_cm is not None else "")
+                + f": the cameras do not see the table where it must be; move the cameras (camera_height_cm, "
+                f"camera_tilt_deg){region_fix}")
+    where = f" such a ball can be placed only about {seen[0]:.0f} to {seen[1]:.0f} cm from the left camera"
+    if hi_cm < seen[0]:
+        move = ", or bring the table nearer: camera_height_cm lower, camera_tilt_deg steeper"
+    elif lo_cm > seen[1]:
+        move = ", or let the cameras see farther: camera_height_cm higher, camera_tilt_deg shallower"
+    else:  # overlapping: the requested range holds too little of it for the random draws
+        return (f"{head}{where}, and {lo_cm:g}-{hi_cm:g} cm holds too little of that for random draws; set "
+                f"min_distance_cm / max_distance_cm to cover more of it{region_fix}")
+    return f"{head}{where}; set min_distance_cm / max_distance_cm within that{region_fix}{move}"
 
 
 def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | None = None,
@@ -96,30 +152,19 @@ def make_scene(rig: dict, kind: str = "plain", rng: np.random.Generator | int | 
     def draw_ball(accept):
         for _ in range(4000):
             # Uniform in distance and bearing, then checked against both images.
+            # (the bearing is drawn only for a distance beyond the table: the draws, and so the scenes
+            # of a seed, stay as they were)
             dist = rng.uniform(min_distance_cm, max_distance_cm)
-            dz = C1[2] - radius_cm
-            if dist <= dz:
+            if dist <= C1[2] - radius_cm:
                 continue
-            ground = math.sqrt(dist * dist - dz * dz)
-            bearing = rng.uniform(-0.7, 0.7)
-            c = np.array([C1[0] + ground * math.sin(bearing), C1[1] + ground * math.cos(bearing), radius_cm])
-            if region_cm is not None:
-                rho = math.hypot(c[0] - region_cm[0], c[1] - region_cm[1])
-                if not region_cm[2] <= rho <= region_cm[3]:
-                    continue
+            c = _ball_on_table(C1, dist, rng.uniform(-_BEARING_RAD, _BEARING_RAD), radius_cm)
+            if not _in_region(c, region_cm):
+                continue
             sils = _ball_sils(rig, c, radius_cm)
             if sils is not None and accept(c, sils):
                 return c, sils
-        seen = visible_distance_range(rig, radius_cm, border_margin_px)
-        p = rig.get("params", {})
-        where = (f"a ball on the table is in both images only {seen[0]:.0f} to {seen[1]:.0f} cm from the left "
-                 f"camera" if seen else "no ball on the table is in both images")
-        raise RuntimeError(
-            f"could not place a ball for scene kind {kind!r} {min_distance_cm:g}-{max_distance_cm:g} cm from the "
-            f"left camera: with this rig (camera_height_cm {p.get('camera_height_cm', '?')}, camera_tilt_deg "
-            f"{p.get('camera_tilt_deg', '?')}) {where}; set min_distance_cm / max_distance_cm within that"
-            + (", widen the placement region" if region_cm is not None else "")
-            + ", or move the cameras (camera_height_cm lower and camera_tilt_deg steeper bring the table nearer)")
+        seen = placeable_distance_range(rig, radius_cm, accept, region_cm)
+        raise RuntimeError(_unplaceable_message(rig, kind, min_distance_cm, max_distance_cm, seen, region_cm))
 
     def inside_both(c, sils):
         return all(_bbox_inside(rig, s, border_margin_px) for s in sils)
