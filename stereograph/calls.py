@@ -98,6 +98,7 @@ def execute(task: Task) -> TaskResult:
                 extra = set(out) - set(spec.outputs)
                 raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
                                 + (f", unexpected {sorted(extra)}" if extra else ""))
+        _check_shapes(spec, out, task.producing)
         return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
     except NodeError as e:
         return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True,
@@ -107,6 +108,26 @@ def execute(task: Task) -> TaskResult:
     except Exception as e:  # a bug in a node: keep the traceback for --debug
         return TaskResult(False, None, time.perf_counter() - t0, [], f"{type(e).__name__}: {e}", None,
                           traceback.format_exc(), False)
+
+
+def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
+    """Each output's value against its declared type's registered check (:func:`api.artifact_check`);
+    a collection made whole is checked item by item. Raises NodeError naming the output."""
+    from stereograph.api import ARTIFACT_CHECKS
+
+    for name, value in out.items():
+        decl = spec.outputs.get(name)
+        check = ARTIFACT_CHECKS.get(decl.type) if decl is not None else None
+        if check is None or value is None:
+            continue
+        whole = decl.collection and not producing and isinstance(value, dict)
+        for item, v in (value.items() if whole else [(None, value)]):
+            why = check(v)
+            if why:
+                at = f" for item {item!r}" if item is not None else ""
+                raise NodeError(f"{spec.name}: its output '{name}'{at} is not a {decl.type}: {why}",
+                                hint=f"return a {decl.type} as docs/artifacts.md describes it (the node that reads "
+                                     "it would only see a malformed input)")
 
 
 def _check_part(spec: Any, item: str | None, out: Any) -> None:

@@ -74,3 +74,34 @@ def test_the_walk_sees_private_imports(tmp_path):
     finally:
         globals()["NODES"] = old
     assert bad == ["nodes/actuators/a.py:2 imports nodes.ik._model", "nodes/actuators/b.py:1 imports nodes.ik._model"]
+
+
+def test_a_malformed_record_fails_the_node_that_made_it_not_the_next(tmp_path):
+    # (a plugin segmenter returning {"segmentation": "oops"} was reported as "disparity: ... disparity
+    # input is not a Segmentation record": the node that read it was blamed)
+    import textwrap
+
+    from stereograph.runner import run_pipeline
+
+    plug = tmp_path / "badloc.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import In, Out, node
+
+        @node("bad.items", outputs={"n": Out("any", collection=True)})
+        def items(params):
+            return {"n": {f"p{i}": i for i in range(3)}}
+
+        @node("bad.locate", inputs={"n": In("any")}, outputs={"location": Out("Location")})
+        def locate(params, n):
+            return {"location": {"found": True, "x_cm": 1.0} if n == 0 else "oops"}
+        """))
+    nodes = ["items: {type: bad.items}", "locate: {type: bad.locate, inputs: {n: items.n}}",
+             "report: {type: report.accuracy, params: {figure: false, split: all},"
+             " inputs: {locations: locate.location}}"]
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n" + "".join(f"  {n}\n" for n in nodes))
+    r = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o")
+    rep = r.reports["locate"]
+    assert rep.status == "partial" and rep.items_failed == 2, (rep.status, rep.error)
+    assert "bad.locate: its output 'location' is not a Location: got a str, not a record (a dict)" in rep.error
+    assert r.reports["report"].status == "ran" and r.outputs("report", "metrics")["n_lost"] == 2

@@ -13,6 +13,12 @@ Any kind may import these modules (and only these, besides its own and ``stereog
 * :mod:`nodes.contracts.recording` -- the ``StereoRecording`` lossless video files; camera
   sources and recorders.
 
+* :mod:`nodes.contracts.records` -- the shape checks of the records kinds hand each other
+  (``Segmentation``, ``Disparity``, ``Location``, the pairs), registered with the engine when any
+  contract is imported, so a malformed record fails the node that made it.
+
 ``tests/test_node_contracts.py`` walks every import under ``nodes/`` and fails when a kind imports
 another kind's private (``_``-prefixed) module.
 """
+
+from nodes.contracts import records as _records  # noqa: F401  (registers the checks)
