@@ -77,6 +77,17 @@ def test_missing_servos_behind_an_echoing_adapter_are_named_not_voltage_alarms(p
         assert no_goal_written(p)
 
 
+def test_a_joint_that_settled_short_is_said_once_it_is_still_not_after_the_whole_timeout():
+    # (the default timeout is 1.5 x the move's planned time + 1 s per waypoint: a servo that had stopped
+    # 5 units short, moving flag 0, was waited for that long before the same message)
+    with Peer(servos(short_by=5), time_scale=20) as p:
+        e = refused(p)  # the default timeout
+        assert "[5, 5] units from their goals" in e.message, e.message
+        assert "stopped there (moving flag 0, not moving for 0.3 s past the move's" in e.message, e.message
+        assert "act.tolerance_units=5" in e.hint
+        assert all(sv.get(24, 1) == 0 for sv in p.servos.values())  # torque off, as after the timeout
+
+
 def test_a_joint_that_settles_a_few_units_short_is_named_with_the_tolerance_to_set():
     # Real AX-12s under load stop within their compliance margin: 5 units short, moving flag 0.
     with Peer(servos(short_by=5), time_scale=20) as p:

@@ -242,6 +242,8 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
                                f"{params.retries + 1} sync writes")
         bus.n_retries += 1
         bus.events.append(f"{w['name']}: goal read-back mismatch on servos {missing}; sync write again")
+    last: dict[int, int] = {}
+    still_since: float | None = None  # since when every pending joint has kept its position
     while True:
         pos = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in data}
         err = {sid: abs(pos[sid] - data[sid][0]) for sid in data}
@@ -259,14 +261,27 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
                 pending = []
         if not pending:
             break
-        if time.monotonic() - t_start > timeout:
+        now = time.monotonic()
+        # Past the move's planned time, joints that keep their position and say they are not moving have
+        # stopped short for good (compliance under load): say so now, not after the whole timeout.
+        if now - t_start > expected and all(last.get(sid) == pos[sid] for sid in pending):
+            still_since = still_since if still_since is not None else now
+        else:
+            still_since = None
+        stopped = still_since is not None and now - still_since >= SETTLED_S and \
+            all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending)
+        if stopped or now - t_start > timeout:
             head = (f"servos {pending} still {[err[s] for s in pending]} units from their goals "
-                    f"{[data[s][0] for s in pending]} after {timeout:.1f} s (at {[pos[s] for s in pending]})")
-            if max(err[s] for s in pending) <= SHORT_UNITS and \
-                    all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending):
-                raise _Stalled(head + ", stopped there (moving flag 0)", hint=SHORT_HINT.format(
-                    n=max(err[s] for s in pending), tol=params.tolerance_units))
+                    f"{[data[s][0] for s in pending]} after {now - t_start:.1f} s (at {[pos[s] for s in pending]})")
+            if stopped or (max(err[s] for s in pending) <= SHORT_UNITS and
+                           all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending)):
+                head += (", stopped there (moving flag 0" + (f", not moving for {SETTLED_S:g} s past the move's "
+                                                             f"{expected:.1f} s)" if stopped else ")"))
+                short = max(err[s] for s in pending) <= SHORT_UNITS
+                raise _Stalled(head, hint=SHORT_HINT.format(n=max(err[s] for s in pending), tol=params.tolerance_units)
+                               if short else None)
             raise _Stalled(head)
+        last = dict(pos)
         time.sleep(params.poll_interval_s)
     return pos, {"waypoint": w["name"], "goal_units": {str(s): data[s][0] for s in data},
                  "present_units": {str(s): int(pos[s]) for s in data}, "max_error_units": int(max(err.values())),
@@ -283,6 +298,7 @@ class _Stalled(ServoFailure):
 
 
 SHORT_UNITS = 12  # a stop this close to the goal (3.5 deg) is the servo's compliance under load, not a blockage
+SETTLED_S = 0.3  # s: past its planned time, a move whose joints keep still this long (moving flag 0) has ended
 SHORT_HINT = ("a joint that stops {n} units short of its goal and reports it is not moving has settled within its "
               "compliance margin and slope (addresses 26-29) under the load it carries, which the arrival tolerance "
               "({tol} units) does not allow: if {n} units (0.29 deg each) are acceptable for the pick, --set "
