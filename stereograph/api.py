@@ -187,7 +187,9 @@ class RunContext:
         The item id when the node runs once per collection item.
     out_dir : Path
         The run's output folder for this node (created on demand). Files written
-        here are not cached; prefer ``Out(save=True)`` for results.
+        here are not cached; prefer ``Out(save=True)`` for results. They are the
+        run's files (``run.json`` lists them): a later run into the same folder
+        removes them with the rest.
     pipeline_dir : Path
         Folder of the pipeline file: resolve relative paths in params from it.
     input_types : dict

@@ -742,6 +742,9 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
             else:
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
+    for name in graph.order:  # what a node wrote into its folder itself (a failure log), as a run records it
+        files.setdefault(name, []).extend(outputs_mod.node_files(out, name, set(files.get(name, [])),
+                                                                 getattr(getattr(result, "_run", None), "foreign", {})))
     summary = {
         outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},  # a later run may clear this folder
         "run_id": result.run_id, "pipeline": result.pipeline, "overrides": list(graph.doc.overrides),

@@ -276,13 +276,19 @@ def check_folder_path(out: Path) -> Path:
     return probe
 
 
-def prepare_out_dir(out_dir: Path) -> None:
+def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
     """Make ``out_dir`` ready for a run.
 
     A folder that an earlier stereograph run wrote (its ``run.json`` carries the :data:`MARKER` key,
     which only stereograph writes) is emptied of the files that run recorded, and of the sub-folders
     they leave empty, so that no stale result sits beside new ones. Any other non-empty folder is
     refused: another tool's ``run.json`` or a user's files are never deleted.
+
+    Returns
+    -------
+    dict
+        The files left in the folder (a user's, say), relative path -> stamp: what
+        :func:`node_files` must not take for a file a node of this run wrote.
     """
     from stereograph.errors import ConfigError
 
@@ -292,7 +298,7 @@ def prepare_out_dir(out_dir: Path) -> None:
                           hint="choose another --out")
     try:
         if not out_dir.exists() or not any(out_dir.iterdir()):
-            return
+            return {}
     except OSError as e:
         raise ConfigError(f"cannot use output folder {out_dir}: {e.strerror or e}",
                           hint="choose another --out") from None
@@ -328,6 +334,23 @@ def prepare_out_dir(out_dir: Path) -> None:
             d.rmdir()
         except OSError:
             pass  # not empty: something else lives there
+    return _present(out_dir)
+
+
+def _stamp(p: Path) -> tuple[int, int, int]:
+    st = p.lstat()
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _present(folder: Path) -> dict[str, tuple[int, int, int]]:
+    """Every file under ``folder`` (links not followed), relative path -> stamp."""
+    found = {}
+    for dirpath, _dirs, files in os.walk(folder):
+        for f in files:
+            p = Path(dirpath) / f
+            with contextlib.suppress(OSError):  # (gone meanwhile)
+                found[str(p.relative_to(folder))] = _stamp(p)
+    return found
 
 
 def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) -> None:
@@ -389,7 +412,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
     for name in graph.nodes:
-        extra = _written_by_the_node(out_dir, name, set(written.get(name, [])))
+        extra = node_files(out_dir, name, set(written.get(name, [])), getattr(run, "foreign", {}))
         if extra:
             written.setdefault(name, []).extend(extra)
     summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
@@ -404,20 +427,23 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     write_report_quietly(out_dir, result)
 
 
-def _written_by_the_node(out_dir: Path, name: str, known: set[str]) -> list[str]:
-    """Files in the node's folder that it wrote itself (through ``ctx.out_dir``: a failure log, say),
-    not among its outputs: recorded in ``run.json`` too, so that a later run into this folder removes
-    them with the rest (:func:`prepare_out_dir`) instead of leaving them beside its own results."""
+def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tuple[int, int, int]]) -> list[str]:
+    """Files in the node's folder that it wrote itself (through ``ctx.out_dir``: a failure log, say).
+
+    Recorded in ``run.json`` with its outputs (``known``), so that a later run into this folder removes
+    them with the rest (:func:`prepare_out_dir`) instead of leaving them beside its own results. A file
+    that was there before the run, unchanged (``foreign``, from :func:`prepare_out_dir`: a user's notes),
+    is not the run's: recording it would have the next run delete what stereograph did not write.
+    """
     folder = out_dir / name
     if folder.is_symlink() or not folder.is_dir():
         return []
     found = []
-    for dirpath, _dirs, files in os.walk(folder):  # (does not follow links)
-        for f in files:
-            p = Path(dirpath) / f
-            rel = str(p.relative_to(out_dir))
-            if rel not in known and not f.startswith(".") and not p.is_symlink():  # (.x.tmp: being written)
-                found.append(rel)
+    for rel, stamp in _present(folder).items():
+        rel = str(Path(name) / rel)
+        if rel not in known and not Path(rel).name.startswith(".") and foreign.get(rel) != stamp \
+                and not (out_dir / rel).is_symlink():  # (.x.tmp: being written; a link: not ours)
+            found.append(rel)
     return sorted(found)
 
 
@@ -455,6 +481,9 @@ def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, 
         for (name, _out), per_item in dict(getattr(run, "streamed", {})).items():
             for files in per_item.values():
                 written.setdefault(name, []).extend(str(Path(f).relative_to(out_dir)) for f in files)
+        for name in graph.nodes:  # (as write_run_outputs: what the nodes wrote themselves goes too)
+            written.setdefault(name, []).extend(node_files(out_dir, name, set(written.get(name, [])),
+                                                           getattr(run, "foreign", {})))
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
         summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)

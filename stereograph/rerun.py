@@ -369,7 +369,7 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
 
     run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]  # runner.new_run_id's form
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
-    outputs.prepare_out_dir(out)
+    foreign = outputs.prepare_out_dir(out)
     made: list[Path] = []
     folders: set[str] = set()
     src_root, out_root = str(mdir / "files"), str(out)
@@ -409,8 +409,10 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
         if name in memo["live"]:
             rep, values = _run_live(name, memo["live"][name], live_inputs[name], out, Path(memo["pipeline_dir"]),
                                     memo["plugins"])
+            # (with what it wrote into its folder itself, a failure log: as a real run records it)
+            files = rep.files + outputs.node_files(out, name, set(rep.files), foreign)
             n.update(status=rep.status, seconds=round(rep.seconds, 4), items_ran=0, error=rep.error, hint=rep.hint,
-                     messages=rep.messages, files=rep.files)
+                     messages=rep.messages, files=files)
             if rep.unexpected and rep.trace:
                 n["traceback"] = rep.trace
             echo_live.update({(name, o): v for o, v in values.items()})

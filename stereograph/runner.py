@@ -395,6 +395,7 @@ class _Run:
         self.streaming: set[str] = set()        # per-item nodes run in streamed regions
         self.selected: set[str] = set(graph.nodes)
         self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)
+        self.foreign: dict[str, tuple[int, int, int]] = {}  # files in out_dir before the run (prepare_out_dir)
 
     # ---- keys
 
@@ -928,7 +929,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
         force = graph.downstream(from_node) | {from_node}
     run_id = run_id or new_run_id()
     out = Path(out_dir) if out_dir else project.runs_dir(doc.directory) / doc.name / run_id
-    outputs_mod.prepare_out_dir(out)
+    foreign = outputs_mod.prepare_out_dir(out)
     store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
     try:
         budget = project.budget_bytes(doc.directory) if store is not None else 0
@@ -940,6 +941,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
         executor.check_shared([out] + ([store.root] if store is not None else []))
     run = _Run(graph, store, out, executor, force, progress)
+    run.foreign = foreign
     if only is not None:
         run.keep = {only}
     run.keep |= set(keep or ())

@@ -289,6 +289,7 @@ def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
 
 
 GATE = '''
+import os
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 class GateParams(Params):
@@ -298,6 +299,9 @@ class GateParams(Params):
 def max_z(params, location, ctx=None):
     """Fails on a location farther than max_z_cm (as a node with a bug on the hard items would)."""
     if location["z_cm"] > params.max_z_cm:
+        if os.environ.get("GATE_LOG"):  # a failure log of its own, in its folder (ctx.out_dir)
+            ctx.out_dir.mkdir(parents=True, exist_ok=True)
+            (ctx.out_dir / f"failed_{ctx.item}.txt").write_text("too far")
         raise NodeError("too far")
     return {"location": location}
 '''
@@ -338,6 +342,22 @@ def test_a_failed_variant_is_never_best_and_is_marked_failed(tmp_path, capsys):
     # (the numbers that made it look best: fewer items, a lower error)
     res = json.loads((tmp_path / "o" / "compare.json").read_text())["rows"]
     assert res[1]["n"] < res[0]["n"] and res[1]["z_rms_cm"] < res[0]["z_rms_cm"]
+
+
+def test_a_log_a_variants_node_wrote_itself_goes_when_its_folder_is_reused(tmp_path, monkeypatch):
+    # (a variant's run.json listed its outputs only: a failure log the node wrote into its folder
+    # stayed there after a later compare into the same --out, naming failures that compare did not have)
+    p = gated(tmp_path, "variants:\n  gate.max_z_cm: [1000, 60]", "{}", "{}", "{figure: false}")
+    out = tmp_path / "o"
+    monkeypatch.setenv("GATE_LOG", "1")
+    compare(p, [], out, cache_dir=tmp_path / "c", plots=False)
+    logs = sorted(out.rglob("failed_*.txt"))
+    assert logs and all(log.parent.name == "gate" for log in logs)
+    recorded = json.loads((logs[0].parent.parent / "run.json").read_text())
+    assert str(logs[0].relative_to(logs[0].parent.parent)) in {f for n in recorded["nodes"] for f in n["files"]}
+    monkeypatch.setenv("GATE_LOG", "")
+    compare(p, [], out, cache_dir=tmp_path / "c", plots=False)
+    assert not list(out.rglob("failed_*.txt"))
 
 
 def test_pairs_that_failed_before_the_report_are_counted_as_lost_not_dropped(tmp_path):

@@ -24,9 +24,11 @@ from helper_UID import OFFSET
 
 @node("tmp.actUID", inputs={"values": In("Number", gather=True)},
       outputs={"log": Out("Report", save=True)}, cacheable=False)
-def act(params, values):
+def act(params, values, ctx=None):
     # a node that must run every time (an actuator): each call leaves a line behind
     if os.environ.get("LIVE_FAIL"):
+        ctx.out_dir.mkdir(parents=True, exist_ok=True)
+        (ctx.out_dir / "failure_log.txt").write_text("servo 3: no answer")  # (as actuator.dynamixel's)
         raise NodeError("servo 3 does not answer", hint="check its cable")
     with open(os.environ["LIVE_CALLS"], "a") as f:
         f.write("call\\n")
@@ -198,6 +200,11 @@ def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_pat
     s = _summary(tmp_path, "o2")
     assert not s["ok"] and {n["node"]: n["status"] for n in s["nodes"]}["act"] == "failed"
     assert calls.read_text().split() == ["call"]  # the failed call left nothing; the first run's line only
+    # the log it wrote into its folder is the run's: a later run into that folder removes it
+    assert "act/failure_log.txt" in {n["node"]: n for n in s["nodes"]}["act"]["files"]
+    monkeypatch.delenv("LIVE_FAIL")
+    assert _run(p, tmp_path, "o2") == 0
+    assert not (tmp_path / "w" / "o2" / "act" / "failure_log.txt").exists()
 
 
 READER = """\

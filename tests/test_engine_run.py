@@ -436,6 +436,36 @@ def test_a_file_a_node_wrote_into_its_folder_itself_goes_with_its_run(tmp_path):
     assert not (out / "act" / "failed_log.json").exists() and not (out / "act" / "sub").exists()
 
 
+def test_a_users_file_in_a_nodes_folder_is_not_taken_for_the_nodes(tmp_path):
+    # the files a node writes itself are found in its folder after the run; a user's notes put there
+    # between runs were found too, recorded as the node's, and deleted by the run after
+    plug = tmp_path / "logger.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import Field, Out, Params, node
+
+        class LogParams(Params):
+            log: bool = Field(False, description="Write a log (bool).")
+
+        @node("mine.logger2", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
+        def logger(params, ctx=None):
+            if params.log:
+                (ctx.out_dir / "log.txt").write_text("this run")
+            return {"value": 1.0}
+        """))
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  act: {{type: mine.logger2}}\n")
+    out = tmp_path / "same"
+    run = ["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out)]
+    assert main(run) == 0
+    (out / "act" / "notes.txt").write_text("mine")
+    (out / "act" / "log.txt").write_text("mine, and the node will write over it")
+    assert main(run + ["--set", "act.log=true"]) == 0
+    files = json.loads((out / "run.json").read_text())["nodes"][0]["files"]
+    assert "act/notes.txt" not in files and "act/log.txt" in files  # (the one it wrote over is the run's)
+    assert main(run) == 0 and main(run) == 0
+    assert (out / "act" / "notes.txt").read_text() == "mine" and not (out / "act" / "log.txt").exists()
+
+
 def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path, capsys):
     plug = tmp_path / "bug.py"
     plug.write_text("from stereograph.api import node, Out\n"
