@@ -32,6 +32,8 @@ from typing import Annotated, Any
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field  # noqa: F401  (re-exported)
 
+from stereograph.checks import ARTIFACT_CHECKS, artifact_check  # noqa: F401  (re-exported)
+
 __all__ = [
     "Params",
     "Field",
@@ -290,23 +292,6 @@ class _Registry(dict):
 
 REGISTRY: _Registry = _Registry()
 
-#: Artifact type name -> ``check(value) -> None | why``, registered with :func:`artifact_check`.
-ARTIFACT_CHECKS: dict[str, Callable[[Any], str | None]] = {}
-
-
-def artifact_check(type_name: str) -> Callable[[Callable[[Any], str | None]], Callable[[Any], str | None]]:
-    """Register a check of an artifact type's shape, run on every output declared of that type.
-
-    ``check(value)`` returns None when the value has the type's shape, else a few words on why not.
-    A value of the wrong shape then fails the node that made it (naming the output and its type)
-    instead of the next node, which would only see a malformed input. Register cheap checks (the
-    keys a record must have), once, where the type's contract is defined.
-    """
-    def register(check: Callable[[Any], str | None]) -> Callable[[Any], str | None]:
-        ARTIFACT_CHECKS[type_name] = check
-        return check
-
-    return register
 
 
 class _UndeclaredParam(NodeError, AttributeError):

@@ -113,7 +113,7 @@ def execute(task: Task) -> TaskResult:
 def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
     """Each output's value against its declared type's registered check (:func:`api.artifact_check`);
     a collection made whole is checked item by item. Raises NodeError naming the output."""
-    from stereograph.api import ARTIFACT_CHECKS
+    from stereograph.checks import ARTIFACT_CHECKS
 
     for name, value in out.items():
         decl = spec.outputs.get(name)

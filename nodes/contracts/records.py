@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stereograph.api import artifact_check
+from stereograph.checks import artifact_check  # (stereograph.api's, without pydantic)
 
 
 def _found_record(value: Any) -> str | None:
