@@ -295,6 +295,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     g = run.g
     members = reg.nodes
     inside = set(members) | ({reg.source} if reg.source else set())
+    if not reg.source and _all_blocked(run, members):
+        return  # (said as each node's own skip: no progress line of items that would never run)
     store_on = run.store is not None
     bases = {n: run.node_components(g.nodes[n]) for n in members} if store_on else {}
     # the items the region iterates over, in order: the source's, or those of its outside collections
@@ -459,6 +461,24 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
             run.record(inst, bases[n])
     for n in ([reg.source] if reg.source else []) + members:
         run.release(n)
+
+
+def _all_blocked(run: Any, members: list[str]) -> bool:
+    """Whether every member of a region waits on a node outside it that failed or was skipped (directly,
+    or through a member before it); then each is marked skipped, as a node-by-node run would, and
+    released, and the region is not run at all."""
+    blocked: dict[str, str] = {}
+    for n in members:  # (in topological order)
+        bad = run.upstream_failed(run.g.nodes[n]) or next(
+            (p for p in run.g.dag.predecessors(n) if p in blocked), None)
+        if bad is None:
+            return False
+        blocked[n] = bad
+    for n in members:
+        rep = run.reports[n]
+        rep.status, rep.error = "skipped", f"upstream node '{blocked[n]}' did not finish"
+        run.release(n)
+    return True
 
 
 def _settle(run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any) -> None:

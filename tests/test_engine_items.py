@@ -421,3 +421,39 @@ def test_more_than_one_failed_item_is_counted_where_the_first_is_named(tmp_path,
     assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 1
     out = capsys.readouterr()
     assert "(+1 more failed items: run.json)" in out.out and "(and 1 more items: failed_items in run.json)" in out.err
+
+
+def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_of_its_items(tmp_path, capsys):
+    # (its region still ran: "add: started (4 items)" then "finished (4/4 items)", for a node skipped)
+    import json
+    import textwrap
+
+    from stereograph.cli import main
+
+    plug = tmp_path / "blocked.py"
+    plug.write_text(textwrap.dedent("""\
+        from stereograph.api import In, NodeError, Out, node
+
+        @node("blk.items", outputs={"v": Out("Number", collection=True)})
+        def items(params):
+            return {"v": {f"i{k}": float(k) for k in range(4)}}
+
+        @node("blk.boom", inputs={"v": In("Number", gather=True)}, outputs={"x": Out("Number")})
+        def boom(params, v):
+            raise NodeError("boom")
+
+        @node("blk.add", inputs={"v": In("Number"), "x": In("Number")}, outputs={"y": Out("Number")})
+        def add(params, v, x):
+            return {"y": v + x}
+        """))
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  items: {{type: blk.items}}\n"
+                 "  boom: {type: blk.boom, inputs: {v: items.v}}\n"
+                 "  add: {type: blk.add, inputs: {v: items.v, x: boom.x}}\n")
+    capsys.readouterr()
+    assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "o")]) == 1
+    out = capsys.readouterr().out
+    assert "add: started" not in out and "add: finished" not in out, out
+    nodes = json.loads((tmp_path / "o" / "run.json").read_text())["nodes"]
+    st = {n["node"]: (n["status"], n["error"]) for n in nodes}
+    assert st["add"] == ("skipped", "upstream node 'boom' did not finish"), st
