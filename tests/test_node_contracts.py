@@ -105,3 +105,16 @@ def test_a_malformed_record_fails_the_node_that_made_it_not_the_next(tmp_path):
     assert rep.status == "partial" and rep.items_failed == 2, (rep.status, rep.error)
     assert "bad.locate: its output 'location' is not a Location: got a str, not a record (a dict)" in rep.error
     assert r.reports["report"].status == "ran" and r.outputs("report", "metrics")["n_lost"] == 2
+
+
+def test_an_image_output_must_be_an_array_of_rows_and_columns():
+    # (an Out("Image") returning a dict or None was saved as picture.json, silently)
+    import numpy as np
+
+    import nodes  # noqa: F401  (registers the checks)
+    from stereograph.checks import ARTIFACT_CHECKS
+
+    check = ARTIFACT_CHECKS["Image"]
+    assert check(np.zeros((4, 5), np.uint8)) is None and check(np.zeros((4, 5, 3), np.float32)) is None
+    assert "not an image" in check({"left": 1}) and "shape (4, 5, 2)" in check(np.zeros((4, 5, 2)))
+    assert "not an image" in check([[0, 1], [2, 3]])
