@@ -742,9 +742,8 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
             else:
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
-    for name in graph.order:  # what a node wrote into its folder itself (a failure log), as a run records it
-        files.setdefault(name, []).extend(outputs_mod.node_files(out, name, set(files.get(name, [])),
-                                                                 getattr(getattr(result, "_run", None), "foreign", {})))
+    # what a node wrote into its folder itself (a failure log), as a run records it
+    outputs_mod.add_node_files(out, graph.order, files, getattr(getattr(result, "_run", None), "foreign", {}))
     summary = {
         outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},  # a later run may clear this folder
         "run_id": result.run_id, "pipeline": result.pipeline, "overrides": list(graph.doc.overrides),
@@ -756,7 +755,6 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
     out.mkdir(parents=True, exist_ok=True)
     write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     outputs_mod.write_report_quietly(out)
-
 
 
 def _rows(res: CompareResult) -> list[dict[str, Any]]:

@@ -57,10 +57,16 @@ def _numpy() -> Any:
     return sys.modules.get("numpy")
 
 
-def is_image(v: Any) -> bool:
+def image_shaped(v: Any, channels: tuple[int, ...] = (3, 4)) -> bool:
+    """A uint8 array H x W, or H x W x C with C in ``channels``, of any size."""
     np = _numpy()
     return np is not None and (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
-            (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in (3, 4))) and v.size > 64)
+            (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in channels)))
+
+
+def is_image(v: Any) -> bool:
+    """An image written as PNG (:func:`image_shaped`, more than 64 values: smaller ones are data)."""
+    return image_shaped(v) and v.size > 64
 
 
 _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,10}$")
@@ -411,10 +417,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
-    for name in graph.nodes:
-        extra = node_files(out_dir, name, set(written.get(name, [])), getattr(run, "foreign", {}))
-        if extra:
-            written.setdefault(name, []).extend(extra)
+    add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
     summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
                        list(getattr(result, "notes", [])), written)
     try:
@@ -445,6 +448,16 @@ def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tup
                 and not (out_dir / rel).is_symlink():  # (.x.tmp: being written; a link: not ours)
             found.append(rel)
     return sorted(found)
+
+
+def add_node_files(out_dir: Path, names: Any, written: dict[str, list[str]],
+                   foreign: dict[str, tuple[int, int, int]]) -> None:
+    """Add to ``written`` (node -> files of the run) what each named node wrote into its folder itself
+    (:func:`node_files`): a run's, an interrupted run's and a compare variant's ``run.json`` record it."""
+    for name in names:
+        extra = node_files(out_dir, name, set(written.get(name, [])), foreign)
+        if extra:
+            written.setdefault(name, []).extend(extra)
 
 
 def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok: bool, notes: list[str],
@@ -481,9 +494,7 @@ def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, 
         for (name, _out), per_item in dict(getattr(run, "streamed", {})).items():
             for files in per_item.values():
                 written.setdefault(name, []).extend(str(Path(f).relative_to(out_dir)) for f in files)
-        for name in graph.nodes:  # (as write_run_outputs: what the nodes wrote themselves goes too)
-            written.setdefault(name, []).extend(node_files(out_dir, name, set(written.get(name, [])),
-                                                           getattr(run, "foreign", {})))
+        add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))  # (as write_run_outputs)
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
         summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)

@@ -237,8 +237,6 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                                   hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type")
 
 
-
-
 def commands() -> dict[str, EntryPoint]:
     """Extra CLI sub-commands contributed by node packages."""
     return {n: EntryPoint(n, v) for n, v in _all_groups().get(COMMANDS_GROUP, {}).items()}
