@@ -223,7 +223,8 @@ class Loop:
                 cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
             for out in g.nodes[name].spec.outputs:
                 v = _value(run, name, out, g.is_collection(name, out))
-                if v is None or _picture(v):  # (a 1x1 placeholder image was logged as [[[0, 0, 0]]])
+                # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0, 0, 0]]])
+                if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
                     continue
                 text = json.dumps(outputs_mod.to_json(v, {}), default=str)
                 if len(text) <= SMALL_JSON and '"npz"' not in text:
@@ -259,12 +260,6 @@ def _signals_deferred() -> Iterator[None]:
     finally:
         if can:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
-
-
-def _picture(v: Any) -> bool:
-    """An image of any size (uint8, H x W or H x W x 1/3/4): never one of a cycle's small values."""
-    shape, dtype = getattr(v, "shape", None), str(getattr(v, "dtype", ""))
-    return dtype == "uint8" and shape is not None and (len(shape) == 2 or (len(shape) == 3 and shape[2] in (1, 3, 4)))
 
 
 def _value(run: Any, node: str, out: str, collection: bool) -> Any:
