@@ -667,6 +667,14 @@ class ArtifactStore:
                     out.append((d, sum(st.st_size for st in stats[1:])))
         return out
 
+    def sweep_abandoned(self) -> int:
+        """Remove what killed runs left in ``tmp/`` (:meth:`abandoned`); returns the bytes freed."""
+        freed = 0
+        for d, size in self.abandoned():
+            shutil.rmtree(d, ignore_errors=True)
+            freed += size
+        return freed
+
     def prune(self, max_bytes: int) -> tuple[int, int]:
         """Delete the least recently used entries until the store holds at most ``max_bytes``.
 
@@ -678,10 +686,7 @@ class ArtifactStore:
             from stereograph.errors import ConfigError
 
             raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
-        removed = freed = 0
-        for d, size in self.abandoned():
-            shutil.rmtree(d, ignore_errors=True)
-            freed += size
+        removed, freed = 0, self.sweep_abandoned()
         rows = self._usage()
         total = sum(r[1] for r in rows) + freed
         for _used, size, key, d in sorted(rows, key=lambda r: r[0]):

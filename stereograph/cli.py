@@ -564,9 +564,9 @@ def cmd_cache(args) -> int:
     if args.action == "prune":
         if args.max_gb is None:
             raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
-        left = sum(b for _d, b in store.abandoned()) if store.writable else 0
+        left = store.sweep_abandoned() if store.writable else 0  # (prune would, first: said apart here)
         n, freed = store.prune(int(args.max_gb * 1e9))
-        con.print(f"removed {n} least recently used entries ({(freed - left) / 1e6:.1f} MB) from {root}", markup=False)
+        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
         if left:
             con.print(f"removed {left / 1e6:.1f} MB of unfinished entries killed runs had left in {store.tmp}",
                       markup=False)
