@@ -132,7 +132,7 @@ def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]
                 data = {str(r["id"]): r for r in data}
             items = {str(k): dict(v) for k, v in data.items()}
         except _DuplicateKey as exc:
-            what = "field" if str(exc) in ("center_left_cm", "center_table_cm", "radius_cm", "split", "id") else "id"
+            what = "field" if str(exc) in FIELDS else "id"
             raise NodeError(f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader keeps only the "
                             "last one, silently.",
                             hint="keep one record per pair id (one value per field): the ball's measured centre for "
