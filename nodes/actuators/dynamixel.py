@@ -249,7 +249,7 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
         err = {sid: abs(pos[sid] - data[sid][0]) for sid in data}
         pending = [sid for sid in data if err[sid] > params.tolerance_units]
         if pending and set(pending) <= grippers:
-            if all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending):
+            if _not_moving(bus, pending):
                 # Stopped: at the goal by now, or short of it, closed on the object.
                 for sid in pending:
                     pos[sid] = bus.read(sid, ADDR_POSITION, 2, "read of the present position")
@@ -269,23 +269,27 @@ def _run_waypoint(bus: Bus, w: dict, present: dict[int, int], params: DynamixelP
         else:
             still_since = None
         stopped = still_since is not None and now - still_since >= SETTLED_S and \
-            all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending)
+            _not_moving(bus, pending)
         if stopped or now - t_start > timeout:
             head = (f"servos {pending} still {[err[s] for s in pending]} units from their goals "
                     f"{[data[s][0] for s in pending]} after {now - t_start:.1f} s (at {[pos[s] for s in pending]})")
-            if stopped or (max(err[s] for s in pending) <= SHORT_UNITS and
-                           all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in pending)):
+            worst = max(err[s] for s in pending)
+            if stopped or (worst <= SHORT_UNITS and _not_moving(bus, pending)):
                 head += (", stopped there (moving flag 0" + (f", not moving for {SETTLED_S:g} s past the move's "
                                                              f"{expected:.1f} s)" if stopped else ")"))
-                short = max(err[s] for s in pending) <= SHORT_UNITS
-                raise _Stalled(head, hint=SHORT_HINT.format(n=max(err[s] for s in pending), tol=params.tolerance_units)
-                               if short else None)
+                raise _Stalled(head, hint=SHORT_HINT.format(n=worst, tol=params.tolerance_units)
+                               if worst <= SHORT_UNITS else None)
             raise _Stalled(head)
         last = dict(pos)
         time.sleep(params.poll_interval_s)
     return pos, {"waypoint": w["name"], "goal_units": {str(s): data[s][0] for s in data},
                  "present_units": {str(s): int(pos[s]) for s in data}, "max_error_units": int(max(err.values())),
                  "seconds": round(time.monotonic() - t_start, 4)}
+
+
+def _not_moving(bus: Bus, ids: list[int]) -> bool:
+    """Every servo of ``ids`` reports its moving flag 0 (address 46): it has stopped."""
+    return all(bus.read(sid, ADDR_MOVING, 1, "read of the moving flag") == 0 for sid in ids)
 
 
 class _Stalled(ServoFailure):
