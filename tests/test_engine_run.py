@@ -407,59 +407,50 @@ def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err and (other / "notes.txt").read_text() == "keep me"
 
 
+LOGGER = """\
+from stereograph.api import Field, Out, Params, node
+
+class LogParams(Params):
+    files: list[str] = Field([], description="Files the node writes into its own folder (relative paths).")
+
+@node("mine.logger", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
+def logger(params, ctx=None):
+    for rel in params.files:
+        path = ctx.out_dir / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("this run")
+    return {"value": 1.0}
+"""
+
+
+def logger_run(tmp_path: Path, files: str) -> list[str]:
+    """The command line of a pipeline whose node `act` writes ``files`` (YAML list) into its own folder."""
+    (tmp_path / "logger.py").write_text(LOGGER)
+    p = tmp_path / "p.yaml"
+    p.write_text(f"name: p\nplugins: [{tmp_path / 'logger.py'}]\nnodes:\n"
+                 f"  act: {{type: mine.logger, params: {{files: {files}}}}}\n")
+    return ["run", str(p), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "same")]
+
+
 def test_a_file_a_node_wrote_into_its_folder_itself_goes_with_its_run(tmp_path):
     # a failure log written through ctx.out_dir was not in run.json, so a later run into the same
     # folder left it beside its own results, naming a failure that run did not have
-    plug = tmp_path / "logger.py"
-    plug.write_text(textwrap.dedent("""\
-        from stereograph.api import Field, Out, Params, node
-
-        class LogParams(Params):
-            fail_log: bool = Field(False, description="Write a failure log (bool).")
-
-        @node("mine.logger", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
-        def logger(params, ctx=None):
-            if params.fail_log:
-                ctx.out_dir.mkdir(parents=True, exist_ok=True)
-                (ctx.out_dir / "failed_log.json").write_text("{}")
-                (ctx.out_dir / "sub").mkdir(exist_ok=True)
-                (ctx.out_dir / "sub" / "detail.txt").write_text("x")
-            return {"value": 1.0}
-        """))
-    p = tmp_path / "p.yaml"
-    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  act: {{type: mine.logger, params: {{fail_log: true}}}}\n")
-    out = tmp_path / "same"
-    assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out)]) == 0
+    run, out = logger_run(tmp_path, "[failed_log.json, sub/detail.txt]"), tmp_path / "same"
+    assert main(run) == 0
     files = json.loads((out / "run.json").read_text())["nodes"][0]["files"]
     assert {"act/failed_log.json", "act/sub/detail.txt"} <= set(files)
-    assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out), "--set", "act.fail_log=false"]) == 0
+    assert main(run + ["--set", "act.files=[]"]) == 0
     assert not (out / "act" / "failed_log.json").exists() and not (out / "act" / "sub").exists()
 
 
 def test_a_users_file_in_a_nodes_folder_is_not_taken_for_the_nodes(tmp_path):
     # the files a node writes itself are found in its folder after the run; a user's notes put there
     # between runs were found too, recorded as the node's, and deleted by the run after
-    plug = tmp_path / "logger.py"
-    plug.write_text(textwrap.dedent("""\
-        from stereograph.api import Field, Out, Params, node
-
-        class LogParams(Params):
-            log: bool = Field(False, description="Write a log (bool).")
-
-        @node("mine.logger2", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
-        def logger(params, ctx=None):
-            if params.log:
-                (ctx.out_dir / "log.txt").write_text("this run")
-            return {"value": 1.0}
-        """))
-    p = tmp_path / "p.yaml"
-    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  act: {{type: mine.logger2}}\n")
-    out = tmp_path / "same"
-    run = ["run", str(p), "--allow-plugins", "--no-cache", "--out", str(out)]
+    run, out = logger_run(tmp_path, "[]"), tmp_path / "same"
     assert main(run) == 0
     (out / "act" / "notes.txt").write_text("mine")
     (out / "act" / "log.txt").write_text("mine, and the node will write over it")
-    assert main(run + ["--set", "act.log=true"]) == 0
+    assert main(run + ["--set", "act.files=[log.txt]"]) == 0
     files = json.loads((out / "run.json").read_text())["nodes"][0]["files"]
     assert "act/notes.txt" not in files and "act/log.txt" in files  # (the one it wrote over is the run's)
     assert main(run) == 0 and main(run) == 0
