@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from nodes.sources import _lens
 from nodes.sources._lens import project_points, undistort_pixels
 from nodes.sources._render import render_scene
 from nodes.sources._rig import make_rig
@@ -76,6 +77,24 @@ def test_camera_model_inverse_is_exact(rig):
     assert np.abs(back - px).max() < 1e-9
     ref, _ = cv2.projectPoints(np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), cam["K"], cam["D"])
     assert np.abs(ref.reshape(-1, 2) - px).max() < 1e-6
+
+
+def test_camera_model_inverse_is_exact_over_many_blocks(rig):
+    """A whole image's worth of pixels (several of undistort_normalized's blocks, the last one
+    partial), with and without a starting guess: every point is inverted as exactly as one alone."""
+    cam = rig["cams"][1]
+    n = 2 * _lens._BLOCK + 777
+    px = np.random.default_rng(1).uniform([0, 0], [639, 479], (n, 2))
+    for guess in (None, np.zeros((n, 2))):
+        yd = (px[:, 1] - cam["K"][1, 2]) / cam["K"][1, 1]
+        xd = (px[:, 0] - cam["K"][0, 2] - cam["K"][0, 1] * yd) / cam["K"][0, 0]
+        xy = _lens.undistort_normalized(np.stack([xd, yd], axis=1), cam["D"], guess=guess)
+        back = project_points(cam["K"], cam["D"], np.column_stack([xy, np.ones(n)]))
+        assert np.abs(back - px).max() < 1e-9
+        alone = [_lens.undistort_normalized(np.stack([xd[k:k + 1], yd[k:k + 1]], axis=1), cam["D"],
+                                            guess=None if guess is None else guess[k:k + 1])
+                 for k in (0, _lens._BLOCK - 1, _lens._BLOCK, n - 1)]
+        assert np.array_equal(np.concatenate(alone), xy[[0, _lens._BLOCK - 1, _lens._BLOCK, n - 1]])
 
 
 def test_deterministic_and_noisy(rig):
