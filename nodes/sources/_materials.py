@@ -71,7 +71,11 @@ def _table_texture(seed: int) -> np.ndarray:
         fine *= np.float32(weight)
         tone += fine
     base = np.array([0.42, 0.58, 0.70], dtype=np.float32)  # light wood, BGR
-    tex = np.multiply(tone[..., None], base)
+    # tone[..., None] * base, one channel at a time: the broadcast product's inner loop is 3 long
+    # (~0.1 s for the 48 MB tile, before any pair renders); these are the same float32 products.
+    tex = np.empty((n, n, 3), dtype=np.float32)
+    for c in range(3):
+        np.multiply(tone, base[c], out=tex[..., c])
     np.clip(tex, 0.0, 1.0, out=tex)
     tex.setflags(write=False)
     return tex
