@@ -29,15 +29,33 @@ def _board_extent(cols, rows, square_cm):
     return np.array([-2.0, -2.0]) * square_cm, np.array([cols + 1.0, rows + 1.0]) * square_cm
 
 
+def board_distance_range(rig: dict, cols: int, rows: int, square_cm: float,
+                         margin_px: float = 12.0) -> tuple[float, float]:
+    """Distances (cm) a person would hold this board at to calibrate this rig: from just farther
+    than where the printed board (with its margin) first fits the left image face-on, to twice
+    that -- the board filling most of the view, then about half of it. Never nearer than 30 cm
+    or a narrower span than 30-60 cm (what a 640x480 rig of ~60 degrees and an A4 board use): a
+    long lens or a large board moves the range out instead of failing to place the board."""
+    lo, hi = _board_extent(cols, rows, square_cm)
+    K = rig["truth"]["K1"]
+    w, h = rig["truth"]["image_size"]
+    fits_cm = max(K[0, 0] * (hi[0] - lo[0]) / max(w - 2 * margin_px, 1.0),
+                  K[1, 1] * (hi[1] - lo[1]) / max(h - 2 * margin_px, 1.0))
+    return max(30.0, 1.05 * float(fits_cm)), max(60.0, 2.1 * float(fits_cm))
+
+
 def random_board_poses(rig: dict, n: int, rng, cols: int = 9, rows: int = 6, square_cm: float = 2.5,
-                       min_distance_cm: float = 30.0, max_distance_cm: float = 60.0,
+                       min_distance_cm: float | None = None, max_distance_cm: float | None = None,
                        max_tilt_deg: float = 35.0, margin_px: float = 12.0) -> list[np.ndarray]:
     """Board poses ``T_left_from_board`` (4x4, cm) fully visible in both cameras.
 
-    Distances are spread evenly over the range and tilts alternate in sign so
-    that the views constrain the focal length and the distortion.
+    Distances are spread evenly over the range (default :func:`board_distance_range`) and tilts
+    alternate in sign so that the views constrain the focal length and the distortion.
     """
     rng = np.random.default_rng(rng)
+    near, far = board_distance_range(rig, cols, rows, square_cm, margin_px)
+    min_distance_cm = near if min_distance_cm is None else min_distance_cm
+    max_distance_cm = far if max_distance_cm is None else max_distance_cm
     lo, hi = _board_extent(cols, rows, square_cm)
     outline = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]])
     edge = np.concatenate([outline + (np.roll(outline, -1, 0) - outline) * s for s in np.linspace(0, 1, 9)])
