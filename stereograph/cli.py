@@ -501,7 +501,7 @@ def _loop(args, con):
 
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
-    """For ``run``: SIGTERM (``kill``, a service manager, a CI job's timeout) ends the
+    """For ``run`` and ``compare``: SIGTERM (``kill``, a service manager, a CI job's timeout) ends the
     command the way Ctrl-C does, as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so
     its cleanup runs, a ``--repeat`` loop's summary is written, and the run folder gets the
     ``run.json`` of an interrupted run -- the same command then resumes into it. (The default action
@@ -784,7 +784,7 @@ def _main(argv: list[str]) -> int:
     args.debug = debug  # `stereograph --debug run X` and `stereograph run X --debug` alike
     try:
         with registry.plugins_allowed(allow_plugins), \
-                (_sigterm_as_interrupt() if args.command == "run" else contextlib.nullcontext()):
+                (_sigterm_as_interrupt() if args.command in ("run", "compare") else contextlib.nullcontext()):
             return int(args.fn(args) or 0)
     except ConfigError as e:
         from rich.markup import escape

@@ -455,3 +455,45 @@ def test_a_problem_of_every_variant_is_not_blamed_on_the_first(pipeline, tmp_pat
     with plugins_allowed(True), pytest.raises(ConfigError) as exc:
         compare(pipeline, ["fit.degree=1"], tmp_path / "o", cache_dir=tmp_path / "c")
     assert str(exc.value).startswith("--vary fit.degree=1: node 'fit'") and "--set" not in str(exc.value)
+
+
+TERM = '''
+import os
+import signal
+from pathlib import Path
+from stereograph.api import Field, In, Out, Params, node
+
+class TermParams(Params):
+    marker: str = Field("", description="File whose absence makes the node send SIGTERM to its own process.")
+
+@node("toyterm.once", params=TermParams, inputs={"location": In("Location")}, outputs={"location": Out("Location")})
+def once(params, location, ctx=None):
+    """SIGTERM to this process on the first call (as a job scheduler's timeout would), then pass through."""
+    if not Path(params.marker).exists():
+        Path(params.marker).write_text("sent")
+        os.kill(os.getpid(), signal.SIGTERM)
+    return {"location": location}
+'''
+
+
+def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path):
+    """(SIGTERM killed `compare` on the spot, exit 143 with nothing said, while `run` ended as
+    Ctrl-C does: the variant's run.json written, "interrupted", exit 130)"""
+    import subprocess
+    import sys
+
+    (tmp_path / "toyterm.py").write_text(TERM)
+    p = tmp_path / "toy.yaml"
+    p.write_text(PIPELINE.replace("plugins: [", f"plugins: [{tmp_path / 'toyterm.py'}, ").replace(
+        "  report: {type: report.accuracy, params: {figure: false}, inputs: {locations: compensate.location}}",
+        f"  term: {{type: toyterm.once, params: {{marker: {tmp_path / 'sent'}}}, inputs: {{location: compensate.location}}}}\n"
+        "  report: {type: report.accuracy, params: {figure: false}, inputs: {locations: term.location}}"))
+    cmd = [sys.executable, "-m", "stereograph.cli", "--allow-plugins", "compare", str(p), "--out", str(tmp_path / "o"),
+           "--cache-dir", str(tmp_path / "c")]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert first.returncode == 130 and "interrupted" in first.stderr, (first.returncode, first.stderr[-800:])
+    run_json = json.loads((tmp_path / "o" / "variants").glob("*/run.json").__next__().read_text())
+    assert run_json["ok"] is False and "interrupted" in " ".join(run_json["notes"])
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stderr[-800:]
+    assert (tmp_path / "o" / "compare.json").is_file()
