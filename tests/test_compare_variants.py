@@ -486,7 +486,8 @@ def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path)
     p = tmp_path / "toy.yaml"
     p.write_text(PIPELINE.replace("plugins: [", f"plugins: [{tmp_path / 'toyterm.py'}, ").replace(
         "  report: {type: report.accuracy, params: {figure: false}, inputs: {locations: compensate.location}}",
-        f"  term: {{type: toyterm.once, params: {{marker: {tmp_path / 'sent'}}}, inputs: {{location: compensate.location}}}}\n"
+        f"  term: {{type: toyterm.once, params: {{marker: {tmp_path / 'sent'}}}, "
+        "inputs: {location: compensate.location}}\n"
         "  report: {type: report.accuracy, params: {figure: false}, inputs: {locations: term.location}}"))
     cmd = [sys.executable, "-m", "stereograph.cli", "--allow-plugins", "compare", str(p), "--out", str(tmp_path / "o"),
            "--cache-dir", str(tmp_path / "c")]
