@@ -104,3 +104,22 @@ def test_a_cached_report_still_writes_accuracy_md(tmp_path):
         r = run_pipeline(locate, ["rig.n_scenes=4"], cache_dir=tmp_path / "c", out_dir=tmp_path / out)
         assert r.ok
     assert r.status["report"] == "cached" and (tmp_path / "o2" / "report" / "accuracy.md").is_file()
+
+
+def test_not_found_reasons_are_grouped_by_kind_with_their_numbers_as_ranges():
+    """(twenty pairs refused for one shared cause -- swapped images: 'different rows (dv = 6.9 px)',
+    '(dv = 11.2 px)', ... -- were twenty distinct reasons of one pair each, and the Markdown said none)"""
+    from nodes.contracts.reasons import group_reasons
+
+    rows = [f"left/right regions are on different rows (dv = {dv} px): swapped?" for dv in (6.9, 11.2, 3.6, 6.9)]
+    assert group_reasons([*rows, "no region found", "ratio 1.2.", "ratio 1.5."]) == [
+        ("left/right regions are on different rows (dv = 3.6–11.2 px): swapped?", 4),
+        ("ratio 1.2–1.5.", 2), ("no region found", 1)]
+    assert group_reasons(["scene s001 of DICT_4X4_50 (9x6)", "scene s002 of DICT_4X4_50 (9x6)"]) == [
+        ("scene s001 of DICT_4X4_50 (9x6)", 1), ("scene s002 of DICT_4X4_50 (9x6)", 1)]  # ids are not numbers
+    locs = {f"p{i}": {**_loc(f"p{i}", "test", False, None, [0.0, 0.0, 30.0]), "reason": r}
+            for i, r in enumerate([*rows, "no region found"])}
+    rep = accuracy(AccuracyParams(figure=False), locations=locs)["report"]
+    assert len(rep["not_found_reasons"]) == 4  # the exact strings, as before
+    assert rep["not_found_kinds"][0] == {"reason": rows[0].replace("6.9", "3.6–11.2"), "count": 4}
+    assert "Not found (5 pairs)" in rep["markdown"] and "- 4 × left/right regions" in rep["markdown"]

@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 
 from nodes.contracts.drawing import load_figures
+from nodes.contracts.reasons import group_reasons
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 
@@ -29,6 +30,7 @@ class AccuracyParams(Params):
 
 
 AXES = ("x", "y", "z")
+MAX_REASON_LINES = 3  # kinds of not-found reason listed in the Markdown (report.json lists all)
 
 
 def error_table(measured_cm: np.ndarray, true_cm: np.ndarray) -> dict:
@@ -185,6 +187,14 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         if not v.get("found"):
             r = str(v.get("reason") or "unknown")
             reasons[r] = reasons.get(r, 0) + 1
+    # one line per kind of reason (its numbers as ranges), where people read: a cause every pair
+    # shares (swapped images, another rig's calibration) shows as one line with its count
+    kinds = group_reasons(r for r, n in reasons.items() for _ in range(n))
+    if kinds:
+        shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
+        more = sum(n for _, n in kinds[MAX_REASON_LINES:])
+        md = (f"{md.rstrip()}\n\nNot found ({len(sel) - len(found)} pairs):\n\n" + "\n".join(shown)
+              + (f"\n- {more} × other reasons (`not_found_reasons` in report.json)" if more else "") + "\n")
     # Pairs that failed before reaching this report (a node's error, not a "not found") are not in `n`:
     # their split is unknown here. Said, so that fewer pairs never look like a better method.
     lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
@@ -197,7 +207,8 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
     report = {
         "n": len(sel), "n_found": len(found), "n_evaluated": len(with_truth), "split": params.split,
         "frame": frames[0] if len(frames) == 1 else frames, "axes": axes, "markdown": md,
-        "not_found_reasons": reasons, "n_lost": len(lost), "lost": lost,
+        "not_found_reasons": reasons, "not_found_kinds": [{"reason": t, "count": n} for t, n in kinds],
+        "n_lost": len(lost), "lost": lost,
     }
     fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
     n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)

@@ -47,7 +47,8 @@ def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: 
         if abs(ql - qr) > 0.15:
             return f"left/right regions differ in shape (axis ratios {ql:.2f} vs {qr:.2f})"
     if left["centroid_px"][0] < right["centroid_px"][0]:
-        return "negative disparity: the right region lies right of the left one"
+        return ("negative disparity: the right region lies right of the left one -- when every pair says so, the "
+                "left and right images are swapped")
     return None
 
 

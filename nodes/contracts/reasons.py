@@ -1,0 +1,48 @@
+"""Why items were not found, grouped for people: one line per kind of reason, not per number.
+
+Two pairs refused for the same cause say it with their own numbers ("different rows (dv = 6.9 px)",
+"(dv = 11.2 px)"): counted as distinct strings, twenty pairs with one shared cause (swapped images,
+another rig's calibration) looked like twenty causes of one pair each. Grouped by their wording, each
+number becomes the range it took: "different rows (dv = 3.6–11.2 px)", 20 pairs.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+
+__all__ = ["group_reasons"]
+
+# a number standing alone (not a part of a word or an id such as s001, DICT_4X4_50, 9x6)
+_NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?!\w|\.\d)")
+
+
+def group_reasons(reasons: Iterable[str]) -> list[tuple[str, int]]:
+    """Reasons grouped by their wording, most frequent first.
+
+    Parameters
+    ----------
+    reasons : iterable of str
+        One reason per item (repeats allowed).
+
+    Returns
+    -------
+    list of (str, int)
+        ``(text, count)``: ``text`` is the shared wording with each number replaced by the range
+        it took over the group (``"3.6–11.2"``, or the one value when all agree); ties in count
+        keep the order in which the kinds were first seen.
+    """
+    groups: dict[str, list[list[str]]] = {}
+    for r in reasons:
+        r = str(r)
+        groups.setdefault(_NUMBER.sub("\0", r), []).append(_NUMBER.findall(r))
+    out = []
+    for template, values in groups.items():
+        parts = template.split("\0")
+        text = parts[0]
+        for k, part in enumerate(parts[1:]):
+            slot = [v[k] for v in values]
+            lo, hi = min(slot, key=float), max(slot, key=float)
+            text += (lo if float(lo) == float(hi) else f"{lo}–{hi}") + part
+        out.append((text, len(values)))
+    return sorted(out, key=lambda tc: -tc[1])
