@@ -76,6 +76,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     root = Path.cwd()
     verdicts: list[Verdict] = []
     stale: set[str] = set()
+    retrying: dict[str, list[str]] = {}  # node -> the items it tries again (failed in its last run)
     unknown: set[str] = set()  # nodes whose entries (keys, items) are known only after they run
     for name in graph.order:
         inst = graph.nodes[name]
@@ -83,6 +84,12 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
         base = run.node_components(inst)
         computable = not any(s in unknown for s in preds)
         missing, n_entries = 0, 0
+        last = store.last(run.pipeline_id, name)
+        # entries the last run looked up under these very keys and did not keep: items that failed or
+        # were dropped. A run tries them again; predicted as failing again (their downstream entries
+        # then stay as they are), and said so.
+        tried_before = set((last or {}).get("keys") or ())
+        retried: list[str] = []
         if computable:
             entries = run.item_ids(inst) if inst.mapped else [None]
             if run.producer(inst):  # its items are entries of their own (items=)
@@ -92,9 +99,10 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                     computable = False
                     entries = []
             n_entries = len(entries)
+            lost = run.lost_items(inst)
             for item in entries:
                 try:
-                    key = run.entry_key(base, run.input_refs(inst, item), item)
+                    key = run.entry_key(base, run.input_refs(inst, item), item, lost)
                 except KeyError:
                     computable = False
                     break
@@ -102,6 +110,12 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                 manifest = store.complete(key) if inst.spec.cacheable else None
                 if manifest is not None:
                     run.adopt_cached(inst, item, key, manifest)
+                elif key in tried_before and inst.spec.cacheable and item is not None:
+                    retried.append(item)
+                    why = ((last or {}).get("failed") or {}).get(item)
+                    if why is not None:  # (else dropped: simply absent downstream)
+                        run.failed_items[(name, item)] = why
+                    continue
                 else:
                     missing += 1
                     # the key a run would store it under: downstream keys follow from it
@@ -111,13 +125,31 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                 for out in run.item_outputs(inst, item):
                     if inst.mapped or (name, out, item) in run.ref_keys:
                         run.items.setdefault((name, out), []).append(item)  # type: ignore[arg-type]
-        fresh = computable and not missing and inst.spec.cacheable
+        fresh = computable and not missing and not retried and inst.spec.cacheable
         v = Verdict(name, inst.type, fresh)
-        last = store.last(run.pipeline_id, name)
         own = _diff(last, {**base, "code_files": run.code_files.get(inst.type, {})}, root) if last else []
+        if retried:
+            retrying[name] = retried
         if fresh:
             if own:
                 v.reasons.append("cached by an earlier run with these settings")
+            again = [a for a in graph.upstream(name) if a in retrying]
+            if again:
+                v.reasons.append("cached -- unless the items " + ", ".join(f"'{a}'" for a in again)
+                                 + " tries again succeed this time")
+        elif computable and not missing and inst.spec.cacheable:
+            failed = set((last or {}).get("failed") or {})
+
+            def names(items: list[str]) -> str:
+                return ", ".join(items[:5]) + (f" and {len(items) - 5} more" if len(items) > 5 else "")
+
+            was_failed = [i for i in retried if i in failed]
+            others = [i for i in retried if i not in failed]
+            said = ([f"{names(was_failed)} failed"] if was_failed else []) + (
+                [f"{names(others)} dropped (or pruned since)"] if others else [])
+            v.reasons.append(f"{len(retried)} of {n_entries} entries the last run looked up with these same inputs "
+                             f"are not in the cache ({'; '.join(said)}): tried again; what depends on them stays "
+                             "cached if they fail again")
         else:
             stale.add(name)
             if not inst.spec.cacheable:

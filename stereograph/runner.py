@@ -803,6 +803,8 @@ class _Run:
         rep.seconds = time.perf_counter() - t0
         n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
         rep.items_failed = n_failed
+        if n_failed and store_on and not self.sub and not (inst.mapped and inst.name in self.streaming):
+            self.record(inst, base)  # again: which of its items failed is known now
         if (inst.name, None) in self.failed_items:
             rep.status = "failed"
         elif (inst.mapped or producer) and n_failed and n_failed < len(entries):
@@ -824,6 +826,9 @@ class _Run:
         comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
         comps["code_files"] = self.code_files.get(inst.type, {})
         comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
+        # its items that failed, with why (a gathering node downstream keys on them): explain's guess
+        # of the next run, which tries them again, is that they fail again the same way
+        comps["failed"] = {i: why for (n, i), why in self.failed_items.items() if n == inst.name and i is not None}
         self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
 
     def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any) -> list:

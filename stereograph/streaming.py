@@ -438,6 +438,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
             rep.status = "partial"
         elif rep.items_ran:
             rep.status = "ran"
+        if store_on and reg.source not in run.memory_only:
+            run.record(src, run.node_components(src))  # now with its items' keys (explain: which to try again)
     for n in members:
         inst = g.nodes[n]
         rep = run.reports[n]

@@ -457,3 +457,21 @@ def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_
     nodes = json.loads((tmp_path / "o" / "run.json").read_text())["nodes"]
     st = {n["node"]: (n["status"], n["error"]) for n in nodes}
     assert st["add"] == ("skipped", "upstream node 'boom' did not finish"), st
+
+
+def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
+    """(after a run where an item failed and one was dropped, explain said every node downstream would
+    run -- 'upstream src will run' -- while the next run tried the two items again, they failed again,
+    and everything downstream came from the cache)"""
+    from stereograph.config import load_pipeline
+    from stereograph.explain import explain
+    from stereograph.graph import build_graph
+
+    p = write_pipeline(tmp_path, "{n: 5, drop: [m001], fail: [m003]}")
+    assert run(p, tmp_path).status["src"] == "partial"
+    for _ in range(2):
+        verdicts = {v.node: v for v in explain(build_graph(load_pipeline(p)), tmp_path / "cache")}
+        actual = run(p, tmp_path).status
+        assert {n: v.fresh for n, v in verdicts.items()} == {n: s == "cached" for n, s in actual.items()}, actual
+        assert "m003 failed; m001 dropped" in verdicts["src"].reasons[0] and "tried again" in verdicts["src"].reasons[0]
+        assert "unless" in verdicts["total"].reasons[0]
