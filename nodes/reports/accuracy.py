@@ -194,7 +194,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
         more = sum(n for _, n in kinds[MAX_REASON_LINES:])
         md = (f"{md.rstrip()}\n\nNot found ({len(sel) - len(found)} pairs):\n\n" + "\n".join(shown)
-              + (f"\n- {more} × other reasons (`not_found_reasons` in report.json)" if more else "") + "\n")
+              + (f"\n- {more} × other kinds of reason (`not_found_kinds` in report.json)" if more else "") + "\n")
     # Pairs that failed before reaching this report (a node's error, not a "not found") are not in `n`:
     # their split is unknown here. Said, so that fewer pairs never look like a better method.
     lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
