@@ -42,6 +42,12 @@ from .servo_sim import (
     decode_error,
 )
 
+try:  # what pyserial raises when the port itself fails: SerialException is an OSError; tcflush raises termios.error
+    import termios
+    PORT_ERRORS: tuple[type[BaseException], ...] = (OSError, termios.error)
+except ImportError:  # Windows
+    PORT_ERRORS = (OSError,)
+
 HARD_ERRORS = ERR_VOLTAGE | ERR_ANGLE | ERR_OVERHEAT | ERR_RANGE | ERR_OVERLOAD
 SOFT_ERRORS = ERR_CHECKSUM | ERR_INSTRUCTION  # the servo got a damaged packet: send it again
 ADDR_TORQUE = 24
@@ -122,6 +128,11 @@ class ServoFailure(Exception):
         self.exchange = exchange
 
 
+class PortLost(ServoFailure):
+    """The serial port itself stopped working (an adapter unplugged or reset, another program on the
+    port): every read and write raises. Not a servo fault: nothing more can be sent on this port."""
+
+
 class Bus:
     """dynamixel-sdk Protocol 1.0 calls with bounded, classified retries and a command log.
 
@@ -160,6 +171,7 @@ class Bus:
         self.limits: dict[int, tuple[int, int]] = {}
         self.n_plans = 0  # plans started on this bus (begin)
         self.echoes = False  # the adapter echoes what it sends (seen once: a copy of a request, then a reply)
+        self.lost: str | None = None  # why the port stopped working (PortLost), until it is opened again
 
     def begin(self, t0: float) -> None:
         """Start the log of a new plan on a bus kept open (``ctx.resource``): commands, events and
@@ -176,6 +188,7 @@ class Bus:
 
     # ------------------------------------------------------------------------- port
     def open(self) -> None:
+        self.lost = None
         try:
             ok = self.port.openPort()
         except Exception as e:  # noqa: BLE001 - pyserial raises SerialException subclasses of OSError
@@ -211,6 +224,21 @@ class Bus:
         self.port.is_using = False
         with contextlib.suppress(Exception):
             self._drain(0.04)
+
+    @contextlib.contextmanager
+    def _port_io(self):
+        """Turn a failure of the port itself (pyserial's SerialException / OSError, termios.error) into
+        :class:`PortLost`; once lost, fail at once without touching the port again."""
+        if self.lost is not None:
+            raise PortLost(f"the serial port {self.port_path} stopped working ({self.lost})")
+        try:
+            yield
+        except PORT_ERRORS as e:
+            self.port.is_using = False
+            # termios.error's str is its args tuple: "(5, 'Input/output error')"
+            words = e.args[1] if len(e.args) == 2 and isinstance(e.args[1], str) else str(e)
+            self.lost = words or type(e).__name__
+            raise PortLost(f"the serial port {self.port_path} stopped working ({self.lost})") from None
 
     def _t(self) -> float:
         return round(time.monotonic() - self.t0, 6)
@@ -252,6 +280,10 @@ class Bus:
         return None, len(got)
 
     def _once(self, sid: int, inst: int, params: list[int], n_data: int) -> tuple[Try, list[int]]:
+        with self._port_io():
+            return self._once_io(sid, inst, params, n_data)
+
+    def _once_io(self, sid: int, inst: int, params: list[int], n_data: int) -> tuple[Try, list[int]]:
         from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS
         tx = [0] * (6 + len(params))
         tx[2], tx[3], tx[4] = sid, len(params) + 2, inst
@@ -259,6 +291,8 @@ class Bus:
         t_sent = time.monotonic()
         try:
             rx, comm, err = self.ph.txRxPacket(self.port, tx)
+        except PORT_ERRORS:
+            raise  # the port itself, not the reply: PortLost (_once)
         except Exception as e:  # noqa: BLE001 - the SDK choking on a malformed reply is a corrupted reply
             self.port.is_using = False
             self._drain(0.005)
@@ -348,6 +382,8 @@ class Bus:
         """One PING, no retry, never raises: what came back (a diagnosis)."""
         try:
             return self._once(sid, INST_PING, [], 0)[0]
+        except PortLost:
+            raise
         except Exception as e:  # noqa: BLE001 - a diagnosis must not fail
             self.port.is_using = False
             return Try("corrupt", f"{type(e).__name__}")
@@ -368,7 +404,8 @@ class Bus:
             g.addParam(sid, [DXL_LOBYTE(goal), DXL_HIBYTE(goal), DXL_LOBYTE(speed), DXL_HIBYTE(speed)])
             self._log("SYNC_WRITE", sid, 30, goal)
             self._log("SYNC_WRITE", sid, 32, speed)
-        comm = g.txPacket()
+        with self._port_io():
+            comm = g.txPacket()
         if comm != 0:
             raise ServoFailure(f"sync write failed on {self.port_path}: {self.ph.getTxRxResult(comm)}")
 
@@ -380,16 +417,22 @@ class Bus:
         """Torque off everywhere: one broadcast (needs no reply), then each servo once more and read
         back where it answers READs; never raises. Returns notes on servos not confirmed off."""
         from dynamixel_sdk import BROADCAST_ID
+        lost = [f"torque could not be turned off: the serial port {self.port_path} stopped working"]
+        if self.lost is not None:
+            return lost
         self.recover()
         notes = []
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(Exception), self._port_io():
             self._log("WRITE", BROADCAST_ID, ADDR_TORQUE, 0)
             self.ph.write1ByteTxOnly(self.port, BROADCAST_ID, ADDR_TORQUE, 0)
         for sid in ids:
+            if self.lost is not None:
+                return lost
             try:
                 self._log("WRITE", sid, ADDR_TORQUE, 0)
                 t_sent = time.monotonic()
-                self.ph.write1ByteTxOnly(self.port, sid, ADDR_TORQUE, 0)
+                with self._port_io():
+                    self.ph.write1ByteTxOnly(self.port, sid, ADDR_TORQUE, 0)
                 self.port.is_using = False
                 if self.status_level.get(sid, 2) >= 2:
                     # It answers WRITEs too (the AX-12's default): take that status packet off the line,
@@ -403,12 +446,15 @@ class Bus:
             except Exception as e:  # noqa: BLE001 - best effort while failing
                 self.port.is_using = False
                 notes.append(f"servo {sid}: {e}")
-        return notes
+        return lost if self.lost is not None else notes
 
     def torque_state(self, ids: list[int]) -> dict[int, int | None]:
         """Torque enable (0/1) of each servo, None where it cannot be read; one try each, never raises."""
         out: dict[int, int | None] = {}
         for sid in ids:
+            if self.lost is not None:
+                out[sid] = None
+                continue
             try:
                 t, data = self._once(sid, INST_READ, [ADDR_TORQUE, 1], 1)
                 out[sid] = data[0] if t.outcome in ("ok", "error_bits") and data else None

@@ -16,7 +16,7 @@ PING yes, READ no         WRITE answered too -> READ replies are lost (not a set
 
 from __future__ import annotations
 
-from ._bus import Bus, ServoFailure
+from ._bus import Bus, PortLost, ServoFailure
 from .servo_sim import ERR_ANGLE, ERR_OVERHEAT, ERR_OVERLOAD, ERR_RANGE, ERR_VOLTAGE, decode_error
 
 ADDR_STATUS_RETURN_LEVEL, ADDR_LED = 16, 25
@@ -58,6 +58,15 @@ SRL0_HINT = ("set servo {sid}'s status return level to 1 or 2 (Dynamixel Wizard 
              "address 16): the actuator must read positions back to move safely.")
 
 
+PORT_LOST_HINT = ("the USB2Dynamixel / U2D2 was unplugged, lost power or was reset (a loose USB cable or connector, "
+                  "an unpowered hub, a USB over-current or a reset: `dmesg | tail` says which), or another program "
+                  "(Dynamixel Wizard, another run) opened the same port. Reconnect it (it may come back under "
+                  "another name: ls /dev/ttyUSB* /dev/ttyACM*), close the other program, and run again.")
+PORT_LOST_MOVING_HINT = ("nothing can be sent to the servos any more, not even torque off: switch off their 9-12 V "
+                         "supply now if the arm must not stay powered in that pose (it then drops what it holds). "
+                         + PORT_LOST_HINT[0].upper() + PORT_LOST_HINT[1:])
+
+
 def alarm_words(error: int) -> str:
     return ", ".join(decode_error(error & (ERR_OVERLOAD | ERR_OVERHEAT | ERR_VOLTAGE | ERR_ANGLE | ERR_RANGE)))
 
@@ -69,6 +78,8 @@ def alarm_hint(error: int) -> str:
 def head_and_hint(e: ServoFailure, *, moving: bool, baud: int) -> tuple[str, str]:
     """The cause (one clause) and the fix for a failed exchange."""
     ex = e.exchange
+    if isinstance(e, PortLost):
+        return str(e), PORT_LOST_MOVING_HINT if moving else PORT_LOST_HINT
     if ex is None:
         return str(e), "check the adapter and the cables."
     sid, kind = ex.sid, ex.kind
@@ -154,6 +165,9 @@ def after_ping(bus: Bus, sid: int, e: ServoFailure, baud: int) -> tuple[str, str
 def torque_report(bus: Bus, ids: list[int], turn_off: bool) -> tuple[str, bool]:
     """After a failure before any goal was written: whether torque is still on (from an earlier run
     or another program), and, if ``turn_off``, turn it off. Returns (sentence, torque left on)."""
+    if bus.lost is not None:
+        return f"Torque: unknown on {ids} (the port stopped working; it is as the servos had it before this run).", \
+            False
     state = bus.torque_state(ids)
     on = [s for s, v in state.items() if v]
     unknown = [s for s, v in state.items() if v is None]

@@ -35,7 +35,7 @@ from nodes.contracts.arm import joint, joints_to_servo_units, servo_limits_units
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from . import _diagnose
-from ._bus import Bus, ServoFailure
+from ._bus import Bus, PortLost, ServoFailure
 from ._plan import (
     ADDR_GOAL,
     Selection,
@@ -162,6 +162,8 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
     for k, sid in enumerate(ids):
         try:
             _ping(bus, sid, ids, params.baud)
+        except PortLost:
+            raise
         except ServoFailure as e:
             if k == 0 and e.exchange is not None and e.exchange.kind == "no_reply" and \
                     not any(bus.answers_ping(other) for other in ids[1:]):
@@ -169,6 +171,8 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
             raise NodeError(*_diagnose.missing_servo(bus, sid, ids, e, params.baud)) from None
         try:
             model = bus.read(sid, 0, 2, "read of the model number")
+        except PortLost:
+            raise
         except ServoFailure as e:
             raise NodeError(*_diagnose.after_ping(bus, sid, e, params.baud)) from None
         if model not in SAME_UNITS_AS_AX12:
@@ -321,6 +325,14 @@ def _motion_failure(e: ServoFailure, bus: Bus, ids: list[int], where: str, baud:
         head, hint = str(e), e.hint or STALL_HINT
     else:
         head, hint = _diagnose.head_and_hint(e, moving=True, baud=baud)
+    if bus.lost is not None:
+        # Nothing can be sent: the servos go on to the last goals written and hold there, powered.
+        last = {c["id"]: c["value"] for c in bus.commands if c["instruction"] == "SYNC_WRITE" and c["address"] == 30}
+        msg = (f"lost contact with the arm during waypoint {bus.waypoint!r} on {where}: {head}; torque could not be "
+               f"turned off: "
+               f"the servos go on to their last goals ({', '.join(f'servo {k}: {v}' for k, v in last.items())} "
+               f"units) and hold there with torque on.")
+        return NodeError(msg, hint=hint, lasting=True)
     msg = (f"arm stopped during waypoint {bus.waypoint!r} on {where}: {head}. Torque was turned off on all servos "
            f"{ids}" + (f" ({'; '.join(notes)})" if notes else "") + ".")
     # lasting: a --repeat loop ends here. The next cycle would reopen the port and move the arm as soon
@@ -345,6 +357,9 @@ def _safe_stop(bus: Bus, ids: list[int], arm: dict, params: DynamixelParams) -> 
         return hold(bus, ids, limits, speed)
     except Exception as e:  # noqa: BLE001 - the bus failed while stopping: the last resort is torque off
         notes = bus.torque_off(ids)
+        if bus.lost is not None:
+            return {"action": "none", "detail": f"could not {params.on_interrupt} ({e}): torque could not be turned "
+                                                f"off either, the servos go on to their last goals with torque on"}
         return {"action": "torque_off", "detail": f"could not {params.on_interrupt} ({e}); torque turned off "
                                                   f"instead" + (f" ({'; '.join(notes)})" if notes else "")}
 
