@@ -130,7 +130,7 @@ class Peer:
         dt = (now - self._last) * self.time_scale
         self._last = now
         for s in self.servos.values():
-            if not s.get(24, 1):
+            if not s.get(24, 1) or not s.get(34, 2):  # torque off, or a torque limit of 0: no force at all
                 s.set(46, 1, 0)
                 continue
             speed = s.get(32, 2) & 0x3FF

@@ -95,3 +95,17 @@ def test_a_joint_that_settles_a_few_units_short_is_named_with_the_tolerance_to_s
         assert "[5, 5] units from their goals" in e.message and "stopped there (moving flag 0)" in e.message
         assert "act.tolerance_units=5" in e.hint and "compliance" in e.hint and "obstruction" not in e.hint
         assert all(sv.get(24, 1) == 0 for sv in p.servos.values())  # torque off after a failed move, as documented
+
+
+@pytest.mark.parametrize("max_torque, words", [(1023, "alarm shutdown"), (0, "max torque (address 14) is 0")])
+def test_a_servo_with_a_torque_limit_of_0_is_refused_before_anything_is_written(max_torque, words):
+    # An AX-12A sets its torque limit (address 34) to 0 on an alarm shutdown (overload, overheating) and
+    # loads it from max torque (address 14) at power-on: such a joint cannot move. The other joints
+    # went to the first waypoint, then the move timed out and torque was turned off on the whole arm.
+    with Peer(servos(), time_scale=20) as p:
+        p.servos[4].set(34, 2, 0)
+        p.servos[4].set(14, 2, max_torque)
+        e = refused(p)
+        assert "servo 4's torque limit (address 34) is 0" in e.message and "arm was not moved" in e.message, e.message
+        assert words in e.hint and "address 34" in e.hint, e.hint
+        assert no_goal_written(p)

@@ -49,6 +49,7 @@ from ._stop import Terminated, hold, rest, sigterm_as_interrupt
 from .servo_sim import Faults, ServoSim
 
 ADDR_CW_LIMIT, ADDR_TORQUE, ADDR_POSITION, ADDR_MOVING = 6, 24, 36, 46
+ADDR_MAX_TORQUE, ADDR_TORQUE_LIMIT = 14, 34
 ALARM_NAMES = {"voltage": 1, "angle_limit": 2, "overheating": 4, "range": 8, "overload": 32}
 
 
@@ -188,7 +189,27 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
         bus.status_level[sid] = bus.read(sid, 16, 1, "read of the status return level")
         both = bus.read(sid, ADDR_CW_LIMIT, 4, "read of the angle limits")
         limits[sid] = (both & 0xFFFF, both >> 16)
+        if bus.read(sid, ADDR_TORQUE_LIMIT, 2, "read of the torque limit") == 0:
+            raise NodeError(*_no_torque(bus, sid))
     bus.limits.update(limits)  # only once every servo passed
+
+
+def _no_torque(bus: Bus, sid: int) -> tuple[str, str]:
+    """Servo ``sid``'s torque limit is 0: it cannot move. The other joints would go to the first waypoint and
+    the move then time out, torque off on the whole arm (which sags); refuse before anything is written."""
+    max_torque = bus.read(sid, ADDR_MAX_TORQUE, 2, "read of the max torque")
+    head = (f"refusing the whole plan: servo {sid}'s torque limit (address 34) is 0, so it has no force to move "
+            f"its joint: the other joints would move, then this one would never arrive; nothing was sent.")
+    if max_torque == 0:
+        hint = (f"servo {sid}'s max torque (address 14) is 0, and the torque limit is loaded from it at power-on: "
+                f"write 1023 (or the force the joint needs) to address 14 with Dynamixel Wizard / RoboPlus, then to "
+                f"address 34 or power the servos off and on.")
+    else:
+        hint = (f"the AX-12A sets its torque limit to 0 on an alarm shutdown (overload or overheating, address 18): "
+                f"find and clear the cause (an obstruction, a heavy load, heat), then power the servos off and on "
+                f"(address 34 is reloaded from max torque, address 14, = {max_torque}) or write {max_torque} to "
+                f"address 34.")
+    return head, hint
 
 
 # Protocol 1.0 models whose goal/present positions are 0-1023 over 300 deg, as the arm model's units.
