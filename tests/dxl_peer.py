@@ -83,8 +83,11 @@ class Servo:
 
 class Peer:
     def __init__(self, servos: dict[int, Servo], *, echo=False, split=False, trailing_garbage=b"",
-                 leading_noise=b"", time_scale=1.0, seed=0):
+                 leading_noise=b"", time_scale=1.0, seed=0, twins=()):
         self.servos = servos
+        # IDs set on two servos: each status packet comes twice, one after the other (servos with different
+        # return delay times; the same delay would make them collide into garbage on a real bus)
+        self.twins = set(twins)
         self.echo, self.split = echo, split
         self.trailing, self.leading = trailing_garbage, leading_noise
         self.time_scale = time_scale
@@ -162,6 +165,8 @@ class Peer:
         if delay_s:
             time.sleep(delay_s)
         data = self.leading + pkt + self.trailing
+        if len(pkt) > 2 and pkt[2] in self.twins:
+            data += pkt
         if self.split:
             for i in range(0, len(data), 3):
                 os.write(self.master, data[i:i + 3])

@@ -109,3 +109,31 @@ def test_a_servo_with_a_torque_limit_of_0_is_refused_before_anything_is_written(
         assert "servo 4's torque limit (address 34) is 0" in e.message and "arm was not moved" in e.message, e.message
         assert words in e.hint and "address 34" in e.hint, e.hint
         assert no_goal_written(p)
+
+
+def test_two_servos_on_one_id_are_refused_before_anything_is_written():
+    # A sixth servo left at ID 5 (a spare, the factory ID of a new one renumbered by mistake): both answer
+    # every request, one after the other, and a goal for ID 5 would move both.
+    with Peer(servos(), twins={5}, time_scale=20) as p:
+        e = refused(p)
+        assert e.message.startswith("two servos answer at ID 5"), e.message
+        assert "arm was not moved" in e.message and "one at a time" in e.hint, (e.message, e.hint)
+        assert no_goal_written(p)
+
+
+def test_a_missing_id_whose_servo_shares_another_id_is_named():
+    # The shoulder's two servos both set to ID 3: ID 2 is silent, ID 3 answers twice.
+    s = servos()
+    del s[2]
+    with Peer(s, twins={3}, time_scale=20) as p:
+        e = refused(p)
+        assert e.message.startswith("servo ID 2 did not answer a ping"), e.message
+        assert "two servos answer at ID 3" in e.message and "set its ID to 2" in e.hint, (e.message, e.hint)
+        assert no_goal_written(p)
+    # ID 3 missing, ID 2 doubled: the twins are met first, and named
+    s = servos()
+    del s[3]
+    with Peer(s, twins={2}, time_scale=20) as p:
+        e = refused(p)
+        assert e.message.startswith("two servos answer at ID 2"), e.message
+        assert no_goal_written(p)

@@ -48,6 +48,7 @@ try:  # what pyserial raises when the port itself fails: SerialException is an O
 except ImportError:  # Windows
     PORT_ERRORS = (OSError,)
 
+TWIN_WINDOW_S = 0.005  # s after a PING's reply to listen for a second one (two servos on one ID; ~0.1 ms at 1 Mbps)
 HARD_ERRORS = ERR_VOLTAGE | ERR_ANGLE | ERR_OVERHEAT | ERR_RANGE | ERR_OVERLOAD
 SOFT_ERRORS = ERR_CHECKSUM | ERR_INSTRUCTION  # the servo got a damaged packet: send it again
 ADDR_TORQUE = 24
@@ -172,6 +173,7 @@ class Bus:
         self.n_plans = 0  # plans started on this bus (begin)
         self.echoes = False  # the adapter echoes what it sends (seen once: a copy of a request, then a reply)
         self.lost: str | None = None  # why the port stopped working (PortLost), until it is opened again
+        self.twins: set[int] = set()  # IDs whose PING got two status packets: two servos share the ID
 
     def begin(self, t0: float) -> None:
         """Start the log of a new plan on a bus kept open (``ctx.resource``): commands, events and
@@ -213,6 +215,7 @@ class Bus:
     def close(self) -> None:
         """Close the port and forget the setup (a reopened port is checked again); never raises."""
         self.limits.clear()
+        self.twins.clear()
         self.answered.clear()
         self.status_level.clear()
         with contextlib.suppress(Exception):
@@ -373,6 +376,18 @@ class Bus:
         """A lone PING. (The SDK's Protocol 1 ``ping`` also READs the model number; kept apart here so
         that a lost READ reply is not blamed on the PING, nor the other way round.)"""
         self.request(sid, INST_PING, [], 0, "ping")
+        self._twin_reply(sid)
+
+    def _twin_reply(self, sid: int) -> bool:
+        """After a good reply to a PING: does a second status packet from ``sid`` follow within a few ms?
+        Then two servos share the ID (set to it by mistake, a spare left on the bus) and answer one after
+        the other (different return delay times); a goal for that ID would move both. dynamixel-sdk reads
+        only the first packet and its next ``clearPort()`` discards the second: nothing else would notice."""
+        with self._port_io():
+            late_ms, _ = self._listen_late(sid, time.monotonic(), 0, window_s=TWIN_WINDOW_S)
+        if late_ms is not None:
+            self.twins.add(sid)
+        return late_ms is not None
 
     def answers_ping(self, sid: int) -> bool:
         """One PING, no retry, never raises: whether ``sid`` answers at all (a diagnosis)."""
@@ -381,7 +396,10 @@ class Bus:
     def probe_ping(self, sid: int) -> Try:
         """One PING, no retry, never raises: what came back (a diagnosis)."""
         try:
-            return self._once(sid, INST_PING, [], 0)[0]
+            t = self._once(sid, INST_PING, [], 0)[0]
+            if t.outcome == "ok":
+                self._twin_reply(sid)
+            return t
         except PortLost:
             raise
         except Exception as e:  # noqa: BLE001 - a diagnosis must not fail

@@ -90,7 +90,9 @@ def head_and_hint(e: ServoFailure, *, moving: bool, baud: int) -> tuple[str, str
         return (f"servo {sid} answers late: its status packet to the {ex.what} came {ex.late_ms:.0f} ms after the "
                 f"request, after dynamixel-sdk had stopped waiting (~34 ms at 1 Mbps) ({ex.summary()})", LATE_HINT)
     if kind == "corrupt":
-        return f"servo {sid}'s replies to the {ex.what} arrive corrupted ({ex.summary()})", NOISE_HINT
+        return (f"servo {sid}'s replies to the {ex.what} arrive corrupted ({ex.summary()})",
+                NOISE_HINT + f" If servo {sid}'s replies alone arrive corrupted, two servos may share ID {sid} (their "
+                             f"status packets collide): connect them one at a time and check their IDs.")
     if moving:
         return f"servo {sid} stopped answering ({ex.what}: {ex.summary()})", MOTION_LOSS_HINT
     return (f"servo ID {sid} did not answer a {ex.what} ({ex.summary()}; nothing came back, not even late)",
@@ -120,6 +122,11 @@ def missing_servo(bus: Bus, sid: int, ids: list[int], e: ServoFailure, baud: int
     foreign = [i for i in answering if i not in ids]
     head += f"; on {bus.port_path} IDs {', '.join(map(str, answering)) or 'none'} answer (0-{min(253, max(ids) + 8)} " \
             "pinged)"
+    twins = sorted(bus.twins & set(answering))
+    if twins:
+        head += "; " + "; ".join(f"two servos answer at ID {t}" for t in twins)
+        hint = (f"if one of the two servos at ID {twins[0]} is the servo the arm model calls {sid}, connect it alone "
+                f"and set its ID to {sid} (Dynamixel Wizard / RoboPlus). " + hint)
     if foreign:
         which = ", ".join(map(str, foreign))
         head += (f": ID{'s' if len(foreign) > 1 else ''} {which} answer{'' if len(foreign) > 1 else 's'} but "
@@ -127,6 +134,15 @@ def missing_servo(bus: Bus, sid: int, ids: list[int], e: ServoFailure, baud: int
         hint = (f"if ID {foreign[0]} is the servo the arm model calls {sid}, set its ID to {sid} (Dynamixel Wizard / "
                 f"RoboPlus), or give the arm model the IDs your servos have (ik.arm servos' id). " + hint)
     return head, hint
+
+
+def twin_id(port: str, sid: int, ids: list[int]) -> tuple[str, str]:
+    """Two status packets came back to one PING of ``sid``: two servos share the ID."""
+    return (f"two servos answer at ID {sid} on {port} (each PING got two status packets, one after the other): a "
+            f"goal for ID {sid} would move both of them",
+            f"connect the servos one at a time and give each its own ID (Dynamixel Wizard / RoboPlus): the arm model "
+            f"has IDs {', '.join(map(str, ids))} (ik.arm servos' id); take any servo that is not the arm's off the "
+            f"bus.")
 
 
 def after_ping(bus: Bus, sid: int, e: ServoFailure, baud: int) -> tuple[str, str]:

@@ -170,6 +170,8 @@ def _setup_servos(bus: Bus, ids: list[int], params: DynamixelParams) -> None:
                     not any(bus.answers_ping(other) for other in ids[1:]):
                 raise NodeError(*_diagnose.silent_bus(bus.port_path, ids, params.baud)) from None
             raise NodeError(*_diagnose.missing_servo(bus, sid, ids, e, params.baud)) from None
+        if sid in bus.twins:
+            raise NodeError(*_diagnose.twin_id(bus.port_path, sid, ids))
         try:
             model = bus.read(sid, 0, 2, "read of the model number")
         except PortLost:
