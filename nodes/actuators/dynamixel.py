@@ -351,10 +351,9 @@ def _motion_failure(e: ServoFailure, bus: Bus, ids: list[int], where: str, baud:
     if bus.lost is not None:
         # Nothing can be sent: the servos go on to the last goals written and hold there, powered.
         last = {c["id"]: c["value"] for c in bus.commands if c["instruction"] == "SYNC_WRITE" and c["address"] == 30}
+        goals = (f" ({', '.join(f'servo {k}: {v}' for k, v in last.items())} units)" if last else "")
         msg = (f"lost contact with the arm during waypoint {bus.waypoint!r} on {where}: {head}; torque could not be "
-               f"turned off: "
-               f"the servos go on to their last goals ({', '.join(f'servo {k}: {v}' for k, v in last.items())} "
-               f"units) and hold there with torque on.")
+               f"turned off: the servos go on to their last goals{goals} and hold there with torque on.")
         return NodeError(msg, hint=hint, lasting=True)
     msg = (f"arm stopped during waypoint {bus.waypoint!r} on {where}: {head}. Torque was turned off on all servos "
            f"{ids}" + (f" ({'; '.join(notes)})" if notes else "") + ".")
