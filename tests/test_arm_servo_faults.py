@@ -104,6 +104,8 @@ def test_alarm_bits_at_ping_are_named(bit, word, hint_word):
         assert no_goal_written(sim)
     assert e.message.startswith(f"servo 4 reports {word} (alarm bits in its status packet to the ping)")
     assert "status return level" not in e.message and hint_word in e.hint
+    if bit == ERR_ANGLE:  # latched until a valid goal: say how to clear it, or no later run gets past the ping
+        assert "power the servos off and on" in e.hint and "address 30" in e.hint
     assert dt < 1.0  # an alarm is the servo's answer: not retried
 
 

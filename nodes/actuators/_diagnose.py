@@ -35,7 +35,9 @@ ALARM_HINTS = {
                  "long daisy chain makes it sag.",
     ERR_ANGLE: "angle limit: a goal outside the servo's own CW/CCW angle limits (addresses 6/8) was written, "
                "possibly by an earlier program (the bit stays set until a valid goal). Compare the limits with "
-               "the arm model's joint limits and zero offsets.",
+               "the arm model's joint limits and zero offsets. To clear the bit, power the servos off and on, or "
+               "write the servo's present position (address 36) to its goal position (address 30) with Dynamixel "
+               "Wizard / RoboPlus.",
     ERR_RANGE: "range: the servo received a value outside a register's range. Re-plan from the same arm model; "
                "if it persists, report it.",
 }
