@@ -71,10 +71,16 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
     z_stereo = fb / d
     R = params.object.radius_cm
     z_size = [R / max(math.sin(c["half_angle_rad"]), 1e-9) * c["axis"][2] for c in cones]
-    worst = max(abs(z / z_stereo - 1.0) for z in z_size)
-    if worst > params.max_size_mismatch:
-        return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
-                f"{z_size[0]:.1f} cm, stereo {z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
+    worst = max((0, 1), key=lambda i: abs(z_size[i] / z_stereo - 1.0))  # the view that fits worst
+    if abs(z_size[worst] / z_stereo - 1.0) > params.max_size_mismatch:
+        side, other = ("left", "right")[worst], ("left", "right")[1 - worst]
+        if abs(z_size[1 - worst] / z_stereo - 1.0) > params.max_size_mismatch:  # both views: the radius
+            return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
+                    f"{z_size[0]:.1f} cm in the left image and {z_size[1]:.1f} cm in the right, stereo "
+                    f"{z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
+        return (f"the region's size does not fit its distance for a ball of radius {R:g} cm in the {side} image "
+                f"(size gives {z_size[worst]:.1f} cm there, {z_size[1 - worst]:.1f} cm in the {other} image, stereo "
+                f"{z_stereo:.1f} cm): the {side} view sees another object or only part of the ball")
     why = _check_same_size(left, right, z_size, params)
     if why is not None:
         return why
