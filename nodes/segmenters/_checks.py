@@ -95,9 +95,8 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
             tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
             if abs(z / z_stereo - 1.0) > tol:
                 side = "left" if reg is left else "right"
-                return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
-                        f"outline visible: the arc fitted to it gives {z:.1f} cm from its size but {z_stereo:.1f} cm "
-                        f"by stereo (> {100 * tol:.1f} %): not trusted")
+                return (f"{_partial_clause(part, side)}: the arc fitted to it gives {z:.1f} cm from its size but "
+                        f"{z_stereo:.1f} cm by stereo (> {100 * tol:.1f} %): not trusted")
         s_z = z_stereo**2 * s_d / fb
         if s_z > params.partial.max_sigma_z_cm:
             part = left.get("partial") or right.get("partial")
@@ -110,9 +109,8 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
                         f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
                         f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer focal length or a larger "
                         "image locate it")
-            return (f"{_partial_words(part)} in the {side} image, {100 * part['outline_visible']:.0f} % of the "
-                    f"outline visible: too little to locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
-                    f"{params.partial.max_sigma_z_cm:g})")
+            return (f"{_partial_clause(part, side)}: too little to locate it (sigma_z {s_z:.2f} cm > "
+                    f"partial.max_sigma_z_cm {params.partial.max_sigma_z_cm:g})")
     return None
 
 
@@ -147,11 +145,17 @@ def _check_same_size(left: dict, right: dict, z_size: list[float], params: Segme
             "side lost in a shadow or the dim table, or an occluder): not trusted")
 
 
-def _partial_words(part: dict) -> str:
+def _partial_clause(part: dict, side: str) -> str:
+    """What the fitted arcs saw in the ``side`` image, for a reason: cut by a border, hidden in part, or --
+    the whole outline seen, part of it off the ball's edge -- a region that strays from the ball."""
     cause = part.get("cause", "")
+    seen = f"{100 * part['outline_visible']:.0f} % of the outline visible"
     if cause.startswith("border: "):
-        return f"cut by the {cause[8:]} image border"
-    return "occluded or touching another object"
+        return f"cut by the {cause[8:]} image border in the {side} image, {seen}"
+    if part["outline_visible"] >= 0.995:  # (every direction has true edge: nothing hides the ball)
+        return (f"the region's outline strays from the ball's edge in places in the {side} image (a touching "
+                "object, a shadow or highlight on the rim; the whole ball's outline is seen)")
+    return f"occluded or touching another object in the {side} image, {seen}"
 
 
 def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> str | None:
