@@ -89,6 +89,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
         # were dropped. A run tries them again; predicted as failing again (their downstream entries
         # then stay as they are), and said so.
         tried_before = set((last or {}).get("keys") or ())
+        failed_before: dict[str, str] = (last or {}).get("failed") or {}
         retried: list[str] = []
         if computable:
             entries = run.item_ids(inst) if inst.mapped else [None]
@@ -112,9 +113,8 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                     run.adopt_cached(inst, item, key, manifest)
                 elif key in tried_before and inst.spec.cacheable and item is not None:
                     retried.append(item)
-                    why = ((last or {}).get("failed") or {}).get(item)
-                    if why is not None:  # (else dropped: simply absent downstream)
-                        run.failed_items[(name, item)] = why
+                    if item in failed_before:  # (else dropped: simply absent downstream)
+                        run.failed_items[(name, item)] = failed_before[item]
                     continue
                 else:
                     missing += 1
@@ -138,13 +138,11 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                 v.reasons.append("cached -- unless the items " + ", ".join(f"'{a}'" for a in again)
                                  + " tries again succeed this time")
         elif computable and not missing and inst.spec.cacheable:
-            failed = set((last or {}).get("failed") or {})
-
             def names(items: list[str]) -> str:
                 return ", ".join(items[:5]) + (f" and {len(items) - 5} more" if len(items) > 5 else "")
 
-            was_failed = [i for i in retried if i in failed]
-            others = [i for i in retried if i not in failed]
+            was_failed = [i for i in retried if i in failed_before]
+            others = [i for i in retried if i not in failed_before]
             said = ([f"{names(was_failed)} failed"] if was_failed else []) + (
                 [f"{names(others)} dropped (or pruned since)"] if others else [])
             v.reasons.append(f"{len(retried)} of {n_entries} entries the last run looked up with these same inputs "

@@ -749,7 +749,8 @@ class _Run:
                     self.progress.advance(inst.name)
             else:
                 todo.append((item, key, refs))
-        if store_on and not self.sub and not (inst.mapped and inst.name in self.streaming):
+        recorded = store_on and not self.sub and not (inst.mapped and inst.name in self.streaming)
+        if recorded:
             self.record(inst, base)
 
         # Lock what we compute so a concurrent run waits and then shares the result. A node called
@@ -803,7 +804,7 @@ class _Run:
         rep.seconds = time.perf_counter() - t0
         n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
         rep.items_failed = n_failed
-        if n_failed and store_on and not self.sub and not (inst.mapped and inst.name in self.streaming):
+        if n_failed and recorded:
             self.record(inst, base)  # again: which of its items failed is known now
         if (inst.name, None) in self.failed_items:
             rep.status = "failed"
