@@ -109,13 +109,15 @@ def test_a_cached_report_still_writes_accuracy_md(tmp_path):
 def test_not_found_reasons_are_grouped_by_kind_with_their_numbers_as_ranges():
     """(twenty pairs refused for one shared cause -- swapped images: 'different rows (dv = 6.9 px)',
     '(dv = 11.2 px)', ... -- were twenty distinct reasons of one pair each, and the Markdown said none)"""
+    from collections import Counter
+
     from nodes.contracts.reasons import group_reasons
 
     rows = [f"left/right regions are on different rows (dv = {dv} px): swapped?" for dv in (6.9, 11.2, 3.6, 6.9)]
-    assert group_reasons([*rows, "no region found", "ratio 1.2.", "ratio 1.5."]) == [
+    assert group_reasons(Counter([*rows, "no region found", "ratio 1.2.", "ratio 1.5."])) == [
         ("left/right regions are on different rows (dv = 3.6–11.2 px): swapped?", 4),
         ("ratio 1.2–1.5.", 2), ("no region found", 1)]
-    assert group_reasons(["scene s001 of DICT_4X4_50 (9x6)", "scene s002 of DICT_4X4_50 (9x6)"]) == [
+    assert group_reasons(Counter(["scene s001 of DICT_4X4_50 (9x6)", "scene s002 of DICT_4X4_50 (9x6)"])) == [
         ("scene s001 of DICT_4X4_50 (9x6)", 1), ("scene s002 of DICT_4X4_50 (9x6)", 1)]  # ids are not numbers
     locs = {f"p{i}": {**_loc(f"p{i}", "test", False, None, [0.0, 0.0, 30.0]), "reason": r}
             for i, r in enumerate([*rows, "no region found"])}

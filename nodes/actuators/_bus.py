@@ -378,7 +378,7 @@ class Bus:
         self.request(sid, INST_PING, [], 0, "ping")
         self._twin_reply(sid)
 
-    def _twin_reply(self, sid: int) -> bool:
+    def _twin_reply(self, sid: int) -> None:
         """After a good reply to a PING: does a second status packet from ``sid`` follow within a few ms?
         Then two servos share the ID (set to it by mistake, a spare left on the bus) and answer one after
         the other (different return delay times); a goal for that ID would move both. dynamixel-sdk reads
@@ -387,7 +387,6 @@ class Bus:
             late_ms, _ = self._listen_late(sid, time.monotonic(), 0, window_s=TWIN_WINDOW_S)
         if late_ms is not None:
             self.twins.add(sid)
-        return late_ms is not None
 
     def answers_ping(self, sid: int) -> bool:
         """One PING, no retry, never raises: whether ``sid`` answers at all (a diagnosis)."""

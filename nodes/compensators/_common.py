@@ -325,7 +325,7 @@ def training_samples(
     if len(keep) < min_points:
         why = ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n) or "the collection is empty"
         if reasons:  # the locator's own words: a cause shared by every pair (swapped images ...) shows here
-            top, n_top = group_reasons(r for r, n in reasons.items() for _ in range(n))[0]
+            top, n_top = group_reasons(reasons)[0]
             why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
         raise NodeError(
             f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "

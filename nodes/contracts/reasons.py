@@ -9,7 +9,7 @@ number becomes the range it took: "different rows (dv = 3.6–11.2 px)", 20 pair
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable
+from collections.abc import Mapping
 
 __all__ = ["group_reasons"]
 
@@ -17,13 +17,13 @@ __all__ = ["group_reasons"]
 _NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?!\w|\.\d)")
 
 
-def group_reasons(reasons: Iterable[str]) -> list[tuple[str, int]]:
+def group_reasons(counts: Mapping[str, int]) -> list[tuple[str, int]]:
     """Reasons grouped by their wording, most frequent first.
 
     Parameters
     ----------
-    reasons : iterable of str
-        One reason per item (repeats allowed).
+    counts : mapping of str to int
+        How many items gave each exact reason (a ``collections.Counter`` of them, say).
 
     Returns
     -------
@@ -33,9 +33,12 @@ def group_reasons(reasons: Iterable[str]) -> list[tuple[str, int]]:
         keep the order in which the kinds were first seen.
     """
     groups: dict[str, list[list[str]]] = {}
-    for r in reasons:
+    sizes: dict[str, int] = {}
+    for r, n in counts.items():
         r = str(r)
-        groups.setdefault(_NUMBER.sub("\0", r), []).append(_NUMBER.findall(r))
+        template = _NUMBER.sub("\0", r)
+        groups.setdefault(template, []).append(_NUMBER.findall(r))
+        sizes[template] = sizes.get(template, 0) + n
     out = []
     for template, values in groups.items():
         parts = template.split("\0")
@@ -44,5 +47,5 @@ def group_reasons(reasons: Iterable[str]) -> list[tuple[str, int]]:
             slot = [v[k] for v in values]
             lo, hi = min(slot, key=float), max(slot, key=float)
             text += (lo if float(lo) == float(hi) else f"{lo}–{hi}") + part
-        out.append((text, len(values)))
+        out.append((text, sizes[template]))
     return sorted(out, key=lambda tc: -tc[1])

@@ -189,7 +189,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
             reasons[r] = reasons.get(r, 0) + 1
     # one line per kind of reason (its numbers as ranges), where people read: a cause every pair
     # shares (swapped images, another rig's calibration) shows as one line with its count
-    kinds = group_reasons(r for r, n in reasons.items() for _ in range(n))
+    kinds = group_reasons(reasons)
     if kinds:
         shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
         more = sum(n for _, n in kinds[MAX_REASON_LINES:])
