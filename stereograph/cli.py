@@ -19,7 +19,7 @@ from typing import Any
 
 from stereograph import __version__, registry
 from stereograph.errors import ConfigError, sentence
-from stereograph.progress import PlainProgress, RichProgress  # noqa: F401  (RichProgress: the old home)
+from stereograph.progress import Mutable, PlainProgress, RichProgress
 from stereograph.threads import one_thread_each, pool_requested
 
 
@@ -376,14 +376,15 @@ def cmd_run(args) -> int:
 
     graph = _load_graph(args)
     con = _console()
-    loop = _loop(args, con)
-    interactive = sys.stdout.isatty() and not args.json and loop is None
+    interactive = sys.stdout.isatty() and not args.json and args.repeat is None
+    # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with --json);
+    # a loop's cycles after the first, one line each (their nodes' lines with --verbose)
+    prog = Mutable(RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
+                                                                      args.progress_interval))
+    loop = _loop(args, con, None if args.verbose else prog.mute)
     executor = workers_executor(args.workers, args.dask)
     kw = dict(cache_dir=args.cache_dir, out_dir=args.out, use_cache=not args.no_cache, only=args.only,
               from_node=getattr(args, "from"), executor=executor, cycles=loop)
-    # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with --json)
-    prog = RichProgress(con) if interactive else PlainProgress(sys.stderr if args.json else sys.stdout,
-                                                              args.progress_interval)
     try:
         with _stdout_to_stderr(args.json):
             with prog:
@@ -484,8 +485,8 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
     return 0
 
 
-def _loop(args, con):
-    """The ``--repeat`` loop (stereograph.loop), or None."""
+def _loop(args, con, after_cycle=None):
+    """The ``--repeat`` loop (stereograph.loop), or None; ``after_cycle()`` is called as each cycle ends."""
     if args.repeat is None:
         return None
     if args.workers > 1 or args.dask:
@@ -495,22 +496,25 @@ def _loop(args, con):
 
     from stereograph.loop import Loop
 
-    return Loop(args.repeat, args.stop_on_failure, args.save_cycles,
-                on_cycle=None if args.json else (lambda c: con.print(escape(c.line()))))
+    def on_cycle(c) -> None:
+        if not args.json:
+            con.print(escape(c.line()))
+        if after_cycle is not None:
+            after_cycle()
+
+    return Loop(args.repeat, args.stop_on_failure, args.save_cycles, on_cycle=on_cycle)
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """For ``run`` and ``compare``: SIGTERM (``kill``, a service manager, a CI job's timeout) ends the
-    command the way Ctrl-C does, as a ``KeyboardInterrupt("SIGTERM")`` raised in the running node, so
-    its cleanup runs, a ``--repeat`` loop's summary is written, and the run folder gets the
-    ``run.json`` of an interrupted run -- the same command then resumes into it. (The default action
-    killed a single run on the spot, leaving saved outputs without a ``run.json``: a folder the next
-    run with the same ``--out`` refused as not stereograph's.) A worker process forked while this
-    is installed keeps the default action."""
+def _stop_signals_as_interrupt():
+    """For ``run`` and ``compare``: SIGINT and SIGTERM both end the command as Ctrl-C does, as a
+    ``KeyboardInterrupt`` raised in the running node (its cleanup runs: an arm is held, the run's
+    ``run.json`` is written, the same command resumes), whatever the process inherited: a job started
+    with ``&`` by a non-interactive shell inherits SIGINT *ignored*, and a supervisor may start it with
+    the signals blocked. A worker process forked while this is installed keeps the default action."""
     main_pid = os.getpid()
 
-    def handler(signum, frame):
+    def on_sigterm(signum, frame):
         if os.getpid() != main_pid:  # a pool's worker: end as before (its pool is ended for it)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGTERM)
@@ -518,14 +522,18 @@ def _sigterm_as_interrupt():
         raise KeyboardInterrupt("SIGTERM")
 
     try:
-        old = signal.signal(signal.SIGTERM, handler)
+        old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_sigterm),
+               signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler)}
     except ValueError:  # not the main thread: leave signals alone
         yield
         return
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for signum, handler in old.items():
+            signal.signal(signum, handler)
 
 
 def cmd_explain(args) -> int:
@@ -679,6 +687,8 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")
     sp.add_argument("--save-cycles", action="store_true", help="--repeat: write every cycle's live outputs, images "
                     "included, into cycles/<n>/")
+    sp.add_argument("--verbose", action="store_true", help="--repeat: a line per node in every cycle, not only in "
+                    "the first (the others get one line per cycle)")
     sp.add_argument("--progress-interval", type=_seconds, default=5.0, metavar="SECONDS",
                     help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
@@ -784,7 +794,7 @@ def _main(argv: list[str]) -> int:
     args.debug = debug  # `stereograph --debug run X` and `stereograph run X --debug` alike
     try:
         with registry.plugins_allowed(allow_plugins), \
-                (_sigterm_as_interrupt() if args.command in ("run", "compare") else contextlib.nullcontext()):
+                (_stop_signals_as_interrupt() if args.command in ("run", "compare") else contextlib.nullcontext()):
             return int(args.fn(args) or 0)
     except ConfigError as e:
         from rich.markup import escape

@@ -26,7 +26,7 @@ import time
 from dataclasses import dataclass
 from typing import IO, Any
 
-__all__ = ["PlainProgress", "RichProgress", "eta_seconds"]
+__all__ = ["Mutable", "PlainProgress", "RichProgress", "eta_seconds"]
 
 
 def eta_seconds(done: float, total: float, elapsed_s: float) -> float | None:
@@ -235,3 +235,26 @@ class RichProgress:
             self.p.reset(task, total=total, completed=done, unit=unit, own=True, entries=t.fields.get("entries", 0))
         else:
             self.p.update(task, total=total, completed=done)
+
+
+class Mutable:
+    """A progress display that can be switched off part-way: a ``--repeat`` loop's later cycles, whose
+    one line per cycle says it all (``--verbose`` keeps the per-node lines)."""
+
+    def __init__(self, inner: Any):
+        self.inner = inner
+        self.muted = False
+
+    def mute(self) -> None:
+        self.muted = True
+
+    def __enter__(self) -> Mutable:
+        self.inner.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> Any:
+        return self.inner.__exit__(*exc)
+
+    def __getattr__(self, name: str) -> Any:
+        call = getattr(self.inner, name)
+        return (lambda *a, **k: None) if self.muted else call

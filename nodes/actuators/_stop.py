@@ -12,8 +12,8 @@ told otherwise. Three ways to end (``on_interrupt``):
 
 Every goal written here is clamped into the joint limits, like every other goal. The hold itself
 (a few reads and one sync write, tens of ms) runs with Ctrl-C ignored so that it cannot be cut in
-half; SIGTERM, while the arm moves, raises :class:`Terminated` (a ``KeyboardInterrupt``) unless
-someone else (the engine) already handles SIGTERM.
+half; SIGINT and SIGTERM, while the arm moves, raise a ``KeyboardInterrupt`` even where the process
+inherited them ignored, unless someone else (the engine) already handles them.
 """
 
 from __future__ import annotations
@@ -38,23 +38,29 @@ def _main_thread() -> bool:
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt():
-    """While the arm moves, SIGTERM raises :class:`Terminated` in the main thread (when nobody else
-    handles SIGTERM — the default action would kill the process mid-motion, leaving the arm going
-    to its last goal with the port open)."""
-    installed, prev = False, None
-    if _main_thread():
-        prev = signal.getsignal(signal.SIGTERM)
-        if prev in (signal.SIG_DFL, None):
-            def _raise(signum, frame):
-                raise Terminated("SIGTERM")
-            signal.signal(signal.SIGTERM, _raise)
-            installed = True
+def stop_signals_as_interrupt():
+    """While the arm moves, SIGINT and SIGTERM raise a ``KeyboardInterrupt`` in the main thread, even
+    where the process inherited them ignored or blocked (a job started with ``&`` by a script) and
+    nobody else handles them: the default action would kill the process mid-motion, or do nothing,
+    leaving the arm going to its last goal with the port open. Handlers someone installed are kept."""
+    if not _main_thread():
+        yield
+        return
+    prev = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    if prev[signal.SIGTERM] in (signal.SIG_DFL, signal.SIG_IGN, None):
+        def _raise(signum, frame):
+            raise Terminated("SIGTERM")
+        signal.signal(signal.SIGTERM, _raise)
+    if prev[signal.SIGINT] in (signal.SIG_IGN, None):
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, set(prev))
     try:
         yield
     finally:
-        if installed:
-            signal.signal(signal.SIGTERM, prev)
+        for s, h in prev.items():
+            if h is not None:
+                signal.signal(s, h)
 
 
 @contextlib.contextmanager
@@ -113,7 +119,7 @@ def rest(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], rest_unit
     timeout_s = 1.5 * move_seconds(present, data) + 2.0
     t0 = time.monotonic()
     try:
-        with sigterm_as_interrupt():
+        with stop_signals_as_interrupt():
             return _wait_rest(bus, ids, limits, goals, speed_units, tolerance_units, t0, timeout_s)
     except KeyboardInterrupt:
         out = hold(bus, ids, limits, speed_units)

@@ -45,7 +45,7 @@ from ._plan import (
     summary,
     waypoint_data,
 )
-from ._stop import Terminated, hold, rest, sigterm_as_interrupt
+from ._stop import Terminated, hold, rest, stop_signals_as_interrupt
 from .servo_sim import Faults, ServoSim
 
 ADDR_CW_LIMIT, ADDR_TORQUE, ADDR_POSITION, ADDR_MOVING = 6, 24, 36, 46
@@ -424,7 +424,7 @@ def execute_plan(params: DynamixelParams, plan: dict, arm: dict, port_path: str,
     reached: list[dict] = []
     moved = False
     try:
-        with sigterm_as_interrupt():
+        with stop_signals_as_interrupt():
             present = _check_servos(bus, ids, plan, params)
             grippers = _gripper_ids(arm)
             for w in plan["waypoints"]:
