@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import math
 import os
 import re
 import urllib.parse
@@ -68,6 +69,11 @@ window.addEventListener('load', function () {
 
 def _e(x: Any) -> str:
     return _ascii(html.escape(str(x)))
+
+
+def _seconds(x: Any) -> float:
+    """A node's time from run.json (0 for anything that is not a number: the file may be foreign)."""
+    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
 
 
 def _ascii(text: str) -> str:
@@ -213,8 +219,8 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
     items = n.get("items") or 0
     bits = [f'<h2 id="node-{_e(name)}">{_e(name)} <small>({_e(n.get("type", ""))})</small> '
             f'<span class="st st-{_e(str(status).replace(" ", ""))}">{_e(status)}</span></h2>',
-            f"<p>{float(n.get('seconds') or 0):.2f} s"
-            + (f"; {items} items ({n.get('items_ran', 0)} computed, {n.get('items_failed', 0)} failed)"
+            f"<p>{_seconds(n.get('seconds')):.2f} s"
+            + (f"; {_e(items)} items ({_e(n.get('items_ran', 0))} computed, {_e(n.get('items_failed', 0))} failed)"
                if items else "")
             + "</p>"]
     if n.get("error"):
@@ -282,7 +288,7 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
     title = f"{Path(str(summary.get('pipeline', 'run'))).name} — run {summary.get('run_id', '')}"
     overview = {"title": "nodes", "columns": ["node", "type", "status", "seconds", "items", "error"],
-                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(float(n.get("seconds") or 0), 3),
+                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(_seconds(n.get("seconds")), 3),
                           n.get("items") or "", n.get("error") or ""] for n in nodes]}
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{_e(title)}</title>",
              f"<style>{_STYLE}</style></head><body>", f"<h1>{_e(title)}</h1>",

@@ -9,6 +9,7 @@ look at), else into the test's temporary folder.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -124,3 +125,69 @@ def test_pick_report(tmp_path):
     dom = _browser(res.out_dir / "report.html", tmp_path, shot, 7600)  # tall: the arm is the last node
     _check(dom, shot, ["pick_report/arm_figure.png", "locate/overlay/"])
     assert "Joints and servos at the grasp" in dom and "goal (units)" in dom
+
+
+PAYLOAD = ("<img src=x onerror=\"document.body.setAttribute('data-pwned','img')\">"
+           "<script>document.body.setAttribute('data-pwned','script')</script>")
+
+
+def _leaves(x, path=()):
+    """Every value of a JSON document (and every key of its objects), as paths."""
+    if isinstance(x, dict):
+        for k, v in x.items():
+            yield (*path, ("key", k))
+            yield from _leaves(v, (*path, k))
+    elif isinstance(x, list):
+        for i, v in enumerate(x):
+            yield from _leaves(v, (*path, i))
+    else:
+        yield path
+
+
+def _plant(doc, path):
+    """A copy of ``doc`` with the payload at ``path`` (appended to a string, in place of anything else)."""
+    doc = json.loads(json.dumps(doc))
+    *head, last = path
+    box = doc
+    for p in head:
+        box = box[p]
+    if isinstance(last, tuple):  # a key
+        box[last[1] + PAYLOAD] = box.pop(last[1])
+    else:
+        box[last] = (box[last] + PAYLOAD) if isinstance(box[last], str) else PAYLOAD
+    return doc
+
+
+def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
+    """run.json may come from someone else (`stereograph report DIR`): whatever field carries markup,
+    the page either shows it as text or is refused -- and in a browser no planted script runs."""
+    from stereograph.errors import ConfigError
+    from stereograph.report import write_report
+
+    res = run_pipeline(PIPES / "hello.yaml", ["numbers.n=3"], cache_dir=tmp_path / "c", out_dir=tmp_path / "run")
+    summary = json.loads((res.out_dir / "run.json").read_text())
+    paths = list(_leaves(summary))
+    assert len(paths) > 80
+    planted_all, refused = summary, []
+    for path in reversed(paths):  # (a key after everything below it: its children's paths name it)
+        (res.out_dir / "run.json").write_text(json.dumps(_plant(summary, path)))
+        try:
+            page = write_report(res.out_dir).read_text()
+        except ConfigError:
+            refused.append(path)
+            continue
+        assert "<img src=x" not in page and "<script>document" not in page, path
+        if not isinstance(path[-1], tuple):  # (keys one at a time only: a renamed 'nodes' hides the rest)
+            planted_all = _plant(planted_all, path)
+    assert len(refused) < len(paths) // 4  # most fields are shown, escaped
+    # every value that is shown, planted at once, opened in the browser: nothing ran
+    (res.out_dir / "run.json").write_text(json.dumps(planted_all))
+    assert main(["report", str(res.out_dir)]) == 0
+    page = (res.out_dir / "report.html").read_text()
+    assert page.count("&lt;img src=x") >= 20
+    if CHROMIUM is None:
+        pytest.skip("headless Chromium not installed: the page was checked as text only")
+    dom = _browser(res.out_dir / "report.html", tmp_path, tmp_path / "planted.png", 1200)
+    body = re.search(r"<body[^>]*>", dom).group(0)
+    assert "data-pwned" not in body, body  # no planted handler or script ran
+    assert 'data-ok="true"' in dom  # (the page's own script did run)
