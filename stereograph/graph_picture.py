@@ -13,6 +13,8 @@ from __future__ import annotations
 import html
 from typing import Any
 
+import networkx as nx
+
 BOX_W, BOX_H, GAP_X, GAP_Y, PAD, LANE = 170, 46, 24, 40, 12, 9
 STATUS_FILL = {"ran": "#d9f2d9", "cached": "#e3ecfa", "partial": "#fde9c4", "failed": "#f8d0d0",
                "skipped": "#e6e6e6", "not selected": "#f4f4f4"}
@@ -25,20 +27,45 @@ def describe(graph: Any) -> dict[str, dict[str, Any]]:
             for n, inst in graph.nodes.items()}
 
 
+def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
+    """The wires between the described nodes as a DAG, nodes in their listed order. A description read
+    from a foreign ``run.json`` may hold a cycle: the wires a depth-first walk finds closing one are left out."""
+    g = nx.DiGraph()
+    g.add_nodes_from(nodes)
+    g.add_edges_from((src, dst) for src, _, dst, _ in _edges(nodes) if src != dst)
+    state: dict[str, int] = {}  # 1: on the walk's path, 2: done
+    back = []
+    for root in nodes:
+        if root in state:
+            continue
+        state[root] = 1
+        stack = [(root, iter(list(g.successors(root))))]
+        while stack:
+            n, rest = stack[-1]
+            for m in rest:
+                if state.get(m) == 1:
+                    back.append((n, m))
+                elif m not in state:
+                    state[m] = 1
+                    stack.append((m, iter(list(g.successors(m)))))
+                    break
+            else:
+                state[n] = 2
+                stack.pop()
+    g.remove_edges_from(back)
+    return g
+
+
 def _rows(nodes: dict[str, dict[str, Any]]) -> dict[str, int]:
+    """Each node's row: the longest path that reaches it; a node without inputs (an arm model) sits
+    just above its first consumer."""
+    g = dag(nodes)
     row: dict[str, int] = {}
-
-    def depth(n: str, seen: frozenset = frozenset()) -> int:
-        if n not in row:
-            srcs = [s for s, _ in nodes[n].get("inputs", {}).values() if s in nodes and s not in seen]
-            row[n] = 1 + max((depth(s, seen | {n}) for s in srcs), default=-1)
-        return row[n]
-
+    for n in nx.topological_sort(g):
+        row[n] = 1 + max((row[p] for p in g.predecessors(n)), default=-1)
     for n in nodes:
-        depth(n)
-    for n, d in nodes.items():  # a node without inputs (an arm model) sits just above its first consumer
-        users = [row[m] for m, e in nodes.items() if any(s == n for s, _ in e.get("inputs", {}).values())]
-        if not d.get("inputs") and users:
+        users = [row[m] for m in g.successors(n)]
+        if not g.in_degree(n) and users:
             row[n] = max(0, min(users) - 1)
     return row
 

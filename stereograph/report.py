@@ -18,13 +18,14 @@ from __future__ import annotations
 import base64
 import html
 import json
-import math
 import os
 import re
 import urllib.parse
 import uuid
 from pathlib import Path
 from typing import Any
+
+import networkx as nx
 
 from stereograph import graph_picture
 
@@ -69,11 +70,6 @@ window.addEventListener('load', function () {
 
 def _e(x: Any) -> str:
     return _ascii(html.escape(str(x)))
-
-
-def _seconds(x: Any) -> float:
-    """A node's time from run.json (0 for anything that is not a number: the file may be foreign)."""
-    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else 0.0
 
 
 def _ascii(text: str) -> str:
@@ -219,7 +215,7 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
     items = n.get("items") or 0
     bits = [f'<h2 id="node-{_e(name)}">{_e(name)} <small>({_e(n.get("type", ""))})</small> '
             f'<span class="st st-{_e(str(status).replace(" ", ""))}">{_e(status)}</span></h2>',
-            f"<p>{_seconds(n.get('seconds')):.2f} s"
+            f"<p>{float(n.get('seconds') or 0):.2f} s"
             + (f"; {_e(items)} items ({_e(n.get('items_ran', 0))} computed, {_e(n.get('items_failed', 0))} failed)"
                if items else "")
             + "</p>"]
@@ -265,19 +261,12 @@ def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     run.json lists nodes as the pipeline file (and its includes) define them, so a node that an
     including file rewires can come before its inputs; the page reads top to bottom like the graph.
     """
-    names = {n.get("node") for n in nodes}
-    deps = {}
-    for n in nodes:
-        refs = (n.get("inputs") or {}).values()
-        deps[n.get("node")] = {r[0] for r in refs if isinstance(r, (list, tuple)) and r and r[0] in names} - {
-            n.get("node")}
-    out, done, pending = [], set(), list(nodes)
-    while pending:
-        i = next((k for k, n in enumerate(pending) if deps[n.get("node")] <= done), 0)  # 0: a cycle, keep order
-        n = pending.pop(i)
-        out.append(n)
-        done.add(n.get("node"))
-    return out
+    by_name = {n.get("node"): n for n in nodes}
+    desc = {name: {"inputs": n.get("inputs") if isinstance(n.get("inputs"), dict) else {}}
+            for name, n in by_name.items()}
+    index = {name: i for i, name in enumerate(by_name)}
+    order = nx.lexicographical_topological_sort(graph_picture.dag(desc), key=index.__getitem__)
+    return [by_name[name] for name in order] + [n for n in nodes if by_name.get(n.get("node")) is not n]
 
 
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
@@ -288,7 +277,7 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
     title = f"{Path(str(summary.get('pipeline', 'run'))).name} — run {summary.get('run_id', '')}"
     overview = {"title": "nodes", "columns": ["node", "type", "status", "seconds", "items", "error"],
-                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(_seconds(n.get("seconds")), 3),
+                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(float(n.get("seconds") or 0), 3),
                           n.get("items") or "", n.get("error") or ""] for n in nodes]}
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{_e(title)}</title>",
              f"<style>{_STYLE}</style></head><body>", f"<h1>{_e(title)}</h1>",
