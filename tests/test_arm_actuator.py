@@ -132,6 +132,7 @@ def test_full_pick_on_the_emulator():
     assert all(lim[str(e["id"])][0] <= e["value"] <= lim[str(e["id"])][1] for e in goals)
 
 
+@pytest.mark.slow
 def test_dropped_replies_are_retried():
     plan = make_plan()
     with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:
@@ -170,6 +171,7 @@ def test_persistent_fault_mid_motion_turns_torque_off(fault, tmp_path):
         assert_goals_within_limits(sim)
 
 
+@pytest.mark.slow
 def test_missing_servo_fails_before_any_write(tmp_path):
     plan = make_plan()
     ctx = RunContext("act", "p1", tmp_path, tmp_path)
@@ -181,6 +183,7 @@ def test_missing_servo_fails_before_any_write(tmp_path):
         assert sim.log == []
 
 
+@pytest.mark.slow
 def test_a_servo_set_to_another_id_is_named_with_the_ids_that_answer():
     # servo 3 of the arm was renumbered 6 (or a new one left at another ID): "did not answer" alone sent
     # people to check a cable that was fine
@@ -199,6 +202,7 @@ def test_a_servo_set_to_another_id_is_named_with_the_ids_that_answer():
         assert "IDs 1, 2, 4, 5 answer" in ei.value.message and "not in the arm model" not in ei.value.message
 
 
+@pytest.mark.slow
 def test_a_bus_where_no_servo_answers_is_named_as_such():
     # (a silent bus -- supply off, adapter unplugged at the servo end -- was "servo ID 1 did not answer a ping")
     plan = make_plan()
@@ -245,6 +249,7 @@ def test_servos_that_reply_only_to_reads_still_work():
         assert_goals_within_limits(sim)
 
 
+@pytest.mark.slow
 def test_servos_that_never_reply_to_reads_fail_clearly_before_moving():
     plan = make_plan()
     with ServoSim([1, 2, 3, 4, 5], time_scale=50.0) as sim:

@@ -30,6 +30,7 @@ def _instructions(sim: ServoSim, start: int) -> list[str]:
     return [p["instruction"] for p in sim.packets[start:]]
 
 
+@pytest.mark.slow
 def test_setup_once_per_open_port_and_again_after_a_fault():
     params = DynamixelParams(**FAST)
     plan = make_plan()
@@ -107,6 +108,7 @@ def test_sigterm_from_the_engine_is_named_and_the_emulator_log_ends_with_the_hol
     assert all(limits[str(w["id"])][0] <= w["value"] <= limits[str(w["id"])][1] for w in goals)
 
 
+@pytest.mark.slow
 def test_each_failed_motion_of_a_run_keeps_its_own_log(tmp_path):
     # (in a --repeat loop every mid-motion failure wrote act/servo_log_failed.json, so an earlier
     # cycle's message named a file that by then held a later cycle's commands)

@@ -70,6 +70,7 @@ def test_an_adapter_that_echoes_what_it_sends_drives_the_arm():
 
 @pytest.mark.parametrize("present, words", [([2, 3, 4, 5], "servo ID 1 did not answer a ping"),
                                             ([], "no servo answers on")])
+@pytest.mark.slow
 def test_missing_servos_behind_an_echoing_adapter_are_named_not_voltage_alarms(present, words):
     with Peer({i: Servo() for i in present}, echo=True, time_scale=20) as p:
         e = refused(p)
@@ -77,6 +78,7 @@ def test_missing_servos_behind_an_echoing_adapter_are_named_not_voltage_alarms(p
         assert no_goal_written(p)
 
 
+@pytest.mark.slow
 def test_a_joint_that_settled_short_is_said_once_it_is_still_not_after_the_whole_timeout():
     # (the default timeout is 1.5 x the move's planned time + 1 s per waypoint: a servo that had stopped
     # 5 units short, moving flag 0, was waited for that long before the same message)
@@ -121,6 +123,7 @@ def test_two_servos_on_one_id_are_refused_before_anything_is_written():
         assert no_goal_written(p)
 
 
+@pytest.mark.slow
 def test_a_missing_id_whose_servo_shares_another_id_is_named():
     # The shoulder's two servos both set to ID 3: ID 2 is silent, ID 3 answers twice.
     s = servos()

@@ -64,6 +64,7 @@ def test_analytic_scalar_matches_batch():
     assert np.linalg.norm(fk(MODEL, qs) - P, axis=1).max() < 1e-6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["default", "offset"])
 def test_numeric_batch_fk_roundtrip_10000(which, offset_model):
     model = MODEL if which == "default" else offset_model
@@ -258,6 +259,7 @@ def test_hand_eye_rig_and_located_modes():
     assert np.allclose(out["T_base_from_left_truth"], T_truth)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["analytic_3dof", "numeric"])
 def test_a_pick_is_planned_in_one_arm_configuration(solver):
     # (shoulder.min_deg 35: descend_2 reached in front, the grasp 2 cm lower backwards over the base --

@@ -12,6 +12,7 @@ from stereograph.runner import run_pipeline  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_pick_pipeline_end_to_end(tmp_path):
     r = run_pipeline(ROOT / "pipelines" / "pick.yaml", overrides=["rig.n_scenes=24", "rig.n_views=10",
                                                                   "act.sim_time_scale=20"],

@@ -62,6 +62,7 @@ def _wait_line(proc, needle: str, timeout_s: float) -> list[str]:
     raise AssertionError(f"no {needle!r} from the emulator within {timeout_s} s: {lines[-5:]}")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig, mode", [(signal.SIGINT, "hold"), (signal.SIGTERM, "rest")])
 def test_interrupt_mid_motion_ends_safely(tmp_path, sig, mode):
     link = tmp_path / "ttyDXL"

@@ -60,6 +60,7 @@ def no_goal_written(sim):
 
 
 # ---------------------------------------------------------------------------- before moving
+@pytest.mark.slow
 def test_no_reply_names_cable_power_id_baud():
     with ServoSim(IDS, faults=Faults(unplugged_ids={3})) as sim:
         e, dt, torque = fail(sim)
@@ -70,6 +71,7 @@ def test_no_reply_names_cable_power_id_baud():
     assert "Torque: off on [1, 2, 4, 5]; unknown on [3]" in e.message
 
 
+@pytest.mark.slow
 def test_late_reply_names_the_latency_timer_and_the_setting_fixes_it():
     faults = dict(late_replies=10_000, late_ms=70.0, only_ids={3})
     with ServoSim(IDS, faults=Faults(**faults)) as sim:
@@ -109,6 +111,7 @@ def test_alarm_bits_at_ping_are_named(bit, word, hint_word):
     assert dt < 1.0  # an alarm is the servo's answer: not retried
 
 
+@pytest.mark.slow
 def test_ping_but_read_replies_lost_is_not_status_return_level_0():
     # the 3 READs of the model number lose their replies; a later READ works
     with ServoSim(IDS, faults=Faults(drop_replies=3, instructions={"READ"}, only_ids={5})) as sim:
@@ -124,6 +127,7 @@ def test_ping_but_read_replies_lost_is_not_status_return_level_0():
     assert "is not 0" in e.message
 
 
+@pytest.mark.slow
 def test_status_return_level_0():
     with ServoSim(IDS) as sim:
         sim.servos[2].table[16] = 0
@@ -133,6 +137,7 @@ def test_status_return_level_0():
     assert "status return level (address 16) is 0" in e.message and "address 16" in e.hint
 
 
+@pytest.mark.slow
 def test_torque_left_on_is_reported_and_can_be_turned_off():
     def earlier_run(sim):
         for i in (1, 2, 4, 5):
@@ -187,6 +192,7 @@ def test_late_replies_while_moving():
 
 
 # ---------------------------------------------------------------------------- interrupted in-process
+@pytest.mark.slow
 def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
     import os
     import signal
@@ -207,6 +213,7 @@ def test_ctrl_c_mid_motion_with_torque_off_and_before_moving():
         assert ei.value.servo_log["stop"]["action"] == "none" and sim.log == []
 
 
+@pytest.mark.slow
 def test_second_ctrl_c_on_the_way_to_rest_holds_and_the_node_saves_the_log(tmp_path):
     import json
     import os

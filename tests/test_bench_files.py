@@ -224,6 +224,7 @@ def test_opencv_xml_file_loads(tmp_path):
     _assert_same(read_calibration_file(p), cal)
 
 
+@pytest.mark.slow
 def test_export_load_locate_gives_the_same_locations(tmp_path):
     rig = "  rig: {type: source.synthetic, params: {n_scenes: 4, n_views: 0, seed: 3}}\n"
 

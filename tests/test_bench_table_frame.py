@@ -26,6 +26,7 @@ def _frame(rig, left, right, **kw):
     return table_frame(TableFrameParams(**kw), _views(left, right), truth_calibration(rig["truth"]))["table_frame"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaw", [0, 180, 90])
 def test_frame_matches_the_board_on_the_rig(rig, yaw):
     # A board turned by 90 or 180 degrees gives the frame of its own corner nearest the cameras on the left.
@@ -38,6 +39,7 @@ def test_frame_matches_the_board_on_the_rig(rig, yaw):
     assert tf["rig"]["image_size"] == [640, 480]
 
 
+@pytest.mark.slow
 def test_board_not_found_and_ambiguous_board_are_clear_errors(rig):
     left, right, _ = render_table_board(rig, yaw_deg=45)
     with pytest.raises(NodeError, match="ambiguous"):

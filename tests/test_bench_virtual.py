@@ -77,6 +77,7 @@ def _errors(locations: dict, truth: dict, T=None, split="test") -> np.ndarray:
     return np.array(errs)
 
 
+@pytest.mark.slow
 def test_virtual_bench(bench):
     root, truth = bench["root"], bench["truth"]
     # 1. calibrate: the calibration, its OpenCV and ROS exports, and the balls located in-pipeline

@@ -41,6 +41,7 @@ def pipeline(tmp_path):
     return p
 
 
+@pytest.mark.slow
 def test_second_compare_computes_only_the_new_variant(pipeline, tmp_path):
     cache = tmp_path / "cache"
     first = compare(pipeline, [], tmp_path / "out1", cache_dir=cache, plots=False)
@@ -59,6 +60,7 @@ def test_second_compare_computes_only_the_new_variant(pipeline, tmp_path):
         assert (tmp_path / "out2" / name).stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_table_reports_test_split_accuracy(pipeline, tmp_path):
     res = compare(pipeline, ["fit.type=none,polynomial"], tmp_path / "out", cache_dir=tmp_path / "c", plots=False)
     none, poly = res.row(**{"fit.type": "none"}), res.row(**{"fit.type": "polynomial"})
@@ -81,6 +83,7 @@ def test_table_reports_test_split_accuracy(pipeline, tmp_path):
     assert tr.rows[0]["n"] + none["n"] == 60
 
 
+@pytest.mark.slow
 def test_param_variation_and_type_first(pipeline, tmp_path):
     # cv_folds is given before the type change; it must survive the type's param reset.
     res = compare(pipeline, ["fit.cv_folds=4", "fit.type=lookup"], tmp_path / "o", cache_dir=tmp_path / "c",
@@ -149,6 +152,7 @@ def test_product_of_block_and_cli(pipeline):
     ]
 
 
+@pytest.mark.slow
 def test_invalid_variant_is_a_config_error(pipeline, tmp_path):
     with pytest.raises(ConfigError) as exc:
         compare(pipeline, ["fit.type=none,polynomal"], tmp_path / "o", cache_dir=tmp_path / "c")
@@ -161,6 +165,7 @@ def test_invalid_variant_is_a_config_error(pipeline, tmp_path):
     assert [v.variant.label for v in res.variants] == ["fit.type=polynomial, fit.degree=1"]
 
 
+@pytest.mark.slow
 def test_cli(pipeline, tmp_path, capsys):
     rc = cli_main(["compare", str(pipeline), "--vary", "fit.type=none,xyz", "--cache-dir", str(tmp_path / "c"),
                    "--out", str(tmp_path / "o"), "--no-plots"])
@@ -172,6 +177,7 @@ def test_cli(pipeline, tmp_path, capsys):
     assert cli_main(["compare", str(pipeline), "--vary", "ghost.type=a,b"]) == 2
 
 
+@pytest.mark.slow
 def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
     # the CLI draws metrics.png after compare() wrote compare.html; the page must still show it
     assert cli_main(["compare", str(pipeline), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")]) == 0
@@ -179,6 +185,7 @@ def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
     assert (tmp_path / "o" / "metrics.png").is_file() and 'data-file="metrics.png"' in page
 
 
+@pytest.mark.slow
 def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
     from stereograph.runner import ProcessExecutor
 
@@ -196,6 +203,7 @@ def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
     assert [v.ran for v in par.variants] == [v.ran for v in serial.variants]
 
 
+@pytest.mark.slow
 def test_every_variant_writes_a_lossy_output_as_jpeg(tmp_path):
     # (the first variant wrote segment/overlay/*.jpg, the others lossless PNG: ~6x the disk, and
     # report.html pages of 16 MB)
@@ -208,6 +216,7 @@ def test_every_variant_writes_a_lossy_output_as_jpeg(tmp_path):
     assert len(overlays) == 6 and {p.suffix for p in overlays} == {".jpg"}
 
 
+@pytest.mark.slow
 def test_a_mistaken_best_or_metrics_still_prints_the_table_and_best_is_marked_in_plain_text(pipeline, tmp_path,
                                                                                             capsys):
     args = ["compare", str(pipeline), "--vary", "fit.type=none,xyz", "--cache-dir", str(tmp_path / "c"),
@@ -258,6 +267,7 @@ def test_out_must_be_a_folder_of_its_own(pipeline, tmp_path, capsys):
     assert cli_main([*base, "--out", str(out)]) == 0, capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
     """(Ctrl-C during `compare --workers N` waited for every queued variant to run, one after another,
     before the interrupt got through)"""
@@ -393,6 +403,7 @@ def test_a_variant_whose_node_failed_did_not_compute_nothing():
     assert _computed(result(True, {"locate": "cached", "fit": "ran"}, ["fit"])) == "fit"
 
 
+@pytest.mark.slow
 def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
     """--best NAME:abs ranks by closeness to zero; the plain lowest of a metric with negative values is
     said to be the most negative; an unknown way to rank is refused."""
@@ -476,6 +487,7 @@ def once(params, location, ctx=None):
 '''
 
 
+@pytest.mark.slow
 def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     """(SIGTERM killed `compare` on the spot, exit 143 with nothing said, while `run` ended as
     Ctrl-C does: the variant's run.json written, "interrupted", exit 130)"""

@@ -38,6 +38,7 @@ def _picture(kind, locations, out):
     return fit_picture(out["model"], candidates, predict, held_out(locations, needs), variable, axes)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(FIT_NODES))
 def test_the_figure_shows_the_fitted_placements_outliers_and_model(poisoned, kind):
     fn = FIT_NODES[kind]

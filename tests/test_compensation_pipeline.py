@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from stereograph.compare import compare
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -14,6 +16,7 @@ PIPELINE = ROOT / "pipelines" / "compare-compensation.yaml"
 SMALL = ["rig.n_scenes=24", "rig.n_views=8", "calib_error.baseline_scale=1.02"]
 
 
+@pytest.mark.slow
 def test_compare_compensation_real_pipeline(tmp_path):
     cache = tmp_path / "cache"
     first = compare(PIPELINE, ["fit.type=none,polynomial"], tmp_path / "a", overrides=SMALL, cache_dir=cache,

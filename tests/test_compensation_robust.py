@@ -121,6 +121,7 @@ def test_screening_off_keeps_every_placement(poisoned):
     assert model["n_outliers"] == 0 and model["n_train"] == model["n_candidates"]
 
 
+@pytest.mark.slow
 def test_the_run_summary_and_model_file_list_the_left_out_placements(tmp_path):
     # Through the CLI: toy placements (a third of the train split mis-detected) -> compensator.xyz.
     from stereograph.cli import main

@@ -104,6 +104,7 @@ def test_ply_round_trip():
     assert np.array_equal(p, pts) and np.array_equal(c, rgb) and comments == ["units cm"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present")
 def test_dense_aloe_pipeline_through_the_cli(tmp_path):
     out = tmp_path / "run"

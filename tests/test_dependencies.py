@@ -13,6 +13,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # import name -> distribution name, where they differ
@@ -67,6 +69,7 @@ def test_every_imported_package_is_declared():
     assert not missing, f"imported but not declared in pyproject.toml: {missing}"
 
 
+@pytest.mark.slow
 def test_every_core_dependency_is_imported():
     core, _ = _declared()
     used = {DIST_OF_IMPORT.get(name, name).lower() for name in _imported()}

@@ -26,6 +26,7 @@ def run(p, tmp_path, sub, **kw):
     return run_pipeline(p, [], out_dir=tmp_path / sub, **kw)
 
 
+@pytest.mark.slow
 def test_dask_gives_the_serial_result_and_shares_the_cache(tmp_path, dask_local):
     p = write_pipeline(tmp_path, "{n: 8, size: 16}")
     serial = run(p, tmp_path, "o1", use_cache=False)
@@ -59,6 +60,7 @@ def test_a_worker_killed_mid_task_is_replaced_and_the_run_completes(tmp_path, da
     assert r.outputs("total", "total") == serial.outputs("total", "total")
 
 
+@pytest.mark.slow
 def test_a_task_that_keeps_killing_workers_is_lost_alone(tmp_path, dask_local):
     p = write_pipeline(tmp_path, "{n: 4, kill_always: m002}")
     r = run(p, tmp_path, "o", use_cache=False, executor=dask_local)
@@ -108,6 +110,7 @@ def _trim_threshold():
 _TRIM_BEFORE = _trim_threshold()  # (a Nanny writes its workers' settings into this process's environment too)
 
 
+@pytest.mark.slow
 def test_local_workers_keep_the_allocators_adaptive_threshold(dask_local):
     """Dask's default MALLOC_TRIM_THRESHOLD_ made every image a fresh mmap (8 s of kernel time per
     worker on locate.yaml): our local workers start without it, unless the environment sets it."""

@@ -6,6 +6,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from stereograph.runner import ProcessExecutor, run_pipeline
 
 PLUGINS = [Path(__file__).parent / "plugins" / "toy.py", Path(__file__).parent / "plugins" / "toy_items.py"]
@@ -327,6 +329,7 @@ sys.exit(rc)
 """
 
 
+@pytest.mark.slow
 def test_a_workers_command_loads_numpy_with_one_blas_thread(tmp_path):
     """OpenBLAS reads its thread count once, when NumPy loads, and its idle threads spin: a
     ``--workers N`` command sets one thread per library pool before anything imports NumPy (its own

@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from stereograph.progress import PlainProgress, RichProgress, eta_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,6 +65,7 @@ def test_rich_progress_takes_the_node_count_and_back():
         assert prog.p.tasks[0].completed == 1 and prog.p.tasks[0].total == 1
 
 
+@pytest.mark.slow
 def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     """`stereograph run pipelines/locate.yaml > log.txt`: lines arrive before the run ends."""
     cmd = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "rig",
@@ -113,6 +116,7 @@ def test_plain_progress_ending_lines_say_failed_and_interrupted():
     assert lines[-1].startswith("locate: interrupted (1/3 items"), lines
 
 
+@pytest.mark.slow
 def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
     cmd = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "calib",
            "--set", "rig.n_scenes=2", "--set", "rig.n_views=8", "--set", "calib.max_rms_px=0.001", "--no-cache",

@@ -11,6 +11,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from stereograph.cli import main
 from stereograph.config import load_pipeline
 from stereograph.graph import build_graph
@@ -89,6 +91,7 @@ def test_repeat_needs_a_live_node(tmp_path, capsys):
     assert "every node of static.yaml can be cached" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sigterm_ends_the_loop_like_ctrl_c(tmp_path):
     marker = tmp_path / "closed.txt"
     f = pipeline(tmp_path, tick=f"{{sleep_s: 0.2, marker: {marker}}}")

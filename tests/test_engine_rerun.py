@@ -253,6 +253,7 @@ def act(params, n):
 """
 
 
+@pytest.mark.slow
 def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_path):
     """The replay of an actuator-like node (plain-data inputs and outputs) runs it and writes its run
     folder without NumPy: a replayed rerun costs the node's own modules, not the engine's codecs."""

@@ -79,6 +79,7 @@ def test_map_items_cached_one_by_one(tmp_path):
     assert r.reports["power"].items == 6 and r.reports["power"].items_ran == 2
 
 
+@pytest.mark.slow
 def test_source_code_change_invalidates_including_helpers(tmp_path):
     plug = tmp_path / "plug"
     plug.mkdir()
@@ -242,6 +243,7 @@ def _concurrent_run(args):
     return r.ok
 
 
+@pytest.mark.slow
 def test_two_runs_at_once_share_the_cache(tmp_path):
     plug = tmp_path / "slow.py"
     plug.write_text(textwrap.dedent("""\
@@ -316,6 +318,7 @@ def test_process_pool_gives_the_same_result(tmp_path):
     assert r.ok and r.outputs("total", "total") == pytest.approx(serial)
 
 
+@pytest.mark.slow
 def test_dask_executor_gives_the_same_result(tmp_path):
     pytest.importorskip("distributed")
     from stereograph.runner import DaskExecutor
@@ -657,6 +660,7 @@ def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, 
     return marks, f
 
 
+@pytest.mark.slow
 def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(tmp_path):
     # (it printed "interrupted" at once, then went on computing the queued items for 20-100 s)
     import signal
@@ -693,6 +697,7 @@ def test_json_output_stays_json_when_a_node_prints(tmp_path):
     assert out.returncode == 0 and json.loads(out.stdout)["ok"] is True and "HELLO FROM NODE" in out.stderr
 
 
+@pytest.mark.slow
 def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     # (SIGTERM -- `kill`, a CI job's timeout -- killed a single run on the spot: its saved outputs stayed
     # without a run.json, and the same command with the same --out was refused as "not the folder of

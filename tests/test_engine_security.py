@@ -462,6 +462,7 @@ def _read_only_run(argv: list[str], cache: Path) -> subprocess.CompletedProcess:
     return res
 
 
+@pytest.mark.slow
 def test_read_only_cache_still_serves_the_run(tmp_path, capsys):
     p = toy_pipeline(tmp_path)
     cache = tmp_path / "c"
@@ -533,6 +534,7 @@ def _on_small_tmpfs(folder: Path, kib: int, argv: list[str]) -> subprocess.Compl
     return res
 
 
+@pytest.mark.slow
 def test_full_disk_for_out_and_for_the_cache(tmp_path):
     p = write(tmp_path / "p.yaml", f"""\
         plugins: [{TOY}]

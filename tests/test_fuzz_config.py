@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -172,9 +173,10 @@ def _check_validate(folder: Path, text: str, sets: list[str], capsys) -> None:
     assert seconds < SECONDS_PER_EXAMPLE, f"validate took {seconds:.1f} s"
 
 
-@settings(max_examples=1000, deadline=None, database=None, derandomize=False,
+@settings(max_examples=examples(400), deadline=None, database=None, derandomize=False,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                  HealthCheck.data_too_large, HealthCheck.filter_too_much])
+@pytest.mark.slow
 @given(doc=st.one_of(mutated_document(), mutated_text()), sets=overrides)
 def test_validate_never_crashes(folder, capsys, doc, sets):
     _, text = doc
@@ -215,15 +217,17 @@ def _check_run(folder: Path, name: str, sets: list[str], tmp_path: Path, capsys)
         assert "failed:" in msg, msg
 
 
-@settings(max_examples=40, deadline=None, database=None,
+@settings(max_examples=examples(40), deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@pytest.mark.slow
 @given(sets=HELLO_SETS)
 def test_small_runs_never_crash_hello(folder, tmp_path, capsys, sets):
     _check_run(folder, "hello.yaml", sets, tmp_path, capsys)
 
 
-@settings(max_examples=12, deadline=None, database=None,
+@settings(max_examples=examples(12), deadline=None, database=None,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@pytest.mark.slow
 @given(sets=LOCATE_SETS)
 def test_small_runs_never_crash_locate(folder, tmp_path, capsys, sets):
     _check_run(folder, "locate.yaml", SMALL_LOCATE + sets, tmp_path, capsys)

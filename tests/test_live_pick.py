@@ -23,6 +23,8 @@ PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "pick-live.yaml"
 ORDER = ["s000", "s001", "s002", "s003", "s004", "empty000", "s005"]
 DROP = [0.0, 18.0, 4.0]  # arm-base frame, cm
 
+pytestmark = pytest.mark.slow  # (one module fixture: seven pick cycles)
+
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):

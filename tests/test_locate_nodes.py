@@ -47,6 +47,7 @@ def scenes():
     return [make_pair(CAL, c, bgr=RED, pid=f"p{i}", seed=i) for i, c in enumerate(cs)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(SEGMENTERS))
 def test_segmenters_find_the_ball_with_subpixel_centroid(kind, scenes):
     for pair in scenes:
@@ -125,6 +126,7 @@ def test_image_sizes_that_do_not_fit_the_setup_fail_the_node_for_good():
     assert e.value.lasting
 
 
+@pytest.mark.slow
 def test_two_equal_balls_are_ambiguous_without_colour_and_resolved_with_it():
     blue = {"center": [12.0, 0.0, 40.0], "radius": 2.0, "bgr": (200, 80, 40)}
     twin = {"center": [12.0, 0.0, 40.0], "radius": 2.0, "bgr": RED}
@@ -159,6 +161,7 @@ def test_color_segmenter_needs_a_colour():
         color(ColorParams(), pair=pair, rectification=CAL)
 
 
+@pytest.mark.slow
 def test_shadow_suppression_lowers_error_on_a_strong_shadow():
     errs = {True: [], False: []}
     for i, c in enumerate([(5.0, 3.0, 35.0), (4.0, 4.0, 45.0)]):
@@ -210,12 +213,14 @@ def test_triangulate_table_frame_and_range_checks():
         triangulate(TriangulateParams(frame="table"), disparity=disp, rectification=cal)
 
 
+@pytest.mark.slow
 def test_disparity_out_of_range_is_rejected(scenes):
     seg = _seg("edge_morph", scenes[0])["segmentation"]
     d = centroid(CentroidParams(working_range_cm=(100.0, 200.0)), segmentation=seg, rectification=CAL)
     assert not d["disparity"]["found"] and "out of range" in d["disparity"]["reason"]
 
 
+@pytest.mark.slow
 def test_coarse_first_finds_near_and_far_balls_like_the_regular_level():
     # Near: both views found at the quarter-size first pass; far (78 cm, r ~ 18 px, ~4.5 px at quarter
     # size): at the edge of that pass, the right view falls through to the half-size level. Either way
@@ -242,6 +247,7 @@ def test_a_working_range_within_the_balls_radius_is_a_clear_parameter_error():
     EdgeMorphParams(object={"radius_cm": 30}, working_range_cm=[40, 90])  # a big ball far enough: fine
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["edge_morph", "otsu"])
 def test_a_black_ball_is_found_when_its_dark_colour_is_given(kind):
     # A black ball's pixels are mostly darker than the level below which chromaticity is noise; they

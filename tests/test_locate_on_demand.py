@@ -80,6 +80,7 @@ def test_masked_pixels_is_a_fast_boolean_gather():
     assert np.array_equal(masked_pixels(img[..., 0], mask), img[..., 0][mask])
 
 
+@pytest.mark.slow
 def test_raw_pairs_segment_like_remapped_pairs(tmp_path):
     f = tmp_path / "p.yaml"
     f.write_text(PIPELINE)

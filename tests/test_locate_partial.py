@@ -78,6 +78,7 @@ def _err(loc):
     return float(np.linalg.norm(np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"])))
 
 
+@pytest.mark.slow
 def test_partial_and_touching_balls_are_found_and_right_with_the_colour(hard):
     pairs, rect = hard
     params = ColorParams(object={"radius_cm": 2.0, "color_bgr": ORANGE}, overlay=False)
@@ -116,6 +117,7 @@ def test_auto_channel_picks_a_plane_where_an_orange_ball_stands_out_on_grey():
     assert np.percentile(normalize_exposure(dim[..., 2]), 99) >= 250  # stretched back
 
 
+@pytest.mark.slow
 def test_dim_scene_is_found_with_the_auto_channel_not_with_gray():
     from nodes.disparity.centroid import CentroidParams, centroid
 
@@ -158,6 +160,7 @@ def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
     assert 0.4 <= coverage(upper, np.array([c, c]), r) <= 0.6
 
 
+@pytest.mark.slow
 def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_path):
     """(plain 2 cm balls at 100-200 cm, nothing in front of them, were refused as "occluded or touching
     another object"; the cause is a ~6 px silhouette: too few outline pixels)"""
@@ -175,6 +178,7 @@ def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_pat
     assert not any("occluded" in r for r in reasons)
 
 
+@pytest.mark.slow
 def test_a_view_that_lost_the_balls_dark_side_is_refused_not_located():
     """(dim side light, ambient 0.05: the unlit half of the ball merges with the dark table in one view
     only; that silhouette still fits an ellipse, its size passed max_size_mismatch (15 %) and its area

@@ -53,6 +53,7 @@ def test_sgbm_object_disparity_matches_ground_truth_on_aloe():
 BOARD = ALOE.parent / "opencv-stereo-chessboard"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not (BOARD / "left01.jpg").exists(), reason="../shared/data not present")
 def test_no_ball_is_found_in_real_images_without_one():
     """Real photographs with no ball (OpenCV's chessboard pairs, Middlebury Aloe), no calibration wired:

@@ -41,6 +41,7 @@ def _check_shape(seg):
             assert w in ("size", "round", "colour", "smaller", "ambiguous")
 
 
+@pytest.mark.slow
 def test_a_distractor_of_another_colour_is_kept_as_rejected_and_drawn_in_orange(distractor):
     pairs, rect = distractor
     params = EdgeMorphParams(object={"radius_cm": 2.0, "color_bgr": ORANGE})

@@ -49,6 +49,7 @@ def test_accuracy_node_filters_split_and_counts_not_found():
     assert all_["n"] == 4 and all_["axes"]["z"]["max_abs_cm"] == pytest.approx(69.0)
 
 
+@pytest.mark.slow
 def test_locate_pipeline_through_the_engine(tmp_path):
     from stereograph.runner import run_pipeline
 
@@ -66,6 +67,7 @@ def test_locate_pipeline_through_the_engine(tmp_path):
     assert len(list((out / "segment" / "overlay").glob("*.jpg"))) == 8  # Out(lossy=True): a picture, as JPEG
 
 
+@pytest.mark.slow
 def test_hard_scenes_through_the_engine_never_crash(tmp_path):
     from stereograph.runner import run_pipeline
 
@@ -96,6 +98,7 @@ def test_the_markdown_table_is_an_output_and_names_extrapolated_results():
     assert out["report"]["markdown"] == md
 
 
+@pytest.mark.slow
 def test_a_cached_report_still_writes_accuracy_md(tmp_path):
     from stereograph.runner import run_pipeline
 

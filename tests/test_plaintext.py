@@ -11,6 +11,7 @@ import subprocess
 import sys
 import uuid
 
+import pytest
 from rich.cells import cell_len
 from rich.console import Console
 from rich.markup import escape
@@ -110,6 +111,7 @@ nodes:
 """
 
 
+@pytest.mark.slow
 def test_a_replayed_run_prints_what_rich_prints_without_importing_it(tmp_path):
     toy = os.path.join(os.path.dirname(__file__), "plugins", "toy.py")
     p = tmp_path / "p.yaml"

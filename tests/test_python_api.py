@@ -29,6 +29,7 @@ def project(tmp_path, monkeypatch):
     return tmp_path
 
 
+@pytest.mark.slow
 def test_the_documented_example_runs(project, capsys):
     blocks = _python_blocks(DOC.read_text())
     assert len(blocks) == 1
@@ -41,6 +42,7 @@ def test_the_documented_example_runs(project, capsys):
     assert list((project / "runs" / "locate-truthcal").iterdir())  # the runs went to the project's runs/
 
 
+@pytest.mark.slow
 def test_result_access_and_its_errors(project):
     res = stereograph.run("pipelines/locate-truthcal.yaml", {"rig.n_scenes": 4}, progress=False)
     assert res.ok and set(res.status) >= {"rig", "locate", "report"}

@@ -66,6 +66,7 @@ def _check(dom: str, shot: Path, figures: list[str]) -> None:
     assert shot.stat().st_size > 20_000  # a real render, not a blank page
 
 
+@pytest.mark.slow
 @needs_browser
 @pytest.mark.skipif(not CHESS.is_dir(), reason="OpenCV's chessboard pairs not in ../shared/data")
 def test_calibration_report_real_pairs(tmp_path):
@@ -83,6 +84,7 @@ def test_calibration_report_real_pairs(tmp_path):
     assert "calib_report/corners.png" in (res.out_dir / "report.html").read_text()
 
 
+@pytest.mark.slow
 @needs_browser
 def test_locate_hard_report(tmp_path):
     res = run_pipeline(PIPES / "locate-hard.yaml", ["rig.n_hard_each=2", "rig.n_views=10"],
@@ -93,6 +95,7 @@ def test_locate_hard_report(tmp_path):
     assert "Hard scenes, ball centre error" in dom  # the accuracy table's markdown
 
 
+@pytest.mark.slow
 @needs_browser
 def test_compare_report(tmp_path):
     from stereograph.compare import compare
@@ -116,6 +119,7 @@ def test_compare_report(tmp_path):
     _check(dom, shot, ["fit/figure.png", "report/figure.png"])
 
 
+@pytest.mark.slow
 @needs_browser
 def test_pick_report(tmp_path):
     res = run_pipeline(PIPES / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10"],

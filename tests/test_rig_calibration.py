@@ -30,6 +30,7 @@ def synth():
     return synthetic(SyntheticParams(n_scenes=0, n_views=12, seed=1))
 
 
+@pytest.mark.slow
 def test_chessboard_recovers_synthetic_rig(synth):
     cal = chessboard(ChessboardParams(), views=synth["views"])["calibration"]
     tr = synth["truth"]
@@ -46,6 +47,7 @@ def test_chessboard_recovers_synthetic_rig(synth):
     assert img.shape[1:] == (1280, 3) and img.shape[0] > 480
 
 
+@pytest.mark.slow
 def test_a_long_lens_rig_is_calibrated_from_boards_held_farther_away():
     """A 1100 px lens on 640x480 (~32 degrees) sees the 9x6 board whole only beyond ~55 cm: its
     views are placed at distances derived from the lens and the board, not at the 30-60 cm a
@@ -60,6 +62,7 @@ def test_a_long_lens_rig_is_calibrated_from_boards_held_farther_away():
     assert abs(np.linalg.norm(cal["T_cm"]) / np.linalg.norm(tr["T_cm"]) - 1) < 0.01
 
 
+@pytest.mark.slow
 def test_tsai_through_views_feeds_rectifier(synth):
     tr = synth["truth"]
     # Tsai assumes the principal point is known: given, the pose comes back closely ...
@@ -157,6 +160,7 @@ def test_swapped_left_and_right_images_are_refused(synth):
         chessboard(ChessboardParams(), views=swapped)
 
 
+@pytest.mark.slow
 def test_a_mismatched_pair_is_dropped_and_a_calibration_that_does_not_fit_is_refused(synth):
     # (one right image of another view: RMS 8 px and the baseline ~50 % off, with exit 0 and no word)
     vs = synth["views"]
@@ -171,6 +175,7 @@ def test_a_mismatched_pair_is_dropped_and_a_calibration_that_does_not_fit_is_ref
         chessboard(ChessboardParams(max_view_rms_px=1000.0), views=shuffled)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 def test_a_real_pair_with_left_and_right_swapped_is_dropped(tmp_path):
     # (left03/right03 swapped: every view's error rose to 12-21 px, so view 03 (57 px) was not 5x the median and

@@ -35,6 +35,7 @@ def _partial_view(views):
     return {"id": "partial", "left": left, "right": right}, corners
 
 
+@pytest.mark.slow
 def test_charuco_views_rendered(views):
     assert views["board"] == {"cols": 9, "rows": 6, "square_cm": 2.5, "type": "charuco",
                               "dictionary": "DICT_4X4_50", "marker_fraction": 0.7}
@@ -48,6 +49,7 @@ def test_charuco_views_rendered(views):
     assert err.max() < 0.3, err.max()
 
 
+@pytest.mark.slow
 def test_charuco_recovers_rig(views):
     partial, corners = _partial_view(views)
     w = views["image_size"][0]
@@ -70,6 +72,7 @@ def test_charuco_recovers_rig(views):
     assert cal["method"] == "charuco/joint"
 
 
+@pytest.mark.slow
 def test_charuco_too_few_corners(views):
     blank = np.full((480, 640, 3), 128, np.uint8)
     v = dict(views, views=[{"id": f"b{i}", "left": blank, "right": blank} for i in range(3)]

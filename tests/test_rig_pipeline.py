@@ -16,6 +16,7 @@ def _run(tmp_path, overrides):
     return run_pipeline(str(PIPE), overrides=overrides, cache_dir=tmp_path / "cache", out_dir=tmp_path / "out")
 
 
+@pytest.mark.slow
 def test_calibrate_synthetic_default_and_tsai(tmp_path):
     res = _run(tmp_path, ["rig.n_views=10"])
     assert res.ok, res.status
@@ -27,6 +28,7 @@ def test_calibrate_synthetic_default_and_tsai(tmp_path):
     assert res.outputs("rectify", "rectification")["dy_mean_px"] < 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
 def test_calibrate_real_images(tmp_path):
     res = _run(tmp_path, ["rig.type=source.calib_files", f"rig.folder={DATA}"])

@@ -21,6 +21,7 @@ def _centroid(cov):
     return np.array([(cov * u).sum(), (cov * v).sum()]) / cov.sum()
 
 
+@pytest.mark.slow
 def test_rendered_centroid_matches_exact_silhouette(rig):
     """Coverage centroid vs the exact (distorted) silhouette's area centroid, many placements, both cameras."""
     gaps = []
@@ -37,6 +38,7 @@ def test_rendered_centroid_matches_exact_silhouette(rig):
     assert max(gaps) > 0.1
 
 
+@pytest.mark.slow
 def test_ideal_camera_silhouette_is_tangent_cone_ellipse():
     """Without distortion the rendered outline's centroid is the tangent-cone ellipse's centre."""
     rig = make_rig(distortion_left=(0, 0, 0, 0), distortion_right=(0, 0, 0, 0))
@@ -51,6 +53,7 @@ def test_ideal_camera_silhouette_is_tangent_cone_ellipse():
         assert abs(np.pi * a * b / sil["area_px"] - 1) < 1e-4
 
 
+@pytest.mark.slow
 def test_triangulating_true_centres_returns_true_centre(rig):
     tr = rig["truth"]
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-14)
@@ -111,6 +114,7 @@ def test_deterministic_and_noisy(rig):
     assert r_ > g_ > b_
 
 
+@pytest.mark.slow
 def test_hard_scene_kinds(rig):
     rng = np.random.default_rng(4)
     for kind in SCENE_KINDS:

@@ -154,6 +154,7 @@ def _refusal(rig, kind, lo_cm, hi_cm):
     return msg, float(m.group(1)), float(m.group(2))
 
 
+@pytest.mark.slow
 def test_a_distance_range_the_rig_cannot_see_is_refused_with_the_range_it_can():
     # (was "could not place a ball ...; widen the distance range": the range was narrow enough, the
     # cameras were too high for it)
@@ -168,6 +169,7 @@ def test_a_distance_range_the_rig_cannot_see_is_refused_with_the_range_it_can():
     make_scene(rig, "plain", 0, min_distance_cm=near + 2, max_distance_cm=near + 6)  # within it: placed
 
 
+@pytest.mark.slow
 def test_the_refusal_names_the_scene_kinds_own_range_and_the_way_to_move_the_cameras():
     # A 'border' ball (cut by an image border) needs more distance than a whole one: 34-40 cm, inside
     # the plain range, was told "set the range within 34 to 82 cm", which it was. A range beyond the

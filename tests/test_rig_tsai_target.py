@@ -91,6 +91,7 @@ def test_thesis_refinement_only_and_non_coplanar_step_on_a_flat_target(rig):
         tsai_stereo(W, L, R, (640, 480), ppl, ppr, target="non_coplanar")
 
 
+@pytest.mark.slow
 def test_example_pipeline_both_csv_layouts(tmp_path):
     res = run_pipeline(str(PIPE), cache_dir=tmp_path / "cache", out_dir=tmp_path / "out")
     assert res.ok, {n: r.error for n, r in res.reports.items()}
@@ -298,6 +299,7 @@ def test_real_pairs_as_coplanar_targets():
         assert abs(np.linalg.norm(cal["T_cm"]) / np.linalg.norm(ref["T_cm"]) - 1) < 0.015, i  # measured <= 0.83 %
 
 
+@pytest.mark.slow
 def test_cache_follows_the_csv_content(tmp_path):
     import shutil
     (tmp_path / "examples").mkdir()

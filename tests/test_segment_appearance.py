@@ -122,6 +122,7 @@ def test_a_second_ball_of_the_colour_merged_with_its_shadow_makes_the_result_amb
     assert reg is None and why.startswith("ambiguous"), (why, reg and reg["centroid_px"])
 
 
+@pytest.mark.slow
 def test_locate_learn_pipeline_finds_distractor_scenes_with_no_colour_given(tmp_path):
     """CLI, from a pipeline file: the colour is learned, the distractor scenes are found right, and a
     rerun with a changed segmenter parameter reuses the cached source and remap (a streamed region
