@@ -127,7 +127,10 @@ def write_whole(path: Path, data: bytes) -> None:
 
 def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written.
-    ``lossy``: an image output declared ``Out(lossy=True)`` (a picture for people) is written as JPEG."""
+    ``lossy``: an image output declared ``Out(lossy=True)`` (a picture for people) is written as JPEG.
+    ``None`` is an output the node did not produce (an overlay switched off): nothing is written."""
+    if value is None:
+        return []
     if lossy:
         from stereograph.cache import jpeg_roundtrip
 
@@ -169,9 +172,12 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
 
 def write_collection(stem: Path, items: dict[str, Any], lossy: bool = False) -> list[Path]:
     """Write a per-item output: a folder of PNG images (JPEG for a ``lossy`` output), or one JSON list of
-    records."""
+    records. Items whose value is ``None`` (not produced) are left out; none produced, no file."""
     if not items:
         return write_value(stem, [])
+    items = {i: v for i, v in items.items() if v is not None}
+    if not items:
+        return []
     first = next(iter(items.values()))
     if is_image(first) or is_file_value(first):
         out = []

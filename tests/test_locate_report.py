@@ -1,5 +1,6 @@
 """report.accuracy and the locate pipeline through the engine."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +129,18 @@ def test_not_found_reasons_are_grouped_by_kind_with_their_numbers_as_ranges():
     assert len(rep["not_found_reasons"]) == 4  # the exact strings, as before
     assert rep["not_found_kinds"][0] == {"reason": rows[0].replace("6.9", "3.6–11.2"), "count": 4}
     assert "Not found (5 pairs)" in rep["markdown"] and "- 4 × left/right regions" in rep["markdown"]
+
+
+def test_an_overlay_switched_off_writes_no_file_and_no_link(tmp_path):
+    """Off means off: no 1x1 placeholder saved, linked from the page or logged."""
+    from stereograph.runner import run_pipeline
+
+    res = run_pipeline(Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml",
+                       ["rig.n_scenes=3", "rig.n_views=6", "segment.overlay=false", "locate.overlay=false",
+                        "report.figure=false"], cache_dir=tmp_path / "c", out_dir=tmp_path / "run")
+    written = sorted(str(p.relative_to(res.out_dir)) for p in res.out_dir.rglob("*") if p.is_file())
+    assert not [f for f in written if "overlay" in f or f.startswith("report/figure")], written
+    assert "report/accuracy.md" in written
+    assert 'data-output="overlay"' not in (res.out_dir / "report.html").read_text()
+    run = json.loads((res.out_dir / "run.json").read_text())
+    assert not [f for n in run["nodes"] for f in n.get("files", []) if "overlay" in f]

@@ -36,7 +36,7 @@ class TriangulateParams(Params):
     working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found. Not "
                                   "set in the pipeline: the disparity estimator's (the segmenter's), from its records.")
-    overlay: bool = Field(True, description="Draw the labelled left | right overlay (bool); off = a 1x1 placeholder.")
+    overlay: bool = Field(True, description="Draw the labelled left | right overlay (bool); off = no overlay output.")
 
 
 def triangulate_point(u_px: float, v_px: float, d_px: float, rectification: dict,
@@ -138,7 +138,7 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
     """Triangulate the object's centre: x, y from the left point, z = f B / d, rotated by R1^T."""
     loc = _locate(params, disparity, rectification, pair, rig, ctx)
     if not params.overlay:
-        return {"location": loc, "overlay": np.zeros((1, 1, 3), np.uint8)}
+        return {"location": loc, "overlay": None}  # nothing saved, nothing logged
     raw = ctx is not None and (ctx.input_types or {}).get("pair") == "StereoPair"
     return {"location": loc, "overlay": location_overlay(loc, disparity, rectification, pair, raw)}
 

@@ -210,7 +210,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         "not_found_reasons": reasons, "not_found_kinds": [{"reason": t, "count": n} for t, n in kinds],
         "n_lost": len(lost), "lost": lost,
     }
-    fig = error_figure(meas, true, params.title) if params.figure else np.zeros((1, 1, 3), np.uint8)
+    fig = error_figure(meas, true, params.title) if params.figure else None  # off: no file
     n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)
     if n_extrapolated:  # corrected outside the range the compensation was fitted on: said where people read
         note = (f"{n_extrapolated} of the {len(with_truth)} evaluated results were corrected outside the range the "

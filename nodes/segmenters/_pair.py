@@ -140,6 +140,6 @@ def segment_pair(
         if raw and reason_shape is None:  # the overlay shows the rectified images the masks refer to
             L, R = vl.full(), vr.full()
         overlay = draw_overlay(L, R, seg)
-    else:
-        overlay = np.zeros((1, 1, 3), np.uint8)
+    else:  # off, or left and right of different sizes: no picture (None: nothing is saved)
+        overlay = None
     return {"segmentation": seg, "overlay": overlay}

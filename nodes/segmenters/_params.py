@@ -165,7 +165,7 @@ class SegmenterParams(Params):
         0.5, ge=0, description="Besides 3 sigma of the two outline fits, how far the left and right silhouettes may "
                                "disagree in size (px of image radius; half a pixel: what a sub-pixel outline must "
                                "beat); above -> not found (one view sees only part of the ball).")
-    overlay: bool = Field(True, description="Render the overlay image (bool); off = a 1x1 placeholder.")
+    overlay: bool = Field(True, description="Render the overlay image (bool); off = no overlay output.")
 
     @model_validator(mode="after")
     def _ball_fits_the_working_range(self) -> SegmenterParams:
