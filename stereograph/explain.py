@@ -77,12 +77,12 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     verdicts: list[Verdict] = []
     stale: set[str] = set()
     retrying: dict[str, list[str]] = {}  # node -> the items it tries again (failed in its last run)
-    unknown: set[str] = set()  # nodes whose entries (keys, items) are known only after they run
+    unknown: set[tuple[str, str]] = set()  # outputs whose keys (or items) are known only after their node runs
     for name in graph.order:
         inst = graph.nodes[name]
         preds = list(graph.dag.predecessors(name))
         base = run.node_components(inst)
-        computable = not any(s in unknown for s in preds)
+        computable = not any(wire in unknown for wire in inst.inputs.values())
         missing, n_entries = 0, 0
         last = store.last(run.pipeline_id, name)
         # entries the last run looked up under these very keys and did not keep: items that failed or
@@ -159,8 +159,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
             if not v.reasons:
                 v.reasons.append(f"{missing} of {n_entries} cache entries are missing (cleared, or never computed "
                                  "with these inputs)" if last else "not computed yet with these settings")
-            if (not computable or not inst.spec.cacheable
-                    or any(o.collection for o in inst.spec.outputs.values())):
-                unknown.add(name)
+            unknown.update((name, out) for out, o in inst.spec.outputs.items()
+                           if not computable or not inst.spec.cacheable or o.collection)
         verdicts.append(v)
     return verdicts

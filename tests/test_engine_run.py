@@ -755,3 +755,39 @@ def test_the_command_process_ends_after_its_exit_handlers_threads_and_output(tmp
             assert (marks / "thread").read_text() == "ran"
         for f in marks.iterdir():
             f.unlink()
+
+
+class _InterruptAt:
+    """A progress display that presses Ctrl-C when ``node`` has finished ``n`` entries."""
+
+    def __init__(self, node: str, n: int):
+        self.node, self.n, self.done = node, n, 0
+
+    def node_started(self, name, n_items):
+        pass
+
+    def advance(self, name):
+        if name == self.node:
+            self.done += 1
+            if self.done == self.n:
+                raise KeyboardInterrupt
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("node, n", [("rig → locate", 2), ("calib", 1), ("rectify", 1)])
+def test_explain_after_an_interrupt_agrees_with_the_next_run(tmp_path, node, n):
+    """(after Ctrl-C in the middle of the streamed items, explain said calib and rectify would run --
+    'upstream rig will run' -- and the rerun found both cached: rig's views were, only pairs were not)"""
+    from stereograph.runner import run_graph
+
+    pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
+    sets = ["rig.n_scenes=4", "rig.n_views=6"]
+    with pytest.raises(KeyboardInterrupt):
+        run_graph(build_graph(load_pipeline(pipeline, sets)), progress=_InterruptAt(node, n),
+                  cache_dir=tmp_path / "c", out_dir=tmp_path / "first")
+    predicted = {v.node: v.fresh for v in explain(build_graph(load_pipeline(pipeline, sets)), tmp_path / "c")}
+    actual = run_graph(build_graph(load_pipeline(pipeline, sets)), cache_dir=tmp_path / "c",
+                       out_dir=tmp_path / "second").status
+    assert predicted == {name: s == "cached" for name, s in actual.items()}, (predicted, actual)
+    if node == "rig → locate":  # the calibration views were all made: only pairs are missing
+        assert predicted["calib"] and predicted["rectify"] and not predicted["locate"]
