@@ -37,6 +37,7 @@ from stereograph.checks import ARTIFACT_CHECKS, artifact_check  # noqa: F401  (r
 __all__ = [
     "Params",
     "Field",
+    "PathField",
     "OrderedRange",
     "PositiveRange",
     "In",
@@ -61,6 +62,13 @@ class Params(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True, allow_inf_nan=False)
+
+
+def PathField(default: Any = ..., **kwargs: Any) -> Any:  # noqa: N802  (a Field, named like one)
+    """A :func:`Field` naming a file or folder the node reads, relative to the pipeline file. A
+    ``--set`` that names one that does not exist is refused before anything runs, saying where it
+    was looked for (the pipeline's folder, not the current one)."""
+    return Field(default, json_schema_extra={"reads_path": True}, **kwargs)
 
 
 def _ordered(value: tuple[float, float]) -> tuple[float, float]:

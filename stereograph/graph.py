@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import networkx as nx
@@ -102,13 +103,16 @@ def merge_nested_defaults(model: type[pydantic.BaseModel], raw: dict[str, Any]) 
     return out
 
 
-def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str) -> Params:
-    """Validate ``raw`` params with the node's model, errors pointing at the YAML (all of them)."""
+def validate_params(spec: NodeSpec, raw: dict[str, Any], doc: PipelineDoc, node: str,
+                    from_defaults: set[str] | frozenset[str] = frozenset()) -> Params:
+    """Validate ``raw`` params with the node's model, errors pointing at the YAML (all of them): a
+    param in ``from_defaults`` came from the pipeline's ``defaults:`` block, and is located there."""
     try:
         # model_validate, not **raw: a YAML key need not be a string (`1: 2` is an unknown parameter)
         return spec.params.model_validate(merge_nested_defaults(spec.params, raw))
     except pydantic.ValidationError as err:
-        raise_all([_param_error(spec, doc, node, loc, msg) for loc, msg in _format_pydantic(err)])
+        raise_all([_param_error(spec, doc, node, loc, msg, bool(loc) and loc[0] in from_defaults)
+                   for loc, msg in _format_pydantic(err)])
         raise  # pragma: no cover - pydantic never raises without an error
 
 
@@ -155,8 +159,9 @@ def _deepest_field(model: type[pydantic.BaseModel], loc: tuple) -> tuple[str, An
     return ".".join(names), f
 
 
-def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: str) -> ConfigError:
-    """One parameter problem as a located error with the fix."""
+def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: str,
+                 in_defaults: bool = False) -> ConfigError:
+    """One parameter problem as a located error with the fix (at ``defaults:`` for a value given there)."""
     if not loc:  # the params as a whole: say which --set contributed, if any
         return ConfigError(f"{spec.name} parameters: {msg}{_with_sets(doc, node)}",
                            doc.where("nodes", node, "params"), node, f"see `stereograph nodes {spec.name}`")
@@ -174,8 +179,9 @@ def _param_error(spec: NodeSpec, doc: PipelineDoc, node: str, loc: tuple, msg: s
         name, f = _deepest_field(spec.params, loc)
         desc = f.description or ""
         hint = f"'{name}' is {type_name(f.annotation)}" + (f": {desc}" if desc else "")
-    return ConfigError(f"{spec.name} parameter '{field_name}': {msg}", doc.where("nodes", node, "params", *loc),
-                       node, hint)
+    where = doc.where("defaults", spec.name, *loc) if in_defaults else doc.where("nodes", node, "params", *loc)
+    via = f" (from defaults: {spec.name})" if in_defaults else ""
+    return ConfigError(f"{spec.name} parameter '{field_name}'{via}: {msg}", where, node, hint)
 
 
 def _wire(doc: PipelineDoc, nodes: dict[str, NodeInstance], unresolved: set[str], inst: NodeInstance,
@@ -229,28 +235,32 @@ def build_graph(doc: PipelineDoc) -> Graph:
             problems.append(ConfigError(f"defaults are given for an unknown node type '{t}'",
                                         doc.where("defaults", t), None, f"did you mean '{close[0]}'?" if close
                                         else "run `stereograph nodes` to list the types"))
-    nodes: dict[str, NodeInstance] = {}
-    unresolved = set(doc.broken)  # nodes with a problem of their own: wires to them are not checked further
+    typed: dict[str, NodeInstance] = {}  # every node whose type resolved: its wires are checked
+    nodes: dict[str, NodeInstance] = {}  # ... and whose params are valid too
+    unresolved = set(doc.broken)  # nodes of no known type: wires to them are not checked further
     for name, decl in doc.nodes.items():
         try:
             spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
-            raw = merge_params(doc.defaults.get(spec.name, {}), decl.get("params") or {})
-            params = validate_params(spec, raw, doc, name)
         except ConfigError as e:
             problems.append(e)
             unresolved.add(name)
             continue
-        nodes[name] = NodeInstance(name, spec, params, {})
+        typed[name] = NodeInstance(name, spec, None, {})  # type: ignore[arg-type]
+        try:
+            defaults = doc.defaults.get(spec.name, {})
+            raw = merge_params(defaults, decl.get("params") or {})
+            typed[name].params = validate_params(spec, raw, doc, name, set(defaults) - set(decl.get("params") or {}))
+            nodes[name] = typed[name]
+        except ConfigError as e:
+            problems.append(e)
 
     dag = nx.DiGraph()
     dag.add_nodes_from(nodes)
-    for name, decl in doc.nodes.items():
-        if name not in nodes:
-            continue
-        inst = nodes[name]
+    for name, inst in typed.items():
+        decl = doc.nodes[name]
         for port, ref in (decl.get("inputs") or {}).items():
             try:
-                if _wire(doc, nodes, unresolved, inst, port, ref):
+                if _wire(doc, typed, unresolved, inst, port, ref) and name in nodes and inst.inputs[port][0] in nodes:
                     dag.add_edge(inst.inputs[port][0], name)
             except ConfigError as e:
                 problems.append(e)
@@ -259,12 +269,13 @@ def build_graph(doc: PipelineDoc) -> Graph:
                 problems.append(ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
                                             doc.where("nodes", name), name,
                                             f"add 'inputs: {{{port}: some_node.output}}'"))
-        if inst.spec.check is not None:
+        if inst.spec.check is not None and name in nodes:
             try:
                 inst.spec.check(inst.params, frozenset(decl.get("inputs") or {}))
             except NodeError as e:
                 problems.append(ConfigError(f"{inst.type}: {e.message.rstrip('.')}{_with_sets(doc, name)}",
                                             doc.where("nodes", name, "params"), name, e.hint))
+    problems += _missing_set_paths(doc, nodes)
     raise_all(problems)
 
     if not nx.is_directed_acyclic_graph(dag):
@@ -343,6 +354,32 @@ def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph
     if not problems:
         _warn_missing_reads(graph)
     return (None if problems else graph), problems
+
+
+def _missing_set_paths(doc: PipelineDoc, nodes: dict[str, NodeInstance]) -> list[ConfigError]:
+    """A ``--set`` value of a :func:`~stereograph.api.PathField` that names nothing: refused now, with
+    the folder it is relative to (a path that exists from the current folder is the usual mistake)."""
+    problems = []
+    for text in doc.overrides:
+        lhs, _, _ = text.partition("=")
+        node, _, field = lhs.partition(".")
+        inst = nodes.get(node)
+        info = inst.spec.params.model_fields.get(field) if inst is not None else None
+        extra = info.json_schema_extra if info is not None else None
+        value = getattr(inst.params, field, None) if inst is not None else None
+        if not (isinstance(extra, dict) and extra.get("reads_path")) or not isinstance(value, str) or not value:
+            continue
+        given = Path(value).expanduser()
+        path = given if given.is_absolute() else doc.directory / given
+        if path.exists():
+            continue
+        here = Path.cwd() / given
+        fix = (f"--set {lhs}={here} (it exists there, from the current folder)" if here.exists() and
+               not given.is_absolute() else f"give a path relative to {doc.directory}, or an absolute one")
+        problems.append(ConfigError(f"{path} does not exist (a relative path is taken from "
+                                    f"the pipeline file's folder, {doc.directory})",
+                                    doc.where("nodes", node, "params", field), node, fix))
+    return problems
 
 
 def _warn_missing_reads(graph: Graph) -> None:

@@ -272,12 +272,19 @@ def test_a_node_check_on_its_wiring_runs_at_validation(capsys):
     assert code == 0, msg  # (edge_morph works without a colour: look-alikes are refused as ambiguous)
 
 
-def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys):
+def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys, tmp_path):
+    # in the file: a warning (another pipeline may write it before this one runs) ...
     live = LOCATE.parent / "pick-live.yaml"
-    code, msg = _validate("--set", "calibration.path=no-such-calibration.yml", capsys=capsys, pipeline=live)
+    (tmp_path / "live").symlink_to(LOCATE.parent / "live")
+    mine = tmp_path / "pick-live.yaml"
+    mine.write_text(live.read_text().replace("live/calibration.yml", "live/no-such-calibration.yml"))
+    code, msg = _validate(capsys=capsys, pipeline=mine)
     assert code == 0 and "warning:" in msg and "node 'calibration'" in msg and "no-such-calibration.yml" in msg
     code, msg = _validate(capsys=capsys, pipeline=live)
     assert code == 0 and "warning:" not in msg
+    # ... on the command line: an error, saying which folder a relative path is taken from
+    code, msg = _validate("--set", "calibration.path=no-such-calibration.yml", capsys=capsys, pipeline=live)
+    assert code == 2 and "node 'calibration'" in msg and f"folder, {live.parent})" in msg, msg
 
 
 def test_a_misspelt_nested_key_is_matched_against_its_own_model(capsys):

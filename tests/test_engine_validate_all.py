@@ -11,7 +11,8 @@ from stereograph.config import load_pipeline
 from stereograph.errors import ConfigError, ConfigErrors
 from stereograph.graph import build_graph, check_pipeline
 
-LOCATE = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
+ROOT = Path(__file__).resolve().parents[1]
+LOCATE = ROOT / "pipelines" / "locate.yaml"
 
 
 def _with_mistakes(tmp_path: Path, replacements: list[tuple[str, str]]) -> Path:
@@ -89,3 +90,44 @@ def test_several_bad_params_of_one_node_are_each_reported(tmp_path):
 def test_a_valid_pipeline_has_no_problems():
     graph, problems = check_pipeline(LOCATE)
     assert problems == [] and graph is not None and "locate" in graph.nodes
+
+
+def test_three_mistakes_give_three_located_errors_in_one_pass(tmp_path, capsys):
+    """(a node whose params failed hid the wires below it: validate said '2 problems; fix them all', and
+    the third appeared only after the others were fixed)"""
+    text = (ROOT / "pipelines" / "locate.yaml").read_text()
+    bad = (text.replace("n_views: 16", "n_view: 16").replace("views: rig.views", "views: rig.view")
+           .replace("type: disparity.centroid", "type: disparity.centriod"))
+    assert bad.count("\n") == text.count("\n") and bad != text
+    p = tmp_path / "locate.yaml"
+    p.write_text(bad)
+    assert main(["validate", str(p)]) == 2
+    err = capsys.readouterr().err
+    lines = {n: i + 1 for i, line in enumerate(bad.splitlines())
+             for n, key in (("rig", "n_view:"), ("calib", "rig.view}"), ("disparity", "centriod")) if key in line}
+    for node, line in lines.items():
+        assert f"locate.yaml:{line}:" in err and f"node '{node}'" in err, (node, line, err)
+    assert "3 problems" in err, err
+
+
+def test_a_bad_value_in_defaults_is_reported_at_its_own_line(tmp_path, capsys):
+    text = (ROOT / "pipelines" / "locate.yaml").read_text()
+    bad = text.replace("    working_range_cm: [20, 80]", "    working_range_cm: [80, 20]", 1)
+    assert bad != text
+    (tmp_path / "locate.yaml").write_text(bad)
+    line = next(i + 1 for i, s in enumerate(bad.splitlines()) if "[80, 20]" in s)
+    assert main(["validate", str(tmp_path / "locate.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert f"locate.yaml:{line}:" in err and "from defaults" in err, err
+
+
+def test_a_set_path_that_does_not_exist_is_refused_by_validate_naming_its_folder(tmp_path, capsys, monkeypatch):
+    (tmp_path / "bench" / "calib").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    pipeline = ROOT / "pipelines" / "calibrate.yaml"
+    argv = ["validate", str(pipeline), "--set", "rig.type=source.calib_files", "--set", "rig.folder=bench/calib"]
+    assert main(argv) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "--set rig.folder=bench/calib" in err and f"folder, {pipeline.parent})" in err, err
+    assert f"Fix: --set rig.folder={tmp_path / 'bench' / 'calib'}" in err, err
+    assert main(argv[:-1] + [f"rig.folder={tmp_path / 'bench' / 'calib'}"]) == 0

@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from stereograph.api import Field, In, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, Out, Params, PathField, node
 
 
 # --------------------------------------------------------------------------- library
@@ -141,8 +141,9 @@ class HandEyeParams(Params):
     base_in_table: Pose | None = Field(None, description="Arm-base pose in the table frame (modes rig, located; "
                                                          "also lets table-frame locations be used).")
     pairs: list[PointPair] = Field(default_factory=list, description="mode pairs: >= 3 point pairs (cm).")
-    pairs_file: str | None = Field(None, description="mode pairs: CSV with header cam_x,cam_y,cam_z,arm_x,arm_y,arm_z "
-                                                     "(cm), relative to the pipeline file.")
+    pairs_file: str | None = PathField(
+        None, description="mode pairs: CSV with header cam_x,cam_y,cam_z,arm_x,arm_y,arm_z "
+                          "(cm), relative to the pipeline file.")
     split: Literal["train", "test", "all"] = Field("train", description="mode located: which items to fit on.")
     max_residual_cm: float = Field(1.0, gt=0, description="Refuse a fit whose RMS residual exceeds this (cm).")
 

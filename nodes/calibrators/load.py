@@ -42,7 +42,7 @@ from nodes.contracts.calibration_file import (
     resolve_path,
     with_npz,
 )
-from stereograph.api import Field, In, NodeError, Out, Params, node
+from stereograph.api import Field, In, NodeError, Out, Params, PathField, node
 
 __all__ = ["load", "load_hand_eye", "load_table_frame", "read_calibration_file"]
 
@@ -127,10 +127,10 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
 
 
 class LoadParams(Params):
-    path: str = Field(..., description="Calibration file, relative to the pipeline file: a run's calibration.json, "
+    path: str = PathField(..., description="Calibration file, relative to the pipeline file: a run's calibration.json, "
                                        "an OpenCV FileStorage .yml/.yaml/.xml, or the left camera's ROS "
                                        "camera_info YAML.")
-    right_path: str | None = Field(None, description="The right camera's ROS camera_info YAML (with a ROS `path`), "
+    right_path: str | None = PathField(None, description="The right camera's ROS camera_info YAML (with a ROS `path`), "
                                                      "or a second OpenCV file read with the first (stereo_calib's "
                                                      "extrinsics.yml beside intrinsics.yml).")
     cm_per_unit: float | None = Field(

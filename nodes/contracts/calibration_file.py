@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from stereograph.api import Field, NodeError, Params
+from stereograph.api import Field, NodeError, Params, PathField
 
 __all__ = [
     "ArtifactLoadParams", "array_keys", "artifact_kind", "artifact_reads", "check_rig", "read_artifact",
@@ -209,7 +209,7 @@ def with_npz(paths: list[Path]) -> list[Path]:
 class ArtifactLoadParams(Params):
     """Parameters of a node that loads one artifact a run wrote (``*.load``)."""
 
-    path: str = Field(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
+    path: str = PathField(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
                                        "(its .npz, if any, beside it).")
     rig_tolerance: float = Field(
         0.01, gt=0, le=0.5, description="Largest relative difference of focal length and baseline between the "

@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
-from stereograph.api import Field, NodeError, Out, Params, node
+from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 
 class CalibFilesParams(Params):
-    folder: str = Field(..., description="Folder of the images (relative to the pipeline file).")
+    folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
     right_glob: str = Field("right*", description="Glob of the right images in `folder`.")
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")

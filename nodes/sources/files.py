@@ -8,7 +8,7 @@ import numpy as np
 
 from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
 from nodes.sources._truth import read_truth_file, truth_split
-from stereograph.api import Field, NodeError, Out, Params, node
+from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 __all__ = ["FilesParams", "files", "read_truth"]
 
@@ -19,12 +19,13 @@ def read_truth(path: Path) -> dict[str, dict]:
 
 
 class FilesParams(Params):
-    folder: str = Field(..., description="Folder of the images (relative to the pipeline file).")
+    folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("left*", description="Glob of the left images (e.g. left*.png, left/*.png).")
     right_glob: str = Field("right*", description="Glob of the right images.")
-    truth: str | None = Field(None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
-                                                "decides the split: the pairs it lists are train, the others test, "
-                                                "unless it has a split column (train/test), which rules.")
+    truth: str | None = PathField(
+        None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
+                          "decides the split: the pairs it lists are train, the others test, "
+                          "unless it has a split column (train/test), which rules.")
     train_fraction: float = Field(0.5, ge=0, le=1, description="Share of pairs marked split=train (0..1), at random "
                                                                "(seed); only without a truth file.")
     seed: int = Field(0, ge=0, description="Seed of the train/test split.")

@@ -30,7 +30,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from stereograph.api import Field, NodeError, Out, Params, node
+from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 __all__ = ["TargetPointsParams", "read_target_csv", "target_points", "write_target_csv"]
 
@@ -40,11 +40,11 @@ _NODE = "source.target_points"
 
 
 class TargetPointsParams(Params):
-    points: str | None = Field(
+    points: str | None = PathField(
         None, description="One CSV with columns id,x_cm,y_cm,z_cm,left_u_px,left_v_px,right_u_px,right_v_px "
                           "(path relative to the pipeline file). Or give `left` and `right`.")
-    left: str | None = Field(None, description="Left camera's CSV: id,x_cm,y_cm,z_cm,u_px,v_px (relative path).")
-    right: str | None = Field(None, description="Right camera's CSV, same columns as `left` (relative path).")
+    left: str | None = PathField(None, description="Left camera's CSV: id,x_cm,y_cm,z_cm,u_px,v_px (relative path).")
+    right: str | None = PathField(None, description="Right camera's CSV, same columns as `left` (relative path).")
     image_size_px: tuple[int, int] = Field(
         ..., description="Image width and height of both cameras (pixels), e.g. [640, 480].")
     length_unit: Literal["mm", "cm", "m", "in"] = Field(
