@@ -502,7 +502,15 @@ def _loop(args, con, after_cycle=None):
         if after_cycle is not None:
             after_cycle()
 
-    return Loop(args.repeat, args.stop_on_failure, args.save_cycles, on_cycle=on_cycle)
+    return Loop(args.repeat, args.stop_on_failure, args.save_cycles, on_cycle=on_cycle,
+                stop_requested=_stop_requested)
+
+
+_STOP: list[str] = []  # where each stop signal of this command landed (frame), in order
+
+
+def _stop_requested() -> str | None:
+    return _STOP[0] if _STOP else None
 
 
 @contextlib.contextmanager
@@ -513,17 +521,20 @@ def _stop_signals_as_interrupt():
     with ``&`` by a non-interactive shell inherits SIGINT *ignored*, and a supervisor may start it with
     the signals blocked. A worker process forked while this is installed keeps the default action."""
     main_pid = os.getpid()
+    _STOP.clear()
 
-    def on_sigterm(signum, frame):
+    def on_signal(signum, frame):
         if os.getpid() != main_pid:  # a pool's worker: end as before (its pool is ended for it)
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-            os.kill(os.getpid(), signal.SIGTERM)
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
             return
-        raise KeyboardInterrupt("SIGTERM")
+        # where it landed: a loop that finds this set at its next node stops there (stereograph.loop)
+        _STOP.append(f"{frame.f_code.co_name} ({frame.f_code.co_filename}:{frame.f_lineno})" if frame else "?")
+        raise KeyboardInterrupt("SIGTERM" if signum == signal.SIGTERM else "")
 
     try:
-        old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_sigterm),
-               signal.SIGINT: signal.signal(signal.SIGINT, signal.default_int_handler)}
+        old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_signal),
+               signal.SIGINT: signal.signal(signal.SIGINT, on_signal)}
     except ValueError:  # not the main thread: leave signals alone
         yield
         return

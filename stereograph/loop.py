@@ -87,12 +87,16 @@ class Loop:
         Write every live output of every cycle into ``cycles/<n>/`` (images as PNG).
     on_cycle : callable, optional
         Called with each finished :class:`Cycle` (the CLI prints its line).
+    stop_requested : callable, optional
+        ``() -> str | None``: where a stop signal landed, once one was received (the CLI's). Checked
+        before every node: an interrupt that some code swallowed still ends the loop at the next node.
     """
 
     repeat: int
     stop_on_failure: bool = False
     save_cycles: bool = False
     on_cycle: Callable[[Cycle], None] | None = None
+    stop_requested: Callable[[], str | None] | None = None
     cycles: list[Cycle] = field(default_factory=list)
     live: list[str] = field(default_factory=list)
     stopped: str = ""  # why the loop ended, in words
@@ -169,14 +173,18 @@ class Loop:
             t0 = time.perf_counter()
             current = None
             try:
+                self._check_stop()
                 if k > 1:
                     _reset(run, self.live)
                 for name in order:
+                    self._check_stop()
                     current = name
                     run.run_node(g.nodes[name])
             except KeyboardInterrupt as e:
                 # what the interrupted node did to end safely, as it noted on the interrupt (an arm held still)
-                cycle.error = " ".join(getattr(e, "__notes__", ())) or None
+                cycle.error = " ".join(getattr(e, "__notes__", ()) or [str(e)]) or None
+                if current is None:  # before its first node: a cycle that did not begin (the last one's reports)
+                    order = []
                 for name in order:  # the interrupted node and those after it did not finish
                     rep = run.reports[name]
                     if rep.status in ("pending", "running"):
@@ -190,7 +198,8 @@ class Loop:
             if self.on_cycle is not None:
                 self.on_cycle(cycle)
             if self.interrupted:
-                self.stopped = f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
+                self.stopped = (f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
+                                if cycle.failed_node else f"stopped by an interrupt as cycle {k} began")
                 return
             outside = [n for n in order if n not in live and run.reports[n].status in ("failed", "skipped")]
             if outside:
@@ -207,6 +216,12 @@ class Loop:
                 self.stopped = f"stopped at the first failed cycle ({k})"
                 return
         self.stopped = f"ran the {self.repeat} cycle(s) asked for"
+
+    def _check_stop(self) -> None:
+        """Raise the interrupt a stop signal should have raised, if it was lost on its way."""
+        landed = self.stop_requested() if self.stop_requested is not None else None
+        if landed:
+            raise KeyboardInterrupt(f"a stop signal received in {landed} did not end the node it reached")
 
     def _record(self, run: Any, cycle: Cycle, order: list[str], log_path: Path) -> None:
         g = run.g

@@ -29,6 +29,7 @@ import contextlib
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Literal
 
 from nodes.contracts.arm import joint, joints_to_servo_units, servo_limits_units, speed_to_units
@@ -494,6 +495,30 @@ def _servo_log(plan, params, port_path, bus: Bus, reached, ok: bool, t0: float) 
       params=DynamixelParams, version="1", cacheable=False)
 def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
     """Run pick plans on AX-12A servos (real dynamixel-sdk, Protocol 1.0); port 'sim' = the emulator."""
+    try:
+        return _act(params, arm, plans, ctx)
+    except KeyboardInterrupt as e:
+        if not getattr(e, "servo_logged", False):  # before or between motions: no goal of this call was written
+            _save_interrupt_log(ctx, {"stop": {
+                "action": "none", "cause": _interrupt_name(e), "during": "setup", "port_closed": True,
+                "detail": "interrupted before any goal of this cycle was written; the servos hold their last "
+                          "goals (the port is closed as the run ends)"}})
+        raise
+
+
+def _save_interrupt_log(ctx, log: dict) -> Path | None:
+    """``servo_log_interrupted.json`` in the node's folder (None without a run folder)."""
+    if ctx is None:
+        return None
+    with contextlib.suppress(OSError):
+        ctx.out_dir.mkdir(parents=True, exist_ok=True)
+        path = ctx.out_dir / "servo_log_interrupted.json"
+        path.write_text(json.dumps(log, indent=1))
+        return path
+    return None
+
+
+def _act(params: DynamixelParams, arm, plans, ctx) -> dict:
     chosen, skipped = select_plans(plans, params)
     for p in chosen:  # every chosen plan is checked before opening or starting anything
         check_plan(p, arm)
@@ -555,12 +580,10 @@ def _run(params, plan, arm, port_path, sim, ctx, bus=None) -> dict:
                     f"{port_path} was closed.")
             if sim is not None:
                 log["sim"] = _sim_record(sim)
-            if ctx is not None:
-                with contextlib.suppress(OSError):
-                    ctx.out_dir.mkdir(parents=True, exist_ok=True)
-                    path = ctx.out_dir / "servo_log_interrupted.json"
-                    path.write_text(json.dumps(log, indent=1))
-                    text += f" Log: {path}."
+            path = _save_interrupt_log(ctx, log)
+            if path is not None:
+                text += f" Log: {path}."
+            e.servo_logged = True
             print(text, file=sys.stderr, flush=True)
         raise
     if sim is not None:
