@@ -173,6 +173,9 @@ class Out:
         output kept in the cache and saved as JPEG (quality 90, about 6x smaller than
         PNG). Every reader, a downstream node included, gets what that JPEG decodes
         to, on a fresh run as on a cached one.
+    headline : bool
+        The run's answer, or part of it (a saved output): shown first on the run's
+        page, above the node details (an accuracy table, the arm at the grasp).
     """
 
     type: str = "any"
@@ -181,6 +184,7 @@ class Out:
     optional: bool = False
     description: str = ""
     lossy: bool = False
+    headline: bool = False
 
 
 @dataclass

@@ -257,6 +257,8 @@ def _plain_closing(echo: list, result, loop, width: int) -> str | None:
     if loop is not None:
         parts.append(plaintext.line(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
     parts.append(plaintext.line(f"outputs: {result.out_dir}"))
+    if (result.out_dir / "report.html").is_file():
+        parts.append(plaintext.line(f"report: {result.out_dir / 'report.html'}"))
     return None if None in parts else "\n".join(parts) + "\n"
 
 
@@ -456,6 +458,8 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
             if loop is not None:
                 con.print(escape(f"loop: {loop.summary()}; every cycle is in {result.out_dir / 'cycles.jsonl'}"))
             con.print(f"outputs: {result.out_dir}", markup=False)
+            if (result.out_dir / "report.html").is_file():
+                con.print(f"report: {result.out_dir / 'report.html'}", markup=False)
     if loop is not None and (loop.interrupted or loop.completed):
         return 130 if loop.interrupted else 0
     if not result.ok:

@@ -250,6 +250,7 @@ class Loop:
                         cycle.values[f"{name}.{out}"] = json.loads(json.dumps(outputs_mod.to_json(small, {})))
             if self.save_cycles:
                 _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
+            _append_saved(run, name, cycle.index)
         if cycle.status == "running":
             cycle.status = "ok"
         rec = {"cycle": cycle.index, "status": cycle.status, "seconds": round(cycle.seconds, 5),
@@ -302,6 +303,20 @@ def _save(run: Any, node: str, folder: Path) -> None:
                     outputs_mod.write_value(stem.parent / f"{out}_{key}", x)
             v = {key: x for key, x in v.items() if not outputs_mod.is_image(x)}
         outputs_mod.write_value(stem, v)
+
+
+def _append_saved(run: Any, node: str, index: int) -> None:
+    """Each saved output (``Out(save=True)``) of a live node that is not a picture gets one line per cycle
+    in ``<node>/<output>.cycles.jsonl``: the run folder's ``<node>/<output>.json`` holds the last cycle's
+    only (a servo log, say)."""
+    for out, decl in run.g.nodes[node].spec.outputs.items():
+        v = _value(run, node, out, run.g.is_collection(node, out))
+        if not decl.save or v is None or outputs_mod.is_image(v):
+            continue
+        path = run.out_dir / node / f"{out}.cycles.jsonl"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a") as f:  # (large arrays are left out: they go to --save-cycles' .npz files)
+            f.write(json.dumps({"cycle": index, out: outputs_mod.to_json(v, {})}, default=str) + "\n")
 
 
 def _reset(run: Any, live: list[str]) -> None:

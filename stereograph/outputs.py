@@ -512,7 +512,9 @@ def _wiring(graph: Any, name: str) -> dict[str, Any]:
     inst = graph.nodes.get(name)
     if inst is None:
         return {}
-    return {"mapped": bool(inst.mapped), "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()}}
+    headline = [o for o, decl in inst.spec.outputs.items() if decl.headline]
+    return {"mapped": bool(inst.mapped), "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()},
+            **({"headline": headline} if headline else {})}
 
 
 def write_report_quietly(out_dir: Path, result: Any = None) -> None:

@@ -1,7 +1,9 @@
 """``report.html``: one self-contained page per run folder, built from ``run.json`` alone.
 
-The engine knows no domain, so the page is generic: the pipeline graph (coloured by status), then
-one section per node with its status, time, items, errors and every file the node saved -- images
+The engine knows no domain, so the page is generic: first the result (errors, the nodes' one-line
+notes, the outputs nodes declare ``Out(headline=True)``), a loop's cycles, then the pipeline graph
+(coloured by status) and one section per node with its status, time, items, errors and every file
+the node saved -- images
 (PNG, SVG, JPEG) embedded as data URIs, *tables* rendered as HTML, ``markdown`` text shown as is,
 anything else linked. What a kind of node shows is therefore up to the node: it declares a saved
 ``Image`` output (a figure it drew) or a saved *table* value::
@@ -34,6 +36,8 @@ IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones e
 MESSAGES_SHOWN = 20  # warnings per node on the page (a hard set warns for dozens of pairs); the rest stay in run.json
 EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
 MAX_JSON_BYTES = 2 * 2**20
+SMALL_JSON_BYTES = 4096  # a headline JSON value up to this size is shown as text (a pick's summary)
+FIELDS_SHOWN = 10  # ... its first fields
 _MIME = {".png": "image/png", ".svg": "image/svg+xml", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 
 _STYLE = """
@@ -50,6 +54,9 @@ figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:
 figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}figure.wide img{max-width:100%}
 .graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
+.sg-headline{display:flex;flex-wrap:wrap;gap:0 1.5em;align-items:flex-start}
+.sg-headline h3{margin:.3em 0;font-size:1em}.sg-headline figure img{max-width:600px}
+#sg-result h2{margin-top:.6em}
 """
 
 _CHECK = """
@@ -114,14 +121,20 @@ class _Page:
         return (f'<figure class="{css_class}"><img src="{src}" alt="{_e(rel)}" data-file="{_e(rel)}" loading="eager">'
                 f"<figcaption>{_e(rel)}</figcaption></figure>")
 
-    def json_block(self, rel: str) -> str:
+    def json_block(self, rel: str, small_as_text: bool = False) -> str:
         p = self.dir / rel
         if not self.inside(rel):
             return _not_shown(rel)
         try:
-            if p.stat().st_size > MAX_JSON_BYTES:
+            size = p.stat().st_size
+            if size > MAX_JSON_BYTES:
                 return _link(rel)
             data = p.read_bytes()
+            if small_as_text and size <= SMALL_JSON_BYTES and not (b'"columns"' in data or b'"markdown"' in data):
+                rows = _flat_rows(json.loads(data))
+                more = f"<p>&#8230; {len(rows) - FIELDS_SHOWN} more fields in</p>" if len(rows) > FIELDS_SHOWN else ""
+                return table_html({"columns": ["field", "value"], "rows": rows[:FIELDS_SHOWN]}, "sg-fields") \
+                    + more + _link(rel)
             # Only a table or a markdown value is shown: a file without their keys is linked unparsed
             # (json.dumps writes a key's ASCII letters as they are; a run's records are most of its JSON).
             if not ((b'"columns"' in data and b'"rows"' in data) or b'"markdown"' in data):
@@ -134,6 +147,16 @@ class _Page:
         if isinstance(value, dict) and isinstance(value.get("markdown"), str):
             return markdown_html(value["markdown"]) + _link(rel)
         return _link(rel)
+
+
+def _flat_rows(value: Any, path: str = "") -> list[list[str]]:
+    """A small JSON value as ``[field path, value]`` rows; a list of plain values stays on one row."""
+    if isinstance(value, dict) and value:
+        return [r for k, v in value.items() for r in _flat_rows(v, f"{path}.{k}" if path else str(k))]
+    if isinstance(value, list) and value and not all(isinstance(v, (int, float, str, bool)) or v is None
+                                                     for v in value):
+        return [r for i, v in enumerate(value) for r in _flat_rows(v, f"{path}[{i}]")]
+    return [[path or "value", json.dumps(value)]]
 
 
 def _not_shown(rel: str) -> str:
@@ -229,22 +252,63 @@ def node_section(page: _Page, n: dict[str, Any]) -> str:
     if len(messages) > MESSAGES_SHOWN:  # say that the list goes on, and where
         bits.append(f'<p class="hint">&#8230; and {len(messages) - MESSAGES_SHOWN} more messages in '
                     f'<a href="run.json">run.json</a></p>')
+    heads = n.get("headline") if isinstance(n.get("headline"), list) else []
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
-        imgs = [f for f in files if os.path.splitext(f)[1].lower() in _MIME]
-        rest = [f for f in files if f not in imgs]
-        bits.append(f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(out)}</h3>')
-        per_item = len(_parts(imgs[0])) > 2 if imgs else False
-        for f in imgs[:IMAGES_PER_OUTPUT]:
-            bits.append(page.image(f, f, "item" if per_item else ""))
-        if len(imgs) > IMAGES_PER_OUTPUT:
-            folder = Path(imgs[0]).parent.as_posix()
-            bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
-                        f'<a href="{_href(folder)}">{_e(folder)}</a></p>')
-        for f in rest:
-            bits.append(page.json_block(f) if f.endswith(".json") else
-                        _link(f) if page.inside(f) else _not_shown(f))
-        bits.append("</div>")
+        bits.append(f'<p><a href="#sg-result">{_e(out)}</a>: in the result above</p>' if out in heads
+                    else output_block(page, out, files))
     return "\n".join(bits)
+
+
+def output_block(page: _Page, out: str, files: list[str], title: str | None = None, small_json: bool = False) -> str:
+    """One output's files: pictures (per-item ones folded: the first few, then a link to the folder),
+    tables and Markdown rendered, the rest linked; ``small_json`` shows a short JSON value as text."""
+    imgs = [f for f in files if os.path.splitext(f)[1].lower() in _MIME]
+    rest = [f for f in files if f not in imgs]
+    bits = [f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(title or out)}</h3>']
+    per_item = len(_parts(imgs[0])) > 2 if imgs else False
+    shown = [page.image(f, f, "item" if per_item else "") for f in imgs[:IMAGES_PER_OUTPUT]]
+    if per_item and len(imgs) > 1:  # a picture per item: folded, so that the page stays short
+        bits.append(f"<details><summary>{len(imgs)} pictures, one per item</summary>{''.join(shown)}")
+    else:
+        bits += shown
+    if len(imgs) > IMAGES_PER_OUTPUT:
+        folder = Path(imgs[0]).parent.as_posix()
+        bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
+                    f'<a href="{_href(folder)}">{_e(folder)}</a></p>')
+    if per_item and len(imgs) > 1:
+        bits.append("</details>")
+    for f in rest:
+        bits.append(page.json_block(f, small_json) if f.endswith(".json") else
+                    _link(f) if page.inside(f) else _not_shown(f))
+    bits.append("</div>")
+    return "\n".join(bits)
+
+
+def result_section(page: _Page, nodes: list[dict[str, Any]]) -> str:
+    """The answer first: what failed, the one-line summaries nodes gave (a calibration's RMS), and the
+    outputs nodes declare as the run's headline (``Out(headline=True)``), in data-flow order."""
+    bits = ['<section id="sg-result"><h2>result</h2>']
+    for n in nodes:
+        if n.get("error"):
+            bits.append(f'<p class="err">{_e(n.get("node"))} ({_e(n.get("type"))}): {_e(n["error"])}</p>')
+    said = [[n.get("node"), n["messages"][0]] for n in nodes
+            if isinstance(n.get("messages"), list) and len(n["messages"]) == 1 and not n.get("error")]
+    if said:
+        bits.append(table_html({"title": "what the nodes said", "columns": ["node", "note"], "rows": said},
+                               "sg-notes"))
+    blocks = []  # pictures first, side by side with the tables: the answer fits a laptop's first screen
+    for n in nodes:
+        heads = n.get("headline") if isinstance(n.get("headline"), list) else []
+        groups = _group([f for f in n.get("files", []) if isinstance(f, str)])
+        for out in [o for o in heads if o in groups]:
+            pictures = any(os.path.splitext(f)[1].lower() in _MIME for f in groups[out])
+            blocks.append((not pictures, output_block(page, out, groups[out], f"{n.get('node')}: {out}", True)))
+    if blocks:
+        bits.append('<div class="sg-headline">' + "".join(b for _, b in sorted(blocks, key=lambda b: b[0]))
+                    + "</div>")
+    if len(bits) == 1:
+        bits.append("<p>No node of this pipeline declares a headline output: see the nodes below.</p>")
+    return "\n".join(bits) + "</section>"
 
 
 def _contents(nodes: list[dict[str, Any]]) -> str:
@@ -288,8 +352,14 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
              '<p id="sg-images" data-ok="unknown">image check did not run</p>']
     for note in summary.get("notes") or []:
         parts.append(f'<p class="hint">note: {_e(note)}</p>')
+    parts.append(result_section(page, nodes))
+    if isinstance(summary.get("loop"), dict):
+        from stereograph import report_cycles
+
+        parts.append(report_cycles.cycles_section(page, summary["loop"], run_dir))
     svg = _ascii(graph_picture.to_svg(desc, status))
-    parts.append(f'<div class="graph-row"><div class="graph" id="sg-graph">{svg}</div>'
+    parts.append(f'<h2 id="sg-details">graph and nodes</h2><div class="graph-row">'
+                 f'<div class="graph" id="sg-graph">{svg}</div>'
                  f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>")
     for n in nodes:
         parts.append(f'<section class="sg-node-section" data-node="{_e(n.get("node", ""))}">'

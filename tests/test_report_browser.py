@@ -195,3 +195,32 @@ def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
     body = re.search(r"<body[^>]*>", dom).group(0)
     assert "data-pwned" not in body, body  # no planted handler or script ran
     assert 'data-ok="true"' in dom  # (the page's own script did run)
+
+
+@pytest.mark.slow
+def test_a_loops_page_leads_with_its_result_and_its_cycles(tmp_path):
+    """pick-live --repeat 3 --save-cycles: the result (the pick's summary), then the cycles (counts, time
+    per stage, the last cycles' pictures), then the graph and the nodes; each cycle's servo log kept."""
+    from stereograph.config import load_pipeline
+    from stereograph.graph import build_graph
+    from stereograph.loop import Loop
+    from stereograph.runner import run_graph
+
+    doc = load_pipeline(PIPES / "pick-live.yaml", ["act.sim_time_scale=20", "segment.overlay=true"])
+    loop = Loop(3, save_cycles=True)
+    res = run_graph(build_graph(doc), cycles=loop, out_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    page = (res.out_dir / "report.html").read_text()
+    at = {k: page.index(k) for k in ('id="sg-result"', 'id="sg-cycles"', 'id="sg-details"')}
+    assert at['id="sg-result"'] < at['id="sg-cycles"'] < at['id="sg-details"']
+    result = page[at['id="sg-result"']:at['id="sg-cycles"']]
+    assert "act: summary" in result and "picks[0].ok" in result
+    cycles = page[at['id="sg-cycles"']:at['id="sg-details"']]
+    assert "time per cycle" in cycles and ">segment<" in cycles and "cycle 3: ok" in cycles
+    assert 'data-file="cycles/00003/segment/overlay' in cycles
+    logs = (res.out_dir / "act" / "log.cycles.jsonl").read_text().splitlines()
+    assert [json.loads(line)["cycle"] for line in logs] == [1, 2, 3]
+    if CHROMIUM is None:
+        pytest.skip("headless Chromium not installed: the page was checked as text only")
+    shot = _shots(tmp_path) / "pick-live.png"
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 800)
+    _check(dom, shot, ["cycles/00003/"])

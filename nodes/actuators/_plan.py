@@ -147,11 +147,12 @@ def summary(picks: list[dict], plans: list[dict], skipped: dict[str, str]) -> di
     out = []
     for log_, plan in zip(picks, plans):
         g = plan["waypoints"][plan["grasp_index"]]
-        out.append({"item": plan.get("pair"), "object_left_cm": _r(plan.get("location_cm")),
-                    "object_base_cm": _r(plan.get("target_base_cm")),
+        # (the outcome first: what a person reads first, on the run's page too)
+        out.append({"item": plan.get("pair"), "ok": log_["ok"], "object_base_cm": _r(plan.get("target_base_cm")),
+                    "object_left_cm": _r(plan.get("location_cm")), "seconds": log_["seconds"],
+                    "servo_commands": len(log_["commands"]),
                     "grasp_joints_deg": {k: round(v, 2) for k, v in g["joints_deg"].items()},
-                    "grasp_servo_goals": g["servo_units"],
-                    "servo_commands": len(log_["commands"]), "ok": log_["ok"], "seconds": log_["seconds"]})
+                    "grasp_servo_goals": g["servo_units"]})
     why: dict[str, int] = {}
     for reason in skipped.values():
         key = reason.split(":")[0]  # a refusal's own text is in the log; here only that it was refused

@@ -491,7 +491,8 @@ def _servo_log(plan, params, port_path, bus: Bus, reached, ok: bool, t0: float) 
 @node("actuator.dynamixel",
       inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan.")},
       outputs={"log": Out("ServoLog", save=True, description="Commands sent, positions reached, timing."),
-               "summary": Out("PickSummary", description="Object position, joint angles, servo goals.")},
+               "summary": Out("PickSummary", save=True, headline=True,
+                                  description="Object position, joint angles, servo goals.")},
       params=DynamixelParams, version="1", cacheable=False)
 def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
     """Run pick plans on AX-12A servos (real dynamixel-sdk, Protocol 1.0); port 'sim' = the emulator."""

@@ -53,7 +53,8 @@ def dry_run(params: LogParams, plan: dict, arm: dict) -> dict:
 @node("actuator.log",
       inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan.")},
       outputs={"log": Out("ServoLog", save=True, description="The commands that would be sent."),
-               "summary": Out("PickSummary", description="Object position, joint angles, servo goals.")},
+               "summary": Out("PickSummary", save=True, headline=True,
+                                  description="Object position, joint angles, servo goals.")},
       params=LogParams, version="1", cacheable=False)
 def log(params: LogParams, arm, plans):
     """Dry run: check the chosen plans and record the servo commands they would send, without a port."""

@@ -267,7 +267,8 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     gi = next(i for i, w in enumerate(waypoints) if w["name"] == "grasp")
     return {"pair": target.get("pair"), "refused": False, "reason": None, "split": target.get("split"),
             "arm": model["name"], "target_base_cm": [float(v) for v in p],
-            "location_cm": target.get("location_cm"), "frame": target.get("frame"),
+            "location_cm": target.get("location_cm"), "sigma_z_cm": target.get("sigma_z_cm"),
+            "frame": target.get("frame"),
             "truth_base_cm": target.get("truth_base_cm"), "solver": target["solver"],
             "servo_ids": all_servo_ids(model), "grasp_index": gi, "grasp_fk_cm": waypoints[gi]["fk_cm"],
             "workspace_cm": {"min": lo.tolist(), "max": hi.tolist()},  # the box this plan was checked against

@@ -151,9 +151,9 @@ def raw_location_fields(loc: dict) -> dict:
     "report.accuracy",
     inputs={"locations": In("Location", gather=True, description="All located pairs (with truth).")},
     outputs={
-        "report": Out("AccuracyReport", save=True, description="Per-axis error statistics (cm)."),
+        "report": Out("AccuracyReport", save=True, headline=True, description="Per-axis error statistics (cm)."),
         "locations": Out("any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."),
-        "figure": Out("Image", save=True, description="Error histograms and error vs distance (cm)."),
+        "figure": Out("Image", save=True, headline=True, description="Error histograms and error vs distance (cm)."),
         "metrics": Out("Metrics", save=True, optional=True,
                        description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat."),
         "accuracy": Out("TextFile", save=True, optional=True,

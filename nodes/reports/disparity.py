@@ -50,7 +50,7 @@ def _reads(params: DisparityScoreParams, pipeline_dir: Path) -> list[Path]:
     "report.disparity",
     inputs={"disparity_map": In("DisparityMap", gather=True, description="Dense disparity maps (disparity.dense).")},
     outputs={
-        "metrics": Out("Metrics", save=True, optional=True,
+        "metrics": Out("Metrics", save=True, optional=True, headline=True,
                        description="n_pairs, fill_fraction, bad_<T>px_fraction, match_s (means over the pairs)."),
         "pairs": Out("any", save=True, optional=True, description="The same scores per pair."),
     },

@@ -101,6 +101,11 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
                      ", ".join(str(g["servo_units"].get(str(i), "")) for i in ids),
                      ", ".join(str(g.get("speed_units", {}).get(str(i), "")) for i in ids)])
     title = f"Joints and servos at the grasp of {plan.get('pair')}"
+    if plan.get("target_base_cm") is not None:  # where the ball was: what a person checks first
+        x, y, z = (float(v) for v in plan["target_base_cm"])
+        title += f": ball at ({x:.2f}, {y:.2f}, {z:.2f}) cm in the arm-base frame"
+        if plan.get("sigma_z_cm") is not None:
+            title += f", sigma_z {float(plan['sigma_z_cm']):.2f} cm"
     if n_refused:
         title += f"; {n_refused} other plans refused (first: {reasons[0]})"
     return {"title": title, "columns": ["joint", "angle (deg)", "limits (deg)", "servo ids", "goal (units)",
@@ -111,8 +116,9 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
     "report.pick",
     inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True),
             "log": In("ServoLog", optional=True, description="Which plan the actuator executed.")},
-    outputs={"arm_figure": Out("Image", save=True, description="Arm at the grasp pose: side and top views (cm)."),
-             "servo_table": Out("any", save=True,
+    outputs={"arm_figure": Out("Image", save=True, headline=True,
+                                description="Arm at the grasp pose: side and top views (cm)."),
+             "servo_table": Out("any", save=True, headline=True,
                                 description="Joint angles (deg) and servo goals (units) at the grasp (a table).")},
     params=PickReportParams,
     version="2",
