@@ -359,6 +359,17 @@ class CompareResult:
     files: dict[str, Path]
     #: ``(label, why)`` of each combination left out by ``skip_invalid`` (its config did not validate)
     skipped: list[tuple[str, str]] = field(default_factory=list)
+    #: the metric the pipeline's ``compare: {metric: ...}`` names (``--best`` overrides it)
+    ranked_by: str | None = None
+
+    def shown_metrics(self, first: str | None = None) -> tuple[list[str], list[str]]:
+        """``(shown, constant)``: the metric ``first`` names (``NAME[:how]``), then the metrics whose value
+        differs between variants, in their order, the per-pair time last; and those the same in every one."""
+        lead = (first or self.ranked_by or "").partition(":")[0]
+        varies = [n for n in self.metric_names
+                  if n == PER_PAIR or len({_cell(n, r.get(n)) for r in self.rows}) > 1 or len(self.rows) < 2]
+        shown = ([lead] if lead in self.metric_names else []) + [n for n in varies if n != lead]
+        return shown, [n for n in self.metric_names if n not in shown]
 
     @property
     def ok(self) -> bool:
@@ -666,7 +677,7 @@ def compare(
         threads.shutdown()
     timings.save()
     res = CompareResult(str(doc.path), list(variants[0].settings), split, out, results, [], {},
-                        [(v.label, e) for v, e in skipped])
+                        [(v.label, e) for v, e in skipped], doc.compare_metric)
     res.rows = _rows(res)
     res.files = _write(res, skipped, plots)
     _write_page(res, overrides)
@@ -846,13 +857,16 @@ def _plotted(res: CompareResult, names: list[str]) -> list[str]:
 
 
 def _plots(res: CompareResult, patterns: list[str] | None = None) -> dict[str, Path]:
-    """``metrics.png``: one bar panel per metric (the chosen ones), one bar per variant."""
+    """``metrics.png``: one bar panel per metric (the chosen ones; by default those that differ between
+    variants, the ranked one first), one bar per variant."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = _plotted(res, select_metrics(res.metric_names, patterns))
+    shown, constant = res.shown_metrics()
+    names = _plotted(res, select_metrics(shown + constant, patterns) if patterns else
+                     [n for n in shown if n != PER_PAIR])
     if not names:
         return {}
     labels = [_short_label(res, vr.variant) for vr in res.variants]
@@ -989,10 +1003,11 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     # A mistake in --metrics / --best is known only now that the variants ran: the table is printed
     # anyway (every metric, nothing marked), then the mistake is reported.
     mistakes: list[UsageError] = []
-    names = select_metrics(res.metric_names, metrics)
+    shown, constant = res.shown_metrics(best)
+    names = select_metrics(shown + constant, metrics) if metrics else shown
     if not names:
         mistakes.append(UsageError("--metrics matches no metric", hint="choose among " + ", ".join(res.metric_names)))
-        names = select_metrics(res.metric_names, None)
+        names = shown
     try:
         top = _best(res, best)
     except UsageError as e:
@@ -1024,6 +1039,10 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
             style = "bold green" if is_best else ("red" if not r["ok"] else None)
             t.add_row(*cells, *(_cell(n, r.get(n)) for n in chunk), *mark, style=style)
         con.print(t)
+    same = [n for n in constant if n not in names]
+    if same:  # (not columns: a number that does not change tells nothing apart; compare.csv has them all)
+        con.print("the same in every variant: " + ", ".join(f"{n} {_cell(n, res.rows[0].get(n))}" for n in same),
+                  markup=False)
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
@@ -1110,7 +1129,7 @@ def main(args: Any) -> int:
     if args.json:
         print(res.files["json"].read_text())
     else:
-        print_table(res, con, metrics=patterns, best=getattr(args, "best", None))
+        print_table(res, con, metrics=patterns, best=getattr(args, "best", None) or res.ranked_by)
         con.print(f"outputs: {res.out_dir} ({', '.join(p.name for p in res.files.values())})", markup=False)
     if not res.ok:
         err.print("[red]error:[/] some variants failed (see above); what finished is cached, so a rerun "

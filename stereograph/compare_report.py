@@ -13,6 +13,7 @@ import html
 from pathlib import Path
 from typing import Any
 
+from stereograph.errors import UsageError
 from stereograph.report import _CHECK, _STYLE, _Page, table_html, write_html
 
 COMPARE_NAME = "compare.html"
@@ -22,8 +23,12 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return "" if v is None else (f"{v:.{digits}f}" if isinstance(v, float) else str(v))
 
 
-def compare_table(res: Any, overrides: list[str]) -> dict[str, Any]:
-    """The comparison as a *table* value (report.table_html renders it): one column per declared metric."""
+MAIN_COLUMNS = 10  # metric columns in the first table (a 1280 px window); the others that vary follow
+
+
+def compare_table(res: Any, overrides: list[str], names: list[str] | None = None) -> dict[str, Any]:
+    """The comparison as a *table* value (report.table_html renders it): one column per metric in ``names``
+    (default: the ranked one, then those that differ between variants)."""
     from stereograph.compare import PER_PAIR, _show
 
     varying = [k for k in res.keys if len({_show(v.variant.settings[k]) for v in res.variants}) > 1] or res.keys
@@ -32,36 +37,62 @@ def compare_table(res: Any, overrides: list[str]) -> dict[str, Any]:
     title = (f"compare {Path(res.pipeline).name}: {len(res.variants)} variants{split}. Every variant: "
              + ("; ".join([f"--set {o}" for o in overrides] + fixed) or "no other overrides")
              + f". Varied: {', '.join(varying)}.")
-    names = list(res.metric_names)
-    cols = ["variant", "full settings (--set and varied keys)", "ok"]
-    cols += ["pair ms" if n == PER_PAIR else n for n in names] + ["report"]
+    names = names if names is not None else res.shown_metrics()[0]
+    cols = ["variant", "ok"] + ["pair ms" if n == PER_PAIR else n for n in names] + ["report"]
+    from stereograph.compare import _best, _is_best
+
+    try:
+        top = _best(res, res.ranked_by)
+    except UsageError:  # a metric no variant declared: the CLI's table says so; the page marks nothing
+        top = None
     rows = []
     for r, vr in zip(res.rows, res.variants):
-        cells = [", ".join(_show(vr.variant.settings[k]) for k in varying),
-                 " ".join([f"--set {o}" for o in overrides]
-                          + [f"{k}={_show(v)}" for k, v in vr.variant.settings.items()]),
-                 "yes" if r.get("ok") else "NO"]
+        label = ", ".join(_show(vr.variant.settings[k]) for k in varying)
+        cells = [label + (f" (best {top[0]})" if _is_best(top, r) else ""), "yes" if r.get("ok") else "NO"]
         for n in names:
             v = r.get(n)
-            cells.append("" if v is None else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4)))
+            cells.append("" if v is None else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4 if n.endswith("_s")
+                                                                                          else 3)))
         cells.append(str(Path("variants") / vr.out_dir.name / "report.html") if vr.out_dir is not None else "")
         rows.append(cells)
     return {"title": title, "columns": cols, "rows": rows}
+
+
+def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
+    """Each variant's full settings (the --set overrides and its varied keys), and the metrics every
+    variant has the same value of: below the main table, which keeps to what tells variants apart."""
+    from stereograph.compare import _cell, _show
+
+    _, constant = res.shown_metrics()
+    rows = [[", ".join(_show(v) for v in vr.variant.settings.values()),
+             " ".join([f"--set {o}" for o in overrides] + [f"{k}={_show(v)}" for k, v in vr.variant.settings.items()])]
+            for vr in res.variants]
+    if constant and res.rows:
+        rows.append(["(every variant)", ", ".join(f"{n} {_cell(n, res.rows[0].get(n))}" for n in constant)])
+    return {"title": "full settings of each variant, and the metrics that do not change",
+            "columns": ["variant", "settings"], "rows": rows}
 
 
 def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
     """Write ``compare.html`` into ``res.out_dir``; returns its path."""
     out: Path = res.out_dir
     page = _Page(out)
-    table = compare_table(res, list(overrides or []))
-    body = table_html(table, "sg-compare")
-    for link in {r[-1] for r in table["rows"] if r[-1]}:  # the report column as links
+    shown = res.shown_metrics()[0]
+    tables = [compare_table(res, list(overrides or []), shown[:MAIN_COLUMNS])]
+    if shown[MAIN_COLUMNS:]:
+        more = compare_table(res, list(overrides or []), shown[MAIN_COLUMNS:])
+        tables.append({**more, "title": "more metrics that differ between variants"})
+    body = "".join(table_html(t, "sg-compare") for t in tables)
+    for link in {r[-1] for r in tables[0]["rows"] if r[-1]}:  # the report column as links
         body = body.replace(f"<td>{html.escape(link)}</td>",
                             f'<td><a href="{html.escape(link)}">variant report</a></td>')
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
-             f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{_STYLE}</style></head><body>",
+             f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{_STYLE}"
+             ".sg-compare{font-size:.82em}.sg-compare td,.sg-compare th{padding:2px 5px}"
+             ".sg-compare caption{font-weight:normal}</style></head><body>",
              f"<h1>compare {html.escape(Path(res.pipeline).name)}</h1>",
-             '<p id="sg-images" data-ok="unknown">image check did not run</p>', body]
+             '<p id="sg-images" data-ok="unknown">image check did not run</p>', body,
+             table_html(settings_table(res, list(overrides or [])), "sg-settings")]
     for vr in res.variants:
         if not vr.ok:
             parts.append(f'<p class="err">variant {html.escape(vr.variant.label)} failed: '

@@ -8,6 +8,7 @@ A pipeline file::
     defaults:                           # optional: params by node type, below each node's own
       segmenter.edge_morph: {canny_low: 40}
     variants:                           # optional: what `stereograph compare` varies
+    compare: {metric: NAME}             # optional: the metric `stereograph compare` ranks by (lowest best)
       compensate.type: [compensator.none, compensator.polynomial]
     nodes:
       rig:   {type: source.synthetic, params: {n_scenes: 120}}
@@ -34,7 +35,7 @@ from stereograph.errors import ConfigError, UsageError, Where, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 
-TOP_KEYS = {"name", "description", "include", "plugins", "defaults", "variants", "nodes"}
+TOP_KEYS = {"name", "description", "include", "plugins", "defaults", "variants", "compare", "nodes"}
 NODE_KEYS = {"type", "params", "inputs", "description"}
 
 
@@ -51,6 +52,7 @@ class PipelineDoc:
     nodes: dict[str, dict[str, Any]]
     lines: dict[Path_, Where] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
+    compare_metric: str | None = None  # `compare: {metric: NAME[:max|:abs]}`: what `stereograph compare` ranks by
     broken: set[str] = field(default_factory=set)  # nodes left out for a problem of their own (already reported)
 
     @property
@@ -385,6 +387,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         doc.nodes.update(copy.deepcopy(sub.nodes))
         doc.lines.update(sub.lines)
         doc.variants.update(sub.variants)
+        doc.compare_metric = sub.compare_metric or doc.compare_metric
 
     doc.lines.update(lines)
     for key, kind in (("plugins", list), ("defaults", dict), ("variants", dict), ("nodes", dict)):
@@ -401,6 +404,13 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         doc.defaults[str(t)] = merge_params(doc.defaults.get(str(t), {}), p)
     for k, v in (data.get("variants") or {}).items():
         doc.variants[str(k)] = v if isinstance(v, list) else [v]
+    if data.get("compare") is not None:
+        block = data["compare"]
+        if not isinstance(block, dict) or set(block) - {"metric"} or not isinstance(block.get("metric"), str):
+            raise ConfigError("'compare' must be a mapping with one key, 'metric'", where("compare"),
+                              hint="for example 'compare: {metric: NAME}', NAME a metric the nodes declare (lowest "
+                                   "is best; NAME:max for highest, NAME:abs for closest to zero)")
+        doc.compare_metric = block["metric"]
 
     nodes = data.get("nodes")
     if not nodes and not doc.nodes:

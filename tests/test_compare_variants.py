@@ -510,3 +510,32 @@ def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path)
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr[-800:]
     assert (tmp_path / "o" / "compare.json").is_file()
+
+
+def test_the_named_metric_leads_and_constant_metrics_step_aside(tmp_path, capsys):
+    """(the terminal table was split in two, the page ran off a 1280 px window and metrics.png had 23
+    panels, several constant, with the compared figure as panel 20)"""
+    from stereograph.compare import PER_PAIR, print_table
+    from stereograph.compare_report import compare_table
+
+    p = tmp_path / "p.yaml"
+    p.write_text(PIPELINE.replace("variants:", "compare: {metric: z_rms_cm}\nvariants:"))
+    res = compare(p, [], tmp_path / "o", cache_dir=tmp_path / "c", plots=False)
+    assert res.ranked_by == "z_rms_cm"
+    shown, constant = res.shown_metrics()
+    assert shown[0] == "z_rms_cm" and shown[-1] == PER_PAIR and "n" in constant and "found_rate" in constant
+    for name in shown[1:-1]:  # every other column tells the variants apart
+        assert len({round(r[name], 3) for r in res.rows}) > 1, name
+    assert compare_table(res, [])["columns"][2] == "z_rms_cm"
+    from rich.console import Console
+
+    con = Console(width=400, record=True)
+    print_table(res, con, best=res.ranked_by)
+    text = con.export_text()
+    assert text.count("┏") == 1 and "<- best z_rms_cm" in text and "the same in every variant: " in text
+    header = next(line for line in text.splitlines() if "fit.type" in line and "z_rms_cm" in line)
+    assert header.index("z_rms_cm") < header.index("z_mean_cm")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(PIPELINE.replace("variants:", "compare: z_rms_cm\nvariants:"))
+    with pytest.raises(ConfigError, match="'compare' must be a mapping"):
+        load_pipeline(bad)
