@@ -319,3 +319,18 @@ def test_an_opencv_file_that_states_its_unit_and_size_is_not_overridden_silently
     with pytest.raises(NodeError, match=r"is for 640x480 px images, but image_size says 1280x960"):
         read_calibration_file(p, image_size=[1280, 960])
     _assert_same(read_calibration_file(p, cm_per_unit=1.0, image_size=[640, 480]), _calibration())
+
+
+def test_the_default_globs_pair_names_with_the_side_after_the_number(tmp_path):
+    """(docs/bench.md says 007_left.png / 007_right.png pair; the default globs 'left*' refused them)"""
+    import cv2
+    import numpy as np
+
+    from nodes.sources._files import list_pairs
+    from nodes.sources.files import FilesParams
+
+    for i in (7, 8):
+        for side in ("left", "right"):
+            cv2.imwrite(str(tmp_path / f"{i:03d}_{side}.png"), np.zeros((4, 4, 3), np.uint8))
+    p = FilesParams(folder=str(tmp_path))
+    assert [pid for pid, _, _ in list_pairs(tmp_path, p.left_glob, p.right_glob)] == ["007", "008"]

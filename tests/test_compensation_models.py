@@ -320,3 +320,19 @@ def test_a_truth_in_another_unit_or_frame_is_refused_not_fitted(biased, kind, mi
     with pytest.raises(NodeError, match=r"truth is far from where the balls were located.*not mm") as exc:
         fit(kind, spoiled)
     assert f"compensator.{kind}" in exc.value.message
+
+
+def test_when_most_training_balls_are_not_found_the_fix_is_about_finding_them():
+    """(the Fix said 'more training placements, or fewer coefficients' while the reason it quoted --
+    the ball's colour not found -- was the real cause)"""
+    from nodes.compensators._common import training_samples
+    from stereograph.api import NodeError
+
+    train = {f"p{i}": {"split": "train", "found": False, "reason": "no plausible region (colour not seen)"}
+             for i in range(20)}
+    train["p99"] = {"split": "train", "found": True, "x_cm": 1.0, "y_cm": 2.0, "z_cm": 40.0,
+                    "truth_cm": [1.0, 2.0, 40.1]}
+    with pytest.raises(NodeError) as e:
+        training_samples(train, "node 'fit' (compensator.polynomial)", ("z_cm",), 6)
+    assert "most training placements were not located (20 of 21)" in e.value.hint
+    assert "colour not seen" in e.value.hint and "fewer coefficients" not in e.value.hint

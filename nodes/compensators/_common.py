@@ -324,14 +324,23 @@ def training_samples(
         keep[item_id] = loc
     if len(keep) < min_points:
         why = ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n) or "the collection is empty"
+        hint = ("use a source with ground truth and more training placements (e.g. source.synthetic n_scenes / "
+                "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins).")
+        in_split = len(train) - dropped["not in the train split"]
         if reasons:  # the locator's own words: a cause shared by every pair (swapped images ...) shows here
             top, n_top = group_reasons(reasons)[0]
             why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
+            if 2 * dropped["not found"] >= in_split:  # the cause is upstream: more placements would not help
+                hint = (f"most training placements were not located ({dropped['not found']} of {in_split}), most "
+                        f"often because: {top}. Fix that first: the object's declared colour and radius, or the "
+                        "segmenter's settings (look at the segment overlays in the run folder); then run again.")
+        elif dropped["no ground truth"] and 2 * dropped["no ground truth"] >= in_split:
+            hint = ("the training placements carry no ground truth (truth_cm): give the source a truth file, or "
+                    "use source.synthetic, whose placements know where the ball is.")
         raise NodeError(
             f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
             f"this model needs at least {min_points} (found, with truth_cm, split 'train', finite {', '.join(needs)}).",
-            hint="use a source with ground truth and more training placements (e.g. source.synthetic n_scenes / "
-            "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins).",
+            hint=hint,
         )
     return samples_from_locations(keep)
 

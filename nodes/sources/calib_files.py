@@ -10,8 +10,8 @@ from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 class CalibFilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
-    left_glob: str = Field("left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
-    right_glob: str = Field("right*", description="Glob of the right images in `folder`.")
+    left_glob: str = Field("*left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
+    right_glob: str = Field("*right*", description="Glob of the right images in `folder`.")
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")

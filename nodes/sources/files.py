@@ -20,8 +20,8 @@ def read_truth(path: Path) -> dict[str, dict]:
 
 class FilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
-    left_glob: str = Field("left*", description="Glob of the left images (e.g. left*.png, left/*.png).")
-    right_glob: str = Field("right*", description="Glob of the right images.")
+    left_glob: str = Field("*left*", description="Glob of the left images (e.g. left*.png, 007_left.png, left/*.png).")
+    right_glob: str = Field("*right*", description="Glob of the right images.")
     truth: str | None = PathField(
         None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
                           "decides the split: the pairs it lists are train, the others test, "
