@@ -211,3 +211,16 @@ def test_a_cycles_images_are_not_logged_as_values_whatever_their_size(tmp_path):
     for c in cycles(tmp_path / "out"):
         assert "draw.overlay" not in c["values"] and "draw.mask" not in c["values"], c["values"]
         assert isinstance(c["values"]["draw.count"], (int, float))
+
+
+def test_after_cycle_1_a_cycle_is_one_line_unless_verbose(tmp_path, capsys):
+    """(--repeat 5 printed 16 started/finished lines per cycle, also on a terminal)"""
+    f = pipeline(tmp_path)
+    assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    after = out[out.index("cycle 1: ok"):out.index("cycle 4: ok")].splitlines()[1:]
+    assert [line.split(":")[0] for line in after] == ["cycle 2", "cycle 3"], out
+    assert "tick: started" in out[:out.index("cycle 1: ok")]  # cycle 1 runs the graph: its nodes are said
+    assert main(["run", str(f), "--repeat", "3", "--verbose", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "tick: started" in out[out.index("cycle 1: ok"):out.index("cycle 3: ok")]
