@@ -38,6 +38,8 @@ __all__ = [
     "Params",
     "Field",
     "PathField",
+    "data_file",
+    "parse_yaml_data",
     "OrderedRange",
     "PositiveRange",
     "In",
@@ -69,6 +71,61 @@ def PathField(default: Any = ..., **kwargs: Any) -> Any:  # noqa: N802  (a Field
     ``--set`` that names one that does not exist is refused before anything runs, saying where it
     was looked for (the pipeline's folder, not the current one)."""
     return Field(default, json_schema_extra={"reads_path": True}, **kwargs)
+
+
+MAX_DATA_FILE_MB = 64.0  # a calibration, truth or target file is KB to a few MB: beyond this, not one
+MAX_DATA_NESTING = 64  # brackets / tags nested deeper than this: no data file of ours, a parser's stack bomb
+
+
+def data_file(path: str | Path, what: str, label: str, max_mb: float = MAX_DATA_FILE_MB) -> Path:
+    """``path``, checked before a node reads it as ``what`` (a data file may come from anyone): it exists,
+    it is a regular file -- a device, FIFO or socket is refused before it is opened (``/dev/zero`` never
+    ends, a FIFO never answers) --, it holds at most ``max_mb`` MB, and it does not nest brackets or XML
+    tags deeper than :data:`MAX_DATA_NESTING` (a parser's stack). :class:`NodeError` naming it, else."""
+    import stat
+
+    p = Path(path)
+    try:
+        st = p.stat()
+    except OSError:
+        raise NodeError(f"{label}: {p} does not exist.", hint="relative paths start at the pipeline file's "
+                        "folder") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a device, FIFO or socket"
+        raise NodeError(f"{label}: {p} is {kind}, not a file: it is not read as {what}.",
+                        hint=f"give the path of {what} (a regular file)")
+    if st.st_size > max_mb * 2**20:
+        raise NodeError(f"{label}: {p} holds {st.st_size / 2**20:.0f} MB, more than {what} can ({max_mb:g} MB).",
+                        hint=f"give {what}; a file this large is another kind of file")
+    depth = _nesting(p.read_bytes())
+    if depth > MAX_DATA_NESTING:
+        raise NodeError(f"{label}: {p} nests its values {depth} levels deep; {what} needs a few.",
+                        hint=f"give {what}; this one was not written by a calibration or measuring tool")
+    return p
+
+
+def _nesting(data: bytes) -> int:
+    """How deep ``[``/``{`` brackets (JSON, YAML flow) or XML elements nest (a rough count: strings aside)."""
+    import re
+
+    deepest = level = 0
+    for m in re.finditer(rb"[\[{]|[\]}]|<[A-Za-z_][^>]*?(?<!/)>|</", data):
+        tok = m.group(0)
+        level += 1 if tok[:1] in (b"[", b"{") or (tok[:1] == b"<" and tok[1:2] != b"/") else -1
+        deepest = max(deepest, level)
+    return deepest
+
+
+def parse_yaml_data(text: str, source: str, label: str) -> Any:
+    """YAML from a data file, with the bounds a pipeline file has (safe_load semantics, depth, values
+    after alias expansion: a few hundred bytes of aliases cannot ask for gigabytes)."""
+    from stereograph.config import parse_yaml
+    from stereograph.errors import ConfigError
+
+    try:
+        return parse_yaml(text, source, record_lines=False)[0]
+    except ConfigError as e:
+        raise NodeError(f"{label}: {e}", hint="give a YAML file written by the tool it comes from") from None
 
 
 def _ordered(value: tuple[float, float]) -> tuple[float, float]:

@@ -25,6 +25,7 @@ import importlib.util
 import json
 import os
 import shutil
+import stat
 import sys
 import sysconfig
 import time
@@ -313,6 +314,8 @@ class FileIndex:
             st = os.stat(p)
         except OSError:
             return "missing"
+        if not stat.S_ISREG(st.st_mode):  # a device or FIFO would never end (/dev/zero) or never answer
+            return "not a regular file"
         stamp = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
         rec = self.data.get(p)
         if isinstance(rec, list) and len(rec) == 6 and rec[:4] == stamp and rec[5] - rec[1] >= RACY_SECONDS * 1e9:

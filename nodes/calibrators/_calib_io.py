@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 import yaml
 
-from stereograph.api import NodeError
+from stereograph.api import NodeError, parse_yaml_data
 
 __all__ = ["CM_PER_UNIT", "EXPORT_OUTPUTS", "calibration_outputs", "calibration_summary", "export_texts", "opencv_text",
            "read_opencv", "read_ros", "read_ros_pair", "rectify_params", "ros_camera_info"]
@@ -300,10 +300,12 @@ def _ros_mat(doc: dict, key: str, shape, path: Path) -> np.ndarray:
 
 def read_ros(path: Path) -> dict:
     """A ROS camera_info YAML as a dict (``ValueError`` naming the file if it is not one)."""
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path} is not valid YAML ({exc})") from exc
+    try:  # with a pipeline file's bounds: a few hundred bytes of aliases must not ask for gigabytes
+        doc = parse_yaml_data(path.read_text(), str(path), "calibrator.load")
+    except NodeError as exc:
+        raise ValueError(f"{path} is not a YAML file within bounds ({exc.message})") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path} is not a text file ({exc})") from exc
     if not isinstance(doc, dict) or "camera_matrix" not in doc:
         raise ValueError(f"{path} is not a ROS camera_info file (no camera_matrix)")
     return doc

@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from stereograph.api import Field, In, NodeError, Out, Params, PathField, node
+from stereograph.api import Field, In, NodeError, Out, Params, PathField, data_file, node
 
 
 # --------------------------------------------------------------------------- library
@@ -163,6 +163,7 @@ class HandEyeParams(Params):
 
 
 def _read_pairs(path) -> tuple[np.ndarray, np.ndarray]:
+    data_file(path, "a CSV of camera/arm point pairs", "calibrator.hand_eye")
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))

@@ -42,7 +42,7 @@ from nodes.contracts.calibration_file import (
     resolve_path,
     with_npz,
 )
-from stereograph.api import Field, In, NodeError, Out, Params, PathField, node
+from stereograph.api import Field, In, NodeError, Out, Params, PathField, data_file, node
 
 __all__ = ["load", "load_hand_eye", "load_table_frame", "read_calibration_file"]
 
@@ -68,9 +68,8 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
         Missing file, wrong kind of file, or missing entries; the message names the file.
     """
     for p in (path, right_path):
-        if p is not None and not p.is_file():
-            raise NodeError(f"{label}: {p} does not exist.",
-                            hint="relative paths start at the pipeline file's folder")
+        if p is not None:
+            data_file(p, "a calibration file", label)
     suffix = path.suffix.lower()
     if suffix == ".json" and not (_is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()):
         art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from stereograph.api import Field, NodeError, Params, PathField
+from stereograph.api import Field, NodeError, Params, PathField, data_file
 
 __all__ = [
     "ArtifactLoadParams", "array_keys", "artifact_kind", "artifact_reads", "check_rig", "read_artifact",
@@ -82,10 +82,11 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
     NodeError
         Missing or unreadable file, a per-item list, or a missing ``.npz``.
     """
-    if not path.is_file():
+    if not path.exists():
         raise NodeError(f"{label}: {path} does not exist.",
                         hint=f"give the {kind} file a run wrote ({made_by}); relative paths start at the pipeline "
                              "file's folder")
+    data_file(path, f"the {kind} file a run wrote ({made_by})", label)
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # (nested deeper than Python's stack)

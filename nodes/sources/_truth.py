@@ -28,7 +28,7 @@ import difflib
 import json
 from pathlib import Path
 
-from stereograph.api import NodeError
+from stereograph.api import NodeError, data_file
 
 __all__ = ["read_truth_file", "truth_split"]
 
@@ -99,7 +99,26 @@ def _split_value(v, where: str) -> str | None:
     return s
 
 
+_LAST_READ: dict[tuple, tuple] = {}  # (path, size, mtime, inode) -> what it gave: read once, not once per pair
+
+
 def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
+    """Ground truth per pair id, and the file's explicit split when it has one (see :func:`_read_truth_file`).
+
+    A source that reads its pairs one per call asks for the same file once per pair: the last file
+    read is kept while its size, modification time and inode are unchanged (a million rows: once).
+    """
+    data_file(path, "a truth file (CSV or JSON)", "truth file", max_mb=512)
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+    if key not in _LAST_READ:
+        got = _read_truth_file(path)
+        _LAST_READ.clear()
+        _LAST_READ[key] = got
+    return _LAST_READ[key]
+
+
+def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
     """Ground truth per pair id, and the file's explicit split when it has one.
 
     Returns

@@ -30,6 +30,7 @@ camera does not warm up again.
 
 from __future__ import annotations
 
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -46,6 +47,9 @@ __all__ = ["CameraParams", "StereoCapture", "camera", "grab_pairs"]
 BACKENDS = {"any": cv2.CAP_ANY, "ffmpeg": cv2.CAP_FFMPEG, "gstreamer": cv2.CAP_GSTREAMER, "v4l2": cv2.CAP_V4L2,
             "dshow": cv2.CAP_DSHOW, "msmf": cv2.CAP_MSMF, "avfoundation": cv2.CAP_AVFOUNDATION,
             "images": cv2.CAP_IMAGES}
+
+
+MAX_DEVICE_INDEX = 255
 
 
 class CameraParams(Params):
@@ -79,7 +83,27 @@ class CameraParams(Params):
         if self.left == self.right:
             raise ValueError(f"left and right are both {self.left!r}; give the two cameras' different sources "
                              "(or right: null for one side-by-side stereo device)")
+        for side, src in (("left", self.left), ("right", self.right)):
+            # (OpenCV takes -1 as 'any camera' and its V4L2 backend can crash on it: refused before it is called)
+            if isinstance(src, int) and not 0 <= src <= MAX_DEVICE_INDEX:
+                raise ValueError(f"{side} is {src}: a device index is 0 to {MAX_DEVICE_INDEX} (/dev/video<n>)")
         return self
+
+
+def _check_before_opening(src: int | str, which: str, field: str) -> None:
+    """Refuse what OpenCV would crash or hang on, before it is called: a device index with no device
+    (Linux: no /dev/video<n>), a path that is a FIFO, socket or folder (a FIFO blocks the open forever,
+    deaf to Ctrl-C)."""
+    if isinstance(src, int):
+        if sys.platform.startswith("linux") and not Path(f"/dev/video{src}").exists():
+            raise NodeError(f"source.camera: no {which} camera at device index {src} (/dev/video{src} does not "
+                            "exist).", hint=f"plug the camera in or set {field} to an existing device (ls "
+                                            "/dev/video*), a video file or an image-sequence pattern")
+        return
+    if _is_file(src) and "%" not in src and Path(src).exists() and not Path(src).is_file():
+        raise NodeError(f"source.camera: the {which} source {src!r} is a folder, FIFO or socket, not a video file.",
+                        hint=f"set {field} to a video file, an image pattern such as {field}_%03d.png, a device "
+                             "index or a stream URL")
 
 
 def _is_file(src: int | str) -> bool:
@@ -147,6 +171,7 @@ class StereoCapture:
                               "check the recordings, or record both sides together and trim them to one length")
 
     def _open(self, src: int | str, which: str) -> cv2.VideoCapture:
+        _check_before_opening(src, which, "left" if which in ("left", "stereo") else "right")
         cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
         if not cap.isOpened():
             cap.release()

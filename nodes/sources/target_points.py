@@ -30,7 +30,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from stereograph.api import Field, NodeError, Out, Params, PathField, node
+from stereograph.api import Field, NodeError, Out, Params, PathField, data_file, node
 
 __all__ = ["TargetPointsParams", "read_target_csv", "target_points", "write_target_csv"]
 
@@ -104,8 +104,9 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     NodeError
         Naming the file, the line and the fix, for every malformed input.
     """
-    if not path.is_file():
+    if not path.exists():
         _fail(path, None, "file does not exist.", "fix the path (relative paths start at the pipeline file's folder)")
+    data_file(path, "a CSV of target points", _NODE)
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:

@@ -1,0 +1,120 @@
+"""Data files and devices from elsewhere: refused with words, never a hang, a crash or a bug report.
+
+Each case was one of issue 32's probes: an alias bomb in a ROS camera_info file (40-90 s, 7.45 GiB),
+a FileStorage JSON nested 100,000 levels (a segfault), /dev/zero or a FIFO as a calibration file
+(run and explain hung while the cache digested it), a camera at index -1 (a segfault in V4L2) or a
+FIFO as its video file (blocked forever, deaf to Ctrl-C), and a truth file re-read for every pair.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+BOMB = textwrap.dedent("""\
+    a: &a ["x","x","x","x","x","x","x","x","x"]
+    b: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]
+    c: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]
+    d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]
+    e: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]
+    f: &f [*e,*e,*e,*e,*e,*e,*e,*e,*e]
+    g: &g [*f,*f,*f,*f,*f,*f,*f,*f,*f]
+    image_width: 640
+    image_height: 480
+    camera_matrix: {rows: 3, cols: 3, data: [*g,*g,*g,*g,*g,*g,*g,*g,*g]}
+    """)
+
+
+def _pipeline(tmp_path: Path, path: str) -> Path:
+    p = tmp_path / "load.yaml"
+    p.write_text(f"name: load\nnodes:\n  cal: {{type: calibrator.load, params: {{path: '{path}'}}}}\n")
+    return p
+
+
+def _cli(*argv: str, timeout: float = 60) -> tuple[int, str, float]:
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-m", "stereograph.cli", *argv], capture_output=True, text=True,
+                         timeout=timeout, env=ENV, cwd=ROOT)
+    return out.returncode, out.stdout + out.stderr, time.monotonic() - t0
+
+
+def _refused_in_words(code: int, text: str) -> None:
+    assert code in (1, 2), text
+    assert "Traceback" not in text and "internal error" not in text and "looks like a bug" not in text, text
+
+
+def test_a_yaml_alias_bomb_as_ros_camera_info_is_refused_at_once(tmp_path):
+    bomb = tmp_path / "left.yaml"
+    bomb.write_text(BOMB)
+    assert bomb.stat().st_size < 1000
+    code, text, seconds = _cli("run", str(_pipeline(tmp_path, str(bomb))), "--out", str(tmp_path / "o"),
+                               "--cache-dir", str(tmp_path / "c"))
+    _refused_in_words(code, text)
+    assert seconds < 20 and "left.yaml" in text, text
+
+
+def test_a_filestorage_json_nested_100000_levels_is_refused_not_a_crash(tmp_path):
+    deep = tmp_path / "calibration.json"
+    deep.write_text('{"opencv-matrix": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    code, text, _ = _cli("run", str(_pipeline(tmp_path, str(deep))), "--out", str(tmp_path / "o"),
+                         "--cache-dir", str(tmp_path / "c"))
+    _refused_in_words(code, text)
+    assert "nests its values" in text, text
+
+
+@pytest.mark.parametrize("kind", ["dev-zero", "fifo"])
+def test_a_device_or_fifo_as_a_calibration_file_is_refused_by_run_and_explain(tmp_path, kind):
+    path = "/dev/zero"
+    if kind == "fifo":
+        path = str(tmp_path / "calibration.yml")
+        os.mkfifo(path)
+    pipe = _pipeline(tmp_path, path)
+    code, text, seconds = _cli("run", str(pipe), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"),
+                               timeout=60)
+    _refused_in_words(code, text)
+    assert "device, FIFO or socket" in text and seconds < 20, text
+    code, text, seconds = _cli("explain", str(pipe), "--cache-dir", str(tmp_path / "c"), timeout=60)
+    assert code == 0 and seconds < 20, text
+
+
+def test_a_camera_at_a_negative_index_is_refused_by_validate(tmp_path):
+    p = tmp_path / "cam.yaml"
+    p.write_text("name: cam\nnodes:\n  cam: {type: source.camera, params: {left: -1, right: 1}}\n")
+    code, text, _ = _cli("validate", str(p))
+    assert code == 2 and "a device index is 0 to 255" in text, text
+
+
+def test_a_fifo_as_the_cameras_video_file_is_refused_not_waited_on(tmp_path):
+    fifo = tmp_path / "left.avi"
+    os.mkfifo(fifo)
+    (tmp_path / "right.avi").write_bytes(b"")
+    p = tmp_path / "cam.yaml"
+    p.write_text("name: cam\nnodes:\n  cam: {type: source.camera, params: {left: left.avi, right: right.avi}}\n")
+    code, text, seconds = _cli("run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"),
+                               timeout=60)
+    _refused_in_words(code, text)
+    assert "FIFO" in text and seconds < 20, text
+
+
+def test_a_truth_file_is_read_once_for_all_the_pairs(tmp_path, monkeypatch):
+    from nodes.sources import _truth
+
+    calls = []
+    real = _truth._read_truth_file
+    monkeypatch.setattr(_truth, "_read_truth_file", lambda p: calls.append(p) or real(p))
+    f = tmp_path / "truth.csv"
+    f.write_text("id,x_cm,y_cm,z_cm\n" + "".join(f"p{i},1,2,{30 + i % 20}\n" for i in range(20000)))
+    for _ in range(4):  # what a per-item source asks, once per pair
+        truth, _split = _truth.read_truth_file(f)
+    assert len(truth) == 20000 and len(calls) == 1
+    f.write_text("id,x_cm,y_cm,z_cm\np0,1,2,3\n")  # changed: read again
+    assert len(_truth.read_truth_file(f)[0]) == 1 and len(calls) == 2
