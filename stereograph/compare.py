@@ -170,9 +170,14 @@ def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]
         # (a key naming no node fails every combination: not one variant's problem for --skip-invalid)
         check_node_named(doc, str(k).split(".", 1)[0], f"variants key '{k}'", doc.where("variants", k))
         space[str(k)], sources[str(k)] = list(values), "variants:"
+    given: dict[str, str] = {}
     for text in vary:
         k, values = parse_vary(text)
         check_node_named(doc, k.split(".", 1)[0], f"--vary '{text}'")
+        if k in given:  # (the second list silently replaced the first)
+            raise UsageError(f"--vary {k} is given twice ('{given[k]}' and '{text}')",
+                             hint=f"give every value in one list: --vary {k}=v1,v2,v3")
+        given[k] = text
         space[k], sources[k] = values, "--vary"
     if not space:
         raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",

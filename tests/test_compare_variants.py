@@ -539,3 +539,9 @@ def test_the_named_metric_leads_and_constant_metrics_step_aside(tmp_path, capsys
     bad.write_text(PIPELINE.replace("variants:", "compare: z_rms_cm\nvariants:"))
     with pytest.raises(ConfigError, match="'compare' must be a mapping"):
         load_pipeline(bad)
+
+
+def test_a_vary_key_given_twice_is_refused_not_half_dropped(pipeline):
+    doc = load_pipeline(pipeline)
+    with pytest.raises(UsageError, match="--vary fit.type is given twice"):
+        expand_variants(doc, ["fit.type=none,polynomial", "fit.type=lookup"])
