@@ -729,8 +729,8 @@ class _Run:
         for out in self.item_outputs(inst, "") if makes_items else []:
             self.items[(inst.name, out)] = []
         rep.items = len(entries) if inst.mapped else len(self.declared.get(inst.name, [])) if producer else 0
-        if self.progress:
-            self.progress.node_started(inst.name, len(entries))
+        if self.progress:  # (a producer's own entry is not one of its items: "13 items", not 14)
+            self.progress.node_started(inst.name, sum(self._counted(inst, i) for i in entries))
         todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
         cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
         lost = self.lost_items(inst)
@@ -745,7 +745,7 @@ class _Run:
                 for out in self.item_outputs(inst, item):
                     if (inst.name, out, item) in self.ref_keys:
                         self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-                if self.progress:
+                if self.progress and self._counted(inst, item):
                     self.progress.advance(inst.name)
             else:
                 todo.append((item, key, refs))
@@ -763,7 +763,7 @@ class _Run:
                 values = self.inputs_for(refs)
             except NodeError as e:
                 self.fail_item(inst, item, e.message, e.hint)
-                self._advance(inst, ok=False)
+                self._advance(inst, item, ok=False)
                 continue
             tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
             metas.append((item, key))
@@ -837,7 +837,7 @@ class _Run:
         if not tasks:
             return []
         if not cacheable:
-            return [(r, False) for r in self._advancing(inst, ex.map(execute, tasks))]
+            return [(r, False) for r in self._advancing(inst, tasks, ex.map(execute, tasks))]
         # Take each entry's lock without blocking: ours to compute; busy ones are being computed
         # by another run right now, so wait for those afterwards and reuse their result.
         results: list[Any] = [None] * len(tasks)
@@ -846,7 +846,8 @@ class _Run:
             for idx, (_item, key) in enumerate(metas):
                 got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
                 (mine if got else busy).append(idx)
-            for idx, res in zip(mine, self._advancing(inst, ex.map(execute, [tasks[i] for i in mine]))):
+            ours = [tasks[i] for i in mine]
+            for idx, res in zip(mine, self._advancing(inst, ours, ex.map(execute, ours))):
                 stored = False
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
@@ -866,17 +867,22 @@ class _Run:
                     if res.ok:
                         self.store_result(inst, item, key, res.outputs or {}, res.messages)
                     results[idx] = (res, res.ok)
-            self._advance(inst, ok=results[idx][0] is None or results[idx][0].ok)
+            self._advance(inst, item, ok=results[idx][0] is None or results[idx][0].ok)
         return results
 
-    def _advance(self, inst: NodeInstance, ok: bool = True) -> None:
-        if self.progress:
+    def _counted(self, inst: NodeInstance, item: str | None) -> bool:
+        """Whether an entry counts on the progress display: a producer's whole-node entry does not,
+        once its items are known (they are what the display counts)."""
+        return not (item is None and self.producer(inst) and self.declared.get(inst.name))
+
+    def _advance(self, inst: NodeInstance, item: str | None, ok: bool = True) -> None:
+        if self.progress and self._counted(inst, item):
             progress_advance(self.progress, inst.name, ok)
 
-    def _advancing(self, inst: NodeInstance, results: Iterable[TaskResult]) -> Iterable[TaskResult]:
-        """The executor's results, advancing the progress display as each one arrives."""
-        for res in _lost_as_failed(results):
-            self._advance(inst, res.ok)
+    def _advancing(self, inst: NodeInstance, tasks: list[Task], results: Iterable[TaskResult]) -> Iterable[TaskResult]:
+        """The executor's results (in the order of ``tasks``), advancing the progress display as each arrives."""
+        for task, res in zip(tasks, _lost_as_failed(results)):
+            self._advance(inst, task.item, res.ok)
             yield res
 
     def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
