@@ -118,3 +118,29 @@ def test_a_truth_file_is_read_once_for_all_the_pairs(tmp_path, monkeypatch):
     assert len(truth) == 20000 and len(calls) == 1
     f.write_text("id,x_cm,y_cm,z_cm\np0,1,2,3\n")  # changed: read again
     assert len(_truth.read_truth_file(f)[0]) == 1 and len(calls) == 2
+
+
+LIVE_CAL = ROOT / "pipelines" / "live" / "calibration.yml"
+
+
+@pytest.mark.parametrize("edit, said", [
+    (("data: [ 560.33467267895105,", "data: [ 0.,"), "focal lengths"),
+    (("data: [ 560.33467267895105,", "data: [ .nan,"), "not a finite 3x3"),
+    (("image_width: 640", "image_width: -640"), "image_size"),
+    (("image_width: 640", "image_width: 2000000000"), "image_size"),
+    (("image_width: 640", "image_width: .Inf"), "image_width"),
+])
+def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, edit, said):
+    """(a zero or NaN focal length loaded with exit 0 and failed later, inside pick-live, as a
+    ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV assertion)"""
+    from nodes.calibrators.load import read_calibration_file
+    from stereograph.api import NodeError
+
+    text = LIVE_CAL.read_text()
+    assert edit[0] in text
+    bad = tmp_path / "calibration.yml"
+    bad.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(NodeError) as e:
+        read_calibration_file(bad)
+    assert said in e.value.message and "calibration.yml" in e.value.message, e.value.message
+    assert read_calibration_file(LIVE_CAL)["image_size"] == [640, 480]  # the file as written loads

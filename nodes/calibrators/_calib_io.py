@@ -16,6 +16,7 @@ Reading a pair of ROS files back gives the stereo pose exactly: the right camera
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import tempfile
@@ -229,9 +230,9 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
         sz = mat("image_size", "imageSize")
         by_hand = False  # the file's own size wins (load.py refuses an image_size param that differs from it)
         if wn is not None and hn is not None:
-            image_size = [int(wn.real()), int(hn.real())]
+            image_size = [_whole(wn.real(), "image_width"), _whole(hn.real(), "image_height")]
         elif sz is not None and sz.size == 2:
-            image_size = [int(v) for v in sz.ravel()]
+            image_size = [_whole(v, "image_size") for v in sz.ravel()]
         elif image_size is None:
             raise ValueError("it does not give the image size (image_width / image_height)")
         else:
@@ -296,6 +297,13 @@ def _ros_mat(doc: dict, key: str, shape, path: Path) -> np.ndarray:
     if a is None or a.size == 0 or (shape is not None and a.size != int(np.prod(shape))):
         raise ValueError(f"{path} has no usable `{key}`" + (f" ({int(np.prod(shape))} numbers)" if shape else ""))
     return a.reshape(shape) if shape is not None else a.ravel()
+
+
+def _whole(v: float, name: str) -> int:
+    """An image side from a file: a whole number (ValueError naming the entry for inf, nan, 2.5)."""
+    if not math.isfinite(v) or v != int(v):
+        raise ValueError(f"{name} is {v!r}, not a whole number of pixels")
+    return int(v)
 
 
 def read_ros(path: Path) -> dict:

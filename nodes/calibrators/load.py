@@ -120,9 +120,47 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
         raise NodeError(f"{label}: {path} is for {cal['image_size'][0]}x{cal['image_size'][1]} px images, but "
                         f"image_size says {image_size[0]}x{image_size[1]}.",
                         hint="remove image_size, or give the calibration of these cameras")
+    why = calibration_values_problem(cal)
+    if why:
+        raise NodeError(f"{label}: {path}{' and ' + str(right_path) if right_path else ''}: {why}.",
+                        hint="give the calibration file of these cameras as the calibration tool wrote it; "
+                             "calibrate again if it was edited or damaged")
     cal["method"] = f"loaded/{fmt}" + (f" ({cal['method']})" if cal.get("method") else "")
     cal["source_file"] = str(path) + (f" + {right_path}" if right_path else "")
     return cal
+
+
+MAX_IMAGE_SIDE_PX = 32768  # a camera's image side; beyond, a mistyped or hostile size (an allocation of exabytes)
+
+
+def calibration_values_problem(cal: dict) -> str | None:
+    """What makes a loaded calibration unusable, in words, or None: the numbers are checked for what
+    they mean at load, not deep inside a later node (a zero focal length divided by in the live loop)."""
+    size = cal.get("image_size")
+    try:
+        w, h = (int(v) for v in size)
+    except (TypeError, ValueError, OverflowError):
+        return f"image_size {size!r} is not two whole numbers"
+    if not (0 < w <= MAX_IMAGE_SIDE_PX and 0 < h <= MAX_IMAGE_SIDE_PX):
+        return f"image_size {w}x{h} px is not a camera's (each side 1 to {MAX_IMAGE_SIDE_PX} px)"
+    for name in ("K1", "K2"):
+        K = np.asarray(cal.get(name), float)
+        if K.shape != (3, 3) or not np.isfinite(K).all():
+            return f"{name} is not a finite 3x3 camera matrix"
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            return f"{name}'s focal lengths ({K[0, 0]:g}, {K[1, 1]:g} px) are not positive"
+    for name in ("D1", "D2"):
+        D = np.asarray(cal.get(name), float).ravel()
+        if D.size not in (4, 5, 8, 12, 14) or not np.isfinite(D).all():
+            return f"{name} has {D.size} distortion coefficients (OpenCV's models have 4, 5, 8, 12 or 14, finite)"
+    R = np.asarray(cal.get("R"), float)
+    if R.shape != (3, 3) or not np.isfinite(R).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) \
+            or not np.linalg.det(R) > 0:
+        return "R is not a rotation (a finite 3x3 matrix with R R^T = I and det +1)"
+    T = np.asarray(cal.get("T_cm"), float).ravel()
+    if T.size != 3 or not np.isfinite(T).all() or not np.linalg.norm(T) > 1e-6:
+        return "the baseline T is zero or not three finite numbers: the two cameras would be one"
+    return None
 
 
 class LoadParams(Params):
