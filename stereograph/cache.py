@@ -30,6 +30,11 @@ import sys
 import sysconfig
 import time
 import uuid
+
+try:
+    import fcntl
+except ImportError:  # Windows: no shared locks here (no protection of running runs)
+    fcntl = None  # type: ignore[assignment]
 from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
@@ -44,6 +49,61 @@ FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-o
 
 class CorruptEntry(Exception):
     """An entry whose files do not match its manifest."""
+
+
+class CacheBusy(Exception):
+    """A prune or clear that would take entries from under a running run (:func:`in_use`)."""
+
+
+IN_USE_LOCK = "in-use.lock"
+
+
+@contextlib.contextmanager
+def in_use(root: Path) -> Iterator[None]:
+    """Held by a run for as long as it runs (a shared lock on ``<cache>/in-use.lock``): a prune or a
+    clear waits for it (:func:`exclusive`), so no entry a run has looked up disappears under it.
+    POSIX only (``fcntl``); elsewhere, and on a cache that cannot be written, no protection."""
+    fd = _lock_fd(root)
+    if fd is None:
+        yield
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH)
+        yield
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def exclusive(root: Path, wait_s: float) -> Iterator[None]:
+    """The cache to oneself (no run holds :func:`in_use`), waiting at most ``wait_s``; :class:`CacheBusy` else."""
+    fd = _lock_fd(root)
+    if fd is None:
+        yield
+        return
+    try:
+        end = time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= end:
+                    raise CacheBusy(f"a run is using the cache {root}") from None
+                time.sleep(0.1)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _lock_fd(root: Path) -> int | None:
+    if fcntl is None:
+        return None
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        return os.open(root / IN_USE_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:  # a read-only cache: nothing can be pruned from it by us either
+        return None
 
 
 class NotStored(Exception):
@@ -678,17 +738,22 @@ class ArtifactStore:
             freed += size
         return freed
 
-    def prune(self, max_bytes: int) -> tuple[int, int]:
+    def prune(self, max_bytes: int, wait_s: float = 0.0) -> tuple[int, int]:
         """Delete the least recently used entries until the store holds at most ``max_bytes``.
 
-        Returns (entries removed, bytes freed). Rendered output files go with their entry. An entry
-        in use by a run stays readable: that run holds its value in memory, or recomputes it.
-        What killed runs left in ``tmp/`` (:meth:`abandoned`) goes first, whatever the budget.
+        Returns (entries removed, bytes freed). Rendered output files go with their entry. It waits
+        up to ``wait_s`` for running runs to end (:func:`in_use`), then raises :class:`CacheBusy`:
+        an entry is never taken from under a run. What killed runs left in ``tmp/``
+        (:meth:`abandoned`) goes first, whatever the budget.
         """
         if not self.writable:
             from stereograph.errors import ConfigError
 
             raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
+        with exclusive(self.root, wait_s):
+            return self._prune(max_bytes)
+
+    def _prune(self, max_bytes: int) -> tuple[int, int]:
         removed, freed = 0, self.sweep_abandoned()
         rows = self._usage()
         total = sum(r[1] for r in rows) + freed
@@ -719,13 +784,18 @@ class ArtifactStore:
                     if d.is_dir() and not d.is_symlink() and d.name[:2] == sub.name and _named(d, "objects", 1):
                         yield d
 
-    def clear(self) -> int:
+    def clear(self, wait_s: float = 0.0) -> int:
         """Remove every entry and what a cache keeps beside them; returns the number of entries.
+        Waits up to ``wait_s`` for running runs to end (:class:`CacheBusy` then), as :meth:`prune`.
 
         Only what a cache holds, named as the store names it, is removed (see :data:`_CACHE_LAYOUT`):
         a cache folder that is a folder of yours -- ``--cache-dir ~`` by mistake, a project's
         ``pyproject.toml`` or a symbolic link that points it there -- loses nothing else (its ``tmp/``,
         its ``files.json``). A folder left empty is removed; one holding anything else stays."""
+        with exclusive(self.root, wait_s):
+            return self._clear()
+
+    def _clear(self) -> int:
         n = len(list(self._entries())) if self.objects.is_dir() else 0
         for sub, levels in _CACHE_LAYOUT.items():
             _sweep(self.root / sub, levels)
@@ -734,6 +804,10 @@ class ArtifactStore:
             data = json.loads(index.read_text()) if index.is_file() and not index.is_symlink() else None
             if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):  # (a FileIndex)
                 index.unlink()
+        lock = self.root / IN_USE_LOCK
+        with contextlib.suppress(OSError):
+            if lock.is_file() and not lock.is_symlink() and lock.stat().st_size == 0:
+                lock.unlink()  # (held by us: a run that starts now makes it again)
         return n
 
 

@@ -551,6 +551,26 @@ def _stop_signals_as_interrupt():
             signal.signal(signum, handler)
 
 
+CACHE_WAIT_S = 30.0  # cache prune / clear wait this long for running runs to end
+
+
+def _cache_remove(args, store, root: Path, con) -> int:
+    """``cache clear`` / ``cache prune``: once no run uses the cache (CacheBusy after CACHE_WAIT_S)."""
+    if args.action == "clear":
+        n = store.clear(wait_s=CACHE_WAIT_S)
+        con.print(f"removed {n} entries from {root}", markup=False)
+        return 0
+    if args.max_gb is None:
+        raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
+    left = store.sweep_abandoned() if store.writable else 0  # (prune would, first: said apart here)
+    n, freed = store.prune(int(args.max_gb * 1e9), wait_s=CACHE_WAIT_S)
+    con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
+    if left:
+        con.print(f"removed {left / 1e6:.1f} MB of unfinished entries killed runs had left in {store.tmp}",
+                  markup=False)
+    return 0
+
+
 def cmd_explain(args) -> int:
     from rich.markup import escape
 
@@ -580,21 +600,19 @@ def cmd_cache(args) -> int:
         root = cache_dir(Path.cwd())
     store = ArtifactStore(root)
     con = _console()
-    if args.action == "clear":
-        n = store.clear()
-        con.print(f"removed {n} entries from {root}", markup=False)
-        return 0
-    if args.action == "prune":
-        if args.max_gb is None:
-            raise ConfigError("cache prune needs --max-gb", hint="for example: stereograph cache prune --max-gb 5")
-        left = store.sweep_abandoned() if store.writable else 0  # (prune would, first: said apart here)
-        n, freed = store.prune(int(args.max_gb * 1e9))
-        con.print(f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False)
-        if left:
-            con.print(f"removed {left / 1e6:.1f} MB of unfinished entries killed runs had left in {store.tmp}",
-                      markup=False)
-        return 0
+    if args.action in ("clear", "prune"):
+        from stereograph.cache import CacheBusy
+
+        try:
+            return _cache_remove(args, store, root, con)
+        except CacheBusy:
+            _console(stderr=True).print(
+                f"error: a run is using the cache {root} (still after {CACHE_WAIT_S:g} s): nothing was removed, so "
+                f"that no entry disappears under it. Fix: run `stereograph cache {args.action}` again when it has "
+                "ended (a --repeat loop holds the cache until it stops).", markup=False)
+            return 1
     from stereograph.project import budget_bytes
+
 
     try:
         budget = budget_bytes(Path(args.pipeline).parent if args.pipeline else Path.cwd())

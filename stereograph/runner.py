@@ -43,7 +43,17 @@ from typing import TYPE_CHECKING, Any
 from stereograph import outputs as outputs_mod
 from stereograph import project, streaming
 from stereograph.api import NodeError, RunContext
-from stereograph.cache import ArtifactStore, CorruptEntry, NotStored, code_hash, content_key, hash_json, jpeg_roundtrip
+from stereograph.cache import (
+    ArtifactStore,
+    CacheBusy,
+    CorruptEntry,
+    NotStored,
+    code_hash,
+    content_key,
+    hash_json,
+    in_use,
+    jpeg_roundtrip,
+)
 from stereograph.calls import _PROGRESS, Task, TaskResult, close_resources, execute  # noqa: F401  (re-exported)
 from stereograph.errors import ConfigError
 from stereograph.threads import ONE_THREAD, one_thread_each  # noqa: F401  (re-exported)
@@ -952,6 +962,9 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     executor = executor or SerialExecutor()
     if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
         executor.check_shared([out] + ([store.root] if store is not None else []))
+    lease = contextlib.ExitStack()  # no prune or clear takes an entry from under this run while it runs
+    if store is not None:
+        lease.enter_context(in_use(store.root))
     run = _Run(graph, store, out, executor, force, progress)
     run.foreign = foreign
     if only is not None:
@@ -977,6 +990,10 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     except KeyboardInterrupt:
         if write_outputs:  # the same command resumes into this folder (it is recognised as ours)
             outputs_mod.write_interrupted_summary(graph, run, run_id, str(doc.path), out)
+        lease.close()
+        raise
+    except BaseException:
+        lease.close()
         raise
     finally:
         for source in list(run.ahead):
@@ -994,11 +1011,15 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
             run.reports[name].status = "not selected"
     result = RunResult(run_id, str(doc.path), out, run.reports, 0.0, {}, {}, dict(run.failed_items),
                        notes=list(store.notes) if store is not None else [])
-    if write_outputs:
-        outputs_mod.write_run_outputs(graph, run, result, selected)
+    try:
+        if write_outputs:
+            outputs_mod.write_run_outputs(graph, run, result, selected)
+    finally:
+        lease.close()
     if store is not None and budget and store.writable and store.stored_bytes():
-        # only a run that stored something can have grown the cache past its budget
-        with contextlib.suppress(OSError):
+        # only a run that stored something can have grown the cache past its budget (and not while
+        # another run uses the cache: the last one to end prunes)
+        with contextlib.suppress(OSError, CacheBusy):
             n, freed = store.prune(budget)
             if n:
                 result.notes.append(f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
