@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from nodes.calibrators._calib_io import (
@@ -77,7 +78,7 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
             raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
                             hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
                                  "FileStorage .yml/.xml, or a ROS camera_info pair")
-        cal = array_keys(art, _CAL_ARRAYS)
+        cal = array_keys(art, _CAL_ARRAYS, f"{label}: {path}")
         fmt = "json"
         if cm_per_unit is not None:
             unit = cal.get("length_unit", "cm")
@@ -111,7 +112,9 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                 cal = read_opencv(path, cm_per_unit, image_size, extra=right_path,
                                   max_principal_offset=max_principal_offset)
                 fmt = "opencv"
-        except ValueError as exc:
+        except (ValueError, cv2.error, SystemError) as exc:  # (OpenCV's parser on a malformed file: cv2.error, or
+            # SystemError "returned a result with an exception set")
+            exc = str(exc).strip().splitlines()[-1] if not isinstance(exc, ValueError) else exc
             raise NodeError(f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
                             hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and image_width / "
                                  "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
@@ -211,7 +214,7 @@ def _load_matrix_artifact(params: ArtifactLoadParams, ctx, calibration, label: s
     if artifact_kind(art) != f"a {kind}":
         raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a {kind}.",
                         hint=f"give the file a run wrote for it: {made_by}")
-    art = array_keys(art, arrays)
+    art = array_keys(art, arrays, f"{label}: {path}")
     T = art[key]
     if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6) or not np.allclose(
             T[3], [0, 0, 0, 1]):

@@ -112,11 +112,16 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
                         hint="copy the .npz the run wrote beside the JSON together with it") from None
 
 
-def array_keys(art: dict, keys) -> dict:
-    """Turn the nested lists of the named keys into float arrays (where present and not None)."""
+def array_keys(art: dict, keys, source: str = "the file") -> dict:
+    """Turn the nested lists of the named keys into float arrays (where present and not None);
+    NodeError naming ``source`` and the key for one that is not a table of numbers."""
     for k in keys:
         if art.get(k) is not None:
-            art[k] = np.asarray(art[k], dtype=float)
+            try:
+                art[k] = np.asarray(art[k], dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise NodeError(f"{source}: `{k}` is not a matrix of numbers ({str(exc).split('.')[0]}).",
+                                hint="give the file as the run wrote it") from None
     return art
 
 
