@@ -159,6 +159,9 @@ def _override_text(doc: PipelineDoc, key: str, value: Any) -> str | None:
     return f"{key}={json.dumps(value)}"
 
 
+MAX_VARIANTS = 1000  # variants in one compare: each is a run (most of them cached, still a run folder each)
+
+
 def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]:
     """The Cartesian product of the pipeline's ``variants:`` block and ``--vary`` options."""
     space: dict[str, list[Any]] = {}
@@ -183,6 +186,11 @@ def expand_variants(doc: PipelineDoc, vary: Iterable[str] = ()) -> list[Variant]
         raise UsageError(f"nothing to compare in {doc.path.name}: no --vary and no 'variants:' block",
                          hint="add --vary node.field=v1,v2 (e.g. --vary fit.type=none,polynomial)")
     keys = list(space)
+    n = math.prod(len(v) for v in space.values())
+    if n > MAX_VARIANTS:  # (60,000 variants were built, then run, silently for minutes before the first line)
+        sizes = " x ".join(f"{len(space[k])} {k}" for k in keys)
+        raise UsageError(f"{n} variants ({sizes}): more than one compare runs ({MAX_VARIANTS})",
+                         hint="vary fewer settings or fewer values at once, and compare the best of each")
     varying = tuple(k for k in keys if len(space[k]) > 1)
     return [Variant(i + 1, dict(zip(keys, combo)), varying=varying, sources=sources)
             for i, combo in enumerate(itertools.product(*space.values()))]

@@ -545,3 +545,15 @@ def test_a_vary_key_given_twice_is_refused_not_half_dropped(pipeline):
     doc = load_pipeline(pipeline)
     with pytest.raises(UsageError, match="--vary fit.type is given twice"):
         expand_variants(doc, ["fit.type=none,polynomial", "fit.type=lookup"])
+
+
+def test_more_variants_than_one_compare_runs_are_refused_at_once(pipeline):
+    import time
+
+    doc = load_pipeline(pipeline)
+    t0 = time.perf_counter()
+    values = ",".join(str(1 + i / 1e3) for i in range(40))
+    with pytest.raises(UsageError, match=r"128000 variants \(2 fit.type x 40 locate.baseline_scale"):
+        expand_variants(doc, [f"locate.baseline_scale={values}", f"scenes.disparity_offset_px={values}",
+                              f"fit.degree={values}"])
+    assert time.perf_counter() - t0 < 10
