@@ -361,12 +361,15 @@ class FileIndex:
         self.path = root / "files.json" if root else None
         self.data: dict[str, list] = {}
         self.dirty = False
-        if self.path and self.path.exists():
+        if self.path and (self.path.exists() or self.path.is_symlink()):
             try:
-                data = json.loads(self.path.read_text())
-                self.data = data if isinstance(data, dict) else {}
+                data = json.loads(self.path.read_text()) if not self.path.is_symlink() else None
             except (OSError, ValueError):
-                self.data = {}
+                data = None
+            if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):
+                self.data = data
+            else:  # someone's own files.json (a --cache-dir that is a folder of theirs): never overwritten
+                self.path = None
 
     def digest(self, path: Path) -> str:
         p = str(Path(path).resolve())

@@ -615,3 +615,19 @@ def test_project_file_cannot_put_the_cache_outside_the_project(tmp_path, capsys)
         code, msg = cli(*argv, capsys=capsys)
         assert code == 2 and "cache_dir = '../home' is outside the project" in msg and "--cache-dir" in msg, msg
     assert sorted(p.name for p in mine.iterdir()) == ["tmp"] and (mine / "tmp" / "thesis.tex").exists()
+
+
+def test_a_cache_dir_holding_the_users_own_files_json_keeps_it(tmp_path, capsys):
+    """(a --cache-dir folder of the user's with a files.json of theirs: the run overwrote it with the
+    cache's index of file digests)"""
+    live = Path(__file__).resolve().parents[1] / "pipelines" / "live" / "calibration.yml"
+    p = write(tmp_path / "p.yaml", f"""\
+        name: t
+        nodes:
+          cal: {{type: calibrator.load, params: {{path: '{live}'}}}}
+        """)  # (a node that reads a file: the cache keeps its digest in files.json)
+    cache = tmp_path / "mine"
+    cache.mkdir()
+    (cache / "files.json").write_text('{"my": "own notes"}\n')
+    assert cli("run", p, "--cache-dir", cache, "--out", tmp_path / "o", capsys=capsys)[0] == 0
+    assert (cache / "files.json").read_text() == '{"my": "own notes"}\n'
