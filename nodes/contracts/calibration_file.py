@@ -164,12 +164,19 @@ def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None
             warn(f"{path} records no rig (image size, focal length, baseline): not checked against "
                  f"{rig_from_file(calibration)}")
         return
+    try:  # (the file's own record: it may be damaged)
+        size = [int(v) for v in rig["image_size"]]
+        stored = {key: float(rig[key]) for key in ("fx_px", "baseline_cm")}
+    except (KeyError, TypeError, ValueError, OverflowError):
+        size, stored = [], {}
+    if len(size) != 2 or len(stored) != 2 or not all(np.isfinite(list(stored.values()))):
+        raise NodeError(f"{label}: {path} records its rig (image_size, fx_px, baseline_cm) in a form a run does "
+                        "not write.", hint="give the file as the run wrote it, or fit it again")
     problems = []
-    if [int(v) for v in rig["image_size"]] != now["image_size"]:
-        problems.append(f"image size {rig['image_size'][0]}x{rig['image_size'][1]} vs "
-                        f"{now['image_size'][0]}x{now['image_size'][1]} px")
+    if size != now["image_size"]:
+        problems.append(f"image size {size[0]}x{size[1]} vs {now['image_size'][0]}x{now['image_size'][1]} px")
     for key, name, unit in (("fx_px", "focal length", "px"), ("baseline_cm", "baseline", "cm")):
-        a, b = float(rig[key]), now[key]
+        a, b = stored[key], now[key]
         if abs(a - b) > tolerance * abs(b):
             problems.append(f"{name} {a:.4g} vs {b:.4g} {unit} ({100 * (a / b - 1):+.2f} %)")
     if problems:
