@@ -3,9 +3,8 @@
 Works on a plain description -- ``{node: {"type": str, "mapped": bool, "inputs": {port: [src, out]}}}``
 -- so that it can draw a :class:`~stereograph.graph.Graph` (``stereograph graph --format svg``) and a
 finished run from its ``run.json`` alike (``report.html``), and knows nothing of what the nodes do.
-Layout, top to bottom: a node's row is the length of the longest path that reaches it; nodes of one
-row stand side by side in pipeline order. A wire between adjacent rows is a straight arrow; a longer
-one runs down its own lane on the left and along the gaps between rows, so it never crosses a box.
+Layout, top to bottom, layered as Graphviz's dot does (:func:`layout`): a long wire passes through a
+slot of its own in each row it crosses, beside the boxes, never across one.
 """
 
 from __future__ import annotations
@@ -15,7 +14,8 @@ from typing import Any
 
 import networkx as nx
 
-BOX_W, BOX_H, GAP_X, GAP_Y, PAD, LANE = 170, 46, 24, 40, 12, 9
+BOX_W, BOX_H, GAP_X, GAP_Y, PAD, SLOT_W = 170, 46, 24, 40, 12, 14
+MAX_SLOTS = 20000  # row crossings of long wires laid out (beyond: straight wires)
 STATUS_FILL = {"ran": "#d9f2d9", "cached": "#e3ecfa", "partial": "#fde9c4", "failed": "#f8d0d0",
                "skipped": "#e6e6e6", "not selected": "#f4f4f4"}
 
@@ -78,36 +78,65 @@ def _edges(nodes: dict[str, dict[str, Any]]):
 
 
 def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, float]], list, tuple[float, float]]:
-    """Box corners (top-left, px), each wire as ``(src, out, dst, port, [(x, y), ...])``, and the size (px)."""
+    """Box corners (top-left, px), each wire as ``(src, out, dst, port, [(x, y), ...])``, and the size (px).
+
+    Layered, as Graphviz's dot lays out a DAG: a node's row is its longest path from a source; a wire
+    that spans rows passes through a narrow slot in every row between (so it never crosses a box);
+    each row is ordered by the mean position of what it is wired to, a few sweeps down and up (fewer
+    crossings); slots and boxes are then spaced out in their row's order.
+    """
     row = _rows(nodes)
-    n_long = sum(1 for e in _edges(nodes) if row[e[2]] - row[e[0]] > 1)
-    left = PAD + LANE * (n_long + 1) if n_long else PAD
-    count: dict[int, int] = {}
-    pos = {}
+    edges = list(_edges(nodes))
+    n_rows = max(row.values(), default=-1) + 1
+    order: list[list[Any]] = [[] for _ in range(n_rows)]  # per row: node names and (edge index, row) slots
     for n in nodes:
-        r = row[n]
-        i = count.get(r, 0)
-        count[r] = i + 1
-        pos[n] = (left + i * (BOX_W + GAP_X), PAD + r * (BOX_H + GAP_Y))
-    wires = []
-    lane = 0
+        order[row[n]].append(n)
+    up: dict[Any, list[Any]] = {}  # each box or slot -> what feeds it from the row above
+    chains = []
+    # (a huge foreign run.json: past MAX_SLOTS the long wires are drawn straight, the page stays fast)
+    slots = sum(max(0, row[d] - row[s_] - 1) for s_, _, d, _ in edges) <= MAX_SLOTS
+    for i, (src, _out, dst, _port) in enumerate(edges):
+        chain = [src] + ([(i, r) for r in range(row[src] + 1, row[dst])] if slots else []) + [dst]
+        for r, slot in enumerate(chain[1:-1], row[src] + 1):
+            order[r].append(slot)
+        for a_, b_ in zip(chain, chain[1:]):
+            if row[a_] + 1 == row[b_] if a_ in nodes and b_ in nodes else True:  # (adjacent rows only)
+                up.setdefault(b_, []).append(a_)
+        chains.append(chain)
+    down: dict[Any, list[Any]] = {}
+    for b_, feeds in up.items():
+        for a_ in feeds:
+            down.setdefault(a_, []).append(b_)
+    for _ in range(4):  # barycentre sweeps: down, then up
+        for rows_, links in ((range(1, n_rows), up), (range(n_rows - 2, -1, -1), down)):
+            for r in rows_:
+                near = {v: k for k, v in enumerate(order[r - 1 if links is up else r + 1])}
+                at = {v: k for k, v in enumerate(order[r])}
+                order[r].sort(key=lambda v: (sum(near[u] for u in links.get(v, ())) / len(links[v])
+                                             if links.get(v) else at[v]))
+    pos: dict[Any, tuple[float, float]] = {}
+    width = 0.0
+    for r, items in enumerate(order):
+        x = PAD
+        for v in items:
+            pos[v] = (x, PAD + r * (BOX_H + GAP_Y))
+            x += BOX_W if v in nodes else SLOT_W
+            width = max(width, x)
+            x += GAP_X if v in nodes else 0
     n_in = {n: len(d.get("inputs", {})) for n, d in nodes.items()}
     k_in: dict[str, int] = {}
-    for src, out, dst, port in _edges(nodes):
-        (x0, y0), (x1, y1) = pos[src], pos[dst]
+    wires = []
+    for (src, out, dst, port), chain in zip(edges, chains):
         k = k_in[dst] = k_in.get(dst, 0) + 1  # each input arrives at its own point on the box's top
-        a, b = (x0 + BOX_W / 2, y0 + BOX_H), (x1 + BOX_W * k / (n_in[dst] + 1), y1)
-        if row[dst] - row[src] > 1:
-            lane += 1
-            lx = left - LANE * lane
-            jog = 6 + (lane % 5) * 6  # distinct heights in a gap: wires sharing it stay apart
-            pts = [a, (a[0], a[1] + jog), (lx, a[1] + jog), (lx, b[1] - jog), (b[0], b[1] - jog), b]
-        else:
-            pts = [a, b]
+        (x0, y0), (x1, y1) = pos[src], pos[dst]
+        pts = [(x0 + BOX_W / 2, y0 + BOX_H)]
+        for slot in chain[1:-1]:  # through the slot's row, top to bottom, in its lane
+            sx, sy = pos[slot]
+            pts += [(sx + SLOT_W / 2, sy), (sx + SLOT_W / 2, sy + BOX_H)]
+        pts.append((x1 + BOX_W * k / (n_in[dst] + 1), y1))
         wires.append((src, out, dst, port, pts))
-    w = max((x for x, _ in pos.values()), default=0) + BOX_W + PAD
-    h = max((y for _, y in pos.values()), default=0) + BOX_H + PAD
-    return pos, wires, (w, h)
+    h = PAD + max(n_rows, 1) * (BOX_H + GAP_Y) - GAP_Y + PAD
+    return {n: pos[n] for n in nodes}, wires, (max(width, PAD + BOX_W) + PAD, h)
 
 
 def to_svg(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None) -> str:
