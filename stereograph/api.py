@@ -30,7 +30,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field  # noqa: F401  (re-exported)
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator  # noqa: F401  (re-exported)
 
 from stereograph.checks import ARTIFACT_CHECKS, artifact_check  # noqa: F401  (re-exported)
 
@@ -64,6 +64,34 @@ class Params(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_control_characters(cls, data: Any) -> Any:
+        # A title or a name goes to terminals, pictures and pages: an escape sequence in it (YAML's "\e")
+        # would reach a terminal raw through a library's warning. Newlines and tabs are text.
+        where = _control_character_at(data)
+        if where is not None:
+            raise ValueError(f"{where or 'a value'} holds a control character (an escape sequence?): "
+                             "write it as plain text")
+        return data
+
+
+def _control_character_at(value: Any, path: str = "") -> str | None:
+    """The key path of the first string (in nested dicts and lists) holding a control character, else None."""
+    if isinstance(value, str):
+        return path if any(ord(c) < 32 and c not in "\n\t\r" or 0x7F <= ord(c) < 0xA0 for c in value) else None
+    if isinstance(value, dict):
+        items = ((f"{path}.{k}" if path else str(k), v) for k, v in value.items())
+    elif isinstance(value, (list, tuple)):
+        items = ((f"{path}[{i}]", v) for i, v in enumerate(value))
+    else:
+        return None
+    for where, v in items:
+        found = _control_character_at(v, where)
+        if found is not None:
+            return found
+    return None
 
 
 def PathField(default: Any = ..., **kwargs: Any) -> Any:  # noqa: N802  (a Field, named like one)

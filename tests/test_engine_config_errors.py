@@ -344,3 +344,13 @@ def test_a_plugin_node_without_params_that_reads_one_is_told_to_declare_them(tmp
     assert code == 1, msg
     assert "the node reads params.gain, but its @node(...) declares no params model" in msg, msg
     assert "params=MyParams" in msg and "Traceback" not in msg and "_NoParams" not in msg
+
+
+def test_a_control_character_in_a_text_param_is_refused_by_validate(capsys):
+    """(a report title with an escape sequence reached the terminal raw, through matplotlib's warning
+    that the figure's font has no glyph for it)"""
+    code, msg = _validate("--set", 'report.title="T\\e[31mRED"', capsys=capsys)
+    assert code == 2 and "node 'report'" in msg and "title holds a control character" in msg, msg
+    assert "\x1b" not in msg
+    code, msg = _validate("--set", 'report.title="two\\nlines"', capsys=capsys)
+    assert code == 0, msg

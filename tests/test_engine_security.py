@@ -337,11 +337,11 @@ def test_control_characters_in_user_text_cannot_drive_the_terminal(tmp_path, cap
     out = capsys.readouterr()
     assert code == 2 and "unknown node type 'source.synthetic\\x1b[2J\\x1b]0;pwned\\x07\\r'" in out.err
     assert not any(c in out.out + out.err for c in "\x1b\x07\r")
-    # a node's own message (here naming a folder from the file) in the summary table and the error line
+    # a param holding one (here a folder) is refused before anything runs, and never printed raw
     g = write(tmp_path / "q.yaml", 'nodes:\n  src: {type: source.files, params: {folder: "x\\e[2Jy\\u202e"}}\n')
     code = main(["run", str(g), "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "c")])
     out = capsys.readouterr()
-    assert code == 1 and "x\\x1b[2Jy\\u202e" in out.err
+    assert code == 2 and "folder holds a control character" in out.err, out.err
     assert not any(c in out.out + out.err for c in "\x1b\u202e")
 
 
