@@ -144,3 +144,35 @@ def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, e
         read_calibration_file(bad)
     assert said in e.value.message and "calibration.yml" in e.value.message, e.value.message
     assert read_calibration_file(LIVE_CAL)["image_size"] == [640, 480]  # the file as written loads
+
+
+def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
+    """(a URL whose server accepts and sends nothing: OpenCV waited its own 30 s, deaf to Ctrl-C)"""
+    import socket
+    import threading
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)
+    port, held = srv.getsockname()[1], []
+
+    def accept():
+        for _ in range(4):
+            try:
+                held.append(srv.accept()[0])
+            except OSError:
+                return
+
+    threading.Thread(target=accept, daemon=True).start()
+    p = tmp_path / "cam.yaml"
+    url = f"http://127.0.0.1:{port}"
+    p.write_text(f"name: cam\nnodes:\n  cam: {{type: source.camera, params: {{left: '{url}/l.mjpg', "
+                 f"right: '{url}/r.mjpg', stream_timeout_s: 2}}}}\n")
+    try:
+        code, text, seconds = _cli("run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"))
+    finally:
+        srv.close()
+        for c in held:
+            c.close()
+    _refused_in_words(code, text)
+    assert "did not open within 2 s" in text and seconds < 25, text

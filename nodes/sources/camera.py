@@ -67,6 +67,8 @@ class CameraParams(Params):
     warmup_frames: int | None = Field(None, ge=0, le=100, description="Frames dropped after opening while exposure "
                                                                       "settles (count); default 5 for devices and "
                                                                       "streams, 0 for files.")
+    stream_timeout_s: float = Field(10.0, gt=0, le=600, description="A stream (URL) that does not open, or "
+                                    "delivers no frame, within this many seconds is refused (s).")
     max_skew_ms: float = Field(20.0, gt=0, description="Largest left/right time difference of a pair, ms.")
     skew_clock: Literal["auto", "stream", "host"] = Field(
         "auto", description="Clock the skew is measured on: stream = the streams' own time codes (CAP_PROP_POS_MSEC), "
@@ -172,7 +174,13 @@ class StereoCapture:
 
     def _open(self, src: int | str, which: str) -> cv2.VideoCapture:
         _check_before_opening(src, which, "left" if which in ("left", "stereo") else "right")
-        cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
+        stream = isinstance(src, str) and "://" in src
+        if stream:  # (OpenCV's own default waits 30 s to open, deaf to Ctrl-C meanwhile)
+            ms = int(self.p.stream_timeout_s * 1000)
+            cap = cv2.VideoCapture(src, BACKENDS[self.p.backend],
+                                   [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms])
+        else:
+            cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
         if not cap.isOpened():
             cap.release()
             field = "left" if which in ("left", "stereo") else "right"
@@ -180,6 +188,11 @@ class StereoCapture:
                 raise NodeError(f"source.camera: no {which} camera at device index {src} (cv2.VideoCapture could not "
                                 "open it).", hint=f"plug the camera in or set {field} to an existing device "
                                                   "(ls /dev/video*), a video file or an image-sequence pattern")
+            if stream:
+                raise NodeError(f"source.camera: the {which} stream {src!r} did not open within "
+                                f"{self.p.stream_timeout_s:g} s (nothing answered, or not a video stream).",
+                                hint="check the camera's URL and that it streams (open it in a player); raise "
+                                     "stream_timeout_s for a slow network")
             plain = _is_file(src) and "%" not in src
             missing = plain and not Path(src).exists()
             empty = plain and not missing and Path(src).is_file() and Path(src).stat().st_size == 0
