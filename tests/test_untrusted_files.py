@@ -176,3 +176,13 @@ def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
             c.close()
     _refused_in_words(code, text)
     assert "did not open within 2 s" in text and seconds < 25, text
+
+
+def test_a_target_file_of_a_million_points_is_refused_in_words(tmp_path):
+    from nodes.sources.target_points import MAX_POINTS, read_target_csv
+    from stereograph.api import NodeError
+
+    f = tmp_path / "points.csv"
+    f.write_text("id,x_cm,y_cm,z_cm,u_px,v_px\n" + "".join(f"t{i},1,2,3,4,5\n" for i in range(MAX_POINTS + 1)))
+    with pytest.raises(NodeError, match=f"has {MAX_POINTS + 1} points"):
+        read_target_csv(f, ("",))

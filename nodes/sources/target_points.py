@@ -64,6 +64,9 @@ class TargetPointsParams(Params):
         return self
 
 
+MAX_POINTS = 100_000  # target points in one file: a target has tens to thousands
+
+
 def _paths(params: TargetPointsParams, resolve) -> list[Path]:
     return [resolve(p) for p in (params.points, params.left, params.right) if p]
 
@@ -114,6 +117,9 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     rows = [(i, ln) for i, ln in enumerate(text.splitlines(), 1) if ln.strip() and not ln.lstrip().startswith("#")]
     if not rows:
         _fail(path, None, "has no header and no rows.", "see docs/rig.md, 'Tsai on your own target', for the format")
+    if len(rows) - 1 > MAX_POINTS:  # (a million points went on into Tsai's solver as they were)
+        _fail(path, None, f"has {len(rows) - 1} points; a calibration target has at most {MAX_POINTS}.",
+              "give the target's measured points (tens to thousands), not a dense point cloud")
     head_line, head = rows[0]
     if "," not in head and any(sep in head for sep in (";", "\t")):
         _fail(path, head_line, f"the header ({head.strip()}) is not separated by commas.",
