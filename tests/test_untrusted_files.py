@@ -186,3 +186,23 @@ def test_a_target_file_of_a_million_points_is_refused_in_words(tmp_path):
     f.write_text("id,x_cm,y_cm,z_cm,u_px,v_px\n" + "".join(f"t{i},1,2,3,4,5\n" for i in range(MAX_POINTS + 1)))
     with pytest.raises(NodeError, match=f"has {MAX_POINTS + 1} points"):
         read_target_csv(f, ("",))
+
+
+@pytest.mark.parametrize("text", [
+    '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">'
+    '<!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n<opencv_storage><M1>&c;</M1></opencv_storage>\n',
+    '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n'
+    "<opencv_storage><M1>&x;</M1></opencv_storage>\n",
+    "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\nM1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+    "   data: [ 560., 0., 320., 0.,",  # cut short
+])
+def test_an_xml_entity_bomb_an_external_entity_or_a_cut_filestorage_is_refused_in_words(tmp_path, text):
+    """(each gave "SystemError ... looks like a bug in the node")"""
+    from nodes.calibrators.load import read_calibration_file
+    from stereograph.api import NodeError
+
+    f = tmp_path / ("calibration.xml" if text.startswith("<?xml") else "calibration.yml")
+    f.write_text(text)
+    with pytest.raises(NodeError) as e:
+        read_calibration_file(f)
+    assert str(f) in e.value.message and "root:" not in e.value.message
