@@ -49,6 +49,11 @@ def _item_consumers(graph: Any, src: str) -> set[str]:
             if any(s == src and graph.is_collection(s, o) for s, o in graph.nodes[c].inputs.values())}
 
 
+def _needs_items(graph: Any, node: str, src: str) -> bool:
+    """Whether ``node`` or anything upstream of it reads ``src``'s items (so it runs after all are made)."""
+    return bool(({node} | graph.upstream(node)) & _item_consumers(graph, src))
+
+
 def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]:
     """Group the selected per-item nodes into regions (see the module docstring).
 
@@ -81,6 +86,10 @@ def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]
                     and not depends(s, reg)
         if not ok:
             src = next((s for _p, s, _o in colls if s in sel and producer(graph.nodes[s]) and s not in claimed), None)
+            whole = [s for port, (s, o) in inst.inputs.items()
+                     if not (graph.is_collection(s, o) and not inst.spec.inputs[port].gather)]
+            if src is not None and any(_needs_items(graph, s, src) for s in whole):
+                src = None  # what it reads whole gathers the source's items: they are made first, not streamed
             reg = Region(src)
             if src:
                 claimed.add(src)
@@ -105,6 +114,10 @@ def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[A
     for k, r in enumerate(regions):
         if r.source in unit:
             dag.add_edge(unit[r.source], ("r", k))
+            # a node outside the region that reads the source's items (a gathering node) runs after them
+            for c in _item_consumers(graph, r.source) & set(unit):
+                if unit[c] != ("r", k):
+                    dag.add_edge(("r", k), unit[c])
     if not nx.is_directed_acyclic_graph(dag):
         return None
     pos = {n: i for i, n in enumerate(graph.order)}

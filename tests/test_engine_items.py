@@ -478,3 +478,42 @@ def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
         assert {n: v.fresh for n, v in verdicts.items()} == {n: s == "cached" for n, s in actual.items()}, actual
         assert "m003 failed; m001 dropped" in verdicts["src"].reasons[0] and "tried again" in verdicts["src"].reasons[0]
         assert "unless" in verdicts["total"].reasons[0]
+
+
+SCALE_NODE = '''
+from stereograph.api import In, Out, Params, node
+
+@node("mine.scale", inputs={"m": In("Matrix"), "report": In("Report")}, outputs={"norm": Out("Number")})
+def scale(params: Params, m, report):
+    """A per-item node that also reads a gathering node's result (the item count)."""
+    return {"norm": float(abs(m).sum()) * report["n"]}
+'''
+
+
+@pytest.mark.parametrize("strategy", ["node by node", "streamed", "workers",
+                                      pytest.param("dask", marks=pytest.mark.slow)])
+def test_a_gathering_node_wired_to_a_streamed_source_sees_every_item(tmp_path, monkeypatch, strategy):
+    """(issue 27: a gathering node wired straight to a streamed source's output -- segmenter.appearance on
+    bench-fit's balls.pairs -- got no items: 'none of the 0 pairs is a train placement'. It ran between the
+    source's whole part and the region that makes the items.)"""
+    from stereograph.runner import DaskExecutor
+
+    (tmp_path / "mine.py").write_text(SCALE_NODE)
+    p = tmp_path / "p.yaml"
+    p.write_text(textwrap.dedent(f"""\
+        name: gather
+        plugins: [{', '.join(str(x) for x in PLUGINS)}, mine.py]
+        nodes:
+          src: {{type: toy.produce, params: {{n: 5}}}}
+          direct: {{type: toy.table, inputs: {{m: src.items}}}}
+          scaled: {{type: mine.scale, inputs: {{m: src.items, report: direct.report}}}}
+          total: {{type: toy.sum, inputs: {{values: scaled.norm}}}}
+        """))
+    if strategy == "node by node":
+        monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
+    executor = {"workers": lambda: ProcessExecutor(2), "dask": lambda: DaskExecutor(None, 2)}.get(strategy)
+    import numpy as np
+
+    res = run(p, tmp_path, executor=executor() if executor else None, use_cache=False)
+    every = sum(float(abs(np.random.default_rng(i).normal(size=(8, 8))).sum()) for i in range(5))
+    assert res.ok and res.outputs("total", "total") == pytest.approx(5 * every)  # (0.0: the table saw 0 items)
