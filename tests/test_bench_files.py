@@ -334,3 +334,46 @@ def test_the_default_globs_pair_names_with_the_side_after_the_number(tmp_path):
             cv2.imwrite(str(tmp_path / f"{i:03d}_{side}.png"), np.zeros((4, 4, 3), np.uint8))
     p = FilesParams(folder=str(tmp_path))
     assert [pid for pid, _, _ in list_pairs(tmp_path, p.left_glob, p.right_glob)] == ["007", "008"]
+
+
+@pytest.mark.parametrize("files, ids, rule", [
+    (["im0.png", "im1.png", "calib.txt"], ["Scene"], "im0 / im1"),
+    (["im2.png", "im6.png", "disp2.png", "disp6.png"], ["Scene"], "im2 / im6"),
+    (["view1.png", "view5.png", "disp1.png"], ["Scene"], "view1 / view5"),
+    (["image_0/000000.png", "image_1/000000.png", "image_0/000001.png", "image_1/000001.png"],
+     ["000000", "000001"], "image_0/ and image_1/"),
+    (["cam0/data/17.png", "cam1/data/17.png"], ["17"], "cam0/data/ and cam1/data/"),
+    (["left/a.png", "right/a.png"], ["a"], "left/ and right/"),
+])
+def test_a_datasets_own_names_pair_with_no_settings(tmp_path, files, ids, rule):
+    """(issue 30: im2.png / im6.png, im0 / im1, view1 / view5 were refused as 'no partner'; with globs
+    im2.* the pair was called 'png')"""
+    import cv2
+    import numpy as np
+
+    from nodes.sources._files import find_pairs
+
+    scene = tmp_path / "Scene"
+    for f in files:
+        (scene / f).parent.mkdir(parents=True, exist_ok=True)
+        if f.endswith(".png"):
+            cv2.imwrite(str(scene / f), np.zeros((4, 4, 3), np.uint8))
+        else:
+            (scene / f).write_text("x")
+    pairs, said = find_pairs(scene)
+    assert [pid for pid, _, _ in pairs] == ids and rule in said
+    left, right = pairs[0][1].relative_to(scene).as_posix(), pairs[0][2].relative_to(scene).as_posix()
+    assert (left, right) == (files[0], files[1]) or files[0].startswith("image_")
+
+
+def test_a_folder_no_convention_fits_says_what_was_tried(tmp_path):
+    import cv2
+    import numpy as np
+
+    from nodes.sources._files import find_pairs
+    from stereograph.api import NodeError
+
+    cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(NodeError) as e:
+        find_pairs(tmp_path)
+    assert "im0/im1" in e.value.hint and "pairing: globs" in e.value.hint

@@ -52,6 +52,7 @@ def _refused_in_words(code: int, text: str) -> None:
     assert "Traceback" not in text and "internal error" not in text and "looks like a bug" not in text, text
 
 
+@pytest.mark.slow
 def test_a_yaml_alias_bomb_as_ros_camera_info_is_refused_at_once(tmp_path):
     bomb = tmp_path / "left.yaml"
     bomb.write_text(BOMB)
@@ -62,6 +63,7 @@ def test_a_yaml_alias_bomb_as_ros_camera_info_is_refused_at_once(tmp_path):
     assert seconds < 20 and "left.yaml" in text, text
 
 
+@pytest.mark.slow
 def test_a_filestorage_json_nested_100000_levels_is_refused_not_a_crash(tmp_path):
     deep = tmp_path / "calibration.json"
     deep.write_text('{"opencv-matrix": ' + "[" * 100_000 + "]" * 100_000 + "}")
@@ -71,6 +73,7 @@ def test_a_filestorage_json_nested_100000_levels_is_refused_not_a_crash(tmp_path
     assert "nests its values" in text, text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["dev-zero", "fifo"])
 def test_a_device_or_fifo_as_a_calibration_file_is_refused_by_run_and_explain(tmp_path, kind):
     path = "/dev/zero"
@@ -86,6 +89,7 @@ def test_a_device_or_fifo_as_a_calibration_file_is_refused_by_run_and_explain(tm
     assert code == 0 and seconds < 20, text
 
 
+@pytest.mark.slow
 def test_a_camera_at_a_negative_index_is_refused_by_validate(tmp_path):
     p = tmp_path / "cam.yaml"
     p.write_text("name: cam\nnodes:\n  cam: {type: source.camera, params: {left: -1, right: 1}}\n")
@@ -93,6 +97,7 @@ def test_a_camera_at_a_negative_index_is_refused_by_validate(tmp_path):
     assert code == 2 and "a device index is 0 to 255" in text, text
 
 
+@pytest.mark.slow
 def test_a_fifo_as_the_cameras_video_file_is_refused_not_waited_on(tmp_path):
     fifo = tmp_path / "left.avi"
     os.mkfifo(fifo)
@@ -146,6 +151,7 @@ def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, e
     assert read_calibration_file(LIVE_CAL)["image_size"] == [640, 480]  # the file as written loads
 
 
+@pytest.mark.slow
 def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
     """(a URL whose server accepts and sends nothing: OpenCV waited its own 30 s, deaf to Ctrl-C)"""
     import socket

@@ -10,7 +10,8 @@ import numpy as np
 
 from stereograph.api import NodeError
 
-__all__ = ["DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "header_size", "list_pairs", "pair_key", "read_image"]
+__all__ = ["DEFAULT_GLOBS", "DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "find_pairs", "header_size", "list_pairs", "pair_key",
+           "pairs_for", "read_image"]
 
 DEFAULT_MAX_MPX = 50.0  # megapixels: above any stereo camera this project targets, far below a decompression bomb
 
@@ -35,6 +36,53 @@ def _glob(base: Path, pattern: str) -> list[Path]:
     else:
         files = sorted(base.glob(pattern))
     return [f for f in files if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES]
+
+
+DEFAULT_GLOBS = ("*left*", "*right*")
+#: Datasets' own names for one pair in a folder: Middlebury 2014+ (im0 / im1), 2001-2003 (im2 / im6),
+#: 2005-2006 (view1 / view5). The pair is named by its folder (the scene).
+DATASET_NAMES = [("im0", "im1"), ("im2", "im6"), ("view1", "view5")]
+#: Folder pairs that hold the left and the right images under the same names: ours, KITTI's grey and
+#: colour cameras, EuRoC's (cam0/data/).
+DATASET_FOLDERS = [("left", "right"), ("image_0", "image_1"), ("image_2", "image_3"), ("cam0/data", "cam1/data"),
+                   ("cam0", "cam1")]
+
+
+def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str = DEFAULT_GLOBS[1],
+               pairing: str = "auto") -> tuple[list[tuple[str, Path, Path]], str]:
+    """``(pairs, rule)``: the pairs of a folder, and in words the rule that paired them.
+
+    ``pairing: globs`` (or globs other than the defaults) uses the globs alone. ``auto`` tries, in
+    order: names holding left / right (or L / R), a dataset's own names for one pair
+    (:data:`DATASET_NAMES`, named by the folder), then left and right folders
+    (:data:`DATASET_FOLDERS`); NodeError naming what was tried if none fits.
+    """
+    if pairing == "globs" or (left_glob, right_glob) != DEFAULT_GLOBS:
+        return list_pairs(folder, left_glob, right_glob), f"the globs {left_glob} / {right_glob}"
+    try:
+        return list_pairs(folder, left_glob, right_glob), "names with left / right"
+    except NodeError as first:
+        if not folder.is_dir():
+            raise
+        for left, right in DATASET_NAMES:
+            lf, rf = _named(folder, left), _named(folder, right)
+            if len(lf) == 1 and len(rf) == 1:
+                return [(_clean_id(folder.resolve().name), lf[0], rf[0])], f"the dataset names {left} / {right}"
+        for left, right in DATASET_FOLDERS:
+            if _glob(folder, f"{left}/*") and _glob(folder, f"{right}/*"):
+                return list_pairs(folder, f"{left}/*", f"{right}/*"), f"the folders {left}/ and {right}/"
+        tried = ", ".join(f"{a}/{b}" for a, b in DATASET_NAMES + DATASET_FOLDERS)
+        raise NodeError(first.message, hint=f"{first.hint}; also tried the dataset conventions {tried}. Or set "
+                        "pairing: globs with left_glob / right_glob") from None
+
+
+def pairs_for(params, folder: Path) -> tuple[list[tuple[str, Path, Path]], str]:
+    """:func:`find_pairs` with a source's ``left_glob``, ``right_glob`` and ``pairing`` params."""
+    return find_pairs(folder, params.left_glob, params.right_glob, params.pairing)
+
+
+def _named(folder: Path, stem: str) -> list[Path]:
+    return [p for p in folder.glob(f"{stem}.*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
 
 
 def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str, Path, Path]]:

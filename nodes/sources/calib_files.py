@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
-from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, pairs_for, read_image
 from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 
@@ -12,6 +13,10 @@ class CalibFilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("*left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
     right_glob: str = Field("*right*", description="Glob of the right images in `folder`.")
+    pairing: Literal["auto", "globs"] = Field(
+        "auto", description="auto: names with left/right (or L/R), else a dataset's own names (im0/im1, im2/im6, "
+                            "view1/view5: one pair named by its folder), else folders (left/ right/, image_0/ "
+                            "image_1/, cam0/ cam1/); globs: left_glob / right_glob only.")
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")
@@ -23,7 +28,7 @@ def _reads(params: CalibFilesParams, pipeline_dir: Path) -> list[Path]:
     folder = Path(params.folder).expanduser()
     folder = folder if folder.is_absolute() else pipeline_dir / folder
     try:
-        return [p for _, l, r in list_pairs(folder, params.left_glob, params.right_glob) for p in (l, r)]
+        return [p for _, l, r in pairs_for(params, folder)[0] for p in (l, r)]
     except NodeError:
         return []  # the node itself reports the problem when it runs
 
@@ -38,7 +43,9 @@ def _reads(params: CalibFilesParams, pipeline_dir: Path) -> list[Path]:
 def calib_files(params: CalibFilesParams, ctx=None) -> dict:
     """Read chessboard calibration pairs (left/right matched by name) from a folder."""
     folder = ctx.path(params.folder) if ctx is not None else Path(params.folder).expanduser()
-    pairs = list_pairs(folder, params.left_glob, params.right_glob)
+    pairs, rule = pairs_for(params, folder)
+    if ctx is not None and rule.startswith("the dataset"):
+        ctx.warn(f"{len(pairs)} pair(s) paired by {rule}")
     views, size, rejected = [], None, {}
     for k, (pid, lp, rp) in enumerate(pairs):
         if ctx is not None:

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-from nodes.sources._files import DEFAULT_MAX_MPX, list_pairs, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, pairs_for, read_image
 from nodes.sources._truth import read_truth_file, truth_split
 from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
@@ -22,6 +23,10 @@ class FilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("*left*", description="Glob of the left images (e.g. left*.png, 007_left.png, left/*.png).")
     right_glob: str = Field("*right*", description="Glob of the right images.")
+    pairing: Literal["auto", "globs"] = Field(
+        "auto", description="auto: names with left/right (or L/R), else a dataset's own names (im0/im1, im2/im6, "
+                            "view1/view5: one pair named by its folder), else folders (left/ right/, image_0/ "
+                            "image_1/, cam0/ cam1/); globs: left_glob / right_glob only.")
     truth: str | None = PathField(
         None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
                           "decides the split: the pairs it lists are train, the others test, "
@@ -40,7 +45,7 @@ def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
     folder = Path(params.folder).expanduser()
     folder = folder if folder.is_absolute() else pipeline_dir / folder
     try:
-        paths = [p for _, l, r in list_pairs(folder, params.left_glob, params.right_glob) for p in (l, r)]
+        paths = [p for _, l, r in pairs_for(params, folder)[0] for p in (l, r)]
     except NodeError:
         paths = []
     if params.truth:
@@ -51,7 +56,7 @@ def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
 
 def _pair_ids(params: FilesParams, ctx) -> list[str]:
     """The pair ids, from the file names alone (the engine reads the pairs one per call)."""
-    return [pid for pid, _, _ in list_pairs(ctx.path(params.folder), params.left_glob, params.right_glob)]
+    return [pid for pid, _, _ in pairs_for(params, ctx.path(params.folder))[0]]
 
 
 def _read_pair(params: FilesParams, pid: str, lp: Path, rp: Path, truth: dict, split: str) -> dict:
@@ -80,8 +85,10 @@ def files(params: FilesParams, ctx=None) -> dict:
     is one; a pair that cannot be read is skipped with a warning.
     """
     resolve = ctx.path if ctx is not None else (lambda v: Path(v).expanduser())
-    pairs_list = list_pairs(resolve(params.folder), params.left_glob, params.right_glob)
+    pairs_list, rule = pairs_for(params, resolve(params.folder))
     per_item = ctx is not None and ctx.producing_items
+    if ctx is not None and not (per_item and ctx.item is not None) and rule.startswith("the dataset"):
+        ctx.warn(f"{len(pairs_list)} pair(s) paired by {rule}")  # (said once: which convention applied)
     splits = None
     truth: dict[str, dict] = {}
     if params.truth:  # the truth file decides the split (listed = train, or its split column); no random split
