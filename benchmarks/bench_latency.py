@@ -8,6 +8,7 @@ the real dynamixel-sdk) in this process, pinned to one CPU core (OpenCV single-t
 every cycle that picks, times:
 
     grab               source.camera: grab() both sides, retrieve (decode), timestamps, skew check
+    calibration check  rectifier.gate: features matched on the first pair and every 10th (else 0 ms)
     rectify+segment    the segmenter, rectifying on request only what it reads
     locate+compensate  centroid disparity, triangulation, depth compensation
     IK+plan            analytic IK, pick plan (limits checked)
@@ -39,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = [("grab", "cam", "segment"), ("rectify+segment", "segment", "disparity"),
+STAGES = [("grab", "cam", "gate"), ("calibration check", "gate", "segment"), ("rectify+segment", "segment", "disparity"),
           ("locate+compensate", "disparity", "ik"), ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
 
 

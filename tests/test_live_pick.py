@@ -50,6 +50,7 @@ def test_five_balls_in_a_row_each_grasped_within_half_a_centimetre(live):
         assert c.values["compensate.location"]["sigma_z_cm"] > 0
         assert c.values["cam.pairs"]["skew_ms"] == 0.0
         assert set(c.nodes) >= {"cam", "segment", "locate", "compensate", "ik", "pick", "act"}
+    assert loop.cycles[0].values["gate.health"]["verdict"] == "ok"  # the calibration checked on the live pairs
     # cycle 1 also loaded the files and recorded the camera; later cycles ran only the live part
     assert "calibration" not in loop.cycles[1].nodes and loop.live[0] == "cam"
 

@@ -92,3 +92,23 @@ nodes:
     bad = run_pipeline(p, ["pairs.left_glob=*right*", "pairs.right_glob=*left*"], cache_dir=tmp_path / "c",
                        out_dir=tmp_path / "o2")
     assert not bad.ok and "swapped" in bad.reports["check"].error
+
+
+def test_the_live_gate_checks_every_nth_pair_and_a_refusal_stops_the_loop(rig):
+    from nodes.rectifiers.check import GateParams, gate
+    from stereograph.api import NodeError, RunContext
+
+    folder, pairs, tmp = rig
+    rect = _rectification(tmp, folder / "calibration.json")
+    ctx = RunContext("gate", None, tmp / "gate", tmp, resources={})
+    params = GateParams(every_n=3)
+    checked = []
+    for k in range(6):
+        out = gate(params, rect, pairs[k % len(pairs)], ctx=ctx)
+        assert out["pair"] is pairs[k % len(pairs)] and out["health"]["verdict"] == "ok"
+        checked.append(out["health"]["n_matches"])
+    assert len(set(checked[:3])) == 1 and len(set(checked[3:])) == 1  # pairs 1 and 4 checked, the others not
+    swapped = {**pairs[0], "left": pairs[0]["right"], "right": pairs[0]["left"]}
+    with pytest.raises(NodeError) as e:
+        gate(params, rect, swapped, ctx=RunContext("gate", None, tmp / "gate", tmp, resources={}))
+    assert e.value.lasting and "swapped" in e.value.message

@@ -6,7 +6,8 @@ geometry -- RANSAC on the fundamental matrix, which repetitive texture cannot fo
 single match), their points rectified with the calibration, and their vertical disagreement measured:
 after a right rectification a point lies on the same row in both images. It needs no corners, so it
 works for every calibration source (a run's JSON, OpenCV files, ROS, a given camera).
-Public: :func:`epipolar_check`, the node :func:`check`.
+Public: :func:`epipolar_check`; the nodes :func:`check` (a collection of pairs, once) and :func:`gate`
+(a pair per cycle of a live loop, checked every n-th, passed on while the calibration holds).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from nodes.rectifiers.opencv import rectified_points
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["CheckParams", "check", "epipolar_check"]
+__all__ = ["CheckParams", "GateParams", "check", "epipolar_check", "gate"]
 
 _DETECTORS = {"orb": lambda: cv2.ORB_create(3000), "sift": lambda: cv2.SIFT_create(3000),
               # (OpenCV 5 keeps AKAZE in the contrib module xfeatures2d, OpenCV 4 in the main one)
@@ -145,3 +146,44 @@ def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
     if ctx is not None and health["verdict"] in ("warn", "unknown"):
         ctx.warn(said)
     return {"health": health}
+
+
+class GateParams(CheckParams):
+    every_n: int = Field(10, ge=1, le=100000, description="Check the first pair and then every n-th one (count): "
+                                                          "the pairs between pass unchecked, at no cost.")
+
+
+@node(
+    "rectifier.gate",
+    inputs={"rectification": In("Rectification"), "pair": In("StereoPair", description="A scene pair (per cycle).")},
+    outputs={"pair": Out("StereoPair", description="The same pair, passed on once the calibration is trusted."),
+             "health": Out("any", optional=True, description="The last check (rectifier.check's record).")},
+    params=GateParams,
+    version="1",
+)
+def gate(params: GateParams, rectification: dict, pair: dict, ctx=None) -> dict:
+    """Pass pairs on while the calibration holds; check it on the first pair and every n-th one after."""
+    state = (ctx.resource("gate", lambda: _GateState()) if ctx is not None else None) or _GateState()
+    state.n += 1
+    if state.last is None or (state.n - 1) % params.every_n == 0:
+        state.last = epipolar_check(rectification, [pair], params)
+        said = (f"calibration check on pair {pair.get('id')}: {state.last['verdict']}"
+                + (f", median |dy| {state.last['dy_median_px']} px" if "dy_median_px" in state.last else "")
+                + (f"; {state.last['cause']}" if state.last.get("cause") else ""))
+        if state.last["verdict"] == "refuse":  # lasting: no later cycle may pick with this calibration
+            raise NodeError(f"rectifier.gate: {said}; nothing is picked with this calibration.", lasting=True,
+                            hint="recalibrate these cameras, or load their own calibration (swapped images: swap "
+                                 "left and right in the camera source)")
+        if ctx is not None and state.last["verdict"] == "warn":
+            ctx.warn(said)
+    return {"pair": pair, "health": {k: v for k, v in state.last.items() if k != "pairs"}}
+
+
+class _GateState:
+    """What the gate keeps across the cycles of a run (``ctx.resource``)."""
+
+    def __init__(self):
+        self.n, self.last = 0, None
+
+    def close(self) -> None:
+        pass
