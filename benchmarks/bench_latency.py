@@ -40,8 +40,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = [("grab", "cam", "gate"), ("calibration check", "gate", "segment"), ("rectify+segment", "segment", "disparity"),
-          ("locate+compensate", "disparity", "ik"), ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
+STAGES = [("grab", "cam", "gate"), ("calibration check", "gate", "segment"),
+          ("rectify+segment", "segment", "disparity"), ("locate+compensate", "disparity", "ik"),
+          ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
 
 
 def _now() -> tuple[float, float, float]:
