@@ -377,3 +377,19 @@ def test_a_folder_no_convention_fits_says_what_was_tried(tmp_path):
     with pytest.raises(NodeError) as e:
         find_pairs(tmp_path)
     assert "im0/im1" in e.value.hint and "pairing: globs" in e.value.hint
+
+
+def test_a_calibration_in_squares_is_refused_alike_in_the_three_formats_until_given_its_square(tmp_path):
+    """(issue 30: it loaded from calibration.json without cm_per_unit, labelled squares, but was refused from
+    opencv.yml and ROS: one rule now, and the same numbers once the square's size is given)"""
+    cal = dict(_calibration(), T_cm=np.array([-3.3, 0.02, 0.05]), length_unit="squares")
+    paths = _write_exports(cal, tmp_path)
+    write_value(tmp_path / "calibration", cal)
+    files = {"json": (tmp_path / "calibration.json", None), "opencv": (paths["opencv"], None),
+             "ros": (paths["camera_info_left"], paths["camera_info_right"])}
+    for fmt, (path, right) in files.items():
+        with pytest.raises(NodeError, match="board squares.*cm_per_unit"):
+            read_calibration_file(path, right)
+        got = read_calibration_file(path, right, cm_per_unit=2.5)
+        assert np.abs(got["T_cm"] - 2.5 * cal["T_cm"]).max() < 1e-6, fmt
+        assert got.get("length_unit", "cm") == "cm", fmt

@@ -80,6 +80,11 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                                  "FileStorage .yml/.xml, or a ROS camera_info pair")
         cal = array_keys(art, _CAL_ARRAYS, f"{label}: {path}")
         fmt = "json"
+        if cm_per_unit is None and cal.get("length_unit", "cm") == "squares":
+            # (refused as the same calibration's opencv.yml and ROS files are: one rule for the three formats)
+            raise NodeError(f"{label}: cannot use {path}: its lengths are in board squares (calibrated without a "
+                            "square size): the unit of T is one square; give cm_per_unit = the square's size in cm.",
+                            hint="set cm_per_unit to the board's square size in cm")
         if cm_per_unit is not None:
             unit = cal.get("length_unit", "cm")
             if unit == "cm":
