@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from nodes.calibrators._calib_io import export_texts, read_ros_pair
+from nodes.calibrators._calib_io import read_ros_pair
 from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.load import read_calibration_file
+from nodes.contracts.calibration_export import export_texts
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 from stereograph.api import NodeError
 from stereograph.outputs import write_value
@@ -393,3 +394,32 @@ def test_a_calibration_in_squares_is_refused_alike_in_the_three_formats_until_gi
         got = read_calibration_file(path, right, cm_per_unit=2.5)
         assert np.abs(got["T_cm"] - 2.5 * cal["T_cm"]).max() < 1e-6, fmt
         assert got.get("length_unit", "cm") == "cm", fmt
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("alpha", [0.0, 1.0])
+def test_the_rectifiers_exports_hold_the_runs_rectification_in_every_format(tmp_path, alpha):
+    """(issue 30: opencv.yml ignored rectify.alpha -- with alpha 0 its P1/P2/Q differed from the run's by up
+    to 383 -- and did not record it.) rectify/opencv.yml and the ROS pair hold the run's R1 R2 P1 P2 Q
+    with rectify_alpha; each format, loaded and rectified again at that alpha, gives them back."""
+    import cv2
+
+    from nodes.rectifiers.opencv import rectify_calibration
+    from stereograph.runner import run_pipeline
+
+    root = Path(__file__).resolve().parents[1]
+    res = run_pipeline(root / "pipelines" / "calibrate.yaml", ["rig.n_views=10", f"rectify.alpha={alpha}"],
+                       cache_dir=tmp_path / "c", out_dir=tmp_path / "run")
+    assert res.ok
+    ran = res._run.get(("rectify", "rectification", None))
+    out = res.out_dir
+    fs = cv2.FileStorage(str(out / "rectify" / "opencv.yml"), cv2.FILE_STORAGE_READ)
+    assert fs.getNode("rectify_alpha").real() == alpha
+    for name in ("R1", "R2", "P1", "P2", "Q"):
+        assert np.abs(fs.getNode(name).mat() - ran[name]).max() < 1e-6, name
+    fs.release()
+    for path, right in ((out / "rectify" / "opencv.yml", None), (out / "calib" / "calibration.json", None),
+                        (out / "rectify" / "camera_info_left.yaml", out / "rectify" / "camera_info_right.yaml")):
+        again = rectify_calibration(read_calibration_file(path, right), alpha)
+        for name in ("P1", "P2", "Q"):
+            assert np.abs(again[name] - ran[name]).max() < 1e-3 * max(1.0, np.abs(ran[name]).max()), (path, name)

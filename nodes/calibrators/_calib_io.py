@@ -17,19 +17,16 @@ Reading a pair of ROS files back gives the stereo pose exactly: the right camera
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
+from nodes.contracts.calibration_export import export_texts, rectify_params
 from stereograph.api import NodeError, parse_yaml_data
 
-__all__ = ["CM_PER_UNIT", "EXPORT_OUTPUTS", "calibration_outputs", "calibration_summary", "export_texts", "opencv_text",
-           "read_opencv", "read_ros", "read_ros_pair", "rectify_params", "ros_camera_info"]
+__all__ = ["CM_PER_UNIT", "calibration_outputs", "calibration_summary", "read_opencv", "read_ros", "read_ros_pair"]
 
 #: Centimetres per length unit a calibration file may state.
 CM_PER_UNIT = {"mm": 0.1, "millimeter": 0.1, "millimetre": 0.1, "cm": 1.0, "centimeter": 1.0, "centimetre": 1.0,
@@ -70,16 +67,6 @@ def check_principal_points(K1, K2, image_size, path: Path, max_offset: float = M
 _CRIT = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-10)
 
 
-def rectify_params(cal: dict, alpha: float = 1.0) -> dict:
-    """``stereoRectify``'s R1 R2 P1 P2 Q of a calibration (no maps), lengths in cm."""
-    w, h = (int(v) for v in cal["image_size"])
-    K1, D1, K2, D2, R = (np.asarray(cal[k], dtype=float) for k in ("K1", "D1", "K2", "D2", "R"))
-    T = np.asarray(cal["T_cm"], dtype=float).reshape(3, 1)
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, (w, h), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
-                                                alpha=alpha)
-    return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q}
-
-
 def _mean_abs_dy(cal: dict, rect: dict) -> float | None:
     """Mean |v_left - v_right| (px) of the calibration's matched corners after rectification, or None."""
     cl, cr = cal.get("corners_left_px") or {}, cal.get("corners_right_px") or {}
@@ -117,33 +104,6 @@ def calibration_summary(cal: dict) -> tuple[dict, str]:
 
 
 # --------------------------------------------------------------------------- OpenCV FileStorage
-def opencv_text(cal: dict) -> str:
-    """The calibration as OpenCV FileStorage YAML (stereo_calib's names, lengths in cm)."""
-    rect = rectify_params(cal)
-    w, h = (int(v) for v in cal["image_size"])
-    fd, tmp = tempfile.mkstemp(suffix=".yml")
-    os.close(fd)
-    try:
-        # FileStorage's in-memory mode is not in every build's Python binding; a temporary file is.
-        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
-        fs.write("image_width", w)
-        fs.write("image_height", h)
-        fs.write("unit", str(cal.get("length_unit", "cm")))
-        fs.write("method", str(cal.get("method", "")))
-        if cal.get("rms_px") is not None:
-            fs.write("rms_px", float(cal["rms_px"]))
-        for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
-            fs.write(name, np.asarray(cal[key], np.float64).reshape(3, 3) if name[0] in "MR"
-                     else np.asarray(cal[key], np.float64).reshape(1, -1))
-        fs.write("T", np.asarray(cal["T_cm"], np.float64).reshape(3, 1))
-        for name in ("R1", "R2", "P1", "P2", "Q"):
-            fs.write(name, np.asarray(rect[name], np.float64))
-        fs.release()
-        return Path(tmp).read_text()
-    finally:
-        os.unlink(tmp)
-
-
 def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None,
                 max_principal_offset: float = MAX_PRINCIPAL_OFFSET) -> dict:
     """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
@@ -253,40 +213,6 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
 
 
 # --------------------------------------------------------------------------- ROS camera_info
-def _distortion_model(D: np.ndarray) -> str:
-    return "plumb_bob" if D.size <= 5 else "rational_polynomial"
-
-
-def ros_camera_info(cal: dict, side: str, camera_name: str | None = None) -> dict:
-    """One camera's ROS ``camera_info`` (as a dict), lengths in metres.
-
-    Parameters
-    ----------
-    cal : dict
-        A ``StereoCalibration`` (lengths in cm).
-    side : {"left", "right"}
-    camera_name : str, optional
-        Default ``"left"`` / ``"right"``.
-    """
-    rect = rectify_params(cal)
-    s = "1" if side == "left" else "2"
-    K = np.asarray(cal["K" + s], float)
-    D = np.asarray(cal["D" + s], float).ravel()
-    if D.size < 5:
-        D = np.concatenate([D, np.zeros(5 - D.size)])
-    P = np.asarray(rect["P" + s], float).copy()
-    P[:, 3] = P[:, 3] / 100.0  # cm -> m: ROS's Tx = -fx' B with B in metres
-    w, h = (int(v) for v in cal["image_size"])
-
-    def block(rows, cols, m):
-        return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(m, float).ravel()]}
-
-    return {"image_width": w, "image_height": h, "camera_name": camera_name or side,
-            "camera_matrix": block(3, 3, K), "distortion_model": _distortion_model(D),
-            "distortion_coefficients": block(1, D.size, D),
-            "rectification_matrix": block(3, 3, rect["R" + s]), "projection_matrix": block(3, 4, P)}
-
-
 def _ros_mat(doc: dict, key: str, shape, path: Path) -> np.ndarray:
     v = doc.get(key)
     data = v.get("data") if isinstance(v, dict) else v
@@ -380,36 +306,6 @@ def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None =
 
 
 # --------------------------------------------------------------------------- calibrator outputs
-#: The export outputs every calibrator declares beside ``calibration`` (``TextFile`` artifacts:
-#: the engine writes each as ``<run>/<node>/<output><suffix>``).
-EXPORT_OUTPUTS_DOC = {
-    "opencv": "OpenCV FileStorage YAML (stereo_calib's M1 D1 M2 D2 R T R1 R2 P1 P2 Q; lengths in cm).",
-    "camera_info_left": "ROS camera_info YAML of the left camera (metres).",
-    "camera_info_right": "ROS camera_info YAML of the right camera (metres).",
-}
-_SUFFIX = {"opencv": ".yml", "camera_info_left": ".yaml", "camera_info_right": ".yaml"}
-
-
-def _export_outputs():
-    from stereograph.api import Out
-
-    return {k: Out("TextFile", save=True, optional=True, description=d) for k, d in EXPORT_OUTPUTS_DOC.items()}
-
-
-EXPORT_OUTPUTS = _export_outputs()
-
-
-def export_texts(cal: dict) -> dict:
-    """The three export outputs of a calibration, as ``TextFile`` values ``{"file_text", "file_suffix"}``."""
-    unit = cal.get("length_unit", "cm")
-    # ROS has no unit field: a calibration in squares is flagged in a comment, and by the run's warning
-    head = "" if unit == "cm" else f"# projection_matrix lengths are in {unit}/100, not metres: no square size given\n"
-    texts = {"opencv": opencv_text(cal),
-             "camera_info_left": head + yaml.safe_dump(ros_camera_info(cal, "left"), sort_keys=False),
-             "camera_info_right": head + yaml.safe_dump(ros_camera_info(cal, "right"), sort_keys=False)}
-    return {k: {"file_text": t, "file_suffix": _SUFFIX[k]} for k, t in texts.items()}
-
-
 def _check_left_is_left(cal: dict) -> None:
     """Refuse a calibration whose right camera sits to the left of the left one (swapped images or cameras):
     its rectified baseline is negative and every depth from it would be wrong."""

@@ -14,8 +14,9 @@ import cv2
 import numpy as np
 
 from nodes.calibrators._board import check_overall_rms, stereo_calibrate_points, to_gray
-from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
+from nodes.calibrators._calib_io import calibration_outputs
 from nodes.contracts.board import charuco_board
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["CharucoParams", "calibrate_charuco", "charuco", "detect_charuco"]

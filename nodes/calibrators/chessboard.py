@@ -13,7 +13,8 @@ from nodes.calibrators._board import (
     drop_outlier_views,
     stereo_calibrate_points,
 )
-from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
+from nodes.calibrators._calib_io import calibration_outputs
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["ChessboardParams", "calibrate_stereo", "chessboard"]

@@ -26,13 +26,13 @@ import cv2
 import numpy as np
 
 from nodes.calibrators._calib_io import (
-    EXPORT_OUTPUTS,
     MAX_PRINCIPAL_OFFSET,
     calibration_outputs,
     read_opencv,
     read_ros,
     read_ros_pair,
 )
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from nodes.contracts.calibration_file import (
     ArtifactLoadParams,
     array_keys,

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
+from nodes.calibrators._calib_io import calibration_outputs
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import In, NodeError, Out, node
 
 

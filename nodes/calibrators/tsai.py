@@ -49,8 +49,9 @@ from typing import Literal
 import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
-from nodes.calibrators._calib_io import EXPORT_OUTPUTS, calibration_outputs
+from nodes.calibrators._calib_io import calibration_outputs
 from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [

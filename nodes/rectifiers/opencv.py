@@ -5,6 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from nodes.contracts.calibration_export import EXPORT_OUTPUTS, export_texts
 from nodes.contracts.drawing import caption
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -131,7 +132,9 @@ class RectifyParams(Params):
     inputs={"calibration": In("StereoCalibration"),
             "views": In("StereoViews", optional=True, description="Calibration views, for the check image.")},
     outputs={"rectification": Out("Rectification", description="Maps, Q, f_px, baseline_cm, |dy| figures."),
-             "check_image": Out("Image", save=True, description="Rectified view with epipolar lines.")},
+             "check_image": Out("Image", save=True, description="Rectified view with epipolar lines."),
+             # the calibration with this rectification's R1 R2 P1 P2 Q (its alpha recorded): what the run used
+             **EXPORT_OUTPUTS},
     params=RectifyParams,
     version="1",
 )
@@ -159,4 +162,4 @@ def opencv(params: RectifyParams, calibration: dict, views: dict | None = None, 
     if ctx is not None and rect["dy_mean_px"] is not None and rect["dy_mean_px"] > 0.5:
         ctx.warn(f"rectified corners differ by {rect['dy_mean_px']:.2f} px in y on average (> 0.5 px): "
                  "the calibration is poor")
-    return {"rectification": rect, "check_image": img}
+    return {"rectification": rect, "check_image": img, **export_texts(calibration, rect)}
