@@ -418,6 +418,8 @@ def test_the_rectifiers_exports_hold_the_runs_rectification_in_every_format(tmp_
     for name in ("R1", "R2", "P1", "P2", "Q"):
         assert np.abs(fs.getNode(name).mat() - ran[name]).max() < 1e-6, name
     fs.release()
+    board = read_calibration_file(out / "calib" / "calibration.json")["board"]
+    assert read_calibration_file(out / "rectify" / "opencv.yml")["board"] == board  # the board survives too
     for path, right in ((out / "rectify" / "opencv.yml", None), (out / "calib" / "calibration.json", None),
                         (out / "rectify" / "camera_info_left.yaml", out / "rectify" / "camera_info_right.yaml")):
         again = rectify_calibration(read_calibration_file(path, right), alpha)

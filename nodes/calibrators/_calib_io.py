@@ -199,6 +199,7 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
             by_hand = True
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
+        board = _board_entries(scalar)
     finally:
         for fs in stores:
             fs.release()
@@ -209,7 +210,18 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
     return {"K1": got["K1"], "D1": got["D1"].ravel(), "K2": got["K2"], "D2": got["D2"].ravel(),
             "R": got["R"].reshape(3, 3), "T_cm": got["T"].ravel() * float(cm_per_unit),
             "image_size": [int(image_size[0]), int(image_size[1])], "rms_px": rms_px,
-            "per_view_rms_px": {}, "rejected_views": []}
+            "per_view_rms_px": {}, "rejected_views": [], **({"board": board} if board else {})}
+
+
+def _board_entries(scalar) -> dict | None:
+    """The board a file of ours records (``board_cols``, ``board_rows``, ``board_square_cm``), or None."""
+    got = {k: scalar(f"board_{k}") for k in ("cols", "rows", "square_cm")}
+    if any(v is None or not (v.isReal() or v.isInt()) for v in got.values()):
+        return None
+    board = {k: float(v.real()) for k, v in got.items()}
+    if not (board["cols"] >= 2 and board["rows"] >= 2 and math.isfinite(board["square_cm"])):
+        return None
+    return {"cols": int(board["cols"]), "rows": int(board["rows"]), "square_cm": board["square_cm"]}
 
 
 # --------------------------------------------------------------------------- ROS camera_info

@@ -46,6 +46,10 @@ def opencv_text(cal: dict, rect: dict | None = None) -> str:
         fs.write("method", str(cal.get("method", "")))
         if cal.get("rms_px") is not None:
             fs.write("rms_px", float(cal["rms_px"]))
+        board = cal.get("board") or {}
+        if all(isinstance(board.get(k), (int, float)) for k in ("cols", "rows", "square_cm")):
+            for k in ("cols", "rows", "square_cm"):  # (read back by calibrator.load: the board survives)
+                fs.write(f"board_{k}", board[k])
         for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
             fs.write(name, np.asarray(cal[key], np.float64).reshape(3, 3) if name[0] in "MR"
                      else np.asarray(cal[key], np.float64).reshape(1, -1))
