@@ -77,9 +77,10 @@ class DenseParams(Params):
     color: bool = Field(True, description="Match on the colour images (true) or on grey levels (switch).")
     pad_left: bool = Field(True, description="Pad both images on the left so the left border columns are matched "
                                              "too (switch).")
-    wls: bool = Field(False, description="Filter the map with opencv-contrib's WLS filter (switch).")
+    # (defaults chosen on two real pairs, Middlebury's Aloe and Motorcycle: benchmarks/dense_pairs.py)
+    wls: bool = Field(True, description="Filter the map with opencv-contrib's WLS filter (switch).")
     wls_lambda: float = Field(8000.0, gt=0, description="WLS smoothness weight (unitless; OpenCV's tutorial 8000).")
-    wls_sigma_color: float = Field(1.5, gt=0, description="WLS sensitivity to image edges (unitless; OpenCV's "
+    wls_sigma_color: float = Field(1.0, gt=0, description="WLS sensitivity to image edges (unitless; OpenCV's "
                                                           "tutorial 1.5; lower follows edges more closely).")
     wls_min_confidence: float = Field(128.0, ge=0, le=255, description="WLS pixels below this confidence "
                                                                        "(0-255 scale) count as unmatched.")

@@ -53,7 +53,7 @@ def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str 
     """``(pairs, rule)``: the pairs of a folder, and in words the rule that paired them.
 
     ``pairing: globs`` (or globs other than the defaults) uses the globs alone. ``auto`` tries, in
-    order: names holding left / right (or L / R), a dataset's own names for one pair
+    order: names holding left / right, names ending in L / R (aloeL.jpg), a dataset's own names for one pair
     (:data:`DATASET_NAMES`, named by the folder), then left and right folders
     (:data:`DATASET_FOLDERS`); NodeError naming what was tried if none fits.
     """
@@ -64,6 +64,10 @@ def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str 
     except NodeError as first:
         if not folder.is_dir():
             raise
+        try:  # aloeL.jpg / aloeR.jpg: a capital L or R ending the name
+            return list_pairs(folder, "*L.*", "*R.*"), "names ending in L / R"
+        except NodeError:
+            pass
         for left, right in DATASET_NAMES:
             lf, rf = _named(folder, left), _named(folder, right)
             if len(lf) == 1 and len(rf) == 1:
