@@ -112,3 +112,20 @@ def test_the_live_gate_checks_every_nth_pair_and_a_refusal_stops_the_loop(rig):
     with pytest.raises(NodeError) as e:
         gate(params, rect, swapped, ctx=RunContext("gate", None, tmp / "gate", tmp, resources={}))
     assert e.value.lasting and "swapped" in e.value.message
+
+
+ALOE = ROOT.parent / "shared" / "data" / "middlebury-aloe-opencv"
+
+
+@pytest.mark.skipif(not ALOE.is_dir(), reason="the Aloe pair is not in ../shared/data")
+def test_a_real_rectified_pair_with_its_given_camera_passes(tmp_path):
+    """Aloe is rectified already (rectifier.given states its camera): its rows agree."""
+    from nodes.rectifiers.given import GivenParams, given
+
+    rect = given(GivenParams(f_px=3740.0, cx_px=640.5, cy_px=554.5, cx_right_px=910.5, baseline_cm=16.0,
+                             image_size=(1282, 1110)))["rectification"]
+    pair = {"id": "aloe", "left": cv2.imread(str(ALOE / "aloeL.jpg")), "right": cv2.imread(str(ALOE / "aloeR.jpg"))}
+    got = epipolar_check(rect, [pair], CheckParams())
+    assert got["verdict"] == "ok" and got["dy_systematic_px"] < 0.3, got
+    swapped = epipolar_check(rect, [{**pair, "left": pair["right"], "right": pair["left"]}], CheckParams())
+    assert swapped["verdict"] == "refuse" and "swapped" in swapped["cause"], swapped
