@@ -40,3 +40,19 @@ def test_actuator_refuses_when_nothing_is_pickable():
         select_plans(plans, Selection(split="test"))
     chosen, skipped = select_plans(plans, Selection(split="all"))
     assert [p["pair"] for p in chosen] == ["b"] and skipped["a"].startswith("refused")
+
+
+@pytest.mark.slow
+def test_a_refused_calibration_check_moves_no_arm(tmp_path):
+    """pick.yaml reads its rectification through rectifier.check: a refused check skips everything
+    downstream, the actuator included (here refused by a threshold no real rig meets)."""
+    from stereograph.runner import run_pipeline
+
+    root = Path(__file__).resolve().parents[1]
+    res = run_pipeline(root / "pipelines" / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10",
+                                                         "check.warn_dy_px=0.00001", "check.refuse_dy_px=0.00002"],
+                       cache_dir=tmp_path / "c", out_dir=tmp_path / "o")
+    st = res.status
+    assert st["check"] == "failed" and "a camera moved" in res.reports["check"].error
+    assert st["act"] == "skipped" and st["segment"] == "skipped"
+    assert not (res.out_dir / "act").exists()

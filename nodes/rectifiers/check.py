@@ -125,7 +125,9 @@ def _systematic(rows: np.ndarray, w: float, h: float) -> float:
     inputs={"rectification": In("Rectification"),
             "pairs": In("StereoPair", gather=True, description="The scene pairs the calibration is applied to.")},
     outputs={"health": Out("any", save=True, headline=True,
-                           description="Vertical disagreement after rectification (px), matches, disparity sign.")},
+                           description="Vertical disagreement after rectification (px), matches, disparity sign."),
+             "rectification": Out("Rectification", optional=True, description="The rectification, passed on once "
+                                  "checked: what is wired to it does not run on a refused calibration.")},
     params=CheckParams,
     version="1",
 )
@@ -145,7 +147,7 @@ def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
                         "(swapped images: swap left and right in the source)")
     if ctx is not None and health["verdict"] in ("warn", "unknown"):
         ctx.warn(said)
-    return {"health": health}
+    return {"health": health, "rectification": rectification}
 
 
 class GateParams(CheckParams):
