@@ -138,7 +138,9 @@ def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
     if not items:
         raise NodeError("rectifier.check: no pairs to check the calibration on.", hint="wire it to the scene pairs")
     step = max(1, len(items) // params.max_pairs)
-    health = epipolar_check(rectification, items[::step][: params.max_pairs], params)
+    got = epipolar_check(rectification, items[::step][: params.max_pairs], params)
+    first = ("verdict", "cause", "dy_median_px", "dy_systematic_px", "dy_p90_px", "n_matches")
+    health = {**{k: got[k] for k in first if k in got}, **got}  # (the verdict first: the page shows it first)
     said = (f"calibration check on {len(health['pairs'])} pair(s): {health['verdict']}"
             + (f", median |dy| {health['dy_median_px']} px, 90 % {health['dy_p90_px']} px over "
                f"{health['n_matches']} matches" if "dy_median_px" in health else "")
