@@ -6,8 +6,9 @@ geometry -- RANSAC on the fundamental matrix, which repetitive texture cannot fo
 single match), their points rectified with the calibration, and their vertical disagreement measured:
 after a right rectification a point lies on the same row in both images. It needs no corners, so it
 works for every calibration source (a run's JSON, OpenCV files, ROS, a given camera).
-Public: :func:`epipolar_check`; the nodes :func:`check` (a collection of pairs, once) and :func:`gate`
-(a pair per cycle of a live loop, checked every n-th, passed on while the calibration holds).
+Public: :func:`epipolar_check`; the nodes :func:`check` (a collection of pairs, once), :func:`confirm`
+(the same, then the rectification passed on) and :func:`gate` (a pair per cycle of a live loop, checked
+every n-th, passed on while the calibration holds).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from nodes.rectifiers.opencv import rectified_points
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-__all__ = ["CheckParams", "GateParams", "check", "epipolar_check", "gate"]
+__all__ = ["CheckParams", "GateParams", "check", "confirm", "epipolar_check", "gate"]
 
 # (3000 features: with 1500, OpenCV's real chessboard pairs gave too few good matches for a clean verdict)
 _DETECTORS = {"orb": lambda: cv2.ORB_create(3000), "sift": lambda: cv2.SIFT_create(3000),
@@ -121,19 +122,8 @@ def _systematic(rows: np.ndarray, w: float, h: float) -> float:
     return float(np.median(np.abs(A @ coef)))
 
 
-@node(
-    "rectifier.check",
-    inputs={"rectification": In("Rectification"),
-            "pairs": In("StereoPair", gather=True, description="The scene pairs the calibration is applied to.")},
-    outputs={"health": Out("any", save=True, headline=True,
-                           description="Vertical disagreement after rectification (px), matches, disparity sign."),
-             "rectification": Out("Rectification", optional=True, description="The rectification, passed on once "
-                                  "checked: what is wired to it does not run on a refused calibration.")},
-    params=CheckParams,
-    version="1",
-)
-def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
-    """Check the calibration on the scene pairs: matched features must meet on one row after rectification."""
+def _checked(params: CheckParams, rectification: dict, pairs, ctx) -> dict:
+    """The health record of the check on the pairs; NodeError on a refusal, a warning on doubt."""
     items = list(pairs.values()) if isinstance(pairs, dict) else list(pairs)
     if not items:
         raise NodeError("rectifier.check: no pairs to check the calibration on.", hint="wire it to the scene pairs")
@@ -150,7 +140,28 @@ def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
                         "(swapped images: swap left and right in the source)")
     if ctx is not None and health["verdict"] in ("warn", "unknown"):
         ctx.warn(said)
-    return {"health": health, "rectification": rectification}
+    return health
+
+
+_INPUTS = {"rectification": In("Rectification"),
+           "pairs": In("StereoPair", gather=True, description="The scene pairs the calibration is applied to.")}
+_HEALTH = Out("any", save=True, headline=True,
+              description="Vertical disagreement after rectification (px), matches, disparity sign.")
+
+
+@node("rectifier.check", inputs=_INPUTS, outputs={"health": _HEALTH}, params=CheckParams, version="1")
+def check(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
+    """Check the calibration on the scene pairs: matched features must meet on one row after rectification."""
+    return {"health": _checked(params, rectification, pairs, ctx)}
+
+
+@node("rectifier.confirm", inputs=_INPUTS, params=CheckParams, version="1",
+      outputs={"health": _HEALTH, "rectification": Out("Rectification", description="The rectification, passed on "
+                                                       "once the pairs confirm it: what reads it never runs on a "
+                                                       "refused calibration.")})
+def confirm(params: CheckParams, rectification: dict, pairs, ctx=None) -> dict:
+    """rectifier.check, then the rectification passed on: wire what moves an arm to its output."""
+    return {"health": _checked(params, rectification, pairs, ctx), "rectification": rectification}
 
 
 class GateParams(CheckParams):
