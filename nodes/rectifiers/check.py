@@ -116,8 +116,8 @@ def _systematic(rows: np.ndarray, w: float, h: float) -> float:
     moved camera tilts or shifts every row; the matcher's own noise has no such pattern."""
     x, y = (rows[:, 1] - w / 2) / w, (rows[:, 2] - h / 2) / h
     A = np.column_stack([np.ones_like(x), x, y])
-    keep = np.abs(rows[:, 0] - np.median(rows[:, 0])) < 5 * (np.median(np.abs(rows[:, 0] - np.median(rows[:, 0])))
-                                                             + 1e-3)
+    dev = np.abs(rows[:, 0] - np.median(rows[:, 0]))
+    keep = dev < 5 * (np.median(dev) + 1e-3)
     coef = np.linalg.lstsq(A[keep], rows[keep, 0], rcond=None)[0]
     return float(np.median(np.abs(A @ coef)))
 
@@ -131,16 +131,21 @@ def _checked(params: CheckParams, rectification: dict, pairs, ctx) -> dict:
     got = epipolar_check(rectification, items[::step][: params.max_pairs], params)
     first = ("verdict", "cause", "dy_median_px", "dy_systematic_px", "dy_p90_px", "n_matches")
     health = {**{k: got[k] for k in first if k in got}, **got}  # (the verdict first: the page shows it first)
-    said = (f"calibration check on {len(health['pairs'])} pair(s): {health['verdict']}"
-            + (f", median |dy| {health['dy_median_px']} px, 90 % {health['dy_p90_px']} px over "
-               f"{health['n_matches']} matches" if "dy_median_px" in health else "")
-            + (f"; {health['cause']}" if health.get("cause") else ""))
+    said = _said(f"calibration check on {len(health['pairs'])} pair(s)", health)
     if health["verdict"] == "refuse":
         raise NodeError(f"rectifier.check: {said}.", hint="recalibrate these cameras, or load their own calibration "
                         "(swapped images: swap left and right in the source)")
     if ctx is not None and health["verdict"] in ("warn", "unknown"):
         ctx.warn(said)
     return health
+
+
+def _said(what: str, health: dict) -> str:
+    """The verdict in words: ``what: verdict, median |dy| ... ; cause``."""
+    return (f"{what}: {health['verdict']}"
+            + (f", median |dy| {health['dy_median_px']} px, 90 % {health['dy_p90_px']} px over "
+               f"{health['n_matches']} matches" if "dy_median_px" in health else "")
+            + (f"; {health['cause']}" if health.get("cause") else ""))
 
 
 _INPUTS = {"rectification": In("Rectification"),
@@ -179,27 +184,17 @@ class GateParams(CheckParams):
 )
 def gate(params: GateParams, rectification: dict, pair: dict, ctx=None) -> dict:
     """Pass pairs on while the calibration holds; check it on the first pair and every n-th one after."""
-    state = (ctx.resource("gate", lambda: _GateState()) if ctx is not None else None) or _GateState()
-    state.n += 1
-    if state.last is None or (state.n - 1) % params.every_n == 0:
-        state.last = epipolar_check(rectification, [pair], params)
-        said = (f"calibration check on pair {pair.get('id')}: {state.last['verdict']}"
-                + (f", median |dy| {state.last['dy_median_px']} px" if "dy_median_px" in state.last else "")
-                + (f"; {state.last['cause']}" if state.last.get("cause") else ""))
-        if state.last["verdict"] == "refuse":  # lasting: no later cycle may pick with this calibration
+    # what the gate keeps across the cycles of a run: calls so far, the last check
+    state = ctx.resource("gate", dict) if ctx is not None else None
+    state = {} if state is None else state  # (an empty dict is the kept one: not `or {}`)
+    state["n"] = state.get("n", 0) + 1
+    if "last" not in state or (state["n"] - 1) % params.every_n == 0:
+        state["last"] = last = epipolar_check(rectification, [pair], params)
+        said = _said(f"calibration check on pair {pair.get('id')}", last)
+        if last["verdict"] == "refuse":  # lasting: no later cycle may pick with this calibration
             raise NodeError(f"rectifier.gate: {said}; nothing is picked with this calibration.", lasting=True,
                             hint="recalibrate these cameras, or load their own calibration (swapped images: swap "
                                  "left and right in the camera source)")
-        if ctx is not None and state.last["verdict"] == "warn":
+        if ctx is not None and last["verdict"] == "warn":
             ctx.warn(said)
-    return {"pair": pair, "health": {k: v for k, v in state.last.items() if k != "pairs"}}
-
-
-class _GateState:
-    """What the gate keeps across the cycles of a run (``ctx.resource``)."""
-
-    def __init__(self):
-        self.n, self.last = 0, None
-
-    def close(self) -> None:
-        pass
+    return {"pair": pair, "health": {k: v for k, v in state["last"].items() if k != "pairs"}}
