@@ -10,8 +10,8 @@ import numpy as np
 
 from stereograph.api import NodeError
 
-__all__ = ["DEFAULT_GLOBS", "DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "find_pairs", "header_size", "list_pairs", "pair_key",
-           "pairs_for", "read_image"]
+__all__ = ["DEFAULT_GLOBS", "DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "PAIRING_DOC", "find_pairs", "header_size",
+           "list_pairs", "pair_key", "pairs_for", "read_image"]
 
 DEFAULT_MAX_MPX = 50.0  # megapixels: above any stereo camera this project targets, far below a decompression bomb
 
@@ -46,6 +46,10 @@ DATASET_NAMES = [("im0", "im1"), ("im2", "im6"), ("view1", "view5")]
 #: colour cameras, EuRoC's (cam0/data/).
 DATASET_FOLDERS = [("left", "right"), ("image_0", "image_1"), ("image_2", "image_3"), ("cam0/data", "cam1/data"),
                    ("cam0", "cam1")]
+#: The ``pairing`` param of the file sources, described once.
+PAIRING_DOC = ("auto: names with left/right (or L/R), else a dataset's own names (im0/im1, im2/im6, view1/view5: "
+               "one pair named by its folder), else folders (left/ right/, image_0/ image_1/, cam0/ cam1/); globs: "
+               "left_glob / right_glob only.")
 
 
 def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str = DEFAULT_GLOBS[1],
@@ -69,7 +73,7 @@ def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str 
         except NodeError:
             pass
         for left, right in DATASET_NAMES:
-            lf, rf = _named(folder, left), _named(folder, right)
+            lf, rf = _glob(folder, f"{left}.*"), _glob(folder, f"{right}.*")
             if len(lf) == 1 and len(rf) == 1:
                 return [(_clean_id(folder.resolve().name), lf[0], rf[0])], f"the dataset names {left} / {right}"
         for left, right in DATASET_FOLDERS:
@@ -83,10 +87,6 @@ def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str 
 def pairs_for(params, folder: Path) -> tuple[list[tuple[str, Path, Path]], str]:
     """:func:`find_pairs` with a source's ``left_glob``, ``right_glob`` and ``pairing`` params."""
     return find_pairs(folder, params.left_glob, params.right_glob, params.pairing)
-
-
-def _named(folder: Path, stem: str) -> list[Path]:
-    return [p for p in folder.glob(f"{stem}.*") if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
 
 
 def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str, Path, Path]]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from nodes.sources._files import DEFAULT_MAX_MPX, pairs_for, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, PAIRING_DOC, pairs_for, read_image
 from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 
@@ -13,10 +13,7 @@ class CalibFilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("*left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
     right_glob: str = Field("*right*", description="Glob of the right images in `folder`.")
-    pairing: Literal["auto", "globs"] = Field(
-        "auto", description="auto: names with left/right (or L/R), else a dataset's own names (im0/im1, im2/im6, "
-                            "view1/view5: one pair named by its folder), else folders (left/ right/, image_0/ "
-                            "image_1/, cam0/ cam1/); globs: left_glob / right_glob only.")
+    pairing: Literal["auto", "globs"] = Field("auto", description=PAIRING_DOC)
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
     board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
     square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")

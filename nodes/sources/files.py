@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 
-from nodes.sources._files import DEFAULT_MAX_MPX, pairs_for, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, PAIRING_DOC, pairs_for, read_image
 from nodes.sources._truth import read_truth_file, truth_split
 from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
@@ -23,10 +23,7 @@ class FilesParams(Params):
     folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
     left_glob: str = Field("*left*", description="Glob of the left images (e.g. left*.png, 007_left.png, left/*.png).")
     right_glob: str = Field("*right*", description="Glob of the right images.")
-    pairing: Literal["auto", "globs"] = Field(
-        "auto", description="auto: names with left/right (or L/R), else a dataset's own names (im0/im1, im2/im6, "
-                            "view1/view5: one pair named by its folder), else folders (left/ right/, image_0/ "
-                            "image_1/, cam0/ cam1/); globs: left_glob / right_glob only.")
+    pairing: Literal["auto", "globs"] = Field("auto", description=PAIRING_DOC)
     truth: str | None = PathField(
         None, description="Optional JSON/CSV ground-truth file (relative to the pipeline). It "
                           "decides the split: the pairs it lists are train, the others test, "
