@@ -39,7 +39,7 @@ def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
         if root in state:
             continue
         state[root] = 1
-        stack = [(root, iter(list(g.successors(root))))]
+        stack = [(root, iter(g.successors(root)))]  # (edges are removed only after the walk)
         while stack:
             n, rest = stack[-1]
             for m in rest:
@@ -47,7 +47,7 @@ def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
                     back.append((n, m))
                 elif m not in state:
                     state[m] = 1
-                    stack.append((m, iter(list(g.successors(m)))))
+                    stack.append((m, iter(g.successors(m))))
                     break
             else:
                 state[n] = 2
@@ -100,7 +100,7 @@ def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, flo
         for r, slot in enumerate(chain[1:-1], row[src] + 1):
             order[r].append(slot)
         for a_, b_ in zip(chain, chain[1:]):
-            if row[a_] + 1 == row[b_] if a_ in nodes and b_ in nodes else True:  # (adjacent rows only)
+            if _row_of(b_, row) == _row_of(a_, row) + 1:  # (a long wire drawn straight links no rows)
                 up.setdefault(b_, []).append(a_)
         chains.append(chain)
     down: dict[Any, list[Any]] = {}
@@ -137,6 +137,11 @@ def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, flo
         wires.append((src, out, dst, port, pts))
     h = PAD + max(n_rows, 1) * (BOX_H + GAP_Y) - GAP_Y + PAD
     return {n: pos[n] for n in nodes}, wires, (max(width, PAD + BOX_W) + PAD, h)
+
+
+def _row_of(v: Any, row: dict[str, int]) -> int:
+    """The row of a box (a node's name) or of a slot (``(edge index, row)``)."""
+    return v[1] if isinstance(v, tuple) else row[v]
 
 
 def to_svg(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None) -> str:

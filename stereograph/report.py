@@ -266,16 +266,15 @@ def output_block(page: _Page, out: str, files: list[str], title: str | None = No
     rest = [f for f in files if f not in imgs]
     bits = [f'<div class="sg-output" data-output="{_e(out)}"><h3>{_e(title or out)}</h3>']
     per_item = len(_parts(imgs[0])) > 2 if imgs else False
-    shown = [page.image(f, f, "item" if per_item else "") for f in imgs[:IMAGES_PER_OUTPUT]]
-    if per_item and len(imgs) > 1:  # a picture per item: folded, so that the page stays short
-        bits.append(f"<details><summary>{len(imgs)} pictures, one per item</summary>{''.join(shown)}")
-    else:
-        bits += shown
+    fold = per_item and len(imgs) > 1  # a picture per item: folded, so that the page stays short
+    if fold:
+        bits.append(f"<details><summary>{len(imgs)} pictures, one per item</summary>")
+    bits += [page.image(f, f, "item" if per_item else "") for f in imgs[:IMAGES_PER_OUTPUT]]
     if len(imgs) > IMAGES_PER_OUTPUT:
         folder = Path(imgs[0]).parent.as_posix()
         bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
                     f'<a href="{_href(folder)}">{_e(folder)}</a></p>')
-    if per_item and len(imgs) > 1:
+    if fold:
         bits.append("</details>")
     for f in rest:
         bits.append(page.json_block(f, small_json) if f.endswith(".json") else
