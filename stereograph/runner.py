@@ -987,12 +987,9 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
                     if hasattr(executor, "start"):  # a local pool: this process only waits
                         _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
                     streaming.run_region(run, unit, write_outputs)
-    except KeyboardInterrupt:
-        if write_outputs:  # the same command resumes into this folder (it is recognised as ours)
+    except BaseException as e:
+        if isinstance(e, KeyboardInterrupt) and write_outputs:  # the same command resumes into this folder
             outputs_mod.write_interrupted_summary(graph, run, run_id, str(doc.path), out)
-        lease.close()
-        raise
-    except BaseException:
         lease.close()
         raise
     finally:
