@@ -384,6 +384,10 @@ class CompareResult:
         shown = ([lead] if lead in self.metric_names else []) + [n for n in varies if n != lead]
         return shown, [n for n in self.metric_names if n not in shown]
 
+    def same_in_every(self, names: list[str]) -> str:
+        """``name value, ...`` of metrics every variant has the same value of (the first row's)."""
+        return ", ".join(f"{n} {_cell(n, self.rows[0].get(n))}" for n in names)
+
     @property
     def ok(self) -> bool:
         return all(v.ok for v in self.variants)
@@ -1054,8 +1058,7 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
         con.print(t)
     same = [n for n in constant if n not in names]
     if same:  # (not columns: a number that does not change tells nothing apart; compare.csv has them all)
-        con.print("the same in every variant: " + ", ".join(f"{n} {_cell(n, res.rows[0].get(n))}" for n in same),
-                  markup=False)
+        con.print("the same in every variant: " + res.same_in_every(same), markup=False)
     for vr in res.variants:
         if not vr.ok:
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")

@@ -61,14 +61,14 @@ def compare_table(res: Any, overrides: list[str], names: list[str] | None = None
 def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
     """Each variant's full settings (the --set overrides and its varied keys), and the metrics every
     variant has the same value of: below the main table, which keeps to what tells variants apart."""
-    from stereograph.compare import _cell, _show
+    from stereograph.compare import _show
 
     _, constant = res.shown_metrics()
     rows = [[", ".join(_show(v) for v in vr.variant.settings.values()),
              " ".join([f"--set {o}" for o in overrides] + [f"{k}={_show(v)}" for k, v in vr.variant.settings.items()])]
             for vr in res.variants]
     if constant and res.rows:
-        rows.append(["(every variant)", ", ".join(f"{n} {_cell(n, res.rows[0].get(n))}" for n in constant)])
+        rows.append(["(every variant)", res.same_in_every(constant)])
     return {"title": "full settings of each variant, and the metrics that do not change",
             "columns": ["variant", "settings"], "rows": rows}
 
