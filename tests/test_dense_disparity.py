@@ -187,3 +187,44 @@ def test_dense_params_are_refused_when_the_pipeline_is_validated(setting, expect
     out = capsys.readouterr()
     msg = " ".join((out.out + out.err).split())
     assert code == 2 and expected in msg and "node 'dense'" in msg and setting in msg
+
+
+@pytest.mark.skipif(not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present")
+@pytest.mark.parametrize("names, stored", [
+    (("im2.png", "im6.png", "disp2.png"), "x4"),  # Middlebury 2003: quarter size, disparity x 4 in a PNG
+    (("im0.png", "im1.png", "disp0.pfm"), "pfm"),  # Middlebury 2014: disparity in px in a PFM, inf unknown
+])
+def test_a_middlebury_folder_is_paired_and_scored_against_its_own_truth(tmp_path, names, stored):
+    """(issue 30: disp2 / disp6 as truth) no globs, no truth path, no scale: the source finds the truth
+    beside the left image and the report reads its scale from the data."""
+    import yaml
+
+    scene = tmp_path / "Aloe"
+    scene.mkdir()
+    small = [cv2.resize(cv2.imread(str(ALOE / f)), (320, 277), interpolation=cv2.INTER_AREA)
+             for f in ("aloeL.jpg", "aloeR.jpg")]
+    gt = cv2.resize(cv2.imread(str(ALOE / "aloeGT.png"), cv2.IMREAD_GRAYSCALE), (320, 277),
+                    interpolation=cv2.INTER_NEAREST).astype(np.float32) / 4  # px at quarter size
+    cv2.imwrite(str(scene / names[0]), small[0])
+    cv2.imwrite(str(scene / names[1]), small[1])
+    if stored == "pfm":
+        cv2.imwrite(str(scene / names[2]), np.where(gt > 0, gt, np.inf).astype(np.float32))
+    else:
+        cv2.imwrite(str(scene / names[2]), np.round(gt * 4).astype(np.uint8))
+    doc = {"name": "mb", "nodes": {
+        "pairs": {"type": "source.files", "params": {"folder": str(scene)}},
+        "rectify": {"type": "rectifier.given", "params": {"f_px": 935.0, "cx_px": 160.0, "cy_px": 138.0,
+                                                          "cx_right_px": 227.5, "baseline_cm": 16.0,
+                                                          "image_size": [320, 277]}},
+        "remap": {"type": "rectifier.remap", "inputs": {"rectification": "rectify.rectification",
+                                                          "pair": "pairs.pairs"}},
+        "dense": {"type": "disparity.dense", "params": {"working_range_cm": [120.0, 200.0]},
+                  "inputs": {"pair": "remap.rectified", "rectification": "rectify.rectification"}},
+        "score": {"type": "report.disparity", "inputs": {"disparity_map": "dense.disparity_map"}}}}
+    (tmp_path / "mb.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp_path / "run"
+    assert cli_main(["run", str(tmp_path / "mb.yaml"), "--out", str(out), "--no-cache"]) == 0
+    row = json.loads((out / "score" / "pairs.json").read_text())[0]
+    assert row["pair"] == "Aloe" and row["truth"] == names[2]
+    assert row["truth_scale"] == (1.0 if stored == "pfm" else 0.25)
+    assert row["fill_fraction"] > 0.6 and row["bad_2px_fraction"] < 0.05, row  # 0.9 %; a wrong scale: ~100 %

@@ -265,6 +265,7 @@ def dense(params: DenseParams, pair, rectification, ctx=None):
         "cx_px": float(rectification["cx_px"]), "cy_px": float(rectification["cy_px"]),
         "baseline_cm": float(rectification["baseline_cm"]),
         "doffs_px": float(rectification.get("cx_right_px", rectification["cx_px"])) - float(rectification["cx_px"]),
+        "truth_disparity_path": pair.get("truth_disparity_path"),  # the dataset's own truth, if the source found it
     }
     cloud = {"file_suffix": ".ply", "file_bytes": np.frombuffer(ply, dtype=np.uint8).copy(),
              "n_points": int(len(pts)), "units": "cm", "frame": "left_camera"}

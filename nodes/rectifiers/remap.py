@@ -68,4 +68,6 @@ def remap(params: RemapParams, rectification: dict, pair: dict) -> dict:
     out = {"id": pair["id"], "left": left, "right": right, "truth": rectified_truth(rectification, pair.get("truth"))}
     if "split" in pair:
         out["split"] = pair["split"]
+    if pair.get("truth_disparity_path") and all(np.allclose(rectification.get(k, 0), np.eye(3)) for k in ("R1", "R2")):
+        out["truth_disparity_path"] = pair["truth_disparity_path"]  # a dataset's truth holds for unrotated images
     return {"rectified": out}

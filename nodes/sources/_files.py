@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from glob import escape as glob_escape
 from pathlib import Path
 
 import cv2
@@ -11,7 +12,7 @@ import numpy as np
 from stereograph.api import NodeError
 
 __all__ = ["DEFAULT_GLOBS", "DEFAULT_MAX_MPX", "IMAGE_SUFFIXES", "PAIRING_DOC", "find_pairs", "header_size",
-           "list_pairs", "pair_key", "pairs_for", "read_image"]
+           "list_pairs", "pair_key", "pairs_for", "read_image", "truth_beside"]
 
 DEFAULT_MAX_MPX = 50.0  # megapixels: above any stereo camera this project targets, far below a decompression bomb
 
@@ -42,6 +43,9 @@ DEFAULT_GLOBS = ("*left*", "*right*")
 #: Datasets' own names for one pair in a folder: Middlebury 2014+ (im0 / im1), 2001-2003 (im2 / im6),
 #: 2005-2006 (view1 / view5). The pair is named by its folder (the scene).
 DATASET_NAMES = [("im0", "im1"), ("im2", "im6"), ("view1", "view5")]
+#: A dataset's ground-truth disparity of the left image, beside it: Middlebury 2014+ (disp0GT.pfm or
+#: disp0.pfm), 2001-2003 (disp2.png), 2005-2006 (disp1.png).
+DATASET_TRUTH = {"im0": ("disp0GT.pfm", "disp0.pfm"), "im2": ("disp2.png", "disp2.pgm"), "view1": ("disp1.png",)}
 #: Folder pairs that hold the left and the right images under the same names: ours, KITTI's grey and
 #: colour cameras, EuRoC's (cam0/data/).
 DATASET_FOLDERS = [("left", "right"), ("image_0", "image_1"), ("image_2", "image_3"), ("cam0/data", "cam1/data"),
@@ -82,6 +86,21 @@ def find_pairs(folder: Path, left_glob: str = DEFAULT_GLOBS[0], right_glob: str 
         tried = ", ".join(f"{a}/{b}" for a, b in DATASET_NAMES + DATASET_FOLDERS)
         raise NodeError(first.message, hint=f"{first.hint}; also tried the dataset conventions {tried}. Or set "
                         "pairing: globs with left_glob / right_glob") from None
+
+
+def truth_beside(left: Path) -> Path | None:
+    """The ground-truth disparity a dataset keeps beside a left image, or None.
+
+    :data:`DATASET_TRUTH` for the datasets' own names; otherwise ``<key>GT.*`` (Middlebury as
+    OpenCV ships it: aloeL.jpg -> aloeGT.png), with ``<key>`` the name without its side token.
+    """
+    if left.stem in DATASET_TRUTH:
+        found = [left.parent / n for n in DATASET_TRUTH[left.stem]]
+    else:
+        key = pair_key(left.stem)
+        found = sorted(left.parent.glob(f"{glob_escape(key)}GT.*")) if key else []
+    found = [p for p in found if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES | {".pfm"}]
+    return found[0] if found else None
 
 
 def pairs_for(params, folder: Path) -> tuple[list[tuple[str, Path, Path]], str]:

@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 
-from nodes.sources._files import DEFAULT_MAX_MPX, PAIRING_DOC, pairs_for, read_image
+from nodes.sources._files import DEFAULT_MAX_MPX, PAIRING_DOC, pairs_for, read_image, truth_beside
 from nodes.sources._truth import read_truth_file, truth_split
 from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
@@ -63,8 +63,9 @@ def _read_pair(params: FilesParams, pid: str, lp: Path, rp: Path, truth: dict, s
     if left.shape != right.shape:
         raise NodeError(f"{lp.name} is {left.shape[1]}x{left.shape[0]} but {rp.name} is "
                         f"{right.shape[1]}x{right.shape[0]}.", hint="both cameras must give the same size")
+    beside = truth_beside(lp)  # a dataset's own ground-truth disparity (disp2.png for im2.png), for reports
     return {"id": pid, "left": left, "right": right, "truth": truth.get(pid), "split": split,
-            "left_path": str(lp), "right_path": str(rp)}
+            "left_path": str(lp), "right_path": str(rp), "truth_disparity_path": str(beside) if beside else None}
 
 
 @node(
