@@ -61,7 +61,8 @@ def split_cpu(pairs: int, out: Path) -> dict:
     head, the tail, its bookkeeping) apart from the CPU of its worker processes."""
     import resource
 
-    from stereograph.runner import ProcessExecutor, run_pipeline
+    from stereograph.executors import ProcessExecutor
+    from stereograph.runner import run_pipeline
 
     s0, c0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()

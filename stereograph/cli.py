@@ -374,7 +374,8 @@ def cmd_run(args) -> int:
             return _finish_run(args, replayed, replayed.echo, lambda n: replayed.where[n],
                                lambda n: replayed.upstream[n])
 
-    from stereograph.runner import run_graph, workers_executor
+    from stereograph.executors import workers_executor
+    from stereograph.runner import run_graph
 
     graph = _load_graph(args)
     con = _console()
@@ -588,7 +589,7 @@ def cmd_explain(args) -> int:
 def cmd_cache(args) -> int:
     from stereograph.cache import ArtifactStore
     from stereograph.config import load_pipeline
-    from stereograph.runner import default_cache_dir
+    from stereograph.run_state import default_cache_dir
 
     if args.cache_dir:
         root = Path(args.cache_dir)

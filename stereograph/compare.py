@@ -514,7 +514,7 @@ class _RichProgress(_PlainProgress):
 
 def _default_out(doc: PipelineDoc) -> Path:
     from stereograph.project import runs_dir
-    from stereograph.runner import new_run_id
+    from stereograph.run_state import new_run_id
 
     return runs_dir(doc.directory) / doc.name / f"compare-{new_run_id()}"
 
@@ -612,7 +612,8 @@ def compare(
         A bad pipeline or ``--vary``, or a pipeline that declares no metrics; with
         ``skip_invalid`` only if no variant is valid.
     """
-    from stereograph.runner import default_cache_dir, run_graph
+    from stereograph.run_state import default_cache_dir
+    from stereograph.runner import run_graph
 
     overrides = list(overrides or [])
     doc = load_pipeline(pipeline_path, overrides)
@@ -1118,7 +1119,7 @@ add_compare_subcommand = add_subcommand
 def main(args: Any) -> int:
     """Run ``stereograph compare`` from parsed arguments; 0 when every variant ran, 1 otherwise."""
     from stereograph.errors import console
-    from stereograph.runner import workers_executor
+    from stereograph.executors import workers_executor
 
     wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
     con = console(highlight=False, soft_wrap=True, width=wide)  # (user text printed with control characters escaped)

@@ -13,8 +13,9 @@ from typing import Any
 
 from stereograph.api import NodeError
 from stereograph.cache import ArtifactStore
+from stereograph.executors import SerialExecutor
 from stereograph.graph import Graph
-from stereograph.runner import SerialExecutor, _Run, default_cache_dir
+from stereograph.run_state import RunState, default_cache_dir
 
 
 @dataclass
@@ -72,7 +73,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     node gives are what changed since its last run (params, code, files, type, upstream).
     """
     store = ArtifactStore(cache_dir or default_cache_dir(graph.doc))
-    run = _Run(graph, store, Path("."), SerialExecutor(), set(), None)
+    run = RunState(graph, store, Path("."), SerialExecutor(), set(), None)
     root = Path.cwd()
     verdicts: list[Verdict] = []
     stale: set[str] = set()

@@ -321,7 +321,7 @@ def _append_saved(run: Any, node: str, index: int) -> None:
 
 def _reset(run: Any, live: list[str]) -> None:
     """Forget the live nodes' results of the last cycle, so they run again."""
-    from stereograph.runner import NodeReport
+    from stereograph.run_state import NodeReport
 
     g = run.g
     live_set = set(live)

@@ -103,7 +103,7 @@ class Result:
     ran : set
         Nodes that computed anything in this run (the rest came from the cache).
     reports : dict
-        Node -> :class:`stereograph.runner.NodeReport` (seconds, items, messages, error, hint).
+        Node -> :class:`stereograph.run_state.NodeReport` (seconds, items, messages, error, hint).
     seconds : float
         Wall time of the run.
     """
@@ -245,8 +245,9 @@ def run(
         has several problems (``.errors`` lists them).
     """
     from stereograph.config import load_pipeline
+    from stereograph.executors import workers_executor
     from stereograph.graph import build_graph
-    from stereograph.runner import run_graph, workers_executor
+    from stereograph.runner import run_graph
 
     graph = build_graph(load_pipeline(path, _set_texts(set)))
     if keep == "all":

@@ -266,7 +266,7 @@ class Replayed:
 
 
 def _report(name: str, type_: str, status: str, **kw: Any) -> SimpleNamespace:
-    """A node's line of a replayed run: the attributes of runner.NodeReport (not imported: it brings
+    """A node's line of a replayed run: the attributes of run_state.NodeReport (not imported: it brings
     NumPy and pydantic, which a replay without nodes to run does without)."""
     fields = dict(seconds=0.0, items=0, items_ran=0, items_failed=0, error=None, hint=None, trace=None,
                   unexpected=False, messages=[], files=[])
@@ -367,7 +367,7 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
     from stereograph import outputs, project
 
-    run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]  # runner.new_run_id's form
+    run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]  # run_state.new_run_id's form
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     foreign = outputs.prepare_out_dir(out)
     made: list[Path] = []

@@ -11,7 +11,7 @@ outside the region need (small per-item results; keys). So
   segments a pair in its own memory), and the parent has no per-image work left to serialise;
 - memory holds a chunk's images, not the collection's: it does not grow with the item count.
 
-Inside a task the region runs as a small :class:`stereograph.runner._Run` of its own over the
+Inside a task the region runs as a small :class:`stereograph.run_state.RunState` of its own over the
 chunk's items, with the same cache (the same keys, locks and entries as a node-by-node run:
 a cached item is adopted, not recomputed) and the same per-item failure rules.
 """
@@ -28,9 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stereograph import outputs as outputs_mod
 from stereograph import registry
-
-NO_ITEMS = "no items to process (upstream produced none)"
+from stereograph.api import NodeError
+from stereograph.cache import ArtifactStore
+from stereograph.calls import Task, TaskResult, execute
+from stereograph.executors import SerialExecutor, TaskLost, progress_advance
+from stereograph.run_state import NO_ITEMS, RunState
 
 Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"
@@ -202,9 +206,6 @@ def _shared_values(path: str) -> dict:
 def run_chunk(chunk: Chunk) -> ChunkResult:
     """Take a chunk of items through its region (see the module docstring); never raises for a
     node's failure (those are item failures in the result)."""
-    from stereograph import outputs as outputs_mod
-    from stereograph.cache import ArtifactStore
-    from stereograph.runner import SerialExecutor, _Run
 
     t0 = time.perf_counter()
     graph = chunk.graph
@@ -218,7 +219,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         if store is None:
             store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
     written0 = store._written if store is not None else 0
-    run = _Run(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
+    run = RunState(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
     run.sub = True
     run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
     reg = chunk.region
@@ -284,7 +285,6 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
 
 def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
     """Whether this output goes to the run folder as one image file per item."""
-    from stereograph import outputs as outputs_mod
 
     store, key = run.store, run.ref_keys.get((node, out, first), "")
     if store is not None and hasattr(store, "ready_file") and store.ready_file(key, out) is not None:
@@ -301,9 +301,8 @@ def _label(reg: Region) -> str:
 
 
 def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
-    """Run a region for the parent run ``run`` (a :class:`stereograph.runner._Run`): plan its
+    """Run a region for the parent run ``run`` (a :class:`stereograph.run_state.RunState`): plan its
     chunks, hand them to the run's executor, and merge what comes back as if each node had run."""
-    from stereograph.runner import SerialExecutor, TaskLost
 
     g = run.g
     members = reg.nodes
@@ -497,7 +496,6 @@ def _all_blocked(run: Any, members: list[str]) -> bool:
 
 
 def _settle(run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any) -> None:
-    from stereograph.runner import TaskLost, progress_advance
 
     if isinstance(res, TaskLost):
         failed = set(chunk.items)
@@ -562,8 +560,6 @@ def produce_ahead(task: AheadTask) -> list[str]:
     """(In a worker) make the items and leave each in a file of its own; returns those made.
 
     An item that fails is left to its region task, which makes it again and reports why."""
-    from stereograph import outputs as outputs_mod
-    from stereograph.calls import Task, execute
 
     if task.plugins:
         registry.import_plugins(task.plugins, Path(task.pipeline_dir))
@@ -588,8 +584,6 @@ def start_ahead(run: Any, reg: Region) -> None:
     source's own part, calibration, rectification): that head is serial, and the workers would
     otherwise wait for it. Only for a process pool (it runs on this machine), only items not
     already cached; the region task takes each item made ahead from its file."""
-    from stereograph import outputs as outputs_mod
-    from stereograph.api import NodeError
 
     ex, inst = run.executor, run.g.nodes[reg.source]
     if not hasattr(ex, "start") or inst.inputs:
@@ -645,7 +639,6 @@ class _Ahead:
         self.files = files
 
     def map(self, fn: Any, tasks: list[Any]) -> Any:
-        from stereograph.calls import TaskResult
 
         for t in tasks:
             path = self.files.get(t.item) if t.producing else None

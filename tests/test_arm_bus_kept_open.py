@@ -21,7 +21,7 @@ from nodes.actuators.dynamixel import DynamixelParams, _run, dynamixel, execute_
 from nodes.actuators.servo_sim import ServoSim  # noqa: E402
 from nodes.contracts.arm import servo_limits_units  # noqa: E402
 from stereograph.api import NodeError, RunContext  # noqa: E402
-from stereograph.runner import close_resources  # noqa: E402
+from stereograph.calls import close_resources  # noqa: E402
 
 IDS = [1, 2, 3, 4, 5]
 

@@ -187,7 +187,7 @@ def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
 
 @pytest.mark.slow
 def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
-    from stereograph.runner import ProcessExecutor
+    from stereograph.executors import ProcessExecutor
 
     vary = ["fit.type=none,polynomial,lookup"]
     serial = compare(pipeline, vary, tmp_path / "o1", cache_dir=tmp_path / "c1", plots=False)
@@ -271,7 +271,7 @@ def test_out_must_be_a_folder_of_its_own(pipeline, tmp_path, capsys):
 def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
     """(Ctrl-C during `compare --workers N` waited for every queued variant to run, one after another,
     before the interrupt got through)"""
-    from stereograph.runner import ProcessExecutor
+    from stereograph.executors import ProcessExecutor
 
     class StopAfterFirstParallel:
         def node_started(self, name, n_items):

@@ -9,7 +9,8 @@ pytest.importorskip("distributed")
 
 import dask  # noqa: E402
 
-from stereograph.runner import DaskExecutor, run_pipeline  # noqa: E402
+from stereograph.executors import DaskExecutor  # noqa: E402
+from stereograph.runner import run_pipeline  # noqa: E402
 from tests.test_engine_items import write_pipeline  # noqa: E402
 
 

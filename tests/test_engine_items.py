@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.runner import ProcessExecutor, run_pipeline
+from stereograph.executors import ProcessExecutor
+from stereograph.runner import run_pipeline
 
 PLUGINS = [Path(__file__).parent / "plugins" / "toy.py", Path(__file__).parent / "plugins" / "toy_items.py"]
 
@@ -147,7 +148,7 @@ def test_ctrl_c_is_left_to_the_pool_owner_which_ends_its_workers_for_good():
     """A terminal's Ctrl-C reaches every process of its group: workers ignore it (one waiting for a
     task printed a KeyboardInterrupt traceback), the owner ends them (close(now=True)), and a thread
     still handing tasks over (compare's variants) gets each one lost at once, not a new pool."""
-    from stereograph.runner import TaskLost
+    from stereograph.executors import TaskLost
 
     ex = ProcessExecutor(2)
     try:
@@ -263,11 +264,13 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
         """))
     from stereograph import streaming
     from stereograph.config import load_pipeline
+    from stereograph.executors import SerialExecutor
     from stereograph.graph import build_graph
-    from stereograph.runner import SerialExecutor, _Run
+    from stereograph.run_state import RunState
 
     g = build_graph(load_pipeline(f))
-    regions = streaming.plan_regions(g, list(g.order), _Run(g, None, tmp_path, SerialExecutor(), set(), None).producer)
+    state = RunState(g, None, tmp_path, SerialExecutor(), set(), None)
+    regions = streaming.plan_regions(g, list(g.order), state.producer)
     assert [(r.source, r.nodes) for r in regions] == [("src", ["power", "picture"]), (None, ["scale"])]
 
     def outcome(sub, **kw):
@@ -496,7 +499,7 @@ def test_a_gathering_node_wired_to_a_streamed_source_sees_every_item(tmp_path, m
     """(issue 27: a gathering node wired straight to a streamed source's output -- segmenter.appearance on
     bench-fit's balls.pairs -- got no items: 'none of the 0 pairs is a train placement'. It ran between the
     source's whole part and the region that makes the items.)"""
-    from stereograph.runner import DaskExecutor
+    from stereograph.executors import DaskExecutor
 
     (tmp_path / "mine.py").write_text(SCALE_NODE)
     p = tmp_path / "p.yaml"

@@ -306,7 +306,7 @@ def test_include_and_defaults(tmp_path):
 
 
 def test_process_pool_gives_the_same_result(tmp_path):
-    from stereograph.runner import ProcessExecutor
+    from stereograph.executors import ProcessExecutor
 
     p = write_pipeline(tmp_path, n=8)
     serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
@@ -321,7 +321,7 @@ def test_process_pool_gives_the_same_result(tmp_path):
 @pytest.mark.slow
 def test_dask_executor_gives_the_same_result(tmp_path):
     pytest.importorskip("distributed")
-    from stereograph.runner import DaskExecutor
+    from stereograph.executors import DaskExecutor
 
     p = write_pipeline(tmp_path, n=6)
     serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
@@ -512,7 +512,7 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
 
 
 def test_node_learns_which_alternative_is_wired(tmp_path):
-    from stereograph.runner import ProcessExecutor
+    from stereograph.executors import ProcessExecutor
 
     extra = ("  per_item:\n    type: toy.describe\n    inputs: {x: numbers.items}\n"
              "  whole:\n    type: toy.describe\n    inputs: {x: total.total}\n")

@@ -13,7 +13,7 @@ from nodes.recorders.stereo_video import StereoVideoParams, stereo_video
 from nodes.sources.camera import CameraParams, camera
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.api import NodeError, RunContext
-from stereograph.runner import close_resources
+from stereograph.calls import close_resources
 
 
 @pytest.fixture(scope="module")

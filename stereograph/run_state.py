@@ -1,0 +1,659 @@
+"""The state of one run: what each node's entries are, where their values are, what happened.
+
+:class:`RunState` is what the runner, streaming, explain, loop and replay work through: key an
+entry (:meth:`RunState.entry_key`), look up a value (:meth:`RunState.get`), store a result
+(:meth:`RunState.store_result`), fail an item (:meth:`RunState.fail_item`), release a node's
+values (:meth:`RunState.release`), and run a node (:meth:`RunState.run_node`). Results:
+:class:`NodeReport` per node and :class:`RunResult` for the run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+import uuid
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from stereograph import project
+from stereograph.api import NodeError, RunContext
+from stereograph.cache import (
+    ArtifactStore,
+    CorruptEntry,
+    NotStored,
+    code_hash,
+    content_key,
+    hash_json,
+    jpeg_roundtrip,
+)
+from stereograph.calls import Task, TaskResult, execute
+from stereograph.errors import ConfigError
+from stereograph.executors import SerialExecutor, lost_as_failed, progress_advance
+
+if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+    from stereograph.config import PipelineDoc
+    from stereograph.graph import Graph, NodeInstance
+
+Ref = tuple[str, str, "str | None"]  # (node, output, item)
+NO_ITEMS = "no items to process (upstream produced none)"
+_HERE_SERIAL = SerialExecutor()  # a node with one entry runs here, not in the pool
+
+
+
+@dataclass
+class NodeReport:
+    name: str
+    type: str
+    status: str = "pending"  # ran | cached | failed | skipped | partial
+    seconds: float = 0.0
+    items: int = 0
+    items_ran: int = 0
+    items_failed: int = 0
+    error: str | None = None
+    hint: str | None = None
+    trace: str | None = None
+    unexpected: bool = False  # a bug in the node rather than bad input
+    messages: list[str] = field(default_factory=list)
+    lasting: bool = False  # its failure would come back on every later call (NodeError(lasting=True))
+
+
+@dataclass
+class RunResult:
+    run_id: str
+    pipeline: str
+    out_dir: Path
+    reports: dict[str, NodeReport]
+    seconds: float
+    _values: dict[Ref, Any]
+    _items: dict[tuple[str, str], list[str]]
+    item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
+    terminal: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # about the run as a whole (a read-only cache, say)
+    _run: Any = field(default=None, repr=False)  # the finished run: loads any node's output from the cache
+
+    @property
+    def ok(self) -> bool:
+        return not any(r.status in ("failed", "partial") for r in self.reports.values())
+
+    @property
+    def status(self) -> dict[str, str]:
+        return {n: r.status for n, r in self.reports.items()}
+
+    @property
+    def ran(self) -> set[str]:
+        return {n for n, r in self.reports.items() if r.status in ("ran", "partial") or r.items_ran}
+
+    def outputs(self, node: str, output: str) -> Any:
+        """A terminal (or saved) output: the value, or ``{item: value}`` for per-item outputs."""
+        if (node, output) in self._items:
+            return {i: self._values[(node, output, i)] for i in self._items[(node, output)]
+                    if (node, output, i) in self._values}
+        return self._values.get((node, output, None))
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def new_run_id() -> str:
+    return datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
+
+
+def default_cache_dir(doc: PipelineDoc) -> Path:
+    """The project's one cache (see :mod:`stereograph.project`)."""
+    return project.cache_dir(doc.directory)
+
+
+class RunState:
+    def __init__(self, graph: Graph, store: ArtifactStore | None, out_dir: Path, executor: Any,
+                 force: set[str], progress: Any):
+        self.g, self.store, self.out_dir, self.executor = graph, store, out_dir, executor
+        self.force, self.progress = force, progress
+        self.keys: dict[tuple[str, str | None], str] = {}      # (node, item) -> entry key
+        self.ref_keys: dict[Ref, str] = {}                      # ref -> key of the entry holding it
+        self.mem: dict[Ref, Any] = {}
+        self.items: dict[tuple[str, str], list[str]] = {}       # collection output -> item ids (ok ones)
+        self.failed_items: dict[tuple[str, str], str] = {}      # (node, item) -> message
+        self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}  # the table reads in run order
+        self.pipeline_id = hash_json(str(graph.doc.path))
+        self.code: dict[str, str] = {}
+        self.code_files: dict[str, dict[str, str]] = {}
+        self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
+        self.keep = set(graph.terminal())
+        self.resources: dict[str, Any] = {}   # RunContext.resource objects, closed when the run ends
+        self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.loop)
+        self.ref_ids: dict[Ref, str] = {}       # ref -> content key of a produced item (see ident)
+        self.declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
+        self.deferred: set[str] = set()         # producers whose items a streamed region makes
+        self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}  # (node, out) -> item -> files
+        self.sub = False                        # a part of a run (stereograph.streaming): records nothing
+        self.streaming: set[str] = set()        # per-item nodes run in streamed regions
+        self.selected: set[str] = set(graph.nodes)
+        self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)
+        self.foreign: dict[str, tuple[int, int, int]] = {}  # files in out_dir before the run (prepare_out_dir)
+
+    # ---- keys
+
+    def node_components(self, inst: NodeInstance) -> dict[str, Any]:
+        """What, besides inputs, determines this node's artifacts."""
+        if inst.type not in self.code:
+            self.code[inst.type], self.code_files[inst.type] = code_hash(inst.spec.fn)
+        try:
+            params = inst.params.model_dump(mode="json")
+        except Exception as e:
+            raise ConfigError(f"a parameter value cannot be hashed for the cache: {e}",
+                              self.g.doc.where("nodes", inst.name, "params"), inst.name,
+                              "use plain numbers, strings, lists and mappings") from None
+        files = {}
+        if inst.spec.reads is not None:
+            paths = inst.spec.reads(inst.params, self.g.doc.directory)
+            for p in paths:
+                files[str(p)] = self.store.files.digest(Path(p)) if self.store else "nocache"
+        return {"type": inst.type, "version": inst.spec.version, "code": self.code[inst.type],
+                "params": params, "files": files}
+
+    def input_refs(self, inst: NodeInstance, item: str | None) -> dict[str, Any]:
+        """For each input port: a ref, a list of (item, ref) for a gather, or None (unwired)."""
+        refs: dict[str, Any] = {}
+        for port, (src, out) in inst.inputs.items():
+            coll = self.g.is_collection(src, out)
+            if inst.spec.inputs[port].gather:
+                refs[port] = [(i, (src, out, i)) for i in self.items.get((src, out), [])]
+            elif coll:
+                refs[port] = (src, out, item)
+            else:
+                refs[port] = (src, out, None)
+        for port in inst.spec.inputs:
+            if port not in refs:
+                refs[port] = None
+        return refs
+
+    def entry_key(self, base: dict[str, Any], refs: dict[str, Any], item: str | None,
+                  lost: dict[str, dict[str, str]] | None = None) -> str:
+        ins = {}
+        for port, r in refs.items():
+            if r is None:
+                ins[port] = None
+            elif isinstance(r, list):
+                ins[port] = hash_json([[i, self.ident(rr), rr[1]] for i, rr in r])
+            else:
+                ins[port] = [self.ident(r), r[1]]
+        # what a gathering node was told it lost is part of what it made (none: the key as before)
+        return hash_json({**base, "inputs": ins, "item": item, **({"lost": lost} if lost else {})})
+
+    def lost_items(self, inst: NodeInstance) -> dict[str, dict[str, str]]:
+        """For each gathering port: ``{item: "node: why"}`` of the items that failed at or upstream of
+        the wired node, and so are not in the collection it gathers (:attr:`RunContext.lost`)."""
+        out: dict[str, dict[str, str]] = {}
+        for port, (src, o) in inst.inputs.items():
+            if not inst.spec.inputs[port].gather or not self.failed_items:
+                continue
+            chain = {src} | self.g.upstream(src)
+            present = set(self.items.get((src, o), []))
+            lost: dict[str, str] = {}
+            for (n, i), why in self.failed_items.items():
+                if i is not None and n in chain and i not in present and i not in lost:
+                    lost[i] = f"{n}: {why}"
+            if lost:
+                out[port] = dict(sorted(lost.items()))
+        return out
+
+    def ident(self, ref: Ref) -> str:
+        """What a downstream key says of an input: its content key where known (an item produced
+        by a source is content-addressed, so an unchanged item keeps its downstream cached)."""
+        return self.ref_ids.get(ref) or self.ref_keys[ref]
+
+    def producer(self, inst: NodeInstance) -> bool:
+        """The node produces its collections item by item (declared ``items=``)."""
+        return inst.spec.items is not None and not inst.mapped and inst.spec.wants_ctx
+
+    # ---- values
+
+    def get(self, ref: Ref) -> Any:
+        if ref in self.mem:
+            return self.mem[ref]
+        node, out, item = ref
+        files = self.streamed.get((node, out), {}).get(item)  # type: ignore[arg-type]
+        if files and (self.store is None or ref not in self.ref_keys):
+            return _read_back(files)  # an image written to the run folder as its item finished
+        key = self.ref_keys[ref]
+        try:
+            entry = self.store.load(key)  # type: ignore[union-attr]
+        except NotStored:  # kept as a manifest only: computing it again is the cheaper read
+            self.recompute(node, item, store=False)
+            if ref not in self.mem:
+                raise NodeError(f"recomputing '{node}'" + (f" for item '{item}'" if item is not None else "")
+                                + f" no longer gives '{out}'", hint="run again with --from " + node) from None
+            return self.mem[ref]
+        except CorruptEntry as e:
+            self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
+            self.store.delete(key)  # type: ignore[union-attr]
+            # an item of a collection (or its index) comes from the one entry of the node that yields it
+            inst = self.g.nodes[node]
+            self.recompute(node, None if inst.spec.outputs[out].collection and not self.producer(inst) else item)
+            if ref not in self.mem:
+                raise NodeError(f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
+                                f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
+                                hint="run again with --from " + node) from None
+            return self.mem[ref]
+        for o, v in entry.items():
+            self.mem[(node, o, item)] = v
+        return self.mem[ref]
+
+    def inputs_for(self, refs: dict[str, Any]) -> dict[str, Any]:
+        vals = {}
+        for port, r in refs.items():
+            if r is None:
+                vals[port] = None
+            elif isinstance(r, list):
+                vals[port] = {i: self.get(rr) for i, rr in r}
+            else:
+                vals[port] = self.get(r)
+        return vals
+
+    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None,
+             lost: dict[str, dict[str, str]] | None = None) -> Task:
+        # a params model may come from a plugin module another process has not imported yet
+        remote = getattr(self.executor, "remote", False) if remote is None else remote
+        params = inst.params.model_dump() if remote else inst.params
+        return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
+                    str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
+                    None if remote else self.resources, self.producer(inst), dict(lost or {}))
+
+    def input_types(self, inst: NodeInstance) -> dict[str, str]:
+        """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
+        return {port: self.g.nodes[src].spec.outputs[out].type for port, (src, out) in inst.inputs.items()}
+
+    def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any],
+                     messages: list[str] | None = None, seconds: float | None = None, save: bool = True) -> None:
+        """Keep a computed entry's outputs in memory and in the store; split collections into items.
+
+        ``seconds`` (what computing took) lets the store keep a manifest only when recomputing is
+        cheaper than reading back (:meth:`ArtifactStore.save`); never for an output the run folder
+        gets, nor for collections (their items are content-addressed entries of their own).
+        """
+        if self.producer(inst) and item is not None:
+            self._store_item(inst, item, key, out, messages)
+            return
+        delivered = inst.name in self.keep or self._saves(inst.name)
+        if delivered or any(o.collection for o in inst.spec.outputs.values()):
+            seconds = None
+        encoded: dict[str, bytes] = {}  # lossy outputs (pictures for people): stored as JPEG, read as decoded
+        for name, o in inst.spec.outputs.items():
+            jpeg = jpeg_roundtrip(out.get(name)) if o.lossy and not o.collection else None
+            if jpeg is not None:
+                out = {**out, name: jpeg[1]}
+                encoded[name] = jpeg[0]
+        single, colls = {}, {}
+        for name, val in out.items():
+            if inst.spec.outputs[name].collection:
+                if not isinstance(val, dict):
+                    raise NodeError(f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)")
+                colls[name] = {str(k): v for k, v in val.items()}
+            else:
+                single[name] = val
+        for name, items in colls.items():
+            ids = list(items)
+            self.items[(inst.name, name)] = ids
+            ikeys = []
+            for i, v in items.items():
+                # items are content-addressed: a source change that leaves an item as it was
+                # (one image added to a folder) leaves that item's downstream cached
+                ikey = content_key(v) if key else f"{inst.name}/{name}/{i}"
+                ikeys.append(ikey)
+                self.ref_keys[(inst.name, name, i)] = ikey
+                self.mem[(inst.name, name, i)] = v
+                if self.store is not None and key is not None and not self.store.has(ikey):
+                    self.store.save(ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i})
+            single[name] = {"__items__": ids, "__keys__": ikeys}
+            # the index too, so that a recompute (a corrupt entry) serves it as a load would
+            self.mem[(inst.name, name, item)] = single[name]
+            self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        for name, v in single.items():
+            if name not in colls:
+                self.mem[(inst.name, name, item)] = v
+                self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        if save and self.store is not None and key is not None:
+            # collection indexes in the manifest too: a rerun learns the items without loading the
+            # entry (which may hold big values beside them, such as calibration views)
+            self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
+                                          "messages": list(messages or []),
+                                          "indexes": {n: single[n] for n in colls},
+                                          "indexes_digest": hash_json({n: single[n] for n in colls})},
+                            compute_seconds=seconds, **({"encoded": encoded} if encoded else {}))
+
+    def _store_item(self, inst: NodeInstance, item: str, key: str | None, out: dict[str, Any],
+                    messages: list[str] | None) -> None:
+        """One item of an item-producing node: stored under its own key, known downstream by its
+        content key (as the items of a whole collection are). ``{}`` (the node dropped the item)
+        stores nothing."""
+        content = {}
+        for name, v in out.items():
+            ref = (inst.name, name, item)
+            self.ref_keys[ref] = key or f"{inst.name}/{name}/{item}"
+            self.mem[ref] = v
+            if key is not None:
+                content[name] = self.ref_ids[ref] = content_key(v)
+        if out and self.store is not None and key is not None:
+            self.store.save(key, out, {"type": inst.type, "node": inst.name, "item": item,
+                                       "messages": list(messages or []), "content": content})
+
+    def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
+                     manifest: dict[str, Any] | None = None) -> None:
+        """Register a cached entry's refs without loading big values (collections: load the index).
+
+        ``manifest`` is the one the cache lookup already read, if any (saves reading it again).
+        """
+        if manifest is None and self.store is not None:
+            manifest = self.store.meta(key)
+        meta = (manifest or {}).get("meta", {})
+        self.reports[inst.name].messages += meta.get("messages", [])  # warnings the node gave when it ran
+        if self.producer(inst) and item is not None:
+            content = meta.get("content")
+            for name, ck in (content.items() if isinstance(content, dict) else []):
+                if name in inst.spec.outputs and isinstance(ck, str):
+                    self.ref_keys[(inst.name, name, item)] = key
+                    self.ref_ids[(inst.name, name, item)] = ck
+            return
+        for name, o in inst.spec.outputs.items():
+            if o.collection and self.producer(inst):
+                continue  # produced item by item: not in this entry
+            self.ref_keys[(inst.name, name, item)] = key
+            if o.collection:
+                indexes = meta.get("indexes")
+                # (a damaged manifest must not name wrong items: its digest decides, else the entry is read)
+                index = indexes.get(name) if isinstance(indexes, dict) and \
+                    hash_json(indexes) == meta.get("indexes_digest") else None
+                if not (isinstance(index, dict) and isinstance(index.get("__items__"), list)
+                        and isinstance(index.get("__keys__"), list)
+                        and len(index["__items__"]) == len(index["__keys__"])):
+                    index = self.get((inst.name, name, item))  # an entry from before indexes were kept there
+                ids = index["__items__"]
+                self.items[(inst.name, name)] = ids
+                for i, k in zip(ids, index["__keys__"]):
+                    self.ref_keys[(inst.name, name, i)] = k
+
+    def recompute(self, node: str, item: str | None, store: bool = True) -> None:
+        """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest only)."""
+        inst = self.g.nodes[node]
+        refs = self.input_refs(inst, item)
+        res = execute(self.task(inst, item, self.inputs_for(refs)))
+        if not res.ok:
+            raise NodeError(f"recomputing a cache entry of '{node}' failed: {res.error}", hint=res.hint)
+        self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {}, save=store)
+
+    # ---- one node
+
+    def upstream_failed(self, inst: NodeInstance) -> str | None:
+        for src in self.g.dag.predecessors(inst.name):
+            if self.reports[src].status in ("failed", "skipped"):
+                return src
+        return None
+
+    def item_ids(self, inst: NodeInstance) -> list[str]:
+        ids: list[str] | None = None
+        for port, (src, out) in inst.inputs.items():
+            if self.g.is_collection(src, out) and not inst.spec.inputs[port].gather:
+                these = self.items.get((src, out), [])
+                ids = list(these) if ids is None else [i for i in ids if i in set(these)]
+        return ids or []
+
+    def item_outputs(self, inst: NodeInstance, item: str | None) -> list[str]:
+        """The outputs an entry of this node adds one item to."""
+        if item is None:
+            return []
+        if inst.mapped:
+            return list(inst.spec.outputs)
+        return [n for n, o in inst.spec.outputs.items() if o.collection]
+
+    def produced_ids(self, inst: NodeInstance) -> list[str]:
+        """The item ids an item-producing node declares (cheap: no item is produced)."""
+        ctx = RunContext(inst.name, None, self.out_dir / inst.name, self.g.doc.directory,
+                         input_types=self.input_types(inst), producing_items=True)
+        try:
+            ids = [str(i) for i in inst.spec.items(inst.params, ctx)]  # type: ignore[misc]
+        except NodeError:
+            raise
+        except (ValueError, RuntimeError, OSError) as e:
+            raise NodeError(f"listing its items failed: {e}") from e
+        seen: set[str] = set()
+        dup = sorted({i for i in ids if i in seen or seen.add(i)})  # type: ignore[func-returns-value]
+        if dup:
+            raise NodeError(f"it declares item ids more than once: {', '.join(dup[:5])}",
+                            hint="give every item (scene, file) its own id")
+        self.reports[inst.name].messages += ctx.messages
+        return ids
+
+    def check_produced(self, inst: NodeInstance) -> None:
+        """A producer none of whose declared items came out has failed as a whole."""
+        rep = self.reports[inst.name]
+        ids = self.declared.get(inst.name, [])
+        if ids and (inst.name, None) not in self.failed_items and \
+                not any(self.items.get((inst.name, o)) for o in self.item_outputs(inst, "")):
+            why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[:400] \
+                or "; ".join(rep.messages[:5])
+            self.fail_item(inst, None, f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
+                           "fix or remove the inputs these reasons name" if why else
+                           "see the node's messages in run.json")
+
+    def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
+        """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``."""
+        rep = self.reports[inst.name]
+        t0 = time.perf_counter()
+        bad = self.upstream_failed(inst)
+        if bad:
+            rep.status, rep.error = "skipped", f"upstream node '{bad}' did not finish"
+            return
+        store_on = self.store is not None and inst.name not in self.memory_only
+        base = self.node_components(inst) if store_on else None
+        entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
+        producer = self.producer(inst)
+        if producer and items is None:  # its other outputs, then (unless a streamed region does) its items
+            try:
+                if inst.name not in self.declared:  # (known already where items are made ahead)
+                    self.declared[inst.name] = self.produced_ids(inst)
+            except NodeError as e:
+                self.fail_item(inst, None, e.message, e.hint)
+                rep.seconds = time.perf_counter() - t0
+                return
+            if inst.name not in self.deferred:
+                entries += self.declared[inst.name]
+        elif producer:
+            entries = list(items)
+        makes_items = inst.mapped or (producer and (items is not None or inst.name not in self.deferred))
+        for out in self.item_outputs(inst, "") if makes_items else []:
+            self.items[(inst.name, out)] = []
+        rep.items = len(entries) if inst.mapped else len(self.declared.get(inst.name, [])) if producer else 0
+        if self.progress:  # (a producer's own entry is not one of its items: "13 items", not 14)
+            self.progress.node_started(inst.name, sum(self._counted(inst, i) for i in entries))
+        todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
+        cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
+        lost = self.lost_items(inst)
+        for item in entries:
+            refs = self.input_refs(inst, item)
+            key = self.entry_key(base, refs, item, lost) if store_on else None
+            if key is not None:
+                self.keys[(inst.name, item)] = key
+            manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
+            if manifest is not None:
+                self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
+                for out in self.item_outputs(inst, item):
+                    if (inst.name, out, item) in self.ref_keys:
+                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+                if self.progress and self._counted(inst, item):
+                    self.progress.advance(inst.name)
+            else:
+                todo.append((item, key, refs))
+        recorded = store_on and not self.sub and not (inst.mapped and inst.name in self.streaming)
+        if recorded:
+            self.record(inst, base)
+
+        # Lock what we compute so a concurrent run waits and then shares the result. A node called
+        # once (calibration, a report) runs here: shipping its inputs to a worker would only add
+        # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
+        ex = self.executor if inst.mapped or any(item is not None for item, _, _ in todo) else _HERE_SERIAL
+        tasks, metas = [], []
+        for item, key, refs in todo:
+            try:
+                values = self.inputs_for(refs)
+            except NodeError as e:
+                self.fail_item(inst, item, e.message, e.hint)
+                self._advance(inst, item, ok=False)
+                continue
+            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
+            metas.append((item, key))
+        results = self._run_locked(inst, tasks, metas, cacheable, ex)
+        volatile = not store_on or not inst.spec.cacheable
+        for (item, key), (res, stored) in zip(metas, results):
+            ok = True
+            if res is None:  # another run computed it while we waited
+                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
+            elif res.ok:
+                if not stored:
+                    try:
+                        # uncacheable output (live camera, actuator): a fresh key, so nothing
+                        # downstream is ever served a stale result
+                        self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and
+                                          store_on else key if not volatile else None,
+                                          res.outputs or {}, res.messages)
+                    except (NodeError, TypeError) as e:
+                        self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
+                        ok = False
+                rep.messages += res.messages
+                if inst.mapped or item is not None or not producer:
+                    rep.items_ran += 1
+            else:
+                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error,
+                               res.lasting)
+                ok = False
+            if ok:
+                for out in self.item_outputs(inst, item):
+                    if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
+                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+        if makes_items:  # keep the items in source order
+            for out in self.item_outputs(inst, ""):
+                done = set(self.items[(inst.name, out)])
+                self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
+        if producer and items is None and inst.name not in self.deferred:
+            self.check_produced(inst)
+        rep.seconds = time.perf_counter() - t0
+        n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
+        rep.items_failed = n_failed
+        if n_failed and recorded:
+            self.record(inst, base)  # again: which of its items failed is known now
+        if (inst.name, None) in self.failed_items:
+            rep.status = "failed"
+        elif (inst.mapped or producer) and n_failed and n_failed < len(entries):
+            rep.status = "partial"
+        elif n_failed:
+            rep.status = "failed"
+        elif todo:
+            rep.status = "ran"
+        else:
+            rep.status = "cached"
+        if inst.mapped and not entries:
+            rep.messages.append(NO_ITEMS)
+        self.release(inst.name)
+
+    def record(self, inst: NodeInstance, base: dict[str, Any] | None) -> None:
+        """What this node's entries were made from, for ``explain`` (what changed since)."""
+        comps = dict(base or {})
+        comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
+        comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
+        comps["code_files"] = self.code_files.get(inst.type, {})
+        comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
+        # its items that failed, with why (a gathering node downstream keys on them): explain's guess
+        # of the next run, which tries them again, is that they fail again the same way
+        comps["failed"] = {i: why for (n, i), why in self.failed_items.items() if n == inst.name and i is not None}
+        self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
+
+    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any) -> list:
+        """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
+        if not tasks:
+            return []
+        if not cacheable:
+            return [(r, False) for r in self._advancing(inst, tasks, ex.map(execute, tasks))]
+        # Take each entry's lock without blocking: ours to compute; busy ones are being computed
+        # by another run right now, so wait for those afterwards and reuse their result.
+        results: list[Any] = [None] * len(tasks)
+        with contextlib.ExitStack() as stack:
+            mine, busy = [], []
+            for idx, (_item, key) in enumerate(metas):
+                got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
+                (mine if got else busy).append(idx)
+            ours = [tasks[i] for i in mine]
+            for idx, res in zip(mine, self._advancing(inst, ours, ex.map(execute, ours))):
+                stored = False
+                if res.ok:  # store while still holding the lock
+                    item, key = metas[idx]
+                    try:
+                        self.store_result(inst, item, key, res.outputs or {}, res.messages, res.seconds)
+                        stored = True
+                    except (NodeError, TypeError) as e:
+                        res = TaskResult(False, error=f"its outputs are not storable: {e}")
+                results[idx] = (res, stored)
+        for idx in busy:
+            item, key = metas[idx]
+            with self.store.lock(key):  # type: ignore[union-attr]
+                if self.store.has(key):  # type: ignore[union-attr]
+                    results[idx] = (None, True)
+                else:
+                    res = execute(tasks[idx])
+                    if res.ok:
+                        self.store_result(inst, item, key, res.outputs or {}, res.messages)
+                    results[idx] = (res, res.ok)
+            self._advance(inst, item, ok=results[idx][0] is None or results[idx][0].ok)
+        return results
+
+    def _counted(self, inst: NodeInstance, item: str | None) -> bool:
+        """Whether an entry counts on the progress display: a producer's whole-node entry does not,
+        once its items are known (they are what the display counts)."""
+        return not (item is None and self.producer(inst) and self.declared.get(inst.name))
+
+    def _advance(self, inst: NodeInstance, item: str | None, ok: bool = True) -> None:
+        if self.progress and self._counted(inst, item):
+            progress_advance(self.progress, inst.name, ok)
+
+    def _advancing(self, inst: NodeInstance, tasks: list[Task], results: Iterable[TaskResult]) -> Iterable[TaskResult]:
+        """The executor's results (in the order of ``tasks``), advancing the progress display as each arrives."""
+        for task, res in zip(tasks, lost_as_failed(results)):
+            self._advance(inst, task.item, res.ok)
+            yield res
+
+    def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
+                  unexpected: bool = False, lasting: bool = False):
+        rep = self.reports[inst.name]
+        self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
+        rep.lasting |= lasting
+        if rep.error is None:
+            rep.error = (f"item '{item}': " if item is not None else "") + msg
+            rep.hint, rep.trace, rep.unexpected = hint, trace, unexpected
+        if item is None:
+            rep.status = "failed"
+
+    def release(self, node: str) -> None:
+        """Drop in-memory values nobody downstream still needs (Kedro-style)."""
+        for src in self.g.dag.predecessors(node):
+            self.remaining_consumers[src].discard(node)
+            if not self.remaining_consumers[src] and src not in self.keep and not self._saves(src):
+                for ref in [r for r in self.mem if r[0] == src]:
+                    del self.mem[ref]
+
+    def _saves(self, node: str) -> bool:
+        return any(o.save for o in self.g.nodes[node].spec.outputs.values())
+
+
+def _read_back(files: list[Path]) -> Any:
+    """An item's image as written to the run folder: PNG is lossless (the very array); a lossy output's
+    JPEG decodes to the very array too, since every reader of a lossy output gets the decoded JPEG."""
+    import cv2
+
+    png = next((f for f in files if f.suffix == ".png"), None) or next(
+        (f for f in files if f.suffix == ".jpg"), None)
+    img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED) if png is not None else None
+    if img is None:
+        raise NodeError(f"the image written to {files[0] if files else '?'} can no longer be read",
+                        hint="run again (the run folder was changed while the run went on)")
+    return img
