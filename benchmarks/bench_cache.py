@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from stereograph.runner import run_pipeline
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 

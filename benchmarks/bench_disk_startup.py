@@ -13,7 +13,7 @@ Prints, each measured in this run:
 - reruns with nothing changed, wall seconds including start-up: ``locate.yaml`` (target <= 0.5 s) and
   ``pick.yaml`` (target <= the actuator node's own seconds + 0.5 s, from that rerun's run.json;
   three reruns, the table shows the median). Each is a replay from the memo the cold run recorded
-  (``stereograph/rerun.py``, docs/cache.md).
+  (``stereograph/app/rerun.py``, docs/cache.md).
 - with PYTHONDONTWRITEBYTECODE set, the project's modules are compiled first (see :func:`bytecode`).
 
 Ends with every figure in one table (measured, target, met).

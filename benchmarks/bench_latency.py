@@ -96,10 +96,10 @@ def main(argv=None) -> int:
         return out
 
     sim_mod.ServoSim.start = pinned_start
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
-    from stereograph.loop import Loop
-    from stereograph.runner import run_graph
+    from stereograph.app.loop import Loop
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
+    from stereograph.core.runner import run_graph
 
     first_goal: list[tuple[float, float, float]] = []  # (wall, cpu) when the first sync write of a cycle returned
     port_open: list[tuple[float, float, float]] = []  # (wall, cpu) when the plan started on the open port

@@ -4,7 +4,7 @@ Four ways, same pairs, same run:
 
 * **engine** -- the pipeline (rectifier.opencv maps -> segmenter.edge_morph wired to the camera
   pairs, which rectifies on request the coarse detection level and the object's windows ->
-  disparity.centroid -> locator.triangulate) through ``stereograph.runner.run_pipeline`` with
+  disparity.centroid -> locator.triangulate) through ``stereograph.core.runner.run_pipeline`` with
   caching off; the source (rendering), calibration and rectification-map nodes' own seconds are
   subtracted from the run's wall time, so the figure covers the per-pair nodes plus all engine
   overhead.
@@ -101,7 +101,7 @@ def _time_upstream_nodes() -> None:
     The run's CPU time minus theirs is the per-pair nodes' plus all engine overhead -- exact on
     a shared machine, where the upstream nodes' wall time is not their CPU time.
     """
-    from stereograph import registry
+    from stereograph.core import registry
 
     for name in UPSTREAM:
         spec = registry.get(name)
@@ -122,7 +122,7 @@ def _time_upstream_nodes() -> None:
 
 def run_engine(n: int, seed: int, work: Path, template: str = PIPELINE) -> tuple[float, float, int]:
     """(measured wall s, measured cpu s, pairs found) of one engine run, caching off."""
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     _time_upstream_nodes()
     yml = work / "bench-locate.yaml"

@@ -34,7 +34,7 @@ MAPPED = {"remap", "segment", "disparity", "locate"}  # locate.yaml's per-item n
 
 
 def run_case(label: str, args: list[str], out: Path, env: dict | None = None) -> dict:
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--no-cache", "--out", str(out), *args]
+    cmd = [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--no-cache", "--out", str(out), *args]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, **(env or {})})
@@ -61,8 +61,8 @@ def split_cpu(pairs: int, out: Path) -> dict:
     head, the tail, its bookkeeping) apart from the CPU of its worker processes."""
     import resource
 
-    from stereograph.executors import ProcessExecutor
-    from stereograph.runner import run_pipeline
+    from stereograph.core.executors import ProcessExecutor
+    from stereograph.core.runner import run_pipeline
 
     s0, c0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()

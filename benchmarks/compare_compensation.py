@@ -28,7 +28,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from stereograph.compare import compare, print_table
+from stereograph.app.compare import compare, print_table
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "compare-compensation.yaml"

@@ -40,7 +40,7 @@ VARIANTS = {
 
 
 def run(overrides: list[str], out: Path) -> tuple[np.ndarray, dict, float]:
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--no-cache", "--out", str(out)]
+    cmd = [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--no-cache", "--out", str(out)]
     for o in overrides:
         cmd += ["--set", o]
     t0 = time.perf_counter()

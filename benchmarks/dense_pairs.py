@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
             pipe = tmp / f"{len(name)}.yaml"
             pipe.write_text(_pipeline(folder, rig, range_cm))
             out = tmp / f"out{len(name)}"
-            cmd = [sys.executable, "-m", "stereograph.cli", "run", str(pipe), "--no-cache", "--out", str(out)]
+            cmd = [sys.executable, "-m", "stereograph", "run", str(pipe), "--no-cache", "--out", str(out)]
             done = subprocess.run(cmd + [x for s in a.set for x in ("--set", s)], capture_output=True, text=True,
                                   cwd=ROOT)
             if done.returncode:

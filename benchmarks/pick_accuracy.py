@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threshold-cm", type=float, default=0.5)
     a = ap.parse_args(argv)
     from nodes.ik._solvers import OK, analytic_ik_batch
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     def in_workspace(model, p) -> bool:
         """Can the arm reach the true centre and the approach / lift points above it?"""
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
         return bool((analytic_ik_batch(model, P)[1] == OK).all())
 
     from nodes.ik.arm import ArmParams, build_arm_model
-    from stereograph.config import load_pipeline
+    from stereograph.core.config import load_pipeline
 
     doc = load_pipeline(ROOT / "pipelines" / "pick.yaml")
     model = build_arm_model(ArmParams(**(doc.nodes["arm"].get("params") or {})))

@@ -20,7 +20,7 @@ from nodes.calibrators.hand_eye import HandEyeParams, hand_eye
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
 from nodes.ik.pick_sequence import PickParams, pick_sequence
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 IDS = [1, 2, 3, 4, 5]
 

@@ -60,7 +60,7 @@ class Trial:
 
 
 def _command(out: Path, cache: Path, repeat: int = 0) -> list[str]:
-    return [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--repeat", str(repeat),
+    return [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--repeat", str(repeat),
             "--out", str(out), "--cache-dir", str(cache), "--verbose"]  # fmt: skip
 
 

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 from nodes.sources._boards import render_table_board  # noqa: E402
 from nodes.sources._rig import make_rig  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs, synthetic  # noqa: E402
-from stereograph.runner import run_pipeline  # noqa: E402
+from stereograph.core.runner import run_pipeline  # noqa: E402
 
 
 def _save(folder: Path, name: str, left, right) -> None:

@@ -1,15 +1,30 @@
 """stereograph: stereo localisation and robot-arm picking as a config-driven processing graph.
 
-The engine is a handful of modules, read in this order:
+Two layers; ``core`` never imports ``app`` (``tests/test_engine_layers.py``). Read the core in
+this order (each module's docstring says its invariants and public names):
 
-- :mod:`stereograph.api`      the node API (``@node``, ``Params``, ``In``, ``Out``, ``NodeError``)
-- :mod:`stereograph.registry` node types from the ``stereograph.nodes`` entry-point group
-- :mod:`stereograph.config`   pipeline YAML -> validated :class:`~stereograph.config.Pipeline`
-- :mod:`stereograph.graph`    the DAG (networkx) and its checks
-- :mod:`stereograph.cache`    content-addressed artifact store
-- :mod:`stereograph.runner`   the scheduler
-- :mod:`stereograph.cli`      the ``stereograph`` command
-- :mod:`stereograph.pyapi`    the Python API: :func:`run`, :func:`check`, :func:`compare` (docs/python.md)
+- :mod:`stereograph.core.errors`    user-facing errors: file, line, node and the fix
+- :mod:`stereograph.core.checks`    shape checks of artifact types, registered by node libraries
+- :mod:`stereograph.core.api`       the node API (``@node``, ``Params``, ``In``, ``Out``, ``NodeError``)
+- :mod:`stereograph.core.registry`  node types from the ``stereograph.nodes`` entry-point group
+- :mod:`stereograph.core.config`    pipeline YAML -> a validated ``PipelineDoc``
+- :mod:`stereograph.core.graph`     the DAG (networkx) and its checks
+- :mod:`stereograph.core.project`   where a project's cache and run folders live
+- :mod:`stereograph.core.digests`   content digests of bytes, files and values
+- :mod:`stereograph.core.cache`     the content-addressed artifact store
+- :mod:`stereograph.core.calls`     one call of a node function: ``Task`` in, ``TaskResult`` out
+- :mod:`stereograph.core.threads`   one library thread per worker process
+- :mod:`stereograph.core.executors` where tasks run: here, a process pool, Dask
+- :mod:`stereograph.core.outputs`   a run's results written into its folder, in open formats
+- :mod:`stereograph.core.run_state` one run's state (``RunState``) and results (``RunResult``)
+- :mod:`stereograph.core.streaming` the per-item part of a graph, a chunk of items at a time
+- :mod:`stereograph.core.runner`    the scheduler: ``run_graph``, ``run_pipeline``
+- :mod:`stereograph.core.hooks`     what the core announces (a run written, a cache pruned)
+
+On top, :mod:`stereograph.app`: the ``stereograph`` command (``cli``), ``compare``, ``explain``,
+``loop`` (``--repeat``), ``rerun`` (replayed unchanged runs), the pages (``report``,
+``report_cycles``, ``compare_report``, ``graph_picture``), ``progress``, ``plaintext`` and the
+Python facade (``pyapi``: :func:`run`, :func:`check`, :func:`compare`; docs/python.md).
 """
 
 from typing import Any
@@ -23,16 +38,12 @@ _PYAPI = {"run", "check", "compare", "Result", "NodeFailed"}
 
 def __getattr__(name: str) -> Any:
     # imported on first use: `import stereograph` (and `stereograph --help`) stays light
-    if name == "compare":  # the module, callable as the API's compare (see stereograph/compare.py)
-        import importlib
-
-        return importlib.import_module("stereograph.compare")
     if name in _PYAPI:
-        from stereograph import pyapi
+        from stereograph.app import pyapi
 
         return getattr(pyapi, name)
     if name in __all__:  # the node API (pydantic)
-        from stereograph import api
+        from stereograph.core import api
 
         return getattr(api, name)
     raise AttributeError(f"module 'stereograph' has no attribute {name!r}")

@@ -18,7 +18,7 @@ from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 from nodes.ik.numeric import NumericParams, numeric  # noqa: E402
 from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
-from stereograph.api import NodeError, RunContext  # noqa: E402
+from stereograph.core.api import NodeError, RunContext  # noqa: E402
 
 ARM = build_arm_model(ArmParams())
 HE = hand_eye(HandEyeParams(mode="given", camera_in_base={"translation_cm": [0, 0, 0], "rpy_deg": [0, 0, 0]}))[

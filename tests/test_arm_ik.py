@@ -26,7 +26,7 @@ from nodes.ik._solvers import (
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
 from nodes.ik.numeric import NumericParams, numeric
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 MODEL = build_arm_model(ArmParams())
 
@@ -169,7 +169,7 @@ def test_ik_node_unreachable_is_a_node_error():
 
 def test_ik_skip_unreachable_warns_and_pick_says_unreachable(tmp_path):
     from nodes.ik.pick_sequence import PickParams, pick_sequence
-    from stereograph.api import RunContext
+    from stereograph.core.api import RunContext
     ctx = RunContext("ik", None, tmp_path / "out", tmp_path)
     loc = {"pair": "far", "found": True, "x_cm": 50.0, "y_cm": 0.0, "z_cm": 0.0, "frame": "left_camera"}
     t = analytic_3dof(AnalyticParams(on_unreachable="skip"), arm=MODEL, location=loc, hand_eye=_identity_he(),
@@ -215,7 +215,7 @@ def test_hand_eye_pairs_file_and_errors(tmp_path):
     cam = np.array([[0, 0, 40], [10, 0, 45], [0, 8, 50], [5, 5, 42.0]])
     rows = ["cam_x,cam_y,cam_z,arm_x,arm_y,arm_z"] + [",".join(map(str, [*c, *transform_points(T, c)])) for c in cam]
     (tmp_path / "pairs.csv").write_text("\n".join(rows))
-    from stereograph.api import RunContext
+    from stereograph.core.api import RunContext
     ctx = RunContext("he", None, tmp_path / "out", tmp_path)
     out = hand_eye(HandEyeParams(mode="pairs", pairs_file="pairs.csv"), ctx=ctx)["hand_eye"]
     assert out["residual_cm"]["max"] < 1e-9
@@ -317,7 +317,7 @@ def test_arm_model_problems_are_found_by_validate(capsys):
     # (validate said OK; the run failed ~15 s later at the arm node, exit 1)
     from pathlib import Path
 
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     pick = Path(__file__).resolve().parent.parent / "pipelines" / "pick.yaml"
     assert main(["validate", str(pick), "--set", "arm.elbow.servos=[{id: 2}]"]) == 2

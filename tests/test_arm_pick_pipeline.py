@@ -7,7 +7,7 @@ import pytest
 
 pytest.importorskip("dynamixel_sdk")
 
-from stereograph.runner import run_pipeline  # noqa: E402
+from stereograph.core.runner import run_pipeline  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ def test_pick_pipeline_end_to_end(tmp_path):
 
 def test_actuator_refuses_when_nothing_is_pickable():
     from nodes.actuators._plan import Selection, select_plans
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
     plans = {"a": {"pair": "a", "refused": True, "reason": "the object was not located", "waypoints": []},
              "b": {"pair": "b", "refused": False, "split": "train", "waypoints": [{}]}}
     with pytest.raises(NodeError, match="no pick plan to execute.*not located"):
@@ -46,7 +46,7 @@ def test_actuator_refuses_when_nothing_is_pickable():
 def test_a_refused_calibration_check_moves_no_arm(tmp_path):
     """pick.yaml reads its rectification through rectifier.check: a refused check skips everything
     downstream, the actuator included (here refused by a threshold no real rig meets)."""
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     root = Path(__file__).resolve().parents[1]
     res = run_pipeline(root / "pipelines" / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10",

@@ -18,7 +18,7 @@ from dxl_peer import Peer, Servo  # noqa: E402
 from test_arm_servo_faults import ARM, PLAN  # noqa: E402
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan  # noqa: E402
-from stereograph.api import NodeError  # noqa: E402
+from stereograph.core.api import NodeError  # noqa: E402
 
 FAST = dict(poll_interval_s=0.002, retries=2, late_window_ms=100)
 

@@ -23,7 +23,7 @@ from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PLUGIN = ROOT / "tests" / "plugins" / "fixed_location.py"
-CLI = [sys.executable, "-c", "import sys; from stereograph.cli import main; sys.exit(main())"]
+CLI = [sys.executable, "-c", "import sys; from stereograph.app.cli import main; sys.exit(main())"]
 ARM = build_arm_model(ArmParams())
 
 PIPELINE = f"""

@@ -24,7 +24,7 @@ from nodes.contracts.arm import servo_limits_units  # noqa: E402
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
-from stereograph.api import NodeError  # noqa: E402
+from stereograph.core.api import NodeError  # noqa: E402
 
 ARM = build_arm_model(ArmParams())
 HE = {"T_base_from_left": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}
@@ -221,7 +221,7 @@ def test_second_ctrl_c_on_the_way_to_rest_holds_and_the_node_saves_the_log(tmp_p
     import threading
 
     from nodes.actuators.dynamixel import dynamixel
-    from stereograph.api import RunContext
+    from stereograph.core.api import RunContext
     ctx = RunContext("act", None, tmp_path / "act", tmp_path)
     for delay in (0.5, 0.8):  # the second one arrives during the move to the rest pose
         threading.Timer(delay, lambda: os.kill(os.getpid(), signal.SIGINT)).start()

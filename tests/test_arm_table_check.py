@@ -14,7 +14,7 @@ from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
 from nodes.ik.pick_sequence import PickParams, pick_sequence
 from nodes.locators.triangulate import TriangulateParams, triangulate
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 ARM = build_arm_model(ArmParams())
 # camera frame = arm-base frame: the location's z is the height over the base's mounting plane (the table)

@@ -12,9 +12,9 @@ from nodes.calibrators.chessboard import ChessboardParams, chessboard
 from nodes.calibrators.load import read_calibration_file
 from nodes.contracts.calibration_export import export_texts
 from nodes.sources.calib_files import CalibFilesParams, calib_files
-from stereograph.api import NodeError
-from stereograph.outputs import write_value
-from stereograph.runner import run_pipeline
+from stereograph.core.api import NodeError
+from stereograph.core.outputs import write_value
+from stereograph.core.runner import run_pipeline
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
 
@@ -372,7 +372,7 @@ def test_a_folder_no_convention_fits_says_what_was_tried(tmp_path):
     import numpy as np
 
     from nodes.sources._files import find_pairs
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
 
     cv2.imwrite(str(tmp_path / "a.png"), np.zeros((4, 4, 3), np.uint8))
     with pytest.raises(NodeError) as e:
@@ -405,7 +405,7 @@ def test_the_rectifiers_exports_hold_the_runs_rectification_in_every_format(tmp_
     import cv2
 
     from nodes.rectifiers.opencv import rectify_calibration
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     root = Path(__file__).resolve().parents[1]
     res = run_pipeline(root / "pipelines" / "calibrate.yaml", ["rig.n_views=10", f"rectify.alpha={alpha}"],

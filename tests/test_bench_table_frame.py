@@ -9,7 +9,7 @@ from nodes.calibrators.truth import truth_calibration
 from nodes.sources._boards import render_table_board
 from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 
 @pytest.fixture(scope="module")

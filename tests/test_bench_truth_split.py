@@ -6,7 +6,7 @@ import pytest
 
 from nodes.sources._files import list_pairs, pair_key
 from nodes.sources.files import FilesParams, files
-from stereograph.api import NodeError, RunContext
+from stereograph.core.api import NodeError, RunContext
 
 
 def _images(folder, names):

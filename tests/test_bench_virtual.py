@@ -16,7 +16,7 @@ import pytest
 
 from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
-from stereograph.runner import run_pipeline
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 N_SCENES, N_VIEWS = 40, 10

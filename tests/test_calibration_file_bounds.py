@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nodes.contracts import calibration_file
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 
 def test_npz_that_would_decompress_beyond_the_bound_is_refused(tmp_path, monkeypatch):

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main as cli_main
-from stereograph.compare import collect_metrics, compare, expand_variants, metrics_outputs, parse_vary
-from stereograph.config import load_pipeline
-from stereograph.errors import ConfigError, UsageError
-from stereograph.graph import build_graph
+from stereograph.app.cli import main as cli_main
+from stereograph.app.compare import collect_metrics, compare, expand_variants, metrics_outputs, parse_vary
+from stereograph.core.config import load_pipeline
+from stereograph.core.errors import ConfigError, UsageError
+from stereograph.core.graph import build_graph
 
 PLUGIN = Path(__file__).resolve().parent / "plugins" / "toy_locations.py"
 
@@ -187,7 +187,7 @@ def test_cli_page_shows_the_plot_it_wrote(pipeline, tmp_path):
 
 @pytest.mark.slow
 def test_variants_in_parallel_give_the_serial_table(pipeline, tmp_path):
-    from stereograph.executors import ProcessExecutor
+    from stereograph.core.executors import ProcessExecutor
 
     vary = ["fit.type=none,polynomial,lookup"]
     serial = compare(pipeline, vary, tmp_path / "o1", cache_dir=tmp_path / "c1", plots=False)
@@ -271,7 +271,7 @@ def test_out_must_be_a_folder_of_its_own(pipeline, tmp_path, capsys):
 def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
     """(Ctrl-C during `compare --workers N` waited for every queued variant to run, one after another,
     before the interrupt got through)"""
-    from stereograph.executors import ProcessExecutor
+    from stereograph.core.executors import ProcessExecutor
 
     class StopAfterFirstParallel:
         def node_started(self, name, n_items):
@@ -300,7 +300,7 @@ def test_an_interrupt_drops_the_variants_not_begun(pipeline, tmp_path):
 
 GATE = '''
 import os
-from stereograph.api import Field, In, NodeError, Out, Params, node
+from stereograph.core.api import Field, In, NodeError, Out, Params, node
 
 class GateParams(Params):
     max_z_cm: float = Field(1000.0, gt=0, description="Farthest location let through (cm).")
@@ -373,7 +373,7 @@ def test_a_log_a_variants_node_wrote_itself_goes_when_its_folder_is_reused(tmp_p
 def test_pairs_that_failed_before_the_report_are_counted_as_lost_not_dropped(tmp_path):
     # (the report's n and errors covered the pairs that got through, and said nothing of the others:
     # a variant failing on its hardest pairs looked better)
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     p = gated(tmp_path, "", "{}", "{max_z_cm: 60}", "{figure: false, split: all}")
     r = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o")
@@ -391,7 +391,7 @@ def test_pairs_that_failed_before_the_report_are_counted_as_lost_not_dropped(tmp
 
 def test_a_variant_whose_node_failed_did_not_compute_nothing():
     # (a node that failed as a whole is not in `ran`: the progress line said "computed: nothing (all cached)")
-    from stereograph.compare import Variant, VariantResult, _computed
+    from stereograph.app.compare import Variant, VariantResult, _computed
 
     def result(ok, status, ran):
         return VariantResult(variant=Variant(1, {"fit.type": "x"}), ok=ok, error=None if ok else "fit: too few",
@@ -407,17 +407,17 @@ def test_a_variant_whose_node_failed_did_not_compute_nothing():
 def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
     """--best NAME:abs ranks by closeness to zero; the plain lowest of a metric with negative values is
     said to be the most negative; an unknown way to rank is refused."""
-    from stereograph.compare import _best, _is_best
+    from stereograph.app.ranking import best_row, is_best
 
     res = compare(pipeline, ["fit.type=none,polynomial"], tmp_path / "o", cache_dir=tmp_path / "c", plots=False)
     for r, v in zip(res.rows, (0.3, -0.01)):
         r["z_mean_cm"] = v
     res.rows.append({**res.rows[0], "z_mean_cm": -0.5})
-    assert [_is_best(_best(res, "z_mean_cm:abs"), r) for r in res.rows] == [False, True, False]
-    assert [_is_best(_best(res, "z_mean_cm"), r) for r in res.rows] == [False, False, True]
+    assert [is_best(best_row(res, "z_mean_cm:abs"), r) for r in res.rows] == [False, True, False]
+    assert [is_best(best_row(res, "z_mean_cm"), r) for r in res.rows] == [False, False, True]
     with pytest.raises(UsageError, match="not a way to rank"):
-        _best(res, "z_mean_cm:ab")
-    from stereograph.compare import print_table
+        best_row(res, "z_mean_cm:ab")
+    from stereograph.app.compare import print_table
 
     print_table(res, None, metrics=["z_mean_cm"], best="z_mean_cm")
     assert "most negative" in capsys.readouterr().out
@@ -441,7 +441,7 @@ def test_a_problem_of_every_variant_is_not_blamed_on_the_first(pipeline, tmp_pat
     """(plugins not allowed, a plugin clashing with a built-in, a --vary key naming no node: each came out as
     'variant fit.type=none: ...' with '--skip-invalid' offered, which would have left out every variant;
     a varied param the type does not take was called a --set)"""
-    from stereograph.registry import plugins_allowed
+    from stereograph.core.registry import plugins_allowed
 
     monkeypatch.delenv("STEREOGRAPH_ALLOW_PLUGINS")
     base = ["compare", str(pipeline), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o"), "--no-plots"]
@@ -472,7 +472,7 @@ TERM = '''
 import os
 import signal
 from pathlib import Path
-from stereograph.api import Field, In, Out, Params, node
+from stereograph.core.api import Field, In, Out, Params, node
 
 class TermParams(Params):
     marker: str = Field("", description="File whose absence makes the node send SIGTERM to its own process.")
@@ -501,7 +501,7 @@ def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path)
         f"  term: {{type: toyterm.once, params: {{marker: {tmp_path / 'sent'}}}, "
         "inputs: {location: compensate.location}}\n"
         "  report: {type: report.accuracy, params: {figure: false}, inputs: {locations: term.location}}"))
-    cmd = [sys.executable, "-m", "stereograph.cli", "--allow-plugins", "compare", str(p), "--out", str(tmp_path / "o"),
+    cmd = [sys.executable, "-m", "stereograph", "--allow-plugins", "compare", str(p), "--out", str(tmp_path / "o"),
            "--cache-dir", str(tmp_path / "c")]
     first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert first.returncode == 130 and "interrupted" in first.stderr, (first.returncode, first.stderr[-800:])
@@ -515,8 +515,9 @@ def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path)
 def test_the_named_metric_leads_and_constant_metrics_step_aside(tmp_path, capsys):
     """(the terminal table was split in two, the page ran off a 1280 px window and metrics.png had 23
     panels, several constant, with the compared figure as panel 20)"""
-    from stereograph.compare import PER_PAIR, print_table
-    from stereograph.compare_report import compare_table
+    from stereograph.app.compare import print_table
+    from stereograph.app.compare_report import compare_table
+    from stereograph.app.ranking import PER_PAIR
 
     p = tmp_path / "p.yaml"
     p.write_text(PIPELINE.replace("variants:", "compare: {metric: z_rms_cm}\nvariants:"))

@@ -13,7 +13,7 @@ from nodes.compensators import disparity_curve, lookup, none, polynomial, xyz
 from nodes.compensators._common import samples_from_locations
 from nodes.compensators.apply import ApplyParams, apply, apply_model
 from nodes.compensators.disparity_curve import fit_disparity_curve
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 FIT_NODES = {
     "none": none.none,
@@ -285,7 +285,7 @@ def test_a_correction_that_cross_validates_worse_than_none_is_refused():
 
 
 def test_a_skipped_cross_validation_is_said(tmp_path):
-    from stereograph.api import RunContext
+    from stereograph.core.api import RunContext
 
     ctx = RunContext("fit", None, tmp_path, tmp_path)
     tiny = make_locations(n=8, seed=1, baseline_scale=1.02)
@@ -296,7 +296,7 @@ def test_a_skipped_cross_validation_is_said(tmp_path):
 
 def test_a_lookup_table_with_empty_bins_says_so_and_holds_only_where_its_bins_had_data(tmp_path):
     # (2 of 12 bins used 6 of 18 placements, and valid_range still claimed the whole training range)
-    from stereograph.api import RunContext
+    from stereograph.core.api import RunContext
 
     ctx = RunContext("fit", None, tmp_path, tmp_path)
     locs = make_locations(n=36, seed=2, baseline_scale=1.02)
@@ -326,7 +326,7 @@ def test_when_most_training_balls_are_not_found_the_fix_is_about_finding_them():
     """(the Fix said 'more training placements, or fewer coefficients' while the reason it quoted --
     the ball's colour not found -- was the real cause)"""
     from nodes.compensators._common import training_samples
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
 
     train = {f"p{i}": {"split": "train", "found": False, "reason": "no plausible region (colour not seen)"}
              for i in range(20)}

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.perturb import PerturbParams, perturb
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 
 def test_perturb_scales_baseline_and_focal():

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.compare import compare
+from stereograph.app.compare import compare
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "compare-compensation.yaml"

@@ -17,7 +17,7 @@ from compensation_data import errors, make_locations
 
 from nodes.compensators import disparity_curve, lookup, polynomial, xyz
 from nodes.compensators.apply import ApplyParams, apply
-from stereograph.api import NodeError, RunContext
+from stereograph.core.api import NodeError, RunContext
 
 FIT_NODES = {
     "polynomial": polynomial.polynomial,
@@ -124,7 +124,7 @@ def test_screening_off_keeps_every_placement(poisoned):
 @pytest.mark.slow
 def test_the_run_summary_and_model_file_list_the_left_out_placements(tmp_path):
     # Through the CLI: toy placements (a third of the train split mis-detected) -> compensator.xyz.
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     plugin = Path(__file__).resolve().parent / "plugins" / "toy_locations.py"
     pipeline = tmp_path / "p.yaml"

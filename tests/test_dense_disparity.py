@@ -19,9 +19,9 @@ from nodes.locators.triangulate import triangulate_point
 from nodes.rectifiers.given import GivenParams, given
 from nodes.rectifiers.remap import RemapParams, remap
 from nodes.sources._files import pair_key
-from stereograph.api import NodeError
-from stereograph.cli import main as cli_main
-from stereograph.outputs import write_collection, write_value
+from stereograph.app.cli import main as cli_main
+from stereograph.core.api import NodeError
+from stereograph.core.outputs import write_collection, write_value
 
 ROOT = Path(__file__).resolve().parents[1]
 ALOE = ROOT.parent / "shared" / "data" / "middlebury-aloe-opencv"

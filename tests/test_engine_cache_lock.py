@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cache import ArtifactStore
+from stereograph.core.cache import ArtifactStore
 
 KEY = "ab" + "0" * 62
 
@@ -42,7 +42,7 @@ def test_a_second_holder_in_the_same_process_waits(tmp_path):
 
 
 def test_a_prune_or_clear_waits_for_the_runs_using_the_cache(tmp_path):
-    from stereograph.cache import ArtifactStore, CacheBusy, in_use
+    from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
 
     store = ArtifactStore(tmp_path / "cache")
     store.save("a" * 32, {"x": 1}, {"node": "n"})
@@ -64,11 +64,11 @@ def test_two_runs_and_a_pruning_loop_on_one_cache(tmp_path):
     import sys
     import threading
 
-    from stereograph.cache import ArtifactStore, CacheBusy
+    from stereograph.core.cache import ArtifactStore, CacheBusy
 
     root = Path(__file__).resolve().parents[1]
     cache = tmp_path / "cache"
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(root / "pipelines" / "locate.yaml"),
+    cmd = [sys.executable, "-m", "stereograph", "run", str(root / "pipelines" / "locate.yaml"),
            "--set", "rig.n_scenes=8", "--set", "rig.n_views=6", "--cache-dir", str(cache)]
     env = {**os.environ, "PYTHONPATH": str(root)}
     subprocess.run(cmd + ["--out", str(tmp_path / "warm")], check=True, capture_output=True, env=env)

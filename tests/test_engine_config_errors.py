@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main
+from stereograph.app.cli import main
 
 TOY = Path(__file__).parent / "plugins" / "toy.py"
 
@@ -163,7 +163,7 @@ def test_other_commands_share_validation(tmp_path, capsys, cmd):
 def test_nested_params_merge_into_their_default(tmp_path, capsys):
     plug = tmp_path / "nested.py"
     plug.write_text(textwrap.dedent("""\
-        from stereograph.api import node, Out, Params, Field
+        from stereograph.core.api import node, Out, Params, Field
 
         class Joint(Params):
             min_deg: float = Field(..., description="Lower limit (deg).")
@@ -179,8 +179,8 @@ def test_nested_params_merge_into_their_default(tmp_path, capsys):
     f = tmp_path / "p.yaml"
     f.write_text(f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n"
                  "    params: {yaw: {max_deg: 90}}\n")
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     g = build_graph(load_pipeline(f, ["arm.yaw.min_deg=-100"]))
     assert g.nodes["arm"].params.yaw.min_deg == -100 and g.nodes["arm"].params.yaw.max_deg == 90
@@ -202,8 +202,8 @@ def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipeline
     # locate.yaml's `defaults:` give the segmenters object: {radius_cm: 2, color_bgr: orange}; setting
     # only the radius (a 5 cm ball) dropped the colour, and the segmenter then refused every pair of
     # a plain 5 cm ball as "ambiguous ... give object.color_bgr" (20/20 not found, now 20/20 found)
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     obj = build_graph(load_pipeline(LOCATE, ["segment.object.radius_cm=5"])).nodes["segment"].params.object
     assert obj.radius_cm == 5 and tuple(obj.color_bgr) == (20, 120, 245)
@@ -306,8 +306,8 @@ def test_a_bad_set_is_located_at_the_set_not_at_the_file_line_it_replaced(overri
 def test_a_type_swap_on_the_command_line_keeps_params_set_before_it():
     """`--set segment.object.radius_cm=5 --set segment.type=segmenter.color` dropped the radius (the swap
     reset the node's params, in command-line order); type swaps now go first, wherever they stand."""
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     locate = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
     for order in (["segment.object.radius_cm=5", "segment.type=segmenter.color"],
@@ -329,7 +329,7 @@ def test_a_plugin_node_without_params_that_reads_one_is_told_to_declare_them(tmp
     # was "AttributeError: '_NoParams' object has no attribute 'gain'", taken for a bug in the engine
     plug = tmp_path / "noparams.py"
     plug.write_text(textwrap.dedent("""\
-        from stereograph.api import Out, node
+        from stereograph.core.api import Out, node
 
         @node("mine.gain", outputs={"value": Out("Number")})
         def gain(params):

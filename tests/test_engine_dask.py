@@ -9,8 +9,8 @@ pytest.importorskip("distributed")
 
 import dask  # noqa: E402
 
-from stereograph.executors import DaskExecutor  # noqa: E402
-from stereograph.runner import run_pipeline  # noqa: E402
+from stereograph.core.executors import DaskExecutor  # noqa: E402
+from stereograph.core.runner import run_pipeline  # noqa: E402
 from tests.test_engine_items import write_pipeline  # noqa: E402
 
 
@@ -85,7 +85,7 @@ def test_a_cluster_reached_by_address_checks_it_sees_our_files(tmp_path, dask_lo
 def test_a_cluster_that_does_not_see_our_files_is_refused_before_anything_runs(tmp_path):
     # A cluster whose workers lack the shared storage cannot be made on one machine, so the
     # workers' answer is given here: every worker reports that it cannot read the probe file.
-    from stereograph.errors import ConfigError
+    from stereograph.core.errors import ConfigError
 
     class BlindClient:
         def run(self, fn, *args):

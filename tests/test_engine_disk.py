@@ -10,15 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereograph import cache as cache_mod
-from stereograph import project
-from stereograph.cache import ArtifactStore
-from stereograph.errors import ConfigError
-from stereograph.runner import run_pipeline
+from stereograph.core import cache as cache_mod
+from stereograph.core import project
+from stereograph.core.cache import ArtifactStore
+from stereograph.core.errors import ConfigError
+from stereograph.core.runner import run_pipeline
 
 PLUGIN = """\
 import numpy as np
-from stereograph.api import Field, In, Out, Params, node
+from stereograph.core.api import Field, In, Out, Params, node
 
 class NoiseParams(Params):
     n: int = Field(3, ge=1, description="How many images (count).")
@@ -173,7 +173,7 @@ def test_the_cache_stays_within_its_budget(tmp_path, monkeypatch):
 
 
 def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, monkeypatch):
-    from stereograph import registry
+    from stereograph.core import registry
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     registry._all_groups.cache_clear()
@@ -208,7 +208,7 @@ def _left_by_a_killed_run(store: ArtifactStore, age_s: float, size: int = 50_000
 
 
 def test_what_killed_runs_left_in_tmp_is_reported_and_pruned(tmp_path, monkeypatch, capsys):
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     p = pipeline(tmp_path / "x", "one")
     assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1").ok

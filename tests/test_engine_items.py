@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.executors import ProcessExecutor
-from stereograph.runner import run_pipeline
+from stereograph.core.executors import ProcessExecutor
+from stereograph.core.runner import run_pipeline
 
 PLUGINS = [Path(__file__).parent / "plugins" / "toy.py", Path(__file__).parent / "plugins" / "toy_items.py"]
 
@@ -148,7 +148,7 @@ def test_ctrl_c_is_left_to_the_pool_owner_which_ends_its_workers_for_good():
     """A terminal's Ctrl-C reaches every process of its group: workers ignore it (one waiting for a
     task printed a KeyboardInterrupt traceback), the owner ends them (close(now=True)), and a thread
     still handing tasks over (compare's variants) gets each one lost at once, not a new pool."""
-    from stereograph.executors import TaskLost
+    from stereograph.core.executors import TaskLost
 
     ex = ProcessExecutor(2)
     try:
@@ -262,11 +262,11 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
           scale: {{type: toy.scale, inputs: {{m: power.m, k: total.total}}}}
           report: {{type: toy.table, inputs: {{m: scale.m}}}}
         """))
-    from stereograph import streaming
-    from stereograph.config import load_pipeline
-    from stereograph.executors import SerialExecutor
-    from stereograph.graph import build_graph
-    from stereograph.run_state import RunState
+    from stereograph.core import streaming
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.executors import SerialExecutor
+    from stereograph.core.graph import build_graph
+    from stereograph.core.run_state import RunState
 
     g = build_graph(load_pipeline(f))
     state = RunState(g, None, tmp_path, SerialExecutor(), set(), None)
@@ -298,7 +298,7 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
 
 
 def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
-    from stereograph.streaming import chunk_bounds, chunk_size
+    from stereograph.core.streaming import chunk_bounds, chunk_size
 
     for n, workers in [(120, 2), (120, 1), (9, 2), (5, 3), (1, 2), (0, 2), (480, 4)]:
         bounds = chunk_bounds(n, workers)
@@ -325,7 +325,7 @@ class Watch:
         return None
 
 sys.meta_path.insert(0, Watch())
-from stereograph.cli import main
+from stereograph.app.cli import main
 rc = main(sys.argv[1:])
 print("OPENBLAS_NUM_THREADS when NumPy loaded:", seen[0] if seen else "not loaded")
 sys.exit(rc)
@@ -355,7 +355,7 @@ def test_a_workers_command_loads_numpy_with_one_blas_thread(tmp_path):
 
 
 def test_pool_requested_reads_the_raw_command_line():
-    from stereograph.threads import pool_requested
+    from stereograph.core.threads import pool_requested
 
     assert pool_requested(["run", "p.yaml", "--workers", "2"])
     assert pool_requested(["compare", "p.yaml", "--workers=3", "--json"])
@@ -373,7 +373,7 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
     import threading
     import time
 
-    from stereograph import registry, runner
+    from stereograph.core import registry, runner
 
     p = write_pipeline(tmp_path, "{n: 6}")
     monkeypatch.setattr(runner, "_PREPARED", set())  # (other tests' pooled runs prepared it already)
@@ -402,7 +402,7 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
 def test_a_nodes_further_messages_are_printed_under_the_summary(tmp_path, capsys):
     # (only the first was shown, then '(+N more in run.json)': a warning such as 'rejected 1 view(s): 03'
     # never reached the console)
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     p = write_pipeline(tmp_path, "{n: 8, drop: [m001, m002, m003, m004, m005]}")
     assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 0
@@ -421,7 +421,7 @@ def test_a_chunk_whose_items_were_all_dropped_does_not_say_the_node_had_none(tmp
 
 def test_more_than_one_failed_item_is_counted_where_the_first_is_named(tmp_path, capsys):
     # (only the first failed item was named; the second was only in run.json, without a word)
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     p = write_pipeline(tmp_path, "{n: 6, fail: [m001, m004]}")
     assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 1
@@ -434,11 +434,11 @@ def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_
     import json
     import textwrap
 
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     plug = tmp_path / "blocked.py"
     plug.write_text(textwrap.dedent("""\
-        from stereograph.api import In, NodeError, Out, node
+        from stereograph.core.api import In, NodeError, Out, node
 
         @node("blk.items", outputs={"v": Out("Number", collection=True)})
         def items(params):
@@ -469,9 +469,9 @@ def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
     """(after a run where an item failed and one was dropped, explain said every node downstream would
     run -- 'upstream src will run' -- while the next run tried the two items again, they failed again,
     and everything downstream came from the cache)"""
-    from stereograph.config import load_pipeline
-    from stereograph.explain import explain
-    from stereograph.graph import build_graph
+    from stereograph.app.explain import explain
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     p = write_pipeline(tmp_path, "{n: 5, drop: [m001], fail: [m003]}")
     assert run(p, tmp_path).status["src"] == "partial"
@@ -484,7 +484,7 @@ def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
 
 
 SCALE_NODE = '''
-from stereograph.api import In, Out, Params, node
+from stereograph.core.api import In, Out, Params, node
 
 @node("mine.scale", inputs={"m": In("Matrix"), "report": In("Report")}, outputs={"norm": Out("Number")})
 def scale(params: Params, m, report):
@@ -499,7 +499,7 @@ def test_a_gathering_node_wired_to_a_streamed_source_sees_every_item(tmp_path, m
     """(issue 27: a gathering node wired straight to a streamed source's output -- segmenter.appearance on
     bench-fit's balls.pairs -- got no items: 'none of the 0 pairs is a train placement'. It ran between the
     source's whole part and the region that makes the items.)"""
-    from stereograph.executors import DaskExecutor
+    from stereograph.core.executors import DaskExecutor
 
     (tmp_path / "mine.py").write_text(SCALE_NODE)
     p = tmp_path / "p.yaml"

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from stereograph.runner import run_pipeline
+from stereograph.core.runner import run_pipeline
 
 PLUGIN = """\
 import numpy as np
-from stereograph.api import In, Out, node
+from stereograph.core.api import In, Out, node
 
 @node("lossyUID.draw", outputs={"picture": Out("Image", save=True, lossy=True), "mask": Out("Image")})
 def draw(params):

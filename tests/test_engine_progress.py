@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.progress import PlainProgress, RichProgress, eta_seconds
+from stereograph.app.progress import PlainProgress, RichProgress, eta_seconds
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -68,7 +68,7 @@ def test_rich_progress_takes_the_node_count_and_back():
 @pytest.mark.slow
 def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     """`stereograph run pipelines/locate.yaml > log.txt`: lines arrive before the run ends."""
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "rig",
+    cmd = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "rig",
            "--set", "rig.n_scenes=12", "--set", "rig.n_views=2", "--no-cache", "--progress-interval", "0.2",
            "--out", str(tmp_path / "out")]
     env = {**os.environ, "TERM": "xterm-256color"}  # a terminal type, yet stdout is a pipe: still plain lines
@@ -120,7 +120,7 @@ def test_plain_progress_ending_lines_say_failed_and_interrupted():
 
 @pytest.mark.slow
 def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "calib",
+    cmd = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "calib",
            "--set", "rig.n_scenes=2", "--set", "rig.n_views=8", "--set", "calib.max_rms_px=0.001", "--no-cache",
            "--out", str(tmp_path / "out")]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=300)
@@ -133,7 +133,7 @@ def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
 
 
 def test_clip_cuts_after_a_whole_word():
-    from stereograph.cli import _clip
+    from stereograph.app.cli import _clip
 
     text = "the views do not fit one pair of cameras; worst views v03 (0.07 px), v00 (0.07 px)"
     assert _clip(text, 200) == text
@@ -142,7 +142,7 @@ def test_clip_cuts_after_a_whole_word():
     assert text[len(short) - 1] in " ,;(", short  # cut at a word's end, not inside one
 def test_progress_interval_must_be_a_positive_number_of_seconds(capsys):
     # (0 or a negative interval printed a progress line per millisecond: 560 000 lines for a 7-pair run)
-    from stereograph.cli import main
+    from stereograph.app.cli import main
 
     pipeline = str(Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml")
     for bad in ("0", "-1", "nan", "inf", "soon"):

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main
-from stereograph.config import load_pipeline
-from stereograph.graph import build_graph
-from stereograph.loop import Loop
-from stereograph.runner import run_graph
+from stereograph.app.cli import main
+from stereograph.app.loop import Loop
+from stereograph.core.config import load_pipeline
+from stereograph.core.graph import build_graph
+from stereograph.core.runner import run_graph
 
 TOY = Path(__file__).parent / "plugins" / "live_toy.py"
 
@@ -96,7 +96,7 @@ def test_sigterm_ends_the_loop_like_ctrl_c(tmp_path):
     marker = tmp_path / "closed.txt"
     f = pipeline(tmp_path, tick=f"{{sleep_s: 0.2, marker: {marker}}}")
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "stereograph.cli", "run", str(f), "--repeat", "0", "--out",
+    proc = subprocess.Popen([sys.executable, "-m", "stereograph", "run", str(f), "--repeat", "0", "--out",
                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
     deadline = time.time() + 60
@@ -191,7 +191,7 @@ def test_a_cycles_images_are_not_logged_as_values_whatever_their_size(tmp_path):
     plug = tmp_path / "pictures.py"
     plug.write_text(textwrap.dedent("""\
         import numpy as np
-        from stereograph.api import In, Out, node
+        from stereograph.core.api import In, Out, node
 
         @node("pic.draw", inputs={"tick": In("Number")},
               outputs={"overlay": Out("Image"), "mask": Out("Image"), "count": Out("Number")})

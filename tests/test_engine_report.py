@@ -7,8 +7,8 @@ from pathlib import Path
 
 import cv2
 
-from stereograph.cli import main
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 HELLO = ROOT / "pipelines" / "hello.yaml"
@@ -30,7 +30,7 @@ def test_every_run_writes_a_self_contained_report(tmp_path):
 
 
 def test_report_renders_tables_and_embeds_images(tmp_path):
-    from stereograph.report import build_html
+    from stereograph.app.report import build_html
 
     (tmp_path / "n").mkdir()
     img = (255 * (cv2.getGaussianKernel(40, 8) @ cv2.getGaussianKernel(40, 8).T)).astype("uint8")
@@ -55,7 +55,7 @@ def test_graph_picture_png_and_svg(tmp_path):
 
 
 def test_report_says_how_many_messages_it_left_out(tmp_path):
-    from stereograph.report import MESSAGES_SHOWN, build_html
+    from stereograph.app.report import MESSAGES_SHOWN, build_html
 
     msgs = [f"pair{i:03d}: no region found" for i in range(MESSAGES_SHOWN + 7)]
     html = build_html({"pipeline": "x.yaml", "run_id": "r", "ok": True,
@@ -65,7 +65,7 @@ def test_report_says_how_many_messages_it_left_out(tmp_path):
 
 
 def test_report_sections_follow_the_data_flow(tmp_path):
-    from stereograph.report import build_html
+    from stereograph.app.report import build_html
 
     # as an including file leaves them: 'report' rewired to read 'compensate', listed before it
     nodes = [{"node": "locate", "inputs": {}}, {"node": "report", "inputs": {"locations": ["compensate", "location"]}},
@@ -80,7 +80,7 @@ def test_report_sections_follow_the_data_flow(tmp_path):
 
 def test_a_markdown_value_is_shown_as_html_with_its_table():
     # (it was shown as monospace text: `| axis | mean error (cm) | ...` to read by eye)
-    from stereograph.report import markdown_html
+    from stereograph.app.page import markdown_html
 
     md = "### Error <b>\n\nsplit: test\n\n| axis | mean (cm) |\n|---|---:|\n| z | -0.059 |\n"
     page = markdown_html(md)
@@ -104,9 +104,9 @@ def test_no_wire_of_the_graph_picture_crosses_a_box():
     """(long wires ran down shared lanes on the left and tangled; they now pass beside the boxes)"""
     import numpy as np
 
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
-    from stereograph.graph_picture import BOX_H, BOX_W, describe, layout
+    from stereograph.app.graph_picture import BOX_H, BOX_W, describe, layout
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     for name in ("pick.yaml", "pick-live.yaml", "locate.yaml", "bench-fit.yaml"):
         nodes = describe(build_graph(load_pipeline(ROOT / "pipelines" / name)))
@@ -124,9 +124,9 @@ def test_no_wire_of_the_graph_picture_crosses_a_box():
 def test_the_graph_pictures_wires_cross_each_other_rarely():
     """Wire crossings of the shipped pipelines' pictures (the shared left lanes gave pick.yaml 38,
     pick-live 27, locate 19, bench-fit 27; the layered layout 10, 8, 3, 6)."""
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
-    from stereograph.graph_picture import describe, layout
+    from stereograph.app.graph_picture import describe, layout
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     def cross(p1, p2, p3, p4) -> bool:
         def side(a, b, c):

@@ -1,4 +1,4 @@
-"""Issue 13: a rerun with nothing changed is replayed from its memo (stereograph.rerun) without
+"""Issue 13: a rerun with nothing changed is replayed from its memo (stereograph.app.rerun) without
 building the graph; any change -- pipeline, code, a pruned entry, an edited result -- means a real run."""
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from stereograph import rerun
-from stereograph.cli import main
+from stereograph.app import rerun
+from stereograph.app.cli import main
 
 TOY = Path(__file__).parent / "plugins" / "toy.py"
 
 LIVE = """\
 import os
-from stereograph.api import In, NodeError, Out, node
+from stereograph.core.api import In, NodeError, Out, node
 from helper_UID import OFFSET
 
 @node("tmp.actUID", inputs={"values": In("Number", gather=True)},
@@ -91,7 +91,7 @@ def test_a_rerun_with_nothing_changed_is_replayed_without_the_graph(tmp_path, ca
     p = _project(tmp_path)
     assert _run(p, tmp_path, "o1") == 0
     first = capsys.readouterr().out
-    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
     assert _run(p, tmp_path, "o2") == 0
     again = capsys.readouterr().out
     s1, s2 = _summary(tmp_path, "o1"), _summary(tmp_path, "o2")
@@ -135,7 +135,7 @@ def test_a_code_edit_in_an_imported_helper_is_noticed(tmp_path, calls, monkeypat
     memo = json.loads((rerun.memo_dir(tmp_path / "w" / "c", p, []) / "memo.json").read_text())
     assert str(helper.resolve()) in memo["inputs"] and str(next(tmp_path.glob("live_*.py")).resolve()) in memo["inputs"]
     assert str(Path(rerun.__file__).resolve()) in memo["inputs"]  # the engine's own code too
-    from stereograph import graph
+    from stereograph.core import graph
 
     built = []
     real = graph.build_graph
@@ -149,7 +149,7 @@ def test_a_code_edit_in_an_imported_helper_is_noticed(tmp_path, calls, monkeypat
 def test_nodes_that_must_run_run_again_and_plugins_must_be_allowed(tmp_path, calls, monkeypatch, capsys):
     p = _project(tmp_path, live=True)
     assert _run(p, tmp_path, "o1") == 0
-    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
     assert _run(p, tmp_path, "o2") == 0
     status = {n["node"]: n["status"] for n in _summary(tmp_path, "o2")["nodes"]}
     assert status["act"] == "ran" and status["power"] == "cached"
@@ -188,7 +188,7 @@ def test_a_pruned_entry_or_an_edited_result_means_a_real_run(tmp_path):
 def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_path, calls, monkeypatch, capsys):
     p = _project(tmp_path, live=True)
     assert _run(p, tmp_path, "o1") == 0
-    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
     monkeypatch.setenv("LIVE_FAIL", "1")
     capsys.readouterr()
     assert _run(p, tmp_path, "o2") == 1
@@ -208,7 +208,7 @@ def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_pat
 
 
 READER = """\
-from stereograph.api import Field, Out, Params, node
+from stereograph.core.api import Field, Out, Params, node
 
 class P(Params):
     path: str = Field(..., description="A text file (path).")
@@ -235,13 +235,13 @@ def test_an_edit_to_a_file_a_node_reads_is_noticed(tmp_path, monkeypatch):
     os.utime(data, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert _run(p, tmp_path, "o2") == 0
     assert (tmp_path / "w" / "o2" / "read" / "text.json").read_text().strip() == '"two"'
-    monkeypatch.setattr("stereograph.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
     assert _run(p, tmp_path, "o3") == 0  # nothing changed since: replayed, with the new text
     assert (tmp_path / "w" / "o3" / "read" / "text.json").read_text().strip() == '"two"'
 
 
 PLAIN = """\
-from stereograph.api import In, Out, node
+from stereograph.core.api import In, Out, node
 
 @node("tmp.countUID", outputs={"n": Out("Number")})
 def count(params):
@@ -266,7 +266,7 @@ def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_pa
     p.write_text(f"name: t\nplugins: [plain_{uid}]\nnodes:\n  count: {{type: tmp.count{uid}}}\n"
                  f"  act: {{type: tmp.act{uid}, inputs: {{n: count.n}}}}\n")
     (tmp_path / "w").mkdir()
-    code = ("import sys; from stereograph import rerun; rerun.RACY_NS = 0; from stereograph.cli import main; "
+    code = ("import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from stereograph.app.cli import main; "
             f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'w' / 'c')!r}, "
             "'--out', sys.argv[1]]); print('NUMPY', 'numpy' in sys.modules); sys.exit(rc)")
     env = dict(os.environ, STEREOGRAPH_NO_REPLAY="")

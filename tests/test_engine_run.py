@@ -14,13 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cache import ArtifactStore
-from stereograph.cli import main
-from stereograph.config import load_pipeline
-from stereograph.errors import ConfigError
-from stereograph.explain import explain
-from stereograph.graph import build_graph
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.app.explain import explain
+from stereograph.core.cache import ArtifactStore
+from stereograph.core.config import load_pipeline
+from stereograph.core.errors import ConfigError
+from stereograph.core.graph import build_graph
+from stereograph.core.runner import run_pipeline
 
 TOY = Path(__file__).parent / "plugins" / "toy.py"
 
@@ -87,7 +87,7 @@ def test_source_code_change_invalidates_including_helpers(tmp_path):
     (plug / "mynode.py").write_text(textwrap.dedent("""\
         import sys, os
         sys.path.insert(0, os.path.dirname(__file__))
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         import helper_mod
 
         @node("tmp.const", outputs={"value": Out("Number")})
@@ -98,7 +98,7 @@ def test_source_code_change_invalidates_including_helpers(tmp_path):
     f.write_text("name: c\nplugins: [plug/mynode.py]\nnodes:\n  c: {type: tmp.const}\n")
     code = textwrap.dedent(f"""\
         import sys, json
-        from stereograph.runner import run_pipeline
+        from stereograph.core.runner import run_pipeline
         r = run_pipeline({str(f)!r}, cache_dir={str(tmp_path / 'cache')!r}, out_dir={str(tmp_path / 'o')!r})
         print(json.dumps([r.status['c'], r.outputs('c', 'value')]))
         """)
@@ -144,7 +144,7 @@ def test_item_failure_skips_only_that_item(tmp_path):
 def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path, capsys):
     plug = tmp_path / "boom.py"
     plug.write_text(textwrap.dedent("""\
-        from stereograph.api import node, In, Out, NodeError
+        from stereograph.core.api import node, In, Out, NodeError
         @node("tmp.boom", inputs={"m": In("Matrix", gather=True)}, outputs={"x": Out("Number")})
         def boom(params, m):
             raise NodeError("no object found in image left07.png", hint="check the lighting")
@@ -188,7 +188,7 @@ def _kill_during_save(cache: str) -> None:
     """Child process: dies (os._exit) after the temp files exist, before the rename."""
     import numpy as np
 
-    from stereograph import cache as c
+    from stereograph.core import cache as c
 
     real_rename = os.rename
 
@@ -237,7 +237,7 @@ def test_corrupt_entry_is_detected_and_recomputed(tmp_path):
 def _concurrent_run(args):
     path, cache, out, log = args
     os.environ["TOY_LOG"] = log
-    from stereograph.runner import run_pipeline as rp
+    from stereograph.core.runner import run_pipeline as rp
 
     r = rp(path, cache_dir=cache, out_dir=out)
     return r.ok
@@ -248,7 +248,7 @@ def test_two_runs_at_once_share_the_cache(tmp_path):
     plug = tmp_path / "slow.py"
     plug.write_text(textwrap.dedent("""\
         import os, time
-        from stereograph.api import node, In, Out
+        from stereograph.core.api import node, In, Out
         @node("tmp.slow", inputs={"m": In("Matrix")}, outputs={"x": Out("Number")})
         def slow(params, m, ctx=None):
             with open(os.environ["TOY_LOG"], "a") as f:
@@ -274,7 +274,7 @@ def test_uncacheable_node_runs_every_time(tmp_path):
     plug = tmp_path / "live.py"
     plug.write_text(textwrap.dedent("""\
         import itertools
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         COUNTER = itertools.count()
         @node("tmp.live", outputs={"x": Out("Number")}, cacheable=False)
         def live(params):
@@ -306,7 +306,7 @@ def test_include_and_defaults(tmp_path):
 
 
 def test_process_pool_gives_the_same_result(tmp_path):
-    from stereograph.executors import ProcessExecutor
+    from stereograph.core.executors import ProcessExecutor
 
     p = write_pipeline(tmp_path, n=8)
     serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
@@ -321,7 +321,7 @@ def test_process_pool_gives_the_same_result(tmp_path):
 @pytest.mark.slow
 def test_dask_executor_gives_the_same_result(tmp_path):
     pytest.importorskip("distributed")
-    from stereograph.executors import DaskExecutor
+    from stereograph.core.executors import DaskExecutor
 
     p = write_pipeline(tmp_path, n=6)
     serial = run_pipeline(p, use_cache=False, out_dir=tmp_path / "o1").outputs("total", "total")
@@ -337,7 +337,7 @@ def test_files_a_node_reads_are_part_of_its_key(tmp_path):
     plug = tmp_path / "reader.py"
     plug.write_text(textwrap.dedent("""\
         from pathlib import Path
-        from stereograph.api import node, Out, Params, Field
+        from stereograph.core.api import node, Out, Params, Field
 
         class P(Params):
             path: str = Field(..., description="A text file (path).")
@@ -411,7 +411,7 @@ def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
 
 
 LOGGER = """\
-from stereograph.api import Field, Out, Params, node
+from stereograph.core.api import Field, Out, Params, node
 
 class LogParams(Params):
     files: list[str] = Field([], description="Files the node writes into its own folder (relative paths).")
@@ -462,7 +462,7 @@ def test_a_users_file_in_a_nodes_folder_is_not_taken_for_the_nodes(tmp_path):
 
 def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path, capsys):
     plug = tmp_path / "bug.py"
-    plug.write_text("from stereograph.api import node, Out\n"
+    plug.write_text("from stereograph.core.api import node, Out\n"
                     "@node('tmp.bug', outputs={'x': Out('Number')})\n"
                     "def bug(params):\n    return {'x': 1 / 0}\n")
     f = tmp_path / "p.yaml"
@@ -478,7 +478,7 @@ def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path,
 
 def test_node_warnings_survive_a_cached_run(tmp_path):
     plug = tmp_path / "warn.py"
-    plug.write_text("from stereograph.api import node, In, Out\n"
+    plug.write_text("from stereograph.core.api import node, In, Out\n"
                     "@node('tmp.warn', inputs={'m': In('Matrix')}, outputs={'x': Out('Number')})\n"
                     "def warn(params, m, ctx=None):\n    ctx.warn(f'{ctx.item}: looks odd')\n"
                     "    return {'x': float(m.sum())}\n")
@@ -512,7 +512,7 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
 
 
 def test_node_learns_which_alternative_is_wired(tmp_path):
-    from stereograph.executors import ProcessExecutor
+    from stereograph.core.executors import ProcessExecutor
 
     extra = ("  per_item:\n    type: toy.describe\n    inputs: {x: numbers.items}\n"
              "  whole:\n    type: toy.describe\n    inputs: {x: total.total}\n")
@@ -589,7 +589,7 @@ def _plugin(folder: Path, name: str, body: str) -> Path:
 def test_a_plugin_edited_in_a_long_lived_process_runs_its_new_code(tmp_path):
     # (the second run in one Python process ran the old code and cached it under the new code's key)
     body = """\
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         @node("tmp.answer", outputs={{"value": Out("Number", save=True)}})
         def answer(params):
             return {{"value": {v}}}
@@ -605,7 +605,7 @@ def test_a_plugin_edited_in_a_long_lived_process_runs_its_new_code(tmp_path):
 
 def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neighbours(tmp_path):
     one = _plugin(tmp_path / "a", "nodes.py", """\
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         from helper_a import VALUE
         @node("tmp.from_a", outputs={"value": Out("Number", save=True)})
         def from_a(params):
@@ -613,7 +613,7 @@ def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neig
         """)
     _plugin(tmp_path / "a", "helper_a.py", "VALUE = 3\n")
     two = _plugin(tmp_path / "b", "nodes.py", """\
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         @node("tmp.from_b", outputs={"value": Out("Number", save=True)})
         def from_b(params):
             return {"value": 4}
@@ -626,7 +626,7 @@ def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neig
 
 def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
     plug = _plugin(tmp_path, "clash.py", """\
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         @node("segmenter.color", outputs={"segmentation": Out("Segmentation")})
         def color(params):
             return {"segmentation": {}}
@@ -635,7 +635,7 @@ def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
     f.write_text(f"name: c\nplugins: [{plug}]\nnodes:\n  s: {{type: source.synthetic, params: {{n_views: 0}}}}\n")
     with pytest.raises(ConfigError, match="defines a node type 'segmenter.color', the name of an installed node"):
         build_graph(load_pipeline(f))
-    from stereograph.registry import get
+    from stereograph.core.registry import get
     assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"  # the built-in is still the one
 
 
@@ -647,7 +647,7 @@ def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, 
     slow = _plugin(tmp_path, "slow.py", f"""\
         import time, uuid
         from pathlib import Path
-        from stereograph.api import node, Out, In
+        from stereograph.core.api import node, Out, In
         @node("tmp.slow", inputs={{"m": In("Matrix")}}, outputs={{"v": Out("Number", save=True)}})
         def slow(params, m):
             time.sleep({seconds})
@@ -666,7 +666,7 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
     import signal
 
     marks, f = _slow_items_pipeline(tmp_path, n=60, seconds=0.5)
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--workers", "2", "--no-cache",
+    cmd = [sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--workers", "2", "--no-cache",
            "--out", str(tmp_path / "out")]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -684,7 +684,7 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
 def test_json_output_stays_json_when_a_node_prints(tmp_path):
     # (a node's print() landed above the JSON on standard output: `stereograph run --json | jq` broke)
     printer = _plugin(tmp_path, "printer.py", """\
-        from stereograph.api import node, Out
+        from stereograph.core.api import node, Out
         @node("tmp.printer", outputs={"v": Out("Number", save=True)})
         def printer(params):
             print("HELLO FROM NODE")
@@ -692,7 +692,7 @@ def test_json_output_stays_json_when_a_node_prints(tmp_path):
         """)
     f = tmp_path / "p.yaml"
     f.write_text(f"name: pr\nplugins: [{printer}]\nnodes:\n  p: {{type: tmp.printer}}\n")
-    out = subprocess.run([sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--json",
+    out = subprocess.run([sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--json",
                           "--no-cache", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and json.loads(out.stdout)["ok"] is True and "HELLO FROM NODE" in out.stderr
 
@@ -705,7 +705,7 @@ def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     import signal
 
     marks, f = _slow_items_pipeline(tmp_path, n=8, seconds=0.3)
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(f), "--allow-plugins", "--cache-dir",
+    cmd = [sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--cache-dir",
            str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
@@ -741,7 +741,7 @@ def test_the_command_process_ends_after_its_exit_handlers_threads_and_output(tmp
                 time.sleep(0.5)
                 (marks / "thread").write_text("ran")
             threading.Thread(target=late).start()
-        from stereograph.cli import main
+        from stereograph.app.cli import main
         sys.argv = ["stereograph", "nodes"]
         sys.exit(main())
     """)
@@ -778,7 +778,7 @@ class _InterruptAt:
 def test_explain_after_an_interrupt_agrees_with_the_next_run(tmp_path, node, n):
     """(after Ctrl-C in the middle of the streamed items, explain said calib and rectify would run --
     'upstream rig will run' -- and the rerun found both cached: rig's views were, only pairs were not)"""
-    from stereograph.runner import run_graph
+    from stereograph.core.runner import run_graph
 
     pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
     sets = ["rig.n_scenes=4", "rig.n_views=6"]

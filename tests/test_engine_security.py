@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stereograph.cli import main
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 TOY = ROOT / "tests" / "plugins" / "toy.py"
@@ -86,7 +86,7 @@ def test_unsafe_pipeline_name_is_refused(tmp_path, capsys):
 
 ITEMS_PLUGIN = """\
 import numpy as np
-from stereograph.api import Out, node
+from stereograph.core.api import Out, node
 
 @node("tmp.items", outputs={"pictures": Out("Image", collection=True, save=True),
                             "records": Out("Report", collection=True, save=True)})
@@ -415,7 +415,7 @@ def test_corrupt_rendered_png_is_not_delivered(tmp_path):
 
 READER_PLUGIN = """\
 from pathlib import Path
-from stereograph.api import Field, Out, Params, node
+from stereograph.core.api import Field, Out, Params, node
 
 class P(Params):
     path: str = Field(..., description="File to read.")
@@ -444,7 +444,7 @@ def test_input_edited_with_mtime_restored_is_noticed(tmp_path):
 
 def _read_only_run(argv: list[str], cache: Path) -> subprocess.CompletedProcess:
     """Run the CLI with ``cache`` on a read-only file system (a read-only bind mount as root)."""
-    cmd = [sys.executable, "-m", "stereograph.cli", *argv]
+    cmd = [sys.executable, "-m", "stereograph", *argv]
     env = {**os.environ, "STEREOGRAPH_ALLOW_PLUGINS": "1"}
     if os.geteuid() != 0:
         subprocess.run(["chmod", "-R", "a-w", str(cache)], check=True)
@@ -523,7 +523,7 @@ def _on_small_tmpfs(folder: Path, kib: int, argv: list[str]) -> subprocess.Compl
     if os.geteuid() != 0 or shutil.which("unshare") is None:
         pytest.skip("needs root and unshare to mount a small tmpfs")
     folder.mkdir(parents=True, exist_ok=True)
-    cmd = " ".join(f"'{a}'" for a in [sys.executable, "-m", "stereograph.cli", *argv])
+    cmd = " ".join(f"'{a}'" for a in [sys.executable, "-m", "stereograph", *argv])
     # list any .tmp left behind while the (private) mount is still there
     script = (f"mount -t tmpfs -o size={kib}k tmpfs {folder} || exit 99; {cmd}; rc=$?; "
               f"echo LEFT:; find {folder} -name '*.tmp'; exit $rc")

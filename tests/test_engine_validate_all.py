@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main
-from stereograph.config import load_pipeline
-from stereograph.errors import ConfigError, ConfigErrors
-from stereograph.graph import build_graph, check_pipeline
+from stereograph.app.cli import main
+from stereograph.core.config import load_pipeline
+from stereograph.core.errors import ConfigError, ConfigErrors
+from stereograph.core.graph import build_graph, check_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 LOCATE = ROOT / "pipelines" / "locate.yaml"

@@ -19,8 +19,8 @@ from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stereograph import registry
-from stereograph.cli import main
+from stereograph.app.cli import main
+from stereograph.core import registry
 
 ROOT = Path(__file__).resolve().parent.parent
 PIPELINES = sorted((ROOT / "pipelines").glob("*.yaml"))

@@ -20,7 +20,7 @@ from fuzzing import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 ROOT = Path(__file__).resolve().parents[1]
 LIVE = ROOT / "pipelines" / "live"

@@ -12,8 +12,8 @@ from nodes.contracts.recording import write_video
 from nodes.recorders.stereo_video import StereoVideoParams, stereo_video
 from nodes.sources.camera import CameraParams, camera
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.api import NodeError, RunContext
-from stereograph.calls import close_resources
+from stereograph.core.api import NodeError, RunContext
+from stereograph.core.calls import close_resources
 
 
 @pytest.fixture(scope="module")

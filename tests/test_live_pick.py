@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 import pytest
 
-from stereograph.config import load_pipeline
-from stereograph.graph import build_graph
-from stereograph.loop import Loop
-from stereograph.runner import run_graph
+from stereograph.app.loop import Loop
+from stereograph.core.config import load_pipeline
+from stereograph.core.graph import build_graph
+from stereograph.core.runner import run_graph
 
 PIPELINE = Path(__file__).resolve().parents[1] / "pipelines" / "pick-live.yaml"
 ORDER = ["s000", "s001", "s002", "s003", "s004", "empty000", "s005"]
@@ -86,7 +86,7 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
     _, _, tmp = live
     out = tmp / "interrupted"
     # real-time motion (about 6 s a pick), so that the interrupt lands while the arm moves
-    cmd = [sys.executable, "-m", "stereograph.cli", "run", str(PIPELINE), "--repeat", "0", "--out", str(out),
+    cmd = [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--repeat", "0", "--out", str(out),
            "--cache-dir", str(tmp / "cache"), "--set", f"recording.ids={ORDER}", "--set", "act.sim_time_scale=1"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(PIPELINE.parents[1])})

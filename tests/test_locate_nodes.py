@@ -13,7 +13,7 @@ from nodes.locators.triangulate import TriangulateParams, sigma_z_cm, triangulat
 from nodes.segmenters.color import ColorParams, color
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph
 from nodes.segmenters.otsu import OtsuParams, otsu
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 RED = (40, 60, 200)
 CAL = rect_calibration()

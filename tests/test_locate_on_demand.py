@@ -18,7 +18,7 @@ from nodes.contracts.views import RectifiedView, pair_views
 from nodes.rectifiers.opencv import rectify_calibration
 from nodes.segmenters._pixels import masked_pixels
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.runner import run_pipeline
+from stereograph.core.runner import run_pipeline
 
 PIPELINE = """\
 name: on-demand

@@ -52,7 +52,7 @@ def test_accuracy_node_filters_split_and_counts_not_found():
 
 @pytest.mark.slow
 def test_locate_pipeline_through_the_engine(tmp_path):
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     res = run_pipeline(ROOT / "pipelines" / "locate-truthcal.yaml",
                        overrides=["rig.n_scenes=8", "rig.n_views=0", "rig.train_fraction=0.0",
@@ -70,7 +70,7 @@ def test_locate_pipeline_through_the_engine(tmp_path):
 
 @pytest.mark.slow
 def test_hard_scenes_through_the_engine_never_crash(tmp_path):
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     kinds = "[clutter, second_ball, border, occluded, hidden, empty]"
     res = run_pipeline(ROOT / "pipelines" / "locate-truthcal.yaml",
@@ -101,7 +101,7 @@ def test_the_markdown_table_is_an_output_and_names_extrapolated_results():
 
 @pytest.mark.slow
 def test_a_cached_report_still_writes_accuracy_md(tmp_path):
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     locate = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
     for out in ("o1", "o2"):  # the second run: every node from the cache
@@ -133,7 +133,7 @@ def test_not_found_reasons_are_grouped_by_kind_with_their_numbers_as_ranges():
 
 def test_an_overlay_switched_off_writes_no_file_and_no_link(tmp_path):
     """Off means off: no 1x1 placeholder saved, linked from the page or logged."""
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     res = run_pipeline(Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml",
                        ["rig.n_scenes=3", "rig.n_views=6", "segment.overlay=false", "locate.overlay=false",

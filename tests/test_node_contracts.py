@@ -81,11 +81,11 @@ def test_a_malformed_record_fails_the_node_that_made_it_not_the_next(tmp_path):
     # input is not a Segmentation record": the node that read it was blamed)
     import textwrap
 
-    from stereograph.runner import run_pipeline
+    from stereograph.core.runner import run_pipeline
 
     plug = tmp_path / "badloc.py"
     plug.write_text(textwrap.dedent("""\
-        from stereograph.api import In, Out, node
+        from stereograph.core.api import In, Out, node
 
         @node("bad.items", outputs={"n": Out("any", collection=True)})
         def items(params):
@@ -112,7 +112,7 @@ def test_an_image_output_must_be_an_array_of_rows_and_columns():
     import numpy as np
 
     import nodes  # noqa: F401  (registers the checks)
-    from stereograph.checks import ARTIFACT_CHECKS
+    from stereograph.core.checks import ARTIFACT_CHECKS
 
     check = ARTIFACT_CHECKS["Image"]
     assert check(np.zeros((4, 5), np.uint8)) is None and check(np.zeros((4, 5, 3), np.float32)) is None

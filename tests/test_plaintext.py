@@ -1,4 +1,4 @@
-"""stereograph.plaintext prints a run's closing lines for logs and pipes exactly as rich would
+"""stereograph.app.plaintext prints a run's closing lines for logs and pipes exactly as rich would
 (there without colours), or declines; the command then prints them with rich."""
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ from rich.markup import escape
 from rich.pretty import Pretty
 from rich.table import Table
 
-from stereograph import plaintext
+from stereograph.app import plaintext
 
 
 def _console(width: int) -> tuple[Console, io.StringIO]:
-    buf = io.StringIO()  # (as stereograph.cli._console for a pipe)
+    buf = io.StringIO()  # (as stereograph.app.cli._console for a pipe)
     return Console(file=buf, highlight=False, soft_wrap=True, width=width), buf
 
 
@@ -116,7 +116,7 @@ def test_a_replayed_run_prints_what_rich_prints_without_importing_it(tmp_path):
     toy = os.path.join(os.path.dirname(__file__), "plugins", "toy.py")
     p = tmp_path / "p.yaml"
     p.write_text(PIPELINE.format(toy=toy))
-    code = ("import sys; from stereograph import rerun; rerun.RACY_NS = 0; from stereograph.cli import main; "
+    code = ("import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from stereograph.app.cli import main; "
             f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'c')!r}, "
             "'--out', sys.argv[1]]); print('RICH', 'rich' in sys.modules); sys.exit(rc)")
     outs = {}

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 import stereograph
-from stereograph.errors import ConfigError, ConfigErrors
+from stereograph.core.errors import ConfigError, ConfigErrors
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "python.md"
@@ -74,10 +74,12 @@ def test_a_bad_pipeline_raises_every_problem(project):
         stereograph.run("pipelines/locate-truthcal.yaml", keep=["nosuch"], progress=False)
 
 
-def test_compare_is_callable_from_the_package_and_the_module_still_imports():
-    from stereograph.compare import CompareResult, compare
+def test_compare_is_a_plain_function_of_the_package():
+    import types
 
-    assert callable(stereograph.compare) and callable(compare) and CompareResult
+    from stereograph.app.pyapi import compare
+
+    assert isinstance(stereograph.compare, types.FunctionType) and stereograph.compare is compare
 
 
 def test_bad_arguments_of_the_python_api_are_clear_errors(project):
@@ -96,6 +98,6 @@ def test_bad_arguments_of_the_python_api_are_clear_errors(project):
         stereograph.check(path, {"rig.min_distance_cm": float("nan")})
     with pytest.raises(ConfigError, match="vary= values of 'rig.seed' must be a list"):
         stereograph.compare(path, {"rig.seed": "1"}, progress=False)
-    from stereograph.pyapi import _set_texts
+    from stereograph.app.pyapi import _set_texts
 
     assert _set_texts("rig.seed=0,1", "vary") == ["rig.seed=0,1"]  # one --vary, not one per letter

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPES = ROOT / "pipelines"
@@ -98,7 +98,7 @@ def test_locate_hard_report(tmp_path):
 @pytest.mark.slow
 @needs_browser
 def test_compare_report(tmp_path):
-    from stereograph.compare import compare
+    from stereograph.app.compare import compare
 
     res = compare(PIPES / "compare-compensation.yaml", ["fit.type=none,polynomial,xyz"], tmp_path / "cmp",
                   overrides=["rig.n_scenes=24", "rig.n_views=10"], cache_dir=tmp_path / "cache")
@@ -165,8 +165,8 @@ def _plant(doc, path):
 def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
     """run.json may come from someone else (`stereograph report DIR`): whatever field carries markup,
     the page either shows it as text or is refused -- and in a browser no planted script runs."""
-    from stereograph.errors import ConfigError
-    from stereograph.report import write_report
+    from stereograph.app.report import write_report
+    from stereograph.core.errors import ConfigError
 
     res = run_pipeline(PIPES / "hello.yaml", ["numbers.n=3"], cache_dir=tmp_path / "c", out_dir=tmp_path / "run")
     summary = json.loads((res.out_dir / "run.json").read_text())
@@ -201,10 +201,10 @@ def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
 def test_a_loops_page_leads_with_its_result_and_its_cycles(tmp_path):
     """pick-live --repeat 3 --save-cycles: the result (the pick's summary), then the cycles (counts, time
     per stage, the last cycles' pictures), then the graph and the nodes; each cycle's servo log kept."""
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
-    from stereograph.loop import Loop
-    from stereograph.runner import run_graph
+    from stereograph.app.loop import Loop
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
+    from stereograph.core.runner import run_graph
 
     doc = load_pipeline(PIPES / "pick-live.yaml", ["act.sim_time_scale=20", "segment.overlay=true"])
     loop = Loop(3, save_cycles=True)

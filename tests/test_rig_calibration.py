@@ -16,7 +16,7 @@ from nodes.sources._lens import project_points
 from nodes.sources._rig import make_rig
 from nodes.sources.calib_files import CalibFilesParams, calib_files
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "opencv-stereo-chessboard"
 

@@ -12,7 +12,7 @@ from nodes.sources._boards import board_corners_3d, random_board_poses, render_b
 from nodes.sources._lens import project_points
 from nodes.sources._rig import make_rig
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 CHARUCO = {"dictionary": "DICT_4X4_50", "marker_fraction": 0.7}
 

@@ -14,7 +14,7 @@ import cv2
 import pytest
 
 from nodes.rectifiers.check import CheckParams, epipolar_check
-from stereograph.runner import run_pipeline
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 CHESS = ROOT.parent / "shared" / "data" / "opencv-stereo-chessboard"
@@ -96,7 +96,7 @@ nodes:
 
 def test_the_live_gate_checks_every_nth_pair_and_a_refusal_stops_the_loop(rig):
     from nodes.rectifiers.check import GateParams, gate
-    from stereograph.api import NodeError, RunContext
+    from stereograph.core.api import NodeError, RunContext
 
     folder, pairs, tmp = rig
     rect = _rectification(tmp, folder / "calibration.json")

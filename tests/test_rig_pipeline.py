@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from stereograph.cli import main
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPE = ROOT / "pipelines" / "calibrate.yaml"

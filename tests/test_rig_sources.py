@@ -17,7 +17,7 @@ from nodes.sources.calib_files import CalibFilesParams, calib_files
 from nodes.sources.camera import CameraParams, camera
 from nodes.sources.files import FilesParams, files
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 
 def _write(path: Path, img=None):

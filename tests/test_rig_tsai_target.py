@@ -18,9 +18,9 @@ from nodes.sources._rig import make_rig
 from nodes.sources._synthetic_target import target_points, tsai_cameras
 from nodes.sources.target_points import TargetPointsParams, write_target_csv
 from nodes.sources.target_points import target_points as target_node
-from stereograph.api import NodeError, RunContext
-from stereograph.cli import main
-from stereograph.runner import run_pipeline
+from stereograph.app.cli import main
+from stereograph.core.api import NodeError, RunContext
+from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPE = ROOT / "pipelines" / "tsai-target.yaml"

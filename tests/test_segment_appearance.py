@@ -21,7 +21,7 @@ from nodes.segmenters._params import apply_appearance
 from nodes.segmenters.appearance import AppearanceParams, learn_appearance
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph_mask
 from nodes.sources.synthetic import SyntheticParams, synthetic
-from stereograph.api import NodeError
+from stereograph.core.api import NodeError
 
 ROOT = Path(__file__).resolve().parents[1]
 ORANGE = (20, 120, 245)
@@ -127,7 +127,7 @@ def test_locate_learn_pipeline_finds_distractor_scenes_with_no_colour_given(tmp_
     """CLI, from a pipeline file: the colour is learned, the distractor scenes are found right, and a
     rerun with a changed segmenter parameter reuses the cached source and remap (a streamed region
     after a gather node recomputes manifest-only items from their cached inputs)."""
-    common = [sys.executable, "-m", "stereograph.cli", "run", str(ROOT / "pipelines" / "locate-learn.yaml"),
+    common = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate-learn.yaml"),
               "--cache-dir", str(tmp_path / "cache"),
               "--set", "rig.n_scenes=4", "--set", "rig.hard_cases=[distractor]", "--set", "rig.n_hard_each=8"]
     r = subprocess.run(common + ["--out", str(tmp_path / "a")], capture_output=True, text=True, timeout=170)

@@ -42,7 +42,7 @@ def _pipeline(tmp_path: Path, path: str) -> Path:
 
 def _cli(*argv: str, timeout: float = 60) -> tuple[int, str, float]:
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "stereograph.cli", *argv], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "stereograph", *argv], capture_output=True, text=True,
                          timeout=timeout, env=ENV, cwd=ROOT)
     return out.returncode, out.stdout + out.stderr, time.monotonic() - t0
 
@@ -139,7 +139,7 @@ def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, e
     """(a zero or NaN focal length loaded with exit 0 and failed later, inside pick-live, as a
     ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV assertion)"""
     from nodes.calibrators.load import read_calibration_file
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
 
     text = LIVE_CAL.read_text()
     assert edit[0] in text
@@ -186,7 +186,7 @@ def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
 
 def test_a_target_file_of_a_million_points_is_refused_in_words(tmp_path):
     from nodes.sources.target_points import MAX_POINTS, read_target_csv
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
 
     f = tmp_path / "points.csv"
     f.write_text("id,x_cm,y_cm,z_cm,u_px,v_px\n" + "".join(f"t{i},1,2,3,4,5\n" for i in range(MAX_POINTS + 1)))
@@ -205,7 +205,7 @@ def test_a_target_file_of_a_million_points_is_refused_in_words(tmp_path):
 def test_an_xml_entity_bomb_an_external_entity_or_a_cut_filestorage_is_refused_in_words(tmp_path, text):
     """(each gave "SystemError ... looks like a bug in the node")"""
     from nodes.calibrators.load import read_calibration_file
-    from stereograph.api import NodeError
+    from stereograph.core.api import NodeError
 
     f = tmp_path / ("calibration.xml" if text.startswith("<?xml") else "calibration.yml")
     f.write_text(text)

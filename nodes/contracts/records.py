@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stereograph.checks import artifact_check  # (stereograph.api's, without pydantic)
+from stereograph.core.checks import artifact_check  # (stereograph.api's, without pydantic)
 
 
 def _found_record(value: Any) -> str | None:

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.calls import TaskResult
-from stereograph.errors import ConfigError
-from stereograph.threads import ONE_THREAD, one_thread_each
+from stereograph.core.calls import TaskResult
+from stereograph.core.errors import ConfigError
+from stereograph.core.threads import ONE_THREAD, one_thread_each
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
     pass
@@ -29,7 +29,7 @@ Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
 
 def progress_advance(progress: Any, name: str, ok: bool = True) -> None:
-    """One entry of ``name`` done on a progress display (stereograph.progress); a failed one is said
+    """One entry of ``name`` done on a progress display (stereograph.app.progress); a failed one is said
     first to a display that counts them (``item_failed`` is optional)."""
     if not ok and hasattr(progress, "item_failed"):
         progress.item_failed(name)
@@ -72,7 +72,7 @@ def _worker_start() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-# Libraries' own thread pools run one thread each in a worker process (stereograph.threads): the
+# Libraries' own thread pools run one thread each in a worker process (stereograph.core.threads): the
 # pool's processes are the parallelism. A worker forked after the parent started a library's threads
 # keeps what it inherited (no call into a library's pool from a forked child: that can deadlock on a
 # lock a parent thread held); the command line sets the variables before NumPy loads (cli).
@@ -116,7 +116,7 @@ class ProcessExecutor:
 
     def start(self, fn: Callable[[Any], Any], tasks: list[Any]) -> list[cf.Future]:
         """Submit tasks now, to run while this process goes on with other work (see
-        :func:`stereograph.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
+        :func:`stereograph.core.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
         futures: list[cf.Future] = []
         try:
             for t in tasks:

@@ -31,7 +31,7 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from stereograph.errors import ConfigError, UsageError, Where, raise_all
+from stereograph.core.errors import ConfigError, UsageError, Where, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 

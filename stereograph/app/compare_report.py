@@ -3,7 +3,7 @@
 The table of every variant (its full override set in a column, and the settings every variant
 shares -- the pipeline's own ``--set`` overrides and the fixed variant keys -- in the table's
 title), the comparison plots embedded, and a link to each variant's own ``report.html``.
-Built from the :class:`~stereograph.compare.CompareResult` only: its columns are the metrics the
+Built from the :class:`~stereograph.app.compare.CompareResult` only: its columns are the metrics the
 variants' nodes declared (``Out("Metrics")``), whatever they are; the engine knows nothing of them.
 """
 
@@ -13,8 +13,9 @@ import html
 from pathlib import Path
 from typing import Any
 
-from stereograph.errors import UsageError
-from stereograph.report import _CHECK, _STYLE, _Page, table_html, write_html
+from stereograph.app.page import CHECK, STYLE, Page, table_html, write_html
+from stereograph.app.ranking import PER_PAIR, best_row, is_best, show
+from stereograph.core.errors import UsageError
 
 COMPARE_NAME = "compare.html"
 
@@ -27,28 +28,24 @@ MAIN_COLUMNS = 10  # metric columns in the first table (a 1280 px window); the o
 
 
 def compare_table(res: Any, overrides: list[str], names: list[str] | None = None) -> dict[str, Any]:
-    """The comparison as a *table* value (report.table_html renders it): one column per metric in ``names``
+    """The comparison as a *table* value (page.table_html renders it): one column per metric in ``names``
     (default: the ranked one, then those that differ between variants)."""
-    from stereograph.compare import PER_PAIR, _show
-
-    varying = [k for k in res.keys if len({_show(v.variant.settings[k]) for v in res.variants}) > 1] or res.keys
-    fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in varying]
+    varying = [k for k in res.keys if len({show(v.variant.settings[k]) for v in res.variants}) > 1] or res.keys
+    fixed = [f"{k}={show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in varying]
     split = f", split {res.split}" if res.split else ""
     title = (f"compare {Path(res.pipeline).name}: {len(res.variants)} variants{split}. Every variant: "
              + ("; ".join([f"--set {o}" for o in overrides] + fixed) or "no other overrides")
              + f". Varied: {', '.join(varying)}.")
     names = names if names is not None else res.shown_metrics()[0]
     cols = ["variant", "ok"] + ["pair ms" if n == PER_PAIR else n for n in names] + ["report"]
-    from stereograph.compare import _best, _is_best
-
     try:
-        top = _best(res, res.ranked_by)
+        top = best_row(res, res.ranked_by)
     except UsageError:  # a metric no variant declared: the CLI's table says so; the page marks nothing
         top = None
     rows = []
     for r, vr in zip(res.rows, res.variants):
-        label = ", ".join(_show(vr.variant.settings[k]) for k in varying)
-        cells = [label + (f" (best {top[0]})" if _is_best(top, r) else ""), "yes" if r.get("ok") else "NO"]
+        label = ", ".join(show(vr.variant.settings[k]) for k in varying)
+        cells = [label + (f" (best {top[0]})" if is_best(top, r) else ""), "yes" if r.get("ok") else "NO"]
         for n in names:
             v = r.get(n)
             cells.append("" if v is None else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4 if n.endswith("_s")
@@ -61,11 +58,9 @@ def compare_table(res: Any, overrides: list[str], names: list[str] | None = None
 def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
     """Each variant's full settings (the --set overrides and its varied keys), and the metrics every
     variant has the same value of: below the main table, which keeps to what tells variants apart."""
-    from stereograph.compare import _show
-
     _, constant = res.shown_metrics()
-    rows = [[", ".join(_show(v) for v in vr.variant.settings.values()),
-             " ".join([f"--set {o}" for o in overrides] + [f"{k}={_show(v)}" for k, v in vr.variant.settings.items()])]
+    rows = [[", ".join(show(v) for v in vr.variant.settings.values()),
+             " ".join([f"--set {o}" for o in overrides] + [f"{k}={show(v)}" for k, v in vr.variant.settings.items()])]
             for vr in res.variants]
     if constant and res.rows:
         rows.append(["(every variant)", res.same_in_every(constant)])
@@ -76,7 +71,7 @@ def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
 def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
     """Write ``compare.html`` into ``res.out_dir``; returns its path."""
     out: Path = res.out_dir
-    page = _Page(out)
+    page = Page(out)
     shown = res.shown_metrics()[0]
     tables = [compare_table(res, list(overrides or []), shown[:MAIN_COLUMNS])]
     if shown[MAIN_COLUMNS:]:
@@ -87,7 +82,7 @@ def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
         body = body.replace(f"<td>{html.escape(link)}</td>",
                             f'<td><a href="{html.escape(link)}">variant report</a></td>')
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
-             f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{_STYLE}"
+             f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{STYLE}"
              ".sg-compare{font-size:.82em}.sg-compare td,.sg-compare th{padding:2px 5px}"
              ".sg-compare caption{font-weight:normal}</style></head><body>",
              f"<h1>compare {html.escape(Path(res.pipeline).name)}</h1>",
@@ -105,5 +100,5 @@ def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
         if p.suffix.lower() in (".png", ".svg"):
             parts.append(f"<h2>{html.escape(name.replace('_', ' '))}</h2>"
                          + page.image(str(p.relative_to(out)), p.name, "wide"))  # a panel per metric: full width
-    parts.append(_CHECK + "</body></html>")
+    parts.append(CHECK + "</body></html>")
     return write_html(out / COMPARE_NAME, "\n".join(parts))

@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stereograph import outputs as outputs_mod
-from stereograph.errors import ConfigError
+from stereograph.core import outputs as outputs_mod
+from stereograph.core.errors import ConfigError
 
 SMALL_JSON = 6000  # characters: larger values are left out of cycles.jsonl
 
@@ -75,7 +75,7 @@ class Cycle:
 
 @dataclass
 class Loop:
-    """The ``cycles`` hook of :func:`stereograph.runner.run_graph` that repeats the live part.
+    """The ``cycles`` hook of :func:`stereograph.core.runner.run_graph` that repeats the live part.
 
     Parameters
     ----------
@@ -321,7 +321,7 @@ def _append_saved(run: Any, node: str, index: int) -> None:
 
 def _reset(run: Any, live: list[str]) -> None:
     """Forget the live nodes' results of the last cycle, so they run again."""
-    from stereograph.run_state import NodeReport
+    from stereograph.core.run_state import NodeReport
 
     g = run.g
     live_set = set(live)

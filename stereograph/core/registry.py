@@ -18,11 +18,11 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from stereograph.digests import digest, file_digest
-from stereograph.errors import ConfigError, Where
+from stereograph.core.digests import digest, file_digest
+from stereograph.core.errors import ConfigError, Where
 
 if TYPE_CHECKING:
-    from stereograph.api import NodeSpec
+    from stereograph.core.api import NodeSpec
 
 GROUP = "stereograph.nodes"
 COMMANDS_GROUP = "stereograph.commands"
@@ -93,7 +93,7 @@ def _entry_points() -> dict[str, EntryPoint]:
 
 def names() -> list[str]:
     """All known node type names, sorted."""
-    api = sys.modules.get("stereograph.api")  # (no node can be registered before it is imported)
+    api = sys.modules.get("stereograph.core.api")  # (no node can be registered before it is imported)
     return sorted(set(_entry_points()) | set(api.REGISTRY if api else ()))
 
 
@@ -105,7 +105,7 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
     ConfigError
         Unknown name (with the closest known names), or a module that fails to import.
     """
-    from stereograph.api import REGISTRY, NodeSpec
+    from stereograph.core.api import REGISTRY, NodeSpec
 
     if name in REGISTRY:
         return REGISTRY[name]
@@ -165,7 +165,7 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
                           "runs that code; stereograph does not do that for a pipeline file unless told to", where,
                           hint="if you trust this file and its plugins, add --allow-plugins (or set "
                                "STEREOGRAPH_ALLOW_PLUGINS=1); otherwise remove 'plugins:'")
-    from stereograph.api import REGISTRY
+    from stereograph.core.api import REGISTRY
 
     for plugin in plugins:
         before = dict(REGISTRY)

@@ -11,7 +11,7 @@ outside the region need (small per-item results; keys). So
   segments a pair in its own memory), and the parent has no per-image work left to serialise;
 - memory holds a chunk's images, not the collection's: it does not grow with the item count.
 
-Inside a task the region runs as a small :class:`stereograph.run_state.RunState` of its own over the
+Inside a task the region runs as a small :class:`stereograph.core.run_state.RunState` of its own over the
 chunk's items, with the same cache (the same keys, locks and entries as a node-by-node run:
 a cached item is adopted, not recomputed) and the same per-item failure rules.
 """
@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stereograph import outputs as outputs_mod
-from stereograph import registry
-from stereograph.api import NodeError
-from stereograph.cache import ArtifactStore
-from stereograph.calls import Task, TaskResult, execute
-from stereograph.executors import SerialExecutor, TaskLost, progress_advance
-from stereograph.run_state import NO_ITEMS, RunState
+from stereograph.core import outputs as outputs_mod
+from stereograph.core import registry
+from stereograph.core.api import NodeError
+from stereograph.core.cache import ArtifactStore
+from stereograph.core.calls import Task, TaskResult, execute
+from stereograph.core.executors import SerialExecutor, TaskLost, progress_advance
+from stereograph.core.run_state import NO_ITEMS, RunState
 
 Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"
@@ -301,7 +301,7 @@ def _label(reg: Region) -> str:
 
 
 def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
-    """Run a region for the parent run ``run`` (a :class:`stereograph.run_state.RunState`): plan its
+    """Run a region for the parent run ``run`` (a :class:`stereograph.core.run_state.RunState`): plan its
     chunks, hand them to the run's executor, and merge what comes back as if each node had run."""
 
     g = run.g

@@ -1,7 +1,7 @@
 """The pipeline DAG as a picture: SVG (hand-written, no dependency) or PNG (matplotlib).
 
 Works on a plain description -- ``{node: {"type": str, "mapped": bool, "inputs": {port: [src, out]}}}``
--- so that it can draw a :class:`~stereograph.graph.Graph` (``stereograph graph --format svg``) and a
+-- so that it can draw a :class:`~stereograph.core.graph.Graph` (``stereograph graph --format svg``) and a
 finished run from its ``run.json`` alike (``report.html``), and knows nothing of what the nodes do.
 Layout, top to bottom, layered as Graphviz's dot does (:func:`layout`): a long wire passes through a
 slot of its own in each row it crosses, beside the boxes, never across one.
@@ -21,7 +21,7 @@ STATUS_FILL = {"ran": "#d9f2d9", "cached": "#e3ecfa", "partial": "#fde9c4", "fai
 
 
 def describe(graph: Any) -> dict[str, dict[str, Any]]:
-    """The plain description of a validated :class:`~stereograph.graph.Graph`."""
+    """The plain description of a validated :class:`~stereograph.core.graph.Graph`."""
     return {n: {"type": inst.type, "mapped": bool(inst.mapped),
                 "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()}}
             for n, inst in graph.nodes.items()}

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from stereograph.report import _MIME, _e, _Page, table_html
+from stereograph.app.page import MIME, Page, escape, table_html
 
 MAX_LOG_BYTES = 8 * 2**20  # the tail of cycles.jsonl that is read (a long loop logs a few KB a cycle)
 CYCLES_PICTURED = 3  # the last cycles whose saved pictures are shown
@@ -53,7 +53,7 @@ def _stage_table(records: list[dict[str, Any]]) -> dict[str, Any]:
             "rows": rows}
 
 
-def _pictures(page: _Page, run_dir: Path, records: list[dict[str, Any]]) -> str:
+def _pictures(page: Page, run_dir: Path, records: list[dict[str, Any]]) -> str:
     """The saved pictures of the last few cycles (``cycles/<n>/<node>/*.png``), newest first."""
     bits = []
     for rec in reversed(records[-CYCLES_PICTURED:]):
@@ -63,21 +63,21 @@ def _pictures(page: _Page, run_dir: Path, records: list[dict[str, Any]]) -> str:
         folder = Path("cycles") / f"{n:05d}"
         try:
             files = sorted(str(p.relative_to(run_dir)) for p in (run_dir / folder).rglob("*")
-                           if p.suffix.lower() in _MIME and p.is_file())
+                           if p.suffix.lower() in MIME and p.is_file())
         except OSError:
             continue
         if files:
-            bits.append(f"<h3>cycle {n}: {_e(rec.get('status'))}</h3>"
+            bits.append(f"<h3>cycle {n}: {escape(rec.get('status'))}</h3>"
                         + "".join(page.image(f.replace(os.sep, "/"), f, "item") for f in files[:8]))
     return "".join(bits)
 
 
-def cycles_section(page: _Page, loop: dict[str, Any], run_dir: Path) -> str:
+def cycles_section(page: Page, loop: dict[str, Any], run_dir: Path) -> str:
     """The loop's section: counts, why it stopped, time per stage, the last cycles' pictures."""
     counts = {"cycles": loop.get("cycles"), "ok": loop.get("ok"), "failed": loop.get("failed"),
               "interrupted": bool(loop.get("interrupted"))}
-    said = ", ".join(f"{k} <b>{_e(v)}</b>" for k, v in counts.items())
-    bits = ['<section id="sg-cycles"><h2>cycles</h2>', f"<p>{said}; {_e(loop.get('stopped', ''))}</p>"]
+    said = ", ".join(f"{k} <b>{escape(v)}</b>" for k, v in counts.items())
+    bits = ['<section id="sg-cycles"><h2>cycles</h2>', f"<p>{said}; {escape(loop.get('stopped', ''))}</p>"]
     log = loop.get("log") if isinstance(loop.get("log"), str) else "cycles.jsonl"
     if page.inside(log):
         records = _tail_records(run_dir / log)
@@ -93,5 +93,5 @@ def cycles_section(page: _Page, loop: dict[str, Any], run_dir: Path) -> str:
         if records:
             bits.append(table_html(_stage_table(records)))
             bits.append(_pictures(page, run_dir, records))
-        bits.append(f'<p>every cycle: <a href="{_e(log)}">{_e(log)}</a></p>')
+        bits.append(f'<p>every cycle: <a href="{escape(log)}">{escape(log)}</a></p>')
     return "\n".join(bits) + "</section>"

@@ -8,7 +8,7 @@ but the first two):
 - ``item_failed(name)``: the entry about to be advanced failed (optional: the ending line then says
   how many failed, not only "finished");
 - ``item_progress(name, done, total, unit)``: progress *inside* one call, reported by the node
-  itself through :meth:`stereograph.api.RunContext.progress` (a source rendering 120 scenes in
+  itself through :meth:`stereograph.core.api.RunContext.progress` (a source rendering 120 scenes in
   one call says ``37/120 scenes``). A node that yields items one call at a time needs none: its
   entries advance the count.
 

@@ -1,7 +1,7 @@
 """Content digests (blake2b, 128 bits) of bytes, files and JSON-able values.
 
 A module of its own, importing only the standard library, so that the rerun fast path
-(:mod:`stereograph.rerun`) checks a run folder's files without importing NumPy.
+(:mod:`stereograph.app.rerun`) checks a run folder's files without importing NumPy.
 """
 
 from __future__ import annotations

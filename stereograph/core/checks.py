@@ -1,5 +1,5 @@
 """Shape checks of artifact types, registered by the node library and run by the engine on every
-output (:func:`stereograph.api.artifact_check`). A module of its own, with no imports, so that
+output (:func:`stereograph.core.api.artifact_check`). A module of its own, with no imports, so that
 registering them costs nothing at start-up (``stereograph nodes`` imports the node packages)."""
 
 from __future__ import annotations

@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stereograph.api import NodeError
-from stereograph.cache import ArtifactStore
-from stereograph.executors import SerialExecutor
-from stereograph.graph import Graph
-from stereograph.run_state import RunState, default_cache_dir
+from stereograph.core.api import NodeError
+from stereograph.core.cache import ArtifactStore
+from stereograph.core.executors import SerialExecutor
+from stereograph.core.graph import Graph
+from stereograph.core.run_state import RunState, default_cache_dir
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """One call of a node function: :class:`Task` in, :class:`TaskResult` out (:func:`execute`).
 
-A module of its own, apart from the scheduler (:mod:`stereograph.runner`, which re-exports these
+A module of its own, apart from the scheduler (:mod:`stereograph.core.runner`, which re-exports these
 names), so that running one node without the scheduler -- a replayed rerun's node that must run
-(:mod:`stereograph.rerun`) -- imports the node API and the registry only: not the cache's codecs,
+(:mod:`stereograph.app.rerun`) -- imports the node API and the registry only: not the cache's codecs,
 NumPy or the streaming machinery.
 """
 
@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stereograph import registry
-from stereograph.api import REGISTRY, NodeError, RunContext
-from stereograph.errors import ConfigError
+from stereograph.core import registry
+from stereograph.core.api import REGISTRY, NodeError, RunContext
+from stereograph.core.errors import ConfigError
 
 # The run's progress display, for nodes that report progress inside a call (ctx.progress). A
 # context variable, not a Task field: the display cannot travel to worker processes (there
@@ -113,7 +113,7 @@ def execute(task: Task) -> TaskResult:
 def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
     """Each output's value against its declared type's registered check (:func:`api.artifact_check`);
     a collection made whole is checked item by item. Raises NodeError naming the output."""
-    from stereograph.checks import ARTIFACT_CHECKS
+    from stereograph.core.checks import ARTIFACT_CHECKS
 
     for name, value in out.items():
         decl = spec.outputs.get(name)

@@ -18,9 +18,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph import project
-from stereograph.api import NodeError, RunContext
-from stereograph.cache import (
+from stereograph.core import project
+from stereograph.core.api import NodeError, RunContext
+from stereograph.core.cache import (
     ArtifactStore,
     CorruptEntry,
     NotStored,
@@ -29,13 +29,13 @@ from stereograph.cache import (
     hash_json,
     jpeg_roundtrip,
 )
-from stereograph.calls import Task, TaskResult, execute
-from stereograph.errors import ConfigError
-from stereograph.executors import SerialExecutor, lost_as_failed, progress_advance
+from stereograph.core.calls import Task, TaskResult, execute
+from stereograph.core.errors import ConfigError
+from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
-    from stereograph.config import PipelineDoc
-    from stereograph.graph import Graph, NodeInstance
+    from stereograph.core.config import PipelineDoc
+    from stereograph.core.graph import Graph, NodeInstance
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 NO_ITEMS = "no items to process (upstream produced none)"
@@ -102,7 +102,7 @@ def new_run_id() -> str:
 
 
 def default_cache_dir(doc: PipelineDoc) -> Path:
-    """The project's one cache (see :mod:`stereograph.project`)."""
+    """The project's one cache (see :mod:`stereograph.core.project`)."""
     return project.cache_dir(doc.directory)
 
 
@@ -123,12 +123,12 @@ class RunState:
         self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
         self.keep = set(graph.terminal())
         self.resources: dict[str, Any] = {}   # RunContext.resource objects, closed when the run ends
-        self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.loop)
+        self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.app.loop)
         self.ref_ids: dict[Ref, str] = {}       # ref -> content key of a produced item (see ident)
         self.declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
         self.deferred: set[str] = set()         # producers whose items a streamed region makes
         self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}  # (node, out) -> item -> files
-        self.sub = False                        # a part of a run (stereograph.streaming): records nothing
+        self.sub = False                        # a part of a run (stereograph.core.streaming): records nothing
         self.streaming: set[str] = set()        # per-item nodes run in streamed regions
         self.selected: set[str] = set(graph.nodes)
         self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)

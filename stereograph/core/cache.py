@@ -42,7 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from stereograph.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
+from stereograph.core import hooks
+from stereograph.core.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
 
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
@@ -423,7 +424,7 @@ class ArtifactStore:
         self.locks = self.root / "locks"
         self.notes: list[str] = []  # what a user should know about this cache (read-only, full)
         if self.root.exists() and not self.root.is_dir():
-            from stereograph.errors import ConfigError
+            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} is an existing file",
                               hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the project's "
@@ -439,7 +440,7 @@ class ArtifactStore:
         while not probe.exists() and probe != probe.parent:
             probe = probe.parent
         if not probe.is_dir():
-            from stereograph.errors import ConfigError
+            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
                               hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the "
@@ -750,7 +751,7 @@ class ArtifactStore:
         (:meth:`abandoned`) goes first, whatever the budget.
         """
         if not self.writable:
-            from stereograph.errors import ConfigError
+            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
         with exclusive(self.root, wait_s):
@@ -770,9 +771,7 @@ class ArtifactStore:
                 shutil.rmtree(r, ignore_errors=True)
             freed += size
         if removed:  # rerun memos hard-link run-folder files: they must not keep pruned images on disk
-            from stereograph import rerun
-
-            rerun.forget(self.root)
+            hooks.announce("cache_pruned", self.root)
         return removed, freed
 
     def stored_bytes(self) -> int:

@@ -1,7 +1,7 @@
 """The Python API: run, check and compare pipelines from a program or a notebook.
 
 ``import stereograph`` gives these as :func:`stereograph.run`, :func:`stereograph.check` and
-:func:`stereograph.compare` (see ``docs/python.md``)::
+:func:`stereograph.app.compare` (see ``docs/python.md``)::
 
     import stereograph
 
@@ -12,7 +12,7 @@
     res.outputs("locate", "location")       # {pair id: location} for a per-item output
 
 They are what the ``stereograph`` command does, without its printing: problems with the
-pipeline raise :class:`~stereograph.errors.ConfigError` (``str()`` of it is the located
+pipeline raise :class:`~stereograph.core.errors.ConfigError` (``str()`` of it is the located
 paragraph the command prints, one per problem); a node that fails does not raise, it shows in
 ``res.ok`` / ``res.errors`` (:meth:`Result.raise_for_errors` turns that into an exception).
 """
@@ -25,7 +25,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from stereograph.errors import ConfigError, sentence
+from stereograph.core.errors import ConfigError, sentence
 
 __all__ = ["NodeFailed", "Result", "check", "compare", "run"]
 
@@ -79,7 +79,7 @@ def _plain(value: Any) -> Any:
 
 def _progress(progress: Any) -> Any:
     if progress is True:  # plain lines on stderr: readable in a notebook, a log or a terminal
-        from stereograph.progress import PlainProgress
+        from stereograph.app.progress import PlainProgress
 
         return PlainProgress(sys.stderr)
     return progress or None
@@ -103,7 +103,7 @@ class Result:
     ran : set
         Nodes that computed anything in this run (the rest came from the cache).
     reports : dict
-        Node -> :class:`stereograph.run_state.NodeReport` (seconds, items, messages, error, hint).
+        Node -> :class:`stereograph.core.run_state.NodeReport` (seconds, items, messages, error, hint).
     seconds : float
         Wall time of the run.
     """
@@ -232,7 +232,7 @@ def run(
         Processes for per-item nodes (``--workers``).
     progress : bool or object
         True: a plain progress line per running node every few seconds on stderr; False: none;
-        or an object with the methods of :class:`stereograph.progress.PlainProgress`.
+        or an object with the methods of :class:`stereograph.app.progress.PlainProgress`.
 
     Returns
     -------
@@ -241,13 +241,13 @@ def run(
     Raises
     ------
     ConfigError
-        The pipeline cannot run as written; a :class:`~stereograph.errors.ConfigErrors` when it
+        The pipeline cannot run as written; a :class:`~stereograph.core.errors.ConfigErrors` when it
         has several problems (``.errors`` lists them).
     """
-    from stereograph.config import load_pipeline
-    from stereograph.executors import workers_executor
-    from stereograph.graph import build_graph
-    from stereograph.runner import run_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.executors import workers_executor
+    from stereograph.core.graph import build_graph
+    from stereograph.core.runner import run_graph
 
     graph = build_graph(load_pipeline(path, _set_texts(set)))
     if keep == "all":
@@ -287,7 +287,7 @@ def check(path: str | Path, set: Mapping[str, Any] | Iterable[str] | None = None
     Each problem's ``str()`` is one paragraph: ``file:line: node 'x': what. Fix: how.``; its
     ``where``, ``node``, ``message`` and ``hint`` are there separately.
     """
-    from stereograph.graph import check_pipeline
+    from stereograph.core.graph import check_pipeline
 
     return check_pipeline(path, _set_texts(set))[1]
 
@@ -315,18 +315,18 @@ def compare(
     set : mapping or list of str, optional
         Overrides applied to every variant, as for :func:`run`.
     out_dir, cache_dir, split, skip_invalid, plots :
-        As for :func:`stereograph.compare.compare`.
+        As for :func:`stereograph.app.compare.compare`.
     progress : bool or object
         True: a line per variant and per running node on stderr.
 
     Returns
     -------
-    stereograph.compare.CompareResult
+    stereograph.app.compare.CompareResult
         ``.rows`` (one dict per variant: its settings and the metrics its nodes declare,
         times), ``.row(**settings)``, ``.variants`` (each with ``.status``, ``.ran``, ``.out_dir``),
         ``.files`` (``compare.csv``, ``compare.json``, plots).
     """
-    from stereograph import compare as compare_mod
+    from stereograph.app import compare as compare_mod
 
     if isinstance(vary, Mapping):
         vary_texts = []

@@ -67,7 +67,7 @@ def cache_dir(pipeline_dir: str | Path) -> Path:
         if path != root and root not in path.parents:
             # a project's files come with the project (a repository cloned, a folder handed over): they
             # must not point the cache -- written to by every run, emptied by `cache clear` -- at your files
-            from stereograph.errors import ConfigError
+            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"{root / 'pyproject.toml'}: [tool.stereograph] cache_dir = {conf!r} is outside the "
                               f"project ({root})",

@@ -2,9 +2,9 @@
 
 Public API::
 
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
-    from stereograph.runner import run_pipeline
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
+    from stereograph.core.runner import run_pipeline
 
     result = run_pipeline("pipelines/locate.yaml", overrides=["rig.n_scenes=10"],
                           cache_dir=None,          # default: the project's .stereograph/cache
@@ -16,7 +16,7 @@ Public API::
     result.ok                       # no node failed
 
 How it works, in a few lines: each node in turn gets its *entries* — one, or one per item
-when it runs per item — and each entry a key (see :mod:`stereograph.cache`). An entry whose
+when it runs per item — and each entry a key (see :mod:`stereograph.core.cache`). An entry whose
 key is in the store is not recomputed and not even loaded unless a node that must run needs
 its value. Values are kept in memory only until their last consumer has run. A node that
 fails stops its downstream; per-item failures skip only that item downstream. Items of a
@@ -35,16 +35,16 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph import outputs as outputs_mod
-from stereograph import project, streaming
-from stereograph.cache import ArtifactStore, CacheBusy, in_use
-from stereograph.calls import _PROGRESS, close_resources
-from stereograph.errors import ConfigError
-from stereograph.executors import SerialExecutor
-from stereograph.run_state import RunResult, RunState, default_cache_dir, new_run_id
+from stereograph.core import outputs as outputs_mod
+from stereograph.core import project, streaming
+from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
+from stereograph.core.calls import _PROGRESS, close_resources
+from stereograph.core.errors import ConfigError
+from stereograph.core.executors import SerialExecutor
+from stereograph.core.run_state import RunResult, RunState, default_cache_dir, new_run_id
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
-    from stereograph.graph import Graph
+    from stereograph.core.graph import Graph
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
@@ -58,7 +58,7 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
 
     ``keep`` names extra (non-terminal) nodes whose outputs the result should hold.
     ``cycles(run, selected)``, if given, runs the selected nodes instead of the single pass
-    (:func:`stereograph.loop.repeat`); objects nodes kept open are closed afterwards either way.
+    (:func:`stereograph.app.loop.repeat`); objects nodes kept open are closed afterwards either way.
     ``prepare``: functions of no arguments that load what the caller needs once the run is over
     (what it prints with); with a local pool they run in the background thread that runs the
     nodes' own ``prepare`` while this process waits for the pool, else never.
@@ -187,7 +187,7 @@ def _prepare_ahead(specs: list[Any], extra: Sequence[Callable[[], Any]] = ()) ->
 
 def _units(run: RunState, selected: list[str]) -> list[Any]:
     """The run's steps: nodes, and regions of per-item nodes streamed a chunk of items at a time
-    (:mod:`stereograph.streaming`); node by node where ``STEREOGRAPH_STREAM=0``."""
+    (:mod:`stereograph.core.streaming`); node by node where ``STEREOGRAPH_STREAM=0``."""
     if os.environ.get("STEREOGRAPH_STREAM", "1") == "0":
         return list(selected)
     regions = streaming.plan_regions(run.g, selected, run.producer)
@@ -263,8 +263,8 @@ def _terminal_values(graph: Graph, run: RunState, selected: list[str]) -> tuple[
 
 def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:
     """Load, validate and run a pipeline file. Keyword arguments as :func:`run_graph`."""
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     doc = load_pipeline(path, overrides)
     return run_graph(build_graph(doc), **kwargs)

@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import math
 import os
 import signal
 import sys
@@ -17,14 +16,17 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from stereograph import __version__, registry
-from stereograph.errors import ConfigError, sentence
-from stereograph.progress import Mutable, PlainProgress, RichProgress
-from stereograph.threads import one_thread_each, pool_requested
+from stereograph import __version__
+from stereograph.app import console
+from stereograph.app.console import echo_entry, non_negative_int, positive_int, size_gb
+from stereograph.app.progress import Mutable, PlainProgress, RichProgress
+from stereograph.core import registry
+from stereograph.core.errors import ConfigError, sentence
+from stereograph.core.threads import one_thread_each, pool_requested
 
 
 def _console(stderr: bool = False):
-    from stereograph.errors import console
+    from stereograph.core.errors import console
 
     stream = sys.stderr if stderr else sys.stdout
     # logs and pipes get a wide table rather than rich's 80-column default
@@ -37,8 +39,8 @@ PIPE_WIDTH = 160  # columns of what a log, pipe or file gets
 
 
 def _load_graph(args):
-    from stereograph.config import load_pipeline
-    from stereograph.graph import build_graph
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
 
     doc = load_pipeline(args.pipeline, getattr(args, "set", None) or [])
     return build_graph(doc)
@@ -52,8 +54,8 @@ def _print_warnings(graph, console) -> None:
 
 
 def cmd_validate(args) -> int:
-    from stereograph.errors import ConfigErrors
-    from stereograph.graph import check_pipeline
+    from stereograph.core.errors import ConfigErrors
+    from stereograph.core.graph import check_pipeline
 
     graph, problems = check_pipeline(args.pipeline, getattr(args, "set", None) or [])
     if problems:  # every one, not the first only (the summary line tells how many to fix)
@@ -93,8 +95,8 @@ def cmd_graph(args) -> int:
 
 
 def _graph_picture(graph, args) -> int:
-    from stereograph import graph_picture
-    from stereograph.report import write_html
+    from stereograph.app import graph_picture
+    from stereograph.app.page import write_html
 
     desc = graph_picture.describe(graph)
     path = Path(args.output or f"{graph.doc.name}.graph.{args.format}")
@@ -110,7 +112,7 @@ def _graph_picture(graph, args) -> int:
 
 
 def cmd_report(args) -> int:
-    from stereograph.report import write_report
+    from stereograph.app.report import write_report
 
     print(write_report(args.run_dir))
     return 0
@@ -121,7 +123,7 @@ def _describe_params(model, prefix: str = "", defaults: Any = None) -> list[tupl
     showing the defaults the parent gives them."""
     from pydantic import BaseModel
 
-    from stereograph.api import type_name
+    from stereograph.core.api import type_name
 
     rows = []
     symbols = {"ge": ">=", "gt": ">", "le": "<=", "lt": "<"}
@@ -209,6 +211,7 @@ def _clip(text: str, n: int) -> str:
     return (cut[:space] if space > n // 2 else cut).rstrip(" ,;:(") + "…"
 
 
+ECHO_LIMIT = 6  # small terminal values echoed after a run
 NOTES_PER_NODE = 3  # a node's further messages printed under the table (a per-item node may have dozens)
 
 
@@ -240,8 +243,8 @@ def _summary_table(result, con) -> None:
 
 def _plain_closing(echo: list, result, loop, width: int) -> str | None:
     """What :func:`_print_echo`, :func:`_summary_table` and the last lines print, as plain text
-    for a console that is not a terminal (stereograph.plaintext); None where rich must lay it out."""
-    from stereograph import plaintext
+    for a console that is not a terminal (stereograph.app.plaintext); None where rich must lay it out."""
+    from stereograph.app import plaintext
 
     parts: list[str | None] = []
     for title, kind, text, *pre in [e for e in echo if e[0] != "live"][:ECHO_LIMIT]:
@@ -262,33 +265,7 @@ def _plain_closing(echo: list, result, loop, width: int) -> str | None:
     return None if None in parts else "\n".join(parts) + "\n"
 
 
-def echo_entry(v: Any) -> tuple[str, str] | None:
-    """How the console shows one small terminal value: ``("markdown", text)`` for a report that renders
-    itself, ``("json", text)`` for plain data, None for what only the output folder holds."""
-    from stereograph.outputs import is_file_value, to_json
 
-    if not isinstance(v, (dict, list, float, int, str)):
-        return None
-    if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
-        return None
-    if isinstance(v, dict) and isinstance(v.get("markdown"), str):
-        return "markdown", v["markdown"]  # a report that renders itself: shown as the table it is
-    arrays: dict = {}
-    text = json.dumps(to_json(v, arrays), default=str)
-    if (arrays or len(text) > 3000) and isinstance(v, dict):
-        # big artifacts (a calibration, say): show their scalar facts only
-        small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
-                 (isinstance(x, (list, tuple)) and len(x) <= 6 and
-                  all(isinstance(y, (int, float, str, bool)) for y in x))}
-        if not small:
-            return None
-        text = json.dumps(to_json(small, {}), default=str)
-    elif arrays or len(text) > 3000:
-        return None
-    return "json", text
-
-
-ECHO_LIMIT = 6
 
 
 def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]:
@@ -348,7 +325,7 @@ def _print_entry(con, kind: str, text: str) -> None:
     if kind == "markdown":
         from rich.markdown import Markdown
 
-        from stereograph.errors import printable
+        from stereograph.core.errors import printable
 
         con.print(Markdown(printable(text)))
     else:
@@ -359,13 +336,13 @@ def _print_entry(con, kind: str, text: str) -> None:
 
 def _replayable(args) -> bool:
     """A plain ``run`` (no --no-cache, --only, --from or --repeat): one a rerun
-    memo may answer (stereograph.rerun; STEREOGRAPH_NO_REPLAY=1 turns it off)."""
+    memo may answer (stereograph.app.rerun; STEREOGRAPH_NO_REPLAY=1 turns it off)."""
     return not (args.no_cache or args.only or getattr(args, "from") or args.repeat is not None
                 or os.environ.get("STEREOGRAPH_NO_REPLAY", "") not in ("", "0"))
 
 
 def cmd_run(args) -> int:
-    from stereograph import rerun
+    from stereograph.app import rerun
 
     sys_path = rerun.fingerprint(args.pipeline)  # (as the command starts: a plugin may add to sys.path)
     if _replayable(args):
@@ -374,8 +351,8 @@ def cmd_run(args) -> int:
             return _finish_run(args, replayed, replayed.echo, lambda n: replayed.where[n],
                                lambda n: replayed.upstream[n])
 
-    from stereograph.executors import workers_executor
-    from stereograph.runner import run_graph
+    from stereograph.core.executors import workers_executor
+    from stereograph.core.runner import run_graph
 
     graph = _load_graph(args)
     con = _console()
@@ -441,7 +418,7 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
     if args.json:
         print((result.out_dir / "run.json").read_text())
     else:
-        from stereograph import plaintext
+        from stereograph.app import plaintext
 
         width = plaintext.plain_width(sys.stdout, PIPE_WIDTH)
         plain = _plain_closing(echo, result, loop, width) if width else None
@@ -491,7 +468,7 @@ def _finish_run(args, result, echo: list, where, has_upstream, loop=None) -> int
 
 
 def _loop(args, con, after_cycle=None):
-    """The ``--repeat`` loop (stereograph.loop), or None; ``after_cycle()`` is called as each cycle ends."""
+    """The ``--repeat`` loop (stereograph.app.loop), or None; ``after_cycle()`` is called as each cycle ends."""
     if args.repeat is None:
         return None
     if args.workers > 1 or args.dask:
@@ -499,7 +476,7 @@ def _loop(args, con, after_cycle=None):
                           "--dask.", hint="drop --workers / --dask")
     from rich.markup import escape
 
-    from stereograph.loop import Loop
+    from stereograph.app.loop import Loop
 
     def on_cycle(c) -> None:
         if not args.json:
@@ -533,7 +510,7 @@ def _stop_signals_as_interrupt():
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
-        # where it landed: a loop that finds this set at its next node stops there (stereograph.loop)
+        # where it landed: a loop that finds this set at its next node stops there (stereograph.app.loop)
         _STOP.append(f"{frame.f_code.co_name} ({frame.f_code.co_filename}:{frame.f_lineno})" if frame else "?")
         raise KeyboardInterrupt("SIGTERM" if signum == signal.SIGTERM else "")
 
@@ -575,7 +552,7 @@ def _cache_remove(args, store, root: Path, con) -> int:
 def cmd_explain(args) -> int:
     from rich.markup import escape
 
-    from stereograph.explain import explain
+    from stereograph.app.explain import explain
 
     graph = _load_graph(args)
     con = _console()
@@ -587,22 +564,22 @@ def cmd_explain(args) -> int:
 
 
 def cmd_cache(args) -> int:
-    from stereograph.cache import ArtifactStore
-    from stereograph.config import load_pipeline
-    from stereograph.run_state import default_cache_dir
+    from stereograph.core.cache import ArtifactStore
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.run_state import default_cache_dir
 
     if args.cache_dir:
         root = Path(args.cache_dir)
     elif args.pipeline:
         root = default_cache_dir(load_pipeline(args.pipeline))
     else:
-        from stereograph.project import cache_dir
+        from stereograph.core.project import cache_dir
 
         root = cache_dir(Path.cwd())
     store = ArtifactStore(root)
     con = _console()
     if args.action in ("clear", "prune"):
-        from stereograph.cache import CacheBusy
+        from stereograph.core.cache import CacheBusy
 
         try:
             return _cache_remove(args, store, root, con)
@@ -612,7 +589,7 @@ def cmd_cache(args) -> int:
                 f"that no entry disappears under it. Fix: run `stereograph cache {args.action}` again when it has "
                 "ended (a --repeat loop holds the cache until it stops).", markup=False)
             return 1
-    from stereograph.project import budget_bytes
+    from stereograph.core.project import budget_bytes
 
 
     try:
@@ -633,38 +610,16 @@ def cmd_cache(args) -> int:
     return 0
 
 
-def _positive_int(text: str, least: int = 1, what: str = "at least 1") -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < least:
-        raise argparse.ArgumentTypeError(f"must be {what} (got {value})")
-    return value
 
 
-def _non_negative_int(text: str) -> int:
-    return _positive_int(text, 0, "0 (until stopped) or more")
 
 
-def _size_gb(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of GB") from None
-    if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a size in GB, 0 or more (got {text}; 0 empties the cache)")
-    return value
 
 
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0 (got {text})")
-    return value
+
+
+
+
 
 
 def _cache_positionals_first(argv: list[str]) -> list[str]:
@@ -712,18 +667,18 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
     sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
     sp.add_argument("--from", metavar="NODE", help="recompute NODE and its downstream even if cached")
-    sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--workers", type=positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run per-item nodes on a Dask cluster "
                     "('local' starts one with --workers processes; needs the 'dask' extra; a remote cluster must "
                     "see the cache and run folder on shared storage: docs/parallel.md)")
-    sp.add_argument("--repeat", type=_non_negative_int, metavar="N", help="run the live part (uncacheable nodes and "
+    sp.add_argument("--repeat", type=non_negative_int, metavar="N", help="run the live part (uncacheable nodes and "
                     "their downstream) N times, 0 = until stopped; each cycle in cycles.jsonl")
     sp.add_argument("--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle")
     sp.add_argument("--save-cycles", action="store_true", help="--repeat: write every cycle's live outputs, images "
                     "included, into cycles/<n>/")
     sp.add_argument("--verbose", action="store_true", help="--repeat: a line per node in every cycle, not only in "
                     "the first (the others get one line per cycle)")
-    sp.add_argument("--progress-interval", type=_seconds, default=5.0, metavar="SECONDS",
+    sp.add_argument("--progress-interval", type=console.seconds, default=5.0, metavar="SECONDS",
                     help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
@@ -743,7 +698,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.set_defaults(fn=cmd_nodes)
     sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
     sp.add_argument("action", choices=["info", "prune", "clear"])
-    sp.add_argument("--max-gb", type=_size_gb,
+    sp.add_argument("--max-gb", type=size_gb,
                     help="prune: keep the most recently used entries up to this size (GB, 0 or more)")
     sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
     sp.add_argument("--cache-dir")
@@ -753,7 +708,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
                        add_help=False)
     else:
         try:
-            from stereograph import compare as compare_mod
+            from stereograph.app import compare as compare_mod
 
             compare_mod.add_subcommand(sub)
         except (ImportError, AttributeError):
@@ -833,7 +788,7 @@ def _main(argv: list[str]) -> int:
     except ConfigError as e:
         from rich.markup import escape
 
-        from stereograph.errors import ConfigErrors
+        from stereograph.core.errors import ConfigErrors
 
         err = _console(stderr=True)
         for one in (e.errors if isinstance(e, ConfigErrors) else [e]):

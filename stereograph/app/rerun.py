@@ -43,7 +43,8 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from stereograph.digests import file_digest, hash_json
+from stereograph.core import hooks
+from stereograph.core.digests import file_digest, hash_json
 
 FORMAT = 1
 RACY_NS = 2_000_000_000  # coarser than any file system's timestamps (FAT: 2 s), as cache.FileIndex
@@ -80,7 +81,7 @@ def fingerprint(pipeline: str | Path) -> list:
     never be replayed), are left out: the files there that count are stamped one by one."""
     import sys
 
-    from stereograph import registry
+    from stereograph.core import registry
 
     out = []
     skip = {str(Path(pipeline).resolve().parent)} | {os.path.abspath(p) for p in registry.PLUGIN_PATHS}
@@ -110,7 +111,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     :func:`fingerprint` taken as the command started. Only a run where every node ran or was cached
     is recorded, and only when what the run used is still what is on disk.
     """
-    from stereograph.config import load_pipeline
+    from stereograph.core.config import load_pipeline
 
     run, doc = result._run, graph.doc
     store = run.store
@@ -222,7 +223,7 @@ def _live_record(run: Any, inst: Any) -> dict[str, Any]:
            "input_types": run.input_types(inst), "outputs": list(inst.spec.outputs)}
     # Inputs that are small plain data (an arm, pick plans) are kept in the memo as the cache keeps
     # them (JSON): a replay then reads one file instead of an entry per item.
-    from stereograph.cache import encode
+    from stereograph.core.cache import encode
 
     arrays: dict[str, Any] = {}
     with contextlib.suppress(Exception):
@@ -277,7 +278,7 @@ def _report(name: str, type_: str, status: str, **kw: Any) -> SimpleNamespace:
 def replay(pipeline: str | Path, overrides: list[str], cache_dir: str | Path | None = None,
            out_dir: str | Path | None = None) -> Replayed | None:
     """Replay the run of this command line from its memo, or None when a real run is needed."""
-    from stereograph import project
+    from stereograph.core import project
 
     try:
         path = Path(pipeline).resolve()
@@ -299,7 +300,7 @@ def replay(pipeline: str | Path, overrides: list[str], cache_dir: str | Path | N
 def _check(memo: dict[str, Any], mdir: Path, cache: Path) -> dict[str, dict[str, Any]]:
     """Every check of the module docstring; the inputs of the nodes that must run. Writes nothing
     but the "used" marks of the entries."""
-    from stereograph import registry
+    from stereograph.core import registry
 
     if memo["plugins"] and not registry.PLUGINS_ALLOWED:
         raise _Stale("plugins not allowed")  # (the real run refuses them, with the reason)
@@ -328,7 +329,7 @@ def _check(memo: dict[str, Any], mdir: Path, cache: Path) -> dict[str, dict[str,
             if file_digest(p) != rec["digest"]:
                 raise _Stale(f"{rel} was edited")
             rec["stamp"], rec["verified_ns"] = st, time.time_ns()
-    from stereograph.errors import ConfigError
+    from stereograph.core.errors import ConfigError
 
     for spec in memo["live"].values():
         try:  # the module now, before execute's clock starts (a real run imports it at graph time)
@@ -345,7 +346,7 @@ def _live_inputs(cache: Path, spec: dict[str, Any]) -> dict[str, Any]:
     real run). (The entries they come from were checked present.)"""
     if "values" in spec:
         return spec["values"]
-    from stereograph.cache import ArtifactStore, CorruptEntry, NotStored
+    from stereograph.core.cache import ArtifactStore, CorruptEntry, NotStored
 
     store = ArtifactStore(cache)
     values: dict[str, Any] = {}
@@ -365,7 +366,7 @@ def _live_inputs(cache: Path, spec: dict[str, Any]) -> dict[str, Any]:
 def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
            live_inputs: dict[str, dict[str, Any]]) -> Replayed | None:
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
-    from stereograph import outputs, project
+    from stereograph.core import outputs, project
 
     run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]  # run_state.new_run_id's form
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
@@ -426,7 +427,7 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     summary[outputs.MARKER] = {"format": 1, "run_id": run_id}
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
     outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
-    outputs.write_report_quietly(out, result)
+    result.notes.extend(hooks.announce("run_written", out))  # report.html, as a computed run gets
     return result
 
 
@@ -443,8 +444,8 @@ def _restamp(memo: dict[str, Any], mdir: Path) -> None:
 def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path, pipeline_dir: Path,
               plugins: list[str]) -> tuple[SimpleNamespace, dict[str, Any]]:
     """Run a node that must run, as the runner does (same ``execute``), and write its outputs."""
-    from stereograph import outputs
-    from stereograph.calls import Task, close_resources, execute
+    from stereograph.core import outputs
+    from stereograph.core.calls import Task, close_resources, execute
 
     resources: dict[str, Any] = {}
     try:
@@ -471,7 +472,7 @@ def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path
 
 def _echo(recorded: list[list[Any]], live: dict[tuple[str, str], Any]) -> list[list[Any]]:
     """The console's entries, with those of the nodes that ran filled in from their values."""
-    from stereograph.cli import echo_entry
+    from stereograph.app.console import echo_entry
 
     out = []
     for e in recorded:

@@ -26,6 +26,8 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from stereograph.core import hooks
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -132,7 +134,7 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     if value is None:
         return []
     if lossy:
-        from stereograph.cache import jpeg_roundtrip
+        from stereograph.core.cache import jpeg_roundtrip
 
         jpeg = jpeg_roundtrip(value)
         if jpeg is not None:
@@ -276,7 +278,7 @@ def _verified_render(rdir: Path) -> dict[str, bytes] | None:
 def check_folder_path(out: Path) -> Path:
     """Refuse an output folder that is an existing file or lies under one (:class:`ConfigError`);
     returns the nearest existing folder on its path (the folder itself when it exists)."""
-    from stereograph.errors import ConfigError
+    from stereograph.core.errors import ConfigError
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output folder {out} is an existing file", hint="choose another --out")
@@ -302,7 +304,7 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
         The files left in the folder (a user's, say), relative path -> stamp: what
         :func:`node_files` must not take for a file a node of this run wrote.
     """
-    from stereograph.errors import ConfigError
+    from stereograph.core.errors import ConfigError
 
     probe = check_folder_path(out_dir)
     if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
@@ -334,7 +336,7 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
             p.unlink()
             parents.update(q for q in p.parents if root in q.parents)
     summary.unlink()
-    (out_dir / "report.html").unlink(missing_ok=True)  # written from that run.json (stereograph.report)
+    (out_dir / "report.html").unlink(missing_ok=True)  # written from that run.json (stereograph.app.report)
     # stereograph never makes symbolic links: one inside the folder was put there since, and writing
     # through it (a node's folder linked elsewhere) would write outside the run's folder
     for dirpath, dirnames, filenames in os.walk(out_dir):  # (does not follow links)
@@ -371,7 +373,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        from stereograph.errors import ConfigError
+        from stereograph.core.errors import ConfigError
 
         raise ConfigError(f"cannot make output folder {out_dir}: {e.strerror or e}",
                           hint="choose another --out") from None
@@ -391,7 +393,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                 streamed = getattr(run, "streamed", {}).get((name, out), {})
                 if graph.is_collection(name, out) and streamed and \
                         all(i in streamed for i in run.items.get((name, out), [])):
-                    # written item by item as each finished (stereograph.streaming)
+                    # written item by item as each finished (stereograph.core.streaming)
                     files = [f for i in run.items.get((name, out), []) for f in streamed[i]]
                 elif graph.is_collection(name, out):
                     ids = run.items.get((name, out), [])
@@ -429,11 +431,13 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     try:
         write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
     except OSError as e:
-        from stereograph.errors import ConfigError
+        from stereograph.core.errors import ConfigError
 
         raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
                           hint="free space on that disk, or choose another --out") from None
-    write_report_quietly(out_dir, result)
+    notes = hooks.announce("run_written", out_dir)  # the app's page; never a failed run
+    if hasattr(result, "notes"):
+        result.notes.extend(notes)
 
 
 def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tuple[int, int, int]]) -> list[str]:
@@ -484,7 +488,7 @@ def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok
                    **({"traceback": r.trace} if r.unexpected and r.trace else {})}
                   for r in run.reports.values()],
         "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
-        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),  # stereograph.loop
+        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),  # stereograph.app.loop
     }
 
 
@@ -515,14 +519,3 @@ def _wiring(graph: Any, name: str) -> dict[str, Any]:
     headline = [o for o, decl in inst.spec.outputs.items() if decl.headline]
     return {"mapped": bool(inst.mapped), "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()},
             **({"headline": headline} if headline else {})}
-
-
-def write_report_quietly(out_dir: Path, result: Any = None) -> None:
-    """``report.html`` beside ``run.json``; a page that cannot be built is a note, never a failed run."""
-    from stereograph import report
-
-    try:
-        report.write_report(out_dir)
-    except Exception as e:  # the results are written: a report problem must not hide them
-        if result is not None and hasattr(result, "notes"):
-            result.notes.append(f"report.html not written: {type(e).__name__}: {e}")

@@ -1,9 +1,9 @@
 """The pipeline as a validated DAG.
 
-:func:`build_graph` turns a :class:`~stereograph.config.PipelineDoc` into a :class:`Graph`:
+:func:`build_graph` turns a :class:`~stereograph.core.config.PipelineDoc` into a :class:`Graph`:
 every node's spec resolved, params validated by the node's pydantic model, inputs wired and
 type-checked, cycles refused, and for each node whether it runs once or once per item.
-All problems are :class:`~stereograph.errors.ConfigError` naming file:line and node.
+All problems are :class:`~stereograph.core.errors.ConfigError` naming file:line and node.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ from typing import Any
 import networkx as nx
 import pydantic
 
-from stereograph import registry
-from stereograph.api import NodeError, NodeSpec, Params, type_name
-from stereograph.config import PipelineDoc, apply_override, load_pipeline, merge_params, types_first
-from stereograph.errors import ConfigError, ConfigErrors, in_file_order, raise_all
+from stereograph.core import registry
+from stereograph.core.api import NodeError, NodeSpec, Params, type_name
+from stereograph.core.config import PipelineDoc, apply_override, load_pipeline, merge_params, types_first
+from stereograph.core.errors import ConfigError, ConfigErrors, in_file_order, raise_all
 
 
 @dataclass
@@ -224,7 +224,7 @@ def build_graph(doc: PipelineDoc) -> Graph:
     """Resolve and check every node and wire of a pipeline before anything runs.
 
     Every problem is found in one pass: one is raised as a :class:`ConfigError`, several as a
-    :class:`~stereograph.errors.ConfigErrors` listing them all (in file order).
+    :class:`~stereograph.core.errors.ConfigErrors` listing them all (in file order).
     """
     registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
     problems: list[ConfigError] = []
@@ -324,7 +324,7 @@ def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph
     path : str or Path
         The pipeline YAML.
     overrides : list of str, optional
-        ``--set`` overrides, as for :func:`~stereograph.config.load_pipeline`.
+        ``--set`` overrides, as for :func:`~stereograph.core.config.load_pipeline`.
 
     Returns
     -------
@@ -357,7 +357,7 @@ def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph
 
 
 def _missing_set_paths(doc: PipelineDoc, nodes: dict[str, NodeInstance]) -> list[ConfigError]:
-    """A ``--set`` value of a :func:`~stereograph.api.PathField` that names nothing: refused now, with
+    """A ``--set`` value of a :func:`~stereograph.core.api.PathField` that names nothing: refused now, with
     the folder it is relative to (a path that exists from the current folder is the usual mistake)."""
     problems = []
     for text in doc.overrides:

@@ -17,7 +17,7 @@ a value without a dot is taken in the node's current kind, so ``none`` means
 defaults plus the pipeline's ``defaults:`` block for that type, where per-type settings
 belong) or ``node.inputs.port``. The combinations are the Cartesian product of the keys.
 
-Every variant runs through :func:`stereograph.runner.run_graph` on one shared artifact
+Every variant runs through :func:`stereograph.core.runner.run_graph` on one shared artifact
 cache, so what the variants have in common is computed once, and a later compare with one
 more value computes only that variant's nodes.
 
@@ -32,7 +32,7 @@ folder for nodes served from the cache).
 
 Public API::
 
-    from stereograph.compare import compare
+    from stereograph.app.compare import compare
     res = compare("pipelines/compare-compensation.yaml", ["fit.type=none,polynomial"], out_dir="out")
     res.rows            # one dict per variant: settings, declared metrics, per_pair_s
     res.variants[1].ran # nodes that computed anything in that variant's run
@@ -59,11 +59,12 @@ from typing import Any
 
 import numpy as np
 
-from stereograph import registry
-from stereograph.config import PipelineDoc, apply_override, check_node_named, load_pipeline
-from stereograph.errors import ConfigError, UsageError, printable
-from stereograph.graph import Graph, build_graph
-from stereograph.outputs import check_folder_path, write_whole
+from stereograph.app.ranking import PER_PAIR, best_row, is_best, show
+from stereograph.core import hooks, registry
+from stereograph.core.config import PipelineDoc, apply_override, check_node_named, load_pipeline
+from stereograph.core.errors import ConfigError, UsageError, printable
+from stereograph.core.graph import Graph, build_graph
+from stereograph.core.outputs import check_folder_path, write_whole
 
 __all__ = [
     "METRICS_TYPE",
@@ -85,7 +86,6 @@ __all__ = [
 METRICS_TYPE = "Metrics"
 TIMINGS_FILE = "compare-timings.json"
 #: The one column the engine adds to the declared metrics (it measures it itself).
-PER_PAIR = "per_pair_s"
 
 
 # --------------------------------------------------------------------------- variants
@@ -103,18 +103,14 @@ class Variant:
 
     @property
     def label(self) -> str:
-        return ", ".join(f"{k}={_show(v)}" for k, v in self.settings.items())
+        return ", ".join(f"{k}={show(v)}" for k, v in self.settings.items())
 
     @property
     def slug(self) -> str:
         # the folder name: the settings that tell the variants apart (a key with one value says nothing)
         keys = [k for k in self.settings if self.varying is None or k in self.varying] or list(self.settings)
-        text = "_".join(f"{k}-{_show(self.settings[k])}" for k in keys)
+        text = "_".join(f"{k}-{show(self.settings[k])}" for k in keys)
         return f"v{self.index:02d}_" + re.sub(r"[^A-Za-z0-9._=-]+", "-", text)[:80]
-
-
-def _show(value: Any) -> str:
-    return value if isinstance(value, str) else json.dumps(value)
 
 
 def parse_vary(text: str) -> tuple[str, list[Any]]:
@@ -131,7 +127,7 @@ def parse_vary(text: str) -> tuple[str, list[Any]]:
     if len(parts) < 2 or not all(parts):
         raise UsageError(f"--vary '{text}': the left side must be node.field (node.type or node.param)",
                          hint="for example --vary fit.degree=1,2,3")
-    from stereograph.config import parse_yaml
+    from stereograph.core.config import parse_yaml
 
     try:  # the bounds of a pipeline file apply (an alias bomb, deep nesting)
         values = parse_yaml(f"[{rhs}]", f"--vary {key}", record_lines=False)[0]
@@ -285,7 +281,7 @@ def _lineages(graph: Graph, code: dict[Any, str] | None = None) -> dict[str, str
     Two variants whose node has the same fingerprint share that node's artifacts; the
     fingerprints also key the remembered per-item timings. ``code`` memoises source hashes.
     """
-    from stereograph.cache import code_hash, hash_json
+    from stereograph.core.cache import code_hash, hash_json
 
     code = {} if code is None else code
     lin: dict[str, str] = {}
@@ -411,10 +407,10 @@ class CompareResult:
 
 class _PlainProgress:
     """Progress lines for a non-terminal: one per variant, and the run's per-node lines
-    (:class:`stereograph.progress.PlainProgress`: a line per running node every few seconds)."""
+    (:class:`stereograph.app.progress.PlainProgress`: a line per running node every few seconds)."""
 
     def __init__(self, stream=None, interval_s: float = 5.0):
-        from stereograph.progress import PlainProgress
+        from stereograph.app.progress import PlainProgress
 
         self.stream = stream
         self.nodes = PlainProgress(stream, interval_s) if stream else None
@@ -513,8 +509,8 @@ class _RichProgress(_PlainProgress):
 
 
 def _default_out(doc: PipelineDoc) -> Path:
-    from stereograph.project import runs_dir
-    from stereograph.run_state import new_run_id
+    from stereograph.core.project import runs_dir
+    from stereograph.core.run_state import new_run_id
 
     return runs_dir(doc.directory) / doc.name / f"compare-{new_run_id()}"
 
@@ -526,7 +522,7 @@ def _compare_folder(out: Path) -> bool:
     """Whether ``out`` holds an earlier comparison: its ``compare.json`` (with :data:`MARKER`, or of the
     shape older versions wrote), or -- one that was interrupted before writing it -- only ``variants/``
     of run folders that stereograph wrote."""
-    from stereograph.outputs import MARKER as RUN_MARKER
+    from stereograph.core.outputs import MARKER as RUN_MARKER
 
     try:
         summary = json.loads((out / "compare.json").read_text())
@@ -594,7 +590,7 @@ def compare(
         Sets the ``split`` param of every node that declares metrics and takes one (a shortcut
         for ``--set node.split=...``); None leaves the pipeline's values.
     executor, progress : optional
-        As for :func:`stereograph.runner.run_graph`; ``progress`` may also have
+        As for :func:`stereograph.core.runner.run_graph`; ``progress`` may also have
         ``variant_started(i, n, label)`` / ``variant_done(variant_result)``.
     skip_invalid : bool
         Leave out combinations whose config does not validate (a param the varied
@@ -612,8 +608,8 @@ def compare(
         A bad pipeline or ``--vary``, or a pipeline that declares no metrics; with
         ``skip_invalid`` only if no variant is valid.
     """
-    from stereograph.run_state import default_cache_dir
-    from stereograph.runner import run_graph
+    from stereograph.core.run_state import default_cache_dir
+    from stereograph.core.runner import run_graph
 
     overrides = list(overrides or [])
     doc = load_pipeline(pipeline_path, overrides)
@@ -705,7 +701,7 @@ def compare(
 def _write_page(res: CompareResult, overrides: list[str] | None) -> None:
     """(Re)write ``compare.html`` with the files written so far (the CLI plots after ``compare``)."""
     try:
-        from stereograph.compare_report import write_compare_html
+        from stereograph.app.compare_report import write_compare_html
 
         res.files["html"] = write_compare_html(res, list(overrides or []))
     except Exception as e:  # the table and CSV are written: a page problem must not hide them
@@ -752,7 +748,7 @@ def _run_variant(v: Variant, graph: Graph, cache: Path, out: Path, executor: Any
 
 def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> None:
     """Saved / terminal outputs of the given nodes, and a small ``run.json``, into ``out``."""
-    from stereograph import outputs as outputs_mod
+    from stereograph.core import outputs as outputs_mod
 
     terminal = set(graph.terminal())
     files: dict[str, list[str]] = {}
@@ -783,7 +779,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
     }
     out.mkdir(parents=True, exist_ok=True)
     write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
-    outputs_mod.write_report_quietly(out)
+    hooks.announce("run_written", out)  # its report.html (a page that fails is no failed compare)
 
 
 def _rows(res: CompareResult) -> list[dict[str, Any]]:
@@ -860,12 +856,12 @@ def _json_default(v: Any) -> Any:
 
 def _varying_keys(res: CompareResult) -> list[str]:
     """The keys whose value differs between variants (all keys when none does)."""
-    return [k for k in res.keys if len({_show(x.variant.settings[k]) for x in res.variants}) > 1] or res.keys
+    return [k for k in res.keys if len({show(x.variant.settings[k]) for x in res.variants}) > 1] or res.keys
 
 
 def _short_label(res: CompareResult, v: Variant) -> str:
     """Only the settings that differ between variants (plots have little room)."""
-    return ", ".join(_show(v.settings[k]) for k in _varying_keys(res))
+    return ", ".join(show(v.settings[k]) for k in _varying_keys(res))
 
 
 
@@ -945,33 +941,6 @@ def _cell(name: str, v: Any) -> str:
 
 
 #: ``--best NAME:HOW``: the row's value that ranks it (lowest ranked value is best).
-_RANK = {"min": lambda v: v, "max": lambda v: -v, "abs": abs}
-
-
-def _best(res: CompareResult, best: str | None) -> tuple[str, str, float] | None:
-    """``(metric, how, ranked value)`` of the best row for ``--best NAME`` (lowest), ``NAME:max`` (highest)
-    or ``NAME:abs`` (closest to zero); None when no variant that ran to the end has a value."""
-    if not best:
-        return None
-    name, _, how = best.partition(":")
-    how = how or "min"
-    if name not in res.metric_names:
-        raise UsageError(f"--best {best}: no metric '{name}'", hint="choose one of " + ", ".join(res.metric_names))
-    if how not in _RANK:
-        raise UsageError(f"--best {best}: '{how}' is not a way to rank", hint=f"use {name}, {name}:max (highest is "
-                         f"best) or {name}:abs (closest to zero is best)")
-    # Only a variant that ran to the end can be best: a failed one's numbers cover the items that got
-    # through (its hardest ones may be the ones missing), so they are shown but never ranked.
-    vals = [_RANK[how](r[name]) for r in res.rows if r.get("ok") and isinstance(r.get(name), (int, float))]
-    return (name, how, min(vals)) if vals else None
-
-
-def _is_best(top: tuple[str, str, float] | None, row: dict[str, Any]) -> bool:
-    if top is None or not row["ok"] or not isinstance(row.get(top[0]), (int, float)):
-        return False
-    return _RANK[top[1]](row[top[0]]) == top[2]
-
-
 def _chunks(res: CompareResult, keys: list[str], names: list[str], width: int, narrow: bool) -> list[list[str]]:
     """The metric columns split into tables that each fit ``width`` (the setting columns repeat in each)."""
     pad = 2 if narrow else 3  # a column's padding and rule
@@ -979,7 +948,7 @@ def _chunks(res: CompareResult, keys: list[str], names: list[str], width: int, n
     def col_width(header: str, cells: list[str]) -> int:
         return max([len(header), *map(len, cells)]) + pad
 
-    used = sum(col_width(k, [_show(r["settings"][k]) for r in res.rows]) for k in keys) + 1
+    used = sum(col_width(k, [show(r["settings"][k]) for r in res.rows]) for k in keys) + 1
     chunks: list[list[str]] = [[]]
     room = width - used
     for name in names:
@@ -1013,11 +982,11 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
     from rich.markup import escape
     from rich.table import Table
 
-    from stereograph.errors import console as safe_console
+    from stereograph.core.errors import console as safe_console
 
     con = console or safe_console(highlight=False)
     keys = _varying_keys(res)
-    fixed = [f"{k}={_show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
+    fixed = [f"{k}={show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in keys]
     # A mistake in --metrics / --best is known only now that the variants ran: the table is printed
     # anyway (every metric, nothing marked), then the mistake is reported.
     mistakes: list[UsageError] = []
@@ -1027,7 +996,7 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
         mistakes.append(UsageError("--metrics matches no metric", hint="choose among " + ", ".join(res.metric_names)))
         names = shown
     try:
-        top = _best(res, best)
+        top = best_row(res, best)
     except UsageError as e:
         mistakes.append(e)
         top = None
@@ -1047,14 +1016,14 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
         if top is not None or failed:  # (the colour alone is lost in a log or a pipe)
             t.add_column("", no_wrap=True)
         for r in res.rows:
-            cells = [escape(_show(r["settings"][k])) for k in keys]
-            is_best = _is_best(top, r)
-            mark = ([f"<- best {top[0]}" if is_best else "" if r["ok"] else "FAILED (see below)"]
+            cells = [escape(show(r["settings"][k])) for k in keys]
+            marked = is_best(top, r)
+            mark = ([f"<- best {top[0]}" if marked else "" if r["ok"] else "FAILED (see below)"]
                     if top is not None or failed else [])
             if not r["ok"] and not any(isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR):
                 t.add_row(*cells, *(["–"] * len(chunk)), *mark, style="red")
                 continue
-            style = "bold green" if is_best else ("red" if not r["ok"] else None)
+            style = "bold green" if marked else ("red" if not r["ok"] else None)
             t.add_row(*cells, *(_cell(n, r.get(n)) for n in chunk), *mark, style=style)
         con.print(t)
     same = [n for n in constant if n not in names]
@@ -1079,7 +1048,7 @@ def print_table(res: CompareResult, console: Any = None, metrics: list[str] | No
 
 def add_subcommand(subparsers: Any) -> Any:
     """Add ``compare`` to the ``stereograph`` command's sub-parsers."""
-    from stereograph.cli import _positive_int  # (run's own check of --workers)
+    from stereograph.app.console import positive_int  # (run's own check of --workers)
 
     sp = subparsers.add_parser("compare", help="run every combination of --vary settings and tabulate the metrics "
                                                "the pipeline's nodes declare")
@@ -1100,7 +1069,7 @@ def add_subcommand(subparsers: Any) -> Any:
     sp.add_argument("--best", metavar="METRIC[:max|:abs]",
                     help="show the row with the lowest (:max the highest, :abs the closest to zero) METRIC in "
                          "bold green, among the variants that ran to the end")
-    sp.add_argument("--workers", type=_positive_int, default=1, help="processes for per-item nodes (default 1)")
+    sp.add_argument("--workers", type=positive_int, default=1, help="processes for per-item nodes (default 1)")
     sp.add_argument("--dask", metavar="ADDRESS", help="run every variant's per-item work on a Dask cluster "
                     "('local' starts one with --workers processes; the cache and run folder must be on "
                     "storage every worker sees: docs/parallel.md)")
@@ -1118,8 +1087,8 @@ add_compare_subcommand = add_subcommand
 
 def main(args: Any) -> int:
     """Run ``stereograph compare`` from parsed arguments; 0 when every variant ran, 1 otherwise."""
-    from stereograph.errors import console
-    from stereograph.executors import workers_executor
+    from stereograph.core.errors import console
+    from stereograph.core.executors import workers_executor
 
     wide = None if sys.stdout.isatty() else 240  # a log or pipe: do not squeeze the table to 80 columns
     con = console(highlight=False, soft_wrap=True, width=wide)  # (user text printed with control characters escaped)
@@ -1154,19 +1123,3 @@ def main(args: Any) -> int:
         return 1
     return 0
 
-
-class _CallableModule(type(sys)):
-    """``stereograph.compare(...)`` is the Python API's :func:`stereograph.pyapi.compare`.
-
-    Importing this module makes ``stereograph.compare`` the module (Python sets the package
-    attribute), so the module itself answers the call; ``from stereograph.compare import compare``
-    still gives the function above.
-    """
-
-    def __call__(self, *args: Any, **kwargs: Any) -> CompareResult:
-        from stereograph.pyapi import compare as api_compare
-
-        return api_compare(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

@@ -1,0 +1,7 @@
+"""``python -m stereograph``: the ``stereograph`` command."""
+
+import sys
+
+from stereograph.app.cli import main
+
+sys.exit(main())

@@ -1,0 +1,73 @@
+"""What the command line accepts and shows: argument types, and how one value is echoed.
+
+Shared by ``stereograph run`` (:mod:`stereograph.app.cli`), ``compare`` and a replayed rerun, so
+that each reads ``--workers`` and echoes a result the same way. Public names:
+:func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`, :func:`echo_entry`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+
+def positive_int(text: str, least: int = 1, what: str = "at least 1") -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be {what} (got {value})")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    return positive_int(text, 0, "0 (until stopped) or more")
+
+
+def size_gb(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of GB") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"must be a size in GB, 0 or more (got {text}; 0 empties the cache)")
+    return value
+
+
+def seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds above 0 (got {text})")
+    return value
+
+
+def echo_entry(v: Any) -> tuple[str, str] | None:
+    """How the console shows one small terminal value: ``("markdown", text)`` for a report that renders
+    itself, ``("json", text)`` for plain data, None for what only the output folder holds."""
+    from stereograph.core.outputs import is_file_value, to_json
+
+    if not isinstance(v, (dict, list, float, int, str)):
+        return None
+    if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
+        return None
+    if isinstance(v, dict) and isinstance(v.get("markdown"), str):
+        return "markdown", v["markdown"]  # a report that renders itself: shown as the table it is
+    arrays: dict = {}
+    text = json.dumps(to_json(v, arrays), default=str)
+    if (arrays or len(text) > 3000) and isinstance(v, dict):
+        # big artifacts (a calibration, say): show their scalar facts only
+        small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
+                 (isinstance(x, (list, tuple)) and len(x) <= 6 and
+                  all(isinstance(y, (int, float, str, bool)) for y in x))}
+        if not small:
+            return None
+        text = json.dumps(to_json(small, {}), default=str)
+    elif arrays or len(text) > 3000:
+        return None
+    return "json", text

@@ -1,0 +1,92 @@
+"""The engine's two layers (issue 27): ``stereograph.core`` never imports ``stereograph.app``, and no
+module of ``stereograph/`` imports itself back through others. Every import counts, at the top of a
+module or inside a function; each check is also run on a planted violation to show it can fail.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import shutil
+from pathlib import Path
+
+import networkx as nx
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports_of(path: Path, root: Path) -> set[str]:
+    """What a file imports anywhere in it: ``import x`` gives x, ``from x import y`` gives x.y (the
+    module y of package x, or the name y of module x: :func:`import_graph` tells them apart)."""
+    me = module_name(path, root)
+    package = me if path.name == "__init__.py" else me.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(anchor + ([base] if base else []))
+            found |= {f"{base}.{a.name}" for a in node.names}
+    return {m for m in found if m == "stereograph" or m.startswith("stereograph.")}
+
+
+def import_graph(root: Path) -> nx.DiGraph:
+    """Module -> module edges between the files of the package at ``root``."""
+    files = {module_name(p, root): p for p in root.rglob("*.py")}
+    g = nx.DiGraph()
+    g.add_nodes_from(files)
+    for name, path in files.items():
+        for target in imports_of(path, root):
+            while target not in files and "." in target:
+                target = target.rpartition(".")[0]
+            if target in files and target != name:
+                g.add_edge(name, target)
+    return g
+
+
+def layer_violations(root: Path) -> list[str]:
+    g = import_graph(root)
+    return sorted(f"{a} imports {b}" for a, b in g.edges
+                  if a.startswith("stereograph.core") and not b.startswith("stereograph.core"))
+
+
+def circles(root: Path) -> list[list[str]]:
+    return [sorted(c) for c in nx.strongly_connected_components(import_graph(root)) if len(c) > 1]
+
+
+def test_the_core_never_imports_the_app():
+    assert layer_violations(ROOT / "stereograph") == []
+
+
+def test_no_module_imports_itself_back():
+    assert circles(ROOT / "stereograph") == []
+
+
+def test_the_checks_fail_on_a_planted_violation(tmp_path):
+    copy = tmp_path / "stereograph"
+    shutil.copytree(ROOT / "stereograph", copy, ignore=shutil.ignore_patterns("__pycache__"))
+    with open(copy / "core" / "cache.py", "a") as f:  # inside a function, where a reader would not look
+        f.write("\n\ndef _planted():\n    from stereograph.app import rerun\n\n    return rerun\n")
+    assert layer_violations(copy) == ["stereograph.core.cache imports stereograph.app.rerun"]
+    assert any({"stereograph.app.rerun", "stereograph.core.cache"} <= set(c) for c in circles(copy))
+
+
+def test_the_reading_map_names_every_core_module_in_order():
+    """The package docstring and the README's engine section list every ``core/`` module, in one order."""
+    core = {p.stem for p in (ROOT / "stereograph" / "core").glob("*.py") if p.stem != "__init__"}
+    doc = (ROOT / "stereograph" / "__init__.py").read_text().split('"""')[1]
+    in_doc = re.findall(r"stereograph\.core\.([a-z_]+)", doc)
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## The engine in brief"):]
+    section = section[: section.index("\n## ", 4)]
+    in_readme = re.findall(r"stereograph/core/([a-z_]+)\.py", section)
+    assert set(in_doc) == core, sorted(core ^ set(in_doc))
+    assert in_readme == in_doc
