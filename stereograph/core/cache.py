@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from stereograph.core import hooks
-from stereograph.core.digests import digest, file_digest, hash_json  # noqa: F401  (re-exported: the old home)
+from stereograph.core.digests import digest, file_digest, hash_json
 
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 

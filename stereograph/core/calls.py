@@ -1,7 +1,7 @@
 """One call of a node function: :class:`Task` in, :class:`TaskResult` out (:func:`execute`).
 
-A module of its own, apart from the scheduler (:mod:`stereograph.core.runner`, which re-exports these
-names), so that running one node without the scheduler -- a replayed rerun's node that must run
+A module of its own, apart from the scheduler (:mod:`stereograph.core.runner`), so that running one
+node without the scheduler -- a replayed rerun's node that must run
 (:mod:`stereograph.app.rerun`) -- imports the node API and the registry only: not the cache's codecs,
 NumPy or the streaming machinery.
 """

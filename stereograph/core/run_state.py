@@ -26,10 +26,10 @@ from stereograph.core.cache import (
     NotStored,
     code_hash,
     content_key,
-    hash_json,
     jpeg_roundtrip,
 )
 from stereograph.core.calls import Task, TaskResult, execute
+from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
 from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
 
