@@ -30,7 +30,7 @@ PIPELINE = ROOT / "pipelines" / "dense-aloe.yaml"
 ALOE = ROOT.parent / "shared" / "data" / "middlebury-aloe-opencv"
 sys.path.insert(0, str(ROOT))
 
-from nodes.disparity.dense import bad_pixels  # noqa: E402
+from nodes.contracts.disparity_scores import bad_pixels  # noqa: E402
 
 VARIANTS = {
     "SGBM (WLS off)": [],

@@ -25,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from nodes.disparity.dense import bad_pixels  # noqa: E402
+from nodes.contracts.disparity_scores import bad_pixels  # noqa: E402
 
 ALOE = ROOT.parent / "shared" / "data" / "middlebury-aloe-opencv"
 # Middlebury 2014 Motorcycle, quarter size (741x500): f 3979.911 / 4 px, doffs 124.343 / 4 px, B 193 mm

@@ -13,8 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
+from nodes.contracts.disparity_scores import bad_pixels
 from nodes.disparity._ply import decode_ply, encode_ply
-from nodes.disparity.dense import DenseParams, bad_pixels, dense, dense_disparity, point_cloud, search_range_px
+from nodes.disparity.dense import DenseParams, dense, dense_disparity, point_cloud, search_range_px
 from nodes.locators.triangulate import triangulate_point
 from nodes.rectifiers.given import GivenParams, given
 from nodes.rectifiers.remap import RemapParams, remap

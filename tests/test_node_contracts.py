@@ -1,8 +1,8 @@
 """Node kinds share contracts (``nodes/contracts/``), not each other's private modules.
 
 Walks every import statement of every module under ``nodes/`` (top-level and inside functions,
-absolute and relative) and fails when a module of one kind imports a ``_``-prefixed module of
-another kind.
+absolute and relative) and fails when a module of one kind imports any module of another kind,
+public or private: what kinds share lives in ``nodes/contracts/``.
 """
 
 from __future__ import annotations
@@ -38,42 +38,42 @@ def _imported_modules(path: Path) -> list[tuple[int, list[str]]]:
     return found
 
 
-def cross_kind_private_imports() -> list[str]:
+def cross_kind_imports() -> list[str]:
     bad = []
     for path in sorted(NODES.rglob("*.py")):
         parts = _module_parts(path)
         kind = parts[1] if len(parts) > 1 else None
         for line, mod in _imported_modules(path):
-            if len(mod) < 3 or mod[0] != "nodes" or mod[1] == kind or mod[1] in SHARED:
+            if len(mod) < 2 or mod[0] != "nodes" or mod[1] == kind or mod[1] in SHARED:
                 continue
-            private = [i for i, p in enumerate(mod) if i >= 2 and p.startswith("_") and not p.startswith("__")]
-            if private:  # name the private module (or a private name of a public module) once
-                entry = f"{path.relative_to(NODES.parent).as_posix()}:{line} imports {'.'.join(mod[:private[0] + 1])}"
-                if entry not in bad:
-                    bad.append(entry)
-    return bad
+            entry = f"{path.relative_to(NODES.parent).as_posix()}:{line} imports {'.'.join(mod[:3])}"
+            if entry not in bad and not any(b.startswith(entry + ".") for b in bad):
+                bad.append(entry)
+    return [b for b in bad if not any(o != b and o.startswith(b + ".") for o in bad)]
 
 
-def test_no_kind_imports_another_kinds_private_module():
-    bad = cross_kind_private_imports()
+def test_no_kind_imports_another_kinds_module():
+    bad = cross_kind_imports()
     assert not bad, ("move what these share into nodes/contracts/ (see docs/artifacts.md):\n  "
                      + "\n  ".join(bad))
 
 
-def test_the_walk_sees_private_imports(tmp_path):
-    # The check itself can fail: a planted cross-kind private import is reported.
+def test_the_walk_sees_cross_kind_imports(tmp_path):
+    # The check itself can fail: planted cross-kind imports, private and public, are reported.
     fake = tmp_path / "nodes"
     (fake / "ik").mkdir(parents=True)
     (fake / "actuators").mkdir()
     (fake / "ik" / "_model.py").write_text("X = 1\n")
     (fake / "actuators" / "a.py").write_text("def f():\n    from nodes.ik._model import X\n    return X\n")
     (fake / "actuators" / "b.py").write_text("from nodes.ik import _model\nfrom ._own import Y\n")
+    (fake / "actuators" / "c.py").write_text("from nodes.ik.arm import arm_model\nfrom nodes.contracts import x\n")
     globals()["NODES"], old = fake, NODES
     try:
-        bad = cross_kind_private_imports()
+        bad = cross_kind_imports()
     finally:
         globals()["NODES"] = old
-    assert bad == ["nodes/actuators/a.py:2 imports nodes.ik._model", "nodes/actuators/b.py:1 imports nodes.ik._model"]
+    assert bad == ["nodes/actuators/a.py:2 imports nodes.ik._model", "nodes/actuators/b.py:1 imports nodes.ik._model",
+                   "nodes/actuators/c.py:1 imports nodes.ik.arm"]
 
 
 def test_a_malformed_record_fails_the_node_that_made_it_not_the_next(tmp_path):

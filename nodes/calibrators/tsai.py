@@ -52,6 +52,7 @@ from nodes.calibrators._board import board_points, detect_views
 from nodes.calibrators._calib_io import calibration_outputs
 from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
 from nodes.contracts.calibration_export import EXPORT_OUTPUTS
+from nodes.contracts.tsai_camera import tsai_project
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = [
@@ -75,22 +76,6 @@ COPLANAR_THICKNESS = 0.05
 def _sensor(px, u0, v0, dx, dy, ncx_over_nfx):
     dxp = dx * ncx_over_nfx  # d'x (3.6)
     return (px[:, 0] - u0) * dxp, (px[:, 1] - v0) * dy
-
-
-def tsai_project(cam: dict, world_cm: np.ndarray) -> np.ndarray:
-    """Project world points (N, 3, cm) with a Tsai camera (see :func:`tsai_camera`) to pixels (N, 2)."""
-    P = np.asarray(world_cm, float) @ cam["R"].T + cam["t_cm"]
-    Xu, Yu = cam["f"] * P[:, 0] / P[:, 2], cam["f"] * P[:, 1] / P[:, 2]
-    ru = np.hypot(Xu, Yu)
-    rd = ru.copy()
-    k1 = cam["k1"]
-    for _ in range(30):  # Newton on rd (1 + k1 rd^2) = ru
-        g = rd * (1 + k1 * rd * rd) - ru
-        rd = rd - g / (1 + 3 * k1 * rd * rd)
-    s = np.where(ru > 0, rd / np.where(ru > 0, ru, 1), 1.0)
-    Xd, Yd = Xu * s, Yu * s
-    dxp = cam["dx"] * cam["ncx_over_nfx"]
-    return np.stack([cam["sx"] * Xd / dxp + cam["u0"], Yd / cam["dy"] + cam["v0"]], axis=1)
 
 
 def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_pitch=(1.0, 1.0),

@@ -35,7 +35,7 @@ from nodes.disparity._common import OddSize
 from nodes.disparity._ply import encode_ply
 from stereograph.api import Field, In, NodeError, OrderedRange, Out, Params, PositiveRange, node
 
-__all__ = ["DenseParams", "bad_pixels", "colorize", "dense", "dense_disparity", "point_cloud", "search_range_px",
+__all__ = ["DenseParams", "colorize", "dense", "dense_disparity", "point_cloud", "search_range_px",
            "wls_filter"]
 
 _MODES = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH,
@@ -164,23 +164,6 @@ def dense_disparity(left: np.ndarray, right: np.ndarray, d_min: int, num: int, p
     disp = raw.astype(np.float32) / 16.0
     disp[~valid] = np.nan
     return np.ascontiguousarray(disp[:, pad:])
-
-
-def bad_pixels(disp: np.ndarray, truth_px: np.ndarray, threshold_px: float = 2.0) -> tuple[float, float]:
-    """Middlebury-style scores against a ground-truth disparity map (0 = unknown there).
-
-    Returns
-    -------
-    (fill, bad)
-        ``fill``: the fraction of pixels with known truth that have a disparity; ``bad``: the fraction of
-        those filled pixels whose disparity is more than ``threshold_px`` from the truth ("bad-2.0").
-    """
-    known = np.asarray(truth_px) > 0
-    filled = known & np.isfinite(disp)
-    if not filled.any():
-        return 0.0, float("nan")
-    bad = filled & (np.abs(np.where(filled, disp, 0.0) - truth_px) > threshold_px)
-    return float(filled.sum() / known.sum()), float(bad.sum() / filled.sum())
 
 
 def colorize(disp: np.ndarray, d_range: tuple[float, float], colormap: str = "turbo") -> np.ndarray:

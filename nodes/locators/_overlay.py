@@ -4,7 +4,7 @@ Left | right rectified images; the located image point in the left view and the 
 ``u - d`` in the right (red circles), joined by their epipolar line (yellow: matching points of a
 rectified pair share a row); the segmenter's rejected candidates outlined in orange with the word
 why; above them the pair id with x / y / z (cm) and sigma_z, or the whole refusal reason
-(labels: ``nodes/reports/overlay.py``). A camera pair (``StereoPair``) is remapped with the
+(labels: ``nodes/contracts/overlay.py``). A camera pair (``StereoPair``) is remapped with the
 rectification's maps first, so the marks sit on the pixels they refer to.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from nodes.reports.overlay import draw_rejected, label_pair, location_text
+from nodes.contracts.overlay import draw_rejected, label_pair, location_text
 
 
 def _bgr(img: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from nodes.disparity.dense import bad_pixels
+from nodes.contracts.disparity_scores import bad_pixels
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 __all__ = ["DisparityScoreParams", "disparity_score", "truth_path"]

@@ -46,7 +46,7 @@ def as_bgr(img: np.ndarray) -> np.ndarray:
 def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
     """Left | right side by side (BGR uint8) with the mask outline (green), centroid (red cross), rejected
     candidates (orange, when the Segmentation lists them) and a band above naming the pair and the result."""
-    from nodes.reports.overlay import draw_rejected, label_pair
+    from nodes.contracts.overlay import draw_rejected, label_pair
 
     out = []
     for side, img in (("left", left), ("right", right)):

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from nodes.calibrators.tsai import tsai_project
+from nodes.contracts.tsai_camera import tsai_project
 from nodes.sources._lens import project_points
 
 __all__ = ["opencv_pixels", "target_points", "tsai_cameras"]
