@@ -151,6 +151,45 @@ def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, e
     assert read_calibration_file(LIVE_CAL)["image_size"] == [640, 480]  # the file as written loads
 
 
+@pytest.mark.parametrize("edit, said", [
+    (("   cols: 3\n   dt: d\n   data: [ 560.37", None), "3x-1 is not the size"),  # M2 (its first cols: 3)
+    (("rows: 1\n   cols: 5", "rows: 2000000000\n   cols: 5"), "2000000000x5"),
+    (("dt: d", "dt: *a"), "element type"),
+    (("   rows: 3\n   cols: 3\n   dt: d\n   data: [ 560.33467267895105, 0.,",
+      "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 0.,"), "data must hold 9 numbers"),
+])
+def test_a_matrix_with_a_hostile_header_is_refused_not_a_crash(tmp_path, edit, said):
+    """(found by the reader fuzz test under the full suite: OpenCV 5.0.0's FileNode.mat() trusts rows
+    and cols; with cols: -1 it raises, but has corrupted the heap and the process aborts moments
+    later -- a crash, not a message. Run in a child process so that such a crash fails the test.)"""
+    text = LIVE_CAL.read_text()
+    old = edit[0]
+    if edit[1] is None:  # the second matrix's cols: the first "cols: 3" followed by M2's data
+        i = text.index("M2:")
+        text = text[:i] + text[i:].replace("cols: 3", "cols: -1", 1)
+    else:
+        assert old in text
+        text = text.replace(old, edit[1], 1)
+    bad = tmp_path / "calibration.yml"
+    bad.write_text(text)
+    code = textwrap.dedent(f"""
+        from pathlib import Path
+
+        import numpy as np
+        from nodes.calibrators.load import read_calibration_file
+        from stereograph.core.api import NodeError
+        for _ in range(5):
+            try:
+                read_calibration_file(Path({str(bad)!r}))
+            except NodeError as e:
+                said = e.message
+        blocks = [np.zeros(1000) for _ in range(2000)]  # allocations that meet a corrupted heap
+        print(said)
+    """)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert p.returncode == 0 and said in p.stdout, (p.returncode, p.stdout, p.stderr[-500:])
+
+
 @pytest.mark.slow
 def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
     """(a URL whose server accepts and sends nothing: OpenCV waited its own 30 s, deaf to Ctrl-C)"""

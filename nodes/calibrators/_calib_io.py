@@ -104,6 +104,31 @@ def calibration_summary(cal: dict) -> tuple[dict, str]:
 
 
 # --------------------------------------------------------------------------- OpenCV FileStorage
+MAX_MATRIX_SIDE = 64  # a calibration's matrices are 3x3, 3x4, 4x4 or 1x14 at most
+_DT_CHANNELS = re.compile(r"^(\d*)([ucwsifdh])$")
+
+
+def matrix_node_problem(node) -> str | None:
+    """What is wrong with an ``!!opencv-matrix`` node's header, in words, or None.
+
+    OpenCV 5.0.0's ``FileNode.mat()`` trusts ``rows`` / ``cols``: ``cols: -1`` corrupts the heap and
+    the process aborts later, so a file from elsewhere is checked before OpenCV reads it.
+    """
+    rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
+    if not (rows.isInt() and cols.isInt()):
+        return "rows and cols must be whole numbers"
+    r, c = int(rows.real()), int(cols.real())
+    if not (1 <= r <= MAX_MATRIX_SIDE and 1 <= c <= MAX_MATRIX_SIDE):
+        return f"{r}x{c} is not the size of a calibration matrix (each side 1 to {MAX_MATRIX_SIDE})"
+    m = _DT_CHANNELS.match(dt.string().strip()) if dt.isString() else None
+    if m is None:
+        return "dt must name an element type (d, f, i, ...)"
+    channels = int(m.group(1) or 1)
+    if not data.isSeq() or data.size() != r * c * channels:
+        return f"data must hold {r * c * channels} numbers"
+    return None
+
+
 def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, extra: Path | None = None,
                 max_principal_offset: float = MAX_PRINCIPAL_OFFSET) -> dict:
     """Read a stereo calibration from an OpenCV FileStorage file (.yml / .yaml / .xml / .json).
@@ -150,6 +175,9 @@ def read_opencv(path: Path, cm_per_unit: float | None = None, image_size=None, e
             for n in names:
                 node = found(n)
                 if node is not None and node.isMap():
+                    why = matrix_node_problem(node)
+                    if why:  # checked before OpenCV reads it: a bad header corrupts its heap (cols: -1)
+                        raise ValueError(f"{n} is not a valid opencv-matrix: {why}")
                     m = node.mat()
                     if m is not None:
                         return np.asarray(m, np.float64)
