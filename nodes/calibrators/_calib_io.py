@@ -114,18 +114,24 @@ def matrix_node_problem(node) -> str | None:
     OpenCV 5.0.0's ``FileNode.mat()`` trusts ``rows`` / ``cols``: ``cols: -1`` corrupts the heap and
     the process aborts later, so a file from elsewhere is checked before OpenCV reads it.
     """
-    rows, cols, dt, data = (node.getNode(k) for k in ("rows", "cols", "dt", "data"))
-    if not (rows.isInt() and cols.isInt()):
+    rows, cols, sizes, dt, data = (node.getNode(k) for k in ("rows", "cols", "sizes", "dt", "data"))
+    if not sizes.empty():  # !!opencv-nd-matrix (a 1-D array as OpenCV writes it; XML: one size is a number)
+        items = [sizes.at(i) for i in range(sizes.size())] if sizes.isSeq() else [sizes]
+        if not 1 <= len(items) <= 2 or not all(x.isInt() for x in items):
+            return "sizes must be one or two whole numbers"
+        dims = [int(x.real()) for x in items]
+    elif rows.isInt() and cols.isInt():
+        dims = [int(rows.real()), int(cols.real())]
+    else:
         return "rows and cols must be whole numbers"
-    r, c = int(rows.real()), int(cols.real())
-    if not (1 <= r <= MAX_MATRIX_SIDE and 1 <= c <= MAX_MATRIX_SIDE):
-        return f"{r}x{c} is not the size of a calibration matrix (each side 1 to {MAX_MATRIX_SIDE})"
+    if not all(1 <= d <= MAX_MATRIX_SIDE for d in dims):
+        return f"{'x'.join(map(str, dims))} is not the size of a calibration matrix (each side 1 to {MAX_MATRIX_SIDE})"
     m = _DT_CHANNELS.match(dt.string().strip()) if dt.isString() else None
     if m is None:
         return "dt must name an element type (d, f, i, ...)"
-    channels = int(m.group(1) or 1)
-    if not data.isSeq() or data.size() != r * c * channels:
-        return f"data must hold {r * c * channels} numbers"
+    n = math.prod(dims) * int(m.group(1) or 1)
+    if not data.isSeq() or data.size() != n:
+        return f"data must hold {n} numbers"
     return None
 
 
