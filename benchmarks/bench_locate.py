@@ -54,13 +54,13 @@ sys.path.insert(0, str(ROOT))
 cv2.setNumThreads(1)
 
 from nodes.calibrators.truth import truth_calibration  # noqa: E402
+from nodes.contracts.segmenter._checks import check_pair  # noqa: E402
+from nodes.contracts.segmenter._detect import search_band, segment_image  # noqa: E402
+from nodes.contracts.segmenter._size import expected_radius_px  # noqa: E402
 from nodes.contracts.views import pair_views  # noqa: E402
 from nodes.disparity.centroid import centroid_disparity  # noqa: E402
 from nodes.locators.triangulate import sigma_z_cm, triangulate_point  # noqa: E402
 from nodes.rectifiers.opencv import rectify_calibration  # noqa: E402
-from nodes.segmenters._checks import check_pair  # noqa: E402
-from nodes.segmenters._detect import search_band, segment_image  # noqa: E402
-from nodes.segmenters._size import expected_radius_px  # noqa: E402
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph_mask  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
 

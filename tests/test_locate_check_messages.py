@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from nodes.segmenters._checks import check_pair
-from nodes.segmenters._params import SegmenterParams
+from nodes.contracts.segmenter._checks import check_pair
+from nodes.contracts.segmenter._params import SegmenterParams
 
 F, B = 500.0, 8.0
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.truth import truth_calibration
+from nodes.contracts.segmenter._pixels import masked_pixels
 from nodes.contracts.views import RectifiedView, pair_views
 from nodes.rectifiers.opencv import rectify_calibration
-from nodes.segmenters._pixels import masked_pixels
 from nodes.sources.synthetic import SyntheticParams, synthetic
 from stereograph.core.runner import run_pipeline
 

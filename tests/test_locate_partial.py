@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.truth import truth_calibration
+from nodes.contracts.segmenter._partial import cone_center_px, fit_cone, fit_partial, rays
 from nodes.disparity.ellipse import EllipseParams, ellipse
 from nodes.locators.triangulate import TriangulateParams, triangulate
 from nodes.rectifiers.opencv import rectify_calibration
 from nodes.rectifiers.remap import RemapParams, remap
-from nodes.segmenters._partial import cone_center_px, fit_cone, fit_partial, rays
 from nodes.segmenters.color import ColorParams, color
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph
 from nodes.sources.synthetic import SyntheticParams, synthetic
@@ -106,7 +106,7 @@ def test_no_colour_never_gives_a_confident_wrong_answer(hard):
 
 
 def test_auto_channel_picks_a_plane_where_an_orange_ball_stands_out_on_grey():
-    from nodes.segmenters._channel import best_plane, normalize_exposure
+    from nodes.contracts.segmenter._channel import best_plane, normalize_exposure
 
     rng = np.random.default_rng(0)
     img = np.clip(rng.normal(145, 12, (120, 160, 3)), 0, 255).astype(np.uint8)  # grey as bright as orange
@@ -149,7 +149,7 @@ def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
     # visible" (found on a 2 cm ball at 100-200 cm); the bins now hold >= 2 px of outline each.
     import cv2
 
-    from nodes.segmenters._partial import coverage
+    from nodes.contracts.segmenter._partial import coverage
 
     c = 50.0
     disc = np.zeros((100, 100), np.uint8)

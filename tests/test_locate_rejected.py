@@ -8,11 +8,11 @@ import pytest
 
 from nodes.calibrators.truth import truth_calibration
 from nodes.contracts.overlay import REJECTED_BGR
+from nodes.contracts.segmenter._detect import MAX_REJECTED, MAX_REJECTED_POINTS
 from nodes.disparity.ellipse import EllipseParams, ellipse
 from nodes.locators.triangulate import TriangulateParams, triangulate
 from nodes.rectifiers.opencv import rectify_calibration
 from nodes.rectifiers.remap import RemapParams, remap
-from nodes.segmenters._detect import MAX_REJECTED, MAX_REJECTED_POINTS
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph
 from nodes.sources.synthetic import SyntheticParams, synthetic
 

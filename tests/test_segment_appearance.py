@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from nodes.calibrators.truth import truth_calibration
+from nodes.contracts.segmenter._color import color_distance_map
+from nodes.contracts.segmenter._detect import segment_image
+from nodes.contracts.segmenter._params import apply_appearance
 from nodes.rectifiers.opencv import rectify_calibration
 from nodes.rectifiers.remap import RemapParams, remap
-from nodes.segmenters._color import color_distance_map
-from nodes.segmenters._detect import segment_image
-from nodes.segmenters._params import apply_appearance
 from nodes.segmenters.appearance import AppearanceParams, learn_appearance
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph_mask
 from nodes.sources.synthetic import SyntheticParams, synthetic

@@ -1,4 +1,4 @@
-"""The segmenters' Gaussian smoothing (nodes/segmenters/_blur.py) gives cv2.GaussianBlur's pixels, bit for bit."""
+"""The segmenters' Gaussian smoothing (contracts/segmenter/_blur.py) gives cv2.GaussianBlur's pixels, bit for bit."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from nodes.segmenters import _blur
-from nodes.segmenters._blur import gaussian_blur
+from nodes.contracts.segmenter import _blur
+from nodes.contracts.segmenter._blur import gaussian_blur
 
 SIGMAS = (0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0)  # px; the segmenters use 0.5, 1 and 2
 

@@ -1,4 +1,4 @@
-"""Shadow suppression works on the mask's bounding box plus a frame (nodes/segmenters/_shadow.py):
+"""Shadow suppression works on the mask's bounding box plus a frame (nodes/contracts/segmenter/_shadow.py):
 the result must be that of the whole window, pixel for pixel."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nodes.segmenters._params import ObjectSpec, ShadowParams
-from nodes.segmenters._shadow import _suppress, suppress_shadow
+from nodes.contracts.segmenter._params import ObjectSpec, ShadowParams
+from nodes.contracts.segmenter._shadow import _suppress, suppress_shadow
 
 
 def _scene(rng, h=90, w=110):

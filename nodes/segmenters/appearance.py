@@ -23,11 +23,10 @@ from typing import Literal
 
 import numpy as np
 
+from nodes.contracts.segmenter._checks import pair_is_raw
+from nodes.contracts.segmenter._color import color_distance_map
 from nodes.contracts.views import pair_views
 from stereograph.api import Field, In, NodeError, Out, Params, node
-
-from ._checks import pair_is_raw
-from ._color import color_distance_map
 
 MIN_TOLERANCE = 0.15  # ObjectSpec.color_tolerance's default: a learned colour is never tighter than a given one
 MAX_TOLERANCE = 0.3  # chromaticity L1: looser than this, other coloured objects pass as the ball

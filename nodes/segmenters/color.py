@@ -12,12 +12,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stereograph.api import Field, NodeError, node
-
-from ._color import color_distance_map, hue_mask
-from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
-from ._pixels import fill_holes, max_hole_area, structuring_element
+from nodes.contracts.segmenter import SegmenterParams, fill_holes, max_hole_area, segmenter, structuring_element
+from nodes.contracts.segmenter._color import color_distance_map, hue_mask
+from stereograph.api import Field, NodeError
 
 
 class ColorParams(SegmenterParams):
@@ -29,7 +26,11 @@ class ColorParams(SegmenterParams):
 
 
 def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
-    """Colour-threshold mask (uint8 0/255) of pixels matching the object's colour."""
+    """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range); needs the colour:
+    object.color_bgr, object.hue_range_deg or a wired `appearance` input.
+
+    The mask (uint8 0/255) holds the pixels matching the object's colour.
+    """
     if img_bgr.ndim == 2:
         raise NodeError("segmenter.color needs colour images, got a gray image.",
                         hint="use segmenter.edge_morph or segmenter.otsu for gray images.")
@@ -54,19 +55,11 @@ def _needs_a_colour(params: ColorParams, wired: frozenset[str]) -> None:
                         "no `appearance` input is wired", hint=_NO_COLOUR_HINT)
 
 
-@node(
-    "segmenter.color",
-    inputs=SEGMENTER_INPUTS,
-    outputs=SEGMENTER_OUTPUTS,
-    params=ColorParams,
-    version="1",
-    check=_needs_a_colour,
-)
-def color(params: ColorParams, pair, rectification=None, appearance=None, ctx=None):
-    """Segment the ball by thresholding its colour (chromaticity distance or HSV hue range); needs the colour:
-    object.color_bgr, object.hue_range_deg or a wired `appearance` input."""
-    params, color_from = apply_appearance(params, appearance, ctx)
+def _has_a_colour(params: ColorParams) -> None:
     if params.object.color_bgr is None and params.object.hue_range_deg is None:  # (called directly, not validated)
         raise NodeError("segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both "
                         "unset.", hint=_NO_COLOUR_HINT)
-    return segment_pair(pair, rectification, params, color_mask, "color", ctx, color_from)
+
+
+#: ``segmenter.color``: the node (the shared shell of nodes.contracts.segmenter around color_mask)
+color = segmenter("segmenter.color", params=ColorParams, check=_needs_a_colour, before=_has_a_colour)(color_mask)

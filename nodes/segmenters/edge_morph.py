@@ -16,13 +16,18 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from stereograph.api import Field, node
-
-from ._blur import gaussian_blur
-from ._channel import best_plane, normalize_exposure, plane
-from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
-from ._pixels import Channel, fill_holes, max_hole_area, structuring_element, to_channel
+from nodes.contracts.segmenter import (
+    SegmenterParams,
+    fill_holes,
+    gaussian_blur,
+    max_hole_area,
+    segmenter,
+    structuring_element,
+    to_channel,
+)
+from nodes.contracts.segmenter._channel import best_plane, normalize_exposure, plane
+from nodes.contracts.segmenter._pixels import Channel
+from stereograph.api import Field
 
 
 class EdgeMorphParams(SegmenterParams):
@@ -101,7 +106,13 @@ def _odd(x: float) -> int:
 
 def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, scale: int = 1,
                     roi: bool = False) -> np.ndarray:
-    """Edge + morphology mask of an image (uint8 0/255).
+    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
+    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
+    refused as ambiguous.
+
+    The edge + morphology mask of an image (uint8 0/255). Without object.color_bgr two round objects
+    of similar size are refused as ambiguous (not found), and a ball touching another object cannot
+    be split from it.
 
     Parameters
     ----------
@@ -149,20 +160,5 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     return m
 
 
-@node(
-    "segmenter.edge_morph",
-    inputs=SEGMENTER_INPUTS,
-    outputs=SEGMENTER_OUTPUTS,
-    params=EdgeMorphParams,
-    version="1",
-)
-def edge_morph(params: EdgeMorphParams, pair, rectification=None, appearance=None, ctx=None):
-    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
-    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
-    refused as ambiguous.
-
-    Without object.color_bgr two round objects of similar size are refused as ambiguous
-    (not found), and a ball touching another object cannot be split from it.
-    """
-    params, color_from = apply_appearance(params, appearance, ctx)
-    return segment_pair(pair, rectification, params, edge_morph_mask, "edge_morph", ctx, color_from)
+#: ``segmenter.edge_morph``: the node (the shared shell of nodes.contracts.segmenter around edge_morph_mask)
+edge_morph = segmenter("segmenter.edge_morph", params=EdgeMorphParams)(edge_morph_mask)

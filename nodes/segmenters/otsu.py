@@ -19,12 +19,16 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from stereograph.api import Field, node
-
-from ._blur import gaussian_blur
-from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, SegmenterParams, apply_appearance
-from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
+from nodes.contracts.segmenter import (
+    SegmenterParams,
+    fill_holes,
+    gaussian_blur,
+    max_hole_area,
+    segmenter,
+    structuring_element,
+    to_channel,
+)
+from stereograph.api import Field
 
 
 class OtsuParams(SegmenterParams):
@@ -101,7 +105,14 @@ def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> 
 
 
 def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
-    """Otsu threshold mask (uint8 0/255) with the object class set to 255."""
+    """Segment the ball with an Otsu threshold of the gray image's difference from its background;
+    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
+    refused as ambiguous.
+
+    The mask (uint8 0/255) has the object class set to 255. Without object.color_bgr two round
+    objects of similar size are refused as ambiguous (not found), and a ball touching another
+    object cannot be split from it.
+    """
     sigma = params.blur_sigma_px / scale
     planes = ["gray", "saturation"] if params.channel == "auto" and img_bgr.ndim == 3 else [params.channel]
     best = None
@@ -130,20 +141,5 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
     return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
 
 
-@node(
-    "segmenter.otsu",
-    inputs=SEGMENTER_INPUTS,
-    outputs=SEGMENTER_OUTPUTS,
-    params=OtsuParams,
-    version="1",
-)
-def otsu(params: OtsuParams, pair, rectification=None, appearance=None, ctx=None):
-    """Segment the ball with an Otsu threshold of the gray image's difference from its background;
-    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
-    refused as ambiguous.
-
-    Without object.color_bgr two round objects of similar size are refused as ambiguous
-    (not found), and a ball touching another object cannot be split from it.
-    """
-    params, color_from = apply_appearance(params, appearance, ctx)
-    return segment_pair(pair, rectification, params, otsu_mask, "otsu", ctx, color_from)
+#: ``segmenter.otsu``: the node (the shared shell of nodes.contracts.segmenter around otsu_mask)
+otsu = segmenter("segmenter.otsu", params=OtsuParams)(otsu_mask)

@@ -92,7 +92,7 @@ class PartialParams(Params):
 
     enabled: bool = Field(
         True, description="When no whole ball is found, fit the sphere's image to the true part of a region's "
-                          "outline (bool); see nodes/segmenters/_partial.py.")
+                          "outline (bool); see nodes/contracts/segmenter/_partial.py.")
     max_sigma_z_cm: float = Field(
         0.25, gt=0, description="Report a partly seen ball only if the depth uncertainty predicted from the fit of "
                                 "its visible arc (1 sigma, both views) is at most this (cm); 4 sigma = 1 cm.")

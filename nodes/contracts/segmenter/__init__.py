@@ -1,0 +1,78 @@
+"""The segmenter contract: what every segmentation method is, and the shell that makes one a node.
+
+A method is a *mask function* (:class:`MaskFunction`): which pixels of one image may belong to
+the object. :func:`segmenter` turns it into a complete ``segmenter.*`` node with the shared ports
+(:data:`SEGMENTER_INPUTS`, :data:`SEGMENTER_OUTPUTS`), the candidate search, the checks between
+left and right, partial views, sub-pixel refinement and the overlay (``_pair.segment_pair``).
+Parameters derive from :class:`SegmenterParams` (the object, the working range, the checks).
+Pixel helpers a method may use: :func:`fill_holes`, :func:`max_hole_area`,
+:func:`structuring_element`, :func:`to_channel`, :func:`gaussian_blur`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from stereograph.api import node
+
+from ._blur import gaussian_blur
+from ._pair import segment_pair
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, ObjectSpec, SegmenterParams, apply_appearance
+from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
+
+__all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
+           "apply_appearance", "fill_holes", "gaussian_blur", "max_hole_area", "segment_pair", "segmenter",
+           "structuring_element", "to_channel"]
+
+
+class MaskFunction(Protocol):
+    """``mask(image_bgr, params, r_range_px, scale, roi) -> uint8 mask`` (255 = may be the object).
+
+    Parameters
+    ----------
+    image_bgr : ndarray
+        One rectified image (BGR or gray uint8), downscaled by ``scale`` while detecting.
+    params : SegmenterParams
+        The node's parameters (the method's own fields included).
+    r_range_px : (float, float)
+        Smallest and largest image radius of the object at this scale (px), from the calibration,
+        the object's radius and the working range.
+    scale : int
+        Downscale factor of ``image_bgr`` (1 = full resolution): divide full-resolution sizes by it.
+    roi : bool
+        True for the small full-resolution window around a detected object (its border is
+        background), False for a whole image.
+    """
+
+    def __call__(self, image_bgr: np.ndarray, params: SegmenterParams, r_range_px: tuple[float, float],
+                 scale: int = 1, roi: bool = False) -> np.ndarray: ...
+
+
+def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, version: str = "1",
+              check: Callable | None = None, before: Callable | None = None) -> Callable[[MaskFunction], Callable]:
+    """Decorator: a mask function -> a registered segmenter node named ``name``.
+
+    The node's description is the mask function's docstring. ``check(params, wired)`` refuses a
+    configuration when the pipeline is validated; ``before(params)`` may refuse one at run time
+    (a NodeError) after the learned colour is applied. The returned node function keeps the mask
+    function as ``.mask``.
+    """
+    method = name.rpartition(".")[2]
+
+    def wrap(mask: MaskFunction) -> Callable:
+        def run(params, pair, rectification=None, appearance=None, ctx=None):
+            params, color_from = apply_appearance(params, appearance, ctx)
+            if before is not None:
+                before(params)
+            return segment_pair(pair, rectification, params, mask, method, ctx, color_from)
+
+        run.__name__ = run.__qualname__ = method
+        run.__module__, run.__doc__ = mask.__module__, mask.__doc__  # (the cache keys the method's own code)
+        run.mask = mask
+        return node(name, inputs=SEGMENTER_INPUTS, outputs=SEGMENTER_OUTPUTS, params=params, version=version,
+                    check=check)(run)
+
+    return wrap
