@@ -88,7 +88,7 @@ def _median_background(gray: np.ndarray, k: int) -> np.ndarray:
     return cv2.resize(cv2.medianBlur(small, max(ks, 3)), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def _difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> np.ndarray:
+def background_difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> np.ndarray:
     """The image's difference from its background (polarity applied), uint8."""
     if roi:
         border = np.concatenate([gray[0], gray[-1], gray[:, 0], gray[:, -1]])
@@ -121,7 +121,7 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
         if sigma > 0.3:
             g = gaussian_blur(g, sigma)
         if params.flatten_background:
-            g = _difference(g, params, r_range_px, roi)
+            g = background_difference(g, params, r_range_px, roi)
         eta = otsu_separability(g) if len(planes) > 1 else 1.0
         if best is None or eta > best[0]:
             best = (eta, g)
