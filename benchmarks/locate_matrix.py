@@ -48,7 +48,8 @@ from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
 
 OBJECT = {"radius_cm": 2.0, "color_bgr": [20, 120, 245]}
 SEGMENTERS = {"edge_morph": (edge_morph, EdgeMorphParams), "color": (color, ColorParams),
-              "otsu": (otsu, OtsuParams), "hough": (hough, HoughParams), "watershed": (watershed_split, WatershedParams)}
+              "otsu": (otsu, OtsuParams), "hough": (hough, HoughParams),
+              "watershed": (watershed_split, WatershedParams)}
 
 
 def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dict]:
