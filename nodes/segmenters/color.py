@@ -44,21 +44,24 @@ def color_mask(img_bgr: np.ndarray, params: ColorParams, r_range_px, scale: int 
     return cv2.morphologyEx(m, cv2.MORPH_OPEN, structuring_element(int(round(o)) | 1))
 
 
-_NO_COLOUR_HINT = ("set e.g. `object: {color_bgr: [40, 60, 200]}` or `object: {hue_range_deg: [340, 20]}` in its "
-                   "params, or wire `appearance` to a segmenter.appearance node (the colour learned from training "
-                   "truth); or use segmenter.edge_morph, which works without a colour")
+_NO_COLOUR_HINT = ("declare the colour once for the pipeline: an objects.declare node with `objects: [{radius_cm: "
+                   "2.0, color_bgr: [B, G, R]}]` wired to the segmenter's `objects` input (or `object: {color_bgr: "
+                   "[B, G, R]}` in its params; the colour of YOUR ball), or wire `appearance` to a "
+                   "segmenter.appearance node (the colour learned from training truth); or use segmenter.edge_morph, "
+                   "which works without a colour")
 
 
 def _needs_a_colour(params: ColorParams, wired: frozenset[str]) -> None:
-    if params.object.color_bgr is None and params.object.hue_range_deg is None and "appearance" not in wired:
+    obj = params.object
+    if obj.color_bgr is None and obj.hue_range_deg is None and not {"appearance", "objects"} & wired:
         raise NodeError("needs the object's colour: object.color_bgr and object.hue_range_deg are both unset and "
-                        "no `appearance` input is wired", hint=_NO_COLOUR_HINT)
+                        "neither `objects` nor `appearance` is wired", hint=_NO_COLOUR_HINT)
 
 
 def _has_a_colour(params: ColorParams) -> None:
     if params.object.color_bgr is None and params.object.hue_range_deg is None:  # (called directly, not validated)
-        raise NodeError("segmenter.color has no object colour: object.color_bgr and object.hue_range_deg are both "
-                        "unset.", hint=_NO_COLOUR_HINT)
+        raise NodeError("segmenter.color has no object colour: the object (its params, or the wired `objects`) "
+                        "has neither color_bgr nor hue_range_deg.", hint=_NO_COLOUR_HINT)
 
 
 #: ``segmenter.color``: the node (the shared shell of nodes.contracts.segmenter around color_mask)

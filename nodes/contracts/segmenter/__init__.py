@@ -20,12 +20,12 @@ from stereograph.api import node
 
 from ._blur import gaussian_blur
 from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, ObjectSpec, SegmenterParams, apply_appearance
+from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, ObjectSpec, SegmenterParams, apply_appearance, apply_objects
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 
 __all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
-           "apply_appearance", "fill_holes", "gaussian_blur", "max_hole_area", "segment_pair", "segmenter",
-           "structuring_element", "to_channel"]
+           "apply_appearance", "apply_objects", "fill_holes", "gaussian_blur", "max_hole_area", "segment_pair",
+           "segmenter", "structuring_element", "to_channel"]
 
 
 class MaskFunction(Protocol):
@@ -63,8 +63,8 @@ def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, versio
     method = name.rpartition(".")[2]
 
     def wrap(mask: MaskFunction) -> Callable:
-        def run(params, pair, rectification=None, appearance=None, ctx=None):
-            params, color_from = apply_appearance(params, appearance, ctx)
+        def run(params, pair, rectification=None, appearance=None, objects=None, ctx=None):
+            params, color_from = apply_appearance(apply_objects(params, objects, ctx), appearance, ctx)
             if before is not None:
                 before(params)
             return segment_pair(pair, rectification, params, mask, method, ctx, color_from)

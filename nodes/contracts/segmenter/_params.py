@@ -5,11 +5,11 @@ partial-view settings, and the type of a method's mask function.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Annotated
 
 import numpy as np
 from pydantic import model_validator
 
+from nodes.contracts.objects import ObjectSpec
 from stereograph.api import Field, In, Out, Params, PositiveRange
 
 # mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
@@ -17,32 +17,6 @@ from stereograph.api import Field, In, Out, Params, PositiveRange
 # full-resolution pixels by it. ``roi`` is True for the small full-resolution window around a
 # detected object (whose border is background) and False for a whole image.
 MaskFn = Callable[[np.ndarray, "SegmenterParams", tuple[float, float], int, bool], np.ndarray]
-
-_Channel = Annotated[int, Field(ge=0, le=255)]  # one 8-bit colour channel
-_HueDeg = Annotated[float, Field(ge=0, le=360)]
-
-
-class ObjectSpec(Params):
-    """What the object looks like (YAML: ``object: {radius_cm: 2.0, color_bgr: [30, 40, 200]}``)."""
-
-    radius_cm: float = Field(2.0, gt=0, le=100, description="Radius of the ball (cm).")
-    color_bgr: tuple[_Channel, _Channel, _Channel] | None = Field(
-        None, description="Expected colour of the ball, B, G, R in 0-255. Give it, or wire the segmenter's "
-                          "`appearance` input (segmenter.appearance learns it from training truth): None = unknown "
-                          "colour, and then any second round object of a ball's size makes the result ambiguous "
-                          "(not found); segmenter.color needs a colour (this, hue_range_deg or `appearance`)."
-    )
-    hue_range_deg: tuple[_HueDeg, _HueDeg] | None = Field(
-        None,
-        description="Accepted hue range in degrees (0-360, wraps if lo > hi), alternative to color_bgr.",
-    )
-    color_tolerance: float = Field(
-        0.15, gt=0, le=2, description="Max L1 distance of normalised (b,g,r) chromaticity to color_bgr's (unitless)."
-    )
-    min_saturation: int = Field(
-        60, ge=0, le=255, description="Min HSV saturation (0-255) of object pixels for hue ranges."
-    )
-
 
 # Every segmenter has this interface, so that swapping methods is a one-line YAML change.
 SEGMENTER_INPUTS = {
@@ -52,6 +26,9 @@ SEGMENTER_INPUTS = {
     "appearance": In("ObjectAppearance", optional=True,
                      description="The ball's colour learned from training truth (segmenter.appearance); used when "
                                  "object.color_bgr and hue_range_deg are unset."),
+    "objects": In("Objects", optional=True,
+                  description="What is on the table (objects.declare): its object and working range replace the "
+                              "node's own `object` and `working_range_cm`, whatever the segmenter type."),
 }
 SEGMENTER_OUTPUTS = {
     "segmentation": Out("Segmentation", description="Masks and region properties."),
@@ -112,7 +89,10 @@ class PartialParams(Params):
 class SegmenterParams(Params):
     """Parameters common to every segmenter."""
 
-    object: ObjectSpec = Field(default_factory=ObjectSpec, description="Object model (radius in cm, colour).")
+    object: ObjectSpec = Field(default_factory=ObjectSpec, description="Object model (radius in cm, colour); "
+                               "a wired `objects` input (objects.declare) replaces it.")
+    object_name: str | None = Field(None, description="Which declared object to segment when `objects` is wired "
+                                    "(name; None = the first).")
     working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Nearest and farthest distance of the object from the cameras (cm)."
     )
@@ -175,6 +155,21 @@ class SegmenterParams(Params):
                              f"{self.object.radius_cm:g} cm): the cameras would be inside the ball; give the "
                              "distances from the cameras to the ball's centre, in cm")
         return self
+
+
+def apply_objects(params: SegmenterParams, objects: dict | None, ctx=None) -> SegmenterParams:
+    """``params`` with the declared object and working range when ``objects`` is wired (they rule: the
+    object is declared once for the pipeline); a warning when the node sets its own as well."""
+    if objects is None:
+        return params
+    from nodes.contracts.objects import declared_object
+
+    obj, working_range = declared_object(objects, params.object_name)
+    own = {"object", "working_range_cm"} & params.model_fields_set
+    if own and ctx is not None:
+        ctx.warn(f"{' and '.join(sorted(own))} of this node are not used: the wired `objects` declares them "
+                 "(remove them here, or unwire `objects`)")
+    return params.model_copy(update={"object": obj, "working_range_cm": working_range})
 
 
 def apply_appearance(params: SegmenterParams, appearance: dict | None,
