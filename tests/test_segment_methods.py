@@ -80,6 +80,6 @@ def test_pick_yaml_picks_with_every_segmenter_type_by_one_setting(tmp_path):
     for seg_type in types:
         out = tmp_path / seg_type
         assert cli_main(["run", str(ROOT / "pipelines" / "pick.yaml"), "--set", f"segment.type={seg_type}",
-                         "--set", "rig.n_scenes=30", "--out", str(out), "--cache-dir", str(tmp_path / "c")]) == 0
+                         "--set", "rig.n_scenes=16", "--out", str(out), "--cache-dir", str(tmp_path / "c")]) == 0
         picks = json.loads((out / "act" / "summary.json").read_text())["picks"]
         assert picks and all(p["ok"] for p in picks), (seg_type, picks)
