@@ -64,30 +64,11 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     nodes' own ``prepare`` while this process waits for the pool, else never.
     """
     t0 = time.perf_counter()
-    doc = graph.doc
-    for flag, name in (("--only", only), ("--from", from_node)):
-        if name is not None and name not in graph.nodes:
-            import difflib
-
-            close = difflib.get_close_matches(name, list(graph.nodes), n=1)
-            raise ConfigError(f"{flag} {name}: no such node in {doc.path.name}", None, None,
-                              f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}")
-    selected = list(graph.order)
-    if only is not None:
-        wanted = graph.upstream(only) | {only}
-        selected = [n for n in graph.order if n in wanted]
-    force = set()
-    if from_node is not None:
-        force = graph.downstream(from_node) | {from_node}
+    selected, force = _selection(graph, only, from_node)
     run_id = run_id or new_run_id()
-    out = Path(out_dir) if out_dir else project.runs_dir(doc.directory) / doc.name / run_id
+    out = Path(out_dir) if out_dir else project.runs_dir(graph.doc.directory) / graph.doc.name / run_id
     foreign = outputs_mod.prepare_out_dir(out)
-    store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
-    try:
-        budget = project.budget_bytes(doc.directory) if store is not None else 0
-    except ValueError as e:
-        raise ConfigError(f"cache budget: {e}", hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 "
-                          "(0: no limit)") from None
+    store, budget = _open_store(graph.doc, cache_dir, use_cache)
     own_executor = executor is None
     executor = executor or SerialExecutor()
     if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
@@ -96,66 +77,112 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     if store is not None:
         lease.enter_context(in_use(store.root))
     run = RunState(graph, store, out, executor, force, progress)
-    run.foreign = foreign
-    if only is not None:
-        run.keep = {only}
-    run.keep |= set(keep or ())
-    run.selected = set(selected)
+    run.foreign, run.selected = foreign, set(selected)
+    run.keep = ({only} if only is not None else run.keep) | set(keep or ())  # default: the terminal nodes
     progress_token = _PROGRESS.set(progress)
     try:
-        if cycles is not None:
-            cycles(run, selected)
-        else:
-            units = _units(run, selected)
-            heads = {u.source: u for u in units if not isinstance(u, str) and u.source}
-            for k, unit in enumerate(units):
-                if isinstance(unit, str):
-                    if unit in heads:  # the pool makes its items while this process runs the head
-                        streaming.start_ahead(run, heads[unit])
-                    run.run_node(graph.nodes[unit])
-                else:
-                    if hasattr(executor, "start"):  # a local pool: this process only waits
-                        _prepare_ahead([graph.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
-                    streaming.run_region(run, unit, write_outputs)
+        _execute(run, selected, cycles, write_outputs, prepare)
     except BaseException as e:
         if isinstance(e, KeyboardInterrupt) and write_outputs:  # the same command resumes into this folder
-            outputs_mod.write_interrupted_summary(graph, run, run_id, str(doc.path), out)
+            outputs_mod.write_interrupted_summary(graph, run, run_id, str(graph.doc.path), out)
         lease.close()
         raise
     finally:
-        for source in list(run.ahead):
-            streaming.stop_ahead(run, source)
-        if (out / streaming.AHEAD_DIR).exists():
-            shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
-        close_resources(run.resources)
+        _release(run, out, own_executor)
         _PROGRESS.reset(progress_token)
-        if own_executor:
-            executor.close()
-        if store is not None:
-            store.files.save()
-    for name in graph.order:
-        if name not in selected:
-            run.reports[name].status = "not selected"
-    result = RunResult(run_id, str(doc.path), out, run.reports, 0.0, {}, {}, dict(run.failed_items),
-                       notes=list(store.notes) if store is not None else [])
-    try:
-        if write_outputs:
-            outputs_mod.write_run_outputs(graph, run, result, selected)
-    finally:
-        lease.close()
-    if store is not None and budget and store.writable and store.stored_bytes():
-        # only a run that stored something can have grown the cache past its budget (and not while
-        # another run uses the cache: the last one to end prunes)
-        with contextlib.suppress(OSError, CacheBusy):
-            n, freed = store.prune(budget)
-            if n:
-                result.notes.append(f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
-                                    f"entries ({freed / 1e6:.0f} MB)")
+    result = _result(run, run_id, selected, write_outputs, lease)
+    _prune(store, budget, result)
     result._values, result._items = _terminal_values(graph, run, selected)
     result._run = run
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def _selection(graph: Graph, only: str | None, from_node: str | None) -> tuple[list[str], set[str]]:
+    """The nodes to run (``--only``: it and its upstream) and those to recompute (``--from``: it and
+    its downstream); ConfigError naming the closest node for a name the graph does not have."""
+    for flag, name in (("--only", only), ("--from", from_node)):
+        if name is not None and name not in graph.nodes:
+            import difflib
+
+            close = difflib.get_close_matches(name, list(graph.nodes), n=1)
+            raise ConfigError(f"{flag} {name}: no such node in {graph.doc.path.name}", None, None,
+                              f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}")
+    wanted = graph.upstream(only) | {only} if only is not None else set(graph.order)
+    force = graph.downstream(from_node) | {from_node} if from_node is not None else set()
+    return [n for n in graph.order if n in wanted], force
+
+
+def _open_store(doc: Any, cache_dir: str | Path | None, use_cache: bool) -> tuple[ArtifactStore | None, int]:
+    """The run's artifact store (None: ``--no-cache``) and the cache's budget in bytes (0: none)."""
+    store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
+    try:
+        return store, project.budget_bytes(doc.directory) if store is not None else 0
+    except ValueError as e:
+        raise ConfigError(f"cache budget: {e}", hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 "
+                          "(0: no limit)") from None
+
+
+def _execute(run: RunState, selected: list[str], cycles: Any, write_outputs: bool,
+             prepare: Sequence[Callable[[], Any]]) -> None:
+    """The selected nodes, node by node or a streamed region at a time (or the caller's ``cycles``)."""
+    if cycles is not None:
+        cycles(run, selected)
+        return
+    units = _units(run, selected)
+    heads = {u.source: u for u in units if not isinstance(u, str) and u.source}
+    for k, unit in enumerate(units):
+        if isinstance(unit, str):
+            if unit in heads:  # the pool makes its items while this process runs the head
+                streaming.start_ahead(run, heads[unit])
+            run.run_node(run.g.nodes[unit])
+            continue
+        if hasattr(run.executor, "start"):  # a local pool: this process only waits
+            _prepare_ahead([run.g.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
+        streaming.run_region(run, unit, write_outputs)
+
+
+def _release(run: RunState, out: Path, own_executor: bool) -> None:
+    """What the run holds, let go of whatever happened: items made ahead, open resources, our pool."""
+    for source in list(run.ahead):
+        streaming.stop_ahead(run, source)
+    if (out / streaming.AHEAD_DIR).exists():
+        shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
+    close_resources(run.resources)
+    if own_executor:
+        run.executor.close()
+    if run.store is not None:
+        run.store.files.save()
+
+
+def _result(run: RunState, run_id: str, selected: list[str], write_outputs: bool,
+            lease: contextlib.ExitStack) -> RunResult:
+    """The run's result, its folder written (then the cache lease released)."""
+    for name in run.g.order:
+        if name not in selected:
+            run.reports[name].status = "not selected"
+    store = run.store
+    result = RunResult(run_id, str(run.g.doc.path), run.out_dir, run.reports, 0.0, {}, {},
+                       dict(run.failed_items), notes=list(store.notes) if store is not None else [])
+    try:
+        if write_outputs:
+            outputs_mod.write_run_outputs(run.g, run, result, selected)
+    finally:
+        lease.close()
+    return result
+
+
+def _prune(store: ArtifactStore | None, budget: int, result: RunResult) -> None:
+    """Keep the cache within its budget: only a run that stored something can have grown it past the
+    budget (and not while another run uses the cache: the last one to end prunes)."""
+    if store is None or not budget or not store.writable or not store.stored_bytes():
+        return
+    with contextlib.suppress(OSError, CacheBusy):
+        n, freed = store.prune(budget)
+        if n:
+            result.notes.append(f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
+                                f"entries ({freed / 1e6:.0f} MB)")
 
 
 _PREPARED: set[str] = set()  # node types whose prepare() ran (or runs) in this process
