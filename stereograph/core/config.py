@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -327,39 +328,68 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
     -------
     PipelineDoc
     """
-    try:
-        path = Path(path).resolve()
-    except (OSError, ValueError) as e:  # a NUL in the name, a loop of symlinks
-        raise ConfigError(f"cannot use pipeline path {str(path)!r}: {e}", hint="check the path") from None
-    if path in _stack:
-        raise ConfigError("include cycle: " + " -> ".join(str(p) for p in _stack + (path,)))
-    budget = _budget if _budget is not None else [MAX_INCLUDED_FILES]
-    budget[0] -= 1
-    if budget[0] < 0:
-        raise ConfigError(f"more than {MAX_INCLUDED_FILES} files are read through include:",
-                          Where(str(path)), hint="include each shared file once")
+    path, budget = _open(path, _stack, _budget)
     data, lines = _read(path)
     where = lambda *p: lines.get(tuple(p), Where(str(path), 1))  # noqa: E731
 
     # Problems that leave the rest of the file readable are collected, so that one `validate`
     # reports them all; the file is read on without the part in error.
-    problems: list[ConfigError] = []
-    unknown = set(data) - TOP_KEYS
-    for key in sorted(unknown, key=str):
-        problems.append(ConfigError(f"unknown top-level key '{key}'", where(key),
-                                    hint=f"use one of {sorted(TOP_KEYS)}"))
-
-    name = data.get("name")
-    if name is not None and name != "":
-        if not isinstance(name, (str, int)) or isinstance(name, bool):
-            raise ConfigError("'name' must be a text", where("name"), hint="for example 'name: locate'")
-        name = str(name)
-        check_name(name, "pipeline name", where("name"), dots=True)
-    else:  # the file's name, made safe for a folder name
-        name = re.sub(r"[^\w.-]", "_", path.stem).lstrip(".")[:MAX_NAME_CHARS] or "pipeline"
-    doc = PipelineDoc(path=path, name=name, description=str(data.get("description", "")),
+    problems = [ConfigError(f"unknown top-level key '{key}'", where(key), hint=f"use one of {sorted(TOP_KEYS)}")
+                for key in sorted(set(data) - TOP_KEYS, key=str)]
+    doc = PipelineDoc(path=path, name=_pipeline_name(data, path, where), description=str(data.get("description", "")),
                       plugins=[], defaults={}, variants={}, nodes={}, lines={})
+    _include(doc, data, lines, where, _stack + (path,), budget)
+    doc.lines.update(lines)
+    _top_level(doc, data, where)
+    nodes = data.get("nodes")
+    if not nodes and not doc.nodes:
+        raise ConfigError("the pipeline has no nodes", where("nodes") if "nodes" in data else Where(str(path), 1),
+                          hint="add a 'nodes:' mapping of node instances, each with a 'type:'")
+    for name, decl in (nodes or {}).items():
+        name = str(name)
+        try:
+            doc.nodes[name] = _node_decl(doc.nodes.get(name, {}), name, decl, where)
+        except ConfigError as e:
+            problems.append(e)
+            doc.broken.add(name)
+            doc.nodes.pop(name, None)
+    raise_all(problems, doc)
+    for ov in types_first(overrides or []):
+        apply_override(doc, ov)
+    return doc
 
+
+def _open(path: str | Path, stack: tuple, budget: list[int] | None) -> tuple[Path, list[int]]:
+    """The pipeline file's resolved path and what is left of the include budget (ConfigError for a
+    path that cannot be one, an include cycle, or too many files)."""
+    try:
+        path = Path(path).resolve()
+    except (OSError, ValueError) as e:  # a NUL in the name, a loop of symlinks
+        raise ConfigError(f"cannot use pipeline path {str(path)!r}: {e}", hint="check the path") from None
+    if path in stack:
+        raise ConfigError("include cycle: " + " -> ".join(str(p) for p in stack + (path,)))
+    budget = budget if budget is not None else [MAX_INCLUDED_FILES]
+    budget[0] -= 1
+    if budget[0] < 0:
+        raise ConfigError(f"more than {MAX_INCLUDED_FILES} files are read through include:",
+                          Where(str(path)), hint="include each shared file once")
+    return path, budget
+
+
+def _pipeline_name(data: dict, path: Path, where: Callable[..., Where]) -> str:
+    """``name:``, checked; else the file's name made safe for a folder name."""
+    name = data.get("name")
+    if name is None or name == "":
+        return re.sub(r"[^\w.-]", "_", path.stem).lstrip(".")[:MAX_NAME_CHARS] or "pipeline"
+    if not isinstance(name, (str, int)) or isinstance(name, bool):
+        raise ConfigError("'name' must be a text", where("name"), hint="for example 'name: locate'")
+    check_name(str(name), "pipeline name", where("name"), dots=True)
+    return str(name)
+
+
+def _include(doc: PipelineDoc, data: dict, lines: dict, where: Callable[..., Where], stack: tuple,
+             budget: list[int]) -> None:
+    """Read the ``include:`` files into ``doc``, in order (a later one's nodes over an earlier one's)."""
     includes = data.get("include") or []
     if isinstance(includes, str):
         includes = [includes]
@@ -371,7 +401,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         if not isinstance(inc, str) or not inc.strip():
             raise ConfigError(f"include: {inc!r} is not a file name", at,
                               hint="list YAML files relative to this file, e.g. [common.yaml]")
-        inc_path = (path.parent / inc)
+        inc_path = (stack[-1].parent / inc)
         try:
             ok, there = inc_path.is_file(), inc_path.exists()
         except (OSError, ValueError):
@@ -380,7 +410,7 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
             raise ConfigError(f"included {inc} is not a regular file (a folder or a device)" if there else
                               f"included file not found: {inc}", at,
                               hint="paths in include: are relative to this file and name a YAML file")
-        sub = load_pipeline(inc_path, None, _stack + (path,), budget)
+        sub = load_pipeline(inc_path, None, stack, budget)
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
             doc.defaults[t] = merge_params(doc.defaults.get(t, {}), p)
@@ -389,7 +419,9 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
         doc.variants.update(sub.variants)
         doc.compare_metric = sub.compare_metric or doc.compare_metric
 
-    doc.lines.update(lines)
+
+def _top_level(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> None:
+    """``plugins``, ``defaults``, ``variants`` and ``compare`` into ``doc``, checked."""
     for key, kind in (("plugins", list), ("defaults", dict), ("variants", dict), ("nodes", dict)):
         if key in data and data[key] is not None and not isinstance(data[key], kind):
             raise ConfigError(f"'{key}' must be a {'list' if kind is list else 'mapping'}", where(key))
@@ -412,48 +444,30 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
                                    "is best; NAME:max for highest, NAME:abs for closest to zero)")
         doc.compare_metric = block["metric"]
 
-    nodes = data.get("nodes")
-    if not nodes and not doc.nodes:
-        raise ConfigError("the pipeline has no nodes", where("nodes") if "nodes" in data else Where(str(path), 1),
-                          hint="add a 'nodes:' mapping of node instances, each with a 'type:'")
-    for name, decl in (nodes or {}).items():
-        name = str(name)
-        try:
-            if decl is None:
-                decl = {}
-            if not isinstance(decl, dict):
-                raise ConfigError("a node must be a mapping with 'type', 'params', 'inputs'", where("nodes", name),
-                                  node=name)
-            for key in decl:
-                if key not in NODE_KEYS:
-                    raise ConfigError(f"unknown key '{key}' in node", where("nodes", name, key), node=name,
-                                      hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'")
-            if "type" not in decl:
-                raise ConfigError("node has no 'type'", where("nodes", name), node=name,
-                                  hint="add 'type: kind.method' (see `stereograph nodes`)")
-            for key in ("params", "inputs"):
-                if decl.get(key) is not None and not isinstance(decl[key], dict):
-                    raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
-            check_name(name, "node name", where("nodes", name), node=name)
-            if not isinstance(decl["type"], str):
-                raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}",
-                                  where("nodes", name, "type"), node=name,
-                                  hint="add 'type: kind.method' (see `stereograph nodes`)")
-            base = doc.nodes.get(name, {})
-            # a node redefined over an included one keeps the included params only if the type is the same
-            base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
-            merged = {"type": decl["type"],
-                      "params": merge_params(base_params, decl.get("params") or {}),
-                      "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
-            doc.nodes[name] = merged
-        except ConfigError as e:
-            problems.append(e)
-            doc.broken.add(name)
-            doc.nodes.pop(name, None)
-    raise_all(problems, doc)
-    for ov in types_first(overrides or []):
-        apply_override(doc, ov)
-    return doc
+
+def _node_decl(base: dict, name: str, decl: Any, where: Callable[..., Where]) -> dict:
+    """One node's declaration, checked and merged over an included one of the same name (whose params
+    it keeps only if the type is the same)."""
+    decl = {} if decl is None else decl
+    if not isinstance(decl, dict):
+        raise ConfigError("a node must be a mapping with 'type', 'params', 'inputs'", where("nodes", name), node=name)
+    for key in decl:
+        if key not in NODE_KEYS:
+            raise ConfigError(f"unknown key '{key}' in node", where("nodes", name, key), node=name,
+                              hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'")
+    if "type" not in decl:
+        raise ConfigError("node has no 'type'", where("nodes", name), node=name,
+                          hint="add 'type: kind.method' (see `stereograph nodes`)")
+    for key in ("params", "inputs"):
+        if decl.get(key) is not None and not isinstance(decl[key], dict):
+            raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
+    check_name(name, "node name", where("nodes", name), node=name)
+    if not isinstance(decl["type"], str):
+        raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}", where("nodes", name, "type"),
+                          node=name, hint="add 'type: kind.method' (see `stereograph nodes`)")
+    base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
+    return {"type": decl["type"], "params": merge_params(base_params, decl.get("params") or {}),
+            "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
 
 
 def types_first(overrides: list[str]) -> list[str]:
