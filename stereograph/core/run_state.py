@@ -439,7 +439,9 @@ class RunState:
                            "see the node's messages in run.json")
 
     def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
-        """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``."""
+        """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``.
+
+        Plan the entries, look each up in the store, compute the rest, store them, report status."""
         rep = self.reports[inst.name]
         t0 = time.perf_counter()
         bad = self.upstream_failed(inst)
@@ -448,48 +450,80 @@ class RunState:
             return
         store_on = self.store is not None and inst.name not in self.memory_only
         base = self.node_components(inst) if store_on else None
-        entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
         producer = self.producer(inst)
-        if producer and items is None:  # its other outputs, then (unless a streamed region does) its items
-            try:
-                if inst.name not in self.declared:  # (known already where items are made ahead)
-                    self.declared[inst.name] = self.produced_ids(inst)
-            except NodeError as e:
-                self.fail_item(inst, None, e.message, e.hint)
-                rep.seconds = time.perf_counter() - t0
-                return
-            if inst.name not in self.deferred:
-                entries += self.declared[inst.name]
-        elif producer:
-            entries = list(items)
+        entries = self._entries(inst, items, producer)
+        if entries is None:  # the producer could not say which items it makes
+            rep.seconds = time.perf_counter() - t0
+            return
         makes_items = inst.mapped or (producer and (items is not None or inst.name not in self.deferred))
         for out in self.item_outputs(inst, "") if makes_items else []:
             self.items[(inst.name, out)] = []
         rep.items = len(entries) if inst.mapped else len(self.declared.get(inst.name, [])) if producer else 0
         if self.progress:  # (a producer's own entry is not one of its items: "13 items", not 14)
             self.progress.node_started(inst.name, sum(self._counted(inst, i) for i in entries))
-        todo: list[tuple[str | None, str | None, dict[str, Any]]] = []
         cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
         lost = self.lost_items(inst)
-        for item in entries:
-            refs = self.input_refs(inst, item)
-            key = self.entry_key(base, refs, item, lost) if store_on else None
-            if key is not None:
-                self.keys[(inst.name, item)] = key
-            manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
-            if manifest is not None:
-                self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
-                for out in self.item_outputs(inst, item):
-                    if (inst.name, out, item) in self.ref_keys:
-                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-                if self.progress and self._counted(inst, item):
-                    self.progress.advance(inst.name)
-            else:
-                todo.append((item, key, refs))
+        todo = self._look_up(inst, entries, base if store_on else None, cacheable, lost)
         recorded = store_on and not self.sub and not (inst.mapped and inst.name in self.streaming)
         if recorded:
             self.record(inst, base)
+        self._compute(inst, todo, lost, store_on, cacheable, producer)
+        if makes_items:  # keep the items in source order
+            for out in self.item_outputs(inst, ""):
+                done = set(self.items[(inst.name, out)])
+                self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
+        if producer and items is None and inst.name not in self.deferred:
+            self.check_produced(inst)
+        rep.seconds = time.perf_counter() - t0
+        rep.items_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
+        if rep.items_failed and recorded:
+            self.record(inst, base)  # again: which of its items failed is known now
+        rep.status = self._status(inst, producer, rep.items_failed, len(entries), bool(todo))
+        if inst.mapped and not entries:
+            rep.messages.append(NO_ITEMS)
+        self.release(inst.name)
 
+    def _entries(self, inst: NodeInstance, items: list[str] | None, producer: bool) -> list[str | None] | None:
+        """The node's entries: one per item of a per-item node, else one (None); a producer's own
+        entry and then its items (unless a streamed region makes them); None if it cannot list them."""
+        entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
+        if producer and items is not None:
+            return list(items)
+        if producer:  # its other outputs, then (unless a streamed region does) its items
+            try:
+                if inst.name not in self.declared:  # (known already where items are made ahead)
+                    self.declared[inst.name] = self.produced_ids(inst)
+            except NodeError as e:
+                self.fail_item(inst, None, e.message, e.hint)
+                return None
+            if inst.name not in self.deferred:
+                entries += self.declared[inst.name]
+        return entries
+
+    def _look_up(self, inst: NodeInstance, entries: list[str | None], base: dict[str, Any] | None,
+                 cacheable: bool, lost: dict) -> list[tuple[str | None, str | None, dict[str, Any]]]:
+        """Key every entry and adopt what the store holds; returns the entries still to compute."""
+        todo = []
+        for item in entries:
+            refs = self.input_refs(inst, item)
+            key = self.entry_key(base, refs, item, lost) if base is not None else None
+            if key is not None:
+                self.keys[(inst.name, item)] = key
+            manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
+            if manifest is None:
+                todo.append((item, key, refs))
+                continue
+            self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
+            for out in self.item_outputs(inst, item):
+                if (inst.name, out, item) in self.ref_keys:
+                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+            if self.progress and self._counted(inst, item):
+                self.progress.advance(inst.name)
+        return todo
+
+    def _compute(self, inst: NodeInstance, todo: list, lost: dict, store_on: bool, cacheable: bool,
+                 producer: bool) -> None:
+        """Compute the entries the store did not have, and store what they made."""
         # Lock what we compute so a concurrent run waits and then shares the result. A node called
         # once (calibration, a report) runs here: shipping its inputs to a worker would only add
         # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
@@ -504,58 +538,48 @@ class RunState:
                 continue
             tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
             metas.append((item, key))
-        results = self._run_locked(inst, tasks, metas, cacheable, ex)
         volatile = not store_on or not inst.spec.cacheable
-        for (item, key), (res, stored) in zip(metas, results):
-            ok = True
-            if res is None:  # another run computed it while we waited
-                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
-            elif res.ok:
-                if not stored:
-                    try:
-                        # uncacheable output (live camera, actuator): a fresh key, so nothing
-                        # downstream is ever served a stale result
-                        self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and
-                                          store_on else key if not volatile else None,
-                                          res.outputs or {}, res.messages)
-                    except (NodeError, TypeError) as e:
-                        self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
-                        ok = False
-                rep.messages += res.messages
-                if inst.mapped or item is not None or not producer:
-                    rep.items_ran += 1
-            else:
+        for (item, key), (res, stored) in zip(metas, self._run_locked(inst, tasks, metas, cacheable, ex)):
+            if res is not None and not res.ok:
                 self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error,
                                res.lasting)
+                continue
+            if res is None:  # another run computed it while we waited
+                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
+            elif not self._keep_result(inst, item, key, res, stored, volatile, store_on, producer):
+                continue
+            for out in self.item_outputs(inst, item):
+                if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
+                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+
+    def _keep_result(self, inst: NodeInstance, item: str | None, key: str | None, res: TaskResult, stored: bool,
+                     volatile: bool, store_on: bool, producer: bool) -> bool:
+        """Store a computed entry's outputs (if the worker did not) and count it; False if they cannot be."""
+        rep = self.reports[inst.name]
+        ok = True
+        if not stored:
+            try:
+                # uncacheable output (live camera, actuator): a fresh key, so nothing downstream is
+                # ever served a stale result
+                self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and store_on
+                                  else key if not volatile else None, res.outputs or {}, res.messages)
+            except (NodeError, TypeError) as e:
+                self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
                 ok = False
-            if ok:
-                for out in self.item_outputs(inst, item):
-                    if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
-                        self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-        if makes_items:  # keep the items in source order
-            for out in self.item_outputs(inst, ""):
-                done = set(self.items[(inst.name, out)])
-                self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
-        if producer and items is None and inst.name not in self.deferred:
-            self.check_produced(inst)
-        rep.seconds = time.perf_counter() - t0
-        n_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
-        rep.items_failed = n_failed
-        if n_failed and recorded:
-            self.record(inst, base)  # again: which of its items failed is known now
+        rep.messages += res.messages
+        if inst.mapped or item is not None or not producer:
+            rep.items_ran += 1
+        return ok
+
+    def _status(self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool) -> str:
+        """ran | cached | failed | partial, from what happened to the node's entries."""
         if (inst.name, None) in self.failed_items:
-            rep.status = "failed"
-        elif (inst.mapped or producer) and n_failed and n_failed < len(entries):
-            rep.status = "partial"
-        elif n_failed:
-            rep.status = "failed"
-        elif todo:
-            rep.status = "ran"
-        else:
-            rep.status = "cached"
-        if inst.mapped and not entries:
-            rep.messages.append(NO_ITEMS)
-        self.release(inst.name)
+            return "failed"
+        if (inst.mapped or producer) and n_failed and n_failed < n_entries:
+            return "partial"
+        if n_failed:
+            return "failed"
+        return "ran" if computed else "cached"
 
     def record(self, inst: NodeInstance, base: dict[str, Any] | None) -> None:
         """What this node's entries were made from, for ``explain`` (what changed since)."""
