@@ -303,85 +303,83 @@ def _label(reg: Region) -> str:
 def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
     """Run a region for the parent run ``run`` (a :class:`stereograph.core.run_state.RunState`): plan its
     chunks, hand them to the run's executor, and merge what comes back as if each node had run."""
-
-    g = run.g
-    members = reg.nodes
+    g, members = run.g, reg.nodes
     inside = set(members) | ({reg.source} if reg.source else set())
     if not reg.source and _all_blocked(run, members):
         return  # (said as each node's own skip: no progress line of items that would never run)
     store_on = run.store is not None
     bases = {n: run.node_components(g.nodes[n]) for n in members} if store_on else {}
-    # the items the region iterates over, in order: the source's, or those of its outside collections
-    outside_colls: list[tuple[str, str]] = []
-    for n in members:
-        inst = g.nodes[n]
-        for port, (s, o) in inst.inputs.items():
-            if s not in inside and g.is_collection(s, o) and not inst.spec.inputs[port].gather \
-                    and (s, o) not in outside_colls:
-                outside_colls.append((s, o))
-    if reg.source:
-        ok_source = run.reports[reg.source].status not in ("failed", "skipped")
-        ids = list(run.declared.get(reg.source, [])) if ok_source else []
-        for o in run.item_outputs(g.nodes[reg.source], ""):
-            run.items[(reg.source, o)] = []
-    else:
-        seen: dict[str, None] = {}
-        for c in outside_colls:
-            seen.update(dict.fromkeys(run.items.get(c, [])))
-        ids = list(seen)
-    selected = run.selected
-    back, deliver = set(), set()
-    terminal = set(g.terminal())
-    for n in inside:
-        inst = g.nodes[n]
-        outs = run.item_outputs(inst, "")
-        for o in outs:
-            if any(c not in inside and c in selected and (n, o) in g.nodes[c].inputs.values() for c in g.consumers(n)) \
-                    or n in run.keep:
-                back.add((n, o))
-            if inst.spec.outputs[o].save or n in terminal or n in run.keep:
-                (deliver if write_outputs else back).add((n, o))
+    ids = _region_items(run, reg, inside)
     for n in members:
         for o in g.nodes[n].spec.outputs:
             run.items[(n, o)] = []
+    chunks = _plan_chunks(run, reg, ids, inside, *_region_outputs(run, inside, write_outputs))
+    label = _label(reg)
+    if run.progress:
+        run.progress.node_started(label, len(ids))
+    skipped: dict[str, str] = {}
+    _run_chunks(run, reg, chunks, skipped, label)
+    order = {i: k for k, i in enumerate(ids)}
+    for (n, o), got in list(run.items.items()):
+        if n in inside:
+            run.items[(n, o)] = sorted(dict.fromkeys(got), key=lambda i: order.get(i, len(order)))
+    if reg.source:
+        _source_status(run, reg.source)
+    for n in members:
+        _member_status(run, n, skipped, bases.get(n))
+    for n in ([reg.source] if reg.source else []) + members:
+        run.release(n)
+
+
+def _region_items(run: Any, reg: Region, inside: set[str]) -> list[str]:
+    """The items the region iterates over, in order: the source's, or those of its outside collections."""
+    g = run.g
+    if reg.source:
+        ok_source = run.reports[reg.source].status not in ("failed", "skipped")
+        for o in run.item_outputs(g.nodes[reg.source], ""):
+            run.items[(reg.source, o)] = []
+        return list(run.declared.get(reg.source, [])) if ok_source else []
+    seen: dict[str, None] = {}
+    for n in reg.nodes:
+        inst = g.nodes[n]
+        for port, (s, o) in inst.inputs.items():
+            if s not in inside and g.is_collection(s, o) and not inst.spec.inputs[port].gather:
+                seen.update(dict.fromkeys(run.items.get((s, o), [])))
+    return list(seen)
+
+
+def _region_outputs(run: Any, inside: set[str], write_outputs: bool) -> tuple[set, set]:
+    """``(back, deliver)``: the outputs a chunk sends back (read outside the region, or kept) and
+    those it writes into the run folder itself."""
+    g, back, deliver = run.g, set(), set()
+    terminal = set(g.terminal())
+    for n in inside:
+        inst = g.nodes[n]
+        for o in run.item_outputs(inst, ""):
+            if n in run.keep or any(c not in inside and c in run.selected and (n, o) in g.nodes[c].inputs.values()
+                                    for c in g.consumers(n)):
+                back.add((n, o))
+            if inst.spec.outputs[o].save or n in terminal or n in run.keep:
+                (deliver if write_outputs else back).add((n, o))
+    return back, deliver
+
+
+def _plan_chunks(run: Any, reg: Region, ids: list[str], inside: set[str], back: set, deliver: set) -> list[Chunk]:
+    """The region's items cut into chunks, each with the outside values (or their keys) it reads."""
+    import networkx as nx  # (the graph is built: NetworkX is loaded already)
+
+    g, store_on = run.g, run.store is not None
     statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
-    local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
     # The keys of everything upstream of the region's outside inputs go along (values read on
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
-    import networkx as nx  # (the graph is built: NetworkX is loaded already)
-
-    outside = {s for n in members for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
+    outside = {s for n in reg.nodes for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
     upstream = (outside.union(*(nx.ancestors(g.dag, s) for s in outside))) - inside
     upstream_keys = [(ref, key) for ref, key in run.ref_keys.items() if ref[0] in upstream]
     chunks = []
     for k, end in chunk_bounds(len(ids), workers):
         part = ids[k:end]
-        inputs: dict[Ref, tuple[str, str | None, Any]] = {}
-        colls = {}
-        for n in members:
-            for (s, o) in g.nodes[n].inputs.values():
-                if s in inside:
-                    continue
-                if g.is_collection(s, o):
-                    want = set(part)
-                    colls[(s, o)] = [i for i in run.items.get((s, o), []) if i in want]
-                    refs = [(s, o, i) for i in colls[(s, o)]]
-                else:
-                    refs = [(s, o, None)]
-                for ref in refs:
-                    if ref in inputs:
-                        continue
-                    if ref in run.mem:
-                        value = run.mem[ref]
-                    elif store_on and ref in run.ref_keys:
-                        value = _MISSING  # read from the cache where it is needed
-                    else:
-                        try:
-                            value = run.get(ref)
-                        except (KeyError, Exception):
-                            value = _MISSING
-                    inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), value)
+        inputs, colls = _chunk_inputs(run, reg.nodes, inside, part)
         want = set(part)
         for ref, key in upstream_keys:
             if ref not in inputs and (ref[2] is None or ref[2] in want):
@@ -390,91 +388,127 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
                             statuses, dict(run.code), dict(run.code_files),
                             str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
                             back, deliver, keep=run.keep & inside, store=run.store))
-    label = _label(reg)
-    if run.progress:
-        run.progress.node_started(label, len(ids))
-    first = reg.source or members[0]
+    return chunks
+
+
+def _chunk_inputs(run: Any, members: list[str], inside: set[str], part: list[str]) -> tuple[dict, dict]:
+    """``(inputs, collections)`` of one chunk: every outside value its nodes read, as (key, id, value)
+    -- the value itself when this process holds it, else :data:`_MISSING` (read from the cache)."""
+    g, store_on = run.g, run.store is not None
+    inputs: dict[Ref, tuple[str, str | None, Any]] = {}
+    colls = {}
+    want = set(part)
+    for n in members:
+        for (s, o) in g.nodes[n].inputs.values():
+            if s in inside:
+                continue
+            if g.is_collection(s, o):
+                colls[(s, o)] = [i for i in run.items.get((s, o), []) if i in want]
+                refs = [(s, o, i) for i in colls[(s, o)]]
+            else:
+                refs = [(s, o, None)]
+            for ref in refs:
+                if ref not in inputs:
+                    inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), _outside_value(run, ref, store_on))
+    return inputs, colls
+
+
+def _outside_value(run: Any, ref: Ref, store_on: bool) -> Any:
+    if ref in run.mem:
+        return run.mem[ref]
+    if store_on and ref in run.ref_keys:
+        return _MISSING  # read from the cache where it is needed
+    try:
+        return run.get(ref)
+    except (KeyError, Exception):
+        return _MISSING
+
+
+def _run_chunks(run: Any, reg: Region, chunks: list[Chunk], skipped: dict[str, str], label: str) -> None:
+    """Run the chunks (here or in the pool) and settle each; a chunk whose worker died is run again one
+    item per task, so that an item that kills its worker every time is lost alone."""
+    first = run.g.nodes[reg.source or reg.nodes[0]]
+    local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     made = stop_ahead(run, reg.source)
     for chunk in chunks:
         chunk.ahead = {i: made[i] for i in chunk.items if i in made}
-    skipped: dict[str, str] = {}
-    if not local and store_on and not made and chunks:
+    if not local and run.store is not None and not made and chunks:
         # A rerun finds most items cached: try the first chunk here; if it computed nothing, the
         # others most likely will not either, and need no worker (start-up, copies) at all.
         probe = run_chunk(chunks[0])
-        _settle(run, reg, chunks[0], probe, skipped, label, g.nodes[first])
+        _settle(run, reg, chunks[0], probe, skipped, label, first)
         chunks = chunks[1:]
-        if not any(r.items_ran for r in probe.reports.values()):
-            local = True
+        local = not any(r.items_ran for r in probe.reports.values())
     if not local and chunks:
-        graph_bytes = pickle.dumps(g)
-        for chunk in chunks:  # for another process: the graph as bytes, its own store
-            chunk.graph, chunk.store = graph_bytes, None
-        # what every chunk reads whole (the rectification and its maps, ~9 MB) goes once into a
-        # file of the run folder, read once per worker process, instead of pickled into every task
-        whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
-                 if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)}
-        if whole:
-            folder = Path(run.out_dir) / AHEAD_DIR
-            folder.mkdir(parents=True, exist_ok=True)
-            path = folder / f"whole-{uuid.uuid4().hex}.pkl"
-            path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
-            for chunk in chunks:
-                chunk.shared = str(path)
-                chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
+        _ship(run, chunks)
     lost: list[Chunk] = []
     for chunk, res in zip(chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)):
         if isinstance(res, TaskLost) and len(chunk.items) > 1:
             lost.append(chunk)  # its worker died: run its items again one per task, below
             continue
-        _settle(run, reg, chunk, res, skipped, label, g.nodes[first])
-    # one item per task, so that an item that kills its worker every time is lost alone
+        _settle(run, reg, chunk, res, skipped, label, first)
     alone = [dataclasses.replace(c, items=[i], collections={k: [j for j in v if j == i]
                                                              for k, v in c.collections.items()})
              for c in lost for i in c.items]
     for chunk, res in zip(alone, run.executor.map(run_chunk, alone)):
-        _settle(run, reg, chunk, res, skipped, label, g.nodes[first])
-    order = {i: k for k, i in enumerate(ids)}
-    for (n, o), got in list(run.items.items()):
-        if n in inside:
-            run.items[(n, o)] = sorted(dict.fromkeys(got), key=lambda i: order.get(i, len(order)))
-    if reg.source:
-        src = g.nodes[reg.source]
-        rep = run.reports[reg.source]
-        run.check_produced(src)
-        n_failed = sum(1 for (n, i) in run.failed_items if n == reg.source and i is not None)
-        rep.items_failed = n_failed
-        if (reg.source, None) in run.failed_items:
-            rep.status = "failed"
-        elif n_failed:
-            rep.status = "partial"
-        elif rep.items_ran:
-            rep.status = "ran"
-        if store_on and reg.source not in run.memory_only:
-            run.record(src, run.node_components(src))  # now with its items' keys (explain: which to try again)
-    for n in members:
-        inst = g.nodes[n]
-        rep = run.reports[n]
-        n_failed = sum(1 for (m, _) in run.failed_items if m == n)
-        rep.items_failed = n_failed
-        bad = run.upstream_failed(inst)
-        if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
-            rep.status, rep.error = "skipped", skipped.get(n) or f"upstream node '{bad}' did not finish"
-            continue
-        if (n, None) in run.failed_items:
-            rep.status = "failed"
-        elif n_failed and n_failed < rep.items:
-            rep.status = "partial"
-        elif n_failed:
-            rep.status = "failed"
-        else:
-            rep.status = "ran" if rep.items_ran else "cached"
-        if not rep.items:
-            rep.messages.append(NO_ITEMS)
-        if store_on and n not in run.memory_only:
-            run.record(inst, bases[n])
-    for n in ([reg.source] if reg.source else []) + members:
-        run.release(n)
+        _settle(run, reg, chunk, res, skipped, label, first)
+
+
+def _ship(run: Any, chunks: list[Chunk]) -> None:
+    """Make chunks fit for another process: the graph as bytes, no store object, and what every chunk
+    reads whole (the rectification and its maps, ~9 MB) once in a file of the run folder, read once
+    per worker process, instead of pickled into every task."""
+    graph_bytes = pickle.dumps(run.g)
+    for chunk in chunks:
+        chunk.graph, chunk.store = graph_bytes, None
+    whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
+             if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)}
+    if not whole:
+        return
+    folder = Path(run.out_dir) / AHEAD_DIR
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"whole-{uuid.uuid4().hex}.pkl"
+    path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
+    for chunk in chunks:
+        chunk.shared = str(path)
+        chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
+
+
+def _source_status(run: Any, source: str) -> None:
+    """The region's source: its items checked and counted, its status, its record for ``explain``."""
+    src, rep = run.g.nodes[source], run.reports[source]
+    run.check_produced(src)
+    rep.items_failed = sum(1 for (n, i) in run.failed_items if n == source and i is not None)
+    if (source, None) in run.failed_items:
+        rep.status = "failed"
+    elif rep.items_failed:
+        rep.status = "partial"
+    elif rep.items_ran:
+        rep.status = "ran"
+    if run.store is not None and source not in run.memory_only:
+        run.record(src, run.node_components(src))  # now with its items' keys (explain: which to try again)
+
+
+def _member_status(run: Any, n: str, skipped: dict[str, str], base: dict | None) -> None:
+    """A region member's status from its items, and its record for ``explain``."""
+    inst, rep = run.g.nodes[n], run.reports[n]
+    rep.items_failed = sum(1 for (m, _) in run.failed_items if m == n)
+    bad = run.upstream_failed(inst)
+    if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
+        rep.status, rep.error = "skipped", skipped.get(n) or f"upstream node '{bad}' did not finish"
+        return
+    if (n, None) in run.failed_items:
+        rep.status = "failed"
+    elif rep.items_failed and rep.items_failed < rep.items:
+        rep.status = "partial"
+    elif rep.items_failed:
+        rep.status = "failed"
+    else:
+        rep.status = "ran" if rep.items_ran else "cached"
+    if not rep.items:
+        rep.messages.append(NO_ITEMS)
+    if run.store is not None and n not in run.memory_only:
+        run.record(inst, base)
 
 
 def _all_blocked(run: Any, members: list[str]) -> bool:
