@@ -1,24 +1,10 @@
-"""The engine's public surface for node authors.
+"""The engine's public surface for node authors (public as :mod:`stereograph.api`).
 
-A node is a plain function decorated with :func:`node`. It declares a pydantic
-params model, typed named inputs and outputs, and a version string; it runs as
-``fn(params, **inputs) -> {output_name: value}``. The engine knows nothing of
-what a node does: it validates the wiring, decides what to run, caches results
-and hands values from one node to the next.
-
-Artifact values are plain data, so that the cache can store them in open
-formats: NumPy arrays, numbers, strings, booleans, ``None``, and lists / dicts
-(string keys) nesting those. Arrays go into ``.npz``; everything else into JSON.
-
-Example
--------
->>> from stereograph.core.api import node, Params, Field, In, Out
->>> class ScaleParams(Params):
-...     factor: float = Field(2.0, gt=0, description="Multiplier (unitless).")
->>> @node("demo.scale", inputs={"x": In("Number")}, outputs={"y": Out("Number")},
-...       params=ScaleParams, version="1")
-... def scale(params, x):
-...     return {"y": x * params.factor}
+A node is a plain function decorated with :func:`node`: a pydantic params model, typed named
+inputs and outputs, a version; it runs as ``fn(params, **inputs) -> {output: value}``. Values
+are plain data (NumPy arrays, numbers, strings, lists, dicts). Public: :func:`node`,
+:class:`Params`, :class:`In`, :class:`Out`, :class:`NodeError`, :class:`RunContext`, ``Field``.
+Example and details: docs/engine.md.
 """
 
 from __future__ import annotations

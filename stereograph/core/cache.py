@@ -1,19 +1,9 @@
 """Content-addressed artifact store.
 
-An entry's key is a hash of everything that determines its value: node type and version,
-the node's source code (its module *and the project-local modules it imports*, so editing a
-helper invalidates too), canonical params, the keys of its input artifacts, and the content
-of the files it reads. Entries are folders in open formats::
-
-    <root>/objects/ab/abcdef.../
-        data.json      # the outputs, NumPy arrays replaced by {"__ndarray__": "a0"}
-        arrays.npz     # the arrays
-        manifest.json  # written last: key, node, sizes and blake2b digests of the files above
-
-A folder is built under ``<root>/tmp`` and renamed into place (atomic on one file system),
-so a run killed mid-write leaves no entry that reads as valid; a corrupt entry (digest
-mismatch) is detected on load, deleted and recomputed. Per-entry ``flock`` locks let two
-runs on one cache share results instead of computing twice or failing.
+An entry's key hashes everything that determines its value (node type, version, code and the
+project-local modules it imports, params, input keys, read files). Entries are folders in open
+formats, built aside and renamed into place; a corrupt entry is detected, deleted and
+recomputed; per-entry locks let two runs share results. Layout: docs/engine.md, docs/cache.md.
 """
 
 from __future__ import annotations

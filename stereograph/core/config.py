@@ -1,21 +1,8 @@
 """Pipeline files: YAML (safe_load semantics) with the line of every key kept.
 
-A pipeline file::
-
-    name: locate
-    include: [common/rig.yaml]          # optional: files whose nodes/defaults merge in first
-    plugins: [my_nodes]                 # optional: modules (or .py paths) defining extra nodes
-    defaults:                           # optional: params by node type, below each node's own
-      segmenter.edge_morph: {canny_low: 40}
-    variants:                           # optional: what `stereograph compare` varies
-    compare: {metric: NAME}             # optional: the metric `stereograph compare` ranks by (lowest best)
-      compensate.type: [compensator.none, compensator.polynomial]
-    nodes:
-      rig:   {type: source.synthetic, params: {n_scenes: 120}}
-      calib: {type: calibrator.chessboard, inputs: {views: rig.views}}
-
-:func:`load_pipeline` returns a :class:`PipelineDoc`: plain data plus a map from each key's
-path to its file and line, so that every later error can point at the YAML that caused it.
+:func:`load_pipeline` reads a file, its includes and ``--set`` overrides into a
+:class:`PipelineDoc`: plain data plus each key's file and line, so that every later error
+points at the YAML that caused it. The file's shape: docs/engine.md.
 """
 
 from __future__ import annotations

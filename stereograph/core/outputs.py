@@ -1,14 +1,8 @@
 """Write a run's results into its output folder, in open formats.
 
-Written on every run, cached or not: every output declared ``Out(save=True)`` and every
-output of a terminal node. ``uint8`` images (HxW, HxWx3, HxWx4) become PNG (JPEG for an output
-declared ``Out(lossy=True)``, a picture for people); other values JSON (arrays as nested lists
-when small, else a side ``.npz``). A per-item output becomes
-one JSON list ``<node>/<output>.json`` of ``{"item": id, ...}`` records, or a folder of
-``<node>/<output>/<item>.png`` images. A *file value* -- a dict with ``file_suffix`` (``".ply"``,
-``".yml"``) and the file's content, encoded by the node, as ``file_bytes`` (1-D ``uint8`` array) or
-``file_text`` (str) -- is written as that file as it is (other keys of the dict are for downstream
-nodes only). ``run.json`` summarises the run.
+Every ``Out(save=True)`` output and every terminal node's: images as PNG (JPEG when lossy),
+other values as JSON (large arrays in ``.npz``), per-item outputs as one JSON list or a folder
+of images, file values as the file itself; ``run.json`` summarises the run. docs/engine.md.
 """
 
 from __future__ import annotations

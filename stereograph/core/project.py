@@ -1,19 +1,8 @@
 """Where a pipeline's cache and run folders live: one of each per project.
 
-The project root is the nearest folder, walking up from the pipeline file's folder, that holds
-a ``pyproject.toml`` or a ``.git``; a pipeline outside any project is its own project (its folder).
-Every pipeline of a project then shares one cache, ``<root>/.stereograph/cache`` (so a pipeline in
-another folder reuses the artifacts the others made), and one ``<root>/runs/`` for run folders.
-
-Overrides, strongest first: ``--cache-dir`` / ``--out``; the ``STEREOGRAPH_CACHE_DIR`` environment
-variable; ``[tool.stereograph] cache_dir`` in the project's ``pyproject.toml`` (relative to the root, and
-inside the project: a project's files may come from someone else).
-
-The cache's size budget (least recently used entries are pruned after a run when it is exceeded):
-``STEREOGRAPH_CACHE_BUDGET_GB``, else ``[tool.stereograph] cache_budget_gb``, else
-:data:`DEFAULT_BUDGET_GB`. ``0`` turns pruning off.
-
-This module imports nothing heavy: the command line asks it before deciding what to import.
+The project root is the nearest folder up with a ``pyproject.toml`` or ``.git``; its
+``.stereograph/cache`` and ``runs/`` serve every pipeline in it. Overrides and the cache's size
+budget: docs/engine.md. This module imports nothing heavy (the CLI asks it first).
 """
 
 from __future__ import annotations

@@ -1,27 +1,8 @@
 """The scheduler: run a validated graph in topological order, with cached artifacts.
 
-Public API::
-
-    from stereograph.core.config import load_pipeline
-    from stereograph.core.graph import build_graph
-    from stereograph.core.runner import run_pipeline
-
-    result = run_pipeline("pipelines/locate.yaml", overrides=["rig.n_scenes=10"],
-                          cache_dir=None,          # default: the project's .stereograph/cache
-                          out_dir=None,            # default: <project>/runs/<name>/<run-id>
-                          use_cache=True, only=None, from_node=None, executor=None, progress=None)
-    result.status["segment"]        # "ran" | "cached" | "failed" | "skipped" | "partial"
-    result.ran                      # nodes that computed anything this run
-    result.outputs("locate", "location")   # {item: value} for a per-item output, else the value
-    result.ok                       # no node failed
-
-How it works, in a few lines: each node in turn gets its *entries* — one, or one per item
-when it runs per item — and each entry a key (see :mod:`stereograph.core.cache`). An entry whose
-key is in the store is not recomputed and not even loaded unless a node that must run needs
-its value. Values are kept in memory only until their last consumer has run. A node that
-fails stops its downstream; per-item failures skip only that item downstream. Items of a
-per-item node go through an ``executor`` (serial by default; a process pool with
-``--workers``) that knows nothing of what nodes do.
+Each node gets its entries (one, or one per item) and each entry a key; an entry in the store
+is not recomputed. A failed node stops its downstream, a failed item only that item's. Public:
+:func:`run_graph`, :func:`run_pipeline`. Usage and the whole story: docs/engine.md.
 """
 
 from __future__ import annotations

@@ -1,19 +1,9 @@
 """Streamed regions: the per-item part of a graph, run a chunk of items at a time.
 
-A *region* is a chain (any sub-DAG) of per-item nodes, headed by the item part of a source that
-declares ``items=`` when there is one. Instead of running node after node over the whole
-collection, the runner hands the region a chunk of items at a time: one task takes its items
-through every node of the region (in this process, in a ``--workers`` process, or on a Dask
-worker), writes their saved images into the run folder itself, and sends back only what nodes
-outside the region need (small per-item results; keys). So
-
-- images never travel between processes (no pickled copies; a worker renders, rectifies and
-  segments a pair in its own memory), and the parent has no per-image work left to serialise;
-- memory holds a chunk's images, not the collection's: it does not grow with the item count.
-
-Inside a task the region runs as a small :class:`stereograph.core.run_state.RunState` of its own over the
-chunk's items, with the same cache (the same keys, locks and entries as a node-by-node run:
-a cached item is adopted, not recomputed) and the same per-item failure rules.
+A region (per-item nodes headed by a source's items) takes a chunk of items through all its
+nodes in one task -- here, in a worker process or on Dask -- writes their saved images itself and
+sends back only what nodes outside need. Images never travel between processes; memory holds a
+chunk, not the collection. Public: :func:`plan_regions`, :func:`run_region`. docs/engine.md.
 """
 
 from __future__ import annotations
