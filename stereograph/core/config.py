@@ -193,6 +193,36 @@ def _yaml_error(e: yaml.YAMLError, filename: str, text: str) -> ConfigError:
     return err
 
 
+def _record_keys(loader: Any, node: yaml.Node, filename: str, lines: dict[Path_, Where] | None,
+                 path: Path_ = (), walked: set[int] | None = None) -> None:
+    """Check every key (a plain name, not twice in a mapping) and, into ``lines``, the line of each key
+    and list item, in document order; a node reached again through an alias has its lines already."""
+    walked = set() if walked is None else walked
+    if id(node) in walked:
+        return
+    walked.add(id(node))
+    if isinstance(node, yaml.SequenceNode):
+        for i, v in enumerate(node.value):
+            if lines is not None:
+                lines[path + (i,)] = Where(filename, v.start_mark.line + 1, v.start_mark.column + 1)
+            _record_keys(loader, v, filename, lines, path + (i,), walked)
+    if not isinstance(node, yaml.MappingNode):
+        return
+    seen: dict[Any, int] = {}
+    for k, v in node.value:
+        at = Where(filename, k.start_mark.line + 1, k.start_mark.column + 1)
+        if not isinstance(k, yaml.ScalarNode):
+            raise ConfigError("a key must be a plain name, not a list or mapping", at,
+                              hint="write 'name: value' (a '? [a, b]' complex key is not a name)")
+        key = loader.construct_object(k, deep=True)
+        if key in seen:
+            raise ConfigError(f"duplicate key '{key}' (first at line {seen[key]})", at, hint="keep one of them")
+        seen[key] = k.start_mark.line + 1
+        if lines is not None:
+            lines[path + (key,)] = at
+        _record_keys(loader, v, filename, lines, path + (key,), walked)
+
+
 def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any, dict[Path_, Where]]:
     """Parse YAML with safe_load semantics, within the bounds above, and record the line of each key.
 
@@ -226,35 +256,7 @@ def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any
             raise ConfigError(f"the YAML holds more than {MAX_YAML_VALUES} values once its aliases are expanded",
                               Where(filename, 1),
                               hint="a pipeline file sets parameters; put large data in a file that a node reads")
-        walked: set[int] = set()
-
-        def walk(node: yaml.Node, path: Path_) -> None:
-            # a node reached again through an alias has its lines already (under its anchor)
-            if id(node) in walked:
-                return
-            walked.add(id(node))
-            if isinstance(node, yaml.MappingNode):
-                seen: dict[Any, int] = {}
-                for k, v in node.value:
-                    at = Where(filename, k.start_mark.line + 1, k.start_mark.column + 1)
-                    if not isinstance(k, yaml.ScalarNode):
-                        raise ConfigError("a key must be a plain name, not a list or mapping", at,
-                                          hint="write 'name: value' (a '? [a, b]' complex key is not a name)")
-                    key = loader.construct_object(k, deep=True)
-                    if key in seen:
-                        raise ConfigError(f"duplicate key '{key}' (first at line {seen[key]})", at,
-                                          hint="keep one of them")
-                    seen[key] = k.start_mark.line + 1
-                    if record_lines:
-                        lines[path + (key,)] = at
-                    walk(v, path + (key,))
-            elif isinstance(node, yaml.SequenceNode):
-                for i, v in enumerate(node.value):
-                    if record_lines:
-                        lines[path + (i,)] = Where(filename, v.start_mark.line + 1, v.start_mark.column + 1)
-                    walk(v, path + (i,))
-
-        walk(root, ())
+        _record_keys(loader, root, filename, lines if record_lines else None)
         data = loader.construct_document(root)
         return data, lines
     except yaml.YAMLError as e:
@@ -267,7 +269,6 @@ def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any
             loader.dispose()
 
 
-_compose = parse_yaml  # the name earlier code used
 
 
 def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:

@@ -375,42 +375,13 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     terminal = set(graph.terminal())
     for name in selected:
         inst = graph.nodes[name]
-        status = run.reports[name].status
-        if status in ("failed", "skipped", "not selected") and not inst.mapped:
+        if run.reports[name].status in ("failed", "skipped", "not selected") and not inst.mapped:
             continue
         for out, decl in inst.spec.outputs.items():
             if not (decl.save or name in terminal or name in run.keep):
                 continue
-            stem = out_dir / name / out
-            store = run.store
             try:
-                streamed = getattr(run, "streamed", {}).get((name, out), {})
-                if graph.is_collection(name, out) and streamed and \
-                        all(i in streamed for i in run.items.get((name, out), [])):
-                    # written item by item as each finished (stereograph.core.streaming)
-                    files = [f for i in run.items.get((name, out), []) for f in streamed[i]]
-                elif graph.is_collection(name, out):
-                    ids = run.items.get((name, out), [])
-                    if not ids and status in ("failed", "skipped"):
-                        continue  # (the items that did finish are kept; none is not an empty result)
-                    # an image per item is known from the first entry's manifest, without loading it
-                    ready = (store is not None and ids and hasattr(store, "ready_file") and
-                             store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None)
-                    if ids and (ready or is_image(run.get((name, out, ids[0])))):  # one file per item
-                        files = []
-                        for i in ids:
-                            p = stem / file_name(i)
-                            files += _rendered(store, run.ref_keys.get((name, out, i)), out, p,
-                                               lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(
-                                                   p, run.get(r), lo))
-                    else:
-                        files = write_collection(stem, {i: run.get((name, out, i)) for i in ids})
-                else:
-                    if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
-                        continue
-                    files = _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
-                                      lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(
-                                          p, run.get(r), lo))
+                files = _output_files(graph, run, name, out, decl, out_dir / name / out)
             except Exception as e:  # an output we cannot write must not lose the others ...
                 rep = run.reports[name]
                 rep.messages.append(f"could not write output '{out}': {e}")
@@ -418,7 +389,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     rep.status, rep.error = "failed", f"could not write output '{out}': {e.strerror or e}"
                     rep.hint = "free space on that disk, or choose another --out; the result is cached"
                 continue
-            written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files)
+            written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files or [])
     add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
     summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
                        list(getattr(result, "notes", [])), written)
@@ -432,6 +403,33 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     notes = hooks.announce("run_written", out_dir)  # the app's page; never a failed run
     if hasattr(result, "notes"):
         result.notes.extend(notes)
+
+
+def _output_files(graph: Any, run: Any, name: str, out: str, decl: Any, stem: Path) -> list[Path] | None:
+    """Write one output of a node (each item's, for a per-item output); the files, or None for nothing."""
+    store, status = run.store, run.reports[name].status
+    if not graph.is_collection(name, out):
+        if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
+            return None
+        return _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
+                         lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(p, run.get(r), lo))
+    ids = run.items.get((name, out), [])
+    streamed = getattr(run, "streamed", {}).get((name, out), {})
+    if streamed and all(i in streamed for i in ids):  # written item by item as each finished (streaming)
+        return [f for i in ids for f in streamed[i]]
+    if not ids and status in ("failed", "skipped"):
+        return None  # (the items that did finish are kept; none is not an empty result)
+    # an image per item is known from the first entry's manifest, without loading it
+    ready = (store is not None and ids and hasattr(store, "ready_file") and
+             store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None)
+    if not (ids and (ready or is_image(run.get((name, out, ids[0]))))):
+        return write_collection(stem, {i: run.get((name, out, i)) for i in ids})
+    files = []
+    for i in ids:  # one file per item
+        p = stem / file_name(i)
+        files += _rendered(store, run.ref_keys.get((name, out, i)), out, p,
+                           lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(p, run.get(r), lo))
+    return files
 
 
 def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tuple[int, int, int]]) -> list[str]:
