@@ -196,8 +196,37 @@ def _shared_values(path: str) -> dict:
 def run_chunk(chunk: Chunk) -> ChunkResult:
     """Take a chunk of items through its region (see the module docstring); never raises for a
     node's failure (those are item failures in the result)."""
-
     t0 = time.perf_counter()
+    run, store, written0 = _chunk_state(chunk)
+    reg, graph = chunk.region, run.g
+    for name in ([reg.source] if reg.source else []) + list(reg.nodes):
+        run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
+        if name == reg.source:
+            run.declared[name] = list(chunk.items)
+        run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
+        if run.reports[name].status == "failed" and (name, None) not in run.failed_items:
+            run.reports[name].status = "partial"  # all of this chunk's items: the others go on downstream
+    files, values = _chunk_outputs(chunk, run, store)
+    inside = set(reg.nodes) | ({reg.source} if reg.source else set())
+    mine = lambda ref: ref[0] in inside  # noqa: E731
+    own_store = store is not None and chunk.store is None
+    return ChunkResult(
+        reports={n: run.reports[n] for n in inside},
+        items={k: v for k, v in run.items.items() if k[0] in inside},
+        failed={k: v for k, v in run.failed_items.items() if k[0] in inside},
+        ref_keys={r: k for r, k in run.ref_keys.items() if mine(r)},
+        ref_ids={r: k for r, k in run.ref_ids.items() if mine(r)},
+        keys={k: v for k, v in run.keys.items() if k[0] in inside},
+        values=values, files=files,
+        notes=list(store.notes) if own_store else [],
+        seconds=time.perf_counter() - t0,
+        stored_bytes=store._written - written0 if own_store else 0,
+        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages})
+
+
+def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
+    """A small run of the chunk's own: the graph (unpickled in another process, after its plugins),
+    the store (one per cache per process), the outside values and keys the chunk brought."""
     graph = chunk.graph
     if isinstance(graph, bytes):  # another process: its plugins' classes must exist to unpickle
         if chunk.plugins:
@@ -208,12 +237,9 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         store = _STORES.get(chunk.cache_root)
         if store is None:
             store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
-    written0 = store._written if store is not None else 0
     run = RunState(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
     run.sub = True
     run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
-    reg = chunk.region
-    members = list(reg.nodes)
     run.keep = set(chunk.keep)  # (what the cache may keep as a manifest only follows the whole run's rule)
     for name, status in chunk.statuses.items():
         run.reports[name].status = status
@@ -227,23 +253,22 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
             run.mem[ref] = value
     for coll, ids in chunk.collections.items():
         run.items[coll] = list(ids)
-    inside = set(members) | ({reg.source} if reg.source else set())
-    run.remaining_consumers = {n: set(graph.consumers(n)) & set(members) for n in graph.nodes}
+    members = set(chunk.region.nodes)
+    run.remaining_consumers = {n: set(graph.consumers(n)) & members for n in graph.nodes}
     for n, _ in chunk.back:  # read outside the region too: held until the task returns it
         run.remaining_consumers[n].add("\0outside")
-    for name in ([reg.source] if reg.source else []) + members:
-        run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
-        if name == reg.source:
-            run.declared[name] = list(chunk.items)
-        run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
-        if run.reports[name].status == "failed" and (name, None) not in run.failed_items:
-            run.reports[name].status = "partial"  # all of this chunk's items: the others go on downstream
+    return run, store, store._written if store is not None else 0
+
+
+def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]:
+    """``(files, values)``: the images the chunk wrote into the run folder itself, per output and item,
+    and the values it sends back (what nodes outside read, and what it could not write)."""
     files: dict[tuple[str, str], dict[str, list[str]]] = {}
     values: dict[Ref, Any] = {}
     for node, out in sorted(chunk.deliver | chunk.back):
         ids = run.items.get((node, out), [])
         written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
-        lossy = bool(getattr(graph.nodes[node].spec.outputs.get(out), "lossy", False))  # pictures for people: JPEG
+        lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))  # pictures: JPEG
         for i in ids:
             ref = (node, out, i)
             if written:
@@ -256,21 +281,9 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
                     run.reports[node].messages.append(f"could not write output '{out}' of item {i}: {e}")
                     files.get((node, out), {}).pop(i, None)
                     written = False
-            if not written and ref in run.mem and (node, out) in chunk.back | chunk.deliver:
+            if not written and ref in run.mem:
                 values[ref] = run.mem[ref]
-    mine = lambda ref: ref[0] in inside  # noqa: E731
-    return ChunkResult(
-        reports={n: run.reports[n] for n in inside},
-        items={k: v for k, v in run.items.items() if k[0] in inside},
-        failed={k: v for k, v in run.failed_items.items() if k[0] in inside},
-        ref_keys={r: k for r, k in run.ref_keys.items() if mine(r)},
-        ref_ids={r: k for r, k in run.ref_ids.items() if mine(r)},
-        keys={k: v for k, v in run.keys.items() if k[0] in inside},
-        values=values, files=files,
-        notes=list(store.notes) if store is not None and chunk.store is None else [],
-        seconds=time.perf_counter() - t0,
-        stored_bytes=store._written - written0 if store is not None and chunk.store is None else 0,
-        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages})
+    return files, values
 
 
 def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
