@@ -90,3 +90,37 @@ def test_the_reading_map_names_every_core_module_in_order():
     in_readme = re.findall(r"stereograph/core/([a-z_]+)\.py", section)
     assert set(in_doc) == core, sorted(core ^ set(in_doc))
     assert in_readme == in_doc
+
+
+def long_functions(root: Path, limit: int = 60) -> list[str]:
+    """Functions of ``root`` (docstring included) longer than ``limit`` lines."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.end_lineno - n.lineno + 1 > limit:
+                found.append(f"{path.name}:{n.lineno} {n.name} ({n.end_lineno - n.lineno + 1} lines)")
+    return found
+
+
+def test_every_core_function_fits_on_a_screen(tmp_path):
+    """(issue 27) No function in core/ over 60 lines, and none over complexity 15 (ruff's C901, set for
+    core/ in pyproject.toml); both checks shown failing on a planted function."""
+    import subprocess
+    import sys
+
+    assert long_functions(ROOT / "stereograph" / "core") == []
+    planted = tmp_path / "core"
+    planted.mkdir()
+    body = "".join(f"    if x == {i}:\n        return {i}\n" for i in range(40))
+    (planted / "big.py").write_text(f"def big(x):\n{body}    return -1\n")
+    assert long_functions(planted) == ["big.py:1 big (82 lines)"]
+    import tomllib
+
+    limit = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["ruff"]["lint"]["mccabe"]["max-complexity"]
+    assert limit == 15
+    ruff = [sys.executable, "-m", "ruff", "check", "--quiet", "--select", "C901"]
+    done = subprocess.run([*ruff, "stereograph/core"], cwd=ROOT, capture_output=True, text=True)  # project config
+    assert done.returncode == 0, done.stdout
+    done = subprocess.run([*ruff, "--isolated", "--config", f"lint.mccabe.max-complexity={limit}", str(planted)],
+                          capture_output=True, text=True)
+    assert done.returncode == 1 and "too complex (41 > 15)" in done.stdout, done.stdout

@@ -431,39 +431,18 @@ def node(
     name : str
         Registered type name, ``kind.method`` (``segmenter.edge_morph``).
     inputs, outputs : dict
-        Named ports; see :class:`In` and :class:`Out`.
+        Named ports (:class:`In`, :class:`Out`).
     params : type[Params]
-        The pydantic model of the node's parameters (single source of truth
-        for types, defaults, ranges and units).
+        The pydantic model of the node's parameters (types, defaults, ranges, units).
     version : str
-        Bump when the node's behaviour changes in a way its source hash would
-        not show (a changed data file it ships, say).
+        Bump when behaviour changes in a way the source hash would not show.
     cacheable : bool
-        False for nodes with side effects or live input (actuators, cameras).
-    reads : callable, optional
-        ``reads(params, pipeline_dir) -> [Path, ...]``: the files the node will
-        read, so that the cache key follows their content.
-    items : callable, optional
-        ``items(params, ctx) -> [item_id, ...]``: the ids of the node's collection outputs,
-        found cheaply (file names, scene numbers) without producing the items. A source that
-        declares it is run item by item: its items are produced in the pool (``--workers``,
-        ``--dask``), each item flowing on through the per-item nodes downstream before the next
-        ones are made (docs/parallel.md). The engine calls the function once with ``ctx.item``
-        None (return the non-collection outputs) and once per id with ``ctx.item`` set (return
-        ``{collection_output: that item's value}``, or ``{}`` to drop the item after
-        ``ctx.warn``-ing why); ``ctx.producing_items`` is then True. Called directly (``ctx``
-        None), the node returns everything at once. Only for nodes without per-item inputs.
-    prepare : callable, optional
-        ``prepare()``: load what the node's first call needs and every call shares (a heavy
-        library, a table), nothing that depends on params or inputs. The engine may call it
-        ahead, in another thread, while this process only waits for a worker pool (a ``--workers``
-        run's per-item part), so that the node does not load it alone afterwards. Optional to
-        call: the node must work without it; its errors are ignored (the node's call reports them).
-    check : callable, optional
-        ``check(params, wired)``: a problem of the params that depends on which inputs the
-        pipeline wires (``wired``: the names of the wired input ports), raised as
-        ``NodeError(message, hint=...)`` when the pipeline is validated, before anything runs
-        (a colour that must come from the params or from an optional input, say).
+        False for side effects or live input (actuators, cameras).
+    reads, items, prepare, check : callable, optional
+        ``reads(params, pipeline_dir)``: the files read (the cache key follows them);
+        ``items(params, ctx)``: the item ids, found cheaply (run item by item); ``prepare()``:
+        what every call shares, loaded ahead; ``check(params, wired)``: params refused by which
+        inputs are wired, at validation. In full: docs/engine.md.
 
     Returns
     -------
@@ -472,20 +451,10 @@ def node(
 
     def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
         doc = inspect.getdoc(fn) or ""
-        spec = NodeSpec(
-            name=name,
-            fn=fn,
-            params=params or _NoParams,
-            inputs=dict(inputs or {}),
-            outputs=dict(outputs or {}),
-            version=str(version),
-            cacheable=cacheable,
-            reads=reads,
-            items=items,
-            prepare=prepare,
-            check=check,
-            description=doc.split("\n\n", 1)[0].replace("\n", " "),
-        )
+        spec = NodeSpec(name=name, fn=fn, params=params or _NoParams, inputs=dict(inputs or {}),
+                        outputs=dict(outputs or {}), version=str(version), cacheable=cacheable, reads=reads,
+                        items=items, prepare=prepare, check=check,
+                        description=doc.split("\n\n", 1)[0].replace("\n", " "))
         sig = inspect.signature(fn)
         missing = [i for i in spec.inputs if i not in sig.parameters]
         if missing:

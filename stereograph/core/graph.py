@@ -227,17 +227,46 @@ def build_graph(doc: PipelineDoc) -> Graph:
     :class:`~stereograph.core.errors.ConfigErrors` listing them all (in file order).
     """
     registry.import_plugins(doc.plugins, doc.directory, doc.where("plugins"))
-    problems: list[ConfigError] = []
+    problems = _unknown_default_types(doc)
+    typed, nodes, unresolved = _resolve_nodes(doc, problems)
+    dag = nx.DiGraph()
+    dag.add_nodes_from(nodes)
+    for inst in typed.values():
+        _wire_node(doc, typed, nodes, unresolved, inst, dag, problems)
+    problems += _missing_set_paths(doc, nodes)
+    raise_all(problems)
+    if not nx.is_directed_acyclic_graph(dag):
+        cycle = [e[0] for e in nx.find_cycle(dag)]
+        raise ConfigError("the pipeline has a cycle: " + " -> ".join(cycle + [cycle[0]]),
+                          doc.where("nodes", cycle[0]), cycle[0], "remove one of these inputs")
+    order = list(nx.lexicographical_topological_sort(dag, key=lambda n: list(doc.nodes).index(n)))
+    graph = Graph(doc, nodes, dag, order)
+    for name in order:
+        problems += _decide_mapped(graph, nodes[name])
+    raise_all(problems)
+    _warn_unused(graph)
+    return graph
+
+
+def _unknown_default_types(doc: PipelineDoc) -> list[ConfigError]:
+    """``defaults:`` of a type nobody has: a misspelt type's defaults would silently apply to nothing."""
     known = set(registry.names())
+    problems = []
     for t in doc.defaults:
-        if t not in known:  # a misspelt type's defaults would silently apply to nothing
+        if t not in known:
             close = difflib.get_close_matches(t, sorted(known), n=1, cutoff=0.5)
             problems.append(ConfigError(f"defaults are given for an unknown node type '{t}'",
                                         doc.where("defaults", t), None, f"did you mean '{close[0]}'?" if close
                                         else "run `stereograph nodes` to list the types"))
-    typed: dict[str, NodeInstance] = {}  # every node whose type resolved: its wires are checked
-    nodes: dict[str, NodeInstance] = {}  # ... and whose params are valid too
-    unresolved = set(doc.broken)  # nodes of no known type: wires to them are not checked further
+    return problems
+
+
+def _resolve_nodes(doc: PipelineDoc, problems: list[ConfigError]) -> tuple[dict, dict, set]:
+    """``(typed, nodes, unresolved)``: the nodes whose type resolved (their wires are checked), those
+    whose params are valid too, and those of no known type (wires to them are not checked further)."""
+    typed: dict[str, NodeInstance] = {}
+    nodes: dict[str, NodeInstance] = {}
+    unresolved = set(doc.broken)
     for name, decl in doc.nodes.items():
         try:
             spec = registry.get(str(decl["type"]), doc.where("nodes", name, "type"), name)
@@ -253,67 +282,61 @@ def build_graph(doc: PipelineDoc) -> Graph:
             nodes[name] = typed[name]
         except ConfigError as e:
             problems.append(e)
+    return typed, nodes, unresolved
 
-    dag = nx.DiGraph()
-    dag.add_nodes_from(nodes)
-    for name, inst in typed.items():
-        decl = doc.nodes[name]
-        for port, ref in (decl.get("inputs") or {}).items():
-            try:
-                if _wire(doc, typed, unresolved, inst, port, ref) and name in nodes and inst.inputs[port][0] in nodes:
-                    dag.add_edge(inst.inputs[port][0], name)
-            except ConfigError as e:
-                problems.append(e)
-        for port, decl_in in inst.spec.inputs.items():
-            if port not in (decl.get("inputs") or {}) and not decl_in.optional:
-                problems.append(ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
-                                            doc.where("nodes", name), name,
-                                            f"add 'inputs: {{{port}: some_node.output}}'"))
-        if inst.spec.check is not None and name in nodes:
-            try:
-                inst.spec.check(inst.params, frozenset(decl.get("inputs") or {}))
-            except NodeError as e:
-                problems.append(ConfigError(f"{inst.type}: {e.message.rstrip('.')}{_with_sets(doc, name)}",
-                                            doc.where("nodes", name, "params"), name, e.hint))
-    problems += _missing_set_paths(doc, nodes)
-    raise_all(problems)
 
-    if not nx.is_directed_acyclic_graph(dag):
-        cycle = [e[0] for e in nx.find_cycle(dag)]
-        raise ConfigError("the pipeline has a cycle: " + " -> ".join(cycle + [cycle[0]]),
-                          doc.where("nodes", cycle[0]), cycle[0], "remove one of these inputs")
+def _wire_node(doc: PipelineDoc, typed: dict, nodes: dict, unresolved: set, inst: NodeInstance, dag: nx.DiGraph,
+               problems: list[ConfigError]) -> None:
+    """One node's wires checked and drawn, its required inputs wired, its own check of its params."""
+    name, decl = inst.name, doc.nodes[inst.name]
+    wired = decl.get("inputs") or {}
+    for port, ref in wired.items():
+        try:
+            if _wire(doc, typed, unresolved, inst, port, ref) and name in nodes and inst.inputs[port][0] in nodes:
+                dag.add_edge(inst.inputs[port][0], name)
+        except ConfigError as e:
+            problems.append(e)
+    for port, decl_in in inst.spec.inputs.items():
+        if port not in wired and not decl_in.optional:
+            problems.append(ConfigError(f"required input '{port}' ({decl_in.type}) is not wired",
+                                        doc.where("nodes", name), name, f"add 'inputs: {{{port}: some_node.output}}'"))
+    if inst.spec.check is not None and name in nodes:
+        try:
+            inst.spec.check(inst.params, frozenset(wired))
+        except NodeError as e:
+            problems.append(ConfigError(f"{inst.type}: {e.message.rstrip('.')}{_with_sets(doc, name)}",
+                                        doc.where("nodes", name, "params"), name, e.hint))
 
-    order = list(nx.lexicographical_topological_sort(dag, key=lambda n: list(doc.nodes).index(n)))
-    graph = Graph(doc, nodes, dag, order)
-    # Decide map / reduce: a node is mapped when a non-gather input carries a collection.
-    for name in order:
-        inst = nodes[name]
-        mapped = False
-        for port, (src, out) in inst.inputs.items():
-            coll = graph.is_collection(src, out)
-            gather = inst.spec.inputs[port].gather
-            if gather and not coll:
-                problems.append(ConfigError(f"input '{port}' gathers a collection, but '{src}.{out}' is a single "
-                                            "artifact", doc.where("nodes", name, "inputs", port), name,
-                                            "wire it to a per-item output (e.g. of a node that runs once per pair)"))
-            mapped |= coll and not gather
-        inst.mapped = mapped
-        if mapped and any(o.collection for o in inst.spec.outputs.values()):
-            problems.append(ConfigError(f"{inst.type} yields a collection but runs per item here",
-                                        doc.where("nodes", name), name,
-                                        "nested collections are not supported: feed it single artifacts"))
-    raise_all(problems)
 
-    used = {(s, o) for inst in nodes.values() for (s, o) in inst.inputs.values()}
-    for name in order:
-        inst = nodes[name]
+def _decide_mapped(graph: Graph, inst: NodeInstance) -> list[ConfigError]:
+    """Map or reduce: a node runs per item when a non-gather input carries a collection."""
+    doc, name, problems, mapped = graph.doc, inst.name, [], False
+    for port, (src, out) in inst.inputs.items():
+        coll = graph.is_collection(src, out)
+        gather = inst.spec.inputs[port].gather
+        if gather and not coll:
+            problems.append(ConfigError(f"input '{port}' gathers a collection, but '{src}.{out}' is a single "
+                                        "artifact", doc.where("nodes", name, "inputs", port), name,
+                                        "wire it to a per-item output (e.g. of a node that runs once per pair)"))
+        mapped |= coll and not gather
+    inst.mapped = mapped
+    if mapped and any(o.collection for o in inst.spec.outputs.values()):
+        problems.append(ConfigError(f"{inst.type} yields a collection but runs per item here",
+                                    doc.where("nodes", name), name,
+                                    "nested collections are not supported: feed it single artifacts"))
+    return problems
+
+
+def _warn_unused(graph: Graph) -> None:
+    """A warning for each output of a non-terminal node that nothing reads, saves or may leave unread."""
+    used = {(s, o) for inst in graph.nodes.values() for (s, o) in inst.inputs.values()}
+    for name in graph.order:
+        inst = graph.nodes[name]
         if graph.dag.out_degree(name) == 0:
             continue  # terminal outputs are the run's results
-        for out in inst.spec.outputs:
-            decl = inst.spec.outputs[out]
+        for out, decl in inst.spec.outputs.items():
             if (name, out) not in used and not decl.save and not decl.optional:
-                graph.warnings.append(f"{doc.where('nodes', name)}: node '{name}': output '{out}' is never used")
-    return graph
+                graph.warnings.append(f"{graph.doc.where('nodes', name)}: node '{name}': output '{out}' is never used")
 
 
 def check_pipeline(path: Any, overrides: list[str] | None = None) -> tuple[Graph | None, list[ConfigError]]:

@@ -171,70 +171,83 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
         before = dict(REGISTRY)
         try:
             if plugin.endswith(".py") or "/" in plugin:
-                path = (base_dir / plugin).resolve()
-                # one module per file (two plugins named nodes.py in two folders are two modules)
-                mod_name = f"stereograph_plugin_{path.stem}_{digest(str(path).encode())[:8]}"
-                if not path.is_file():
-                    raise FileNotFoundError(f"no such file {path}")
-                loaded, now = sys.modules.get(mod_name), file_digest(path)
-                if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == now:
-                    continue
-                # (a file changed since this process imported it -- a notebook, a long-lived program --
-                # is imported again: the cache key follows the file, so the code run must too)
-                spec = importlib.util.spec_from_file_location(mod_name, path)
-                if spec is None or spec.loader is None:
-                    raise ImportError(f"{path} is not a Python module")
-                mod = importlib.util.module_from_spec(spec)
-                mod.__stereograph_digest__ = now
-                sys.modules[mod_name] = mod
-                if str(path.parent) not in sys.path:  # its helper modules beside it
-                    sys.path.append(str(path.parent))
-                    PLUGIN_PATHS.add(str(path.parent))
-                try:
-                    spec.loader.exec_module(mod)
-                except BaseException:
-                    if loaded is not None:
-                        sys.modules[mod_name] = loaded
-                    else:
-                        sys.modules.pop(mod_name, None)  # a half-imported plugin must not count as loaded
-                    raise
+                _import_file(base_dir / plugin)
             else:
-                if str(base_dir) not in sys.path:
-                    sys.path.insert(0, str(base_dir))
-                    PLUGIN_PATHS.add(str(base_dir))
-                mod = sys.modules.get(plugin)
-                file = getattr(mod, "__file__", None)
-                if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (
-                        None, file_digest(Path(file))):
-                    mod = importlib.reload(mod)
-                else:
-                    mod = importlib.import_module(plugin)
-                if getattr(mod, "__file__", None):
-                    mod.__stereograph_digest__ = file_digest(Path(mod.__file__))
-        except ConfigError:
-            raise
-        except KeyboardInterrupt:
+                _import_module(plugin, base_dir)
+        except (ConfigError, KeyboardInterrupt):
             raise
         except BaseException as e:  # SystemExit too: a plugin must not end or hijack the command
             what = f"called sys.exit({e.code!r})" if isinstance(e, SystemExit) else f"{type(e).__name__}: {e}"
             raise ConfigError(f"plugin '{plugin}' failed to import: {what}", where,
                               hint="plugins are module names or .py paths relative to the pipeline file (a .py "
                                    "plugin may import modules beside it)") from None
-        installed = _entry_points()
-        for name, spec in list(REGISTRY.items()):
-            old = before.get(name)
-            if spec is old:
-                continue
-            # an installed node type (an entry point: the built-ins, a package's) is never replaced by a
-            # plugin; two plugins may still define one name (the last imported is used)
-            if name in installed and installed[name].value.partition(":")[0].strip() != spec.fn.__module__:
-                if old is not None:
-                    REGISTRY[name] = old
-                else:
-                    del REGISTRY[name]
-                raise ConfigError(f"plugin '{plugin}' defines a node type '{name}', the name of an installed node "
-                                  "type: a plugin does not replace one", where,
-                                  hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type")
+        _keep_installed(plugin, before, where)
+
+
+def _import_file(path: Path) -> None:
+    """Import a ``.py`` plugin as a module of its own (two plugins named nodes.py in two folders are two
+    modules); a file changed since this process imported it is imported again -- the cache key
+    follows the file, so the code run must too."""
+    path = path.resolve()
+    mod_name = f"stereograph_plugin_{path.stem}_{digest(str(path).encode())[:8]}"
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file {path}")
+    loaded, now = sys.modules.get(mod_name), file_digest(path)
+    if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == now:
+        return
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{path} is not a Python module")
+    mod = importlib.util.module_from_spec(spec)
+    mod.__stereograph_digest__ = now
+    sys.modules[mod_name] = mod
+    if str(path.parent) not in sys.path:  # its helper modules beside it
+        sys.path.append(str(path.parent))
+        PLUGIN_PATHS.add(str(path.parent))
+    try:
+        spec.loader.exec_module(mod)
+    except BaseException:
+        if loaded is not None:
+            sys.modules[mod_name] = loaded
+        else:
+            sys.modules.pop(mod_name, None)  # a half-imported plugin must not count as loaded
+        raise
+
+
+def _import_module(plugin: str, base_dir: Path) -> None:
+    """Import a plugin module by name (from the pipeline's folder first); again if its file changed."""
+    if str(base_dir) not in sys.path:
+        sys.path.insert(0, str(base_dir))
+        PLUGIN_PATHS.add(str(base_dir))
+    mod = sys.modules.get(plugin)
+    file = getattr(mod, "__file__", None)
+    if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (
+            None, file_digest(Path(file))):
+        mod = importlib.reload(mod)
+    else:
+        mod = importlib.import_module(plugin)
+    if getattr(mod, "__file__", None):
+        mod.__stereograph_digest__ = file_digest(Path(mod.__file__))
+
+
+def _keep_installed(plugin: str, before: dict, where: Where | None) -> None:
+    """An installed node type (an entry point: the built-ins, a package's) is never replaced by a
+    plugin; two plugins may still define one name (the last imported is used)."""
+    from stereograph.core.api import REGISTRY
+
+    installed = _entry_points()
+    for name, spec in list(REGISTRY.items()):
+        old = before.get(name)
+        if spec is old:
+            continue
+        if name in installed and installed[name].value.partition(":")[0].strip() != spec.fn.__module__:
+            if old is not None:
+                REGISTRY[name] = old
+            else:
+                del REGISTRY[name]
+            raise ConfigError(f"plugin '{plugin}' defines a node type '{name}', the name of an installed node "
+                              "type: a plugin does not replace one", where,
+                              hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type")
 
 
 def commands() -> dict[str, EntryPoint]:
