@@ -83,3 +83,28 @@ def test_pick_yaml_picks_with_every_segmenter_type_by_one_setting(tmp_path):
                          "--set", "rig.n_scenes=16", "--out", str(out), "--cache-dir", str(tmp_path / "c")]) == 0
         picks = json.loads((out / "act" / "summary.json").read_text())["picks"]
         assert picks and all(p["ok"] for p in picks), (seg_type, picks)
+
+
+def test_the_declared_object_rules_and_names_pick_one():
+    from nodes.contracts.objects import ObjectsParams, objects_value
+    from nodes.contracts.segmenter import SegmenterParams, apply_objects
+    from stereograph.api import NodeError
+
+    declared = objects_value(ObjectsParams(objects=[{"name": "red", "radius_cm": 2.0, "color_bgr": [0, 0, 200]},
+                                                    {"name": "blue", "radius_cm": 3.0, "color_bgr": [200, 0, 0]}],
+                                           working_range_cm=(30, 90)))
+    warned = []
+
+    class Ctx:
+        def warn(self, text):
+            warned.append(text)
+
+    got = apply_objects(SegmenterParams(), declared, Ctx())
+    assert got.object.color_bgr == (0, 0, 200) and got.working_range_cm == (30.0, 90.0) and not warned
+    got = apply_objects(SegmenterParams(object={"radius_cm": 5.0}, object_name="blue"), declared, Ctx())
+    assert got.object.radius_cm == 3.0 and got.object.color_bgr == (200, 0, 0)
+    assert warned and "not used" in warned[0]  # its own object is set too: said, and the declaration rules
+    with pytest.raises(NodeError, match="no object named 'green'"):
+        apply_objects(SegmenterParams(object_name="green"), declared)
+    with pytest.raises(NodeError, match="not an Objects artifact"):
+        apply_objects(SegmenterParams(), {"objects": "x"})
