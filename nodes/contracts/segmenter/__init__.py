@@ -12,43 +12,25 @@ Pixel helpers a method may use: :func:`fill_holes`, :func:`max_hole_area`,
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
-
-import numpy as np
 
 from stereograph.api import node
 
 from ._blur import gaussian_blur
 from ._pair import segment_pair
-from ._params import SEGMENTER_INPUTS, SEGMENTER_OUTPUTS, ObjectSpec, SegmenterParams, apply_appearance, apply_objects
+from ._params import (
+    SEGMENTER_INPUTS,
+    SEGMENTER_OUTPUTS,
+    MaskFunction,
+    ObjectSpec,
+    SegmenterParams,
+    apply_appearance,
+    apply_objects,
+)
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 
 __all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
            "apply_appearance", "apply_objects", "fill_holes", "gaussian_blur", "max_hole_area", "segment_pair",
            "segmenter", "structuring_element", "to_channel"]
-
-
-class MaskFunction(Protocol):
-    """``mask(image_bgr, params, r_range_px, scale, roi) -> uint8 mask`` (255 = may be the object).
-
-    Parameters
-    ----------
-    image_bgr : ndarray
-        One rectified image (BGR or gray uint8), downscaled by ``scale`` while detecting.
-    params : SegmenterParams
-        The node's parameters (the method's own fields included).
-    r_range_px : (float, float)
-        Smallest and largest image radius of the object at this scale (px), from the calibration,
-        the object's radius and the working range.
-    scale : int
-        Downscale factor of ``image_bgr`` (1 = full resolution): divide full-resolution sizes by it.
-    roi : bool
-        True for the small full-resolution window around a detected object (its border is
-        background), False for a whole image.
-    """
-
-    def __call__(self, image_bgr: np.ndarray, params: SegmenterParams, r_range_px: tuple[float, float],
-                 scale: int = 1, roi: bool = False) -> np.ndarray: ...
 
 
 def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, version: str = "1",

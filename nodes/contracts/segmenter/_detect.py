@@ -12,7 +12,7 @@ import numpy as np
 from nodes.contracts.views import RectifiedView
 
 from ._candidates import candidates, select_candidate
-from ._params import MaskFn, SegmenterParams
+from ._params import MaskFunction, SegmenterParams
 from ._shadow import suppress_shadow, suppress_shadow_regions
 from ._size import auto_downscale
 from ._subpixel import region_properties
@@ -63,7 +63,7 @@ def search_band(
 
 def _detect(
     view: RectifiedView,
-    mask_fn: MaskFn,
+    mask_fn: MaskFunction,
     params: SegmenterParams,
     r_range_px: tuple[float, float],
     s: int,
@@ -153,7 +153,7 @@ def _drop_inside(rejected: dict, mask: np.ndarray) -> None:
 
 def segment_image(
     img_bgr: np.ndarray | RectifiedView,
-    mask_fn: MaskFn,
+    mask_fn: MaskFunction,
     params: SegmenterParams,
     r_range_px: tuple[float, float],
     window: tuple[int, int, int, int] | None = None,

@@ -34,7 +34,7 @@ from nodes.contracts.views import pair_views
 
 from ._checks import check_pair, pair_is_raw, validate_pair
 from ._detect import search_band, segment_image
-from ._params import MaskFn, SegmenterParams
+from ._params import MaskFunction, SegmenterParams
 from ._size import expected_radius_px
 
 
@@ -74,7 +74,7 @@ def segment_pair(
     pair: dict,
     rectification: dict | None,
     params: SegmenterParams,
-    mask_fn: MaskFn,
+    mask_fn: MaskFunction,
     method: str,
     ctx=None,
     color_from: str | None = "params",

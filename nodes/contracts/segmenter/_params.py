@@ -1,22 +1,40 @@
 """Parameters and the port interface every segmenter shares: the object model, shadow and
-partial-view settings, and the type of a method's mask function.
+partial-view settings, and the type of a method's mask function (:class:`MaskFunction`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 from pydantic import model_validator
 
-from nodes.contracts.objects import ObjectSpec
+from nodes.contracts.objects import ObjectSpec, declared_object
 from stereograph.api import Field, In, Out, Params, PositiveRange
 
-# mask_fn(image_bgr, params, expected_radius_px_range_at_this_scale, scale, roi) -> uint8 0/255 mask;
-# ``scale`` is the downscale factor of ``image_bgr`` (1 = full resolution): divide sizes given in
-# full-resolution pixels by it. ``roi`` is True for the small full-resolution window around a
-# detected object (whose border is background) and False for a whole image.
-MaskFn = Callable[[np.ndarray, "SegmenterParams", tuple[float, float], int, bool], np.ndarray]
+
+class MaskFunction(Protocol):
+    """``mask(image_bgr, params, r_range_px, scale, roi) -> uint8 mask`` (255 = may be the object).
+
+    Parameters
+    ----------
+    image_bgr : ndarray
+        One rectified image (BGR or gray uint8), downscaled by ``scale`` while detecting.
+    params : SegmenterParams
+        The node's parameters (the method's own fields included).
+    r_range_px : (float, float)
+        Smallest and largest image radius of the object at this scale (px), from the calibration,
+        the object's radius and the working range.
+    scale : int
+        Downscale factor of ``image_bgr`` (1 = full resolution): divide full-resolution sizes by it.
+    roi : bool
+        True for the small full-resolution window around a detected object (its border is
+        background), False for a whole image.
+    """
+
+    def __call__(self, image_bgr: np.ndarray, params: SegmenterParams, r_range_px: tuple[float, float],
+                 scale: int = 1, roi: bool = False) -> np.ndarray: ...
+
 
 # Every segmenter has this interface, so that swapping methods is a one-line YAML change.
 SEGMENTER_INPUTS = {
@@ -162,8 +180,6 @@ def apply_objects(params: SegmenterParams, objects: dict | None, ctx=None) -> Se
     object is declared once for the pipeline); a warning when the node sets its own as well."""
     if objects is None:
         return params
-    from nodes.contracts.objects import declared_object
-
     obj, working_range = declared_object(objects, params.object_name)
     own = {"object", "working_range_cm"} & params.model_fields_set
     if own and ctx is not None:
