@@ -225,6 +225,9 @@ def test_a_middlebury_folder_is_paired_and_scored_against_its_own_truth(tmp_path
     (tmp_path / "mb.yaml").write_text(yaml.safe_dump(doc))
     out = tmp_path / "run"
     assert cli_main(["run", str(tmp_path / "mb.yaml"), "--out", str(out), "--no-cache"]) == 0
+    from nodes.sources.files import FilesParams, _reads
+
+    assert scene / names[2] in _reads(FilesParams(folder=str(scene)), tmp_path)  # in the cache key
     row = json.loads((out / "score" / "pairs.json").read_text())[0]
     assert row["pair"] == "Aloe" and row["truth"] == names[2]
     assert row["truth_scale"] == (1.0 if stored == "pfm" else 0.25)

@@ -54,9 +54,8 @@ def read_truth(path: Path) -> np.ndarray | None:
     truth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if truth is None:
         return None
-    truth = truth[..., 0] if truth.ndim == 3 else truth
-    truth = truth.astype(np.float32)
-    return np.where(np.isfinite(truth) & (truth > 0), truth, 0.0).astype(np.float32)
+    truth = (truth[..., 0] if truth.ndim == 3 else truth).astype(np.float32)
+    return np.where(np.isfinite(truth) & (truth > 0), truth, np.float32(0))
 
 
 def scale_from_data(disp: np.ndarray, truth_levels: np.ndarray) -> float:
@@ -70,7 +69,7 @@ def scale_from_data(disp: np.ndarray, truth_levels: np.ndarray) -> float:
 
 def _reads(params: DisparityScoreParams, pipeline_dir: Path) -> list[Path]:
     if params.truth is None:
-        return []  # the source's own files, read (and keyed) by the source
+        return []  # the truth beside each pair: source.files reads it into its key
     pattern = truth_path(params, pipeline_dir)
     return sorted(pattern.parent.glob(pattern.name)) if "{id}" in params.truth else [pattern]
 

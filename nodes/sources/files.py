@@ -41,8 +41,8 @@ class FilesParams(Params):
 def _reads(params: FilesParams, pipeline_dir: Path) -> list[Path]:
     folder = Path(params.folder).expanduser()
     folder = folder if folder.is_absolute() else pipeline_dir / folder
-    try:
-        paths = [p for _, l, r in pairs_for(params, folder)[0] for p in (l, r)]
+    try:  # the truth a dataset keeps beside a pair too: a report scores against it (keys follow its content)
+        paths = [p for _, l, r in pairs_for(params, folder)[0] for p in (l, r, truth_beside(l)) if p is not None]
     except NodeError:
         paths = []
     if params.truth:
