@@ -41,16 +41,15 @@ def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, sca
     dist = ndi.distance_transform_edt(fg)
     peaks = peak_local_max(dist, min_distance=max(1, int(params.min_separation * r_range_px[0])),
                            threshold_abs=0.5 * r_range_px[0], labels=ndi.label(fg)[0], exclude_border=False)
+    ids = np.arange(1, len(peaks) + 1)
     markers = np.zeros(dist.shape, np.int32)
-    markers[tuple(peaks.T)] = np.arange(1, len(peaks) + 1)
+    markers[tuple(peaks.T)] = ids
     labels = watershed(-dist, markers, mask=fg)
     # A piece is kept if it is about the disc of its inscribed radius: a ball's is; the pieces a
     # watershed cuts from a box, a corner or a strip are much larger than theirs.
-    ids = np.arange(1, len(peaks) + 1)
-    area = ndi.sum(np.ones_like(dist), labels, ids)
-    depth = ndi.maximum(dist, labels, ids)
-    keep = np.zeros(len(peaks) + 1, bool)
-    keep[1:] = area <= params.max_disc_excess * np.pi * np.square(depth)
+    area = np.bincount(labels.ravel(), minlength=len(ids) + 1)[1:]
+    keep = np.zeros(len(ids) + 1, bool)
+    keep[1:] = area <= params.max_disc_excess * np.pi * np.square(ndi.maximum(dist, labels, ids))
     return (keep[labels] & ~split_lines(labels)).astype(np.uint8) * 255
 
 

@@ -478,7 +478,7 @@ class RunState:
         rep.items_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
         if rep.items_failed and recorded:
             self.record(inst, base)  # again: which of its items failed is known now
-        rep.status = self._status(inst, producer, rep.items_failed, len(entries), bool(todo))
+        rep.status = self.status_of(inst, producer, rep.items_failed, len(entries), bool(todo))
         if inst.mapped and not entries:
             rep.messages.append(NO_ITEMS)
         self.release(inst.name)
@@ -571,8 +571,8 @@ class RunState:
             rep.items_ran += 1
         return ok
 
-    def _status(self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool) -> str:
-        """ran | cached | failed | partial, from what happened to the node's entries."""
+    def status_of(self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool) -> str:
+        """ran | cached | failed | partial, from what happened to the node's entries (streamed ones too)."""
         if (inst.name, None) in self.failed_items:
             return "failed"
         if (inst.mapped or producer) and n_failed and n_failed < n_entries:

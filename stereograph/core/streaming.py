@@ -500,14 +500,7 @@ def _member_status(run: Any, n: str, skipped: dict[str, str], base: dict | None)
     if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
         rep.status, rep.error = "skipped", skipped.get(n) or f"upstream node '{bad}' did not finish"
         return
-    if (n, None) in run.failed_items:
-        rep.status = "failed"
-    elif rep.items_failed and rep.items_failed < rep.items:
-        rep.status = "partial"
-    elif rep.items_failed:
-        rep.status = "failed"
-    else:
-        rep.status = "ran" if rep.items_ran else "cached"
+    rep.status = run.status_of(inst, False, rep.items_failed, rep.items, bool(rep.items_ran))
     if not rep.items:
         rep.messages.append(NO_ITEMS)
     if run.store is not None and n not in run.memory_only:
