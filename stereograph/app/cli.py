@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from stereograph import __version__
-from stereograph.app import console
 from stereograph.app.console import echo_entry, non_negative_int, positive_int, size_gb
+from stereograph.app.console import seconds as seconds_arg
 from stereograph.app.progress import Mutable, PlainProgress, RichProgress
 from stereograph.core import registry
 from stereograph.core.errors import ConfigError, sentence
@@ -678,7 +678,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
                     "included, into cycles/<n>/")
     sp.add_argument("--verbose", action="store_true", help="--repeat: a line per node in every cycle, not only in "
                     "the first (the others get one line per cycle)")
-    sp.add_argument("--progress-interval", type=console.seconds, default=5.0, metavar="SECONDS",
+    sp.add_argument("--progress-interval", type=seconds_arg, default=5.0, metavar="SECONDS",
                     help="when output is not a terminal: seconds between progress lines per node (default 5)")
     sp.set_defaults(fn=cmd_run)
     pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
