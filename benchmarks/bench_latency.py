@@ -84,7 +84,7 @@ def main(argv=None) -> int:
 
     cv2.setNumThreads(1)
     import nodes.actuators._bus as bus_mod
-    import nodes.actuators.servo_sim as sim_mod
+    import simbench.servo_sim as sim_mod
 
     emu_core = a.emulator_core if a.emulator_core is not None else (a.core if a.core >= 0 else None)
     sim_start = sim_mod.ServoSim.start

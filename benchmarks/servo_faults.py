@@ -15,11 +15,11 @@ import argparse
 import time
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan
-from nodes.actuators.servo_sim import ERR_ANGLE, ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim
 from nodes.calibrators.hand_eye import HandEyeParams, hand_eye
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof
 from nodes.ik.arm import ArmParams, build_arm_model
 from nodes.ik.pick_sequence import PickParams, pick_sequence
+from simbench.servo_sim import ERR_ANGLE, ERR_OVERHEAT, ERR_OVERLOAD, ERR_VOLTAGE, Faults, ServoSim
 from stereograph.core.api import NodeError
 
 IDS = [1, 2, 3, 4, 5]

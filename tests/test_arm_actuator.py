@@ -11,13 +11,13 @@ pytest.importorskip("dynamixel_sdk")
 from nodes.actuators._plan import sync_write_packet, waypoint_data  # noqa: E402
 from nodes.actuators.dynamixel import DynamixelParams, dynamixel, execute_plan  # noqa: E402
 from nodes.actuators.log import LogParams, log  # noqa: E402
-from nodes.actuators.servo_sim import ServoSim, instruction_packet  # noqa: E402
 from nodes.calibrators.hand_eye import HandEyeParams, hand_eye  # noqa: E402
 from nodes.contracts.arm import servo_limits_units  # noqa: E402
 from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
 from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
 from nodes.ik.numeric import NumericParams, numeric  # noqa: E402
 from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
+from simbench.servo_sim import ServoSim, instruction_packet  # noqa: E402
 from stereograph.core.api import NodeError, RunContext  # noqa: E402
 
 ARM = build_arm_model(ArmParams())

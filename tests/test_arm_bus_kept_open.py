@@ -18,8 +18,8 @@ pytest.importorskip("dynamixel_sdk")
 from test_arm_actuator import ARM, FAST, make_plan  # noqa: E402
 
 from nodes.actuators.dynamixel import DynamixelParams, _run, dynamixel, execute_plan, open_bus  # noqa: E402
-from nodes.actuators.servo_sim import ServoSim  # noqa: E402
 from nodes.contracts.arm import servo_limits_units  # noqa: E402
+from simbench.servo_sim import ServoSim  # noqa: E402
 from stereograph.core.api import NodeError, RunContext  # noqa: E402
 from stereograph.core.calls import close_resources  # noqa: E402
 

@@ -12,7 +12,11 @@ import pytest
 pytest.importorskip("dynamixel_sdk")
 
 from nodes.actuators.dynamixel import DynamixelParams, execute_plan  # noqa: E402
-from nodes.actuators.servo_sim import (  # noqa: E402
+from nodes.contracts.arm import servo_limits_units  # noqa: E402
+from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
+from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
+from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
+from simbench.servo_sim import (  # noqa: E402
     ERR_ANGLE,
     ERR_OVERHEAT,
     ERR_OVERLOAD,
@@ -20,10 +24,6 @@ from nodes.actuators.servo_sim import (  # noqa: E402
     Faults,
     ServoSim,
 )
-from nodes.contracts.arm import servo_limits_units  # noqa: E402
-from nodes.ik.analytic_3dof import AnalyticParams, analytic_3dof  # noqa: E402
-from nodes.ik.arm import ArmParams, build_arm_model  # noqa: E402
-from nodes.ik.pick_sequence import PickParams, pick_sequence  # noqa: E402
 from stereograph.core.api import NodeError  # noqa: E402
 
 ARM = build_arm_model(ArmParams())

@@ -18,7 +18,7 @@ from dynamixel_sdk import (  # noqa: E402
     PortHandler,
 )
 
-from nodes.actuators.servo_sim import (  # noqa: E402
+from simbench.servo_sim import (  # noqa: E402
     ERR_ANGLE,
     ERR_CHECKSUM,
     ERR_INSTRUCTION,

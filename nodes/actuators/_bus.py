@@ -23,10 +23,7 @@ import errno
 import time
 from dataclasses import dataclass, field
 
-from stereograph.api import NodeError
-
-from ._plan import ADDR_GOAL, REGISTER_NAMES
-from .servo_sim import (
+from nodes.contracts.dynamixel_protocol import (
     ERR_ANGLE,
     ERR_CHECKSUM,
     ERR_INSTRUCTION,
@@ -41,6 +38,9 @@ from .servo_sim import (
     checksum,
     decode_error,
 )
+from stereograph.api import NodeError
+
+from ._plan import ADDR_GOAL, REGISTER_NAMES
 
 try:  # what pyserial raises when the port itself fails: SerialException is an OSError; tcflush raises termios.error
     import termios

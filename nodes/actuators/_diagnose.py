@@ -16,8 +16,16 @@ PING yes, READ no         WRITE answered too -> READ replies are lost (not a set
 
 from __future__ import annotations
 
+from nodes.contracts.dynamixel_protocol import (
+    ERR_ANGLE,
+    ERR_OVERHEAT,
+    ERR_OVERLOAD,
+    ERR_RANGE,
+    ERR_VOLTAGE,
+    decode_error,
+)
+
 from ._bus import Bus, PortLost, ServoFailure
-from .servo_sim import ERR_ANGLE, ERR_OVERHEAT, ERR_OVERLOAD, ERR_RANGE, ERR_VOLTAGE, decode_error
 
 ADDR_STATUS_RETURN_LEVEL, ADDR_LED = 16, 25
 

@@ -73,7 +73,7 @@ def waypoint_data(w: dict) -> dict[int, tuple[int, int]]:
 
 def sync_write_packet(data: dict[int, tuple[int, int]]) -> bytes:
     """The Protocol 1.0 SYNC_WRITE packet (goal position + moving speed, 4 bytes per servo)."""
-    from .servo_sim import BROADCAST_ID, INST_SYNC_WRITE, instruction_packet
+    from nodes.contracts.dynamixel_protocol import BROADCAST_ID, INST_SYNC_WRITE, instruction_packet
     params = bytearray([ADDR_GOAL, 4])
     for sid, (goal, speed) in data.items():
         params += bytes([sid, goal & 0xFF, goal >> 8, speed & 0xFF, speed >> 8])
@@ -112,7 +112,9 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
             skipped[item] = "not in items"
     for item in order:
         p = plans[item]
-        if p.get("refused"):
+        if p.get("idle"):  # nothing to do (a cleared table): not a refusal
+            skipped[item] = f"idle: {p.get('reason')}"
+        elif p.get("refused"):
             skipped[item] = f"refused: {p.get('reason')}"
         elif sel.split != "all" and p.get("split") not in (None, sel.split):
             skipped[item] = f"split {p.get('split')}"
@@ -120,6 +122,8 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
             skipped[item] = f"max_picks {sel.max_picks} reached"
         else:
             chosen.append(p)
+    if not chosen and skipped and all(r.startswith("idle") for r in skipped.values()):
+        return [], skipped
     if not chosen:
         reasons = sorted({r.split(":")[0] for r in skipped.values()})
         first_item = next((i for i, r in skipped.items() if r.startswith("refused")), None)

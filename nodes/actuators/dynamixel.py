@@ -1,7 +1,7 @@
 """``actuator.dynamixel``: run a PickPlan on AX-12A servos with the real dynamixel-sdk (Protocol 1.0).
 
 The same code path for hardware and emulation: with ``port: sim`` the node starts the project's
-emulator (:mod:`nodes.actuators.servo_sim`) on a pseudo-terminal and talks to it through the real
+emulator (:mod:`simbench.servo_sim`) on a pseudo-terminal and talks to it through the real
 ``PortHandler`` / ``PacketHandler(1.0)`` / ``GroupSyncWrite``.
 
 Safety order: (1) every goal of the plan is checked against the joint limits before the port is
@@ -32,7 +32,16 @@ import time
 from pathlib import Path
 from typing import Literal
 
-from nodes.contracts.arm import joint, joints_to_servo_units, servo_limits_units, speed_to_units
+from nodes.contracts.arm import (
+    fk,
+    joint,
+    joints_to_servo_units,
+    servo_limits_units,
+    servo_units_to_joints,
+    speed_to_units,
+)
+from simbench.servo_sim import Faults, ServoSim
+from simbench.world import ArmFollower
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from . import _diagnose
@@ -47,7 +56,6 @@ from ._plan import (
     waypoint_data,
 )
 from ._stop import Terminated, hold, rest, stop_signals_as_interrupt
-from .servo_sim import Faults, ServoSim
 
 ADDR_CW_LIMIT, ADDR_TORQUE, ADDR_POSITION, ADDR_MOVING = 6, 24, 36, 46
 ADDR_MAX_TORQUE, ADDR_TORQUE_LIMIT = 14, 34
@@ -489,15 +497,17 @@ def _servo_log(plan, params, port_path, bus: Bus, reached, ok: bool, t0: float) 
 
 
 @node("actuator.dynamixel",
-      inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan.")},
+      inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True, description="Every item's plan."),
+              "world": In("BenchWorld", optional=True,
+                          description="port sim: a simulated table (source.sim_bench) the emulated arm acts on.")},
       outputs={"log": Out("ServoLog", save=True, description="Commands sent, positions reached, timing."),
                "summary": Out("PickSummary", save=True, headline=True,
                                   description="Object position, joint angles, servo goals.")},
       params=DynamixelParams, version="1", cacheable=False)
-def dynamixel(params: DynamixelParams, arm, plans, ctx=None):
+def dynamixel(params: DynamixelParams, arm, plans, world=None, ctx=None):
     """Run pick plans on AX-12A servos (real dynamixel-sdk, Protocol 1.0); port 'sim' = the emulator."""
     try:
-        return _act(params, arm, plans, ctx)
+        return _act(params, arm, plans, ctx, world)
     except KeyboardInterrupt as e:
         if not getattr(e, "servo_logged", False):  # before or between motions: no goal of this call was written
             _save_interrupt_log(ctx, {"stop": {
@@ -519,7 +529,21 @@ def _save_interrupt_log(ctx, log: dict) -> Path | None:
     return None
 
 
-def _act(params: DynamixelParams, arm, plans, ctx) -> dict:
+def _emulator(params: DynamixelParams, arm, world) -> ServoSim:
+    """The AX-12A emulator for ``port: sim``; with a simulated table, its arm moves the table's balls
+    and starts at the home pose (where a real arm rests before a run)."""
+    ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
+    follow = positions = None
+    if world is not None:
+        follow = ArmFollower(world["path"], arm, world["T_table_from_base"], fk, servo_units_to_joints)
+        home = {j["name"]: j.get("home_deg", j.get("open_deg", 0.0)) for j in arm["joints"]}
+        home["gripper"] = joint(arm, "gripper")["open_deg"]
+        positions = {int(i): float(u) for i, u in joints_to_servo_units(arm, home).items()}
+    return ServoSim(ids, faults=params.sim_faults.to_faults(), time_scale=params.sim_time_scale,
+                    positions=positions, on_motion=follow).start()
+
+
+def _act(params: DynamixelParams, arm, plans, ctx, world=None) -> dict:
     chosen, skipped = select_plans(plans, params)
     for p in chosen:  # every chosen plan is checked before opening or starting anything
         check_plan(p, arm)
@@ -529,12 +553,7 @@ def _act(params: DynamixelParams, arm, plans, ctx) -> dict:
     keep = ctx is not None and ctx.resources is not None
     sim = None
     if params.port == "sim":
-        ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
-
-        def start_sim() -> ServoSim:
-            return ServoSim(ids, faults=params.sim_faults.to_faults(), time_scale=params.sim_time_scale).start()
-
-        sim = ctx.resource("emulator", start_sim) if keep else start_sim()
+        sim = ctx.resource("emulator", lambda: _emulator(params, arm, world)) if keep else _emulator(params, arm, world)
     try:
         port_path = sim.port_path if sim else params.port
         bus = ctx.resource(f"bus {port_path}", lambda: open_bus(params, port_path)) if keep else None

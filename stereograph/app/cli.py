@@ -355,6 +355,8 @@ def cmd_run(args) -> int:
     from stereograph.core.runner import run_graph
 
     graph = _load_graph(args)
+    if args.repeat is None and graph.doc.repeat is not None:  # the pipeline's own loop (`repeat:`)
+        args.repeat = graph.doc.repeat
     con = _console()
     interactive = sys.stdout.isatty() and not args.json and args.repeat is None
     # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with --json);

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from stereograph.core import outputs as outputs_mod
+from stereograph.core.api import STOP_LOOP
 from stereograph.core.errors import ConfigError
 
 SMALL_JSON = 6000  # characters: larger values are left out of cycles.jsonl
@@ -101,6 +102,7 @@ class Loop:
     live: list[str] = field(default_factory=list)
     stopped: str = ""  # why the loop ended, in words
     interrupted: bool = False
+    finished: bool = False  # a node asked the loop to end (ctx.stop_loop): its work is done
 
     @property
     def n_ok(self) -> int:
@@ -149,8 +151,8 @@ class Loop:
 
     @property
     def completed(self) -> bool:
-        """Ran every cycle asked for (never true for ``repeat`` 0)."""
-        return self.stopped.startswith("ran the ")
+        """Ran every cycle asked for, or a node said its work is done (ctx.stop_loop)."""
+        return self.finished or self.stopped.startswith("ran the ")
 
     def _cycles(self, run: Any, selected: list[str], live: set[str], log_path: Path) -> None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -200,6 +202,11 @@ class Loop:
             if self.interrupted:
                 self.stopped = (f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
                                 if cycle.failed_node else f"stopped by an interrupt as cycle {k} began")
+                return
+            asked = run.resources.pop(STOP_LOOP, None)
+            if asked is not None:
+                self.stopped = f"stopped by node '{asked[0]}': {asked[1]}"
+                self.finished = True
                 return
             outside = [n for n in order if n not in live and run.reports[n].status in ("failed", "skipped")]
             if outside:

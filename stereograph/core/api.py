@@ -258,6 +258,10 @@ class Out:
     headline: bool = False
 
 
+STOP_LOOP = "stereograph:stop-loop"
+"""The key of :meth:`RunContext.stop_loop`'s request among the run's resources: (node, reason)."""
+
+
 @dataclass
 class RunContext:
     """What a node may learn about the run it is part of.
@@ -318,6 +322,12 @@ class RunContext:
         if key not in self.resources:
             self.resources[key] = open_fn()
         return self.resources[key]
+
+    def stop_loop(self, reason: str) -> None:
+        """Ask a ``--repeat`` loop (or a pipeline's ``repeat:``) to end after this cycle, in words
+        (``"the table is clear"``): the cycle itself finishes normally. No effect outside a loop."""
+        if self.resources is not None:
+            self.resources[STOP_LOOP] = (self.node_name, str(reason))
 
     def progress(self, done: float, total: float, unit: str = "items") -> None:
         """Report progress inside this call: ``ctx.progress(37, 120, "scenes")``.

@@ -23,7 +23,7 @@ from stereograph.core.errors import ConfigError, UsageError, Where, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 
-TOP_KEYS = {"name", "description", "include", "plugins", "defaults", "variants", "compare", "nodes"}
+TOP_KEYS = {"name", "description", "include", "plugins", "defaults", "variants", "compare", "repeat", "nodes"}
 NODE_KEYS = {"type", "params", "inputs", "description"}
 
 
@@ -41,6 +41,7 @@ class PipelineDoc:
     lines: dict[Path_, Where] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
     compare_metric: str | None = None  # `compare: {metric: NAME[:max|:abs]}`: what `stereograph compare` ranks by
+    repeat: int | None = None  # `repeat: N`: cycles of the live part a plain `run` runs (0 = until stopped)
     broken: set[str] = field(default_factory=set)  # nodes left out for a problem of their own (already reported)
 
     @property
@@ -406,6 +407,7 @@ def _include(doc: PipelineDoc, data: dict, lines: dict, where: Callable[..., Whe
         doc.lines.update(sub.lines)
         doc.variants.update(sub.variants)
         doc.compare_metric = sub.compare_metric or doc.compare_metric
+        doc.repeat = sub.repeat if sub.repeat is not None else doc.repeat
 
 
 def _top_level(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> None:
@@ -431,6 +433,17 @@ def _top_level(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> Non
                               hint="for example 'compare: {metric: NAME}', NAME a metric the nodes declare (lowest "
                                    "is best; NAME:max for highest, NAME:abs for closest to zero)")
         doc.compare_metric = block["metric"]
+    doc.repeat = _repeat(data, where) if data.get("repeat") is not None else doc.repeat
+
+
+def _repeat(data: dict, where: Callable[..., Where]) -> int:
+    """``repeat: N``, checked."""
+    n = data["repeat"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise ConfigError(f"'repeat' must be a whole number >= 0, got {n!r}", where("repeat"),
+                          hint="for example 'repeat: 30' (cycles of the live part; 0 = until a node or Ctrl-C "
+                               "stops the loop); `run --repeat N` overrides it")
+    return n
 
 
 def _node_decl(base: dict, name: str, decl: Any, where: Callable[..., Where]) -> dict:

@@ -5,6 +5,7 @@ the object. :func:`segmenter` turns it into a complete ``segmenter.*`` node with
 (:data:`SEGMENTER_INPUTS`, :data:`SEGMENTER_OUTPUTS`), the candidate search, the checks between
 left and right, partial views, sub-pixel refinement and the overlay (``_pair.segment_pair``).
 Parameters derive from :class:`SegmenterParams` (the object, the working range, the checks).
+:func:`find_instances` finds every instance of an object instead of one (``segmenter.instances``).
 Pixel helpers a method may use: :func:`fill_holes`, :func:`max_hole_area`,
 :func:`structuring_element`, :func:`to_channel`, :func:`gaussian_blur`.
 """
@@ -16,7 +17,9 @@ from collections.abc import Callable
 from stereograph.api import node
 
 from ._blur import gaussian_blur
-from ._pair import segment_pair
+from ._checks import pair_is_raw, validate_pair
+from ._instances import find_instances, same_ball
+from ._pair import as_bgr, segment_pair
 from ._params import (
     SEGMENTER_INPUTS,
     SEGMENTER_OUTPUTS,
@@ -27,10 +30,12 @@ from ._params import (
     apply_objects,
 )
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
+from ._size import expected_radius_px
 
 __all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
-           "apply_appearance", "apply_objects", "fill_holes", "gaussian_blur", "max_hole_area", "segment_pair",
-           "segmenter", "structuring_element", "to_channel"]
+           "apply_appearance", "apply_objects", "as_bgr", "expected_radius_px", "fill_holes", "find_instances",
+           "gaussian_blur", "max_hole_area", "pair_is_raw", "same_ball", "segment_pair", "segmenter",
+           "structuring_element", "to_channel", "validate_pair"]
 
 
 def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, version: str = "1",

@@ -159,6 +159,7 @@ def segment_image(
     window: tuple[int, int, int, int] | None = None,
     K: np.ndarray | None = None,
     rejected: dict | None = None,
+    only_window: bool = False,
 ) -> tuple[np.ndarray, dict | None, str | None]:
     """Find the object in one rectified image.
 
@@ -170,7 +171,8 @@ def segment_image(
     visible or touching one (:mod:`._partial_pass`; the region then has a ``partial`` entry).
     ``rejected`` (a dict), optional: filled with the outlines and one-word reasons of the
     candidates that lost in the detection pass that decided (``{"px": [...], "why": [...]}``,
-    see :func:`rejected_outlines`).
+    see :func:`rejected_outlines`). ``only_window``: never fall back to the whole image (one of
+    several objects, each in its own window).
 
     Returns
     -------
@@ -190,7 +192,8 @@ def segment_image(
         passes.append((2 * s, window, _MIN_RADIUS_COARSE_PX))
     if window is not None:
         passes.append((s, window, 0.0))
-    passes.append((s, None, 0.0))
+    if not (only_window and window is not None):
+        passes.append((s, None, 0.0))
     best = None
     for level, where, r_floor in passes:
         best, why, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, level, where, r_floor,

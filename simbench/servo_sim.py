@@ -1,4 +1,4 @@
-"""An AX-12A servo emulator speaking Dynamixel Protocol 1.0 on a pseudo-terminal.
+"""An AX-12A servo emulator (a bench tool, not a node) speaking Dynamixel Protocol 1.0 on a pseudo-terminal.
 
 The emulator is a real serial peer: it opens a pty pair, puts the slave side in raw mode and
 serves the master side from a background thread, so the real ``dynamixel_sdk`` (PortHandler,
@@ -49,81 +49,37 @@ import tty
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-# --------------------------------------------------------------------------- protocol constants
-INST_PING, INST_READ, INST_WRITE, INST_REG_WRITE, INST_ACTION, INST_RESET = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
-INST_SYNC_WRITE, INST_BULK_READ = 0x83, 0x92
-INSTRUCTION_NAMES = {INST_PING: "PING", INST_READ: "READ", INST_WRITE: "WRITE", INST_REG_WRITE: "REG_WRITE",
-                     INST_ACTION: "ACTION", INST_RESET: "RESET", INST_SYNC_WRITE: "SYNC_WRITE",
-                     INST_BULK_READ: "BULK_READ"}
-BROADCAST_ID = 0xFE
-ERR_VOLTAGE, ERR_ANGLE, ERR_OVERHEAT, ERR_RANGE, ERR_CHECKSUM, ERR_OVERLOAD, ERR_INSTRUCTION = 1, 2, 4, 8, 16, 32, 64
-ERROR_WORDS = {ERR_VOLTAGE: "input voltage error", ERR_ANGLE: "angle limit error", ERR_OVERHEAT: "overheating error",
-               ERR_RANGE: "range error", ERR_CHECKSUM: "checksum error", ERR_OVERLOAD: "overload error",
-               ERR_INSTRUCTION: "instruction error"}
-
-# AX-12A control table: address -> (name, size, writable, min, max, default). None default = dynamic.
-CONTROL_TABLE: dict[int, tuple[str, int, bool, int, int, int | None]] = {
-    0: ("model_number", 2, False, 0, 65535, 12),
-    2: ("firmware_version", 1, False, 0, 255, 24),
-    3: ("id", 1, True, 0, 253, 1),
-    4: ("baud_rate", 1, True, 0, 254, 1),
-    5: ("return_delay_time", 1, True, 0, 254, 250),
-    6: ("cw_angle_limit", 2, True, 0, 1023, 0),
-    8: ("ccw_angle_limit", 2, True, 0, 1023, 1023),
-    11: ("temperature_limit", 1, True, 0, 150, 70),
-    12: ("min_voltage_limit", 1, True, 50, 250, 60),
-    13: ("max_voltage_limit", 1, True, 50, 250, 140),
-    14: ("max_torque", 2, True, 0, 1023, 1023),
-    16: ("status_return_level", 1, True, 0, 2, 2),
-    17: ("alarm_led", 1, True, 0, 127, 36),
-    18: ("shutdown", 1, True, 0, 127, 36),
-    24: ("torque_enable", 1, True, 0, 1, 0),
-    25: ("led", 1, True, 0, 1, 0),
-    26: ("cw_compliance_margin", 1, True, 0, 255, 1),
-    27: ("ccw_compliance_margin", 1, True, 0, 255, 1),
-    28: ("cw_compliance_slope", 1, True, 0, 254, 32),
-    29: ("ccw_compliance_slope", 1, True, 0, 254, 32),
-    30: ("goal_position", 2, True, 0, 1023, None),
-    32: ("moving_speed", 2, True, 0, 1023, 0),
-    34: ("torque_limit", 2, True, 0, 1023, 1023),
-    36: ("present_position", 2, False, 0, 1023, None),
-    38: ("present_speed", 2, False, 0, 2047, 0),
-    40: ("present_load", 2, False, 0, 2047, 0),
-    42: ("present_voltage", 1, False, 0, 255, 120),
-    43: ("present_temperature", 1, False, 0, 255, 32),
-    44: ("registered", 1, False, 0, 1, 0),
-    46: ("moving", 1, False, 0, 1, 0),
-    47: ("lock", 1, True, 0, 1, 0),
-    48: ("punch", 2, True, 32, 1023, 32),
-}
-TABLE_SIZE = 50
-ADDR = {v[0]: k for k, v in CONTROL_TABLE.items()}
-EEPROM_END = 24
-UNITS_PER_DEG = 1023.0 / 300.0
-SPEED_RPM_PER_UNIT = 0.111
-MAX_RPM = 59.0  # AX-12A no-load speed at 12 V; moving speed 0 = "maximum" = this
-
-
-def checksum(body: Iterable[int]) -> int:
-    """Protocol 1.0 checksum of the bytes after the 0xFF 0xFF header (id, length, ...)."""
-    return (~sum(body)) & 0xFF
-
-
-def status_packet(dxl_id: int, error: int, params: bytes = b"") -> bytes:
-    """A Protocol 1.0 status packet: FF FF id len error params checksum."""
-    body = bytes([dxl_id, len(params) + 2, error]) + bytes(params)
-    return b"\xff\xff" + body + bytes([checksum(body)])
-
-
-def instruction_packet(dxl_id: int, instruction: int, params: bytes = b"") -> bytes:
-    """A Protocol 1.0 instruction packet (for tests and tools that speak to the emulator directly)."""
-    body = bytes([dxl_id, len(params) + 2, instruction]) + bytes(params)
-    return b"\xff\xff" + body + bytes([checksum(body)])
-
-
-def decode_error(error: int) -> list[str]:
-    """Words for the error bits of a Protocol 1.0 status packet."""
-    return [w for bit, w in ERROR_WORDS.items() if error & bit]
+from nodes.contracts.dynamixel_protocol import (  # noqa: F401  (re-exported: the emulator speaks it)
+    ADDR,
+    BROADCAST_ID,
+    CONTROL_TABLE,
+    EEPROM_END,
+    ERR_ANGLE,
+    ERR_CHECKSUM,
+    ERR_INSTRUCTION,
+    ERR_OVERHEAT,
+    ERR_OVERLOAD,
+    ERR_RANGE,
+    ERR_VOLTAGE,
+    ERROR_WORDS,
+    INST_ACTION,
+    INST_BULK_READ,
+    INST_PING,
+    INST_READ,
+    INST_REG_WRITE,
+    INST_RESET,
+    INST_SYNC_WRITE,
+    INST_WRITE,
+    INSTRUCTION_NAMES,
+    MAX_RPM,
+    SPEED_RPM_PER_UNIT,
+    TABLE_SIZE,
+    UNITS_PER_DEG,
+    checksum,
+    decode_error,
+    instruction_packet,
+    status_packet,
+)
 
 
 # --------------------------------------------------------------------------- faults
@@ -335,11 +291,15 @@ class ServoSim:
         Honour the return-delay-time register (2 us per unit; 500 us by default).
     on_write : callable, optional
         Called with each logged register write (a dict like the entries of :attr:`log`).
+    on_motion : callable, optional
+        Called with ``{id: present position (units, float)}`` each time the emulated motion advances
+        (every packet): how a simulated world follows the arm (:mod:`simbench.world`). An exception
+        in it is kept in :attr:`motion_error`, never raised into the serving thread.
     """
 
     def __init__(self, ids: Iterable[int] = (1, 2, 3, 4, 5), *, faults: Faults | None = None,
                  time_scale: float = 1.0, positions: dict[int, float] | None = None, link: str | None = None,
-                 check_baud: bool = True, return_delay: bool = True, on_write=None):
+                 check_baud: bool = True, return_delay: bool = True, on_write=None, on_motion=None):
         self.time_scale = float(time_scale)
         self.servos: dict[int, AX12] = {}
         for i in ids:
@@ -350,6 +310,8 @@ class ServoSim:
         self.check_baud = check_baud
         self.return_delay = return_delay
         self.on_write = on_write
+        self.on_motion = on_motion
+        self.motion_error: BaseException | None = None
         self.log: list[dict] = []
         self.fault_log: list[dict] = []
         self.packets: list[dict] = []
@@ -577,6 +539,11 @@ class ServoSim:
             s.jam = self.faults.jammed_at_units.get(s.id)
             s.jam_alarm_s = self.faults.jam_alarm_s
             s.update(self.time_scale)
+        if self.on_motion is not None and self.motion_error is None:
+            try:
+                self.on_motion({i: s.position for i, s in self.servos.items()})
+            except Exception as e:  # noqa: BLE001 -- the bus must keep answering; the caller reads it
+                self.motion_error = e
 
     def _log_changes(self, instruction: int, dxl_id: int, changes, error: int) -> None:
         t = round(time.monotonic() - self.t0, 6)

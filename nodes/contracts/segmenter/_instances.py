@@ -1,0 +1,133 @@
+"""Every instance of one object in a rectified pair: each whole, round ball is its own result.
+
+1. **Candidates** in each image at the detection level: the method's mask, shadow suppression,
+   components of a plausible size, roundness and colour (``_candidates``' rules, without the
+   choice of one).
+2. **Match** left and right: same rows, a disparity inside the working range *and* the one the
+   ball's image size predicts (d ~ B r_px / R). A left candidate with exactly one partner, which
+   has no other, is an instance; two that could swap partners cannot be told apart and are
+   refused, as is a ball-sized region of the object's colour that is not round (touching balls
+   merged into one region).
+3. **Refine and check** each instance in its own window (``segment_image(only_window=True)``:
+   sub-pixel outline, partial views) and check the two regions (``check_pair``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._candidates import _region, candidates
+from ._checks import check_pair
+from ._color import object_color_score
+from ._detect import segment_image
+from ._params import MaskFunction, SegmenterParams
+from ._shadow import suppress_shadow_regions
+from ._size import auto_downscale
+
+SIZE_FACTOR = 1.3  # the disparity may differ from the size-predicted one by this factor (off-axis, noise)
+
+
+def _plausible(view, mask_fn: MaskFunction, params: SegmenterParams, r_range_px) -> tuple[list[dict], list[dict]]:
+    """(round candidates, refused ball-coloured regions), full-resolution coordinates."""
+    h, w = view.shape[:2]
+    s = auto_downscale(r_range_px[0], params.detect_downscale)
+    small = view.coarse(s, 0, 0, w, h)
+    sx, sy = w / small.shape[1], h / small.shape[0]
+    r_small = (r_range_px[0] / s, r_range_px[1] / s)
+    m = mask_fn(small, params, r_small, s, False)
+    if params.shadow.enabled:
+        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
+        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
+    a_min, a_max = math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2
+    coloured = params.object.color_bgr is not None or params.object.hue_range_deg is not None
+    ok, refused = [], []
+    for c in candidates(m, min_area_px=max(4.0, 0.5 * a_min)):
+        score = object_color_score(*_region(small, c), params.object) if coloured else None
+        if score is not None and score > 1.0:
+            continue
+        x0, y0, x1, y1 = c["bbox"]
+        full = {"centroid_px": [(c["centroid_px"][0] + 0.5) * sx - 0.5, (c["centroid_px"][1] + 0.5) * sy - 0.5],
+                "radius_px": math.sqrt(c["area_px"] / math.pi) * s, "color_score": score,
+                "bbox": [int(x0 * sx), int(y0 * sy), int(math.ceil((x1 + 1) * sx)), int(math.ceil((y1 + 1) * sy))]}
+        if a_min <= c["area_px"] <= a_max and c["roundness"] >= params.min_roundness:
+            ok.append(full)
+        elif coloured and a_min <= c["area_px"] <= 4.0 * a_max:
+            full["reason"] = (f"a region of the object's colour that is not round (roundness {c['roundness']:.2f}"
+                              f" < {params.min_roundness}): balls touching each other or something else")
+            refused.append(full)
+    return ok, refused
+
+
+def _partners(a: dict, rights: list[dict], params: SegmenterParams, rect: dict) -> list[int]:
+    """Indices of the right candidates that can be ``a``'s other view."""
+    fb = float(rect["f_px"]) * abs(float(rect["baseline_cm"]))
+    dcx = float(rect.get("cx_px", 0.0)) - float(rect.get("cx_right_px", rect.get("cx_px", 0.0)))
+    z0, z1 = sorted(params.working_range_cm)
+    d_lo, d_hi = fb / (1.25 * z1), fb / (0.75 * z0)
+    d_size = abs(float(rect["baseline_cm"])) * a["radius_px"] / params.object.radius_cm
+    out = []
+    for j, b in enumerate(rights):
+        d = a["centroid_px"][0] - b["centroid_px"][0] - dcx
+        dv = abs(a["centroid_px"][1] - b["centroid_px"][1])
+        if dv > params.max_row_offset_px + 0.25 * a["radius_px"] + 2.0 or not d_lo <= d <= d_hi:
+            continue
+        if d_size > 0 and not 1 / SIZE_FACTOR <= d / d_size <= SIZE_FACTOR:
+            continue
+        out.append(j)
+    return out
+
+
+def _window(c: dict, shape) -> tuple[int, int, int, int]:
+    pad = int(math.ceil(0.6 * c["radius_px"] + 12))
+    x0, y0, x1, y1 = c["bbox"]
+    return max(0, x0 - pad), max(0, y0 - pad), min(shape[1], x1 + pad), min(shape[0], y1 + pad)
+
+
+def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_range_px, rect: dict,
+                   K1=None, K2=None) -> list[dict]:
+    """Every instance of ``params.object`` in a rectified pair of views.
+
+    Returns
+    -------
+    list of dict
+        ``{"found", "reason", "left", "right", "left_mask", "right_mask", "color_score"}`` per instance
+        (regions as ``segment_image`` gives them; masks full-size bool), refused ones with their reason
+        and the left point they concern (``left_px``), in left-image reading order.
+    """
+    lefts, l_refused = _plausible(vl, mask_fn, params, r_range_px)
+    rights, _ = _plausible(vr, mask_fn, params, r_range_px)
+    options = [_partners(a, rights, params, rect) for a in lefts]
+    takers = {j: [i for i, o in enumerate(options) if j in o] for j in range(len(rights))}
+    out = [{"found": False, "reason": c["reason"], "left_px": c["centroid_px"]} for c in l_refused]
+    for i, a in enumerate(lefts):
+        if not options[i]:
+            out.append({"found": False, "left_px": a["centroid_px"],
+                        "reason": "no ball in the right image on its rows at the distance its size says"})
+            continue
+        if len(options[i]) > 1 or len(takers[options[i][0]]) > 1:
+            out.append({"found": False, "left_px": a["centroid_px"],
+                        "reason": "two balls of this object on the same image rows: which right view belongs to "
+                                  "which left one cannot be told apart"})
+            continue
+        b = rights[options[i][0]]
+        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1,
+                                       only_window=True)
+        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range_px, window=_window(b, vr.shape), K=K2,
+                                       only_window=True)
+        if lreg is None or rreg is None:
+            why = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
+        else:
+            why = check_pair(lreg, rreg, params, rect)
+        out.append({"found": why is None, "reason": why, "left": lreg, "right": rreg, "left_mask": lm,
+                    "right_mask": rm, "left_px": a["centroid_px"], "color_score": a["color_score"]})
+    return sorted(out, key=lambda r: (round(r["left_px"][1] / 8), r["left_px"][0]))
+
+
+def same_ball(a: dict, b: dict) -> bool:
+    """Two instances (of two objects) that are one ball: their left points within a radius."""
+    r = max((x["left"] or {}).get("area_px", 0.0) for x in (a, b) if x.get("left")) if (a.get("left") or
+                                                                                       b.get("left")) else 0.0
+    r_px = math.sqrt(r / math.pi) if r else 6.0
+    return bool(np.hypot(*np.subtract(a["left_px"], b["left_px"])) < r_px)

@@ -1,0 +1,95 @@
+"""Clearing the table, one pick a cycle: what is left, did the last pick work, which ball next.
+
+Pure functions on plain data; ``ik.clear_table`` runs them and keeps :class:`Memory` across the
+cycles of the loop. Positions are in the arm-base frame (cm) unless a name says ``table``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from nodes.contracts.arm import JOINTS, fk
+
+__all__ = ["Memory", "at_place", "look_again", "path_clearance", "sort_picks"]
+
+
+@dataclass
+class Memory:
+    """What the planner remembers between cycles (one per run)."""
+
+    last: dict[str, Any] | None = None  # the last pick: object, where (base cm), attempt
+    given_up: list[dict[str, Any]] = field(default_factory=list)  # object, where, reason
+    n_picked: int = 0
+    n_retries: int = 0
+    cycle: int = 0
+
+
+def _dist(a, b) -> float:
+    return float(np.linalg.norm(np.subtract(a, b)))
+
+
+def at_place(t: dict, places_base: dict[str, dict]) -> bool:
+    """A ball already where its object goes (a place on the table, in view)."""
+    p = places_base.get(t.get("object"))
+    return p is not None and _dist(t["target_base_cm"][:2], p["center_cm"][:2]) <= p["radius_cm"]
+
+
+def look_again(memory: Memory, seen: list[dict], tolerance_cm: float, max_retries: int) -> dict | None:
+    """Judge the last pick from what is seen now (found targets of its object).
+
+    Returns the verdict (``{"verdict": "gone" | "retry" | "given up", ...}``) or None with no last pick;
+    a miss is retried first (it is returned as ``retry`` with the ball to pick), up to ``max_retries``.
+    """
+    last = memory.last
+    if last is None:
+        return None
+    still = [t for t in seen if t.get("object") == last["object"]
+             and _dist(t["target_base_cm"], last["where"]) <= tolerance_cm]
+    if not still:
+        memory.n_picked += 1
+        memory.last = None
+        return {"verdict": "gone", "object": last["object"], "where": last["where"]}
+    if last["attempt"] > max_retries:
+        memory.given_up.append({"object": last["object"], "where": last["where"],
+                                "reason": f"still there after {last['attempt']} picks"})
+        memory.last = None
+        return {"verdict": "given up", "object": last["object"], "where": last["where"]}
+    memory.n_retries += 1
+    return {"verdict": "retry", "object": last["object"], "where": last["where"], "target": still[0]["pair"],
+            "attempt": last["attempt"] + 1}
+
+
+def sort_picks(targets: list[dict], first: str | None = None) -> list[dict]:
+    """Nearest the arm's base axis first (the shortest reach clears the way for the longer ones); a
+    retry (``first``) before everything."""
+    def key(t):
+        x, y, _ = t["target_base_cm"]
+        return (t["pair"] != first, math.hypot(x, y))
+
+    return sorted(targets, key=key)
+
+
+def path_clearance(model: dict, plan: dict, obstacles_base: list[tuple[np.ndarray, float]], finger_cm: float,
+                   steps: int = 12) -> tuple[float, str | None]:
+    """Smallest gap (cm) between the tool's swept path and any obstacle ball, and where.
+
+    Each move between waypoints is joint-linear (the servos arrive together); the tool, and while the
+    gripper is closed the carried ball (radius ``plan``'s object radius), are sampled along it.
+    """
+    worst, where = math.inf, None
+    carried = float(plan.get("object_radius_cm") or 0.0)
+    wps = plan["waypoints"]
+    for a, b in zip(wps, wps[1:]):
+        qa = np.radians([a["joints_deg"][n] for n in JOINTS])
+        qb = np.radians([b["joints_deg"][n] for n in JOINTS])
+        pts = fk(model, qa[None, :] + np.linspace(0, 1, steps)[:, None] * (qb - qa)[None, :])
+        extra = carried if a["gripper"] == "closed" and b["gripper"] == "closed" else finger_cm
+        for c, r in obstacles_base:
+            gap = float(np.min(np.linalg.norm(pts - c, axis=1))) - r - extra
+            if gap < worst:
+                worst, where = gap, f"{a['name']} -> {b['name']}"
+    return worst, where

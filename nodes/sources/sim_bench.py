@@ -1,0 +1,154 @@
+"""``source.sim_bench``: a simulated bench whose table reacts to the arm; each call grabs a pair of it.
+
+The table (balls of the declared objects, bins) lives in a world file (:mod:`simbench.world`) in
+the run folder, made at the first call of the run and kept for every cycle of the loop. The
+``world`` output tells ``actuator.dynamixel`` (``port: sim``) where it is: the emulated servos
+then move the balls as they pick, carry and release them. Every call renders the table as it is
+now through the rig's two cameras (``source.synthetic``'s rig and renderer), so the next cycle
+sees what the last one did. Never cached.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+
+from nodes.contracts.objects import ObjectDecl
+from nodes.sources._render import render_scene
+from nodes.sources.synthetic import SyntheticParams, _shared_rig
+from simbench.world import new_world, read_world, write_world
+from stereograph.api import Field, In, NodeError, Out, Params, node
+
+
+class BallAt(Params):
+    """One ball placed by hand."""
+
+    object: str = Field(..., description="Name of a declared object (objects.declare).")
+    center_cm: tuple[float, float] = Field(..., description="Where it rests, x y in the table frame (cm).")
+
+
+class SimBenchParams(Params):
+    rig: SyntheticParams = Field(default_factory=SyntheticParams,
+                                 description="The cameras, light and noise (source.synthetic's params; its scene "
+                                             "and view counts are not used).")
+    balls: list[BallAt] = Field(default_factory=list, description="Balls placed by hand; empty = a random table.")
+    n_balls: tuple[int, int] = Field((4, 4), description="Random table: fewest and most balls (count).")
+    touching_fraction: float = Field(0.3, ge=0, le=1, description="Random table: share of balls put against "
+                                                                  "another (0..1).")
+    region_cm: tuple[float, float, float, float] = Field(
+        (0.0, 0.0, 12.0, 22.0), description="Random table: balls within this annulus, centre x y and radii min "
+                                            "max (cm, table frame): where the arm reaches.")
+    distance_cm: tuple[float, float] = Field(
+        (33.0, 55.0), description="Random table: nearest and farthest ball centre from the left camera (cm): the "
+                                  "range the depth compensation was fitted on.")
+    seed: int = Field(0, ge=0, description="Random table: seed of the placements and image noise.")
+    base_in_table_cm: tuple[float, float] = Field((0.0, 0.0), description="Where the arm base stands, x y "
+                                                                          "(table frame, cm).")
+    base_yaw_deg: float = Field(90.0, description="Which way the arm base faces (deg about the table's z).")
+    bin_radius_cm: float = Field(3.5, gt=0, le=30, description="Radius of each object's place (cm).")
+    grasp_tolerance_cm: float = Field(1.0, gt=0, le=10, description="A closing gripper holds a ball whose centre "
+                                                                    "is this close to its tool point (cm).")
+
+
+def _pose(params: SimBenchParams) -> np.ndarray:
+    a = math.radians(params.base_yaw_deg)
+    T = np.eye(4)
+    T[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+    T[:2, 3] = params.base_in_table_cm
+    return T
+
+
+def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[dict],
+                  camera_cm: np.ndarray) -> list[dict]:
+    rng = np.random.default_rng([params.seed, 29])
+    lo, hi = params.n_balls
+    n = int(rng.integers(min(lo, hi), max(lo, hi) + 1))
+    cx, cy, r_min, r_max = params.region_cm
+    balls: list[dict] = []
+    for k in range(n):
+        d = decls[k % len(decls)] if k < len(decls) else decls[int(rng.integers(len(decls)))]
+        r = float(d.radius_cm)
+        for _ in range(2000):
+            if balls and rng.random() < params.touching_fraction:
+                other = balls[int(rng.integers(len(balls)))]
+                a = rng.uniform(0, 2 * math.pi)
+                gap = r + other["radius_cm"] + rng.uniform(0.0, 0.1)
+                xy = np.asarray(other["center_cm"][:2]) + gap * np.array([math.cos(a), math.sin(a)])
+            else:
+                rad, a = math.sqrt(rng.uniform(r_min**2, r_max**2)), rng.uniform(0, 2 * math.pi)
+                xy = np.array([cx + rad * math.cos(a), cy + rad * math.sin(a)])
+            if not r_min <= math.dist(xy, (cx, cy)) <= r_max:
+                continue
+            if not params.distance_cm[0] <= math.dist([*xy, r], camera_cm) <= params.distance_cm[1]:
+                continue
+            if any(math.dist(xy, b["center_cm"][:2]) < r + b["radius_cm"] for b in balls):
+                continue
+            if any(math.dist(xy, p["center_cm"][:2]) < p["radius_cm"] + r + 1.0 for p in places):
+                continue
+            balls.append({"id": f"b{k + 1}", "object": d.name, "color_bgr": list(d.color_bgr or (128, 128, 128)),
+                          "radius_cm": r, "center_cm": [float(xy[0]), float(xy[1]), r]})
+            break
+    return balls
+
+
+def _world(params: SimBenchParams, objects: dict, folder: Path, camera_cm: np.ndarray) -> dict:
+    decls = [ObjectDecl(**o) for o in objects["objects"]]
+    places = [{"name": f"{d.name}_place", "object": d.name, "center_cm": list(d.drop_place_cm[:2]),
+               "height_cm": float(d.drop_place_cm[2]), "radius_cm": params.bin_radius_cm}
+              for d in decls if d.drop_place_cm is not None]
+    by_name = {d.name: d for d in decls}
+    if params.balls:
+        unknown = sorted({b.object for b in params.balls} - set(by_name))
+        if unknown:
+            raise NodeError(f"source.sim_bench: balls of undeclared objects {unknown} (declared: {sorted(by_name)}).",
+                            hint="name a declared object in each ball, or declare it in objects.declare")
+        balls = [{"id": f"b{k + 1}", "object": b.object, "color_bgr": list(by_name[b.object].color_bgr or (128,) * 3),
+                  "radius_cm": float(by_name[b.object].radius_cm),
+                  "center_cm": [*b.center_cm, float(by_name[b.object].radius_cm)]} for k, b in enumerate(params.balls)]
+    else:
+        balls = _random_balls(params, decls, places, camera_cm)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "world.json"
+    write_world(path, new_world(balls, places, params.grasp_tolerance_cm))
+    return {"path": str(path), "T_table_from_base": _pose(params).tolist()}
+
+
+def scene_of(world: dict) -> dict:
+    """The renderer's scene for the world now: the balls not inside a bin, and the bins."""
+    objs = [{"type": "ball", "center_cm": b["center_cm"], "radius_cm": b["radius_cm"], "color": b["color_bgr"]}
+            for b in world["balls"] if not (b["state"] == "placed" and b["center_cm"][2] > b["radius_cm"] + 0.01)]
+    objs += [{"type": "cylinder", "center_cm": p["center_cm"][:2], "radius_cm": p["radius_cm"],
+              "height_cm": p["height_cm"], "color": "grey"} for p in world["places"] if p["height_cm"] > 0]
+    return {"kind": "bench", "objects": objs}
+
+
+class _Grabs:
+    """The run's world and how many pairs were grabbed from it."""
+
+    def __init__(self, ref: dict):
+        self.ref, self.n = ref, 0
+
+
+@node("source.sim_bench",
+      inputs={"objects": In("Objects", description="What is on the table: each object's radius, colour, place.")},
+      outputs={"pairs": Out("StereoPair", collection=True, description="The table as the cameras see it now."),
+               "world": Out("BenchWorld", description="Where the world file is and where the arm stands.")},
+      params=SimBenchParams, version="1", cacheable=False)
+def sim_bench(params: SimBenchParams, objects, ctx=None):
+    """Render the simulated table as it is now (the world is made at the run's first call)."""
+    folder = ctx.out_dir if ctx is not None else Path.cwd() / "sim_bench"
+    rig = _shared_rig(params.rig.model_dump_json())
+    camera = np.asarray(rig["truth"]["T_table_from_left"], float)[:3, 3]
+    grabs = ctx.resource("world", lambda: _Grabs(_world(params, objects, folder, camera))) if ctx else None
+    grabs = grabs or _Grabs(_world(params, objects, folder, camera))
+    grabs.n += 1
+    world = read_world(grabs.ref["path"])
+    left, right, _ = render_scene(rig, scene_of(world), seed=params.seed * 100003 + grabs.n)
+    pid = f"grab{grabs.n:04d}"
+    truth = {"kind": "bench", "balls": copy.deepcopy(world["balls"]),
+             "T_table_from_left": np.asarray(rig["truth"]["T_table_from_left"]).tolist()}
+    return {"pairs": {pid: {"id": pid, "left": left, "right": right, "truth": truth, "split": "test"}},
+            "world": grabs.ref}
