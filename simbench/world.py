@@ -26,6 +26,8 @@ from filelock import FileLock
 __all__ = ["ArmFollower", "new_world", "read_world", "step", "write_world"]
 
 FINGER_RADIUS_CM = 0.8  # the closed fingers' reach beyond the tool point, seen from a ball
+CONTACT_TOLERANCE_CM = 0.2  # an overlap this small is a touch, not a push (the grasp centres a ball by up to
+                            # the grasp tolerance, nudging a neighbour it touches)
 
 
 def new_world(balls: list[dict], places: list[dict], grasp_tolerance_cm: float = 1.0,
@@ -95,10 +97,10 @@ def _sweep(world: dict, p0: np.ndarray, p1: np.ndarray) -> None:
         c = np.asarray(b["center_cm"], float)
         r = float(b["radius_cm"])
         dist, q = _segment_distance(p0, p1, c)
-        if held is not None and dist < r + float(held["radius_cm"]):
+        if held is not None and dist < r + float(held["radius_cm"]) - CONTACT_TOLERANCE_CM:
             _push(world, b, q, r + float(held["radius_cm"]) + 0.05, by=f"carried ball {held['id']}")
             continue
-        if dist >= r + finger:
+        if dist >= r + finger - CONTACT_TOLERANCE_CM:
             continue
         # open fingers straddle a ball they come down on (within the grasp tolerance of its centre)
         horizontal = float(np.linalg.norm(c[:2] - p1[:2]))

@@ -9,10 +9,11 @@ one ball: the closer colour wins, else both are refused.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
+from pydantic import model_validator
 
 from nodes.contracts.overlay import label_pair
 from nodes.contracts.segmenter import (
@@ -30,23 +31,34 @@ from stereograph.api import Field, In, Out, node
 
 from . import color, edge_morph, hough, otsu, watershed
 
-METHODS = {"edge_morph": edge_morph.edge_morph, "color": color.color, "otsu": otsu.otsu, "hough": hough.hough,
-           "watershed": watershed.watershed_split}
+METHODS = {"edge_morph": (edge_morph.edge_morph, edge_morph.EdgeMorphParams),
+           "color": (color.color, color.ColorParams), "otsu": (otsu.otsu, otsu.OtsuParams),
+           "hough": (hough.hough, hough.HoughParams),
+           "watershed": (watershed.watershed_split, watershed.WatershedParams)}
 
 
-class InstancesParams(color.ColorParams, edge_morph.EdgeMorphParams, hough.HoughParams,
-                      watershed.WatershedParams):
-    """Every method's parameters (each method reads its own) and the choice of method."""
-
+class InstancesParams(SegmenterParams):
     method: Literal[tuple(METHODS)] = Field("color", description="The mask function: which segmenter's method "
                                                                  "finds the objects' pixels.")
+    method_params: dict[str, Any] = Field(default_factory=dict, description="That method's own parameters "
+                                          "(as its segmenter node takes them, e.g. {open_px: 3}).")
     max_per_object: int = Field(8, ge=1, le=64, description="Most instances of one object per pair (count).")
 
+    @model_validator(mode="after")
+    def _method_params_fit(self) -> InstancesParams:
+        self.for_method()  # a ValidationError naming the method's parameter, when validated
+        return self
 
-def _record(pid: str, name: str, k: int, inst: dict, params: SegmenterParams, pair: dict) -> dict:
+    def for_method(self) -> SegmenterParams:
+        """The chosen method's own params: these common ones and ``method_params``."""
+        common = self.model_dump(exclude={"method", "method_params", "max_per_object"}, exclude_unset=True)
+        return METHODS[self.method][1].model_validate({**common, **self.method_params})
+
+
+def _record(pid: str, name: str, k: int, inst: dict, params: SegmenterParams, pair: dict, method: str) -> dict:
     return {"id": f"{pid}/{name}{k}", "pair": pid, "object": name, "instance": k, "found": inst["found"],
             "reason": inst["reason"], "left": inst.get("left"), "right": inst.get("right"),
-            "left_mask": None, "right_mask": None, "left_px": inst["left_px"], "method": f"instances:{params.method}",
+            "left_mask": None, "right_mask": None, "left_px": inst["left_px"], "method": f"instances:{method}",
             "object_radius_cm": float(params.object.radius_cm),
             "working_range_cm": sorted(float(z) for z in params.working_range_cm),
             "color_from": "params" if params.object.color_bgr is not None else None, "split": pair.get("split"),
@@ -75,22 +87,23 @@ def _pair_instances(params: InstancesParams, pair: dict, rect: dict, objects: di
     bad = validate_pair(pair, rect, raw)
     names = [o["name"] for o in objects["objects"]]
     if bad is not None:
-        return [_record(pid, n, 1, {"found": False, "reason": bad, "left_px": [0.0, 0.0]}, params, pair)
-                for n in names]
+        return [_record(pid, n, 1, {"found": False, "reason": bad, "left_px": [0.0, 0.0]}, params, pair,
+                        params.method) for n in names]
     vl, vr = pair_views(rect, L, R, raw)
     K1, K2 = np.asarray(rect["P1"], float)[:, :3], np.asarray(rect["P2"], float)[:, :3]
     found: list[tuple[str, dict, SegmenterParams]] = []
+    own = params.for_method()
     for name in names:
-        p = apply_objects(params.model_copy(update={"object_name": name}), objects)
+        p = apply_objects(own.model_copy(update={"object_name": name}), objects)
         r_range = expected_radius_px(p, rect, vl.shape[1::-1])
-        insts = find_instances(vl, vr, METHODS[params.method].mask, p, r_range, rect, K1, K2)
+        insts = find_instances(vl, vr, METHODS[params.method][0].mask, p, r_range, rect, K1, K2)
         found += [(name, x, p) for x in insts[: params.max_per_object]]
     _one_claim([(n, x) for n, x, _ in found])
     count: dict[str, int] = {}
     out = []
     for name, inst, p in found:
         count[name] = count.get(name, 0) + 1
-        out.append(_record(pid, name, count[name], inst, p, pair))
+        out.append(_record(pid, name, count[name], inst, p, pair, params.method))
     return out
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from nodes.contracts.objects import ObjectDecl
 from nodes.sources._render import render_scene
+from nodes.sources._scenes import _ball_sils, _bbox_inside
 from nodes.sources.synthetic import SyntheticParams, _shared_rig
 from simbench.world import new_world, read_world, write_world
 from stereograph.api import Field, In, NodeError, Out, Params, node
@@ -41,9 +42,9 @@ class SimBenchParams(Params):
     region_cm: tuple[float, float, float, float] = Field(
         (0.0, 0.0, 12.0, 22.0), description="Random table: balls within this annulus, centre x y and radii min "
                                             "max (cm, table frame): where the arm reaches.")
-    distance_cm: tuple[float, float] = Field(
-        (33.0, 55.0), description="Random table: nearest and farthest ball centre from the left camera (cm): the "
-                                  "range the depth compensation was fitted on.")
+    depth_cm: tuple[float, float] = Field(
+        (33.0, 55.0), description="Random table: nearest and farthest ball centre along the left camera's "
+                                  "optical axis (cm): inside the range the depth compensation was fitted on.")
     seed: int = Field(0, ge=0, description="Random table: seed of the placements and image noise.")
     base_in_table_cm: tuple[float, float] = Field((0.0, 0.0), description="Where the arm base stands, x y "
                                                                           "(table frame, cm).")
@@ -61,8 +62,13 @@ def _pose(params: SimBenchParams) -> np.ndarray:
     return T
 
 
-def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[dict],
-                  camera_cm: np.ndarray) -> list[dict]:
+def _in_view(rig: dict, center_cm, radius_cm: float) -> bool:
+    """The whole ball inside both images (4 px from the border)."""
+    sils = _ball_sils(rig, center_cm, radius_cm)
+    return sils is not None and all(_bbox_inside(rig, s, 4.0) for s in sils)
+
+
+def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[dict], rig: dict) -> list[dict]:
     rng = np.random.default_rng([params.seed, 29])
     lo, hi = params.n_balls
     n = int(rng.integers(min(lo, hi), max(lo, hi) + 1))
@@ -82,7 +88,11 @@ def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[
                 xy = np.array([cx + rad * math.cos(a), cy + rad * math.sin(a)])
             if not r_min <= math.dist(xy, (cx, cy)) <= r_max:
                 continue
-            if not params.distance_cm[0] <= math.dist([*xy, r], camera_cm) <= params.distance_cm[1]:
+            T = np.asarray(rig["truth"]["T_table_from_left"], float)
+            depth = float((T[:3, :3].T @ (np.array([*xy, r]) - T[:3, 3]))[2])
+            if not params.depth_cm[0] <= depth <= params.depth_cm[1]:
+                continue
+            if not _in_view(rig, [*xy, r], r):
                 continue
             if any(math.dist(xy, b["center_cm"][:2]) < r + b["radius_cm"] for b in balls):
                 continue
@@ -94,7 +104,7 @@ def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[
     return balls
 
 
-def _world(params: SimBenchParams, objects: dict, folder: Path, camera_cm: np.ndarray) -> dict:
+def _world(params: SimBenchParams, objects: dict, folder: Path, rig: dict) -> dict:
     decls = [ObjectDecl(**o) for o in objects["objects"]]
     places = [{"name": f"{d.name}_place", "object": d.name, "center_cm": list(d.drop_place_cm[:2]),
                "height_cm": float(d.drop_place_cm[2]), "radius_cm": params.bin_radius_cm}
@@ -109,7 +119,7 @@ def _world(params: SimBenchParams, objects: dict, folder: Path, camera_cm: np.nd
                   "radius_cm": float(by_name[b.object].radius_cm),
                   "center_cm": [*b.center_cm, float(by_name[b.object].radius_cm)]} for k, b in enumerate(params.balls)]
     else:
-        balls = _random_balls(params, decls, places, camera_cm)
+        balls = _random_balls(params, decls, places, rig)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "world.json"
     write_world(path, new_world(balls, places, params.grasp_tolerance_cm))
@@ -141,9 +151,8 @@ def sim_bench(params: SimBenchParams, objects, ctx=None):
     """Render the simulated table as it is now (the world is made at the run's first call)."""
     folder = ctx.out_dir if ctx is not None else Path.cwd() / "sim_bench"
     rig = _shared_rig(params.rig.model_dump_json())
-    camera = np.asarray(rig["truth"]["T_table_from_left"], float)[:3, 3]
-    grabs = ctx.resource("world", lambda: _Grabs(_world(params, objects, folder, camera))) if ctx else None
-    grabs = grabs or _Grabs(_world(params, objects, folder, camera))
+    grabs = ctx.resource("world", lambda: _Grabs(_world(params, objects, folder, rig))) if ctx else None
+    grabs = grabs or _Grabs(_world(params, objects, folder, rig))
     grabs.n += 1
     world = read_world(grabs.ref["path"])
     left, right, _ = render_scene(rig, scene_of(world), seed=params.seed * 100003 + grabs.n)

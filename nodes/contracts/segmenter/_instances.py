@@ -85,6 +85,54 @@ def _window(c: dict, shape) -> tuple[int, int, int, int]:
     return max(0, x0 - pad), max(0, y0 - pad), min(shape[1], x1 + pad), min(shape[0], y1 + pad)
 
 
+def _rows_partners(a: dict, rights: list[dict], params: SegmenterParams, rect: dict) -> list[int]:
+    """Right regions that can be a not-round left region's other view: overlapping rows, a disparity
+    inside the working range (its size says nothing: the region is not one whole ball)."""
+    fb = float(rect["f_px"]) * abs(float(rect["baseline_cm"]))
+    z0, z1 = sorted(params.working_range_cm)
+    d_lo, d_hi = fb / (1.25 * z1), fb / (0.75 * z0)
+    out = []
+    for j, b in enumerate(rights):
+        top, bottom = max(a["bbox"][1], b["bbox"][1]), min(a["bbox"][3], b["bbox"][3])
+        rows = min(a["bbox"][3] - a["bbox"][1], b["bbox"][3] - b["bbox"][1])
+        if bottom - top >= 0.6 * rows and d_lo <= a["centroid_px"][0] - b["centroid_px"][0] <= d_hi * 1.2:
+            out.append(j)
+    return out
+
+
+def _refine(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> dict:
+    """One instance from a left and a right candidate: each refined in its own window, then checked."""
+    lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1,
+                                   only_window=True)
+    rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range_px, window=_window(b, vr.shape), K=K2,
+                                   only_window=True)
+    if lreg is None or rreg is None:
+        why = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
+    else:
+        why = check_pair(lreg, rreg, params, rect)
+    return {"found": why is None, "reason": why, "left": lreg, "right": rreg, "left_mask": lm,
+            "right_mask": rm, "left_px": a["centroid_px"], "color_score": a["color_score"]}
+
+
+def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, K2) -> list[dict]:
+    """A ball-coloured region that is not round: a ball partly hidden by another, or two touching. The
+    partial-view fit (``segment_image``'s) may still locate one whole ball in it; else it is refused."""
+    # Two touching balls of one colour are two instances, not an ambiguity: the fit takes one (a wrong
+    # left/right pairing of the two fails check_pair: its disparity disagrees with the balls' size).
+    params = params.model_copy(update={"partial": params.partial.model_copy(update={"ambiguous_second_arc": 1.0})})
+    out = []
+    for a in l_refused:
+        js = _rows_partners(a, r_all, params, rect)
+        inst = None
+        if len(js) == 1:
+            inst = _refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[js[0]], K1, K2)
+        if inst is None or not inst["found"]:
+            why = a["reason"] + (f"; partial view: {inst['reason']}" if inst is not None else "")
+            inst = {"found": False, "reason": why, "left_px": a["centroid_px"]}
+        out.append(inst)
+    return out
+
+
 def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_range_px, rect: dict,
                    K1=None, K2=None) -> list[dict]:
     """Every instance of ``params.object`` in a rectified pair of views.
@@ -97,31 +145,22 @@ def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_ran
         and the left point they concern (``left_px``), in left-image reading order.
     """
     lefts, l_refused = _plausible(vl, mask_fn, params, r_range_px)
-    rights, _ = _plausible(vr, mask_fn, params, r_range_px)
+    rights, r_refused = _plausible(vr, mask_fn, params, r_range_px)
     options = [_partners(a, rights, params, rect) for a in lefts]
     takers = {j: [i for i, o in enumerate(options) if j in o] for j in range(len(rights))}
-    out = [{"found": False, "reason": c["reason"], "left_px": c["centroid_px"]} for c in l_refused]
+    used = {o[0] for o in options if len(o) == 1}
+    out = _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused,
+                     [b for j, b in enumerate(rights) if j not in used] + r_refused, K1, K2)
     for i, a in enumerate(lefts):
         if not options[i]:
             out.append({"found": False, "left_px": a["centroid_px"],
                         "reason": "no ball in the right image on its rows at the distance its size says"})
-            continue
-        if len(options[i]) > 1 or len(takers[options[i][0]]) > 1:
+        elif len(options[i]) > 1 or len(takers[options[i][0]]) > 1:
             out.append({"found": False, "left_px": a["centroid_px"],
                         "reason": "two balls of this object on the same image rows: which right view belongs to "
                                   "which left one cannot be told apart"})
-            continue
-        b = rights[options[i][0]]
-        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1,
-                                       only_window=True)
-        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range_px, window=_window(b, vr.shape), K=K2,
-                                       only_window=True)
-        if lreg is None or rreg is None:
-            why = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
         else:
-            why = check_pair(lreg, rreg, params, rect)
-        out.append({"found": why is None, "reason": why, "left": lreg, "right": rreg, "left_mask": lm,
-                    "right_mask": rm, "left_px": a["centroid_px"], "color_score": a["color_score"]})
+            out.append(_refine(vl, vr, mask_fn, params, r_range_px, rect, a, rights[options[i][0]], K1, K2))
     return sorted(out, key=lambda r: (round(r["left_px"][1] / 8), r["left_px"][0]))
 
 
