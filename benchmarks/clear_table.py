@@ -84,8 +84,14 @@ def main() -> int:
         for s in sets:
             cmd += ["--set", s]
         t0 = time.perf_counter()
-        subprocess.run(cmd, capture_output=True, text=True, check=False)
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         dt = time.perf_counter() - t0
+        if not (out / "bench" / "world.json").is_file():
+            print(f"table {seed}: the run failed: {(proc.stderr.strip().splitlines() or ['?'])[-1]}", flush=True)
+            rows.append({"balls": n_balls, "placed": 0, "wrong": 0, "pushes": 0, "refused_goals": 0, "retries": 0,
+                         "cycles": 0, "latencies": [], "left": ["all"], "seconds": dt})
+            t_all += dt
+            continue
         r = judge(out)
         r.update(seed=seed, colours=n_colours, seconds=dt)
         t_all += dt

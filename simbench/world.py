@@ -31,16 +31,20 @@ CONTACT_TOLERANCE_CM = 0.2  # an overlap this small is a touch, not a push (the 
 
 
 def new_world(balls: list[dict], places: list[dict], grasp_tolerance_cm: float = 1.0,
-              finger_radius_cm: float = FINGER_RADIUS_CM) -> dict:
+              finger_radius_cm: float = FINGER_RADIUS_CM, missed_grasps: int = 0,
+              miss_offset_cm: float = 2.0) -> dict:
     """A world: ``balls`` [{id, object, color_bgr, radius_cm, center_cm}] resting on the table,
     ``places`` [{name, object, center_cm: [x, y], radius_cm, height_cm}] (height 0: a spot on the
-    table; above 0: a bin whose rim is that high; a ball released over it ends inside)."""
+    table; above 0: a bin whose rim is that high; a ball released over it ends inside).
+    ``missed_grasps``: the first that many closings happen ``miss_offset_cm`` off the tool point
+    (sideways: a gripper that slipped, a servo that stopped short) -- the fault a pick must catch."""
     for b in balls:
         b.setdefault("state", "table")
         b.setdefault("place", None)
         b["center_cm"] = [float(v) for v in b["center_cm"]]
     return {"version": 1, "balls": balls, "places": places, "grasp_tolerance_cm": float(grasp_tolerance_cm),
             "finger_radius_cm": float(finger_radius_cm),
+            "faults": {"missed_grasps": int(missed_grasps), "miss_offset_cm": float(miss_offset_cm)},
             "gripper": {"tool_cm": None, "closed": False, "holding": None}, "events": []}
 
 
@@ -74,12 +78,16 @@ def _segment_distance(p0: np.ndarray, p1: np.ndarray, c: np.ndarray) -> tuple[fl
     return float(np.linalg.norm(c - q)), q
 
 
-def _push(world: dict, ball: dict, q: np.ndarray, clearance_cm: float, by: str) -> None:
-    """Move ``ball`` on the table, straight away from ``q`` (horizontally), to ``clearance_cm``."""
+def _push(world: dict, ball: dict, q: np.ndarray, clearance_cm: float, by: str, path: np.ndarray) -> None:
+    """Move ``ball`` on the table, straight away from ``q`` (horizontally), to ``clearance_cm``; a ball hit
+    head-on goes to the side of the ``path`` (direction), out of its way."""
     c = np.asarray(ball["center_cm"], float)
     away = c[:2] - q[:2]
     n = float(np.linalg.norm(away))
-    away = away / n if n > 1e-6 else np.array([1.0, 0.0])
+    if n < 1e-6:
+        side = np.array([-path[1], path[0]]) if np.linalg.norm(path[:2]) > 1e-9 else np.array([1.0, 0.0])
+        away, n = side, float(np.linalg.norm(side))
+    away = away / n
     new = q[:2] + away * clearance_cm
     moved = float(np.linalg.norm(new - c[:2]))
     ball["center_cm"] = [float(new[0]), float(new[1]), float(ball["radius_cm"])]
@@ -98,7 +106,7 @@ def _sweep(world: dict, p0: np.ndarray, p1: np.ndarray) -> None:
         r = float(b["radius_cm"])
         dist, q = _segment_distance(p0, p1, c)
         if held is not None and dist < r + float(held["radius_cm"]) - CONTACT_TOLERANCE_CM:
-            _push(world, b, q, r + float(held["radius_cm"]) + 0.05, by=f"carried ball {held['id']}")
+            _push(world, b, q, r + float(held["radius_cm"]) + 0.05, f"carried ball {held['id']}", p1 - p0)
             continue
         if dist >= r + finger - CONTACT_TOLERANCE_CM:
             continue
@@ -106,10 +114,14 @@ def _sweep(world: dict, p0: np.ndarray, p1: np.ndarray) -> None:
         horizontal = float(np.linalg.norm(c[:2] - p1[:2]))
         if not g["closed"] and horizontal <= tol:
             continue
-        _push(world, b, q, r + finger + 0.05, by="fingers")
+        _push(world, b, q, r + finger + 0.05, "fingers", p1 - p0)
 
 
 def _close(world: dict, tool: np.ndarray) -> None:
+    faults = world.get("faults") or {}
+    if faults.get("missed_grasps", 0) > 0:
+        faults["missed_grasps"] -= 1
+        tool = tool + np.array([float(faults["miss_offset_cm"]), 0.0, 0.0])
     free = [b for b in world["balls"] if b["state"] == "table"]
     near = min(free, key=lambda b: np.linalg.norm(np.asarray(b["center_cm"]) - tool), default=None)
     dist = float(np.linalg.norm(np.asarray(near["center_cm"]) - tool)) if near else math.inf

@@ -38,29 +38,34 @@ def at_place(t: dict, places_base: dict[str, dict]) -> bool:
     return p is not None and _dist(t["target_base_cm"][:2], p["center_cm"][:2]) <= p["radius_cm"]
 
 
-def look_again(memory: Memory, seen: list[dict], tolerance_cm: float, max_retries: int) -> dict | None:
-    """Judge the last pick from what is seen now (found targets of its object).
+def look_again(memory: Memory, seen: list[dict], n_now: int, tolerance_cm: float, max_retries: int) -> dict | None:
+    """Judge the last pick from what is seen now: ``seen`` the found balls, ``n_now`` how many of its object
+    are on the table now (found or not, none at its place).
 
-    Returns the verdict (``{"verdict": "gone" | "retry" | "given up", ...}``) or None with no last pick;
-    a miss is retried first (it is returned as ``retry`` with the ball to pick), up to ``max_retries``.
+    Gone: one fewer of its object than when it was chosen, and none where it was. Else it was missed
+    (still there, or knocked elsewhere: then the nearest of its object to where it was is the one):
+    retried first, up to ``max_retries``, then given up. Returns the verdict, or None with no last pick.
     """
     last = memory.last
     if last is None:
         return None
-    still = [t for t in seen if t.get("object") == last["object"]
-             and _dist(t["target_base_cm"], last["where"]) <= tolerance_cm]
-    if not still:
+    mine = [t for t in seen if t.get("object") == last["object"]]
+    still = [t for t in mine if _dist(t["target_base_cm"], last["where"]) <= tolerance_cm]
+    if not still and n_now < last["n_before"]:
         memory.n_picked += 1
         memory.last = None
         return {"verdict": "gone", "object": last["object"], "where": last["where"]}
-    if last["attempt"] > max_retries:
+    if last["attempt"] > max_retries or not mine:
         memory.given_up.append({"object": last["object"], "where": last["where"],
-                                "reason": f"still there after {last['attempt']} picks"})
+                                "reason": f"still there after {last['attempt']} picks" if mine else
+                                "missed, and not seen since"})
         memory.last = None
         return {"verdict": "given up", "object": last["object"], "where": last["where"]}
     memory.n_retries += 1
-    return {"verdict": "retry", "object": last["object"], "where": last["where"], "target": still[0]["pair"],
-            "attempt": last["attempt"] + 1}
+    nearest = min(mine, key=lambda t: _dist(t["target_base_cm"], last["where"]))
+    moved = _dist(nearest["target_base_cm"], last["where"])
+    return {"verdict": "retry", "object": last["object"], "where": last["where"], "target": nearest["pair"],
+            "moved_cm": round(moved, 2), "attempt": last["attempt"] + 1}
 
 
 def sort_picks(targets: list[dict], first: str | None = None) -> list[dict]:

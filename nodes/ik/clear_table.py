@@ -19,6 +19,7 @@ from nodes.contracts.objects import ObjectDecl
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
 from ._clear import Memory, at_place, look_again, path_clearance, sort_picks
+from ._clear_picture import draw_cycle
 from .pick_sequence import PickParams, plan_pick
 
 
@@ -71,7 +72,7 @@ def _try(params: ClearParams, arm: dict, t: dict, place: dict, others: list) -> 
     return plan, None
 
 
-def _choose(params, arm, found, places, memory, first):
+def _choose(params, arm, found, places, memory, first, n_now):
     """The first ball of the order that can be picked, its plan, and why the others cannot."""
     skipped = {}
     for t in sort_picks(found, first):
@@ -84,7 +85,8 @@ def _choose(params, arm, found, places, memory, first):
         plan, why = _try(params, arm, t, place, others)
         if plan is not None:
             attempt = memory.last["attempt"] + 1 if first == t["pair"] and memory.last else 1
-            memory.last = {"object": t.get("object"), "where": t["target_base_cm"], "attempt": attempt}
+            memory.last = {"object": t.get("object"), "where": t["target_base_cm"], "attempt": attempt,
+                           "n_before": n_now.get(t.get("object"), 0)}
             return plan, skipped
         skipped[t["pair"]] = why
     return None, skipped
@@ -99,11 +101,16 @@ def _given_up(memory: Memory, t: dict) -> bool:
 @node("ik.clear_table",
       inputs={"arm": In("ArmModel"), "targets": In("JointTarget", gather=True, description="Every located ball."),
               "hand_eye": In("HandEye", description="Where the arm base stands in the table frame."),
-              "objects": In("Objects", description="Each object's place (drop_place_cm).")},
+              "objects": In("Objects", description="Each object's place (drop_place_cm)."),
+              "pair": In("RectifiedPair | StereoPair", gather=True, optional=True,
+                         description="The pair the balls were located in: for the cycle's picture."),
+              "rectification": In("Rectification", optional=True, description="For the picture.")},
       outputs={"plan": Out("PickPlan", collection=True, description="This cycle's pick and place (or idle)."),
-               "status": Out("ClearStatus", save=True, headline=True, description="What is left, what was done.")},
+               "status": Out("ClearStatus", save=True, headline=True, description="What is left, what was done."),
+               "picture": Out("Image", save=True, lossy=True, description="The table seen, each ball's label and "
+                                                                          "order, the arm (needs pair).")},
       params=ClearParams, version="1", cacheable=False)
-def clear_table(params: ClearParams, arm, targets, hand_eye, objects, ctx=None):
+def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None, rectification=None, ctx=None):
     """Look again at the last pick, then plan the next pick -> place; stop the loop when nothing is left."""
     memory = (ctx.resource("memory", Memory) if ctx is not None else None) or Memory()
     memory.cycle += 1
@@ -112,23 +119,38 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, ctx=None):
     found = [t for t in ts if t.get("found") and not _given_up(memory, t) and not at_place(t, places)]
     refused = {t["pair"]: t.get("reason") or "not located" for t in ts if not t.get("found")}
     tol = params.look_again_cm or max([float(t.get("object_radius_cm") or 2.0) for t in ts] or [2.0])
-    verdict = look_again(memory, found, tol, params.max_retries)
+    n_now = {}
+    for t in ts:
+        if not (t.get("found") and at_place(t, places)):
+            n_now[t.get("object")] = n_now.get(t.get("object"), 0) + 1
+    last_object = memory.last["object"] if memory.last else None
+    verdict = look_again(memory, found, n_now.get(last_object, 0), tol, params.max_retries)
     if verdict and verdict["verdict"] == "given up":
         found = [t for t in found if not _given_up(memory, t)]
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
-    plan, skipped = _choose(params, arm, found, places, memory, first)
+    plan, skipped = _choose(params, arm, found, places, memory, first, n_now)
     status = {"cycle": memory.cycle, "seen": len(ts), "found": len(found), "look_again": verdict,
               "picked": memory.n_picked, "retries": memory.n_retries, "given_up": memory.given_up,
               "not_pickable": {**refused, **skipped}, "order": [t["pair"] for t in sort_picks(found, first)],
               "next": None if plan is None else plan["pair"], "done": plan is None}
+    picture = None
+    if pair and rectification is not None:
+        last = pair if "left" in pair else pair[sorted(pair)[-1]]
+        raw = ctx is not None and (ctx.input_types or {}).get("pair") == "StereoPair"
+        status["why"] = None if plan else _why(refused, skipped, memory)
+        picture = draw_cycle(last, rectification, ts, status, arm, hand_eye, plan, raw)
     if plan is None:
-        left = len(refused) + len(skipped) + len(memory.given_up)
-        why = "the table is clear" if not left else f"{left} ball(s) left that cannot be picked"
-        status["why"] = why
+        why = status["why"] = _why(refused, skipped, memory)
         if ctx is not None:
             ctx.stop_loop(why)
             for k, r in {**refused, **skipped}.items():
                 ctx.warn(f"{k}: {r}")
-        return {"plan": {"idle": {"pair": "idle", "idle": True, "reason": why, "waypoints": []}}, "status": status}
-    return {"plan": {plan["pair"]: plan}, "status": status}
+        return {"plan": {"idle": {"pair": "idle", "idle": True, "reason": why, "waypoints": []}}, "status": status,
+                "picture": picture}
+    return {"plan": {plan["pair"]: plan}, "status": status, "picture": picture}
+
+
+def _why(refused: dict, skipped: dict, memory: Memory) -> str:
+    left = len(refused) + len(skipped) + len(memory.given_up)
+    return "the table is clear" if not left else f"{left} ball(s) left that cannot be picked"
 

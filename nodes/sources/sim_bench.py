@@ -52,6 +52,10 @@ class SimBenchParams(Params):
     bin_radius_cm: float = Field(3.5, gt=0, le=30, description="Radius of each object's place (cm).")
     grasp_tolerance_cm: float = Field(1.0, gt=0, le=10, description="A closing gripper holds a ball whose centre "
                                                                     "is this close to its tool point (cm).")
+    missed_grasps: int = Field(0, ge=0, le=100, description="Fault injection: the first that many grasps close "
+                                                            "miss_offset_cm off the tool point (count).")
+    miss_offset_cm: float = Field(2.0, ge=0, le=20, description="Fault injection: how far off a missed grasp "
+                                                                "closes (cm).")
 
 
 def _pose(params: SimBenchParams) -> np.ndarray:
@@ -122,7 +126,8 @@ def _world(params: SimBenchParams, objects: dict, folder: Path, rig: dict) -> di
         balls = _random_balls(params, decls, places, rig)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "world.json"
-    write_world(path, new_world(balls, places, params.grasp_tolerance_cm))
+    write_world(path, new_world(balls, places, params.grasp_tolerance_cm, missed_grasps=params.missed_grasps,
+                                miss_offset_cm=params.miss_offset_cm))
     return {"path": str(path), "T_table_from_base": _pose(params).tolist()}
 
 

@@ -257,6 +257,8 @@ class Loop:
                         cycle.values[f"{name}.{out}"] = json.loads(json.dumps(outputs_mod.to_json(small, {})))
             if self.save_cycles:
                 _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
+            else:  # a picture the node saves (Out(save=True)) is kept for every cycle, as its other outputs are
+                _save_pictures(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
             _append_saved(run, name, cycle.index)
         if cycle.status == "running":
             cycle.status = "ok"
@@ -310,6 +312,15 @@ def _save(run: Any, node: str, folder: Path) -> None:
                     outputs_mod.write_value(stem.parent / f"{out}_{key}", x)
             v = {key: x for key, x in v.items() if not outputs_mod.is_image(x)}
         outputs_mod.write_value(stem, v)
+
+
+def _save_pictures(run: Any, node: str, folder: Path) -> None:
+    """The saved image outputs (``Out(save=True)``) of ``node`` in this cycle, as ``<node>/<output>.png``."""
+    for out, decl in run.g.nodes[node].spec.outputs.items():
+        v = _value(run, node, out, run.g.is_collection(node, out))
+        if decl.save and v is not None and outputs_mod.is_image(v):
+            (folder / node).mkdir(parents=True, exist_ok=True)
+            outputs_mod.write_value(folder / node / out, v)
 
 
 def _append_saved(run: Any, node: str, index: int) -> None:

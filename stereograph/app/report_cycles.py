@@ -18,7 +18,7 @@ import numpy as np
 from stereograph.app.page import MIME, Page, escape, table_html
 
 MAX_LOG_BYTES = 8 * 2**20  # the tail of cycles.jsonl that is read (a long loop logs a few KB a cycle)
-CYCLES_PICTURED = 3  # the last cycles whose saved pictures are shown
+CYCLES_PICTURED = 30  # the last cycles whose saved pictures are shown
 
 
 def _tail_records(path: Path) -> list[dict[str, Any]]:
