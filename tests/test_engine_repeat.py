@@ -224,3 +224,33 @@ def test_after_cycle_1_a_cycle_is_one_line_unless_verbose(tmp_path, capsys):
     assert main(["run", str(f), "--repeat", "3", "--verbose", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     assert "tick: started" in out[out.index("cycle 1: ok"):out.index("cycle 3: ok")]
+
+
+def test_a_node_ends_the_loop_when_its_work_is_done_and_the_pipeline_bounds_it(tmp_path, capsys):
+    """`ctx.stop_loop`: the cycle finishes, the loop stops, says who and why, and the run is a success;
+    the pipeline's `repeat:` is what a plain `run` loops by."""
+    f = pipeline(tmp_path, tick="{done_after: 3}")
+    f.write_text(f.read_text().replace("nodes:", "repeat: 10\nnodes:"))
+    assert main(["run", str(f), "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]) == 0
+    log = cycles(tmp_path / "out")
+    assert [c["status"] for c in log] == ["ok", "ok", "ok"] and log[-1]["values"]["check.result"] == 10
+    run_json = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run_json["loop"]["completed"] and run_json["loop"]["stopped"] == "stopped by node 'tick': counted to 3"
+    assert "stopped by node 'tick': counted to 3" in capsys.readouterr().out
+    # without the node's word, `repeat:` bounds the loop; --repeat overrides it
+    f.write_text(f.read_text().replace("{done_after: 3}", "{}").replace("repeat: 10", "repeat: 2"))
+    assert main(["run", str(f), "--out", str(tmp_path / "out2"), "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert len(cycles(tmp_path / "out2")) == 2
+    assert main(["run", str(f), "--out", str(tmp_path / "out3"), "--cache-dir", str(tmp_path / "cache"),
+                 "--repeat", "4"]) == 0
+    assert len(cycles(tmp_path / "out3")) == 4
+
+
+def test_a_bad_repeat_in_the_pipeline_is_named_with_its_line(tmp_path):
+    from stereograph.core.errors import ConfigError
+
+    f = pipeline(tmp_path)
+    f.write_text(f.read_text().replace("nodes:", "repeat: -2\nnodes:"))
+    with pytest.raises(ConfigError) as e:
+        load_pipeline(f)
+    assert "'repeat' must be a whole number >= 0, got -2" in str(e.value) and "live.yaml:3:" in str(e.value)

@@ -15,6 +15,7 @@ class TickParams(Params):
     warn_on: int = Field(0, ge=0, description="Give a warning on this tick, as a rewound recording does (0: never).")
     interrupt_on: int = Field(0, ge=0, description="Be interrupted (Ctrl-C) on this tick and say how it stopped "
                                                     "(0: never).")
+    done_after: int = Field(0, ge=0, description="Ask the loop to stop after this tick: the work is done (0: never).")
 
 
 class Ticker:
@@ -42,6 +43,8 @@ def ticker(params: TickParams, ctx=None):
         raise e
     if t.n == params.warn_on:
         ctx.warn(f"tick {t.n} came from a rewound source")
+    if t.n == params.done_after:
+        ctx.stop_loop(f"counted to {t.n}")
     return {"tick": t.n}
 
 
