@@ -51,7 +51,9 @@ def look_again(memory: Memory, seen: list[dict], n_now: int, tolerance_cm: float
         return None
     mine = [t for t in seen if t.get("object") == last["object"]]
     still = [t for t in mine if _dist(t["target_base_cm"], last["where"]) <= tolerance_cm]
-    if not still and n_now < last["n_before"]:
+    # one fewer of its object; or a ball that was not located before (hidden, merged with another)
+    # may be the one seen now: no evidence of a miss
+    if not still and (n_now < last["n_before"] or last.get("unclear", 0) > 0):
         memory.n_picked += 1
         memory.last = None
         return {"verdict": "gone", "object": last["object"], "where": last["where"]}

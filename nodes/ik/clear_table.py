@@ -72,7 +72,7 @@ def _try(params: ClearParams, arm: dict, t: dict, place: dict, others: list) -> 
     return plan, None
 
 
-def _choose(params, arm, found, places, memory, first, n_now):
+def _choose(params, arm, found, places, memory, first, n_now, unclear):
     """The first ball of the order that can be picked, its plan, and why the others cannot."""
     skipped = {}
     for t in sort_picks(found, first):
@@ -86,7 +86,7 @@ def _choose(params, arm, found, places, memory, first, n_now):
         if plan is not None:
             attempt = memory.last["attempt"] + 1 if first == t["pair"] and memory.last else 1
             memory.last = {"object": t.get("object"), "where": t["target_base_cm"], "attempt": attempt,
-                           "n_before": n_now.get(t.get("object"), 0)}
+                           "n_before": n_now.get(t.get("object"), 0), "unclear": unclear.get(t.get("object"), 0)}
             return plan, skipped
         skipped[t["pair"]] = why
     return None, skipped
@@ -128,7 +128,11 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
     if verdict and verdict["verdict"] == "given up":
         found = [t for t in found if not _given_up(memory, t)]
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
-    plan, skipped = _choose(params, arm, found, places, memory, first, n_now)
+    unclear = {}
+    for t in ts:
+        if not t.get("found") and not t.get("unreachable"):
+            unclear[t.get("object")] = unclear.get(t.get("object"), 0) + 1
+    plan, skipped = _choose(params, arm, found, places, memory, first, n_now, unclear)
     status = {"cycle": memory.cycle, "seen": len(ts), "found": len(found), "look_again": verdict,
               "picked": memory.n_picked, "retries": memory.n_retries, "given_up": memory.given_up,
               "not_pickable": {**refused, **skipped}, "order": [t["pair"] for t in sort_picks(found, first)],

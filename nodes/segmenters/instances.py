@@ -29,12 +29,13 @@ from nodes.contracts.segmenter import (
 from nodes.contracts.views import pair_views
 from stereograph.api import Field, In, Out, node
 
-from . import color, edge_morph, hough, otsu, watershed
+from . import color, edge_morph, hough, otsu, slic, watershed
 
 METHODS = {"edge_morph": (edge_morph.edge_morph, edge_morph.EdgeMorphParams),
            "color": (color.color, color.ColorParams), "otsu": (otsu.otsu, otsu.OtsuParams),
            "hough": (hough.hough, hough.HoughParams),
-           "watershed": (watershed.watershed_split, watershed.WatershedParams)}
+           "watershed": (watershed.watershed_split, watershed.WatershedParams),
+           "slic": (slic.slic_superpixels, slic.SlicParams)}
 
 
 class InstancesParams(SegmenterParams):

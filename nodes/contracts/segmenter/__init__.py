@@ -18,6 +18,7 @@ from stereograph.api import node
 
 from ._blur import gaussian_blur
 from ._checks import pair_is_raw, validate_pair
+from ._color import color_distance_map
 from ._instances import find_instances, same_ball
 from ._pair import as_bgr, segment_pair
 from ._params import (
@@ -33,9 +34,9 @@ from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 from ._size import expected_radius_px
 
 __all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
-           "apply_appearance", "apply_objects", "as_bgr", "expected_radius_px", "fill_holes", "find_instances",
-           "gaussian_blur", "max_hole_area", "pair_is_raw", "same_ball", "segment_pair", "segmenter",
-           "structuring_element", "to_channel", "validate_pair"]
+           "apply_appearance", "apply_objects", "as_bgr", "color_distance_map", "expected_radius_px",
+           "fill_holes", "find_instances", "gaussian_blur", "max_hole_area", "pair_is_raw", "same_ball",
+           "segment_pair", "segmenter", "structuring_element", "to_channel", "validate_pair"]
 
 
 def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, version: str = "1",

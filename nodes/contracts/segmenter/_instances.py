@@ -122,14 +122,18 @@ def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, 
     params = params.model_copy(update={"partial": params.partial.model_copy(update={"ambiguous_second_arc": 1.0})})
     out = []
     for a in l_refused:
-        js = _rows_partners(a, r_all, params, rect)
-        inst = None
-        if len(js) == 1:
-            inst = _refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[js[0]], K1, K2)
-        if inst is None or not inst["found"]:
-            why = a["reason"] + (f"; partial view: {inst['reason']}" if inst is not None else "")
-            inst = {"found": False, "reason": why, "left_px": a["centroid_px"]}
-        out.append(inst)
+        # each right region on its rows is tried: the wrong ones fail check_pair (size against stereo distance)
+        tried = [_refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j], K1, K2)
+                 for j in _rows_partners(a, r_all, params, rect)]
+        good = [t for t in tried if t["found"]]
+        if len(good) == 1:
+            out.append(good[0])
+            continue
+        why = a["reason"] + (f"; partial view: {tried[0]['reason']}" if len(tried) == 1 else
+                             "; partial view: more than one right region fits it" if good else
+                             f"; partial view: none of the {len(tried)} right regions on its rows fits it"
+                             if tried else "; no region of the object's colour on its rows in the right image")
+        out.append({"found": False, "reason": why, "left_px": a["centroid_px"]})
     return out
 
 
