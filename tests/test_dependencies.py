@@ -28,7 +28,7 @@ DIST_OF_IMPORT = {
     "serial": "pyserial",
     "distributed": "dask",  # the 'dask' extra: dask[distributed]
 }
-LOCAL = {"stereograph", "nodes"}
+LOCAL = {"stereograph", "nodes", "simbench"}
 
 
 def _dist_name(requirement: str) -> str:
