@@ -36,7 +36,8 @@ def _clear(tmp_path: Path, sets: list[str], name: str) -> tuple[Loop, dict, list
 
 def test_the_default_table_of_four_balls_of_two_colours_is_cleared(tmp_path):
     loop, world, cycles = _clear(tmp_path, [], "default")
-    assert loop.stopped == "stopped by node 'plan': the table is clear" and loop.completed
+    assert loop.stopped == "stopped by node 'plan': the table is clear (4 picked and placed, 0 retried)"
+    assert loop.completed
     assert len(world["balls"]) == 4 and len({b["object"] for b in world["balls"]}) == 2
     assert all(b["state"] == "placed" and b["place"] == f"{b['object']}_place" for b in world["balls"])
     assert not [e for e in world["events"] if e["what"] == "push"]
@@ -52,7 +53,8 @@ def test_a_missed_grasp_is_seen_by_looking_again_and_retried(tmp_path):
     verdicts = [c["values"]["plan.status"]["look_again"] for c in cycles]
     assert verdicts[1]["verdict"] == "retry" and verdicts[2]["verdict"] == "gone"
     assert cycles[-1]["values"]["plan.status"]["retries"] == 1
-    assert all(b["state"] == "placed" for b in world["balls"]) and loop.stopped.endswith("the table is clear")
+    assert all(b["state"] == "placed" for b in world["balls"])
+    assert loop.stopped.endswith("the table is clear (2 picked and placed, 1 retried)")
 
 
 def test_a_ball_out_of_reach_is_reported_and_the_others_are_cleared(tmp_path):
@@ -63,7 +65,8 @@ def test_a_ball_out_of_reach_is_reported_and_the_others_are_cleared(tmp_path):
     assert far["state"] == "table" and [e for e in world["events"] if e["ball"] == far["id"]] == []
     assert all(b["state"] == "placed" for b in world["balls"] if b is not far)
     status = cycles[-1]["values"]["plan.status"]
-    assert loop.stopped == "stopped by node 'plan': 1 ball(s) left that cannot be picked"
+    assert loop.stopped == ("stopped by node 'plan': 1 ball(s) left that cannot be picked (2 picked and placed, "
+                            "0 retried)")
     (why,) = status["not_pickable"].values()
     assert "reach" in why
 

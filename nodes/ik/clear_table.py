@@ -156,5 +156,6 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
 
 def _why(refused: dict, skipped: dict, memory: Memory) -> str:
     left = len(refused) + len(skipped) + len(memory.given_up)
-    return "the table is clear" if not left else f"{left} ball(s) left that cannot be picked"
+    done = f"{memory.n_picked} picked and placed, {memory.n_retries} retried"
+    return f"the table is clear ({done})" if not left else f"{left} ball(s) left that cannot be picked ({done})"
 
