@@ -544,6 +544,9 @@ def _emulator(params: DynamixelParams, arm, world) -> ServoSim:
 
 
 def _act(params: DynamixelParams, arm, plans, ctx, world=None) -> dict:
+    if world is not None and params.port != "sim" and ctx is not None:
+        ctx.warn("the wired `world` (a simulated table) is not used: the servos are real (port "
+                 f"{params.port}), so is the table")
     chosen, skipped = select_plans(plans, params)
     for p in chosen:  # every chosen plan is checked before opening or starting anything
         check_plan(p, arm)
