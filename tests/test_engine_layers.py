@@ -124,3 +124,23 @@ def test_every_core_function_fits_on_a_screen(tmp_path):
     done = subprocess.run([*ruff, "--isolated", "--config", f"lint.mccabe.max-complexity={limit}", str(planted)],
                           capture_output=True, text=True)
     assert done.returncode == 1 and "too complex (41 > 15)" in done.stdout, done.stdout
+
+
+def long_docstrings(root: Path, limit: int = 10) -> list[str]:
+    """Modules of ``root`` whose docstring is longer than ``limit`` lines (the package's reading map aside)."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        if path == root / "__init__.py":
+            continue
+        doc = ast.get_docstring(ast.parse(path.read_text()), clean=False) or ""
+        if len(doc.strip().splitlines()) > limit:
+            found.append(f"{path.relative_to(root)} ({len(doc.strip().splitlines())} lines)")
+    return found
+
+
+def test_every_engine_module_docstring_scans(tmp_path):
+    """Purpose, invariants, public names in at most ten lines; the long stories live in docs/engine.md."""
+    assert long_docstrings(ROOT / "stereograph") == []
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "told.py").write_text('"""' + "a line\n" * 11 + '"""\n')
+    assert long_docstrings(tmp_path) == ["pkg/told.py (11 lines)"]

@@ -1,44 +1,11 @@
-"""``stereograph compare``: run every combination of a few settings and tabulate the metrics the pipeline declares.
+"""``stereograph compare``: run every combination of a few settings and tabulate the declared metrics.
 
-Usage::
-
-    stereograph compare pipelines/compare-compensation.yaml \\
-        --vary compensate_fit.type=none,polynomial,disparity_curve,lookup [--vary segment.type=...]
-
-or a ``variants:`` block in the pipeline file (same keys; ``--vary`` adds to / replaces it)::
-
-    variants:
-      fit.type: [none, polynomial, lookup]
-      fit.cv_folds: [5]
-
-A key is ``node.param`` (nested params with more dots), ``node.type`` (the node's type;
-a value without a dot is taken in the node's current kind, so ``none`` means
-``compensator.none`` for a compensator node; params then fall back to the new type's
-defaults plus the pipeline's ``defaults:`` block for that type, where per-type settings
-belong) or ``node.inputs.port``. The combinations are the Cartesian product of the keys.
-
-Every variant runs through :func:`stereograph.core.runner.run_graph` on one shared artifact
-cache, so what the variants have in common is computed once, and a later compare with one
-more value computes only that variant's nodes.
-
-What is compared is what the pipeline's nodes *declare*: every output of type ``Metrics``
-(``Out("Metrics")``: a flat mapping of names to numbers, the unit in the name, see
-``docs/artifacts.md``) becomes columns of the table, ``compare.csv`` and ``compare.json``,
-and a panel of ``metrics.png``. This module knows nothing of what the numbers mean. A name
-that two nodes of a pipeline both report gets the node's name in front (``fit.n``). Besides
-the declared metrics there is one the engine measures itself: the per-pair time, the sum, over
-the nodes that run once per item, of their compute seconds per item (remembered in the cache
-folder for nodes served from the cache).
-
-Public API::
-
-    from stereograph.app.compare import compare
-    res = compare("pipelines/compare-compensation.yaml", ["fit.type=none,polynomial"], out_dir="out")
-    res.rows            # one dict per variant: settings, declared metrics, per_pair_s
-    res.variants[1].ran # nodes that computed anything in that variant's run
-
-The CLI hook is :func:`add_subcommand` (the ``stereograph`` parser calls it) and
-:func:`main` runs parsed arguments.
+The variants come from ``--vary node.param=a,b`` or the pipeline's ``variants:`` block (their
+Cartesian product); each runs through ``run_graph`` on one shared cache. Every ``Metrics`` output
+becomes columns of ``compare.csv`` / ``compare.json`` and a panel of ``metrics.png``, plus the
+engine's own per-pair time. This module knows nothing of what the numbers mean. Public:
+:func:`compare` (``res.rows``, ``res.variants``), :func:`add_subcommand`, :func:`main`.
+docs/engine.md ("stereograph compare") has the keys, the caching and the metric rules.
 """
 
 from __future__ import annotations

@@ -1,32 +1,12 @@
-"""Run the live part of a pipeline again and again: ``stereograph run PIPELINE --repeat N``.
+"""Run the live part of a pipeline again and again: ``run --repeat N`` or a pipeline's ``repeat:``.
 
-The *live part* of a graph is every node that cannot be cached (it reads the world or acts on
-it) and everything downstream of one. Cycle 1 runs the whole graph as a normal run does — the
-rest is served from the cache or computed and cached. The values the live part reads from the
-rest stay in memory, and every later cycle reruns only the live part, in topological order. Its
-results stay in memory and are never stored: each cycle sees new input, so nothing is gained by
-caching it and the disk writes would add to every cycle's latency.
-
-A cycle in which a live node fails is logged with the reason and the loop goes on with the next
-cycle; nodes downstream of the failure do not run in that cycle. The loop stops when the count is
-reached, when a node that starts the live part (one with no live node upstream — the source of new
-input) fails, since no cycle can follow; when a node outside the live part failed in cycle 1 (that
-cycle is logged as failed at it); when a node fails with ``NodeError(..., lasting=True)`` (a port
-that cannot be opened: every later cycle would fail the same way, as fast as it can; a motion
-stopped half-way: the next cycle must wait for a person); at the first failed cycle with
-``stop_on_failure``; or on KeyboardInterrupt (Ctrl-C, and SIGTERM, which ``stereograph run`` turns
-into one). An interrupt propagates through the node that is running, so that node cleans up on its
-way out; the loop then records the interrupted cycle and returns normally, so the run's summary and
-``run.json`` are still written; one that arrives between cycles ends the loop after the last cycle
-logged (``run.json`` counts exactly the lines of ``cycles.jsonl``: a signal waits while a cycle is
-being logged).
-
-Each cycle appends one JSON line to ``cycles.jsonl`` in the run folder as it ends (a killed run
-keeps the cycles before it): per live node its status, seconds, error and warnings, and its outputs'
-small values (arrays and long values left out); ``save_cycles`` also writes every live output, images as
-PNG (an image inside a dict, such as a pair's ``left``: ``<output>_<key>.png``), into
-``cycles/<n>/<node>/``. The engine knows nothing of what the nodes do: which values say
-"where" or "what moved" is up to the pipeline.
+The live part is every uncacheable node and what is downstream of one; cycle 1 runs the whole
+graph, later cycles only the live part, in memory. Each cycle is one line of ``cycles.jsonl``.
+The loop stops at the count, when a node asks (``ctx.stop_loop``), when the source of new input
+or a node outside the live part fails, on a lasting failure, with ``stop_on_failure``, or on an
+interrupt (which lets the running node clean up; ``run.json`` still counts every logged cycle).
+Public: :class:`Loop` (the ``cycles`` hook of ``run_graph``), :class:`Cycle`. docs/live.md and
+docs/engine.md ("The loop") say more.
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
 """Progress of a run: a live bar per node on a terminal, plain lines everywhere else.
 
-The runner calls three methods on the ``progress`` object it is given (every one optional
-but the first two):
-
-- ``node_started(name, n_items)``: a node begins (``n_items`` entries: 1, or one per item);
-- ``advance(name)``: one entry of it finished (computed, cached or failed);
-- ``item_failed(name)``: the entry about to be advanced failed (optional: the ending line then says
-  how many failed, not only "finished");
-- ``item_progress(name, done, total, unit)``: progress *inside* one call, reported by the node
-  itself through :meth:`stereograph.core.api.RunContext.progress` (a source rendering 120 scenes in
-  one call says ``37/120 scenes``). A node that yields items one call at a time needs none: its
-  entries advance the count.
-
-:class:`PlainProgress` is for logs, CI, pipes and notebooks: no ANSI codes, one line per running
-node every ``interval_s`` seconds (a heartbeat thread, so a long call without reports still says
-it is running), plus a line when a node starts and ends. :class:`RichProgress` draws bars with an
-ETA on a terminal.
+The runner calls ``node_started(name, n_items)``, ``advance(name)`` and, when they exist,
+``item_failed(name)`` and ``item_progress(name, done, total, unit)`` (a node's own report through
+``ctx.progress``). :class:`PlainProgress` (logs, CI, pipes, notebooks: a line per running node
+every few seconds, from a heartbeat thread) and :class:`RichProgress` (bars with an ETA).
 """
 
 from __future__ import annotations

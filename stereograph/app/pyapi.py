@@ -1,20 +1,10 @@
 """The Python API: run, check and compare pipelines from a program or a notebook.
 
-``import stereograph`` gives these as :func:`stereograph.run`, :func:`stereograph.check` and
-:func:`stereograph.app.compare` (see ``docs/python.md``)::
-
-    import stereograph
-
-    res = stereograph.run("pipelines/locate.yaml", set={"rig.n_scenes": 20})
-    res.ok                                  # no node failed
-    res.status                              # {"rig": "ran", "calib": "cached", ...}
-    res["report"]["report"]                 # every output of a node, by name
-    res.outputs("locate", "location")       # {pair id: location} for a per-item output
-
-They are what the ``stereograph`` command does, without its printing: problems with the
-pipeline raise :class:`~stereograph.core.errors.ConfigError` (``str()`` of it is the located
-paragraph the command prints, one per problem); a node that fails does not raise, it shows in
-``res.ok`` / ``res.errors`` (:meth:`Result.raise_for_errors` turns that into an exception).
+``stereograph.run(path, set={...})`` returns a :class:`Result` (``ok``, ``status``, ``res[node]``,
+``outputs(node, output)``); ``stereograph.check`` returns the problems; ``stereograph.compare``
+tabulates variants. They are what the command does, without its printing: a bad pipeline raises
+:class:`~stereograph.core.errors.ConfigError`, a failed node shows in ``res.ok`` / ``res.errors``
+(:meth:`Result.raise_for_errors`). docs/python.md has examples.
 """
 
 from __future__ import annotations

@@ -1,18 +1,10 @@
 """``report.html``: one self-contained page per run folder, built from ``run.json`` alone.
 
-The engine knows no domain, so the page is generic: first the result (errors, the nodes' one-line
-notes, the outputs nodes declare ``Out(headline=True)``), a loop's cycles, then the pipeline graph
-(coloured by status) and one section per node with its status, time, items, errors and every file
-the node saved -- images
-(PNG, SVG, JPEG) embedded as data URIs, *tables* rendered as HTML, ``markdown`` text shown as is,
-anything else linked. What a kind of node shows is therefore up to the node: it declares a saved
-``Image`` output (a figure it drew) or a saved *table* value::
-
-    {"title": str, "columns": [str, ...], "rows": [[cell, ...], ...]}
-
-No network: no scripts or styles from elsewhere. A small inline script checks that every image
-decoded and writes the result into the page (``#sg-images``, ``data-ok``), which the browser test
-reads from Chromium's ``--dump-dom``. ``stereograph report RUN_DIR`` rebuilds the page.
+Generic: the result (errors, notes, ``Out(headline=True)`` outputs), a loop's cycles, the graph
+coloured by status, then one section per node with every file it saved (images embedded, tables
+as HTML, markdown as is, the rest linked). No network; an inline script records that every image
+decoded (``#sg-images``). Public: :func:`write_report` (``stereograph report RUN_DIR``).
+docs/report.md and docs/engine.md ("report.html") say more.
 """
 
 from __future__ import annotations

@@ -1,32 +1,11 @@
 """Reruns that only look: a ``stereograph run`` with nothing changed, replayed without the graph.
 
-After a run that finished cleanly, the command line records a *memo* in the cache,
-``<cache>/reruns/<id>/`` (id: the pipeline file and its ``--set`` overrides): the stamps of every
-file the run's entry keys were computed from, the keys of the entries it used, hard links to the
-run folder's files (no second copy on disk), its ``run.json`` and what the console showed. The next
-run of the same command is *replayed* from the memo when all of these hold:
-
-* **Sources unchanged.** The pipeline file and its includes, every node module and the
-  project-local modules it imports (the closure the code hash covers), the engine's own modules,
-  every file a node declares it reads, and the installed packages (the entry-point index's
-  fingerprint). A file is unchanged when its size, ``mtime_ns``, ``ctime_ns`` and inode are the
-  recorded ones *and* its mtime and ctime were at least :data:`RACY_NS` older than the recording (an
-  edit in the same timestamp tick as the recording is not trusted: such a memo is never used). No user tool
-  sets a ctime back, so an edit that restores the size and the mtime (``touch -r``) is noticed too.
-* **Entries present.** Every entry the run used is still in the cache (its manifest is touched, which
-  is also the "used" mark least-recently-used pruning goes by). A pruned entry means a real run.
-* **Run-folder files intact.** Each memo file has its recorded stamps, or, when they moved (a hard
-  link made or removed changes the ctime), still its recorded digest.
-* **Plugins** (a pipeline's ``plugins:``) allowed, as a real run would require.
-* **Nodes that must run** (not cacheable: the actuator moves the arm on every run) are terminal and
-  take whole values. They run for real, their inputs loaded from the cache; theirs are the only
-  node modules a replay imports.
-
-Anything else -- a memo missing, stale or unreadable, an input that does not load -- falls back to
-the ordinary run, which decides freshness entry by entry and records a new memo; so a replay is
-never the only way to a result, and the memo is only a fast path (delete ``reruns/`` at any time).
-Nothing is written before every check has passed. This module imports only the standard library
-and the light engine modules; NumPy comes in only with a node that must run.
+After a clean run the command records a memo in ``<cache>/reruns/<id>/`` (file stamps, entry keys,
+hard links to the run folder's files, ``run.json``, what the console showed). The next run of the
+same command is replayed from it when its sources, entries, run-folder files and plugins are
+unchanged; uncacheable nodes still run for real. Anything else falls back to the ordinary run:
+the memo is only a fast path. Public: :func:`replay`, :func:`record`, :func:`forget`,
+:func:`fingerprint`. docs/engine.md ("Replayed reruns") has every rule.
 """
 
 from __future__ import annotations
