@@ -19,6 +19,8 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator  # noqa: F401  (re-exported)
 
 from stereograph.core.checks import ARTIFACT_CHECKS, artifact_check  # noqa: F401  (re-exported)
+from stereograph.core.config import parse_yaml
+from stereograph.core.errors import ConfigError
 
 __all__ = [
     "Params",
@@ -133,8 +135,6 @@ def _nesting(data: bytes) -> int:
 def parse_yaml_data(text: str, source: str, label: str) -> Any:
     """YAML from a data file, with the bounds a pipeline file has (safe_load semantics, depth, values
     after alias expansion: a few hundred bytes of aliases cannot ask for gigabytes)."""
-    from stereograph.core.config import parse_yaml
-    from stereograph.core.errors import ConfigError
 
     try:
         return parse_yaml(text, source, record_lines=False)[0]

@@ -34,6 +34,7 @@ import numpy as np
 
 from stereograph.core import hooks
 from stereograph.core.digests import digest, file_digest, hash_json
+from stereograph.core.errors import ConfigError
 
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
@@ -414,7 +415,6 @@ class ArtifactStore:
         self.locks = self.root / "locks"
         self.notes: list[str] = []  # what a user should know about this cache (read-only, full)
         if self.root.exists() and not self.root.is_dir():
-            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} is an existing file",
                               hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the project's "
@@ -430,7 +430,6 @@ class ArtifactStore:
         while not probe.exists() and probe != probe.parent:
             probe = probe.parent
         if not probe.is_dir():
-            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
                               hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the "
@@ -741,7 +740,6 @@ class ArtifactStore:
         (:meth:`abandoned`) goes first, whatever the budget.
         """
         if not self.writable:
-            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
         with exclusive(self.root, wait_s):

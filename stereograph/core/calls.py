@@ -19,6 +19,7 @@ from typing import Any
 
 from stereograph.core import registry
 from stereograph.core.api import REGISTRY, NodeError, RunContext
+from stereograph.core.checks import ARTIFACT_CHECKS
 from stereograph.core.errors import ConfigError
 
 # The run's progress display, for nodes that report progress inside a call (ctx.progress). A
@@ -113,7 +114,6 @@ def execute(task: Task) -> TaskResult:
 def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
     """Each output's value against its declared type's registered check (:func:`api.artifact_check`);
     a collection made whole is checked item by item. Raises NodeError naming the output."""
-    from stereograph.core.checks import ARTIFACT_CHECKS
 
     for name, value in out.items():
         decl = spec.outputs.get(name)

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from stereograph.core import hooks
+from stereograph.core.errors import ConfigError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -272,7 +273,6 @@ def _verified_render(rdir: Path) -> dict[str, bytes] | None:
 def check_folder_path(out: Path) -> Path:
     """Refuse an output folder that is an existing file or lies under one (:class:`ConfigError`);
     returns the nearest existing folder on its path (the folder itself when it exists)."""
-    from stereograph.core.errors import ConfigError
 
     if out.exists() and not out.is_dir():
         raise ConfigError(f"output folder {out} is an existing file", hint="choose another --out")
@@ -298,7 +298,6 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
         The files left in the folder (a user's, say), relative path -> stamp: what
         :func:`node_files` must not take for a file a node of this run wrote.
     """
-    from stereograph.core.errors import ConfigError
 
     probe = check_folder_path(out_dir)
     if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
@@ -367,7 +366,6 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        from stereograph.core.errors import ConfigError
 
         raise ConfigError(f"cannot make output folder {out_dir}: {e.strerror or e}",
                           hint="choose another --out") from None
@@ -396,7 +394,6 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     try:
         write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
     except OSError as e:
-        from stereograph.core.errors import ConfigError
 
         raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
                           hint="free space on that disk, or choose another --out") from None

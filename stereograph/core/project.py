@@ -12,6 +12,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
+from stereograph.core.errors import ConfigError
+
 DEFAULT_BUDGET_GB = 4.0  # a few GB: every everyday pipeline's artifacts fit many times over
 MARKERS = ("pyproject.toml", ".git")
 
@@ -56,7 +58,6 @@ def cache_dir(pipeline_dir: str | Path) -> Path:
         if path != root and root not in path.parents:
             # a project's files come with the project (a repository cloned, a folder handed over): they
             # must not point the cache -- written to by every run, emptied by `cache clear` -- at your files
-            from stereograph.core.errors import ConfigError
 
             raise ConfigError(f"{root / 'pyproject.toml'}: [tool.stereograph] cache_dir = {conf!r} is outside the "
                               f"project ({root})",

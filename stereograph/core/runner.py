@@ -20,8 +20,10 @@ from stereograph.core import outputs as outputs_mod
 from stereograph.core import project, streaming
 from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
 from stereograph.core.calls import _PROGRESS, close_resources
+from stereograph.core.config import load_pipeline
 from stereograph.core.errors import ConfigError
 from stereograph.core.executors import SerialExecutor
+from stereograph.core.graph import build_graph
 from stereograph.core.run_state import RunResult, RunState, default_cache_dir, new_run_id
 
 if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
@@ -271,8 +273,6 @@ def _terminal_values(graph: Graph, run: RunState, selected: list[str]) -> tuple[
 
 def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs: Any) -> RunResult:
     """Load, validate and run a pipeline file. Keyword arguments as :func:`run_graph`."""
-    from stereograph.core.config import load_pipeline
-    from stereograph.core.graph import build_graph
 
     doc = load_pipeline(path, overrides)
     return run_graph(build_graph(doc), **kwargs)
