@@ -22,7 +22,7 @@ def test_compare_compensation_real_pipeline(tmp_path):
     first = compare(PIPELINE, ["fit.type=none,polynomial"], tmp_path / "a", overrides=SMALL, cache_dir=cache,
                     plots=False)
     assert first.ok, [v.error for v in first.variants]
-    upstream = {"rig", "calib", "calib_error", "rectify", "check", "remap", "segment", "disparity", "locate"}
+    upstream = {"objects", "rig", "calib", "calib_error", "rectify", "check", "remap", "segment", "disparity", "locate"}
     own = {"fit", "compensate", "report"}
     assert first.variants[0].ran == upstream | own
     assert first.variants[1].ran == own  # calibration and segmentation ran once, not per variant

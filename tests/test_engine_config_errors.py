@@ -196,6 +196,8 @@ def test_unused_outputs_are_warned_unless_optional(tmp_path, capsys):
 
 
 LOCATE = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
+# the old style: the object given per segmenter type in `defaults:` (still supported)
+LOCATE_OLD = Path(__file__).resolve().parent / "old_style" / "locate.yaml"
 
 
 def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipelines_defaults(tmp_path):
@@ -205,7 +207,7 @@ def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipeline
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
 
-    obj = build_graph(load_pipeline(LOCATE, ["segment.object.radius_cm=5"])).nodes["segment"].params.object
+    obj = build_graph(load_pipeline(LOCATE_OLD, ["segment.object.radius_cm=5"])).nodes["segment"].params.object
     assert obj.radius_cm == 5 and tuple(obj.color_bgr) == (20, 120, 245)
     # the same through an include: nested params and nested defaults merge field by field
     (tmp_path / "common.yaml").write_text(
@@ -219,7 +221,7 @@ def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipeline
     assert doc.defaults["segmenter.color"] == want
     assert doc.nodes["seg"]["params"] == {"object": {"color_tolerance": 0.2, "radius_cm": 3.0}, "overlay": False}
     # null still unsets one field
-    obj = build_graph(load_pipeline(LOCATE, ["segment.object.color_bgr=null"])).nodes["segment"].params.object
+    obj = build_graph(load_pipeline(LOCATE_OLD, ["segment.object.color_bgr=null"])).nodes["segment"].params.object
     assert obj.color_bgr is None and obj.radius_cm == 2.0
 
 
@@ -261,14 +263,14 @@ def test_a_node_check_on_its_wiring_runs_at_validation(capsys):
     # (exit 2, the node and the --set named), not found when every item fails
     # (locate.yaml's defaults give every segmenter type the colour: unset it)
     code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
-                          capsys=capsys)
+                          capsys=capsys, pipeline=LOCATE_OLD)
     assert code == 2 and "node 'segment'" in msg and "needs the object's colour" in msg
     assert "segment.object.color_bgr=null" in msg and "appearance" in msg
     code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
-                          "--set", "segment.object.hue_range_deg=[10,40]", capsys=capsys)
+                          "--set", "segment.object.hue_range_deg=[10,40]", capsys=capsys, pipeline=LOCATE_OLD)
     assert code == 0, msg
     code, msg = _validate("--set", "segment.type=segmenter.edge_morph", "--set", "segment.object.color_bgr=null",
-                          capsys=capsys)
+                          capsys=capsys, pipeline=LOCATE_OLD)
     assert code == 0, msg  # (edge_morph works without a colour: look-alikes are refused as ambiguous)
 
 
@@ -309,7 +311,7 @@ def test_a_type_swap_on_the_command_line_keeps_params_set_before_it():
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
 
-    locate = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
+    locate = LOCATE_OLD
     for order in (["segment.object.radius_cm=5", "segment.type=segmenter.color"],
                   ["segment.type=segmenter.color", "segment.object.radius_cm=5"]):
         seg = build_graph(load_pipeline(locate, order)).nodes["segment"]

@@ -95,7 +95,7 @@ def test_a_valid_pipeline_has_no_problems():
 def test_three_mistakes_give_three_located_errors_in_one_pass(tmp_path, capsys):
     """(a node whose params failed hid the wires below it: validate said '2 problems; fix them all', and
     the third appeared only after the others were fixed)"""
-    text = (ROOT / "pipelines" / "locate.yaml").read_text()
+    text = (ROOT / "tests" / "old_style" / "locate.yaml").read_text()
     bad = (text.replace("n_views: 16", "n_view: 16").replace("views: rig.views", "views: rig.view")
            .replace("type: disparity.centroid", "type: disparity.centriod"))
     assert bad.count("\n") == text.count("\n") and bad != text
@@ -111,7 +111,7 @@ def test_three_mistakes_give_three_located_errors_in_one_pass(tmp_path, capsys):
 
 
 def test_a_bad_value_in_defaults_is_reported_at_its_own_line(tmp_path, capsys):
-    text = (ROOT / "pipelines" / "locate.yaml").read_text()
+    text = (ROOT / "tests" / "old_style" / "locate.yaml").read_text()
     bad = text.replace("    working_range_cm: [20, 80]", "    working_range_cm: [80, 20]", 1)
     assert bad != text
     (tmp_path / "locate.yaml").write_text(bad)

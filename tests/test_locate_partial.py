@@ -169,7 +169,7 @@ def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_pat
     import stereograph
 
     far = {"rig.n_scenes": 20, "rig.camera_height_cm": 40, "rig.camera_tilt_deg": 15, "rig.min_distance_cm": 100,
-           "rig.max_distance_cm": 200, "segment.working_range_cm": [80, 220], "disparity.working_range_cm": [80, 220],
+           "rig.max_distance_cm": 200, "objects.working_range_cm": [80, 220], "disparity.working_range_cm": [80, 220],
            "locate.working_range_cm": [80, 220]}
     pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
     res = stereograph.run(pipeline, far, use_cache=False, keep=["locate"], out_dir=tmp_path / "out", progress=False)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
+from pydantic import model_validator
+
 from stereograph.api import Field, NodeError, Params, PositiveRange
 
 __all__ = ["ObjectDecl", "ObjectSpec", "ObjectsParams", "declared_object", "objects_value"]
@@ -59,6 +61,20 @@ class ObjectsParams(Params):
                                                   "hue_range_deg; no colour = learned or unknown).")
     working_range_cm: PositiveRange = Field(
         (20.0, 80.0), description="Nearest and farthest distance of the objects from the cameras (cm).")
+
+    @model_validator(mode="after")
+    def _objects_fit_the_working_range(self) -> ObjectsParams:
+        far = max(self.working_range_cm)
+        for o in self.objects:
+            if far <= o.radius_cm:
+                raise ValueError(f"working_range_cm ends at {far:g} cm, within the radius of {o.name!r} "
+                                 f"({o.radius_cm:g} cm): the cameras would be inside it; give the distances from "
+                                 "the cameras to the objects' centres, in cm")
+        names = [o.name for o in self.objects]
+        if len(set(names)) < len(names):
+            raise ValueError(f"two objects share a name ({sorted({n for n in names if names.count(n) > 1})}): "
+                             "give each its own")
+        return self
 
 
 def declared_object(objects: dict, name: str | None = None) -> tuple[ObjectSpec, tuple[float, float]]:

@@ -68,7 +68,7 @@ def disparity_range_px(rectification: dict | None, params: DisparityParams,
 
 
 REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
-PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm", "object_radius_cm", "object")
+PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm", "object_radius_cm", "object", "merged")
 
 
 def _passed_on(seg) -> dict:

@@ -122,7 +122,7 @@ def joint_target(model: dict[str, Any], location: dict[str, Any], hand_eye: dict
         "joints_deg": None, "servo_units": None, "fk_cm": None, "solver": solver,
         "object_radius_cm": _num(location.get("object_radius_cm")), "sigma_z_cm": _num(location.get("sigma_z_cm")),
         "hand_eye_rms_cm": _num(rms), "height_above_table_cm": height}
-    for key in ("split", "object", "u_left_px", "v_left_px"):  # (which object, and where it was seen)
+    for key in ("split", "object", "merged", "u_left_px", "v_left_px"):  # (which object, and where it was seen)
         if key in location:
             out[key] = location[key]
     if p is None:

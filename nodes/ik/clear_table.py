@@ -130,7 +130,7 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
     unclear = {}
     for t in ts:
-        if not t.get("found") and not t.get("unreachable"):
+        if (not t.get("found") and not t.get("unreachable")) or t.get("merged"):
             unclear[t.get("object")] = unclear.get(t.get("object"), 0) + 1
     plan, skipped = _choose(params, arm, found, places, memory, first, n_now, unclear)
     status = {"cycle": memory.cycle, "seen": len(ts), "found": len(found), "look_again": verdict,

@@ -169,7 +169,7 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
     # where the segmenter's object colour came from (given, learned): kept beside each result
     # ... and the ball's radius the segmenter looked for (ik.pick_sequence: its centre must be a radius
     # above the table, else the location is wrong)
-    seen = {k: disparity[k] for k in ("color_from", "object_radius_cm", "object") if k in disparity}
+    seen = {k: disparity[k] for k in ("color_from", "object_radius_cm", "object", "merged") if k in disparity}
     if not disparity["found"]:
         return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth, **seen)
     d = float(disparity["disparity_px"])

@@ -10,6 +10,7 @@ BGR image) and, in the node's output folder, ``accuracy.md``.
 
 from __future__ import annotations
 
+import re
 from typing import Literal
 
 import numpy as np
@@ -27,6 +28,9 @@ class AccuracyParams(Params):
     )
     title: str = Field("Localisation error", description="Title of the table and figure (text).")
     figure: bool = Field(True, description="Render the matplotlib figure (bool).")
+    by_kind: bool = Field(False, description="Also per kind of pair (its id without the trailing number: "
+                                             "source.synthetic's touching_ball003 is a touching_ball) in the "
+                                             "metrics: found_<kind> (rate) and off_1cm_<kind> (found, > 1 cm off).")
 
 
 AXES = ("x", "y", "z")
@@ -222,8 +226,24 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
     # (an output, so that a cached report's run folder gets it too, and a later run clears it)
     return {"report": report, "locations": location_records(locations), "figure": fig,
             "metrics": {**accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
-                        "n_lost": len(lost)},
+                        "n_lost": len(lost), **(kind_metrics(sel) if params.by_kind else {})},
             "accuracy": {"file_text": md, "file_suffix": ".md"}}
+
+
+def kind_metrics(locations: dict[str, dict]) -> dict[str, float | int]:
+    """Per kind of pair (the id less its trailing digits): ``found_<kind>`` (the found rate) and
+    ``off_1cm_<kind>`` (found with truth, more than 1 cm from it: the wrong answers)."""
+    out: dict[str, float | int] = {}
+    groups: dict[str, list[dict]] = {}
+    for pid, v in locations.items():
+        groups.setdefault(re.sub(r"\d+$", "", str(pid)) or "pair", []).append(v)
+    for kind, vs in sorted(groups.items()):
+        found = [v for v in vs if v.get("found")]
+        off = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None and np.linalg.norm(
+            np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"])) > 1.0]
+        out[f"found_{kind}"] = len(found) / len(vs)
+        out[f"off_1cm_{kind}"] = len(off)
+    return out
 
 
 def accuracy_metrics(axes: dict, n: int, n_found: int, n_truth: int, n_extrapolated: int) -> dict:

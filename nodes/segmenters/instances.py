@@ -60,6 +60,7 @@ def _record(pid: str, name: str, k: int, inst: dict, params: SegmenterParams, pa
     return {"id": f"{pid}/{name}{k}", "pair": pid, "object": name, "instance": k, "found": inst["found"],
             "reason": inst["reason"], "left": inst.get("left"), "right": inst.get("right"),
             "left_mask": None, "right_mask": None, "left_px": inst["left_px"], "method": f"instances:{method}",
+            "merged": bool(inst.get("merged")),  # found in a region of more than one ball
             "object_radius_cm": float(params.object.radius_cm),
             "working_range_cm": sorted(float(z) for z in params.working_range_cm),
             "color_from": "params" if params.object.color_bgr is not None else None, "split": pair.get("split"),

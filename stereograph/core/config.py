@@ -516,6 +516,36 @@ def check_node_named(doc: PipelineDoc, node: str, what: str, where: Where | None
     raise ConfigError(f"{what}: no node named '{node}' in {doc.path.name}", where, hint=hint)
 
 
+def _index(container: Any, field: str) -> int | None:
+    """``field`` as an index into ``container`` when it is a list and the field a whole number inside it."""
+    if isinstance(container, list) and field.isdigit() and int(field) < len(container):
+        return int(field)
+    return None
+
+
+def _set_param(target: dict, fields: list[str], value: Any) -> list[int]:
+    """Set ``value`` at the path ``fields`` in nested params (a number indexes a list the file gave:
+    ``objects.0.color_bgr``); returns the depths at which a missing or scalar value was replaced by a mapping."""
+    replaced = []
+    for k, f in enumerate(fields[:-1]):
+        i = _index(target, f)
+        nxt = target[i] if i is not None else target.get(f) if isinstance(target, dict) else None
+        if not isinstance(nxt, (dict, list)) or (isinstance(nxt, list) and _index(nxt, fields[k + 1]) is None):
+            nxt = {}
+            if i is not None:
+                target[i] = nxt
+            else:
+                target[f] = nxt
+            replaced.append(k)
+        target = nxt
+    i = _index(target, fields[-1])
+    if i is not None:
+        target[i] = value
+    else:
+        target[fields[-1]] = value
+    return replaced
+
+
 def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
     """Apply one ``--set`` to the document (validation happens later, with the rest).
 
@@ -535,15 +565,9 @@ def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
     else:
         if fields[0] == "params":
             fields = fields[1:]
-        target = decl.setdefault("params", {})
-        for k, f in enumerate(fields[:-1]):
-            nxt = target.get(f)
-            if not isinstance(nxt, dict):
-                nxt = {}
-                target[f] = nxt
-                doc.lines[("nodes", node, "params", *fields[:k + 1])] = where  # (the value it replaced was the file's)
-            target = nxt
-        target[fields[-1]] = value
+        replaced = _set_param(decl.setdefault("params", {}), fields, value)
+        for k in replaced:  # (the value it replaced was the file's)
+            doc.lines[("nodes", node, "params", *fields[:k + 1])] = where
     key = ("nodes", node, "params", *fields)
     for stale in [k for k in doc.lines if k[:len(key)] == key]:  # lines of the value it replaces
         del doc.lines[stale]

@@ -127,7 +127,7 @@ def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, 
                  for j in _rows_partners(a, r_all, params, rect)]
         good = [t for t in tried if t["found"]]
         if len(good) == 1:
-            out.append(good[0])
+            out.append({**good[0], "merged": True})  # (it may hide another ball: the region was not one)
             continue
         why = a["reason"] + (f"; partial view: {tried[0]['reason']}" if len(tried) == 1 else
                              "; partial view: more than one right region fits it" if good else
