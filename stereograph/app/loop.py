@@ -157,7 +157,7 @@ class Loop:
             try:
                 self._check_stop()
                 if k > 1:
-                    _reset(run, self.live)
+                    run.forget(self.live)
                 for name in order:
                     self._check_stop()
                     current = name
@@ -224,7 +224,7 @@ class Loop:
             if cycle.status == "running" and r.status in ("failed", "partial"):
                 cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
             for out in g.nodes[name].spec.outputs:
-                v = _value(run, name, out, g.is_collection(name, out))
+                v = run.value_of(name, out)
                 # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0, 0, 0]]])
                 if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
                     continue
@@ -267,21 +267,10 @@ def _signals_deferred() -> Iterator[None]:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
 
 
-def _value(run: Any, node: str, out: str, collection: bool) -> Any:
-    """The cycle's value of an output (``{item: value}`` for a collection), None if it has none."""
-    if collection:
-        ids = run.items.get((node, out), [])
-        vals = {i: run.mem.get((node, out, i)) for i in ids}
-        if len(vals) == 1 and isinstance(next(iter(vals.values())), dict):
-            return next(iter(vals.values()))  # the usual live cycle: one item
-        return vals or None
-    return run.mem.get((node, out, None))
-
-
 def _save(run: Any, node: str, folder: Path) -> None:
     """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest as JSON."""
     for out in run.g.nodes[node].spec.outputs:
-        v = _value(run, node, out, run.g.is_collection(node, out))
+        v = run.value_of(node, out)
         if v is None:
             continue
         stem = folder / node / out
@@ -297,7 +286,7 @@ def _save(run: Any, node: str, folder: Path) -> None:
 def _save_pictures(run: Any, node: str, folder: Path) -> None:
     """The saved image outputs (``Out(save=True)``) of ``node`` in this cycle, as ``<node>/<output>.png``."""
     for out, decl in run.g.nodes[node].spec.outputs.items():
-        v = _value(run, node, out, run.g.is_collection(node, out))
+        v = run.value_of(node, out)
         if decl.save and v is not None and outputs_mod.is_image(v):
             (folder / node).mkdir(parents=True, exist_ok=True)
             outputs_mod.write_value(folder / node / out, v)
@@ -308,28 +297,10 @@ def _append_saved(run: Any, node: str, index: int) -> None:
     in ``<node>/<output>.cycles.jsonl``: the run folder's ``<node>/<output>.json`` holds the last cycle's
     only (a servo log, say)."""
     for out, decl in run.g.nodes[node].spec.outputs.items():
-        v = _value(run, node, out, run.g.is_collection(node, out))
+        v = run.value_of(node, out)
         if not decl.save or v is None or outputs_mod.is_image(v):
             continue
         path = run.out_dir / node / f"{out}.cycles.jsonl"
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("a") as f:  # (large arrays are left out: they go to --save-cycles' .npz files)
             f.write(json.dumps({"cycle": index, out: outputs_mod.to_json(v, {})}, default=str) + "\n")
-
-
-def _reset(run: Any, live: list[str]) -> None:
-    """Forget the live nodes' results of the last cycle, so they run again."""
-    from stereograph.core.run_state import NodeReport
-
-    g = run.g
-    live_set = set(live)
-    for n in live:
-        run.reports[n] = NodeReport(n, g.nodes[n].type)
-        run.remaining_consumers[n] = set(g.consumers(n))
-    for table in (run.mem, run.ref_keys):
-        for ref in [r for r in table if r[0] in live_set]:
-            del table[ref]
-    for key in [k for k in run.items if k[0] in live_set]:
-        del run.items[key]
-    for key in [k for k in run.failed_items if k[0] in live_set]:
-        del run.failed_items[key]

@@ -668,6 +668,28 @@ class RunState:
     def _saves(self, node: str) -> bool:
         return any(o.save for o in self.g.nodes[node].spec.outputs.values())
 
+    def forget(self, nodes: Iterable[str]) -> None:
+        """Drop the results of ``nodes`` in this run (values, item lists, failures, reports), so that
+        they run again: a loop's next cycle."""
+        names = set(nodes)
+        for n in names:
+            self.reports[n] = NodeReport(n, self.g.nodes[n].type)
+            self.remaining_consumers[n] = set(self.g.consumers(n))
+        for table in (self.mem, self.ref_keys, self.items, self.failed_items):
+            for key in [k for k in table if k[0] in names]:
+                del table[key]
+
+    def value_of(self, node: str, out: str) -> Any:
+        """The value an output of ``node`` holds in memory now: ``{item: value}`` for a collection (the
+        value itself when it has one item and that is a dict: a live cycle's usual single pair), else
+        the value; None when it has none."""
+        if self.g.is_collection(node, out):
+            vals = {i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])}
+            if len(vals) == 1 and isinstance(next(iter(vals.values())), dict):
+                return next(iter(vals.values()))
+            return vals or None
+        return self.mem.get((node, out, None))
+
 
 def _read_back(files: list[Path]) -> Any:
     """An item's image as written to the run folder: PNG is lossless (the very array); a lossy output's
