@@ -97,3 +97,15 @@ def test_ctrl_c_while_carrying_a_ball_holds_the_arm_with_the_ball(tmp_path):
     world = json.loads(world_path.read_text())
     held = [b for b in world["balls"] if b["state"] == "held"]
     assert len(held) == 1 and world["gripper"]["closed"] and held[0]["center_cm"][2] > 3.0  # up in the gripper
+
+
+def test_a_place_on_the_table_in_view_is_checked_and_its_balls_left_there(tmp_path):
+    objects = ('objects.objects=[{name: orange, radius_cm: 2.0, color_bgr: [20, 120, 245], drop_place_cm: [-10, -12, '
+               '0]}, {name: blue, radius_cm: 2.0, color_bgr: [200, 90, 30], drop_place_cm: [15.0, -6.0, 3.0]}]')
+    balls = "bench.balls=[{object: orange, center_cm: [4, 14]}, {object: orange, center_cm: [-6, 15]}]"
+    loop, world, cycles = _clear(tmp_path, [objects, balls], "spot")
+    assert all(b["state"] == "placed" and b["place"] == "orange_place" for b in world["balls"])
+    verdicts = [c["values"]["plan.status"]["look_again"] for c in cycles[1:]]
+    assert [v["verdict"] for v in verdicts] == ["gone", "gone"] and all(v["seen_at_place"] for v in verdicts)
+    assert cycles[-1]["values"]["plan.status"]["found"] == 0  # both seen at their place: nothing to pick
+    assert loop.stopped.endswith("the table is clear (2 picked and placed, 0 retried)")

@@ -54,7 +54,7 @@ def _places_base(objects: dict, hand_eye: dict, params: ClearParams) -> dict[str
             release = [x, y, h + d.radius_cm + params.release_gap_cm]
             out[d.name] = {"center_cm": (T[:3, :3] @ np.asarray([x, y, h]) + T[:3, 3]).tolist(),
                            "release_cm": (T[:3, :3] @ np.asarray(release) + T[:3, 3]).tolist(),
-                           "radius_cm": params.place_radius_cm}
+                           "radius_cm": params.place_radius_cm, "on_table": h <= 0.0}
     return out
 
 
@@ -125,6 +125,12 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
             n_now[t.get("object")] = n_now.get(t.get("object"), 0) + 1
     last_object = memory.last["object"] if memory.last else None
     verdict = look_again(memory, found, n_now.get(last_object, 0), tol, params.max_retries)
+    if verdict and verdict["verdict"] == "gone" and places.get(verdict["object"], {}).get("on_table"):
+        # a place on the table is in view: the ball must be seen there too
+        verdict["seen_at_place"] = any(t.get("found") and t.get("object") == verdict["object"] and at_place(t, places)
+                                       for t in ts)
+        if not verdict["seen_at_place"] and ctx is not None:
+            ctx.warn(f"the {verdict['object']} ball picked last is gone from where it was but not seen at its place")
     if verdict and verdict["verdict"] == "given up":
         found = [t for t in found if not _given_up(memory, t)]
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
