@@ -43,14 +43,14 @@ from nodes.segmenters.color import ColorParams, color  # noqa: E402
 from nodes.segmenters.edge_morph import EdgeMorphParams, edge_morph  # noqa: E402
 from nodes.segmenters.hough import HoughParams, hough  # noqa: E402
 from nodes.segmenters.otsu import OtsuParams, otsu  # noqa: E402
-from nodes.segmenters.slic import SlicParams, slic_superpixels  # noqa: E402
-from nodes.segmenters.watershed import WatershedParams, watershed_split  # noqa: E402
+from nodes.segmenters.slic import SlicParams, slic  # noqa: E402
+from nodes.segmenters.watershed import WatershedParams, watershed  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
 
 OBJECT = {"radius_cm": 2.0, "color_bgr": [20, 120, 245]}
 SEGMENTERS = {"edge_morph": (edge_morph, EdgeMorphParams), "color": (color, ColorParams),
               "otsu": (otsu, OtsuParams), "hough": (hough, HoughParams),
-              "watershed": (watershed_split, WatershedParams), "slic": (slic_superpixels, SlicParams)}
+              "watershed": (watershed, WatershedParams), "slic": (slic, SlicParams)}
 
 
 def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dict]:

@@ -34,8 +34,8 @@ from . import color, edge_morph, hough, otsu, slic, watershed
 METHODS = {"edge_morph": (edge_morph.edge_morph, edge_morph.EdgeMorphParams),
            "color": (color.color, color.ColorParams), "otsu": (otsu.otsu, otsu.OtsuParams),
            "hough": (hough.hough, hough.HoughParams),
-           "watershed": (watershed.watershed_split, watershed.WatershedParams),
-           "slic": (slic.slic_superpixels, slic.SlicParams)}
+           "watershed": (watershed.watershed, watershed.WatershedParams),
+           "slic": (slic.slic, slic.SlicParams)}
 
 
 class InstancesParams(SegmenterParams):

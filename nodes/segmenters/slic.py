@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from skimage.segmentation import slic
+from skimage.segmentation import slic as sk_slic
 
 from nodes.contracts.segmenter import SegmenterParams, color_distance_map, fill_holes, max_hole_area, segmenter
 from stereograph.api import Field, NodeError
@@ -30,7 +30,7 @@ def slic_mask(img_bgr: np.ndarray, params: SlicParams, r_range_px, scale: int = 
                              "for gray images use segmenter.edge_morph or segmenter.otsu")
     h, w = img_bgr.shape[:2]
     size_px = max(4.0, math.pi * r_range_px[0] ** 2 / params.pieces_per_ball)
-    labels = slic(np.ascontiguousarray(img_bgr[..., ::-1]), n_segments=int(min(6000, max(8, h * w / size_px))),
+    labels = sk_slic(np.ascontiguousarray(img_bgr[..., ::-1]), n_segments=int(min(6000, max(8, h * w / size_px))),
                   compactness=params.compactness, start_label=0, channel_axis=-1)
     count = np.maximum(np.bincount(labels.ravel()), 1)
     dist = color_distance_map(img_bgr, params.object.color_bgr)
@@ -45,5 +45,6 @@ def _needs_a_colour(params: SlicParams, wired: frozenset[str]) -> None:
                                                       "object.color_bgr, or wire `appearance`")
 
 
-#: ``segmenter.slic``: the node (the shared shell of nodes.contracts.segmenter around slic_mask)
-slic_superpixels = segmenter("segmenter.slic", params=SlicParams, check=_needs_a_colour)(slic_mask)
+#: ``segmenter.slic``: the node (the shared shell of nodes.contracts.segmenter around slic_mask); named as
+#: its method, so that a worker process finds it by name
+slic = segmenter("segmenter.slic", params=SlicParams, check=_needs_a_colour)(slic_mask)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage as ndi
 from skimage.feature import peak_local_max
-from skimage.segmentation import watershed
+from skimage.segmentation import watershed as sk_watershed
 
 from nodes.contracts.segmenter import segmenter
 from stereograph.api import Field
@@ -44,7 +44,7 @@ def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, sca
     ids = np.arange(1, len(peaks) + 1)
     markers = np.zeros(dist.shape, np.int32)
     markers[tuple(peaks.T)] = ids
-    labels = watershed(-dist, markers, mask=fg)
+    labels = sk_watershed(-dist, markers, mask=fg)
     # A piece is kept if it is about the disc of its inscribed radius: a ball's is; the pieces a
     # watershed cuts from a box, a corner or a strip are much larger than theirs.
     area = np.bincount(labels.ravel(), minlength=len(ids) + 1)[1:]
@@ -53,5 +53,6 @@ def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, sca
     return (keep[labels] & ~split_lines(labels)).astype(np.uint8) * 255
 
 
-#: ``segmenter.watershed``: the node (the shared shell of nodes.contracts.segmenter around watershed_mask)
-watershed_split = segmenter("segmenter.watershed", params=WatershedParams)(watershed_mask)
+#: ``segmenter.watershed``: the node (the shared shell of nodes.contracts.segmenter around watershed_mask);
+#: named as its method, so that a worker process finds it by name
+watershed = segmenter("segmenter.watershed", params=WatershedParams)(watershed_mask)
