@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nodes.compensators._common import samples_from_locations
 from nodes.compensators.disparity_curve import _curve, fit_disparity_curve
+from nodes.contracts.compensator._common import samples_from_locations
 
 
 def _samples(d, z_true):

@@ -11,9 +11,9 @@ import pytest
 from compensation_data import make_locations
 
 from nodes.compensators import disparity_curve, lookup, none, polynomial, xyz
-from nodes.compensators._common import training_samples
-from nodes.compensators._figure import fit_picture, held_out
 from nodes.compensators._table import PREDICTORS
+from nodes.contracts.compensator._common import training_samples
+from nodes.contracts.compensator._figure import fit_picture, held_out
 
 FIT_NODES = {
     "polynomial": polynomial.polynomial,

@@ -10,9 +10,9 @@ import pytest
 from compensation_data import errors, make_locations
 
 from nodes.compensators import disparity_curve, lookup, none, polynomial, xyz
-from nodes.compensators._common import samples_from_locations
 from nodes.compensators.apply import ApplyParams, apply, apply_model
 from nodes.compensators.disparity_curve import fit_disparity_curve
+from nodes.contracts.compensator._common import samples_from_locations
 from stereograph.core.api import NodeError
 
 FIT_NODES = {
@@ -325,7 +325,7 @@ def test_a_truth_in_another_unit_or_frame_is_refused_not_fitted(biased, kind, mi
 def test_when_most_training_balls_are_not_found_the_fix_is_about_finding_them():
     """(the Fix said 'more training placements, or fewer coefficients' while the reason it quoted --
     the ball's colour not found -- was the real cause)"""
-    from nodes.compensators._common import training_samples
+    from nodes.contracts.compensator._common import training_samples
     from stereograph.core.api import NodeError
 
     train = {f"p{i}": {"split": "train", "found": False, "reason": "no plausible region (colour not seen)"}

@@ -11,7 +11,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from nodes.compensators import disparity_curve, lookup, none, polynomial, xyz
-from nodes.compensators._common import Samples
+from nodes.contracts.compensator._common import Samples
 
 __all__ = ["PREDICTORS"]
 

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from nodes.compensators._common import node_label, samples_from_locations
-from nodes.compensators._support import outside_support
 from nodes.compensators._table import PREDICTORS
+from nodes.contracts.compensator._common import node_label, samples_from_locations
+from nodes.contracts.compensator._support import outside_support
 from stereograph.api import In, NodeError, Out, Params, node
 
 __all__ = ["apply", "apply_model"]

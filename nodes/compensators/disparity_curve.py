@@ -31,22 +31,14 @@ from typing import Any, Literal
 import numpy as np
 from scipy.optimize import least_squares
 
-from nodes.compensators._common import (
-    METRICS_OUTPUT,
-    TRAIN_INPUT,
+from nodes.contracts.compensator import fit_compensator
+from nodes.contracts.compensator._common import (
     RayFitParams,
     Samples,
     along_ray,
-    build_model,
-    model_metrics,
-    node_label,
-    require_span,
     resolve_along_ray,
-    training_samples,
 )
-from nodes.compensators._figure import fit_figure, held_out
-from nodes.contracts.drawing import load_figures
-from stereograph.api import Field, NodeError, Out, node
+from stereograph.api import Field, NodeError
 
 __all__ = ["disparity_curve", "fit_disparity_curve", "predict_disparity_curve"]
 
@@ -168,39 +160,25 @@ class DisparityCurveParams(RayFitParams):
     )
 
 
-@node(
-    "compensator.disparity_curve",
-    inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="z = a/(d+b)+c (cm, d in px)."),
-             "figure": Out("Image", save=True, optional=True,
-                           description="Depth error (truth - measured, cm) vs disparity:"
-                                       " placements, fitted curve, valid range."),
-             **METRICS_OUTPUT},
-    params=DisparityCurveParams,
-    version="3",
-    prepare=load_figures,
-)
-def disparity_curve(params: DisparityCurveParams, train, ctx=None):
-    """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
-    label = node_label(ctx, "compensator.disparity_curve")
-    samples = training_samples(train, label, needs=INPUTS, min_points=4 if params.with_offset else 3)
+def _camera_frame_only(params: DisparityCurveParams, samples: Samples, label: str) -> None:
     if samples.frame != "left_camera":
         raise NodeError(
             f"{label}: the disparity curve models depth along the camera axis, but the locations are in the "
             f"'{samples.frame}' frame.",
             hint="fit on locations in the left_camera frame (locator frame: left_camera), or use compensator.xyz.",
         )
-    require_span(samples.disparity_px, "disparity", label, params.min_span_fraction, "px")
 
-    def fit(s: Samples) -> dict[str, Any]:
-        return fit_disparity_curve(s, params.with_offset, xy=params.xy, rectified=params.depth == "rectified")
 
-    model = build_model(
-        "disparity_curve", samples, fit, predict_disparity_curve, INPUTS, label, params.cv_folds, params.cv_seed,
-        params.model_dump(), robust=params, min_points=4 if params.with_offset else 3, ctx=ctx,
-    )
+def _title(params: DisparityCurveParams, model: dict) -> str:
     c = model["coefficients"]
-    figure = fit_figure(model, samples, predict_disparity_curve, held_out(train, INPUTS), "disparity_px", ("z",),
-                        f"{params.depth} depth = a / (d + b) + c: a = {c['a_cm_px']:.5g} cm px, "
-                        f"b = {c['b_px']:+.3g} px, c = {c['c_cm']:+.3g} cm", enabled=params.figure)
-    return {"model": model, "metrics": model_metrics(model), "figure": figure}
+    return (f"{params.depth} depth = a / (d + b) + c: a = {c['a_cm_px']:.5g} cm px, b = {c['b_px']:+.3g} px, "
+            f"c = {c['c_cm']:+.3g} cm")
+
+
+@fit_compensator("compensator.disparity_curve", params=DisparityCurveParams, predict=predict_disparity_curve,
+                 inputs=INPUTS, min_points=lambda p: 4 if p.with_offset else 3, span="disparity", axes=("z",),
+                 title=_title, version="3", check=_camera_frame_only, model="z = a/(d+b)+c (cm, d in px).",
+                 figure="Depth error (truth - measured, cm) vs disparity: placements, fitted curve, valid range.")
+def disparity_curve(params: DisparityCurveParams, samples: Samples) -> dict[str, Any]:
+    """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
+    return fit_disparity_curve(samples, params.with_offset, xy=params.xy, rectified=params.depth == "rectified")

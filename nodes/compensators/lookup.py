@@ -15,22 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from nodes.compensators._common import (
-    METRICS_OUTPUT,
-    TRAIN_INPUT,
+from nodes.contracts.compensator import fit_compensator
+from nodes.contracts.compensator._common import (
     RayFitParams,
     Samples,
     along_ray,
-    build_model,
-    model_metrics,
-    node_label,
-    require_span,
     resolve_along_ray,
-    training_samples,
 )
-from nodes.compensators._figure import fit_figure, held_out
-from nodes.contracts.drawing import load_figures
-from stereograph.api import Field, NodeError, Out, node
+from stereograph.api import Field, NodeError
 
 __all__ = ["fit_lookup", "lookup", "predict_lookup"]
 
@@ -135,38 +127,20 @@ class LookupParams(RayFitParams):
     min_per_bin: int = Field(3, ge=1, description="Fewest training placements a bin needs to give a knot (count).")
 
 
-@node(
-    "compensator.lookup",
-    inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Knots of a z correction table (cm)."),
-             "figure": Out("Image", save=True, optional=True,
-                           description="z error (truth - measured, cm) vs measured z:"
-                                       " placements, fitted table, valid range."),
-             **METRICS_OUTPUT},
-    params=LookupParams,
-    version="3",
-    prepare=load_figures,
-)
-def lookup(params: LookupParams, train, ctx=None):
-    """Fit a piecewise-linear z correction over binned measured distance on the training placements."""
-    label = node_label(ctx, "compensator.lookup")
-    samples = training_samples(train, label, needs=INPUTS, min_points=2 * params.min_per_bin)
-    require_span(samples.xyz_cm[:, 2], "measured distance z", label, params.min_span_fraction, "cm")
-
-    def fit(s: Samples) -> dict[str, Any]:
-        return fit_lookup(s, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.xy)
-
-    model = build_model(
-        "lookup", samples, fit, predict_lookup, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
-        robust=params, min_points=2 * params.min_per_bin, ctx=ctx,
-    )
+def _title(params: LookupParams, model: dict) -> str:
     c = model["coefficients"]
-    _only_where_bins_hold_data(model, samples, params.min_per_bin, ctx)
     width = np.diff(c["edges_cm"])
     widths = f"{np.min(width):.3g}" if np.ptp(width) < 1e-3 * np.max(width) else \
         f"{np.min(width):.3g}-{np.max(width):.3g}"
-    figure = fit_figure(model, samples, predict_lookup, held_out(train, INPUTS), "z_cm", ("z",),
-                        f"z correction = piecewise linear through {len(c['knots_z_cm'])} knots (bin means; bins "
-                        f"{widths} cm wide, at least {params.min_per_bin} placements)",
-                        enabled=params.figure)
-    return {"model": model, "metrics": model_metrics(model), "figure": figure}
+    return (f"z correction = piecewise linear through {len(c['knots_z_cm'])} knots (bin means; bins {widths} cm "
+            f"wide, at least {params.min_per_bin} placements)")
+
+
+@fit_compensator("compensator.lookup", params=LookupParams, predict=predict_lookup, inputs=INPUTS,
+                 min_points=lambda p: 2 * p.min_per_bin, span="z", axes=("z",), title=_title, version="3",
+                 after=lambda p, model, samples, ctx: _only_where_bins_hold_data(model, samples, p.min_per_bin, ctx),
+                 model="Knots of a z correction table (cm).",
+                 figure="z error (truth - measured, cm) vs measured z: placements, fitted table, valid range.")
+def lookup(params: LookupParams, samples: Samples) -> dict[str, Any]:
+    """Fit a piecewise-linear z correction over binned measured distance on the training placements."""
+    return fit_lookup(samples, params.n_bins, params.bin_edges_cm, params.min_per_bin, params.xy)

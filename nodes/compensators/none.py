@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from nodes.compensators._common import (
+from nodes.contracts.compensator._common import (
     METRICS_OUTPUT,
     TRAIN_INPUT,
     FitParams,
@@ -21,7 +21,7 @@ from nodes.compensators._common import (
     node_label,
     training_samples,
 )
-from nodes.compensators._figure import fit_figure, held_out
+from nodes.contracts.compensator._figure import fit_figure, held_out
 from nodes.contracts.drawing import load_figures
 from stereograph.api import Out, node
 

@@ -15,22 +15,14 @@ from typing import Any, Literal
 import numpy as np
 from numpy.polynomial import Polynomial
 
-from nodes.compensators._common import (
-    METRICS_OUTPUT,
-    TRAIN_INPUT,
+from nodes.contracts.compensator import fit_compensator
+from nodes.contracts.compensator._common import (
     RayFitParams,
     Samples,
     along_ray,
-    build_model,
-    model_metrics,
-    node_label,
-    require_span,
     resolve_along_ray,
-    training_samples,
 )
-from nodes.compensators._figure import fit_figure, held_out
-from nodes.contracts.drawing import load_figures
-from stereograph.api import Field, NodeError, Out, node
+from stereograph.api import Field, NodeError
 
 __all__ = ["fit_polynomial", "polynomial", "predict_polynomial"]
 
@@ -95,32 +87,15 @@ class PolynomialParams(RayFitParams):
     )
 
 
-@node(
-    "compensator.polynomial",
-    inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Polynomial of measured z (cm)."),
-             "figure": Out("Image", save=True, optional=True,
-                           description="z error (truth - measured, cm) vs measured z:"
-                                       " placements, fitted curve, valid range."),
-             **METRICS_OUTPUT},
-    params=PolynomialParams,
-    version="3",
-    prepare=load_figures,
-)
-def polynomial(params: PolynomialParams, train, ctx=None):
-    """Fit the z error (or true z) as a polynomial of measured z on the training placements."""
-    label = node_label(ctx, "compensator.polynomial")
-    samples = training_samples(train, label, needs=INPUTS, min_points=params.degree + 2)
-    require_span(samples.xyz_cm[:, 2], "measured distance z", label, params.min_span_fraction, "cm")
-
-    def fit(s: Samples) -> dict[str, Any]:
-        return fit_polynomial(s, params.degree, params.target, params.xy)
-
-    model = build_model(
-        "polynomial", samples, fit, predict_polynomial, INPUTS, label, params.cv_folds, params.cv_seed,
-        params.model_dump(), robust=params, min_points=params.degree + 2, ctx=ctx,
-    )
+def _title(params: PolynomialParams, model: dict) -> str:
     what = "z correction" if params.target == "error" else "true z (drawn as true - measured)"
-    figure = fit_figure(model, samples, predict_polynomial, held_out(train, INPUTS), "z_cm", ("z",),
-                        f"{what} = degree-{params.degree} polynomial of measured z", enabled=params.figure)
-    return {"model": model, "metrics": model_metrics(model), "figure": figure}
+    return f"{what} = degree-{params.degree} polynomial of measured z"
+
+
+@fit_compensator("compensator.polynomial", params=PolynomialParams, predict=predict_polynomial, inputs=INPUTS,
+                 min_points=lambda p: p.degree + 2, span="z", axes=("z",), title=_title, version="3",
+                 model="Polynomial of measured z (cm).",
+                 figure="z error (truth - measured, cm) vs measured z: placements, fitted curve, valid range.")
+def polynomial(params: PolynomialParams, samples: Samples) -> dict[str, Any]:
+    """Fit the z error (or true z) as a polynomial of measured z on the training placements."""
+    return fit_polynomial(samples, params.degree, params.target, params.xy)

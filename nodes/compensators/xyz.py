@@ -19,20 +19,12 @@ from typing import Any, Literal
 
 import numpy as np
 
-from nodes.compensators._common import (
-    METRICS_OUTPUT,
-    TRAIN_INPUT,
+from nodes.contracts.compensator import fit_compensator
+from nodes.contracts.compensator._common import (
     FitParams,
     Samples,
-    build_model,
-    model_metrics,
-    node_label,
-    require_span,
-    training_samples,
 )
-from nodes.compensators._figure import fit_figure, held_out
-from nodes.contracts.drawing import load_figures
-from stereograph.api import Field, NodeError, Out, node
+from stereograph.api import Field, NodeError
 
 __all__ = ["fit_xyz", "monomials", "predict_xyz", "xyz"]
 
@@ -149,34 +141,17 @@ class XyzParams(FitParams):
     )
 
 
-@node(
-    "compensator.xyz",
-    inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="x, y, z error polynomials (cm)."),
-             "figure": Out("Image", save=True, optional=True,
-                           description="x, y, z error (truth - measured, cm) vs disparity, one panel per axis:"
-                                       " placements, model, valid range."),
-             **METRICS_OUTPUT},
-    params=XyzParams,
-    version="3",
-    prepare=load_figures,
-)
-def xyz(params: XyzParams, train, ctx=None):
-    """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""
-    label = node_label(ctx, "compensator.xyz")
-    n_terms = len(monomials(3, params.degree))
-    samples = training_samples(train, label, needs=INPUTS, min_points=n_terms + 1)
-    require_span(samples.disparity_px, "disparity", label, params.min_span_fraction, "px")
-
-    def fit(s: Samples) -> dict[str, Any]:
-        return fit_xyz(s, params.degree, params.ridge, params.depth_feature)
-
-    model = build_model(
-        "xyz", samples, fit, predict_xyz, INPUTS, label, params.cv_folds, params.cv_seed, params.model_dump(),
-        robust=params, min_points=n_terms + 1, ctx=ctx,
-    )
+def _title(params: XyzParams, model: dict) -> str:
     feature = "1/d" if params.depth_feature == "inverse_disparity" else "d"
-    figure = fit_figure(model, samples, predict_xyz, held_out(train, INPUTS), "disparity_px", ("x", "y", "z"),
-                        f"x, y, z corrections = degree-{params.degree} polynomials of image position (u, v) and "
-                        f"{feature}", enabled=params.figure)
-    return {"model": model, "metrics": model_metrics(model), "figure": figure}
+    return (f"x, y, z corrections = degree-{params.degree} polynomials of image position (u, v) and "
+            f"{feature}")
+
+
+@fit_compensator("compensator.xyz", params=XyzParams, predict=predict_xyz, inputs=INPUTS,
+                 min_points=lambda p: len(monomials(3, p.degree)) + 1, span="disparity", axes=("x", "y", "z"),
+                 title=_title, version="3", model="x, y, z error polynomials (cm).",
+                 figure="x, y, z error (truth - measured, cm) vs disparity, one panel per axis: placements, model, "
+                        "valid range.")
+def xyz(params: XyzParams, samples: Samples) -> dict[str, Any]:
+    """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""
+    return fit_xyz(samples, params.degree, params.ridge, params.depth_feature)

@@ -136,7 +136,7 @@ def screen_outliers(
     Parameters
     ----------
     samples : Samples
-        Training placements with truth (``nodes.compensators._common.Samples``).
+        Training placements with truth (``nodes.contracts.compensator._common.Samples``).
     fit, predict : callable
         The model's pure functions.
     k : float

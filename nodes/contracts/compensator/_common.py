@@ -596,7 +596,7 @@ def build_model(
         The fit options, recorded in the artifact.
     robust : FitParams, optional
         With ``outlier_mad`` set, mis-detected placements are left out first
-        (:func:`nodes.compensators._robust.screen_outliers`); None fits every placement.
+        (:func:`nodes.contracts.compensator._robust.screen_outliers`); None fits every placement.
     min_points : int
         Fewest placements the model can be fitted from (for the screening's refusal).
     ctx : RunContext, optional
@@ -610,8 +610,8 @@ def build_model(
         "outliers": [{"item", "residual_cm", "error_cm"}], "n_outliers", "outlier_threshold_cm"}``;
         every statistic is over the placements kept (``n_train`` of ``n_candidates``).
     """
-    from nodes.compensators._robust import Screen, screen_outliers
-    from nodes.compensators._support import describe_support
+    from nodes.contracts.compensator._robust import Screen, screen_outliers
+    from nodes.contracts.compensator._support import describe_support
 
     n_candidates = len(samples)
     t0 = time.perf_counter()

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from nodes.compensators._common import Samples, model_metrics, samples_from_locations
+from nodes.contracts.compensator._common import Samples, model_metrics, samples_from_locations
 
 __all__ = ["FitPicture", "Panel", "draw", "fit_figure", "fit_picture", "held_out"]
 
