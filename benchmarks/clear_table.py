@@ -64,6 +64,7 @@ def judge(out: Path) -> dict:
     return {"balls": len(world["balls"]), "placed": len(placed), "wrong": len(wrong), "pushes": len(pushes),
             "refused_goals": refused_goals, "retries": int(status.get("retries") or 0), "cycles": len(cycles),
             "latencies": latencies, "left": [b["id"] for b in world["balls"] if b["state"] != "placed"],
+            "failed_cycles": sum(c["status"] != "ok" for c in cycles),
             "why": status.get("why"), "not_pickable": status.get("not_pickable")}
 
 
@@ -106,7 +107,7 @@ def main() -> int:
     print(f"balls placed: {placed}; in the wrong place: {sum(r['wrong'] for r in rows)}")
     print(f"goals outside limits (refused by the servos): {sum(r['refused_goals'] for r in rows)}")
     print(f"gripper paths through another ball (pushes): {sum(r['pushes'] for r in rows)}")
-    print(f"retries: {sum(r['retries'] for r in rows)}")
+    print(f"retries: {sum(r['retries'] for r in rows)}; failed cycles: {sum(r.get('failed_cycles', 0) for r in rows)}")
     print(f"seconds per ball placed (whole run, incl. process start): {t_all / max(placed, 1):.2f}")
     if lat.size:
         print(f"grab -> first goal per cycle: median {np.median(lat):.0f} ms, p95 {np.percentile(lat, 95):.0f} ms "
