@@ -110,3 +110,18 @@ def test_the_declared_object_rules_and_names_pick_one():
         apply_objects(SegmenterParams(object_name="green"), declared)
     with pytest.raises(NodeError, match="not an Objects artifact"):
         apply_objects(SegmenterParams(), {"objects": "x"})
+
+
+def test_segmenter_instances_checks_the_chosen_methods_own_params():
+    """(a merged parameter class mixed two methods' defaults: Otsu got a colour image and failed every pair)"""
+    import pydantic
+
+    from nodes.segmenters.instances import InstancesParams
+    from nodes.segmenters.otsu import OtsuParams
+
+    own = InstancesParams(method="otsu", method_params={"channel": "gray"}).for_method()
+    assert isinstance(own, OtsuParams) and own.channel == "gray"
+    with pytest.raises(pydantic.ValidationError, match="has no parameter 'open_pxx' \\(did you mean 'open_px'"):
+        InstancesParams(method="color", method_params={"open_pxx": 3})
+    with pytest.raises(pydantic.ValidationError, match="segmenter.color parameter 'open_px'"):
+        InstancesParams(method="color", method_params={"open_px": -3})

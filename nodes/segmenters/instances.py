@@ -9,11 +9,12 @@ one ball: the closer colour wins, else both are refused.
 
 from __future__ import annotations
 
+import difflib
 from typing import Any, Literal
 
 import cv2
 import numpy as np
-from pydantic import model_validator
+from pydantic import ValidationError, model_validator
 
 from nodes.contracts.overlay import label_pair
 from nodes.contracts.segmenter import (
@@ -47,7 +48,19 @@ class InstancesParams(SegmenterParams):
 
     @model_validator(mode="after")
     def _method_params_fit(self) -> InstancesParams:
-        self.for_method()  # a ValidationError naming the method's parameter, when validated
+        cls = METHODS[self.method][1]
+        for key in self.method_params:
+            if key not in cls.model_fields:
+                near = difflib.get_close_matches(key, cls.model_fields, n=1)
+                raise ValueError(f"method_params: segmenter.{self.method} has no parameter {key!r}"
+                                 + (f" (did you mean {near[0]!r}?)" if near else "")
+                                 + f"; `stereograph nodes segmenter.{self.method}` lists them")
+        try:
+            self.for_method()
+        except ValidationError as e:
+            first = e.errors()[0]
+            where = ".".join(str(x) for x in first["loc"])
+            raise ValueError(f"method_params: segmenter.{self.method} parameter {where!r}: {first['msg']}") from None
         return self
 
     def for_method(self) -> SegmenterParams:
