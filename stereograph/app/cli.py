@@ -474,8 +474,8 @@ def _loop(args, con, after_cycle=None):
     if args.repeat is None:
         return None
     if args.workers > 1 or args.dask:
-        raise ConfigError("--repeat runs every cycle in this process, so it cannot be combined with --workers or "
-                          "--dask.", hint="drop --workers / --dask")
+        raise ConfigError("a loop (--repeat, or the pipeline's own `repeat:`) runs every cycle in this process, so it "
+                          "cannot be combined with --workers or --dask.", hint="drop --workers / --dask")
     from rich.markup import escape
 
     from stereograph.app.loop import Loop
