@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from nodes.contracts.views import RectifiedView
+
 from ._candidates import _region, candidates
 from ._checks import check_pair
 from ._color import object_color_score
@@ -114,6 +116,40 @@ def _refine(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> dict:
             "right_mask": rm, "left_px": a["centroid_px"], "color_score": a["color_score"]}
 
 
+def _one_ball_view(view, region: dict, rect: dict, params: SegmenterParams, window) -> RectifiedView:
+    """The right view with everything in ``window`` but a disc where the left ``region``'s ball must appear
+    painted over with the window's border colour: the other balls of a merged region are gone."""
+    r_px = math.sqrt(max(region["area_px"], 1.0) / math.pi)
+    if region.get("partial"):
+        r_px = float(region["partial"].get("radius_px") or r_px)
+    dcx = float(rect.get("cx_px", 0.0)) - float(rect.get("cx_right_px", rect.get("cx_px", 0.0)))
+    u = region["centroid_px"][0] - dcx - abs(float(rect["baseline_cm"])) * r_px / params.object.radius_cm
+    v = region["centroid_px"][1]
+    img = np.ascontiguousarray(view.full()).copy()
+    u0, v0, u1, v1 = window
+    patch = img[v0:v1, u0:u1]
+    border = np.concatenate([patch[0], patch[-1], patch[:, 0], patch[:, -1]])
+    yy, xx = np.mgrid[v0:v1, u0:u1]
+    outside = (xx - u) ** 2 + (yy - v) ** 2 > (1.3 * r_px + 3.0) ** 2
+    patch[outside] = np.median(border, axis=0).astype(img.dtype)
+    return RectifiedView(img)
+
+
+def _masked_retry(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> dict | None:
+    """A merged region whose two views were fitted to different balls: the right view again, with only
+    the disc where the left fit's ball must appear left in it."""
+    _, lreg, _ = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1, only_window=True)
+    if lreg is None:
+        return None
+    win = _window(b, vr.shape)
+    _, rreg, _ = segment_image(_one_ball_view(vr, lreg, rect, params, win), mask_fn, params, r_range_px,
+                               window=win, K=K2, only_window=True)
+    if rreg is None or check_pair(lreg, rreg, params, rect) is not None:
+        return None
+    return {"found": True, "reason": None, "left": lreg, "right": rreg, "left_mask": None, "right_mask": None,
+            "left_px": a["centroid_px"], "color_score": a["color_score"]}
+
+
 def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, K2) -> list[dict]:
     """A ball-coloured region that is not round: a ball partly hidden by another, or two touching. The
     partial-view fit (``segment_image``'s) may still locate one whole ball in it; else it is refused."""
@@ -123,9 +159,12 @@ def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, 
     out = []
     for a in l_refused:
         # each right region on its rows is tried: the wrong ones fail check_pair (size against stereo distance)
-        tried = [_refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j], K1, K2)
-                 for j in _rows_partners(a, r_all, params, rect)]
+        js = _rows_partners(a, r_all, params, rect)
+        tried = [_refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j], K1, K2) for j in js]
         good = [t for t in tried if t["found"]]
+        if not good:  # the two views' fits took different balls of the merged region: the right one again, alone
+            good = [t for j in js if (t := _masked_retry(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j],
+                                                         K1, K2)) is not None]
         if len(good) == 1:
             out.append({**good[0], "merged": True})  # (it may hide another ball: the region was not one)
             continue
