@@ -109,3 +109,15 @@ def test_a_place_on_the_table_in_view_is_checked_and_its_balls_left_there(tmp_pa
     assert [v["verdict"] for v in verdicts] == ["gone", "gone"] and all(v["seen_at_place"] for v in verdicts)
     assert cycles[-1]["values"]["plan.status"]["found"] == 0  # both seen at their place: nothing to pick
     assert loop.stopped.endswith("the table is clear (2 picked and placed, 0 retried)")
+
+
+def test_touching_balls_of_one_colour_are_each_located_and_cleared(tmp_path):
+    """(two or three touching balls of one colour merge into one region; the two views' partial fits took
+    different balls and the pair was refused, leaving the cluster on the table: 3 of 50 benchmark tables)"""
+    balls = ("bench.balls=[{object: blue, center_cm: [-8, 13]}, {object: blue, center_cm: [-4, 13.05]}, "
+             "{object: blue, center_cm: [-6, 16.5]}, {object: orange, center_cm: [8, 15]}]")
+    loop, world, cycles = _clear(tmp_path, [balls], "cluster")
+    assert all(b["state"] == "placed" and b["place"] == f"{b['object']}_place" for b in world["balls"])
+    assert max(e["off_cm"] for e in world["events"] if e["what"] == "grasp") < 0.5
+    assert not [e for e in world["events"] if e["what"] == "push"]
+    assert loop.stopped.endswith("the table is clear (4 picked and placed, 0 retried)")
