@@ -196,8 +196,12 @@ def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_ran
                      [b for j, b in enumerate(rights) if j not in used] + r_refused, K1, K2)
     for i, a in enumerate(lefts):
         if not options[i]:
-            out.append({"found": False, "left_px": a["centroid_px"],
-                        "reason": "no ball in the right image on its rows at the distance its size says"})
+            # whole on the left, merged with a neighbour on the right (the views see the pair from two sides)
+            merged = [t for j in _rows_partners(a, r_refused, params, rect) if (t := _masked_retry(
+                vl, vr, mask_fn, params, r_range_px, rect, a, r_refused[j], K1, K2)) is not None]
+            out.append({**merged[0], "merged": True} if len(merged) == 1 else {
+                "found": False, "left_px": a["centroid_px"],
+                "reason": "no ball in the right image on its rows at the distance its size says"})
         elif len(options[i]) > 1 or len(takers[options[i][0]]) > 1:
             out.append({"found": False, "left_px": a["centroid_px"],
                         "reason": "two balls of this object on the same image rows: which right view belongs to "
