@@ -108,24 +108,18 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                 except KeyError:
                     computable = False
                     break
-                run.keys[(name, item)] = key
+                run.expect_entry(inst, item, key)
                 manifest = store.complete(key) if inst.spec.cacheable else None
                 if manifest is not None:
                     run.adopt_cached(inst, item, key, manifest)
+                    run.expect_items(inst, item)
                 elif key in tried_before and inst.spec.cacheable and item is not None:
                     retried.append(item)
                     if item in failed_before:  # (else dropped: simply absent downstream)
-                        run.failed_items[(name, item)] = failed_before[item]
-                    continue
+                        run.expect_failure(inst, item, failed_before[item])
                 else:
                     missing += 1
-                    # the key a run would store it under: downstream keys follow from it
-                    for out, o in inst.spec.outputs.items():
-                        if not o.collection:
-                            run.ref_keys[(name, out, item)] = key
-                for out in run.item_outputs(inst, item):
-                    if inst.mapped or (name, out, item) in run.ref_keys:
-                        run.items.setdefault((name, out), []).append(item)  # type: ignore[arg-type]
+                    run.expect_missing(inst, item, key)  # (the key a run would store it under)
         fresh = computable and not missing and not retried and inst.spec.cacheable
         v = Verdict(name, inst.type, fresh)
         own = _diff(last, {**base, "code_files": run.code_files.get(inst.type, {})}, root) if last else []

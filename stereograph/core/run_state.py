@@ -668,6 +668,28 @@ class RunState:
     def _saves(self, node: str) -> bool:
         return any(o.save for o in self.g.nodes[node].spec.outputs.values())
 
+    def expect_entry(self, inst: NodeInstance, item: str | None, key: str) -> None:
+        """Note the key an entry of ``inst`` will be looked up under (what ``explain`` predicts)."""
+        self.keys[(inst.name, item)] = key
+
+    def expect_failure(self, inst: NodeInstance, item: str, why: str) -> None:
+        """Predict that ``item`` of ``inst`` fails again, as it did in the last run (``explain``)."""
+        self.failed_items[(inst.name, item)] = why
+
+    def expect_missing(self, inst: NodeInstance, item: str | None, key: str) -> None:
+        """Predict that an entry is computed and stored under ``key``: its items reach downstream, and
+        downstream keys follow from it (``explain``)."""
+        for out, o in inst.spec.outputs.items():
+            if not o.collection:
+                self.ref_keys[(inst.name, out, item)] = key
+        self.expect_items(inst, item)
+
+    def expect_items(self, inst: NodeInstance, item: str | None) -> None:
+        """The item lists a found or predicted entry of ``inst`` adds ``item`` to."""
+        for out in self.item_outputs(inst, item):
+            if inst.mapped or (inst.name, out, item) in self.ref_keys:
+                self.items.setdefault((inst.name, out), []).append(item)  # type: ignore[arg-type]
+
     def forget(self, nodes: Iterable[str]) -> None:
         """Drop the results of ``nodes`` in this run (values, item lists, failures, reports), so that
         they run again: a loop's next cycle."""
