@@ -122,7 +122,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                     run.expect_missing(inst, item, key)  # (the key a run would store it under)
         fresh = computable and not missing and not retried and inst.spec.cacheable
         v = Verdict(name, inst.type, fresh)
-        own = _diff(last, {**base, "code_files": run.code_files.get(inst.type, {})}, root) if last else []
+        own = _diff(last, {**base, "code_files": run.code_digests(inst.type)}, root) if last else []
         if retried:
             retrying[name] = retried
         if fresh:

@@ -152,7 +152,7 @@ class Result:
             raise KeyError(f"the result does not hold {node}.{output} (a run without the cache keeps only the "
                            f"terminal, saved and keep= outputs): pass keep=['{node}'] to stereograph.run")
         if run.g.is_collection(node, output):
-            return {i: run.get((node, output, i)) for i in run.items.get((node, output), [])}
+            return {i: run.get((node, output, i)) for i in run.items_of(node, output)}
         return run.get((node, output, None))
 
     def __getitem__(self, node: str) -> dict[str, Any]:

@@ -94,7 +94,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
 
     run, doc = result._run, graph.doc
     store = run.store
-    if store is None or not store.writable or not result.ok or run.failed_items or result.notes:
+    if store is None or not store.writable or not result.ok or run.any_item_failed or result.notes:
         return False
     if any(r.status not in ("ran", "cached") for r in run.reports.values()):
         return False
@@ -113,12 +113,11 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     if (again.nodes, again.defaults, again.name, again.plugins) != (doc.nodes, doc.defaults, doc.name, doc.plugins):
         return False
     # the code the keys were computed from: each file's digest now equal to the one the run used
-    for files in run.code_files.values():
-        for f, d in files.items():
-            before = _stamp(f)
-            if before is None or file_digest(Path(f)) != d or _stamp(f) != before:
-                return False
-            inputs[f] = before
+    for f, d in run.code_digests().items():
+        before = _stamp(f)
+        if before is None or file_digest(Path(f)) != d or _stamp(f) != before:
+            return False
+        inputs[f] = before
     for f in _engine_files():
         inputs[f] = _stamp(f)
     # files nodes read: the digest the run keyed on belongs to exactly these stamps
@@ -136,9 +135,9 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
             inputs[rp] = st
     if any(st is not None and max(st[1], st[2]) > t_rec - RACY_NS for st in inputs.values()):
         return False  # changed a moment ago (mtime or ctime): the next run decides for itself
-    entries = sorted({k for k in [*run.keys.values(), *run.ref_keys.values()]
-                      if isinstance(k, str) and "/" not in k and not k.startswith("volatile")
-                      and not any(k == run.keys.get((n, None)) for n in live)})
+    live_keys = {run.entry_key_of(n) for n in live}
+    entries = sorted(k for k in run.used_keys() if "/" not in k and not k.startswith("volatile")
+                     and k not in live_keys)
     summary = json.loads((result.out_dir / "run.json").read_text())
     memo: dict[str, Any] = {
         "format": FORMAT, "recorded_ns": t_rec, "pipeline": str(doc.path), "overrides": list(doc.overrides),
@@ -188,6 +187,14 @@ def _now(sys_path: list | None, pipeline: Path) -> list:
     return [e for e in now if e[0] in start] if [e[0] for e in now if e[0] in start] == start else sys_path
 
 
+def _key(run: Any, ref: Any) -> str:
+    """The entry key of an input: a memo is never recorded with one missing (the caller gives up on it)."""
+    key = run.key_of(ref)
+    if key is None:
+        raise KeyError(ref)
+    return key
+
+
 def _live_record(run: Any, inst: Any) -> dict[str, Any]:
     """What running a must-run node again needs: its params as data, and each input's entry key."""
     ports: dict[str, Any] = {}
@@ -195,9 +202,9 @@ def _live_record(run: Any, inst: Any) -> dict[str, Any]:
         if r is None:
             ports[port] = None
         elif isinstance(r, list):  # a gather: {item: value}
-            ports[port] = {"gather": [[i, run.ref_keys[rr], rr[1]] for i, rr in r]}
+            ports[port] = {"gather": [[i, _key(run, rr), rr[1]] for i, rr in r]}
         else:
-            ports[port] = {"key": run.ref_keys[r], "output": r[1]}
+            ports[port] = {"key": _key(run, r), "output": r[1]}
     rec = {"type": inst.type, "params": inst.params.model_dump(mode="json"), "ports": ports,
            "input_types": run.input_types(inst), "outputs": list(inst.spec.outputs)}
     # Inputs that are small plain data (an arm, pick plans) are kept in the memo as the cache keeps

@@ -668,6 +668,33 @@ class RunState:
     def _saves(self, node: str) -> bool:
         return any(o.save for o in self.g.nodes[node].spec.outputs.values())
 
+    def key_of(self, ref: Ref) -> str | None:
+        """The entry key an output reference's value is stored under (None when it has none)."""
+        return self.ref_keys.get(ref)
+
+    def entry_key_of(self, node: str, item: str | None = None) -> str | None:
+        """The key an entry of ``node`` was looked up under in this run (None when it was not)."""
+        return self.keys.get((node, item))
+
+    def used_keys(self) -> set[str]:
+        """Every entry key this run looked up or stored under."""
+        return {k for k in [*self.keys.values(), *self.ref_keys.values()] if isinstance(k, str)}
+
+    @property
+    def any_item_failed(self) -> bool:
+        """Some item of some node failed in this run."""
+        return bool(self.failed_items)
+
+    def code_digests(self, node_type: str | None = None) -> dict[str, str]:
+        """Every code file the entry keys (of ``node_type``'s nodes, or all) were computed from, with its digest."""
+        if node_type is not None:
+            return dict(self.code_files.get(node_type, {}))
+        return {f: d for files in self.code_files.values() for f, d in files.items()}
+
+    def items_of(self, node: str, out: str) -> list[str]:
+        """The items a collection output holds in this run, in order."""
+        return list(self.items.get((node, out), []))
+
     def expect_entry(self, inst: NodeInstance, item: str | None, key: str) -> None:
         """Note the key an entry of ``inst`` will be looked up under (what ``explain`` predicts)."""
         self.keys[(inst.name, item)] = key
