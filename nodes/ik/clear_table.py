@@ -118,46 +118,58 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
     ts = list((targets or {}).values())
     found = [t for t in ts if t.get("found") and not _given_up(memory, t) and not at_place(t, places)]
     refused = {t["pair"]: t.get("reason") or "not located" for t in ts if not t.get("found")}
-    tol = params.look_again_cm or max([float(t.get("object_radius_cm") or 2.0) for t in ts] or [2.0])
-    n_now = {}
-    for t in ts:
-        if not (t.get("found") and at_place(t, places)):
-            n_now[t.get("object")] = n_now.get(t.get("object"), 0) + 1
-    last_object = memory.last["object"] if memory.last else None
-    verdict = look_again(memory, found, n_now.get(last_object, 0), tol, params.max_retries)
-    if verdict and verdict["verdict"] == "gone" and places.get(verdict["object"], {}).get("on_table"):
-        # a place on the table is in view: the ball must be seen there too
-        verdict["seen_at_place"] = any(t.get("found") and t.get("object") == verdict["object"] and at_place(t, places)
-                                       for t in ts)
-        if not verdict["seen_at_place"] and ctx is not None:
-            ctx.warn(f"the {verdict['object']} ball picked last is gone from where it was but not seen at its place")
+    n_now, unclear = _census(ts, places)
+    verdict = _judge_last(params, memory, found, ts, places, n_now, ctx)
     if verdict and verdict["verdict"] == "given up":
         found = [t for t in found if not _given_up(memory, t)]
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
-    unclear = {}
-    for t in ts:
-        if (not t.get("found") and not t.get("unreachable")) or t.get("merged"):
-            unclear[t.get("object")] = unclear.get(t.get("object"), 0) + 1
     plan, skipped = _choose(params, arm, found, places, memory, first, n_now, unclear)
     status = {"cycle": memory.cycle, "seen": len(ts), "found": len(found), "look_again": verdict,
               "picked": memory.n_picked, "retries": memory.n_retries, "given_up": memory.given_up,
               "not_pickable": {**refused, **skipped}, "order": [t["pair"] for t in sort_picks(found, first)],
-              "next": None if plan is None else plan["pair"], "done": plan is None}
+              "next": None if plan is None else plan["pair"], "done": plan is None,
+              "why": None if plan else _why(refused, skipped, memory)}
     picture = None
     if pair and rectification is not None:
-        last = pair if "left" in pair else pair[sorted(pair)[-1]]
         raw = ctx is not None and (ctx.input_types or {}).get("pair") == "StereoPair"
-        status["why"] = None if plan else _why(refused, skipped, memory)
+        last = pair if "left" in pair else pair[sorted(pair)[-1]]
         picture = draw_cycle(last, rectification, ts, status, arm, hand_eye, plan, raw)
     if plan is None:
-        why = status["why"] = _why(refused, skipped, memory)
         if ctx is not None:
-            ctx.stop_loop(why)
-            for k, r in {**refused, **skipped}.items():
+            ctx.stop_loop(status["why"])
+            for k, r in status["not_pickable"].items():
                 ctx.warn(f"{k}: {r}")
-        return {"plan": {"idle": {"pair": "idle", "idle": True, "reason": why, "waypoints": []}}, "status": status,
-                "picture": picture}
+        plan = {"pair": "idle", "idle": True, "reason": status["why"], "waypoints": []}
     return {"plan": {plan["pair"]: plan}, "status": status, "picture": picture}
+
+
+def _census(ts: list[dict], places: dict) -> tuple[dict[str, int], dict[str, int]]:
+    """Per object: the balls on the table (found or not; none at its place), and the unclear ones (not
+    located, or found in a region of more than one ball: it may hide another)."""
+    n_now: dict[str, int] = {}
+    unclear: dict[str, int] = {}
+    for t in ts:
+        o = t.get("object")
+        if not (t.get("found") and at_place(t, places)):
+            n_now[o] = n_now.get(o, 0) + 1
+        if (not t.get("found") and not t.get("unreachable")) or t.get("merged"):
+            unclear[o] = unclear.get(o, 0) + 1
+    return n_now, unclear
+
+
+def _judge_last(params: ClearParams, memory: Memory, found: list, ts: list, places: dict, n_now: dict,
+                ctx) -> dict | None:
+    """The verdict on the last pick (:func:`._clear.look_again`); a place on the table, in view, must
+    show the ball too."""
+    tol = params.look_again_cm or max([float(t.get("object_radius_cm") or 2.0) for t in ts] or [2.0])
+    last_object = memory.last["object"] if memory.last else None
+    verdict = look_again(memory, found, n_now.get(last_object, 0), tol, params.max_retries)
+    if verdict and verdict["verdict"] == "gone" and places.get(verdict["object"], {}).get("on_table"):
+        verdict["seen_at_place"] = any(t.get("found") and t.get("object") == verdict["object"]
+                                       and at_place(t, places) for t in ts)
+        if not verdict["seen_at_place"] and ctx is not None:
+            ctx.warn(f"the {verdict['object']} ball picked last is gone from where it was but not seen at its place")
+    return verdict
 
 
 def _why(refused: dict, skipped: dict, memory: Memory) -> str:
