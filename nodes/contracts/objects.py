@@ -50,7 +50,9 @@ class ObjectDecl(ObjectSpec):
     name: str = Field("ball", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.-]+$",
                       description="What the object is called in results and reports (text).")
     drop_place_cm: tuple[float, float, float] | None = Field(
-        None, description="Where the object goes once picked, x y z in the table frame (cm); None = no place.")
+        None, description="Where the object goes once picked (table frame, cm): x, y of the place's centre and "
+                          "the height of its floor above the table (0 = a spot on the table; a bin: its rim); "
+                          "None = no place (ik.clear_table reports such balls, never picks them).")
 
 
 class ObjectsParams(Params):
