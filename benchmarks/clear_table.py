@@ -29,12 +29,12 @@ PALETTE = [("orange", [20, 120, 245], [-15.0, -6.0, 3.0]), ("blue", [200, 90, 30
 GOAL_POSITION = 30
 
 
-def table_sets(seed: int) -> tuple[list[str], int, int]:
+def table_sets(seed: int, touching: float = 0.4, most: int = 6) -> tuple[list[str], int, int]:
     rng = np.random.default_rng([seed, 2029])
-    n_balls, n_colours = int(rng.integers(2, 7)), int(rng.integers(2, 4))
+    n_balls, n_colours = int(rng.integers(2, most + 1)), int(rng.integers(2, 4))
     objects = [{"name": n, "radius_cm": 2.0, "color_bgr": c, "drop_place_cm": p} for n, c, p in PALETTE[:n_colours]]
     sets = [f"objects.objects={json.dumps(objects)}", f"bench.seed={seed}",
-            f"bench.n_balls=[{n_balls}, {n_balls}]", "bench.touching_fraction=0.4"]
+            f"bench.n_balls=[{n_balls}, {n_balls}]", f"bench.touching_fraction={touching}"]
     return sets, n_balls, n_colours
 
 
@@ -73,12 +73,14 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=50, help="tables (count)")
     ap.add_argument("--seed", type=int, default=0, help="first table's seed")
     ap.add_argument("--out", type=Path, default=None, help="where the run folders go (default: a temporary one)")
+    ap.add_argument("--touching", type=float, default=0.4, help="share of balls put against another (0..1)")
+    ap.add_argument("--most-balls", type=int, default=6, help="most balls on a table (2..n)")
     a = ap.parse_args()
     base = a.out or Path(tempfile.mkdtemp(prefix="clear-bench-"))
     rows, t_all = [], 0.0
     for k in range(a.n):
         seed = a.seed + k
-        sets, n_balls, n_colours = table_sets(seed)
+        sets, n_balls, n_colours = table_sets(seed, a.touching, a.most_balls)
         out = base / f"table{seed:04d}"
         cmd = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "clear-table.yaml"),
                "--out", str(out), "--cache-dir", str(base / "cache")]
