@@ -18,6 +18,15 @@ from ._size import auto_downscale
 from ._subpixel import region_properties
 
 
+def disparity_bounds(rectification: dict, params: SegmenterParams) -> tuple[float, float, float]:
+    """(d_min, d_max, dcx) px: the disparities f B / z over the working range with 25 % slack, and the
+    principal points' offset cx_left - cx_right that a measured u_left - u_right also holds."""
+    fb = float(rectification["f_px"]) * abs(float(rectification["baseline_cm"]))
+    cx = float(rectification.get("cx_px", 0.0))
+    z0, z1 = sorted(params.working_range_cm)
+    return fb / (1.25 * z1), fb / (0.75 * z0), cx - float(rectification.get("cx_right_px", cx))
+
+
 def search_band(
     region: dict, rectification: dict | None, params: SegmenterParams, image_size: tuple[int, int]
 ) -> tuple[int, int, int, int] | None:
@@ -34,11 +43,7 @@ def search_band(
     """
     if rectification is None or not rectification.get("f_px") or not rectification.get("baseline_cm"):
         return None
-    fb = float(rectification["f_px"]) * abs(float(rectification["baseline_cm"]))
-    cx = float(rectification.get("cx_px", 0.0))
-    dcx = cx - float(rectification.get("cx_right_px", cx))  # d = f B / z + (cx_left - cx_right)
-    z0, z1 = sorted(params.working_range_cm)
-    d_min, d_max = fb / (1.25 * z1), fb / (0.75 * z0)
+    d_min, d_max, dcx = disparity_bounds(rectification, params)  # d = f B / z + (cx_left - cx_right)
     ell = region.get("ellipse")
     b_px = float(ell["axes_px"][1]) if ell else math.sqrt(max(region["area_px"], 1.0) / math.pi)
     if b_px > 1.0:

@@ -23,7 +23,7 @@ from nodes.contracts.views import RectifiedView
 from ._candidates import _region, candidates
 from ._checks import check_pair
 from ._color import object_color_score
-from ._detect import segment_image
+from ._detect import disparity_bounds, segment_image
 from ._params import MaskFunction, SegmenterParams
 from ._shadow import suppress_shadow_regions
 from ._size import auto_downscale
@@ -64,10 +64,7 @@ def _plausible(view, mask_fn: MaskFunction, params: SegmenterParams, r_range_px)
 
 def _partners(a: dict, rights: list[dict], params: SegmenterParams, rect: dict) -> list[int]:
     """Indices of the right candidates that can be ``a``'s other view."""
-    fb = float(rect["f_px"]) * abs(float(rect["baseline_cm"]))
-    dcx = float(rect.get("cx_px", 0.0)) - float(rect.get("cx_right_px", rect.get("cx_px", 0.0)))
-    z0, z1 = sorted(params.working_range_cm)
-    d_lo, d_hi = fb / (1.25 * z1), fb / (0.75 * z0)
+    d_lo, d_hi, dcx = disparity_bounds(rect, params)
     d_size = abs(float(rect["baseline_cm"])) * a["radius_px"] / params.object.radius_cm
     out = []
     for j, b in enumerate(rights):
@@ -90,9 +87,7 @@ def _window(c: dict, shape) -> tuple[int, int, int, int]:
 def _rows_partners(a: dict, rights: list[dict], params: SegmenterParams, rect: dict) -> list[int]:
     """Right regions that can be a not-round left region's other view: overlapping rows, a disparity
     inside the working range (its size says nothing: the region is not one whole ball)."""
-    fb = float(rect["f_px"]) * abs(float(rect["baseline_cm"]))
-    z0, z1 = sorted(params.working_range_cm)
-    d_lo, d_hi = fb / (1.25 * z1), fb / (0.75 * z0)
+    d_lo, d_hi, _ = disparity_bounds(rect, params)
     out = []
     for j, b in enumerate(rights):
         top, bottom = max(a["bbox"][1], b["bbox"][1]), min(a["bbox"][3], b["bbox"][3])
@@ -102,18 +97,25 @@ def _rows_partners(a: dict, rights: list[dict], params: SegmenterParams, rect: d
     return out
 
 
-def _refine(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> dict:
-    """One instance from a left and a right candidate: each refined in its own window, then checked."""
-    lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1,
-                                   only_window=True)
-    rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range_px, window=_window(b, vr.shape), K=K2,
-                                   only_window=True)
+def _left(vl, mask_fn, params, r_range_px, a, K1) -> tuple[dict | None, str | None]:
+    """The left candidate ``a`` refined in its own window: (region or None, reason)."""
+    _, reg, why = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1,
+                                only_window=True)
+    return reg, why
+
+
+def _pair_with(left, vr, mask_fn, params, r_range_px, rect, a, b, K2) -> dict:
+    """One instance from the refined left (``left``: region, reason) and a right candidate ``b``, refined
+    in its own window, then checked."""
+    lreg, lwhy = left
+    _, rreg, rwhy = segment_image(vr, mask_fn, params, r_range_px, window=_window(b, vr.shape), K=K2,
+                                  only_window=True)
     if lreg is None or rreg is None:
         why = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
     else:
         why = check_pair(lreg, rreg, params, rect)
-    return {"found": why is None, "reason": why, "left": lreg, "right": rreg, "left_mask": lm,
-            "right_mask": rm, "left_px": a["centroid_px"], "color_score": a["color_score"]}
+    return {"found": why is None, "reason": why, "left": lreg, "right": rreg, "left_px": a["centroid_px"],
+            "color_score": a["color_score"]}
 
 
 def _one_ball_view(view, region: dict, rect: dict, params: SegmenterParams, window) -> RectifiedView:
@@ -122,7 +124,7 @@ def _one_ball_view(view, region: dict, rect: dict, params: SegmenterParams, wind
     r_px = math.sqrt(max(region["area_px"], 1.0) / math.pi)
     if region.get("partial"):
         r_px = float(region["partial"].get("radius_px") or r_px)
-    dcx = float(rect.get("cx_px", 0.0)) - float(rect.get("cx_right_px", rect.get("cx_px", 0.0)))
+    dcx = disparity_bounds(rect, params)[2]
     u = region["centroid_px"][0] - dcx - abs(float(rect["baseline_cm"])) * r_px / params.object.radius_cm
     v = region["centroid_px"][1]
     img = np.ascontiguousarray(view.full()).copy()
@@ -135,10 +137,10 @@ def _one_ball_view(view, region: dict, rect: dict, params: SegmenterParams, wind
     return RectifiedView(img)
 
 
-def _masked_retry(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> dict | None:
+def _masked_retry(left, vr, mask_fn, params, r_range_px, rect, a, b, K2) -> dict | None:
     """A merged region whose two views were fitted to different balls: the right view again, with only
-    the disc where the left fit's ball must appear left in it."""
-    _, lreg, _ = segment_image(vl, mask_fn, params, r_range_px, window=_window(a, vl.shape), K=K1, only_window=True)
+    the disc where the refined left's (``left``) ball must appear left in it."""
+    lreg = left[0]
     if lreg is None:
         return None
     win = _window(b, vr.shape)
@@ -146,8 +148,8 @@ def _masked_retry(vl, vr, mask_fn, params, r_range_px, rect, a, b, K1, K2) -> di
                                window=win, K=K2, only_window=True)
     if rreg is None or check_pair(lreg, rreg, params, rect) is not None:
         return None
-    return {"found": True, "reason": None, "left": lreg, "right": rreg, "left_mask": None, "right_mask": None,
-            "left_px": a["centroid_px"], "color_score": a["color_score"]}
+    return {"found": True, "reason": None, "left": lreg, "right": rreg, "left_px": a["centroid_px"],
+            "color_score": a["color_score"]}
 
 
 def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, K2) -> list[dict]:
@@ -160,11 +162,12 @@ def _not_round(vl, vr, mask_fn, params, r_range_px, rect, l_refused, r_all, K1, 
     for a in l_refused:
         # each right region on its rows is tried: the wrong ones fail check_pair (size against stereo distance)
         js = _rows_partners(a, r_all, params, rect)
-        tried = [_refine(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j], K1, K2) for j in js]
+        left = _left(vl, mask_fn, params, r_range_px, a, K1) if js else (None, None)
+        tried = [_pair_with(left, vr, mask_fn, params, r_range_px, rect, a, r_all[j], K2) for j in js]
         good = [t for t in tried if t["found"]]
         if not good:  # the two views' fits took different balls of the merged region: the right one again, alone
-            good = [t for j in js if (t := _masked_retry(vl, vr, mask_fn, params, r_range_px, rect, a, r_all[j],
-                                                         K1, K2)) is not None]
+            good = [t for j in js if (t := _masked_retry(left, vr, mask_fn, params, r_range_px, rect, a, r_all[j],
+                                                         K2)) is not None]
         if len(good) == 1:
             out.append({**good[0], "merged": True})  # (it may hide another ball: the region was not one)
             continue
@@ -183,9 +186,9 @@ def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_ran
     Returns
     -------
     list of dict
-        ``{"found", "reason", "left", "right", "left_mask", "right_mask", "color_score"}`` per instance
-        (regions as ``segment_image`` gives them; masks full-size bool), refused ones with their reason
-        and the left point they concern (``left_px``), in left-image reading order.
+        ``{"found", "reason", "left", "right", "left_px", "color_score"}`` per instance (regions as
+        ``segment_image`` gives them; ``merged``: found in a region of more than one ball), refused ones
+        with their reason and the left point they concern (``left_px``), in left-image reading order.
     """
     lefts, l_refused = _plausible(vl, mask_fn, params, r_range_px)
     rights, r_refused = _plausible(vr, mask_fn, params, r_range_px)
@@ -197,8 +200,10 @@ def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_ran
     for i, a in enumerate(lefts):
         if not options[i]:
             # whole on the left, merged with a neighbour on the right (the views see the pair from two sides)
-            merged = [t for j in _rows_partners(a, r_refused, params, rect) if (t := _masked_retry(
-                vl, vr, mask_fn, params, r_range_px, rect, a, r_refused[j], K1, K2)) is not None]
+            js = _rows_partners(a, r_refused, params, rect)
+            left = _left(vl, mask_fn, params, r_range_px, a, K1) if js else (None, None)
+            merged = [t for j in js if (t := _masked_retry(left, vr, mask_fn, params, r_range_px, rect, a,
+                                                           r_refused[j], K2)) is not None]
             out.append({**merged[0], "merged": True} if len(merged) == 1 else {
                 "found": False, "left_px": a["centroid_px"],
                 "reason": "no ball in the right image on its rows at the distance its size says"})
@@ -207,13 +212,13 @@ def find_instances(vl, vr, mask_fn: MaskFunction, params: SegmenterParams, r_ran
                         "reason": "two balls of this object on the same image rows: which right view belongs to "
                                   "which left one cannot be told apart"})
         else:
-            out.append(_refine(vl, vr, mask_fn, params, r_range_px, rect, a, rights[options[i][0]], K1, K2))
+            out.append(_pair_with(_left(vl, mask_fn, params, r_range_px, a, K1), vr, mask_fn, params, r_range_px,
+                                  rect, a, rights[options[i][0]], K2))
     return sorted(out, key=lambda r: (round(r["left_px"][1] / 8), r["left_px"][0]))
 
 
 def same_ball(a: dict, b: dict) -> bool:
     """Two instances (of two objects) that are one ball: their left points within a radius."""
-    r = max((x["left"] or {}).get("area_px", 0.0) for x in (a, b) if x.get("left")) if (a.get("left") or
-                                                                                       b.get("left")) else 0.0
-    r_px = math.sqrt(r / math.pi) if r else 6.0
+    areas = [x["left"]["area_px"] for x in (a, b) if x.get("left")]
+    r_px = math.sqrt(max(areas) / math.pi) if areas and max(areas) else 6.0
     return bool(np.hypot(*np.subtract(a["left_px"], b["left_px"])) < r_px)
