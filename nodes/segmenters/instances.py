@@ -150,7 +150,7 @@ def instances(params: InstancesParams, pair, rectification, objects, ctx=None):
     """Find every instance of every declared object (left/right matched by rows and size)."""
     raw = pair_is_raw(ctx, rectification)
     pairs = pair if isinstance(pair, dict) and "left" not in pair else {str(pair.get("id")): pair}
-    segs, overlay = {}, None
+    segs, recs = {}, []
     for pid in pairs:
         recs = _pair_instances(params, pairs[pid], rectification, objects, raw)
         segs.update({r["id"]: r for r in recs})
@@ -158,6 +158,5 @@ def instances(params: InstancesParams, pair, rectification, objects, ctx=None):
             for r in recs:
                 if not r["found"]:
                     ctx.warn(f"{r['id']}: {r['reason']}")
-        if params.overlay:
-            overlay = draw(pairs[pid], recs, rectification, raw)
+    overlay = draw(pairs[pid], recs, rectification, raw) if params.overlay and pairs else None  # (the last pair)
     return {"segmentation": segs, "overlay": overlay}
