@@ -10,7 +10,6 @@ sees what the last one did. Never cached.
 
 from __future__ import annotations
 
-import copy
 import math
 from pathlib import Path
 
@@ -72,8 +71,16 @@ def _in_view(rig: dict, center_cm, radius_cm: float) -> bool:
     return sils is not None and all(_bbox_inside(rig, s, 4.0) for s in sils)
 
 
+def _ball(k: int, decl: ObjectDecl, xy) -> dict:
+    """Ball ``b<k+1>`` of a declared object, resting on the table at ``xy`` (table frame, cm)."""
+    r = float(decl.radius_cm)
+    return {"id": f"b{k + 1}", "object": decl.name, "color_bgr": list(decl.color_bgr or (128, 128, 128)),
+            "radius_cm": r, "center_cm": [float(xy[0]), float(xy[1]), r]}
+
+
 def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[dict], rig: dict) -> list[dict]:
     rng = np.random.default_rng([params.seed, 29])
+    T = np.asarray(rig["truth"]["T_table_from_left"], float)
     lo, hi = params.n_balls
     n = int(rng.integers(min(lo, hi), max(lo, hi) + 1))
     cx, cy, r_min, r_max = params.region_cm
@@ -92,18 +99,16 @@ def _random_balls(params: SimBenchParams, decls: list[ObjectDecl], places: list[
                 xy = np.array([cx + rad * math.cos(a), cy + rad * math.sin(a)])
             if not r_min <= math.dist(xy, (cx, cy)) <= r_max:
                 continue
-            T = np.asarray(rig["truth"]["T_table_from_left"], float)
-            depth = float((T[:3, :3].T @ (np.array([*xy, r]) - T[:3, 3]))[2])
-            if not params.depth_cm[0] <= depth <= params.depth_cm[1]:
-                continue
-            if not _in_view(rig, [*xy, r], r):
-                continue
             if any(math.dist(xy, b["center_cm"][:2]) < r + b["radius_cm"] for b in balls):
                 continue
             if any(math.dist(xy, p["center_cm"][:2]) < p["radius_cm"] + r + 1.0 for p in places):
                 continue
-            balls.append({"id": f"b{k + 1}", "object": d.name, "color_bgr": list(d.color_bgr or (128, 128, 128)),
-                          "radius_cm": r, "center_cm": [float(xy[0]), float(xy[1]), r]})
+            depth = float((T[:3, :3].T @ (np.array([*xy, r]) - T[:3, 3]))[2])
+            if not params.depth_cm[0] <= depth <= params.depth_cm[1]:
+                continue
+            if not _in_view(rig, [*xy, r], r):  # (the costly test last: two silhouettes)
+                continue
+            balls.append(_ball(k, d, xy))
             break
     return balls
 
@@ -119,9 +124,7 @@ def _world(params: SimBenchParams, objects: dict, folder: Path, rig: dict) -> di
         if unknown:
             raise NodeError(f"source.sim_bench: balls of undeclared objects {unknown} (declared: {sorted(by_name)}).",
                             hint="name a declared object in each ball, or declare it in objects.declare")
-        balls = [{"id": f"b{k + 1}", "object": b.object, "color_bgr": list(by_name[b.object].color_bgr or (128,) * 3),
-                  "radius_cm": float(by_name[b.object].radius_cm),
-                  "center_cm": [*b.center_cm, float(by_name[b.object].radius_cm)]} for k, b in enumerate(params.balls)]
+        balls = [_ball(k, by_name[b.object], b.center_cm) for k, b in enumerate(params.balls)]
     else:
         balls = _random_balls(params, decls, places, rig)
     folder.mkdir(parents=True, exist_ok=True)
@@ -162,7 +165,7 @@ def sim_bench(params: SimBenchParams, objects, ctx=None):
     world = read_world(grabs.ref["path"])
     left, right, _ = render_scene(rig, scene_of(world), seed=params.seed * 100003 + grabs.n)
     pid = f"grab{grabs.n:04d}"
-    truth = {"kind": "bench", "balls": copy.deepcopy(world["balls"]),
+    truth = {"kind": "bench", "balls": world["balls"],  # (read afresh from the file: nobody else holds it)
              "T_table_from_left": np.asarray(rig["truth"]["T_table_from_left"]).tolist()}
     return {"pairs": {pid: {"id": pid, "left": left, "right": right, "truth": truth, "split": "test"}},
             "world": grabs.ref}
