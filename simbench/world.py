@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 from filelock import FileLock
 
+from nodes.contracts.arm import JOINTS, fk, joint, servo_units_to_joints
+
 __all__ = ["ArmFollower", "new_world", "read_world", "step", "write_world"]
 
 FINGER_RADIUS_CM = 0.8  # the closed fingers' reach beyond the tool point, seen from a ball
@@ -174,25 +176,21 @@ class ArmFollower:
     path : path of the world file
     arm : the ArmModel (``ik.arm``)
     T_table_from_base : 4x4, cm: where the arm base stands on the table (the bench's truth)
-    fk, servo_units_to_joints : the arm contract's functions (passed in: this tool imports no node)
     """
 
-    def __init__(self, path, arm: dict, T_table_from_base, fk, servo_units_to_joints, min_move_cm: float = 0.05):
+    def __init__(self, path, arm: dict, T_table_from_base, min_move_cm: float = 0.05):
         self.path, self.arm = Path(path), arm
         self.T = np.asarray(T_table_from_base, float)
-        self.fk, self.to_joints = fk, servo_units_to_joints
         self.min_move_cm = min_move_cm
         self._last: tuple[np.ndarray, bool] | None = None
-        g = next(j for j in arm["joints"] if j["name"] == "gripper")
-        self._grip = (g["servos"][0]["id"], float(g["open_deg"]), float(g["closed_deg"]))
+        g = joint(arm, "gripper")
+        self._grip = (float(g["open_deg"]), float(g["closed_deg"]))
 
     def __call__(self, positions: dict[int, float]) -> None:
-        joints = self.to_joints(self.arm, {str(i): u for i, u in positions.items()})
-        q = np.radians([joints["yaw"], joints["shoulder"], joints["elbow"]])
-        tool = (self.T @ np.append(self.fk(self.arm, q), 1.0))[:3]
-        gid, open_deg, closed_deg = self._grip
-        angle = self.to_joints(self.arm, {str(gid): positions[gid]})["gripper"]
-        closed = abs(angle - closed_deg) < abs(angle - open_deg)
+        joints = servo_units_to_joints(self.arm, {str(i): u for i, u in positions.items()})
+        tool = (self.T @ np.append(fk(self.arm, np.radians([joints[n] for n in JOINTS])), 1.0))[:3]
+        open_deg, closed_deg = self._grip
+        closed = abs(joints["gripper"] - closed_deg) < abs(joints["gripper"] - open_deg)
         if self._last is not None and self._last[1] == closed \
                 and np.linalg.norm(tool - self._last[0]) < self.min_move_cm:
             return

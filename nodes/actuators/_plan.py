@@ -122,7 +122,7 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
             skipped[item] = f"max_picks {sel.max_picks} reached"
         else:
             chosen.append(p)
-    if not chosen and skipped and all(r.startswith("idle") for r in skipped.values()):
+    if not chosen and skipped and all(plans[i].get("idle") for i in skipped):
         return [], skipped
     if not chosen:
         reasons = sorted({r.split(":")[0] for r in skipped.values()})

@@ -32,14 +32,7 @@ import time
 from pathlib import Path
 from typing import Literal
 
-from nodes.contracts.arm import (
-    fk,
-    joint,
-    joints_to_servo_units,
-    servo_limits_units,
-    servo_units_to_joints,
-    speed_to_units,
-)
+from nodes.contracts.arm import JOINTS, joint, joints_to_servo_units, servo_limits_units, speed_to_units
 from simbench.servo_sim import Faults, ServoSim
 from simbench.world import ArmFollower
 from stereograph.api import Field, In, NodeError, Out, Params, node
@@ -535,9 +528,8 @@ def _emulator(params: DynamixelParams, arm, world) -> ServoSim:
     ids = sorted({s["id"] for j in arm["joints"] for s in j["servos"]})
     follow = positions = None
     if world is not None:
-        follow = ArmFollower(world["path"], arm, world["T_table_from_base"], fk, servo_units_to_joints)
-        home = {j["name"]: j.get("home_deg", j.get("open_deg", 0.0)) for j in arm["joints"]}
-        home["gripper"] = joint(arm, "gripper")["open_deg"]
+        follow = ArmFollower(world["path"], arm, world["T_table_from_base"])
+        home = {**{n: joint(arm, n)["home_deg"] for n in JOINTS}, "gripper": joint(arm, "gripper")["open_deg"]}
         positions = {int(i): float(u) for i, u in joints_to_servo_units(arm, home).items()}
     return ServoSim(ids, faults=params.sim_faults.to_faults(), time_scale=params.sim_time_scale,
                     positions=positions, on_motion=follow).start()
