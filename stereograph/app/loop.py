@@ -224,7 +224,7 @@ class Loop:
             if cycle.status == "running" and r.status in ("failed", "partial"):
                 cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
             for out in g.nodes[name].spec.outputs:
-                v = run.value_of(name, out)
+                v = _value(run, name, out)
                 # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0, 0, 0]]])
                 if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
                     continue
@@ -235,10 +235,9 @@ class Loop:
                     small = {key: x for key, x in v.items() if isinstance(x, (int, float, str, bool)) or x is None}
                     if small:
                         cycle.values[f"{name}.{out}"] = json.loads(json.dumps(outputs_mod.to_json(small, {})))
-            if self.save_cycles:
-                _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
-            else:  # a picture the node saves (Out(save=True)) is kept for every cycle, as its other outputs are
-                _save_pictures(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}")
+            # every output with --save-cycles; else the pictures the node saves (Out(save=True)), kept for
+            # every cycle as its other saved outputs are (in <node>/<output>.cycles.jsonl)
+            _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}", pictures_only=not self.save_cycles)
             _append_saved(run, name, cycle.index)
         if cycle.status == "running":
             cycle.status = "ok"
@@ -267,11 +266,20 @@ def _signals_deferred() -> Iterator[None]:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
 
 
-def _save(run: Any, node: str, folder: Path) -> None:
-    """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest as JSON."""
-    for out in run.g.nodes[node].spec.outputs:
-        v = run.value_of(node, out)
-        if v is None:
+def _value(run: Any, node: str, out: str) -> Any:
+    """An output's value this cycle; a collection of one dict (a live cycle's usual single pair) as that dict."""
+    v = run.value_of(node, out)
+    if run.g.is_collection(node, out) and v is not None and len(v) == 1 and isinstance(next(iter(v.values())), dict):
+        return next(iter(v.values()))
+    return v
+
+
+def _save(run: Any, node: str, folder: Path, pictures_only: bool = False) -> None:
+    """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest as JSON;
+    with ``pictures_only``, only the images the node saves (``Out(save=True)``)."""
+    for out, decl in run.g.nodes[node].spec.outputs.items():
+        v = _value(run, node, out)
+        if v is None or (pictures_only and not (decl.save and outputs_mod.is_image(v))):
             continue
         stem = folder / node / out
         stem.parent.mkdir(parents=True, exist_ok=True)
@@ -283,21 +291,12 @@ def _save(run: Any, node: str, folder: Path) -> None:
         outputs_mod.write_value(stem, v)
 
 
-def _save_pictures(run: Any, node: str, folder: Path) -> None:
-    """The saved image outputs (``Out(save=True)``) of ``node`` in this cycle, as ``<node>/<output>.png``."""
-    for out, decl in run.g.nodes[node].spec.outputs.items():
-        v = run.value_of(node, out)
-        if decl.save and v is not None and outputs_mod.is_image(v):
-            (folder / node).mkdir(parents=True, exist_ok=True)
-            outputs_mod.write_value(folder / node / out, v)
-
-
 def _append_saved(run: Any, node: str, index: int) -> None:
     """Each saved output (``Out(save=True)``) of a live node that is not a picture gets one line per cycle
     in ``<node>/<output>.cycles.jsonl``: the run folder's ``<node>/<output>.json`` holds the last cycle's
     only (a servo log, say)."""
     for out, decl in run.g.nodes[node].spec.outputs.items():
-        v = run.value_of(node, out)
+        v = _value(run, node, out)
         if not decl.save or v is None or outputs_mod.is_image(v):
             continue
         path = run.out_dir / node / f"{out}.cycles.jsonl"

@@ -729,14 +729,10 @@ class RunState:
                 del table[key]
 
     def value_of(self, node: str, out: str) -> Any:
-        """The value an output of ``node`` holds in memory now: ``{item: value}`` for a collection (the
-        value itself when it has one item and that is a dict: a live cycle's usual single pair), else
-        the value; None when it has none."""
+        """The value an output of ``node`` holds in memory now: ``{item: value}`` for a collection (None
+        when it holds no item), else the value (None when it has none)."""
         if self.g.is_collection(node, out):
-            vals = {i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])}
-            if len(vals) == 1 and isinstance(next(iter(vals.values())), dict):
-                return next(iter(vals.values()))
-            return vals or None
+            return {i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])} or None
         return self.mem.get((node, out, None))
 
 
