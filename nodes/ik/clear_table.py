@@ -72,16 +72,16 @@ def _try(params: ClearParams, arm: dict, t: dict, place: dict, others: list) -> 
     return plan, None
 
 
-def _choose(params, arm, found, places, memory, first, n_now, unclear):
-    """The first ball of the order that can be picked, its plan, and why the others cannot."""
+def _choose(params, arm, order, places, memory, first, n_now, unclear):
+    """The first ball of the ``order`` that can be picked, its plan, and why the others cannot."""
     skipped = {}
-    for t in sort_picks(found, first):
+    for t in order:
         place = places.get(t.get("object"))
         if place is None:
             skipped[t["pair"]] = f"object {t.get('object')!r} has no drop_place_cm"
             continue
         others = [(np.asarray(o["target_base_cm"]), float(o.get("object_radius_cm") or 0.0))
-                  for o in found if o is not t]
+                  for o in order if o is not t]
         plan, why = _try(params, arm, t, place, others)
         if plan is not None:
             attempt = memory.last["attempt"] + 1 if first == t["pair"] and memory.last else 1
@@ -123,10 +123,11 @@ def clear_table(params: ClearParams, arm, targets, hand_eye, objects, pair=None,
     if verdict and verdict["verdict"] == "given up":
         found = [t for t in found if not _given_up(memory, t)]
     first = verdict.get("target") if verdict and verdict["verdict"] == "retry" else None
-    plan, skipped = _choose(params, arm, found, places, memory, first, n_now, unclear)
+    order = sort_picks(found, first)
+    plan, skipped = _choose(params, arm, order, places, memory, first, n_now, unclear)
     status = {"cycle": memory.cycle, "seen": len(ts), "found": len(found), "look_again": verdict,
               "picked": memory.n_picked, "retries": memory.n_retries, "given_up": memory.given_up,
-              "not_pickable": {**refused, **skipped}, "order": [t["pair"] for t in sort_picks(found, first)],
+              "not_pickable": {**refused, **skipped}, "order": [t["pair"] for t in order],
               "next": None if plan is None else plan["pair"], "done": plan is None,
               "why": None if plan else _why(refused, skipped, memory)}
     picture = None
