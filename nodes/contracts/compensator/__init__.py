@@ -42,7 +42,8 @@ class FitFunction(Protocol):
     def __call__(self, params: Any, samples: Samples) -> dict[str, Any]: ...
 
 
-SPANS = {"z": ("measured distance z", "cm"), "disparity": ("disparity", "px")}
+# span -> (the quantity that must spread over the working range, its unit, the figure's x axis)
+SPANS = {"z": ("measured distance z", "cm", "z_cm"), "disparity": ("disparity", "px", "disparity_px")}
 
 
 def fit_compensator(name: str, *, params: type[FitParams], predict: Callable, inputs: tuple[str, ...],
@@ -66,14 +67,14 @@ def fit_compensator(name: str, *, params: type[FitParams], predict: Callable, in
             samples = training_samples(train, label, needs=inputs, min_points=n_min)
             if check is not None:
                 check(params, samples, label)
+            what, unit, axis = SPANS[span]
             values = samples.xyz_cm[:, 2] if span == "z" else samples.disparity_px
-            require_span(values, SPANS[span][0], label, params.min_span_fraction, SPANS[span][1])
+            require_span(values, what, label, params.min_span_fraction, unit)
             fitted = build_model(method, samples, lambda s: fit(params, s), predict, inputs, label, params.cv_folds,
                                  params.cv_seed, params.model_dump(), robust=params, min_points=n_min, ctx=ctx)
             if after is not None:
                 after(params, fitted, samples, ctx)
-            picture = fit_figure(fitted, samples, predict, held_out(train, inputs),
-                                 "z_cm" if span == "z" else "disparity_px", axes, title(params, fitted),
+            picture = fit_figure(fitted, samples, predict, held_out(train, inputs), axis, axes, title(params, fitted),
                                  enabled=params.figure)
             return {"model": fitted, "metrics": model_metrics(fitted), "figure": picture}
 
