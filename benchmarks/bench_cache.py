@@ -22,7 +22,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    default = ROOT / "pipelines" / ("locate.yaml" if (ROOT / "pipelines" / "locate.yaml").exists() else "hello.yaml")
+    default = (
+        ROOT
+        / "pipelines"
+        / ("locate.yaml" if (ROOT / "pipelines" / "locate.yaml").exists() else "hello.yaml")
+    )
     ap.add_argument("pipeline", nargs="?", default=str(default))
     ap.add_argument("--set", action="append", default=[])
     a = ap.parse_args()
@@ -30,11 +34,15 @@ def main() -> int:
         times, results = [], []
         for i in range(2):
             t0 = time.perf_counter()
-            r = run_pipeline(a.pipeline, a.set, cache_dir=Path(tmp) / "cache", out_dir=Path(tmp) / f"out{i}")
+            r = run_pipeline(
+                a.pipeline, a.set, cache_dir=Path(tmp) / "cache", out_dir=Path(tmp) / f"out{i}"
+            )
             times.append(time.perf_counter() - t0)
             results.append(r)
             if not r.ok:
-                print(f"run {i + 1} failed: {[(n, x.error) for n, x in r.reports.items() if x.error]}")
+                print(
+                    f"run {i + 1} failed: {[(n, x.error) for n, x in r.reports.items() if x.error]}"
+                )
                 return 1
         statuses = set(results[1].status.values())
         print(f"pipeline: {a.pipeline} {' '.join(a.set)}")

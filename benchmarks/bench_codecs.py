@@ -1,4 +1,5 @@
-"""Which lossless codec a recorded "camera" should use: decode time per frame, file size, pixel identity.
+"""Which lossless codec a recorded "camera" should use: decode time per frame, file size, pixel
+identity.
 
     .venv/bin/python benchmarks/bench_codecs.py [--frames 12] [--core 0]
 
@@ -30,7 +31,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=12, help="scenes rendered and recorded")
     ap.add_argument("--width-px", type=int, default=640)
     ap.add_argument("--height-px", type=int, default=480)
-    ap.add_argument("--repeat", type=int, default=5, help="passes over the file (median over all frames read)")
+    ap.add_argument(
+        "--repeat", type=int, default=5, help="passes over the file (median over all frames read)"
+    )
     ap.add_argument("--core", type=int, default=0, help="CPU core to run on (-1: do not pin)")
     a = ap.parse_args(argv)
     if a.core >= 0 and hasattr(os, "sched_setaffinity"):
@@ -41,11 +44,21 @@ def main(argv=None) -> int:
     from nodes.contracts.recording import LOSSLESS, write_video
     from nodes.sources.synthetic import SyntheticParams, synthetic
 
-    pairs = synthetic(SyntheticParams(n_scenes=a.frames, n_views=0, train_fraction=0.0, seed=11,
-                                      image_width_px=a.width_px, image_height_px=a.height_px))["pairs"]
+    pairs = synthetic(
+        SyntheticParams(
+            n_scenes=a.frames,
+            n_views=0,
+            train_fraction=0.0,
+            seed=11,
+            image_width_px=a.width_px,
+            image_height_px=a.height_px,
+        )
+    )["pairs"]
     frames = [p["left"] for p in pairs.values()]
-    print(f"{len(frames)} frames {a.width_px}x{a.height_px}, OpenCV {cv2.__version__}, 1 thread, "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(
+        f"{len(frames)} frames {a.width_px}x{a.height_px}, OpenCV {cv2.__version__}, 1 thread, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
     print(f"{'codec':<6}{'decode median ms':>18}{'CPU median ms':>15}{'kB / frame':>12}  identical")
     with tempfile.TemporaryDirectory() as tmp:
         for codec in LOSSLESS:
@@ -63,7 +76,10 @@ def main(argv=None) -> int:
                     same = same and ok and np.array_equal(got, want)
                 cap.release()
             kb = path.stat().st_size / len(frames) / 1024
-            print(f"{codec:<6}{np.median(wall):>18.2f}{np.median(cpu):>15.2f}{kb:>12.0f}  {'yes' if same else 'NO'}")
+            print(
+                f"{codec:<6}{np.median(wall):>18.2f}{np.median(cpu):>15.2f}{kb:>12.0f}  "
+                f"{'yes' if same else 'NO'}"
+            )
     return 0
 
 

@@ -32,7 +32,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000, help="number of random reachable targets")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--n-scalar-numeric", type=int, default=500, help="targets for the (slow) scalar DLS timing")
+    ap.add_argument(
+        "--n-scalar-numeric", type=int, default=500, help="targets for the (slow) scalar DLS timing"
+    )
     a = ap.parse_args(argv)
     model = build_arm_model(ArmParams())
     lo, hi = limits_rad(model)
@@ -45,6 +47,7 @@ def main(argv=None) -> int:
 
     def scalar_all():
         return np.array([analytic_ik(model, p) for p in P])
+
     dt, q = timed(scalar_all, repeat=1)
     err = np.linalg.norm(fk(model, q) - P, axis=1)
     rows.append(("analytic, scalar (one call per target)", a.n / dt, 1.0, err.max()))
@@ -58,8 +61,11 @@ def main(argv=None) -> int:
     err = np.linalg.norm(fk(model, q) - P[:m], axis=1)
     rows.append(("numeric DLS, scalar (one call per target)", m / dt, 1.0, err.max()))
 
-    print(f"IK benchmark: {a.n} random reachable targets, arm '{model['name']}' (reach {model['reach_cm']:.1f} cm), "
-          f"one process")
+    print(
+        f"IK benchmark: {a.n} random reachable targets, arm '{model['name']}' (reach "
+        f"{model['reach_cm']:.1f} cm), "
+        f"one process"
+    )
     print(f"{'solver':44s} {'solves/s':>12s} {'solved':>8s} {'max |FK(IK(p))-p| cm':>22s}")
     for name, rate, solved, err in rows:
         print(f"{name:44s} {rate:12,.0f} {100 * solved:7.2f}% {err:22.2e}")

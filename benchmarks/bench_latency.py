@@ -1,10 +1,12 @@
 """Latency of the live pick loop: from the frame grab to the first servo goal written, per stage.
 
-    .venv/bin/python benchmarks/bench_latency.py [--cycles 60] [--core 0] [--sim-time-scale 50] [--set NODE.PARAM=V]
+    .venv/bin/python benchmarks/bench_latency.py [--cycles 60] [--core 0] [--sim-time-scale 50]
+    [--set NODE.PARAM=V]
 
-Runs ``pipelines/pick-live.yaml --repeat`` (the embedded default: a recorded synthetic 640x480 camera,
-the saved calibration / compensation / hand-eye, the AX-12A emulator on a pseudo-terminal driven by
-the real dynamixel-sdk) in this process, pinned to one CPU core (OpenCV single-threaded), and for
+Runs ``pipelines/pick-live.yaml --repeat`` (the embedded default: a recorded synthetic 640x480
+camera, the saved calibration / compensation / hand-eye, the AX-12A emulator on a pseudo-terminal
+driven by the real dynamixel-sdk) in this process, pinned to one CPU core (OpenCV single-threaded),
+and for
 every cycle that picks, times:
 
     grab               source.camera: grab() both sides, retrieve (decode), timestamps, skew check
@@ -40,9 +42,14 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = [("grab", "cam", "gate"), ("calibration check", "gate", "segment"),
-          ("rectify+segment", "segment", "disparity"), ("locate+compensate", "disparity", "ik"),
-          ("IK+plan", "ik", "act"), ("servo I/O", "act", None)]
+STAGES = [
+    ("grab", "cam", "gate"),
+    ("calibration check", "gate", "segment"),
+    ("rectify+segment", "segment", "disparity"),
+    ("locate+compensate", "disparity", "ik"),
+    ("IK+plan", "ik", "act"),
+    ("servo I/O", "act", None),
+]
 
 
 def _now() -> tuple[float, float, float]:
@@ -69,14 +76,30 @@ class Stamps:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cycles", type=int, default=60, help="cycles measured (after the first), >= 50 for the figure")
+    ap.add_argument(
+        "--cycles",
+        type=int,
+        default=60,
+        help="cycles measured (after the first), >= 50 for the figure",
+    )
     ap.add_argument("--core", type=int, default=0, help="CPU core to run on (-1: do not pin)")
-    ap.add_argument("--emulator-core", type=int, default=None,
-                    help="CPU core of the servo emulator's thread (default: --core, all on one core; another core "
-                         "models servos that do not share our CPU)")
-    ap.add_argument("--sim-time-scale", type=float, default=50.0,
-                    help="emulated motion speed-up (the motion is not timed; this only shortens the run)")
-    ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="pipeline override")
+    ap.add_argument(
+        "--emulator-core",
+        type=int,
+        default=None,
+        help="CPU core of the servo emulator's thread (default: --core, all on one core; "
+        "another core "
+        "models servos that do not share our CPU)",
+    )
+    ap.add_argument(
+        "--sim-time-scale",
+        type=float,
+        default=50.0,
+        help="emulated motion speed-up (the motion is not timed; this only shortens the run)",
+    )
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="NODE.PARAM=VALUE", help="pipeline override"
+    )
     a = ap.parse_args(argv)
     if a.core >= 0 and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {a.core})  # this thread (and threads it starts) on one core
@@ -101,8 +124,10 @@ def main(argv=None) -> int:
     from stereograph.core.graph import build_graph
     from stereograph.core.runner import run_graph
 
-    first_goal: list[tuple[float, float, float]] = []  # (wall, cpu) when the first sync write of a cycle returned
-    port_open: list[tuple[float, float, float]] = []  # (wall, cpu) when the plan started on the open port
+    # (wall, cpu) when the first sync write of a cycle returned
+    first_goal: list[tuple[float, float, float]] = []
+    # (wall, cpu) when the plan started on the open port
+    port_open: list[tuple[float, float, float]] = []
     sync_write, bus_begin = bus_mod.Bus.sync_write, bus_mod.Bus.begin
 
     def timed_begin(self, t0):
@@ -146,34 +171,58 @@ def main(argv=None) -> int:
         t0 = stamps.start["cam"]
         row["grab -> first goal"] = _ms(t0, goal)
         rows.append(row)
-        print(f"\rcycle {c.index}: {row['grab -> first goal'][0]:.1f} ms", end="", file=sys.stderr, flush=True)
+        print(
+            f"\rcycle {c.index}: {row['grab -> first goal'][0]:.1f} ms",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
 
-    doc = load_pipeline(ROOT / "pipelines" / "pick-live.yaml", [f"act.sim_time_scale={a.sim_time_scale}", *a.set])
+    doc = load_pipeline(
+        ROOT / "pipelines" / "pick-live.yaml", [f"act.sim_time_scale={a.sim_time_scale}", *a.set]
+    )
     loop = Loop(a.cycles + 1, on_cycle=on_cycle)
     t_run = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         run_graph(build_graph(doc), cycles=loop, out_dir=Path(tmp) / "run", progress=stamps)
     print(file=sys.stderr)
-    w, h = doc.nodes["scenes"]["params"].get("image_width_px", 640), doc.nodes["scenes"]["params"].get(
-        "image_height_px", 480)
-    pinned = (f"pipeline pinned to core {a.core}, emulator on core {emu_core}" if a.core >= 0 else "not pinned")
-    print(f"pick-live latency: {len(rows)} picking cycles of {len(loop.cycles) - 1} measured, {w}x{h}, {pinned}, "
-          f"OpenCV 1 thread, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
-          f"({time.time() - t_run:.0f} s)")
+    w, h = (
+        doc.nodes["scenes"]["params"].get("image_width_px", 640),
+        doc.nodes["scenes"]["params"].get("image_height_px", 480),
+    )
+    pinned = (
+        f"pipeline pinned to core {a.core}, emulator on core {emu_core}"
+        if a.core >= 0
+        else "not pinned"
+    )
+    print(
+        f"pick-live latency: {len(rows)} picking cycles of {len(loop.cycles) - 1} "
+        f"measured, {w}x{h}, {pinned}, "
+        f"OpenCV 1 thread, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
+        f"({time.time() - t_run:.0f} s)"
+    )
     if not rows:
         print("no cycle picked anything:", not_picked)
         return 1
-    print(f"{'stage':<22}{'median ms':>11}{'p95 ms':>9}   {'CPU median':>10}{'CPU p95':>9}{'process CPU median':>20}")
+    print(
+        f"{'stage':<22}{'median ms':>11}{'p95 ms':>9}   "
+        f"{'CPU median':>10}{'CPU p95':>9}{'process CPU median':>20}"
+    )
     for name in [s[0] for s in STAGES] + ["  check, port", "  reads, write", "grab -> first goal"]:
         wall = np.array([r[name][0] for r in rows])
         cpu = np.array([r[name][1] for r in rows])
         proc = np.array([r[name][2] for r in rows])
-        print(f"{name:<22}{np.median(wall):>11.1f}{np.percentile(wall, 95):>9.1f}   "
-              f"{np.median(cpu):>10.1f}{np.percentile(cpu, 95):>9.1f}{np.median(proc):>20.1f}")
+        print(
+            f"{name:<22}{np.median(wall):>11.1f}{np.percentile(wall, 95):>9.1f}   "
+            f"{np.median(cpu):>10.1f}{np.percentile(cpu, 95):>9.1f}{np.median(proc):>20.1f}"
+        )
     total = np.median([r["grab -> first goal"][0] for r in rows])
     print(f"grab -> first goal written: median {total:.1f} ms (target <= 30 ms, motion excluded)")
     if not_picked:
-        print("cycles without a pick (not timed): " + "; ".join(f"{n}x {k}" for k, n in not_picked.items()))
+        print(
+            "cycles without a pick (not timed): "
+            + "; ".join(f"{n}x {k}" for k, n in not_picked.items())
+        )
     return 0
 
 

@@ -81,14 +81,17 @@ nodes:
     inputs: {{pair: rig.pairs, rectification: rectify.rectification}}
   disparity: {{type: disparity.centroid, inputs: {{segmentation: segment.segmentation,
               rectification: rectify.rectification}}}}
-  locate: {{type: locator.triangulate, params: {{overlay: false}}, inputs: {{disparity: disparity.disparity,
-           rectification: rectify.rectification}}}}
+  locate: {{type: locator.triangulate, params: {{overlay: false}},
+           inputs: {{disparity: disparity.disparity, rectification: rectify.rectification}}}}
 """
-# (both overlays off: the hand-written loop draws none, and pictures are the report's job, not the locate path's)
+# (both overlays off: the hand-written loop draws none, and pictures are the report's job, not the
+# locate path's)
 FULL_REMAP = PIPELINE.replace(
     "  segment:\n",
-    "  remap: {{type: rectifier.remap, inputs: {{rectification: rectify.rectification, pair: rig.pairs}}}}\n"
-    "  segment:\n").replace("pair: rig.pairs, rectification", "pair: remap.rectified, rectification")
+    "  remap: {{type: rectifier.remap, inputs: {{rectification: rectify.rectification, "
+    "pair: rig.pairs}}}}\n"
+    "  segment:\n",
+).replace("pair: rig.pairs, rectification", "pair: remap.rectified, rectification")
 
 
 UPSTREAM = ("source.synthetic", "calibrator.truth", "rectifier.opencv")
@@ -108,7 +111,8 @@ def _time_upstream_nodes() -> None:
         if getattr(spec.fn, "_bench_timed", False):
             continue
 
-        @functools.wraps(spec.fn)  # same module and name: the code hash still sees the node's own code
+        # same module and name: the code hash still sees the node's own code
+        @functools.wraps(spec.fn)
         def timed_fn(*a, _fn=spec.fn, **k):
             c0 = time.process_time()
             try:
@@ -222,7 +226,8 @@ def main(argv=None) -> None:
 
     # Interleaved, so that every method sees the same phases of a shared machine.
     loop = raw = eng = full = None
-    ratios, cpu_ratios = [], []  # engine vs loop, each repeat's pair measured back to back (wall, CPU)
+    # engine vs loop, each repeat's pair measured back to back (wall, CPU)
+    ratios, cpu_ratios = [], []
     with tempfile.TemporaryDirectory() as td:
         for _ in range(a.repeat):
             lo = timed(lambda: run_loop(pairs, rect, params))
@@ -235,19 +240,30 @@ def main(argv=None) -> None:
     n = a.pairs
 
     def line(name, res):
-        print(f"  {name:<24}: {n / res[0]:7.1f} pairs/s  [{n / max(res[1], 1e-9):7.1f} per cpu-s]  found {res[2]}/{n}")
+        print(
+            f"  {name:<24}: {n / res[0]:7.1f} pairs/s  [{n / max(res[1], 1e-9):7.1f} per "
+            f"cpu-s]  found {res[2]}/{n}"
+        )
 
-    print(f"\n{n} pairs of 640x480, cv2.setNumThreads(1), best of {a.repeat} (wall; cpu in brackets)")
+    print(
+        f"\n{n} pairs of 640x480, cv2.setNumThreads(1), best of {a.repeat} (wall; cpu in brackets)"
+    )
     line("engine (caching off)", eng)
     line("hand-written loop", loop)
     line("engine, full remap node", full)
     line("raw cv2 (thesis bare)", raw)
-    print(f"  ratio engine / loop     : {loop[0] / eng[0]:.3f} of the best runs, "
-          f"{float(np.median(ratios)):.3f} median of back-to-back runs   "
-          f"(target >= 0.9; throughput target >= 150 pairs/s)")
+    print(
+        f"  ratio engine / loop     : {loop[0] / eng[0]:.3f} of the best runs, "
+        f"{float(np.median(ratios)):.3f} median of back-to-back runs   "
+        f"(target >= 0.9; throughput target >= 150 pairs/s)"
+    )
     # On a shared machine the wall figures follow the other users' load; CPU seconds much less.
-    print(f"  ratio engine / loop, CPU: {float(np.median(cpu_ratios)):.3f} median of back-to-back runs; "
-          f"engine / raw cv2, CPU: {raw[1] / eng[1]:.3f} of the best runs (a host-independent yardstick)")
+    print(
+        f"  ratio engine / loop, CPU: {float(np.median(cpu_ratios)):.3f} median of "
+        "back-to-back runs; "
+        f"engine / raw cv2, CPU: {raw[1] / eng[1]:.3f} of the best runs (a "
+        "host-independent yardstick)"
+    )
 
 
 if __name__ == "__main__":

@@ -12,12 +12,14 @@ prints the full comparison tables, then the checks of the issue:
 
 * nominal: the best compensator brings the test split's |mean z error| to <= 0.05 cm with
   a z std no worse than compensator.none's;
-* imperfect (each of 2 and 3): the best compensator lowers z RMS by >= 50 % against compensator.none, with
-  x and y RMS no worse (tolerance 0.005 cm, the noise of the RMS figures themselves).
+* imperfect (each of 2 and 3): the best compensator lowers z RMS by >= 50 % against
+  compensator.none, with x and y RMS no worse (tolerance 0.005 cm, the noise of the RMS figures
+  themselves).
 
 Usage::
 
-    .venv/bin/python benchmarks/compare_compensation.py [--n-scenes 120] [--out runs/bench-compensation]
+    .venv/bin/python benchmarks/compare_compensation.py [--n-scenes 120] [--out
+    runs/bench-compensation]
 """
 
 from __future__ import annotations
@@ -41,7 +43,16 @@ RIGS = {
 
 
 #: The columns printed (compare.csv has every metric the pipeline declares).
-TABLE = ["n", "n_found", "[xyz]_mean_cm", "[xyz]_std_cm", "[xyz]_rms_cm", "n_extrapolated", "fit_time_s", "per_pair_s"]
+TABLE = [
+    "n",
+    "n_found",
+    "[xyz]_mean_cm",
+    "[xyz]_std_cm",
+    "[xyz]_rms_cm",
+    "n_extrapolated",
+    "fit_time_s",
+    "per_pair_s",
+]
 
 
 def check_nominal(res, con) -> bool:
@@ -52,8 +63,11 @@ def check_nominal(res, con) -> bool:
             continue
         ok = abs(r["z_mean_cm"]) <= 0.05 and r["z_std_cm"] <= none["z_std_cm"]
         ok_any |= ok
-        con.print(f"  {r['settings']['fit.type']:<16} |z mean| {abs(r['z_mean_cm']):.3f} cm (<= 0.05), "
-                  f"z std {r['z_std_cm']:.3f} vs none {none['z_std_cm']:.3f} cm -> {'PASS' if ok else 'fail'}")
+        con.print(
+            f"  {r['settings']['fit.type']:<16} |z mean| {abs(r['z_mean_cm']):.3f} cm (<= 0.05), "
+            f"z std {r['z_std_cm']:.3f} vs none {none['z_std_cm']:.3f} cm -> "
+            f"{'PASS' if ok else 'fail'}"
+        )
     return ok_any
 
 
@@ -67,21 +81,39 @@ def check_imperfect(res, con) -> bool:
         xy = all(r[f"{a}_rms_cm"] <= none[f"{a}_rms_cm"] + TOL_CM for a in "xy")
         ok = change <= -0.5 and xy
         ok_any |= ok
-        con.print(f"  {r['settings']['fit.type']:<16} z RMS {none['z_rms_cm']:.3f} -> {r['z_rms_cm']:.3f} cm "
-                  f"({100 * change:+.0f} %; need <= -50 %), x RMS {r['x_rms_cm']:.3f} (none {none['x_rms_cm']:.3f}), "
-                  f"y RMS {r['y_rms_cm']:.3f} (none {none['y_rms_cm']:.3f}) -> {'PASS' if ok else 'fail'}")
+        con.print(
+            f"  {r['settings']['fit.type']:<16} z RMS {none['z_rms_cm']:.3f} -> "
+            f"{r['z_rms_cm']:.3f} cm "
+            f"({100 * change:+.0f} %; need <= -50 %), x RMS {r['x_rms_cm']:.3f} (none "
+            f"{none['x_rms_cm']:.3f}), "
+            f"y RMS {r['y_rms_cm']:.3f} (none {none['y_rms_cm']:.3f}) -> {'PASS' if ok else 'fail'}"
+        )
     return ok_any
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--n-scenes", type=int, default=120, help="synthetic placements (half train, half test)")
+    ap.add_argument(
+        "--n-scenes", type=int, default=120, help="synthetic placements (half train, half test)"
+    )
     ap.add_argument("--out", default=str(ROOT / "runs" / "bench-compensation"))
-    ap.add_argument("--cache-dir", default=None, help="artifact cache (default: next to the pipeline)")
-    ap.add_argument("--set", action="append", default=[], metavar="NODE.PARAM=VALUE",
-                    help="extra overrides for every rig (e.g. segment.type=segmenter.color)")
-    ap.add_argument("--rig", action="append", default=None, choices=list(RIGS),
-                    help="which rigs to run (repeatable; default all)")
+    ap.add_argument(
+        "--cache-dir", default=None, help="artifact cache (default: next to the pipeline)"
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NODE.PARAM=VALUE",
+        help="extra overrides for every rig (e.g. segment.type=segmenter.color)",
+    )
+    ap.add_argument(
+        "--rig",
+        action="append",
+        default=None,
+        choices=list(RIGS),
+        help="which rigs to run (repeatable; default all)",
+    )
     args = ap.parse_args(argv)
     con = Console(highlight=False, width=220)
     common = [f"rig.n_scenes={args.n_scenes}", *args.set]
@@ -97,7 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     verdicts = {}
     for name, res in results.items():
         if name == "nominal":
-            con.print("nominal rig: best compensator |z mean| <= 0.05 cm with z std no worse than none")
+            con.print(
+                "nominal rig: best compensator |z mean| <= 0.05 cm with z std no worse than none"
+            )
             verdicts[name] = check_nominal(res, con)
         else:
             con.print(f"{name} rig ({' '.join(RIGS[name])}): z RMS -50 % vs none, x/y RMS no worse")

@@ -40,7 +40,16 @@ VARIANTS = {
 
 
 def run(overrides: list[str], out: Path) -> tuple[np.ndarray, dict, float]:
-    cmd = [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--no-cache", "--out", str(out)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(PIPELINE),
+        "--no-cache",
+        "--out",
+        str(out),
+    ]
     for o in overrides:
         cmd += ["--set", o]
     t0 = time.perf_counter()
@@ -65,8 +74,10 @@ def main() -> int:
             fill, bad = bad_pixels(disp, gt, 2.0)
             ok = ok and fill >= 0.72 and bad <= 0.038
             print(f"{name:<34} {fill:7.1%} {bad:8.2%} {rec['compute_seconds']:8.2f} {wall:7.1f}")
-    print(f"\nsearch range {rec['search_range_px']} px; target bad-2.0 <= 3.8 % at >= 72 % fill: "
-          f"{'met' if ok else 'NOT met'} by every variant")
+    print(
+        f"\nsearch range {rec['search_range_px']} px; target bad-2.0 <= 3.8 % at >= 72 % fill: "
+        f"{'met' if ok else 'NOT met'} by every variant"
+    )
     return 0 if ok else 1
 
 

@@ -5,7 +5,8 @@
 Pairs: Middlebury's Aloe (``../shared/data``, full size) and Motorcycle (the quarter-size Middlebury
 2014 pair scikit-image ships as ``skimage.data.stereo_motorcycle``: ``pip install scikit-image``;
 skipped, saying so, without it). Each is run through ``disparity.dense`` with the given overrides
-(default: the node's defaults) and scored as ``report.disparity`` scores: fill = share of pixels with
+(default: the node's defaults) and scored as ``report.disparity`` scores: fill = share of pixels
+with
 known truth that got a disparity; bad-2.0 = share of those more than 2 px from the truth (target:
 bad-2.0 <= 3.8 % at >= 72 % fill on every pair), and the same for the padded left strip alone.
 """
@@ -28,9 +29,16 @@ sys.path.insert(0, str(ROOT))
 from nodes.contracts.disparity_scores import bad_pixels  # noqa: E402
 
 ALOE = ROOT.parent / "shared" / "data" / "middlebury-aloe-opencv"
-# Middlebury 2014 Motorcycle, quarter size (741x500): f 3979.911 / 4 px, doffs 124.343 / 4 px, B 193 mm
-MOTO_RIG = "{f_px: 995.0, cx_px: 370.5, cy_px: 249.5, cx_right_px: 401.6, baseline_cm: 19.3, image_size: [741, 500]}"
-ALOE_RIG = "{f_px: 3740.0, cx_px: 640.5, cy_px: 554.5, cx_right_px: 910.5, baseline_cm: 16.0, image_size: [1282, 1110]}"
+# Middlebury 2014 Motorcycle, quarter size (741x500): f 3979.911 / 4 px, doffs 124.343 / 4 px, B 193
+# mm
+MOTO_RIG = (
+    "{f_px: 995.0, cx_px: 370.5, cy_px: 249.5, cx_right_px: 401.6, baseline_cm: 19.3, "
+    "image_size: [741, 500]}"
+)
+ALOE_RIG = (
+    "{f_px: 3740.0, cx_px: 640.5, cy_px: 554.5, cx_right_px: 910.5, baseline_cm: 16.0, "
+    "image_size: [1282, 1110]}"
+)
 
 
 def _pipeline(folder: Path, rig: str, range_cm: str) -> str:
@@ -38,7 +46,8 @@ def _pipeline(folder: Path, rig: str, range_cm: str) -> str:
 nodes:
   pairs: {{type: source.files, params: {{folder: '{folder}'}}}}
   rectify: {{type: rectifier.given, params: {rig}}}
-  remap: {{type: rectifier.remap, inputs: {{rectification: rectify.rectification, pair: pairs.pairs}}}}
+  remap: {{type: rectifier.remap,
+          inputs: {{rectification: rectify.rectification, pair: pairs.pairs}}}}
   dense: {{type: disparity.dense, params: {{working_range_cm: {range_cm}}},
           inputs: {{pair: remap.rectified, rectification: rectify.rectification}}}}
 """
@@ -48,7 +57,15 @@ def pairs(tmp: Path) -> list[tuple[str, Path, str, str, np.ndarray]]:
     out = []
     gt = cv2.imread(str(ALOE / "aloeGT.png"), cv2.IMREAD_GRAYSCALE)
     if gt is not None:
-        out.append(("Aloe (Middlebury 2006, full size)", ALOE, ALOE_RIG, "[120.0, 200.0]", gt.astype(np.float32)))
+        out.append(
+            (
+                "Aloe (Middlebury 2006, full size)",
+                ALOE,
+                ALOE_RIG,
+                "[120.0, 200.0]",
+                gt.astype(np.float32),
+            )
+        )
     try:
         from skimage.data import stereo_motorcycle
     except ImportError:
@@ -60,7 +77,9 @@ def pairs(tmp: Path) -> list[tuple[str, Path, str, str, np.ndarray]]:
     cv2.imwrite(str(folder / "motorcycle_left.png"), cv2.cvtColor(left, cv2.COLOR_RGB2BGR))
     cv2.imwrite(str(folder / "motorcycle_right.png"), cv2.cvtColor(right, cv2.COLOR_RGB2BGR))
     gt = np.where(np.isfinite(disp), disp, 0).astype(np.float32)
-    out.append(("Motorcycle (Middlebury 2014, quarter size)", folder, MOTO_RIG, "[150.0, 700.0]", gt))
+    out.append(
+        ("Motorcycle (Middlebury 2014, quarter size)", folder, MOTO_RIG, "[150.0, 700.0]", gt)
+    )
     return out
 
 
@@ -76,11 +95,27 @@ def main(argv: list[str] | None = None) -> int:
             pipe = tmp / f"{len(name)}.yaml"
             pipe.write_text(_pipeline(folder, rig, range_cm))
             out = tmp / f"out{len(name)}"
-            cmd = [sys.executable, "-m", "stereograph", "run", str(pipe), "--no-cache", "--out", str(out)]
-            done = subprocess.run(cmd + [x for s in a.set for x in ("--set", s)], capture_output=True, text=True,
-                                  cwd=ROOT)
+            cmd = [
+                sys.executable,
+                "-m",
+                "stereograph",
+                "run",
+                str(pipe),
+                "--no-cache",
+                "--out",
+                str(out),
+            ]
+            done = subprocess.run(
+                cmd + [x for s in a.set for x in ("--set", s)],
+                capture_output=True,
+                text=True,
+                cwd=ROOT,
+            )
             if done.returncode:
-                print(f"{name}: the run failed:\n{done.stdout[-1500:]}{done.stderr[-1500:]}", file=sys.stderr)
+                print(
+                    f"{name}: the run failed:\n{done.stdout[-1500:]}{done.stderr[-1500:]}",
+                    file=sys.stderr,
+                )
                 return 2
             rec = json.loads((out / "dense" / "disparity_map.json").read_text())[0]
             disp = np.load(out / "dense" / "disparity_map.npz")[rec["disparity_px"]["npz"]]

@@ -9,10 +9,11 @@ each segmenter with shadow suppression off and on.
 
 Usage::
 
-    .venv/bin/python benchmarks/locate_matrix.py                     # 120 placements, chessboard calibration
-    .venv/bin/python benchmarks/locate_matrix.py --calibration truth # isolate the locating error
-    .venv/bin/python benchmarks/locate_matrix.py --n 60 --no-sgbm     # quicker
-    .venv/bin/python benchmarks/locate_matrix.py --rectify on-demand  # segmenters given the camera pairs
+    .venv/bin/python benchmarks/locate_matrix.py                     # 120 placements, chessboard
+    calibration .venv/bin/python benchmarks/locate_matrix.py --calibration truth # isolate the
+    locating error .venv/bin/python benchmarks/locate_matrix.py --n 60 --no-sgbm     # quicker
+    .venv/bin/python benchmarks/locate_matrix.py --rectify on-demand  # segmenters given the camera
+    pairs
 
 Prints Markdown tables (cm): mean / std / max|err| per axis, n_found / n.
 """
@@ -48,13 +49,22 @@ from nodes.segmenters.watershed import WatershedParams, watershed  # noqa: E402
 from nodes.sources.synthetic import SyntheticParams, synthetic  # noqa: E402
 
 OBJECT = {"radius_cm": 2.0, "color_bgr": [20, 120, 245]}
-SEGMENTERS = {"edge_morph": (edge_morph, EdgeMorphParams), "color": (color, ColorParams),
-              "otsu": (otsu, OtsuParams), "hough": (hough, HoughParams),
-              "watershed": (watershed, WatershedParams), "slic": (slic, SlicParams)}
+SEGMENTERS = {
+    "edge_morph": (edge_morph, EdgeMorphParams),
+    "color": (color, ColorParams),
+    "otsu": (otsu, OtsuParams),
+    "hough": (hough, HoughParams),
+    "watershed": (watershed, WatershedParams),
+    "slic": (slic, SlicParams),
+}
 
 
 def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dict]:
-    src = synthetic(SyntheticParams(n_scenes=n, n_views=16 if calibration == "chessboard" else 0, seed=seed, **rig))
+    src = synthetic(
+        SyntheticParams(
+            n_scenes=n, n_views=16 if calibration == "chessboard" else 0, seed=seed, **rig
+        )
+    )
     if calibration == "chessboard":
         cal = chessboard(ChessboardParams(), views=src["views"])["calibration"]
     else:
@@ -66,14 +76,21 @@ def prepare(n: int, seed: int, calibration: str, **rig) -> tuple[list[dict], dic
 
 
 # What the engine tells a segmenter whose `pair` input is wired to a source's camera pairs.
-ON_DEMAND = types.SimpleNamespace(input_types={"pair": "StereoPair"}, item=None, warn=lambda message: None)
+ON_DEMAND = types.SimpleNamespace(
+    input_types={"pair": "StereoPair"}, item=None, warn=lambda message: None
+)
 
 
 def locate_all(pairs, rect, seg_name, disp_name, shadow=True, raw=None, object_=None, **extra):
-    """Locations of every pair; ``raw`` (the camera pairs): segment them with on-demand rectification;
-    ``object_``: the segmenters' object model (default OBJECT)."""
+    """Locations of every pair; ``raw`` (the camera pairs): segment them with on-demand
+    rectification; ``object_``: the segmenters' object model (default OBJECT)."""
     fn, P = SEGMENTERS[seg_name]
-    params = P(object=OBJECT if object_ is None else object_, overlay=False, shadow={"enabled": shadow}, **extra)
+    params = P(
+        object=OBJECT if object_ is None else object_,
+        overlay=False,
+        shadow={"enabled": shadow},
+        **extra,
+    )
     out = []
     for i, p in enumerate(pairs):
         if raw is None:
@@ -86,7 +103,9 @@ def locate_all(pairs, rect, seg_name, disp_name, shadow=True, raw=None, object_=
             d = ellipse(EllipseParams(), segmentation=seg, rectification=rect)["disparity"]
         else:
             d = sgbm(SgbmParams(), segmentation=seg, pair=p, rectification=rect)["disparity"]
-        out.append(triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=p)["location"])
+        out.append(
+            triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=p)["location"]
+        )
     return out
 
 
@@ -99,13 +118,18 @@ def row(label, locs, split):
     cells = []
     for ax in "xyz":
         s = tab[ax]
-        cells.append("–" if s["mean_cm"] is None
-                     else f"{s['mean_cm']:+.3f} / {s['std_cm']:.3f} / {s['max_abs_cm']:.3f}")
+        cells.append(
+            "–"
+            if s["mean_cm"] is None
+            else f"{s['mean_cm']:+.3f} / {s['std_cm']:.3f} / {s['max_abs_cm']:.3f}"
+        )
     return f"| {label} | {len(ok)}/{len(sel)} | " + " | ".join(cells) + " |"
 
 
-HEADER = ("| combination | found / n | x mean / std / max | y mean / std / max | z mean / std / max |\n"
-          "|---|---:|---:|---:|---:|")
+HEADER = (
+    "| combination | found / n | x mean / std / max | y mean / std / max | z mean / std / max |\n"
+    "|---|---:|---:|---:|---:|"
+)
 
 
 def main(argv=None):
@@ -115,36 +139,59 @@ def main(argv=None):
     ap.add_argument("--calibration", choices=["chessboard", "truth"], default="chessboard")
     ap.add_argument("--split", choices=["test", "train", "all"], default="test")
     ap.add_argument("--no-sgbm", action="store_true", help="skip the (slow) dense estimator")
-    ap.add_argument("--shadow-n", type=int, default=40, help="strong-shadow placements (count; 0 = skip)")
-    ap.add_argument("--rectify", choices=["remap", "on-demand"], default="remap",
-                    help="segment rectifier.remap's whole rectified images, or the camera pairs rectified on demand")
+    ap.add_argument(
+        "--shadow-n", type=int, default=40, help="strong-shadow placements (count; 0 = skip)"
+    )
+    ap.add_argument(
+        "--rectify",
+        choices=["remap", "on-demand"],
+        default="remap",
+        help="segment rectifier.remap's whole rectified images, or the camera pairs rectified "
+        "on demand",
+    )
     a = ap.parse_args(argv)
 
     t0 = time.time()
     pairs, rect, raw = prepare(a.n, a.seed, a.calibration)
     raw = raw if a.rectify == "on-demand" else None
-    print(f"{len(pairs)} placements, {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
-          f"B = {rect['baseline_cm']:.2f} cm; errors = measured - true (cm), {a.split} split, "
-          f"rectification: {a.rectify}\n")
+    print(
+        f"{len(pairs)} placements, {a.calibration} calibration, f = {rect['f_px']:.1f} px, "
+        f"B = {rect['baseline_cm']:.2f} cm; errors = measured - true (cm), {a.split} split, "
+        f"rectification: {a.rectify}\n"
+    )
     print(HEADER)
     disps = ["centroid", "ellipse"] + ([] if a.no_sgbm else ["sgbm"])
     for s in SEGMENTERS:
         for d in disps:
             print(row(f"{s} + {d}", locate_all(pairs, rect, s, d, raw=raw), a.split), flush=True)
     if a.shadow_n:
-        sp, srect, sraw = prepare(a.shadow_n, a.seed + 1, a.calibration, shadow_strength=0.95,
-                                  light_cm=(40.0, 30.0, 45.0))
+        sp, srect, sraw = prepare(
+            a.shadow_n, a.seed + 1, a.calibration, shadow_strength=0.95, light_cm=(40.0, 30.0, 45.0)
+        )
         raw = sraw if a.rectify == "on-demand" else None
-        print(f"\nStrong shadow ({len(sp)} placements, shadow_strength 0.95, low light; all items), "
-              "centroid disparity:\n")
+        print(
+            f"\nStrong shadow ({len(sp)} placements, shadow_strength 0.95, low light; all items), "
+            "centroid disparity:\n"
+        )
         print(HEADER)
         for s in SEGMENTERS:
-            print(row(f"{s}, suppression off, no roundness check (thesis: largest region)",
-                      locate_all(sp, srect, s, "centroid", shadow=False, raw=raw, min_roundness=0.0), "all"),
-                      flush=True)
+            print(
+                row(
+                    f"{s}, suppression off, no roundness check (thesis: largest region)",
+                    locate_all(sp, srect, s, "centroid", shadow=False, raw=raw, min_roundness=0.0),
+                    "all",
+                ),
+                flush=True,
+            )
             for on in (False, True):
-                print(row(f"{s}, shadow suppression {'on' if on else 'off'}",
-                          locate_all(sp, srect, s, "centroid", shadow=on, raw=raw), "all"), flush=True)
+                print(
+                    row(
+                        f"{s}, shadow suppression {'on' if on else 'off'}",
+                        locate_all(sp, srect, s, "centroid", shadow=on, raw=raw),
+                        "all",
+                    ),
+                    flush=True,
+                )
     print(f"\n({time.time() - t0:.0f} s)")
 
 

@@ -36,8 +36,12 @@ from compensation_data import errors, make_locations  # noqa: E402
 from nodes.compensators import disparity_curve, lookup, polynomial, xyz  # noqa: E402
 from nodes.compensators.apply import ApplyParams, apply  # noqa: E402
 
-FIT_NODES = {"polynomial": polynomial.polynomial, "disparity_curve": disparity_curve.disparity_curve,
-             "lookup": lookup.lookup, "xyz": xyz.xyz}
+FIT_NODES = {
+    "polynomial": polynomial.polynomial,
+    "disparity_curve": disparity_curve.disparity_curve,
+    "lookup": lookup.lookup,
+    "xyz": xyz.xyz,
+}
 RIG = {"n": 160, "baseline_scale": 1.02, "disparity_offset_px": 0.5, "noise_px": 0.1}
 
 
@@ -47,7 +51,9 @@ def fit(kind, locations, **params):
 
 
 def rms_3d(model, locations) -> float:
-    out = {k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()}
+    out = {
+        k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()
+    }
     e = errors(out, "test")
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
@@ -77,26 +83,43 @@ def robust_losses(poisoned) -> dict[str, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[3, 4, 5])
-    ap.add_argument("--fraction", type=float, default=1 / 3, help="fraction of training placements mis-detected")
+    ap.add_argument(
+        "--fraction", type=float, default=1 / 3, help="fraction of training placements mis-detected"
+    )
     args = ap.parse_args()
     worst = 0.0
     exact = True
-    print(f"{'seed':>4} {'model':<16} {'clean':>8} {'plain':>8} {'robust':>8} {'ratio':>6} {'left out':>9}  exactly?")
+    print(
+        f"{'seed':>4} {'model':<16} {'clean':>8} {'plain':>8} {'robust':>8} {'ratio':>6} "
+        f"{'left out':>9}  exactly?"
+    )
     for seed in args.seeds:
         clean = make_locations(seed=seed, **RIG)
         poisoned = make_locations(seed=seed, misdetect_fraction=args.fraction, **RIG)
         bad = {k for k, v in poisoned.items() if v["misdetected"]}
         for kind in FIT_NODES:
-            ref, plain, rob = fit(kind, clean), fit(kind, poisoned, outlier_mad=None), fit(kind, poisoned)
+            ref, plain, rob = (
+                fit(kind, clean),
+                fit(kind, poisoned, outlier_mad=None),
+                fit(kind, poisoned),
+            )
             a, b, c = rms_3d(ref, clean), rms_3d(plain, poisoned), rms_3d(rob, poisoned)
             left = {o["item"] for o in rob["outliers"]}
             worst, exact = max(worst, c / a), exact and left == bad
-            print(f"{seed:>4} {kind:<16} {a:8.4f} {b:8.3f} {c:8.4f} {c / a:6.3f} "
-                  f"{len(left):>4}/{len(bad):<4}  {left == bad}")
+            print(
+                f"{seed:>4} {kind:<16} {a:8.4f} {b:8.3f} {c:8.4f} {c / a:6.3f} "
+                f"{len(left):>4}/{len(bad):<4}  {left == bad}"
+            )
         losses = robust_losses(poisoned)
-        print(f"{seed:>4} polynomial z RMS with scipy losses: "
-              + ", ".join(f"{k} {v:.3f}" for k, v in losses.items()) + " cm")
-    print(f"\nworst robust/clean ratio {worst:.3f} (target <= 1.10); exactly the mis-detections left out: {exact}")
+        print(
+            f"{seed:>4} polynomial z RMS with scipy losses: "
+            + ", ".join(f"{k} {v:.3f}" for k, v in losses.items())
+            + " cm"
+        )
+    print(
+        f"\nworst robust/clean ratio {worst:.3f} (target <= 1.10); exactly the "
+        f"mis-detections left out: {exact}"
+    )
     return 0 if worst <= 1.10 and exact else 1
 
 

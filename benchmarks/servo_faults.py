@@ -1,4 +1,5 @@
-"""Servo faults -> what actuator.dynamixel says, how long it takes to say it, and the torque state after.
+"""Servo faults -> what actuator.dynamixel says, how long it takes to say it, and the torque state
+after.
 
     .venv/bin/python benchmarks/servo_faults.py [--retries 3] [--late-window-ms 250]
 
@@ -27,9 +28,20 @@ IDS = [1, 2, 3, 4, 5]
 
 def plan_and_arm():
     arm = build_arm_model(ArmParams())
-    he = hand_eye(HandEyeParams(mode="given", camera_in_base={"translation_cm": [0, 0, 0], "rpy_deg": [0, 0, 0]}))
-    loc = {"pair": "p1", "found": True, "reason": None, "x_cm": 17.0, "y_cm": 4.0, "z_cm": 2.5,
-           "frame": "left_camera"}
+    he = hand_eye(
+        HandEyeParams(
+            mode="given", camera_in_base={"translation_cm": [0, 0, 0], "rpy_deg": [0, 0, 0]}
+        )
+    )
+    loc = {
+        "pair": "p1",
+        "found": True,
+        "reason": None,
+        "x_cm": 17.0,
+        "y_cm": 4.0,
+        "z_cm": 2.5,
+        "frame": "left_camera",
+    }
     t = analytic_3dof(AnalyticParams(), arm=arm, location=loc, hand_eye=he["hand_eye"])["target"]
     return pick_sequence(PickParams(), arm=arm, target=t)["plan"], arm
 
@@ -48,24 +60,72 @@ def cases(plan):
     return [
         ("no reply (servo 3 unplugged)", Faults(unplugged_ids={3}), None, {}),
         ("no reply, torque left on by an earlier run", Faults(unplugged_ids={3}), torque_on, {}),
-        ("  same, torque_off_on_failure: true", Faults(unplugged_ids={3}), torque_on, {"torque_off_on_failure": True}),
-        ("late replies (70 ms) at ping", Faults(late_replies=10**6, late_ms=70, only_ids={3}), None, {}),
+        (
+            "  same, torque_off_on_failure: true",
+            Faults(unplugged_ids={3}),
+            torque_on,
+            {"torque_off_on_failure": True},
+        ),
+        (
+            "late replies (70 ms) at ping",
+            Faults(late_replies=10**6, late_ms=70, only_ids={3}),
+            None,
+            {},
+        ),
         ("corrupted replies", Faults(corrupt_replies=10**6, only_ids={2}), None, {}),
         ("overload bit at ping", Faults(alarms={4: ERR_OVERLOAD}), None, {}),
         ("overheating bit at ping", Faults(alarms={4: ERR_OVERHEAT}), None, {}),
         ("input voltage bit at ping", Faults(alarms={4: ERR_VOLTAGE}), None, {}),
         ("angle limit bit at ping", Faults(alarms={4: ERR_ANGLE}), None, {}),
-        ("PING ok, 4 READ replies lost", Faults(drop_replies=4, instructions={"READ"}, only_ids={5}), None, {}),
-        ("PING+WRITE ok, every READ lost", Faults(drop_replies=10**6, instructions={"READ"}, only_ids={5}), None, {}),
+        (
+            "PING ok, 4 READ replies lost",
+            Faults(drop_replies=4, instructions={"READ"}, only_ids={5}),
+            None,
+            {},
+        ),
+        (
+            "PING+WRITE ok, every READ lost",
+            Faults(drop_replies=10**6, instructions={"READ"}, only_ids={5}),
+            None,
+            {},
+        ),
         ("status return level 0", Faults(), srl0, {}),
-        ("jammed elbow (overload while moving)", Faults(jammed_at_units={4: jam}, jam_alarm_s=0.3), None, {}),
-        ("stalled elbow, no alarm (move_timeout_s 2)", Faults(jammed_at_units={4: jam}, jam_alarm_s=1e9), None,
-         {"move_timeout_s": 2.0}),
-        ("overheating bit while moving", Faults(alarms={2: ERR_OVERHEAT}, after_goal_writes=1), None, {}),
-        ("late replies while moving", Faults(late_replies=10**6, late_ms=70, only_ids={1}, after_goal_writes=1),
-         None, {}),
-        ("no reply while moving", Faults(drop_replies=10**6, only_ids={4}, after_goal_writes=1), None, {}),
-        ("corrupted replies while moving", Faults(corrupt_replies=10**6, only_ids={4}, after_goal_writes=1), None, {}),
+        (
+            "jammed elbow (overload while moving)",
+            Faults(jammed_at_units={4: jam}, jam_alarm_s=0.3),
+            None,
+            {},
+        ),
+        (
+            "stalled elbow, no alarm (move_timeout_s 2)",
+            Faults(jammed_at_units={4: jam}, jam_alarm_s=1e9),
+            None,
+            {"move_timeout_s": 2.0},
+        ),
+        (
+            "overheating bit while moving",
+            Faults(alarms={2: ERR_OVERHEAT}, after_goal_writes=1),
+            None,
+            {},
+        ),
+        (
+            "late replies while moving",
+            Faults(late_replies=10**6, late_ms=70, only_ids={1}, after_goal_writes=1),
+            None,
+            {},
+        ),
+        (
+            "no reply while moving",
+            Faults(drop_replies=10**6, only_ids={4}, after_goal_writes=1),
+            None,
+            {},
+        ),
+        (
+            "corrupted replies while moving",
+            Faults(corrupt_replies=10**6, only_ids={4}, after_goal_writes=1),
+            None,
+            {},
+        ),
     ]
 
 
@@ -79,8 +139,13 @@ def main(argv=None) -> int:
     print("| fault | message head | s to fail | torque after (ids 1-5) |")
     print("|---|---|---|---|")
     for name, faults, setup, extra in cases(plan):
-        params = DynamixelParams(port="sim", sim_time_scale=50.0, retries=a.retries,
-                                 late_window_ms=a.late_window_ms, **extra)
+        params = DynamixelParams(
+            port="sim",
+            sim_time_scale=50.0,
+            retries=a.retries,
+            late_window_ms=a.late_window_ms,
+            **extra,
+        )
         with ServoSim(IDS, faults=faults, time_scale=50.0) as sim:
             if setup:
                 setup(sim)
@@ -92,7 +157,7 @@ def main(argv=None) -> int:
                 head = e.message
             dt = time.monotonic() - t0
             torque = "".join(str(sim.register(i, "torque_enable")) for i in IDS)
-        head = head if len(head) <= a.head_chars else head[:a.head_chars] + "..."
+        head = head if len(head) <= a.head_chars else head[: a.head_chars] + "..."
         print(f"| {name} | {head.replace('|', '/')} | {dt:.2f} | {torque} |", flush=True)
     return 0
 

@@ -39,7 +39,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "pick-live.yaml"
 TARGETS = ["cam", "segment", "ik", "act", "between", "random"]
-JITTER_S = {"cam": 0.003, "segment": 0.008, "ik": 0.001, "act": 1.5, "between": 0.002}  # ~ each stage's time
+# ~ each stage's time
+JITTER_S = {"cam": 0.003, "segment": 0.008, "ik": 0.001, "act": 1.5, "between": 0.002}
 
 
 @dataclass
@@ -65,12 +66,16 @@ def _command(out: Path, cache: Path, repeat: int = 0) -> list[str]:
 
 
 def _start(cmd: list[str], background: bool, work: Path) -> tuple[subprocess.Popen, int]:
-    """The process, its output as a text pipe, and the PID to signal (stereograph's, not a shell's)."""
+    """The process, its output as a text pipe, and the PID to signal (stereograph's, not a
+    shell's)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     if not background:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT
+        )
         return proc, proc.pid
-    # a non-interactive shell starts `&` jobs with SIGINT and SIGQUIT ignored, as a launcher script would
+    # a non-interactive shell starts `&` jobs with SIGINT and SIGQUIT ignored, as a launcher script
+    # would
     pid_file = work / f"pid-{time.monotonic_ns()}"
     script = '"$@" 2>&1 & echo $! >"$PID_FILE"; wait $!'
     proc = subprocess.Popen(["sh", "-c", script, "sh", *cmd], stdout=subprocess.PIPE, text=True,
@@ -82,7 +87,8 @@ def _start(cmd: list[str], background: bool, work: Path) -> tuple[subprocess.Pop
 
 def _aim(t: Trial, lines: Iterator[str], log) -> bool:
     """Read the run's output up to the moment to signal: the target node's start in cycle 2 or later
-    (``between``, ``random``: cycle 1's end line), then wait ``delay_s``. False if the run ended first."""
+    (``between``, ``random``: cycle 1's end line), then wait ``delay_s``. False if the run ended
+    first."""
     after_cycle_1 = False
     for line in lines:
         log.write(line)
@@ -153,11 +159,14 @@ def run_trial(t: Trial, work: Path, cache: Path, max_exit_s: float) -> Trial:
 def warm_cache(work: Path, cache: Path) -> None:
     """Cycle 1's files and recording, computed once for every trial."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    subprocess.run(_command(work / "warm", cache, repeat=1), check=True, capture_output=True, env=env, cwd=ROOT)
+    subprocess.run(
+        _command(work / "warm", cache, repeat=1), check=True, capture_output=True, env=env, cwd=ROOT
+    )
 
 
 def plan_trials(trials: int, seed: int = 0) -> list[Trial]:
-    """SIGINT and SIGTERM, foreground and background, every target in turn, in every combination alike."""
+    """SIGINT and SIGTERM, foreground and background, every target in turn, in every combination
+    alike."""
     rng = random.Random(seed)
     plan = []
     for i in range(trials):
@@ -168,7 +177,9 @@ def plan_trials(trials: int, seed: int = 0) -> list[Trial]:
     return plan
 
 
-def soak(plan: list[Trial], jobs: int = 2, max_exit_s: float = 1.0, work: Path | None = None, echo=print):
+def soak(
+    plan: list[Trial], jobs: int = 2, max_exit_s: float = 1.0, work: Path | None = None, echo=print
+):
     """Run the trials, ``jobs`` at a time, on one cache warmed first; each trial filled in."""
     work = Path(work or tempfile.mkdtemp(prefix="soak-stop-"))
     cache = work / "cache"
@@ -192,8 +203,9 @@ def summary(results: list[Trial]) -> str:
         where[t.landed or "?"] = where.get(t.landed or "?", 0) + 1
     kinds = {k: sum(1 for t in results if t.started == k) for k in ("foreground", "background")}
     landed = ", ".join(f"{k} {v}" for k, v in sorted(where.items(), key=lambda kv: -kv[1]))
-    return (f"{len(results)} trials ({kinds['foreground']} foreground, {kinds['background']} background), "
-            f"{sum(t.clean for t in results)} clean; time to exit median {statistics.median(times):.3f} s, "
+    return (f"{len(results)} trials ({kinds['foreground']} foreground, "
+            f"{kinds['background']} background), {sum(t.clean for t in results)} clean; "
+            f"time to exit median {statistics.median(times):.3f} s, "
             f"worst {max(times):.3f} s; interrupted in: {landed}")  # fmt: skip
 
 

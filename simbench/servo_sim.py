@@ -1,4 +1,5 @@
-"""An AX-12A servo emulator (a bench tool, not a node) speaking Dynamixel Protocol 1.0 on a pseudo-terminal.
+"""An AX-12A servo emulator (a bench tool, not a node) speaking Dynamixel Protocol 1.0 on a
+pseudo-terminal.
 
 The emulator is a real serial peer: it opens a pty pair, puts the slave side in raw mode and
 serves the master side from a background thread, so the real ``dynamixel_sdk`` (PortHandler,
@@ -20,9 +21,9 @@ does), each optionally only for some IDs, some instructions (e.g. READ only), or
 motion has begun (after N goal writes); unplugged IDs (no reply, sync-write data ignored); alarm
 bits in every status packet (overload, overheating, input voltage, ...: a servo that reports an
 alarm at the ping); and a jammed joint (an obstruction at a position: the servo stalls there,
-raises the overload alarm and, as its shutdown register says, turns its torque off). Every write that reaches a
-servo is appended to :attr:`ServoSim.log` (time, instruction, id, address, value, accepted, error)
-so tests can assert what was commanded.
+raises the overload alarm and, as its shutdown register says, turns its torque off). Every write
+that reaches a servo is appended to :attr:`ServoSim.log` (time, instruction, id, address, value,
+accepted, error) so tests can assert what was commanded.
 
 Usage::
 
@@ -102,7 +103,8 @@ class Faults:
     only_ids : set of int or None
         Restrict dropped / corrupted replies to these IDs.
     after_replies : int
-        Start dropping / corrupting only after this many status packets (a fault that appears mid-motion).
+        Start dropping / corrupting only after this many status packets (a fault that appears
+        mid-motion).
     seed : int
         Random seed of the probabilistic faults.
     instructions : set of str or None
@@ -121,11 +123,12 @@ class Faults:
     late_ms : float
         Delay of a late status packet (ms) — dynamixel-sdk stops waiting after ~34 ms at 1 Mbps.
     alarms : dict of int to int
-        Alarm bits (ERR_OVERLOAD, ERR_OVERHEAT, ERR_VOLTAGE, ...) a servo sets in every status packet.
+        Alarm bits (ERR_OVERLOAD, ERR_OVERHEAT, ERR_VOLTAGE, ...) a servo sets in every status
+        packet.
     jammed_at_units : dict of int to float
         An obstruction per servo at this position (units): the servo cannot pass it; pushing against
-        it raises the overload alarm after ``jam_alarm_s`` and, with the overload bit in its shutdown
-        register (the default), turns its torque off.
+        it raises the overload alarm after ``jam_alarm_s`` and, with the overload bit in its
+        shutdown register (the default), turns its torque off.
     jam_alarm_s : float
         Stall time before the overload alarm (s, emulated time).
     """
@@ -171,7 +174,8 @@ class AX12:
         self.t_last = self.clock()
         self.pending: tuple[int, bytes] | None = None
         self.latched = 0
-        self.jam: float | None = None  # an obstruction at this position (units), see Faults.jammed_at_units
+        # an obstruction at this position (units), see Faults.jammed_at_units
+        self.jam: float | None = None
         self.jam_alarm_s = 0.2
         self.jam_side = 0
         self.stalled_s = 0.0
@@ -197,7 +201,8 @@ class AX12:
         return rpm * 6.0 * UNITS_PER_DEG
 
     def update(self, time_scale: float) -> None:
-        """Advance the present position toward the goal over the time elapsed since the last update."""
+        """Advance the present position toward the goal over the time elapsed since the last
+        update."""
         now = self.clock()
         dt = (now - self.t_last) * time_scale
         self.t_last = now
@@ -207,10 +212,13 @@ class AX12:
             new = self.goal if abs(d) <= step else self.position + step * (1 if d > 0 else -1)
             j = self.jam
             if j is not None:
-                # the obstruction holds the joint on the side it started from; pushing against it overloads it
+                # the obstruction holds the joint on the side it started from; pushing against it
+                # overloads it
                 if not self.jam_side:
                     self.jam_side = (self.position > j) - (self.position < j)
-                new = max(new, j) if self.jam_side > 0 else min(new, j) if self.jam_side < 0 else new
+                new = (
+                    max(new, j) if self.jam_side > 0 else min(new, j) if self.jam_side < 0 else new
+                )
                 if new == j and (self.goal - j) * self.jam_side < 0:
                     self.stalled_s += dt
                     self.set(ADDR["present_load"], 1023)
@@ -223,7 +231,10 @@ class AX12:
         self.set(ADDR["present_position"], int(round(self.position)))
         self.set(ADDR["moving"], 1 if moving else 0)
         spd = self.get(ADDR["moving_speed"]) or 1023
-        self.set(ADDR["present_speed"], (spd | (0 if self.goal >= self.position else 1024)) if moving else 0)
+        self.set(
+            ADDR["present_speed"],
+            (spd | (0 if self.goal >= self.position else 1024)) if moving else 0,
+        )
 
     # writes -------------------------------------------------------------------------
     def write(self, addr: int, data: bytes) -> tuple[int, list[tuple[int, int, bool]]]:
@@ -251,7 +262,8 @@ class AX12:
                 cw, ccw = self.get(ADDR["cw_angle_limit"]), self.get(ADDR["ccw_angle_limit"])
                 wheel = cw == 0 and ccw == 0
                 if not wheel and not cw <= v <= ccw:
-                    # The servo refuses the goal and reports it in every status packet until a valid one.
+                    # The servo refuses the goal and reports it in every status packet until a valid
+                    # one.
                     self.latched |= ERR_ANGLE
                     error |= ERR_ANGLE
                     changes.append((a, v, False))
@@ -265,9 +277,29 @@ class AX12:
 
 
 # --------------------------------------------------------------------------- the bus
-_BAUD_SPEEDS = {getattr(__import__("termios"), f"B{b}"): b for b in
-                (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
-                 2000000, 2500000, 3000000, 3500000, 4000000) if hasattr(__import__("termios"), f"B{b}")}
+_BAUD_SPEEDS = {
+    getattr(__import__("termios"), f"B{b}"): b
+    for b in (
+        9600,
+        19200,
+        38400,
+        57600,
+        115200,
+        230400,
+        460800,
+        500000,
+        576000,
+        921600,
+        1000000,
+        1152000,
+        2000000,
+        2500000,
+        3000000,
+        3500000,
+        4000000,
+    )
+    if hasattr(__import__("termios"), f"B{b}")
+}
 
 
 class ServoSim:
@@ -280,7 +312,8 @@ class ServoSim:
     faults : Faults, optional
         Fault injection (can be changed later with :meth:`set_faults`).
     time_scale : float
-        Simulated seconds per real second for the motion (1 = real time; 10 = moves ten times faster).
+        Simulated seconds per real second for the motion (1 = real time; 10 = moves ten times
+        faster).
     positions : dict, optional
         Initial present position per ID (units); default 512 (centre).
     link : str, optional
@@ -297,9 +330,19 @@ class ServoSim:
         in it is kept in :attr:`motion_error`, never raised into the serving thread.
     """
 
-    def __init__(self, ids: Iterable[int] = (1, 2, 3, 4, 5), *, faults: Faults | None = None,
-                 time_scale: float = 1.0, positions: dict[int, float] | None = None, link: str | None = None,
-                 check_baud: bool = True, return_delay: bool = True, on_write=None, on_motion=None):
+    def __init__(
+        self,
+        ids: Iterable[int] = (1, 2, 3, 4, 5),
+        *,
+        faults: Faults | None = None,
+        time_scale: float = 1.0,
+        positions: dict[int, float] | None = None,
+        link: str | None = None,
+        check_baud: bool = True,
+        return_delay: bool = True,
+        on_write=None,
+        on_motion=None,
+    ):
         self.time_scale = float(time_scale)
         self.servos: dict[int, AX12] = {}
         for i in ids:
@@ -338,7 +381,8 @@ class ServoSim:
             path = self.link
         self.port_path = path
         self._stop.clear()
-        self._wake = os.pipe()  # stop() writes a byte: the serving thread ends at once, not at its next poll
+        # stop() writes a byte: the serving thread ends at once, not at its next poll
+        self._wake = os.pipe()
         self._thread = threading.Thread(target=self._serve, name="servo-sim", daemon=True)
         self._thread.start()
         return self
@@ -377,7 +421,9 @@ class ServoSim:
         idle = 0
         while time.monotonic() < end:
             try:
-                waiting = struct.unpack("i", fcntl.ioctl(self.master, termios.FIONREAD, b"\0\0\0\0"))[0]
+                waiting = struct.unpack(
+                    "i", fcntl.ioctl(self.master, termios.FIONREAD, b"\0\0\0\0")
+                )[0]
             except (OSError, TypeError):
                 return True  # stopped: nothing more will be handled
             # idle twice, 2 ms apart: the kernel hands bytes written to the pty on asynchronously
@@ -400,11 +446,18 @@ class ServoSim:
             for k, v in changes.items():
                 setattr(self.faults, k, v)
 
-    def writes(self, address: int | None = None, dxl_id: int | None = None, accepted: bool | None = None) -> list[dict]:
+    def writes(
+        self, address: int | None = None, dxl_id: int | None = None, accepted: bool | None = None
+    ) -> list[dict]:
         """Logged register writes, filtered."""
         with self.lock:
-            return [e for e in self.log if (address is None or e["address"] == address)
-                    and (dxl_id is None or e["id"] == dxl_id) and (accepted is None or e["accepted"] == accepted)]
+            return [
+                e
+                for e in self.log
+                if (address is None or e["address"] == address)
+                and (dxl_id is None or e["id"] == dxl_id)
+                and (accepted is None or e["accepted"] == accepted)
+            ]
 
     def register(self, dxl_id: int, name_or_addr: str | int) -> int:
         """Current value of a register of a servo (motion updated first)."""
@@ -427,6 +480,7 @@ class ServoSim:
     def _port_baud(self) -> int | None:
         try:
             import termios
+
             return _BAUD_SPEEDS.get(termios.tcgetattr(self.slave)[5])
         except Exception:  # noqa: BLE001 - a closed fd while stopping
             return None
@@ -461,11 +515,12 @@ class ServoSim:
 
     @staticmethod
     def _next_packet(buf: bytearray):
-        """Cut the next complete packet out of ``buf``: (id, instruction, params, checksum_ok) or None."""
+        """Cut the next complete packet out of ``buf``: (id, instruction, params, checksum_ok) or
+        None."""
         while True:
             i = buf.find(b"\xff\xff")
             if i < 0:
-                del buf[:-1 if buf.endswith(b"\xff") else len(buf)]
+                del buf[: -1 if buf.endswith(b"\xff") else len(buf)]
                 return None
             del buf[:i]
             if len(buf) >= 3 and buf[2] == 0xFF:  # FF FF FF ...: resync on the next byte
@@ -491,23 +546,35 @@ class ServoSim:
             return
         f = self.faults
         self.n_replies += 1
-        targeted = ((f.only_ids is None or servo.id in f.only_ids) and self.n_replies > f.after_replies
-                    and self.n_goal_writes >= f.after_goal_writes
-                    and (f.instructions is None or INSTRUCTION_NAMES.get(instruction) in f.instructions))
+        targeted = (
+            (f.only_ids is None or servo.id in f.only_ids)
+            and self.n_replies > f.after_replies
+            and self.n_goal_writes >= f.after_goal_writes
+            and (f.instructions is None or INSTRUCTION_NAMES.get(instruction) in f.instructions)
+        )
         if targeted:
             error |= f.alarms.get(servo.id, 0)
             if f.short_replies > 0 and params:
                 f.short_replies -= 1
                 params = b""
-                self.fault_log.append({"t": round(time.monotonic() - self.t0, 6), "id": servo.id,
-                                       "fault": "short reply"})
+                self.fault_log.append(
+                    {
+                        "t": round(time.monotonic() - self.t0, 6),
+                        "id": servo.id,
+                        "fault": "short reply",
+                    }
+                )
         pkt = bytearray(status_packet(servo.id, error | servo.latched, params))
         t = round(time.monotonic() - self.t0, 6)
-        if targeted and (f.drop_replies > 0 or (f.drop_reply_prob and self._rng.random() < f.drop_reply_prob)):
+        if targeted and (
+            f.drop_replies > 0 or (f.drop_reply_prob and self._rng.random() < f.drop_reply_prob)
+        ):
             f.drop_replies = max(0, f.drop_replies - 1)
             self.fault_log.append({"t": t, "id": servo.id, "fault": "dropped reply"})
             return
-        if targeted and (f.corrupt_replies > 0 or (f.corrupt_prob and self._rng.random() < f.corrupt_prob)):
+        if targeted and (
+            f.corrupt_replies > 0 or (f.corrupt_prob and self._rng.random() < f.corrupt_prob)
+        ):
             f.corrupt_replies = max(0, f.corrupt_replies - 1)
             pkt[-1] ^= 0x5A
             self.fault_log.append({"t": t, "id": servo.id, "fault": "corrupt checksum"})
@@ -515,7 +582,9 @@ class ServoSim:
         if targeted and (f.late_replies > 0 or (f.late_prob and self._rng.random() < f.late_prob)):
             f.late_replies = max(0, f.late_replies - 1)
             delay += f.late_ms / 1000.0
-            self.fault_log.append({"t": t, "id": servo.id, "fault": f"late reply ({f.late_ms:g} ms)"})
+            self.fault_log.append(
+                {"t": t, "id": servo.id, "fault": f"late reply ({f.late_ms:g} ms)"}
+            )
         if delay:
             time.sleep(delay)
         try:
@@ -549,15 +618,31 @@ class ServoSim:
         t = round(time.monotonic() - self.t0, 6)
         self.n_goal_writes += sum(1 for a, _v, ok in changes if ok and a == ADDR["goal_position"])
         for a, v, ok in changes:
-            self.log.append({"t": t, "instruction": INSTRUCTION_NAMES[instruction], "id": dxl_id, "address": a,
-                             "register": CONTROL_TABLE[a][0], "value": v, "accepted": ok, "error": error})
+            self.log.append(
+                {
+                    "t": t,
+                    "instruction": INSTRUCTION_NAMES[instruction],
+                    "id": dxl_id,
+                    "address": a,
+                    "register": CONTROL_TABLE[a][0],
+                    "value": v,
+                    "accepted": ok,
+                    "error": error,
+                }
+            )
             if self.on_write is not None:
                 self.on_write(self.log[-1])
 
     def _handle(self, dxl_id: int, inst: int, params: bytes, ok: bool) -> None:
         with self.lock:
-            self.packets.append({"t": round(time.monotonic() - self.t0, 6), "id": dxl_id,
-                                 "instruction": INSTRUCTION_NAMES.get(inst, f"0x{inst:02x}"), "checksum_ok": ok})
+            self.packets.append(
+                {
+                    "t": round(time.monotonic() - self.t0, 6),
+                    "id": dxl_id,
+                    "instruction": INSTRUCTION_NAMES.get(inst, f"0x{inst:02x}"),
+                    "checksum_ok": ok,
+                }
+            )
             self._update_all()
             if dxl_id == BROADCAST_ID:
                 targets = [s for i in list(self.servos) if (s := self._alive(i)) is not None]
@@ -587,7 +672,7 @@ class ServoSim:
                 if addr + n > TABLE_SIZE or n == 0:
                     err = ERR_RANGE
                 else:
-                    data = bytes(s.table[addr:addr + n])
+                    data = bytes(s.table[addr : addr + n])
         elif inst in (INST_WRITE, INST_REG_WRITE):
             if len(params) < 2:
                 err = ERR_INSTRUCTION
@@ -639,7 +724,7 @@ class ServoSim:
             s = self._alive(body[k])
             if s is None:
                 continue
-            err, changes = s.write(addr, bytes(body[k + 1:k + 1 + n]))
+            err, changes = s.write(addr, bytes(body[k + 1 : k + 1 + n]))
             self._log_changes(INST_SYNC_WRITE, s.id, changes, err)
 
 
@@ -658,53 +743,102 @@ def _ids(text: str) -> list[int]:
 
 def cli(argv: list[str] | None = None) -> int:
     """``stereograph servo-sim``: run emulated AX-12A servos on a pseudo-terminal until Ctrl-C."""
-    ap = argparse.ArgumentParser(prog="stereograph servo-sim",
-                                 description="Emulate AX-12A servos (Dynamixel Protocol 1.0) on a pseudo-terminal. "
-                                             "Point any Dynamixel program at the printed port.")
-    ap.add_argument("--ids", default="1,2,3,4,5", help="servo IDs, e.g. 1,2,3 or 1-5 (default 1,2,3,4,5)")
-    ap.add_argument("--link", default=None, help="also make a symlink to the pty here, e.g. /tmp/ttyDXL")
-    ap.add_argument("--time-scale", type=float, default=1.0, help="motion speed-up factor (default 1 = real time)")
-    ap.add_argument("--drop-prob", type=float, default=0.0, help="probability of dropping a status packet")
-    ap.add_argument("--corrupt-prob", type=float, default=0.0, help="probability of a corrupted status checksum")
+    ap = argparse.ArgumentParser(
+        prog="stereograph servo-sim",
+        description="Emulate AX-12A servos (Dynamixel Protocol 1.0) on a pseudo-terminal. "
+        "Point any Dynamixel program at the printed port.",
+    )
+    ap.add_argument(
+        "--ids", default="1,2,3,4,5", help="servo IDs, e.g. 1,2,3 or 1-5 (default 1,2,3,4,5)"
+    )
+    ap.add_argument(
+        "--link", default=None, help="also make a symlink to the pty here, e.g. /tmp/ttyDXL"
+    )
+    ap.add_argument(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="motion speed-up factor (default 1 = real time)",
+    )
+    ap.add_argument(
+        "--drop-prob", type=float, default=0.0, help="probability of dropping a status packet"
+    )
+    ap.add_argument(
+        "--corrupt-prob", type=float, default=0.0, help="probability of a corrupted status checksum"
+    )
     ap.add_argument("--unplugged", default="", help="IDs that do not answer, e.g. 3")
     ap.add_argument("--seed", type=int, default=0, help="random seed of the faults")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    ap.add_argument("--log", default=None, help="write the command log and the servos' final state (JSON) here "
-                                                "when stopping")
+    ap.add_argument(
+        "--log",
+        default=None,
+        help="write the command log and the servos' final state (JSON) here when stopping",
+    )
     ap.add_argument("--trace", action="store_true", help="print every register write as it arrives")
     a = ap.parse_args(argv)
     try:
         ids = _ids(a.ids)
         unplugged = set(_ids(a.unplugged))
     except ValueError:
-        print(f"servo-sim: --ids/--unplugged must be comma-separated integers or ranges, got {a.ids!r} / "
-              f"{a.unplugged!r}")
+        print(
+            "servo-sim: --ids/--unplugged must be comma-separated integers or ranges, "
+            f"got {a.ids!r} / "
+            f"{a.unplugged!r}"
+        )
         return 2
     if not ids or any(not 0 <= i <= 253 for i in ids):
         print("servo-sim: IDs must be 0-253.")
         return 2
-    faults = Faults(drop_reply_prob=a.drop_prob, corrupt_prob=a.corrupt_prob, unplugged_ids=unplugged, seed=a.seed)
+    faults = Faults(
+        drop_reply_prob=a.drop_prob,
+        corrupt_prob=a.corrupt_prob,
+        unplugged_ids=unplugged,
+        seed=a.seed,
+    )
     stop = threading.Event()
     main = threading.current_thread() is threading.main_thread()
     prev = signal.signal(signal.SIGTERM, lambda *_: stop.set()) if main else None
     try:
-        def trace(e: dict) -> None:
-            print(f"write t={e['t']:.3f} id={e['id']} {e['register']}={e['value']}"
-                  f"{'' if e['accepted'] else ' REFUSED'}", flush=True)
 
-        with ServoSim(ids, faults=faults, time_scale=a.time_scale, link=a.link,
-                      on_write=trace if a.trace else None) as sim:
-            print(f"AX-12A emulator: IDs {','.join(map(str, ids))} on {sim.port_path} "
-                  f"(Protocol 1.0, 1 Mbps). Ctrl-C to stop.", flush=True)
+        def trace(e: dict) -> None:
+            print(
+                f"write t={e['t']:.3f} id={e['id']} {e['register']}={e['value']}"
+                f"{'' if e['accepted'] else ' REFUSED'}",
+                flush=True,
+            )
+
+        with ServoSim(
+            ids,
+            faults=faults,
+            time_scale=a.time_scale,
+            link=a.link,
+            on_write=trace if a.trace else None,
+        ) as sim:
+            print(
+                f"AX-12A emulator: IDs {','.join(map(str, ids))} on {sim.port_path} "
+                f"(Protocol 1.0, 1 Mbps). Ctrl-C to stop.",
+                flush=True,
+            )
             try:
                 stop.wait(a.duration)
             except KeyboardInterrupt:
                 pass
             if a.log:
                 with open(a.log, "w") as f:
-                    json.dump({"writes": sim.log, "faults": sim.fault_log, "positions": sim.positions(),
-                               "servos": sim.state()}, f, indent=1)
-            print(f"servo-sim: stopped after {len(sim.packets)} packets, {len(sim.log)} register writes.")
+                    json.dump(
+                        {
+                            "writes": sim.log,
+                            "faults": sim.fault_log,
+                            "positions": sim.positions(),
+                            "servos": sim.state(),
+                        },
+                        f,
+                        indent=1,
+                    )
+            print(
+                f"servo-sim: stopped after {len(sim.packets)} packets, {len(sim.log)} "
+                "register writes."
+            )
     finally:
         if main:
             signal.signal(signal.SIGTERM, prev)

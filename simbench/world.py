@@ -28,26 +28,39 @@ from nodes.contracts.arm import JOINTS, fk, joint, servo_units_to_joints
 __all__ = ["ArmFollower", "new_world", "read_world", "step", "write_world"]
 
 FINGER_RADIUS_CM = 0.8  # the closed fingers' reach beyond the tool point, seen from a ball
-CONTACT_TOLERANCE_CM = 0.2  # an overlap this small is a touch, not a push (the grasp centres a ball by up to
-                            # the grasp tolerance, nudging a neighbour it touches)
+# an overlap this small is a touch, not a push (the grasp centres a ball by up to
+CONTACT_TOLERANCE_CM = 0.2
+# the grasp tolerance, nudging a neighbour it touches)
 
 
-def new_world(balls: list[dict], places: list[dict], grasp_tolerance_cm: float = 1.0,
-              finger_radius_cm: float = FINGER_RADIUS_CM, missed_grasps: int = 0,
-              miss_offset_cm: float = 2.0) -> dict:
+def new_world(
+    balls: list[dict],
+    places: list[dict],
+    grasp_tolerance_cm: float = 1.0,
+    finger_radius_cm: float = FINGER_RADIUS_CM,
+    missed_grasps: int = 0,
+    miss_offset_cm: float = 2.0,
+) -> dict:
     """A world: ``balls`` [{id, object, color_bgr, radius_cm, center_cm}] resting on the table,
     ``places`` [{name, object, center_cm: [x, y], radius_cm, height_cm}] (height 0: a spot on the
     table; above 0: a bin whose rim is that high; a ball released over it ends inside).
     ``missed_grasps``: the first that many closings happen ``miss_offset_cm`` off the tool point
-    (sideways: a gripper that slipped, a servo that stopped short) -- the fault a pick must catch."""
+    (sideways: a gripper that slipped, a servo that stopped short) -- the fault a pick must
+    catch."""
     for b in balls:
         b.setdefault("state", "table")
         b.setdefault("place", None)
         b["center_cm"] = [float(v) for v in b["center_cm"]]
-    return {"version": 1, "balls": balls, "places": places, "grasp_tolerance_cm": float(grasp_tolerance_cm),
-            "finger_radius_cm": float(finger_radius_cm),
-            "faults": {"missed_grasps": int(missed_grasps), "miss_offset_cm": float(miss_offset_cm)},
-            "gripper": {"tool_cm": None, "closed": False, "holding": None}, "events": []}
+    return {
+        "version": 1,
+        "balls": balls,
+        "places": places,
+        "grasp_tolerance_cm": float(grasp_tolerance_cm),
+        "finger_radius_cm": float(finger_radius_cm),
+        "faults": {"missed_grasps": int(missed_grasps), "miss_offset_cm": float(miss_offset_cm)},
+        "gripper": {"tool_cm": None, "closed": False, "holding": None},
+        "events": [],
+    }
 
 
 def read_world(path: str | Path) -> dict:
@@ -69,7 +82,9 @@ def _write(path: Path, world: dict) -> None:
 
 
 def _event(world: dict, what: str, ball: dict | None, **kw: Any) -> None:
-    world["events"].append({"t": time.time(), "what": what, "ball": ball["id"] if ball else None, **kw})
+    world["events"].append(
+        {"t": time.time(), "what": what, "ball": ball["id"] if ball else None, **kw}
+    )
 
 
 def _segment_distance(p0: np.ndarray, p1: np.ndarray, c: np.ndarray) -> tuple[float, np.ndarray]:
@@ -80,14 +95,20 @@ def _segment_distance(p0: np.ndarray, p1: np.ndarray, c: np.ndarray) -> tuple[fl
     return float(np.linalg.norm(c - q)), q
 
 
-def _push(world: dict, ball: dict, q: np.ndarray, clearance_cm: float, by: str, path: np.ndarray) -> None:
-    """Move ``ball`` on the table, straight away from ``q`` (horizontally), to ``clearance_cm``; a ball hit
-    head-on goes to the side of the ``path`` (direction), out of its way."""
+def _push(
+    world: dict, ball: dict, q: np.ndarray, clearance_cm: float, by: str, path: np.ndarray
+) -> None:
+    """Move ``ball`` on the table, straight away from ``q`` (horizontally), to ``clearance_cm``; a
+    ball hit head-on goes to the side of the ``path`` (direction), out of its way."""
     c = np.asarray(ball["center_cm"], float)
     away = c[:2] - q[:2]
     n = float(np.linalg.norm(away))
     if n < 1e-6:
-        side = np.array([-path[1], path[0]]) if np.linalg.norm(path[:2]) > 1e-9 else np.array([1.0, 0.0])
+        side = (
+            np.array([-path[1], path[0]])
+            if np.linalg.norm(path[:2]) > 1e-9
+            else np.array([1.0, 0.0])
+        )
         away, n = side, float(np.linalg.norm(side))
     away = away / n
     new = q[:2] + away * clearance_cm
@@ -108,7 +129,14 @@ def _sweep(world: dict, p0: np.ndarray, p1: np.ndarray) -> None:
         r = float(b["radius_cm"])
         dist, q = _segment_distance(p0, p1, c)
         if held is not None and dist < r + float(held["radius_cm"]) - CONTACT_TOLERANCE_CM:
-            _push(world, b, q, r + float(held["radius_cm"]) + 0.05, f"carried ball {held['id']}", p1 - p0)
+            _push(
+                world,
+                b,
+                q,
+                r + float(held["radius_cm"]) + 0.05,
+                f"carried ball {held['id']}",
+                p1 - p0,
+            )
             continue
         if dist >= r + finger - CONTACT_TOLERANCE_CM:
             continue
@@ -132,7 +160,9 @@ def _close(world: dict, tool: np.ndarray) -> None:
         world["gripper"]["holding"] = near["id"]
         _event(world, "grasp", near, off_cm=round(dist, 3))
     else:
-        _event(world, "closed on nothing", near, nearest_cm=None if near is None else round(dist, 3))
+        _event(
+            world, "closed on nothing", near, nearest_cm=None if near is None else round(dist, 3)
+        )
 
 
 def _release(world: dict, tool: np.ndarray) -> None:
@@ -141,16 +171,22 @@ def _release(world: dict, tool: np.ndarray) -> None:
     r = float(b["radius_cm"])
     for p in world["places"]:
         if math.dist(tool[:2], p["center_cm"][:2]) <= float(p["radius_cm"]):
-            b.update(state="placed", place=p["name"],
-                     center_cm=[float(tool[0]), float(tool[1]), float(p.get("height_cm", 0.0)) + r])
-            _event(world, "placed", b, place=p["name"], right=p.get("object") in (None, b["object"]))
+            b.update(
+                state="placed",
+                place=p["name"],
+                center_cm=[float(tool[0]), float(tool[1]), float(p.get("height_cm", 0.0)) + r],
+            )
+            _event(
+                world, "placed", b, place=p["name"], right=p.get("object") in (None, b["object"])
+            )
             return
     b.update(state="table", place=None, center_cm=[float(tool[0]), float(tool[1]), r])
     _event(world, "dropped", b, at_cm=[round(float(v), 2) for v in tool[:2]])
 
 
 def step(world: dict, tool_cm, closed: bool) -> None:
-    """Move the gripper to ``tool_cm`` (table frame) with its fingers ``closed``, and apply the physics."""
+    """Move the gripper to ``tool_cm`` (table frame) with its fingers ``closed``, and apply the
+    physics."""
     g = world["gripper"]
     tool = np.asarray(tool_cm, float)
     prev = np.asarray(g["tool_cm"], float) if g["tool_cm"] is not None else tool
@@ -191,8 +227,11 @@ class ArmFollower:
         tool = (self.T @ np.append(fk(self.arm, np.radians([joints[n] for n in JOINTS])), 1.0))[:3]
         open_deg, closed_deg = self._grip
         closed = abs(joints["gripper"] - closed_deg) < abs(joints["gripper"] - open_deg)
-        if self._last is not None and self._last[1] == closed \
-                and np.linalg.norm(tool - self._last[0]) < self.min_move_cm:
+        if (
+            self._last is not None
+            and self._last[1] == closed
+            and np.linalg.norm(tool - self._last[0]) < self.min_move_cm
+        ):
             return
         self._last = (tool, closed)
         with FileLock(str(self.path) + ".lock"):

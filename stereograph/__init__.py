@@ -5,7 +5,8 @@ this order (each module's docstring says its invariants and public names):
 
 - :mod:`stereograph.core.errors`    user-facing errors: file, line, node and the fix
 - :mod:`stereograph.core.checks`    shape checks of artifact types, registered by node libraries
-- :mod:`stereograph.core.api`       the node API (``@node``, ``Params``, ``In``, ``Out``, ``NodeError``)
+- :mod:`stereograph.core.api`       the node API (``@node``, ``Params``, ``In``, ``Out``,
+  ``NodeError``)
 - :mod:`stereograph.core.registry`  node types from the ``stereograph.nodes`` entry-point group
 - :mod:`stereograph.core.config`    pipeline YAML -> a validated ``PipelineDoc``
 - :mod:`stereograph.core.graph`     the DAG (networkx) and its checks
@@ -29,8 +30,21 @@ Python facade (``pyapi``: :func:`run`, :func:`check`, :func:`compare`; docs/pyth
 
 from typing import Any
 
-__all__ = ["REGISTRY", "Field", "In", "NodeError", "NodeSpec", "Out", "Params", "RunContext", "node",
-           "run", "check", "compare", "Result"]
+__all__ = [
+    "REGISTRY",
+    "Field",
+    "In",
+    "NodeError",
+    "NodeSpec",
+    "Out",
+    "Params",
+    "RunContext",
+    "node",
+    "run",
+    "check",
+    "compare",
+    "Result",
+]
 __version__ = "0.1.0"
 
 _PYAPI = {"run", "check", "compare", "Result", "NodeFailed"}

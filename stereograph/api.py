@@ -1,4 +1,5 @@
-"""The node API for node libraries and plugins: ``from stereograph.api import node, Params, In, Out``.
+"""The node API for node libraries and plugins: ``from stereograph.api import node, Params, In,
+Out``.
 
 The public name of :mod:`stereograph.core.api`, kept stable whatever the engine's layout; node
 code imports this module and ``nodes.contracts`` only (``tests/test_node_contracts.py``).

@@ -60,7 +60,9 @@ def make_locations(
         # A separate generator: the clean items stay bit-identical to the data without distractors.
         mrng = np.random.default_rng(seed + 7919)
         train_idx = np.flatnonzero(split == "train")
-        pick = mrng.choice(train_idx, size=int(round(misdetect_fraction * len(train_idx))), replace=False)
+        pick = mrng.choice(
+            train_idx, size=int(round(misdetect_fraction * len(train_idx))), replace=False
+        )
         for i in pick:
             for _ in range(100):
                 direction = mrng.normal(size=3)

@@ -1,4 +1,5 @@
-"""An independent Protocol 1.0 servo peer on a pseudo-terminal (test helper; not the bundled emulator).
+"""An independent Protocol 1.0 servo peer on a pseudo-terminal (test helper; not the bundled
+emulator).
 
 Written from the Robotis AX-12A e-manual's control table, to behave the ways a real bus can:
 status return level 0/1, a return delay time, other models on the same bus, narrow angle limits,
@@ -25,18 +26,68 @@ from dataclasses import dataclass, field
 
 # AX-12A control table: address -> (size, default, writable)
 TABLE = {
-    0: (2, 12, False), 2: (1, 24, False), 3: (1, 1, True), 4: (1, 1, True), 5: (1, 250, True),
-    6: (2, 0, True), 8: (2, 1023, True), 11: (1, 70, True), 12: (1, 60, True), 13: (1, 140, True),
-    14: (2, 1023, True), 16: (1, 2, True), 17: (1, 36, True), 18: (1, 36, True),
-    24: (1, 0, True), 25: (1, 0, True), 26: (1, 1, True), 27: (1, 1, True), 28: (1, 32, True), 29: (1, 32, True),
-    30: (2, 512, True), 32: (2, 0, True), 34: (2, 1023, True), 36: (2, 512, False), 38: (2, 0, False),
-    40: (2, 0, False), 42: (1, 120, False), 43: (1, 32, False), 44: (1, 0, False), 46: (1, 0, False),
-    47: (1, 0, True), 48: (2, 32, True),
+    0: (2, 12, False),
+    2: (1, 24, False),
+    3: (1, 1, True),
+    4: (1, 1, True),
+    5: (1, 250, True),
+    6: (2, 0, True),
+    8: (2, 1023, True),
+    11: (1, 70, True),
+    12: (1, 60, True),
+    13: (1, 140, True),
+    14: (2, 1023, True),
+    16: (1, 2, True),
+    17: (1, 36, True),
+    18: (1, 36, True),
+    24: (1, 0, True),
+    25: (1, 0, True),
+    26: (1, 1, True),
+    27: (1, 1, True),
+    28: (1, 32, True),
+    29: (1, 32, True),
+    30: (2, 512, True),
+    32: (2, 0, True),
+    34: (2, 1023, True),
+    36: (2, 512, False),
+    38: (2, 0, False),
+    40: (2, 0, False),
+    42: (1, 120, False),
+    43: (1, 32, False),
+    44: (1, 0, False),
+    46: (1, 0, False),
+    47: (1, 0, True),
+    48: (2, 32, True),
 }
-BAUD_REG = {1: 1_000_000, 3: 500_000, 4: 400_000, 7: 250_000, 9: 200_000, 16: 115200, 34: 57600, 103: 19200,
-            207: 9600}
-TERMIOS_BAUD = {getattr(termios, f"B{b}"): b for b in (9600, 19200, 38400, 57600, 115200, 230400, 460800,
-                                                         500000, 576000, 921600, 1000000, 1152000, 2000000)}
+BAUD_REG = {
+    1: 1_000_000,
+    3: 500_000,
+    4: 400_000,
+    7: 250_000,
+    9: 200_000,
+    16: 115200,
+    34: 57600,
+    103: 19200,
+    207: 9600,
+}
+TERMIOS_BAUD = {
+    getattr(termios, f"B{b}"): b
+    for b in (
+        9600,
+        19200,
+        38400,
+        57600,
+        115200,
+        230400,
+        460800,
+        500000,
+        576000,
+        921600,
+        1000000,
+        1152000,
+        2000000,
+    )
+}
 E_ANGLE, E_RANGE, E_CHECKSUM, E_INSTRUCTION = 2, 8, 16, 64
 
 
@@ -82,11 +133,22 @@ class Servo:
 
 
 class Peer:
-    def __init__(self, servos: dict[int, Servo], *, echo=False, split=False, trailing_garbage=b"",
-                 leading_noise=b"", time_scale=1.0, seed=0, twins=()):
+    def __init__(
+        self,
+        servos: dict[int, Servo],
+        *,
+        echo=False,
+        split=False,
+        trailing_garbage=b"",
+        leading_noise=b"",
+        time_scale=1.0,
+        seed=0,
+        twins=(),
+    ):
         self.servos = servos
-        # IDs set on two servos: each status packet comes twice, one after the other (servos with different
-        # return delay times; the same delay would make them collide into garbage on a real bus)
+        # IDs set on two servos: each status packet comes twice, one after the other (servos with
+        # different return delay times; the same delay would make them collide into garbage on a
+        # real bus)
         self.twins = set(twins)
         self.echo, self.split = echo, split
         self.trailing, self.leading = trailing_garbage, leading_noise
@@ -133,18 +195,26 @@ class Peer:
         dt = (now - self._last) * self.time_scale
         self._last = now
         for s in self.servos.values():
-            if not s.get(24, 1) or not s.get(34, 2):  # torque off, or a torque limit of 0: no force at all
+            # torque off, or a torque limit of 0: no force at all
+            if not s.get(24, 1) or not s.get(34, 2):
                 s.set(46, 1, 0)
                 continue
             speed = s.get(32, 2) & 0x3FF
             rpm = 114.0 if speed == 0 else 0.111 * speed
             ups = rpm * 6.0 * 1023.0 / 300.0 * s.speed_factor
             cw, ccw = s.get(6, 2), s.get(8, 2)
-            if cw == 0 and ccw == 0:  # wheel mode: speed register is a turn rate, position just wraps
+            # wheel mode: speed register is a turn rate, position just wraps
+            if cw == 0 and ccw == 0:
                 s.set(46, 1, 1 if speed & 0x3FF else 0)
                 continue
             goal = s.get(30, 2)
-            target = goal - s.short_by if goal > s.position else goal + s.short_by if goal < s.position else goal
+            target = (
+                goal - s.short_by
+                if goal > s.position
+                else goal + s.short_by
+                if goal < s.position
+                else goal
+            )
             if abs(goal - s.position) <= s.short_by:
                 target = s.position
             d = target - s.position
@@ -169,7 +239,7 @@ class Peer:
             data += pkt
         if self.split:
             for i in range(0, len(data), 3):
-                os.write(self.master, data[i:i + 3])
+                os.write(self.master, data[i : i + 3])
                 time.sleep(0.0015)
         else:
             os.write(self.master, data)
@@ -224,7 +294,9 @@ class Peer:
                 for k in range(2, len(params), n + 1):
                     tid = params[k]
                     if tid in self.servos and self._baud_ok(self.servos[tid]):
-                        self._write(self.servos[tid], tid, addr, params[k + 1:k + 1 + n], "SYNC_WRITE")
+                        self._write(
+                            self.servos[tid], tid, addr, params[k + 1 : k + 1 + n], "SYNC_WRITE"
+                        )
             elif inst == 0x03:
                 for tid, s in self.servos.items():
                     if self._baud_ok(s):
@@ -282,11 +354,16 @@ class Peer:
         return err
 
     def goals(self, sid):
-        return [d[30 - a] | (d[31 - a] << 8) for how, i, a, d in self.log if i == sid and a <= 30 and a + len(d) >= 32]
+        return [
+            d[30 - a] | (d[31 - a] << 8)
+            for how, i, a, d in self.log
+            if i == sid and a <= 30 and a + len(d) >= 32
+        ]
 
 
 if __name__ == "__main__":
     import argparse
+
     ap = argparse.ArgumentParser()
     ap.add_argument("--ids", default="1-5")
     ap.add_argument("--link")
@@ -306,16 +383,31 @@ if __name__ == "__main__":
     a = ap.parse_args()
     lo, _, hi = a.ids.partition("-")
     ids = range(int(lo), int(hi or lo) + 1)
-    servos = {i: Servo(srl=a.srl, return_delay=a.delay, short_by=a.short, speed_factor=a.slow, jitter=a.jitter,
-                       baud_reg=a.baudreg) for i in ids}
+    servos = {
+        i: Servo(
+            srl=a.srl,
+            return_delay=a.delay,
+            short_by=a.short,
+            speed_factor=a.slow,
+            jitter=a.jitter,
+            baud_reg=a.baudreg,
+        )
+        for i in ids
+    }
     for m in filter(None, a.model.split(",")):
         i, v = m.split(":")
         servos[int(i)].model = int(v)
     for m in filter(None, a.limits.split(",")):
         i, c, w = m.split(":")
         servos[int(i)].cw, servos[int(i)].ccw = int(c), int(w)
-    p = Peer(servos, echo=a.echo, split=a.split, trailing_garbage=b"\x00\x13" if a.garbage else b"",
-             leading_noise=b"\xff" if a.noise else b"", time_scale=a.time_scale).start(a.link)
+    p = Peer(
+        servos,
+        echo=a.echo,
+        split=a.split,
+        trailing_garbage=b"\x00\x13" if a.garbage else b"",
+        leading_noise=b"\xff" if a.noise else b"",
+        time_scale=a.time_scale,
+    ).start(a.link)
     print(f"peer on {p.path}" + (f" ({a.link})" if a.link else ""), flush=True)
     try:
         while True:

@@ -16,9 +16,22 @@ def rect_calibration(f=700.0, cx=319.5, cy=239.5, baseline_cm=10.0, size=(640, 4
     P1 = np.hstack([K, np.zeros((3, 1))])
     P2 = np.hstack([K, np.array([[-f * baseline_cm], [0], [0]])])
     Q = np.array([[1, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, f], [0, 0, 1.0 / baseline_cm, 0]])
-    return {"R1": np.eye(3) if R1 is None else np.asarray(R1, float), "R2": np.eye(3), "P1": P1, "P2": P2,
-            "Q": Q, "f_px": f, "cx_px": cx, "cy_px": cy, "baseline_cm": baseline_cm, "image_size": list(size),
-            "K1": K, "D1": np.zeros(5), "dy_mean_px": 0.0, "dy_max_px": 0.0}
+    return {
+        "R1": np.eye(3) if R1 is None else np.asarray(R1, float),
+        "R2": np.eye(3),
+        "P1": P1,
+        "P2": P2,
+        "Q": Q,
+        "f_px": f,
+        "cx_px": cx,
+        "cy_px": cy,
+        "baseline_cm": baseline_cm,
+        "image_size": list(size),
+        "K1": K,
+        "D1": np.zeros(5),
+        "dy_mean_px": 0.0,
+        "dy_max_px": 0.0,
+    }
 
 
 def _shade(dirs, origin, spheres, light, table_y, table_bgr, wall_bgr, shadow_factor):
@@ -26,7 +39,9 @@ def _shade(dirs, origin, spheres, light, table_y, table_bgr, wall_bgr, shadow_fa
     n = len(dirs)
     col = np.empty((n, 3))
     # Background: table plane y = table_y below the horizon, wall above.
-    t_plane = np.where(dirs[:, 1] > 1e-6, (table_y - origin[1]) / np.maximum(dirs[:, 1], 1e-6), np.inf)
+    t_plane = np.where(
+        dirs[:, 1] > 1e-6, (table_y - origin[1]) / np.maximum(dirs[:, 1], 1e-6), np.inf
+    )
     on_table = np.isfinite(t_plane) & (t_plane < 400)
     col[:] = wall_bgr
     P = origin + dirs * np.where(on_table, t_plane, 0)[:, None]
@@ -60,9 +75,21 @@ def _shade(dirs, origin, spheres, light, table_y, table_bgr, wall_bgr, shadow_fa
     return col
 
 
-def render_view(calib, origin, spheres, light=(-0.3, -1.0, -0.4), table_y=None, table_bgr=(150, 160, 165),
-                wall_bgr=(200, 205, 210), shadow_factor=1.0, ss=4, noise=1.0, rng=None):
-    """Render one rectified view (uint8 BGR) of the spheres seen from ``origin`` (rectified-left frame)."""
+def render_view(
+    calib,
+    origin,
+    spheres,
+    light=(-0.3, -1.0, -0.4),
+    table_y=None,
+    table_bgr=(150, 160, 165),
+    wall_bgr=(200, 205, 210),
+    shadow_factor=1.0,
+    ss=4,
+    noise=1.0,
+    rng=None,
+):
+    """Render one rectified view (uint8 BGR) of the spheres seen from ``origin`` (rectified-left
+    frame)."""
     w, h = calib["image_size"]
     f, cx, cy = calib["f_px"], calib["cx_px"], calib["cy_px"]
     light = np.asarray(light, float)
@@ -90,7 +117,9 @@ def render_view(calib, origin, spheres, light=(-0.3, -1.0, -0.4), table_y=None, 
         for oy in offs:
             for ox in offs:
                 uu2, vv2 = np.meshgrid(np.arange(u0, u1) + ox, np.arange(v0, v1) + oy)
-                d2 = np.stack([(uu2 - cx) / f, (vv2 - cy) / f, np.ones_like(uu2)], -1).reshape(-1, 3)
+                d2 = np.stack([(uu2 - cx) / f, (vv2 - cy) / f, np.ones_like(uu2)], -1).reshape(
+                    -1, 3
+                )
                 d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
                 acc += _shade(d2, np.asarray(origin, float), *args).reshape(v1 - v0, u1 - u0, 3)
         img[v0:v1, u0:u1] = acc / (ss * ss)
@@ -100,8 +129,17 @@ def render_view(calib, origin, spheres, light=(-0.3, -1.0, -0.4), table_y=None, 
     return np.clip(np.round(img), 0, 255).astype(np.uint8)
 
 
-def make_pair(calib, center_rect_cm, radius_cm=2.0, bgr=(40, 60, 200), extra=(), pid="p0", shadow_factor=1.0,
-              seed=0, split="test"):
+def make_pair(
+    calib,
+    center_rect_cm,
+    radius_cm=2.0,
+    bgr=(40, 60, 200),
+    extra=(),
+    pid="p0",
+    shadow_factor=1.0,
+    seed=0,
+    split="test",
+):
     """A RectifiedPair dict of one ball (plus ``extra`` spheres) with its truth.
 
     ``center_rect_cm`` is in the rectified-left frame; truth is reported in the physical left
@@ -113,6 +151,10 @@ def make_pair(calib, center_rect_cm, radius_cm=2.0, bgr=(40, 60, 200), extra=(),
     L = render_view(calib, (0.0, 0, 0), spheres, shadow_factor=shadow_factor, rng=rng)
     R = render_view(calib, (B, 0, 0), spheres, shadow_factor=shadow_factor, rng=rng)
     c = np.asarray(center_rect_cm, float)
-    truth = {"center_left_cm": (np.asarray(calib["R1"]).T @ c).tolist(), "center_table_cm": None,
-             "radius_cm": radius_cm, "center_rect_cm": c.tolist()}
+    truth = {
+        "center_left_cm": (np.asarray(calib["R1"]).T @ c).tolist(),
+        "center_table_cm": None,
+        "radius_cm": radius_cm,
+        "center_rect_cm": c.tolist(),
+    }
     return {"id": pid, "left": L, "right": R, "truth": truth, "split": split}

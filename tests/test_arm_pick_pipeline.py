@@ -1,4 +1,5 @@
-"""pipelines/pick.yaml through the engine: synthetic rig -> ... -> IK -> pick on the emulated servos."""
+"""pipelines/pick.yaml through the engine: synthetic rig -> ... -> IK -> pick on the emulated
+servos."""
 
 from pathlib import Path
 
@@ -14,9 +15,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.mark.slow
 def test_pick_pipeline_end_to_end(tmp_path):
-    r = run_pipeline(ROOT / "pipelines" / "pick.yaml", overrides=["rig.n_scenes=24", "rig.n_views=10",
-                                                                  "act.sim_time_scale=20"],
-                     cache_dir=tmp_path / "cache", out_dir=tmp_path / "out")
+    r = run_pipeline(
+        ROOT / "pipelines" / "pick.yaml",
+        overrides=["rig.n_scenes=24", "rig.n_views=10", "act.sim_time_scale=20"],
+        cache_dir=tmp_path / "cache",
+        out_dir=tmp_path / "out",
+    )
     assert r.ok, {n: (rep.status, rep.error) for n, rep in r.reports.items() if rep.error}
     summary = r.outputs("act", "summary")
     (pick,) = summary["picks"]
@@ -34,8 +38,16 @@ def test_pick_pipeline_end_to_end(tmp_path):
 def test_actuator_refuses_when_nothing_is_pickable():
     from nodes.actuators._plan import Selection, select_plans
     from stereograph.core.api import NodeError
-    plans = {"a": {"pair": "a", "refused": True, "reason": "the object was not located", "waypoints": []},
-             "b": {"pair": "b", "refused": False, "split": "train", "waypoints": [{}]}}
+
+    plans = {
+        "a": {
+            "pair": "a",
+            "refused": True,
+            "reason": "the object was not located",
+            "waypoints": [],
+        },
+        "b": {"pair": "b", "refused": False, "split": "train", "waypoints": [{}]},
+    }
     with pytest.raises(NodeError, match="no pick plan to execute.*not located"):
         select_plans(plans, Selection(split="test"))
     chosen, skipped = select_plans(plans, Selection(split="all"))
@@ -49,9 +61,17 @@ def test_a_refused_calibration_check_moves_no_arm(tmp_path):
     from stereograph.core.runner import run_pipeline
 
     root = Path(__file__).resolve().parents[1]
-    res = run_pipeline(root / "pipelines" / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10",
-                                                         "check.warn_dy_px=0.00001", "check.refuse_dy_px=0.00002"],
-                       cache_dir=tmp_path / "c", out_dir=tmp_path / "o")
+    res = run_pipeline(
+        root / "pipelines" / "pick.yaml",
+        [
+            "rig.n_scenes=16",
+            "rig.n_views=10",
+            "check.warn_dy_px=0.00001",
+            "check.refuse_dy_px=0.00002",
+        ],
+        cache_dir=tmp_path / "c",
+        out_dir=tmp_path / "o",
+    )
     st = res.status
     assert st["check"] == "failed" and "a camera moved" in res.reports["check"].error
     assert st["act"] == "skipped" and st["segment"] == "skipped"

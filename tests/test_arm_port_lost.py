@@ -1,5 +1,6 @@
 """The serial port vanishes under the actuator (a USB2Dynamixel unplugged, a USB reset, a hub that
-loses power): on a peer whose pseudo-terminal closes mid-run (``tests/dxl_peer.py``), not the emulator.
+loses power): on a peer whose pseudo-terminal closes mid-run (``tests/dxl_peer.py``), not the
+emulator.
 
 pyserial then raises ``SerialException`` ("device reports readiness to read but returned no data")
 or ``OSError`` (EIO) from every read and write. That is neither a servo fault nor a bug in the node:
@@ -24,8 +25,8 @@ FAST = dict(poll_interval_s=0.002, retries=2, late_window_ms=100)
 
 
 class VanishingPeer(Peer):
-    """Five AX-12As whose adapter disappears ``delay_s`` after the ``after_sync``-th sync write (0: after the
-    ``after_replies``-th status packet)."""
+    """Five AX-12As whose adapter disappears ``delay_s`` after the ``after_sync``-th sync write (0:
+    after the ``after_replies``-th status packet)."""
 
     def __init__(self, after_sync=0, after_replies=0, delay_s=0.03, **kw):
         super().__init__({i: Servo() for i in range(1, 6)}, time_scale=20, **kw)
@@ -60,7 +61,9 @@ def test_the_port_lost_mid_motion_is_named_not_a_bug_and_torque_is_not_claimed_o
             execute_plan(DynamixelParams(port=p.path, **FAST), PLAN, ARM, p.path)
     e = ei.value
     assert f"serial port {p.path} stopped working" in e.message, e.message
-    assert "Torque was turned off" not in e.message and "torque could not be turned off" in e.message, e.message
+    assert (
+        "Torque was turned off" not in e.message and "torque could not be turned off" in e.message
+    ), e.message
     assert "unplugged" in e.hint and "supply" in e.hint, e.hint
     assert e.lasting  # a --repeat loop must not reopen a port and move the arm by itself
     assert e.partial_log["ok"] is False and e.partial_log["commands"]
@@ -72,5 +75,8 @@ def test_the_port_lost_before_moving_is_named_and_nothing_was_written():
             execute_plan(DynamixelParams(port=p.path, **FAST), PLAN, ARM, p.path)
         assert all(a > 31 or a + len(d) <= 30 for _, _, a, d in p.log)
     e = ei.value
-    assert f"serial port {p.path} stopped working" in e.message and "the arm was not moved" in e.message, e.message
+    assert (
+        f"serial port {p.path} stopped working" in e.message
+        and "the arm was not moved" in e.message
+    ), e.message
     assert "corrupted" not in e.message and "noise" not in e.hint, (e.message, e.hint)

@@ -69,14 +69,35 @@ def test_interrupt_mid_motion_ends_safely(tmp_path, sig, mode):
     sim_log = tmp_path / "sim.json"
     (tmp_path / "stop.yaml").write_text(PIPELINE)
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    sim = subprocess.Popen([*CLI, "servo-sim", "--ids", "1-5", "--link", str(link), "--trace", "--log",
-                            str(sim_log)], stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    sim = subprocess.Popen(
+        [*CLI, "servo-sim", "--ids", "1-5", "--link", str(link), "--trace", "--log", str(sim_log)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     run = None
     try:
         _wait_line(sim, "AX-12A emulator", 60)
-        run = subprocess.Popen([*CLI, "run", str(tmp_path / "stop.yaml"), "--no-cache", "--out", str(tmp_path / "out"),
-                                "--set", f"act.port={link}", "--set", f"act.on_interrupt={mode}"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        run = subprocess.Popen(
+            [
+                *CLI,
+                "run",
+                str(tmp_path / "stop.yaml"),
+                "--no-cache",
+                "--out",
+                str(tmp_path / "out"),
+                "--set",
+                f"act.port={link}",
+                "--set",
+                f"act.on_interrupt={mode}",
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=ROOT,
+        )
         _wait_line(sim, "goal_position", 120)
         time.sleep(0.4)  # mid-way to the first waypoint (about 1 s at 60 deg/s)
         run.send_signal(sig)

@@ -34,10 +34,12 @@ from simbench.servo_sim import (  # noqa: E402
 
 @pytest.fixture(autouse=True)
 def patient_sdk(monkeypatch):
-    """The raw SDK gives up on a reply after 2 x LATENCY_TIMER + 2 ms (34 ms); on a loaded machine the
-    emulator's thread can take longer than that, and a correct reply would read as a timeout. Waiting
-    100 ms per LATENCY_TIMER keeps these checks about what comes back, not about the machine's load."""
+    """The raw SDK gives up on a reply after 2 x LATENCY_TIMER + 2 ms (34 ms); on a loaded machine
+    the emulator's thread can take longer than that, and a correct reply would read as a timeout.
+    Waiting 100 ms per LATENCY_TIMER keeps these checks about what comes back, not about the
+    machine's load."""
     import dynamixel_sdk.port_handler as ph
+
     monkeypatch.setattr(ph, "LATENCY_TIMER", 100)
 
 
@@ -63,7 +65,8 @@ def test_ping_read_and_model_number(bus):
 def test_write_range_and_angle_limit_errors(bus):
     sim, port, ph = bus
     assert ph.write2ByteTxRx(port, 1, 30, 2000) == (COMM_SUCCESS, ERR_RANGE)
-    assert ph.write2ByteTxRx(port, 1, 36, 100) == (COMM_SUCCESS, ERR_RANGE)  # present position is read-only
+    # present position is read-only
+    assert ph.write2ByteTxRx(port, 1, 36, 100) == (COMM_SUCCESS, ERR_RANGE)
     assert ph.write2ByteTxRx(port, 2, 8, 600) == (COMM_SUCCESS, 0)  # CCW limit 600
     comm, err = ph.write2ByteTxRx(port, 2, 30, 700)
     assert err & ERR_ANGLE and "Angle limit" in ph.getRxPacketError(err)
@@ -79,7 +82,8 @@ def test_write_range_and_angle_limit_errors(bus):
 def test_sync_write_moves_at_the_set_speed(bus):
     sim, port, ph = bus
     g = GroupSyncWrite(port, ph, 30, 4)
-    # 100 speed units = 11.1 rpm = 66.6 deg/s; 100 position units = 29.3 deg -> 0.44 s real, 22 ms at x20
+    # 100 speed units = 11.1 rpm = 66.6 deg/s; 100 position units = 29.3 deg -> 0.44 s real, 22 ms
+    # at x20
     for i, goal in ((1, 612), (2, 412), (3, 512)):
         g.addParam(i, [DXL_LOBYTE(goal), DXL_HIBYTE(goal), DXL_LOBYTE(100), DXL_HIBYTE(100)])
     t0 = time.monotonic()
@@ -92,9 +96,13 @@ def test_sync_write_moves_at_the_set_speed(bus):
     assert ph.read2ByteTxRx(port, 1, 36)[0] == 612 and ph.read2ByteTxRx(port, 2, 36)[0] == 412
     log = sim.writes()
     assert [(e["instruction"], e["id"], e["register"], e["value"]) for e in log] == [
-        ("SYNC_WRITE", 1, "goal_position", 612), ("SYNC_WRITE", 1, "moving_speed", 100),
-        ("SYNC_WRITE", 2, "goal_position", 412), ("SYNC_WRITE", 2, "moving_speed", 100),
-        ("SYNC_WRITE", 3, "goal_position", 512), ("SYNC_WRITE", 3, "moving_speed", 100)]
+        ("SYNC_WRITE", 1, "goal_position", 612),
+        ("SYNC_WRITE", 1, "moving_speed", 100),
+        ("SYNC_WRITE", 2, "goal_position", 412),
+        ("SYNC_WRITE", 2, "moving_speed", 100),
+        ("SYNC_WRITE", 3, "goal_position", 512),
+        ("SYNC_WRITE", 3, "moving_speed", 100),
+    ]
 
 
 def test_torque_off_stops_motion_and_reg_write_action(bus):
@@ -132,7 +140,9 @@ def test_packets_in_pieces_and_bad_checksums(bus):
 
 
 def test_faults_drop_corrupt_unplug():
-    with ServoSim([1, 2], faults=Faults(drop_replies=1, corrupt_replies=1, unplugged_ids={2})) as sim:
+    with ServoSim(
+        [1, 2], faults=Faults(drop_replies=1, corrupt_replies=1, unplugged_ids={2})
+    ) as sim:
         port = PortHandler(sim.port_path)
         ph = PacketHandler(1.0)
         port.openPort()
@@ -172,7 +182,9 @@ def test_stops_cleanly_and_cli(tmp_path, capsys):
     result = {}
 
     def run():
-        result["rc"] = cli(["--ids", "1-3", "--link", str(link), "--duration", "0.6", "--log", str(logf)])
+        result["rc"] = cli(
+            ["--ids", "1-3", "--link", str(link), "--duration", "0.6", "--log", str(logf)]
+        )
 
     t = threading.Thread(target=run)
     t.start()
@@ -195,9 +207,11 @@ def test_stops_cleanly_and_cli(tmp_path, capsys):
 
 
 def test_short_reply_crashes_the_sdk_but_not_the_bus():
-    """dynamixel-sdk 4.1 indexes a too-short READ reply (what a late PING reply looks like to the READ
-    of its P1 ping) and raises IndexError; the actuator's Bus counts it as a corrupted reply and retries."""
+    """dynamixel-sdk 4.1 indexes a too-short READ reply (what a late PING reply looks like to the
+    READ of its P1 ping) and raises IndexError; the actuator's Bus counts it as a corrupted reply
+    and retries."""
     from nodes.actuators._bus import Bus
+
     with ServoSim([1], faults=Faults(short_replies=1)) as sim:
         port = PortHandler(sim.port_path)
         port.openPort()

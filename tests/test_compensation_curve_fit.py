@@ -1,4 +1,5 @@
-"""The disparity curve's nonlinear fit (scipy.optimize.least_squares) reaches the least-squares optimum."""
+"""The disparity curve's nonlinear fit (scipy.optimize.least_squares) reaches the least-squares
+optimum."""
 
 from __future__ import annotations
 
@@ -9,10 +10,22 @@ from nodes.contracts.compensator._common import samples_from_locations
 
 
 def _samples(d, z_true):
-    locs = {f"p{i}": {"pair": f"p{i}", "found": True, "x_cm": 0.0, "y_cm": 0.0, "z_cm": float(z_true[i] * 1.02),
-                      "disparity_px": float(d[i]), "u_left_px": 320.0, "v_left_px": 240.0,
-                      "truth_cm": [0.0, 0.0, float(z_true[i])], "split": "train", "frame": "left_camera"}
-            for i in range(len(d))}
+    locs = {
+        f"p{i}": {
+            "pair": f"p{i}",
+            "found": True,
+            "x_cm": 0.0,
+            "y_cm": 0.0,
+            "z_cm": float(z_true[i] * 1.02),
+            "disparity_px": float(d[i]),
+            "u_left_px": 320.0,
+            "v_left_px": 240.0,
+            "truth_cm": [0.0, 0.0, float(z_true[i])],
+            "split": "train",
+            "frame": "left_camera",
+        }
+        for i in range(len(d))
+    }
     return samples_from_locations(locs)
 
 

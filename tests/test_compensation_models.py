@@ -31,7 +31,9 @@ def fit(kind, locations, **params):
 
 
 def apply_all(model, locations):
-    return {k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()}
+    return {
+        k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()
+    }
 
 
 def rms(e):
@@ -60,7 +62,15 @@ def test_model_artifact_is_plain_json_with_required_keys(biased, kind):
     model = fit(kind, biased, cv_folds=4)
     text = json.dumps(model)  # plain data only
     assert "NaN" not in text
-    for key in ("type", "coefficients", "valid_range", "train_residual_cm", "cv", "fit_time_s", "n_train"):
+    for key in (
+        "type",
+        "coefficients",
+        "valid_range",
+        "train_residual_cm",
+        "cv",
+        "fit_time_s",
+        "n_train",
+    ):
         assert key in model
     assert model["type"] == kind
     assert model["n_train"] == sum(1 for v in biased.values() if v["split"] == "train")
@@ -72,7 +82,10 @@ def test_model_artifact_is_plain_json_with_required_keys(biased, kind):
 
 def test_only_train_split_is_used(biased):
     # Corrupt every test item's truth: a model fitted only on train is unaffected.
-    corrupted = {k: dict(v, truth_cm=[0.0, 0.0, 1000.0]) if v["split"] == "test" else v for k, v in biased.items()}
+    corrupted = {
+        k: dict(v, truth_cm=[0.0, 0.0, 1000.0]) if v["split"] == "test" else v
+        for k, v in biased.items()
+    }
     a = fit("polynomial", biased)
     b = fit("polynomial", corrupted)
     assert a["coefficients"] == b["coefficients"]
@@ -90,9 +103,19 @@ def test_disparity_curve_recovers_known_coefficients():
     a, b, c = 8100.0, -1.5, 0.4
     z = a / (d + b) + c
     locs = {
-        f"p{i}": {"pair": f"p{i}", "found": True, "x_cm": 0.0, "y_cm": 0.0, "z_cm": float(z[i] * 1.01),
-                  "disparity_px": float(d[i]), "u_left_px": 320.0, "v_left_px": 240.0,
-                  "truth_cm": [0.0, 0.0, float(z[i])], "split": "train", "frame": "left_camera"}
+        f"p{i}": {
+            "pair": f"p{i}",
+            "found": True,
+            "x_cm": 0.0,
+            "y_cm": 0.0,
+            "z_cm": float(z[i] * 1.01),
+            "disparity_px": float(d[i]),
+            "u_left_px": 320.0,
+            "v_left_px": 240.0,
+            "truth_cm": [0.0, 0.0, float(z[i])],
+            "split": "train",
+            "frame": "left_camera",
+        }
         for i in range(len(d))
     }
     coef = fit_disparity_curve(samples_from_locations(locs), rectified=False)
@@ -111,9 +134,19 @@ def test_disparity_curve_in_the_rectified_frame_is_exact_under_a_tilt():
     a, b, c = 8100.0, -1.5, 0.4
     z_true, z_meas = (a / (d + b) + c) * g, 8000.0 / d * g
     locs = {
-        f"p{i}": {"pair": f"p{i}", "found": True, "x_cm": 0.0, "y_cm": 0.0, "z_cm": float(z_meas[i]),
-                  "disparity_px": float(d[i]), "u_left_px": float(u[i]), "v_left_px": 240.0,
-                  "truth_cm": [0.0, 0.0, float(z_true[i])], "split": "train", "frame": "left_camera"}
+        f"p{i}": {
+            "pair": f"p{i}",
+            "found": True,
+            "x_cm": 0.0,
+            "y_cm": 0.0,
+            "z_cm": float(z_meas[i]),
+            "disparity_px": float(d[i]),
+            "u_left_px": float(u[i]),
+            "v_left_px": 240.0,
+            "truth_cm": [0.0, 0.0, float(z_true[i])],
+            "split": "train",
+            "frame": "left_camera",
+        }
         for i in range(len(d))
     }
     samples = samples_from_locations(locs)
@@ -140,8 +173,16 @@ def test_apply_flags_extrapolation_and_keeps_value(biased):
 
 def test_apply_passes_not_found_through_unchanged(biased):
     model = fit("lookup", biased)
-    lost = {"pair": "x", "found": False, "reason": "no ball", "x_cm": None, "y_cm": None, "z_cm": None,
-            "frame": "left_camera", "split": "test"}
+    lost = {
+        "pair": "x",
+        "found": False,
+        "reason": "no ball",
+        "x_cm": None,
+        "y_cm": None,
+        "z_cm": None,
+        "frame": "left_camera",
+        "split": "test",
+    }
     assert apply_model(model, lost) == lost
 
 
@@ -165,25 +206,43 @@ def test_apply_missing_input_is_a_clear_error(biased):
 
 # ---- degenerate training data -------------------------------------------------------------
 
+
 @pytest.mark.parametrize("kind", ["polynomial", "disparity_curve", "lookup", "xyz"])
 def test_too_few_points(biased, kind):
     few = dict([(k, v) for k, v in biased.items() if v["split"] == "train"][:3])
     with pytest.raises(NodeError) as exc:
         fit(kind, few)
     assert f"compensator.{kind}" in exc.value.message
-    assert "usable training placements" in exc.value.message and "needs at least" in exc.value.message
+    assert (
+        "usable training placements" in exc.value.message and "needs at least" in exc.value.message
+    )
 
 
 def test_placements_not_found_for_one_shared_reason_name_it(biased):
-    # (swapped left/right ball images: every pair "not found" on different rows, and the fit said only
-    # "0 usable training placements ... (13 not found)", nothing that pointed at the swap)
-    # each pair says it with its own offset: one cause, counted as one (it was as many causes as pairs)
-    rows = "left/right regions are on different rows (dv = {:.1f} px): not the same object -- or, when every pair"
-    lost = {k: dict(v, found=False, reason=rows.format(31.0 + i / 10) if i % 4 else "left image: no region found")
-            for i, (k, v) in enumerate(biased.items()) if v["split"] == "train"}
+    # (swapped left/right ball images: every pair "not found" on different rows, and the fit said
+    # only "0 usable training placements ... (13 not found)", nothing that pointed at the swap)
+    # each pair says it with its own offset: one cause, counted as one (it was as many causes as
+    # pairs)
+    rows = (
+        "left/right regions are on different rows (dv = {:.1f} px): not the same object -- "
+        "or, when every pair"
+    )
+    lost = {
+        k: dict(
+            v,
+            found=False,
+            reason=rows.format(31.0 + i / 10) if i % 4 else "left image: no region found",
+        )
+        for i, (k, v) in enumerate(biased.items())
+        if v["split"] == "train"
+    }
     with pytest.raises(NodeError) as exc:
         fit("polynomial", lost)
-    dvs = [float(v["reason"].split("dv = ")[1].split()[0]) for v in lost.values() if "dv = " in v["reason"]]
+    dvs = [
+        float(v["reason"].split("dv = ")[1].split()[0])
+        for v in lost.values()
+        if "dv = " in v["reason"]
+    ]
     assert len(dvs) > len(lost) / 2
     shared = rows.replace("{:.1f}", f"{min(dvs):.1f}–{max(dvs):.1f}")
     assert f"not found, most often ({len(dvs)} of {len(lost)}): {shared}" in exc.value.message
@@ -201,8 +260,10 @@ def test_all_at_one_distance(kind):
 def test_nans_are_dropped_or_refused(biased, kind):
     # Half the training items carry NaN: they are dropped, and the fit stays finite.
     train_ids = [k for k, v in biased.items() if v["split"] == "train"]
-    spoiled = {k: (dict(v, z_cm=float("nan"), disparity_px=float("nan")) if k in train_ids[::2] else v)
-               for k, v in biased.items()}
+    spoiled = {
+        k: (dict(v, z_cm=float("nan"), disparity_px=float("nan")) if k in train_ids[::2] else v)
+        for k, v in biased.items()
+    }
     model = fit(kind, spoiled)
     assert model["n_train"] == len(train_ids) - len(train_ids[::2])
     assert "NaN" not in json.dumps(model)
@@ -231,8 +292,10 @@ def test_xy_auto_follows_the_kind_of_error(biased, kind):
     # A baseline error moves points along their rays: auto rescales x, y too.
     assert fit(kind, biased)["coefficients"]["along_ray"] is True
     # A depth-only error (x, y exact, z 2 % long, as a focal-length error gives): auto keeps x, y.
-    z_only = {k: dict(v, x_cm=v["truth_cm"][0], y_cm=v["truth_cm"][1], z_cm=v["truth_cm"][2] * 1.02)
-              for k, v in biased.items()}
+    z_only = {
+        k: dict(v, x_cm=v["truth_cm"][0], y_cm=v["truth_cm"][1], z_cm=v["truth_cm"][2] * 1.02)
+        for k, v in biased.items()
+    }
     model = fit(kind, z_only)
     assert model["coefficients"]["along_ray"] is False
     out = errors(apply_all(model, z_only))
@@ -244,22 +307,36 @@ def test_xyz_model_off_the_training_surface_is_extrapolated():
     # Balls on a table train the xyz model; inside its (u, v, d) box but 6 cm above the table it is
     # unconstrained, so apply must flag the location (and the pick refuses it), while a test ball on
     # the table is not flagged.
-    table = make_locations(n=120, seed=5, baseline_scale=1.02, disparity_offset_px=0.5, noise_px=0.1,
-                           table_plane_cm=(12.0, -0.1))
+    table = make_locations(
+        n=120,
+        seed=5,
+        baseline_scale=1.02,
+        disparity_offset_px=0.5,
+        noise_px=0.1,
+        table_plane_cm=(12.0, -0.1),
+    )
     model = fit("xyz", table)
     support = model["support"]
-    assert support["max_correction_cm"] > 0.1 and min(np.subtract(support["max_cm"], support["min_cm"])) < 0.5
+    assert (
+        support["max_correction_cm"] > 0.1
+        and min(np.subtract(support["max_cm"], support["min_cm"])) < 0.5
+    )
     on_table = [loc for loc in table.values() if loc["split"] == "test"]
     flagged = [apply_model(model, loc)["extrapolated"] for loc in on_table]
     assert sum(flagged) <= 0.05 * len(on_table)
-    # The same image position (u) and disparity, the ball 6 cm above the table: v moves by f * 6 / z.
-    base = max((loc for loc in on_table if not apply_model(model, loc)["extrapolated"]),
-               key=lambda loc: loc["v_left_px"])  # near the camera: lifted, it stays in the image rows seen
+    # The same image position (u) and disparity, the ball 6 cm above the table: v moves by f * 6 /
+    # z.
+    base = max(
+        (loc for loc in on_table if not apply_model(model, loc)["extrapolated"]),
+        # near the camera: lifted, it stays in the image rows seen
+        key=lambda loc: loc["v_left_px"],
+    )
     f_px, cy = 800.0, 240.0
     lifted = dict(base, y_cm=base["y_cm"] - 6.0)
     lifted["v_left_px"] = cy + f_px * lifted["y_cm"] / lifted["z_cm"]
     vr = model["valid_range"]["v_left_px"]
-    assert vr["min"] <= lifted["v_left_px"] <= vr["max"]  # inside the box: only the surface check can tell
+    # inside the box: only the surface check can tell
+    assert vr["min"] <= lifted["v_left_px"] <= vr["max"]
     got = apply_model(model, lifted)
     assert got["extrapolated"] is True
     assert any("surface" in why for why in got["compensation"]["outside_range"])
@@ -270,17 +347,27 @@ def test_support_flags_a_correction_larger_than_any_in_training(biased):
     loc = dict(next(v for v in biased.values() if v["split"] == "test"))
     assert apply_model(model, loc)["extrapolated"] is False
     # Pretend the model was trained with tiny corrections: the same correction is now unsupported.
-    tight = dict(model, support=dict(model["support"], max_correction_cm=0.01, residual_rms_cm=0.001))
+    tight = dict(
+        model, support=dict(model["support"], max_correction_cm=0.01, residual_rms_cm=0.001)
+    )
     got = apply_model(tight, loc)
-    assert got["extrapolated"] is True and "larger than any in training" in got["compensation"]["outside_range"][0]
+    assert (
+        got["extrapolated"] is True
+        and "larger than any in training" in got["compensation"]["outside_range"][0]
+    )
 
 
 def test_a_correction_that_cross_validates_worse_than_none_is_refused():
-    # (degree 8 on 13 placements: fitted residual 0.02 cm, held-out error 1.15 cm -- accepted silently)
+    # (degree 8 on 13 placements: fitted residual 0.02 cm, held-out error 1.15 cm -- accepted
+    # silently)
     few = make_locations(n=26, seed=5, noise_px=0.3, baseline_scale=1.0)
     with pytest.raises(NodeError, match="makes the results worse than none"):
         fit("polynomial", few, degree=8, outlier_mad=None)
-    ok = fit("polynomial", make_locations(n=160, seed=3, baseline_scale=1.02, disparity_offset_px=0.5), degree=2)
+    ok = fit(
+        "polynomial",
+        make_locations(n=160, seed=3, baseline_scale=1.02, disparity_offset_px=0.5),
+        degree=2,
+    )
     assert "skipped" not in ok["cv"]
 
 
@@ -301,7 +388,9 @@ def test_a_lookup_table_with_empty_bins_says_so_and_holds_only_where_its_bins_ha
     ctx = RunContext("fit", None, tmp_path, tmp_path)
     locs = make_locations(n=36, seed=2, baseline_scale=1.02)
     fn = FIT_NODES["lookup"]
-    model = fn(fn.spec.params(figure=False, n_bins=12, outlier_mad=None), train=locs, ctx=ctx)["model"]
+    model = fn(fn.spec.params(figure=False, n_bins=12, outlier_mad=None), train=locs, ctx=ctx)[
+        "model"
+    ]
     z_train = [v["z_cm"] for v in locs.values() if v["split"] == "train"]
     kept = len(model["coefficients"]["knots_z_cm"])
     assert kept < 12 and any(f"only {kept} of 12 distance bins" in m for m in ctx.messages)
@@ -316,8 +405,11 @@ def test_a_truth_in_another_unit_or_frame_is_refused_not_fitted(biased, kind, mi
     # smoothly (cross-validation did not object) and moved every later ball by tens of cm.
     def wrong(t):
         return [10 * c for c in t] if mistake == "mm" else [t[0], t[2] - 40.0, 2.0]
+
     spoiled = {k: dict(v, truth_cm=wrong(v["truth_cm"])) for k, v in biased.items()}
-    with pytest.raises(NodeError, match=r"truth is far from where the balls were located.*not mm") as exc:
+    with pytest.raises(
+        NodeError, match=r"truth is far from where the balls were located.*not mm"
+    ) as exc:
         fit(kind, spoiled)
     assert f"compensator.{kind}" in exc.value.message
 
@@ -328,10 +420,22 @@ def test_when_most_training_balls_are_not_found_the_fix_is_about_finding_them():
     from nodes.contracts.compensator._common import training_samples
     from stereograph.core.api import NodeError
 
-    train = {f"p{i}": {"split": "train", "found": False, "reason": "no plausible region (colour not seen)"}
-             for i in range(20)}
-    train["p99"] = {"split": "train", "found": True, "x_cm": 1.0, "y_cm": 2.0, "z_cm": 40.0,
-                    "truth_cm": [1.0, 2.0, 40.1]}
+    train = {
+        f"p{i}": {
+            "split": "train",
+            "found": False,
+            "reason": "no plausible region (colour not seen)",
+        }
+        for i in range(20)
+    }
+    train["p99"] = {
+        "split": "train",
+        "found": True,
+        "x_cm": 1.0,
+        "y_cm": 2.0,
+        "z_cm": 40.0,
+        "truth_cm": [1.0, 2.0, 40.1],
+    }
     with pytest.raises(NodeError) as e:
         training_samples(train, "node 'fit' (compensator.polynomial)", ("z_cm",), 6)
     assert "most training placements were not located (20 of 21)" in e.value.hint

@@ -35,7 +35,9 @@ def fit(kind, locations, ctx=None, **params):
 
 
 def test_rms_3d(model, locations):
-    out = {k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()}
+    out = {
+        k: apply(ApplyParams(), model=model, location=v)["location"] for k, v in locations.items()
+    }
     e = errors(out, "test")
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
@@ -74,14 +76,21 @@ def test_misdetections_are_left_out_and_accuracy_holds(clean, poisoned, kind):
     naive = fit(kind, poisoned, outlier_mad=None)
 
     assert {o["item"] for o in robust["outliers"]} == bad
-    assert robust["n_train"] == robust["n_candidates"] - len(bad) and robust["n_outliers"] == len(bad)
+    assert robust["n_train"] == robust["n_candidates"] - len(bad) and robust["n_outliers"] == len(
+        bad
+    )
     assert all(o["residual_cm"] > robust["outlier_threshold_cm"] for o in robust["outliers"])
     assert "NaN" not in json.dumps(robust)
     # The run summary names them with their residuals.
-    assert len(ctx.messages) == 1 and f"left {len(bad)} of" in ctx.messages[0] and " cm)" in ctx.messages[0]
+    assert (
+        len(ctx.messages) == 1
+        and f"left {len(bad)} of" in ctx.messages[0]
+        and " cm)" in ctx.messages[0]
+    )
 
-    rms_clean, rms_robust, rms_naive = (test_rms_3d(m, d) for m, d in
-                                        ((reference, clean), (robust, poisoned), (naive, poisoned)))
+    rms_clean, rms_robust, rms_naive = (
+        test_rms_3d(m, d) for m, d in ((reference, clean), (robust, poisoned), (naive, poisoned))
+    )
     assert rms_robust <= 1.10 * rms_clean, (rms_robust, rms_clean)
     assert rms_naive > 10 * rms_clean  # without the screening the fit really is poisoned
 
@@ -131,15 +140,24 @@ def test_the_run_summary_and_model_file_list_the_left_out_placements(tmp_path):
     pipeline.write_text(
         f"name: robust\nplugins: [{plugin}]\nnodes:\n"
         "  scenes: {type: toy.scenes, params: {n: 120, seed: 3, misdetect_fraction: 0.334}}\n"
-        "  locate: {type: toy.triangulate, params: {baseline_scale: 1.02}, inputs: {scene: scenes.scenes}}\n"
+        "  locate: {type: toy.triangulate, params: {baseline_scale: 1.02}, inputs: "
+        "{scene: scenes.scenes}}\n"
         "  fit: {type: compensator.xyz, inputs: {train: locate.location}}\n"
     )
     out = tmp_path / "run"
-    assert main(["run", str(pipeline), "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert (
+        main(["run", str(pipeline), "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
+    )
     model = json.loads((out / "fit" / "model.json").read_text())
     truth = make_locations(n=120, seed=3, misdetect_fraction=0.334)
-    assert {o["item"] for o in model["outliers"]} == {k for k, v in truth.items() if v["misdetected"]}
-    fit_report = next(n for n in json.loads((out / "run.json").read_text())["nodes"] if n["node"] == "fit")
+    assert {o["item"] for o in model["outliers"]} == {
+        k for k, v in truth.items() if v["misdetected"]
+    }
+    fit_report = next(
+        n for n in json.loads((out / "run.json").read_text())["nodes"] if n["node"] == "fit"
+    )
     worst = model["outliers"][0]
-    assert any(f"left {model['n_outliers']} of {model['n_candidates']}" in m and worst["item"] in m
-               for m in fit_report["messages"])
+    assert any(
+        f"left {model['n_outliers']} of {model['n_candidates']}" in m and worst["item"] in m
+        for m in fit_report["messages"]
+    )

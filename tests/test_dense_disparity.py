@@ -30,19 +30,22 @@ GIVEN = {"f_px": 500.0, "cx_px": 80.0, "cy_px": 60.0, "baseline_cm": 10.0, "imag
 
 
 def textured_pair(shift_px: int, seed: int = 0, size=(120, 160)):
-    """A random-texture plane seen with a constant disparity of shift_px (left x = right x + shift)."""
+    """A random-texture plane seen with a constant disparity of shift_px (left x = right x +
+    shift)."""
     rng = np.random.default_rng(seed)
     h, w = size
     tex = cv2.GaussianBlur(rng.integers(0, 256, (h, w + shift_px), dtype=np.uint8), (3, 3), 0.8)
     left = cv2.cvtColor(np.ascontiguousarray(tex[:, :w]), cv2.COLOR_GRAY2BGR)
-    right = cv2.cvtColor(np.ascontiguousarray(tex[:, shift_px:shift_px + w]), cv2.COLOR_GRAY2BGR)
+    right = cv2.cvtColor(np.ascontiguousarray(tex[:, shift_px : shift_px + w]), cv2.COLOR_GRAY2BGR)
     return left, right
 
 
 def test_given_rectification_passes_images_through_and_triangulates_with_doffs():
     rect = given(GivenParams(**GIVEN, cx_right_px=95.0))["rectification"]
     left, right = textured_pair(12)
-    out = remap(RemapParams(), rectification=rect, pair={"id": "p", "left": left, "right": right})["rectified"]
+    out = remap(RemapParams(), rectification=rect, pair={"id": "p", "left": left, "right": right})[
+        "rectified"
+    ]
     assert np.array_equal(out["left"], left) and np.array_equal(out["right"], right)
     # Z = f B / (d + doffs), x, y from the left principal point, frame = left camera (R1 = I).
     p = triangulate_point(100.0, 30.0, 35.0, rect)
@@ -65,10 +68,13 @@ def test_dense_map_of_a_known_shift_and_its_point_cloud():
     disp = dense_disparity(left, right, d_min, num, params)
     ok = np.isfinite(disp)
     assert ok.mean() > 0.6  # the padded left border is matched too wherever its partner is in view
-    assert np.median(np.abs(disp[ok] - 24.0)) < 0.25 and np.mean(np.abs(disp[ok] - 24.0) > 1.0) < 0.02
+    assert (
+        np.median(np.abs(disp[ok] - 24.0)) < 0.25 and np.mean(np.abs(disp[ok] - 24.0) > 1.0) < 0.02
+    )
     pts, rgb = point_cloud(disp, left, rect)
     assert len(pts) == ok.sum() and rgb.dtype == np.uint8
-    np.testing.assert_allclose(np.median(pts[:, 2]), 500 * 10 / 24, rtol=0.01)  # a plane 208 cm away
+    # a plane 208 cm away
+    np.testing.assert_allclose(np.median(pts[:, 2]), 500 * 10 / 24, rtol=0.01)
 
 
 def test_dense_node_outputs_and_clear_errors(tmp_path):
@@ -77,7 +83,8 @@ def test_dense_node_outputs_and_clear_errors(tmp_path):
     pair = {"id": "p", "left": left, "right": right, "split": "test"}
     out = dense(DenseParams(working_range_cm=(100.0, 400.0)), pair=pair, rectification=rect)
     dmap, img, cloud = out["disparity_map"], out["disparity_image"], out["point_cloud"]
-    assert dmap["disparity_px"].dtype == np.float32 and dmap["search_range_px"][0] == 12  # fB/400 = 12.5
+    # fB/400 = 12.5
+    assert dmap["disparity_px"].dtype == np.float32 and dmap["search_range_px"][0] == 12
     assert img.shape == (120, 160, 3) and img.dtype == np.uint8
     assert (img[~np.isfinite(dmap["disparity_px"])] == 0).all()
     files = write_value(tmp_path / "cloud", cloud)
@@ -109,8 +116,16 @@ def test_ply_round_trip():
 @pytest.mark.skipif(not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present")
 def test_dense_aloe_pipeline_through_the_cli(tmp_path):
     out = tmp_path / "run"
-    rc = cli_main(["run", str(ROOT / "pipelines" / "dense-aloe.yaml"), "--out", str(out),
-                   "--cache-dir", str(tmp_path / "cache")])
+    rc = cli_main(
+        [
+            "run",
+            str(ROOT / "pipelines" / "dense-aloe.yaml"),
+            "--out",
+            str(out),
+            "--cache-dir",
+            str(tmp_path / "cache"),
+        ]
+    )
     assert rc == 0
     rec = json.loads((out / "dense" / "disparity_map.json").read_text())[0]
     disp = np.load(out / "dense" / "disparity_map.npz")[rec["disparity_px"]["npz"]]
@@ -128,18 +143,22 @@ def test_dense_aloe_pipeline_through_the_cli(tmp_path):
     # Metric, left-camera frame: the scene's depths within the 1.2-2 m the pipeline searched.
     assert 115 < np.percentile(pts[:, 2], 1) and np.percentile(pts[:, 2], 99) < 205
     assert "point_cloud/aloe.ply" in " ".join(
-        f for n in json.loads((out / "run.json").read_text())["nodes"] for f in n["files"])
+        f for n in json.loads((out / "run.json").read_text())["nodes"] for f in n["files"]
+    )
 
 
 def test_point_cloud_is_metric_in_the_left_camera_frame_on_the_synthetic_rig():
     # The synthetic rig through rectifier.opencv (R1 != I): the cloud's table points must lie on the
-    # true table plane (T_table_from_left maps left-camera points into the table frame, table at z = 0).
+    # true table plane (T_table_from_left maps left-camera points into the table frame, table at z =
+    # 0).
     from nodes.calibrators.truth import truth_calibration
     from nodes.rectifiers.opencv import rectify_calibration
     from nodes.rectifiers.remap import remap_pair
     from nodes.sources.synthetic import synthetic
 
-    rig = synthetic(synthetic.spec.params(n_scenes=1, n_views=0, min_distance_cm=30, max_distance_cm=60, seed=1))
+    rig = synthetic(
+        synthetic.spec.params(n_scenes=1, n_views=0, min_distance_cm=30, max_distance_cm=60, seed=1)
+    )
     rect = rectify_calibration(truth_calibration(rig["truth"]))
     pair = next(iter(rig["pairs"].values()))
     left, right = remap_pair(rect, pair["left"], pair["right"])
@@ -175,13 +194,16 @@ def test_disparity_score_names_a_missing_or_mismatched_truth(tmp_path):
         disparity_score(DisparityScoreParams(truth=str(tmp_path / "small.png")), maps)
 
 
-@pytest.mark.parametrize("setting, expected", [
-    ("dense.working_range_cm=[-10,200]", "must start above 0"),
-    ("dense.working_range_cm=[200,120]", "first value must be below the second"),
-    ("dense.disparity_range_px=[80,20]", "first value must be below the second"),
-    ("dense.p2_factor=4", "p2_factor (4) must exceed p1_factor (8)"),
-    ("dense.block_size_px=4", "block size must be odd"),
-])
+@pytest.mark.parametrize(
+    "setting, expected",
+    [
+        ("dense.working_range_cm=[-10,200]", "must start above 0"),
+        ("dense.working_range_cm=[200,120]", "first value must be below the second"),
+        ("dense.disparity_range_px=[80,20]", "first value must be below the second"),
+        ("dense.p2_factor=4", "p2_factor (4) must exceed p1_factor (8)"),
+        ("dense.block_size_px=4", "block size must be odd"),
+    ],
+)
 def test_dense_params_are_refused_when_the_pipeline_is_validated(setting, expected, capsys):
     # (these were found only when the node ran, after its upstream nodes: exit 1, not 2)
     code = cli_main(["validate", str(ROOT / "pipelines" / "dense-aloe.yaml"), "--set", setting])
@@ -191,37 +213,70 @@ def test_dense_params_are_refused_when_the_pipeline_is_validated(setting, expect
 
 
 @pytest.mark.skipif(not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present")
-@pytest.mark.parametrize("names, stored", [
-    (("im2.png", "im6.png", "disp2.png"), "x4"),  # Middlebury 2003: quarter size, disparity x 4 in a PNG
-    (("im0.png", "im1.png", "disp0.pfm"), "pfm"),  # Middlebury 2014: disparity in px in a PFM, inf unknown
-])
+@pytest.mark.parametrize(
+    "names, stored",
+    [
+        # Middlebury 2003: quarter size, disparity x 4 in a PNG
+        (("im2.png", "im6.png", "disp2.png"), "x4"),
+        # Middlebury 2014: disparity in px in a PFM, inf unknown
+        (("im0.png", "im1.png", "disp0.pfm"), "pfm"),
+    ],
+)
 def test_a_middlebury_folder_is_paired_and_scored_against_its_own_truth(tmp_path, names, stored):
-    """(issue 30: disp2 / disp6 as truth) no globs, no truth path, no scale: the source finds the truth
-    beside the left image and the report reads its scale from the data."""
+    """(issue 30: disp2 / disp6 as truth) no globs, no truth path, no scale: the source finds the
+    truth beside the left image and the report reads its scale from the data."""
     import yaml
 
     scene = tmp_path / "Aloe"
     scene.mkdir()
-    small = [cv2.resize(cv2.imread(str(ALOE / f)), (320, 277), interpolation=cv2.INTER_AREA)
-             for f in ("aloeL.jpg", "aloeR.jpg")]
-    gt = cv2.resize(cv2.imread(str(ALOE / "aloeGT.png"), cv2.IMREAD_GRAYSCALE), (320, 277),
-                    interpolation=cv2.INTER_NEAREST).astype(np.float32) / 4  # px at quarter size
+    small = [
+        cv2.resize(cv2.imread(str(ALOE / f)), (320, 277), interpolation=cv2.INTER_AREA)
+        for f in ("aloeL.jpg", "aloeR.jpg")
+    ]
+    gt = (
+        cv2.resize(
+            cv2.imread(str(ALOE / "aloeGT.png"), cv2.IMREAD_GRAYSCALE),
+            (320, 277),
+            interpolation=cv2.INTER_NEAREST,
+        ).astype(np.float32)
+        / 4
+    )  # px at quarter size
     cv2.imwrite(str(scene / names[0]), small[0])
     cv2.imwrite(str(scene / names[1]), small[1])
     if stored == "pfm":
         cv2.imwrite(str(scene / names[2]), np.where(gt > 0, gt, np.inf).astype(np.float32))
     else:
         cv2.imwrite(str(scene / names[2]), np.round(gt * 4).astype(np.uint8))
-    doc = {"name": "mb", "nodes": {
-        "pairs": {"type": "source.files", "params": {"folder": str(scene)}},
-        "rectify": {"type": "rectifier.given", "params": {"f_px": 935.0, "cx_px": 160.0, "cy_px": 138.0,
-                                                          "cx_right_px": 227.5, "baseline_cm": 16.0,
-                                                          "image_size": [320, 277]}},
-        "remap": {"type": "rectifier.remap", "inputs": {"rectification": "rectify.rectification",
-                                                          "pair": "pairs.pairs"}},
-        "dense": {"type": "disparity.dense", "params": {"working_range_cm": [120.0, 200.0]},
-                  "inputs": {"pair": "remap.rectified", "rectification": "rectify.rectification"}},
-        "score": {"type": "report.disparity", "inputs": {"disparity_map": "dense.disparity_map"}}}}
+    doc = {
+        "name": "mb",
+        "nodes": {
+            "pairs": {"type": "source.files", "params": {"folder": str(scene)}},
+            "rectify": {
+                "type": "rectifier.given",
+                "params": {
+                    "f_px": 935.0,
+                    "cx_px": 160.0,
+                    "cy_px": 138.0,
+                    "cx_right_px": 227.5,
+                    "baseline_cm": 16.0,
+                    "image_size": [320, 277],
+                },
+            },
+            "remap": {
+                "type": "rectifier.remap",
+                "inputs": {"rectification": "rectify.rectification", "pair": "pairs.pairs"},
+            },
+            "dense": {
+                "type": "disparity.dense",
+                "params": {"working_range_cm": [120.0, 200.0]},
+                "inputs": {"pair": "remap.rectified", "rectification": "rectify.rectification"},
+            },
+            "score": {
+                "type": "report.disparity",
+                "inputs": {"disparity_map": "dense.disparity_map"},
+            },
+        },
+    }
     (tmp_path / "mb.yaml").write_text(yaml.safe_dump(doc))
     out = tmp_path / "run"
     assert cli_main(["run", str(tmp_path / "mb.yaml"), "--out", str(out), "--no-cache"]) == 0
@@ -231,4 +286,5 @@ def test_a_middlebury_folder_is_paired_and_scored_against_its_own_truth(tmp_path
     row = json.loads((out / "score" / "pairs.json").read_text())[0]
     assert row["pair"] == "Aloe" and row["truth"] == names[2]
     assert row["truth_scale"] == (1.0 if stored == "pfm" else 0.25)
-    assert row["fill_fraction"] > 0.6 and row["bad_2px_fraction"] < 0.05, row  # 0.9 %; a wrong scale: ~100 %
+    # 0.9 %; a wrong scale: ~100 %
+    assert row["fill_fraction"] > 0.6 and row["bad_2px_fraction"] < 0.05, row

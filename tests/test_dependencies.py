@@ -38,8 +38,12 @@ def _dist_name(requirement: str) -> str:
 def _declared() -> tuple[set[str], set[str]]:
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     core = {_dist_name(r) for r in project["dependencies"]}
-    extras = {_dist_name(r) for name, reqs in project.get("optional-dependencies", {}).items() if name != "dev"
-              for r in reqs}
+    extras = {
+        _dist_name(r)
+        for name, reqs in project.get("optional-dependencies", {}).items()
+        if name != "dev"
+        for r in reqs
+    }
     return core, extras
 
 
@@ -64,8 +68,11 @@ def _imported() -> dict[str, set[str]]:
 
 def test_every_imported_package_is_declared():
     core, extras = _declared()
-    missing = {name: sorted(files) for name, files in _imported().items()
-               if DIST_OF_IMPORT.get(name, name).lower() not in core | extras}
+    missing = {
+        name: sorted(files)
+        for name, files in _imported().items()
+        if DIST_OF_IMPORT.get(name, name).lower() not in core | extras
+    }
     assert not missing, f"imported but not declared in pyproject.toml: {missing}"
 
 
@@ -74,7 +81,10 @@ def test_every_core_dependency_is_imported():
     core, _ = _declared()
     used = {DIST_OF_IMPORT.get(name, name).lower() for name in _imported()}
     unused = core - used
-    assert not unused, f"declared in pyproject.toml but imported nowhere in stereograph/ or nodes/: {sorted(unused)}"
+    assert not unused, (
+        "declared in pyproject.toml but imported nowhere in stereograph/ or nodes/: "
+        f"{sorted(unused)}"
+    )
 
 
 def test_the_check_sees_known_imports():

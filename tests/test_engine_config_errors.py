@@ -43,7 +43,9 @@ def test_good_pipeline_validates(tmp_path, capsys):
 
 
 def test_broken_yaml_names_line(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("params: {power: 2}", "params: {power: 2"), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("params: {power: 2}", "params: {power: 2"), capsys=capsys
+    )
     assert code == 2
     assert "p.yaml:" in msg and "not valid YAML" in msg
 
@@ -58,13 +60,23 @@ def test_unknown_node_type_did_you_mean(tmp_path, capsys):
 def test_unknown_param(tmp_path, capsys):
     code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{pwer: 2}"), capsys=capsys)
     assert code == 2
-    assert "p.yaml:9" in msg and "node 'power'" in msg and "'pwer'" in msg and "did you mean 'power'" in msg
+    assert (
+        "p.yaml:9" in msg
+        and "node 'power'" in msg
+        and "'pwer'" in msg
+        and "did you mean 'power'" in msg
+    )
 
 
 def test_mistyped_param(tmp_path, capsys):
     code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{power: two}"), capsys=capsys)
     assert code == 2
-    assert "p.yaml:9" in msg and "node 'power'" in msg and "parameter 'power'" in msg and "'two'" in msg
+    assert (
+        "p.yaml:9" in msg
+        and "node 'power'" in msg
+        and "parameter 'power'" in msg
+        and "'two'" in msg
+    )
 
 
 def test_param_out_of_range(tmp_path, capsys):
@@ -74,38 +86,61 @@ def test_param_out_of_range(tmp_path, capsys):
 
 
 def test_dangling_input_node(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("m: numbers.items", "m: numbrs.items"), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("m: numbers.items", "m: numbrs.items"), capsys=capsys
+    )
     assert code == 2
-    assert "p.yaml:10" in msg and "node 'power'" in msg and "'numbrs'" in msg and "did you mean 'numbers'" in msg
+    assert (
+        "p.yaml:10" in msg
+        and "node 'power'" in msg
+        and "'numbrs'" in msg
+        and "did you mean 'numbers'" in msg
+    )
 
 
 def test_dangling_input_output(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("m: numbers.items", "m: numbers.item"), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("m: numbers.items", "m: numbers.item"), capsys=capsys
+    )
     assert code == 2
     assert "p.yaml:10" in msg and "has no output 'item'" in msg and "numbers.items" in msg
 
 
 def test_mistyped_input(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("values: power.norm", "values: power.m"), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("values: power.norm", "values: power.m"), capsys=capsys
+    )
     assert code == 2
-    assert "p.yaml:13" in msg and "node 'total'" in msg and "wants Number but 'power.m' gives Matrix" in msg
+    assert (
+        "p.yaml:13" in msg
+        and "node 'total'" in msg
+        and "wants Number but 'power.m' gives Matrix" in msg
+    )
 
 
 def test_input_accepting_alternatives_names_them_all(tmp_path, capsys):
     text = GOOD + "  what:\n    type: toy.describe\n    inputs: {x: total.total}\n"
     assert run_cli(tmp_path, text, capsys=capsys)[0] == 0  # Number is one of the alternatives
-    bad = GOOD.replace("  total:\n", "  what:\n    type: toy.describe\n    inputs: {x: numbers.items}\n  total:\n")
+    bad = GOOD.replace(
+        "  total:\n", "  what:\n    type: toy.describe\n    inputs: {x: numbers.items}\n  total:\n"
+    )
     assert run_cli(tmp_path, bad, capsys=capsys)[0] == 0  # so is Matrix (per item)
     code, msg = run_cli(tmp_path, text.replace("x: total.total", "x: what.kind"), capsys=capsys)
     assert code == 2  # a Report is neither (and wiring a node to itself is refused first or after)
-    code, msg = run_cli(tmp_path, GOOD + "  tbl:\n    type: toy.table\n    inputs: {m: numbers.items}\n"
-                        "  what:\n    type: toy.describe\n    inputs: {x: tbl.report}\n", capsys=capsys)
+    code, msg = run_cli(
+        tmp_path,
+        GOOD + "  tbl:\n    type: toy.table\n    inputs: {m: numbers.items}\n"
+        "  what:\n    type: toy.describe\n    inputs: {x: tbl.report}\n",
+        capsys=capsys,
+    )
     assert code == 2
     assert "node 'what'" in msg and "wants Matrix or Number but 'tbl.report' gives Report" in msg
 
 
 def test_missing_required_input(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("    inputs: {values: power.norm}\n", ""), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("    inputs: {values: power.norm}\n", ""), capsys=capsys
+    )
     assert code == 2
     assert "node 'total'" in msg and "required input 'values'" in msg
 
@@ -140,7 +175,9 @@ def test_set_unknown_node(tmp_path, capsys):
 
 
 def test_unknown_key_in_node(tmp_path, capsys):
-    code, msg = run_cli(tmp_path, GOOD.replace("    params: {power: 2}", "    parms: {power: 2}"), capsys=capsys)
+    code, msg = run_cli(
+        tmp_path, GOOD.replace("    params: {power: 2}", "    parms: {power: 2}"), capsys=capsys
+    )
     assert code == 2
     assert "p.yaml:9" in msg and "unknown key 'parms'" in msg
 
@@ -162,7 +199,8 @@ def test_other_commands_share_validation(tmp_path, capsys, cmd):
 
 def test_nested_params_merge_into_their_default(tmp_path, capsys):
     plug = tmp_path / "nested.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         from stereograph.core.api import node, Out, Params, Field
 
         class Joint(Params):
@@ -170,15 +208,19 @@ def test_nested_params_merge_into_their_default(tmp_path, capsys):
             max_deg: float = Field(..., description="Upper limit (deg).")
 
         class ArmP(Params):
-            yaw: Joint = Field(default_factory=lambda: Joint(min_deg=-150, max_deg=150), description="Yaw.")
+            yaw: Joint = Field(default_factory=lambda: Joint(min_deg=-150, max_deg=150),
+                               description="Yaw.")
 
         @node("tmp.arm", outputs={"arm": Out("Arm")}, params=ArmP)
         def arm(params):
             return {"arm": params.model_dump()}
-        """))
+        """)
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n"
-                 "    params: {yaw: {max_deg: 90}}\n")
+    f.write_text(
+        f"name: n\nplugins: [{plug}]\nnodes:\n  arm:\n    type: tmp.arm\n"
+        "    params: {yaw: {max_deg: 90}}\n"
+    )
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
 
@@ -200,28 +242,47 @@ LOCATE = Path(__file__).resolve().parent.parent / "pipelines" / "locate.yaml"
 LOCATE_OLD = Path(__file__).resolve().parent / "old_style" / "locate.yaml"
 
 
-def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipelines_defaults(tmp_path):
-    # locate.yaml's `defaults:` give the segmenters object: {radius_cm: 2, color_bgr: orange}; setting
-    # only the radius (a 5 cm ball) dropped the colour, and the segmenter then refused every pair of
-    # a plain 5 cm ball as "ambiguous ... give object.color_bgr" (20/20 not found, now 20/20 found)
+def test_a_nested_param_given_on_the_node_keeps_the_other_fields_of_the_pipelines_defaults(
+    tmp_path,
+):
+    # locate.yaml's `defaults:` give the segmenters object: {radius_cm: 2, color_bgr: orange};
+    # setting only the radius (a 5 cm ball) dropped the colour, and the segmenter then refused every
+    # pair of a plain 5 cm ball as "ambiguous ... give object.color_bgr" (20/20 not found, now 20/20
+    # found)
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
 
-    obj = build_graph(load_pipeline(LOCATE_OLD, ["segment.object.radius_cm=5"])).nodes["segment"].params.object
+    obj = (
+        build_graph(load_pipeline(LOCATE_OLD, ["segment.object.radius_cm=5"]))
+        .nodes["segment"]
+        .params.object
+    )
     assert obj.radius_cm == 5 and tuple(obj.color_bgr) == (20, 120, 245)
     # the same through an include: nested params and nested defaults merge field by field
     (tmp_path / "common.yaml").write_text(
         "defaults:\n  segmenter.color: {object: {radius_cm: 2.0, color_bgr: [1, 2, 3]}}\n"
-        "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: {color_tolerance: 0.2}, overlay: false}\n")
+        "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: "
+        "{color_tolerance: 0.2}, overlay: false}\n"
+    )
     f = tmp_path / "p.yaml"
-    f.write_text("name: n\ninclude: [common.yaml]\ndefaults:\n  segmenter.color: {object: {min_saturation: 9}}\n"
-                 "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: {radius_cm: 3.0}}\n")
+    f.write_text(
+        "name: n\ninclude: [common.yaml]\ndefaults:\n  segmenter.color: {object: "
+        "{min_saturation: 9}}\n"
+        "nodes:\n  seg:\n    type: segmenter.color\n    params: {object: {radius_cm: 3.0}}\n"
+    )
     doc = load_pipeline(f)
     want = {"object": {"radius_cm": 2.0, "color_bgr": [1, 2, 3], "min_saturation": 9}}
     assert doc.defaults["segmenter.color"] == want
-    assert doc.nodes["seg"]["params"] == {"object": {"color_tolerance": 0.2, "radius_cm": 3.0}, "overlay": False}
+    assert doc.nodes["seg"]["params"] == {
+        "object": {"color_tolerance": 0.2, "radius_cm": 3.0},
+        "overlay": False,
+    }
     # null still unsets one field
-    obj = build_graph(load_pipeline(LOCATE_OLD, ["segment.object.color_bgr=null"])).nodes["segment"].params.object
+    obj = (
+        build_graph(load_pipeline(LOCATE_OLD, ["segment.object.color_bgr=null"]))
+        .nodes["segment"]
+        .params.object
+    )
     assert obj.color_bgr is None and obj.radius_cm == 2.0
 
 
@@ -235,15 +296,28 @@ def test_a_set_list_value_is_blamed_on_the_set_not_on_the_file_line_it_replaced(
     # dense-aloe.yaml gives dense.working_range_cm as a list in the node's params; an error in the
     # value given by --set must not point at that line (the lines of its items were the file's)
     dense = LOCATE.parent / "dense-aloe.yaml"
-    code, msg = _validate("--set", "dense.working_range_cm=[.nan,200]", capsys=capsys, pipeline=dense)
-    assert code == 2 and msg.startswith("error: --set dense.working_range_cm=[.nan,200]:") and ".yaml:" not in msg
+    code, msg = _validate(
+        "--set", "dense.working_range_cm=[.nan,200]", capsys=capsys, pipeline=dense
+    )
+    assert (
+        code == 2
+        and msg.startswith("error: --set dense.working_range_cm=[.nan,200]:")
+        and ".yaml:" not in msg
+    )
     code, msg = _validate("--set", "dense.working_range_cm=[120]", capsys=capsys, pipeline=dense)
-    assert code == 2 and msg.startswith("error: --set dense.working_range_cm=[120]:") and ".yaml:" not in msg
+    assert (
+        code == 2
+        and msg.startswith("error: --set dense.working_range_cm=[120]:")
+        and ".yaml:" not in msg
+    )
 
 
 def test_a_nested_parameter_error_shows_the_nested_fields_own_description(capsys):
     code, msg = _validate("--set", "segment.shadow.max_brightness_ratio=3", capsys=capsys)
-    assert code == 2 and "Fix: 'shadow.max_brightness_ratio' is float: A shadow pixel is at most" in msg
+    assert (
+        code == 2
+        and "Fix: 'shadow.max_brightness_ratio' is float: A shadow pixel is at most" in msg
+    )
     code, msg = _validate("--set", "segment.object.color_bgr=[300,0,0]", capsys=capsys)
     assert code == 2 and "'object.color_bgr.0'" in msg and "less than or equal to 255" in msg
     assert "Fix: 'object.color_bgr' is" in msg and "B, G, R in 0-255" in msg
@@ -262,16 +336,37 @@ def test_a_node_check_on_its_wiring_runs_at_validation(capsys):
     # segmenter.color needs a colour from its params or its `appearance` input: said by `validate`
     # (exit 2, the node and the --set named), not found when every item fails
     # (locate.yaml's defaults give every segmenter type the colour: unset it)
-    code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
-                          capsys=capsys, pipeline=LOCATE_OLD)
+    code, msg = _validate(
+        "--set",
+        "segment.type=segmenter.color",
+        "--set",
+        "segment.object.color_bgr=null",
+        capsys=capsys,
+        pipeline=LOCATE_OLD,
+    )
     assert code == 2 and "node 'segment'" in msg and "needs the object's colour" in msg
     assert "segment.object.color_bgr=null" in msg and "appearance" in msg
-    code, msg = _validate("--set", "segment.type=segmenter.color", "--set", "segment.object.color_bgr=null",
-                          "--set", "segment.object.hue_range_deg=[10,40]", capsys=capsys, pipeline=LOCATE_OLD)
+    code, msg = _validate(
+        "--set",
+        "segment.type=segmenter.color",
+        "--set",
+        "segment.object.color_bgr=null",
+        "--set",
+        "segment.object.hue_range_deg=[10,40]",
+        capsys=capsys,
+        pipeline=LOCATE_OLD,
+    )
     assert code == 0, msg
-    code, msg = _validate("--set", "segment.type=segmenter.edge_morph", "--set", "segment.object.color_bgr=null",
-                          capsys=capsys, pipeline=LOCATE_OLD)
-    assert code == 0, msg  # (edge_morph works without a colour: look-alikes are refused as ambiguous)
+    code, msg = _validate(
+        "--set",
+        "segment.type=segmenter.edge_morph",
+        "--set",
+        "segment.object.color_bgr=null",
+        capsys=capsys,
+        pipeline=LOCATE_OLD,
+    )
+    # (edge_morph works without a colour: look-alikes are refused as ambiguous)
+    assert code == 0, msg
 
 
 def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys, tmp_path):
@@ -279,13 +374,22 @@ def test_validate_warns_of_a_file_a_node_will_read_that_is_not_there(capsys, tmp
     live = LOCATE.parent / "pick-live.yaml"
     (tmp_path / "live").symlink_to(LOCATE.parent / "live")
     mine = tmp_path / "pick-live.yaml"
-    mine.write_text(live.read_text().replace("live/calibration.yml", "live/no-such-calibration.yml"))
+    mine.write_text(
+        live.read_text().replace("live/calibration.yml", "live/no-such-calibration.yml")
+    )
     code, msg = _validate(capsys=capsys, pipeline=mine)
-    assert code == 0 and "warning:" in msg and "node 'calibration'" in msg and "no-such-calibration.yml" in msg
+    assert (
+        code == 0
+        and "warning:" in msg
+        and "node 'calibration'" in msg
+        and "no-such-calibration.yml" in msg
+    )
     code, msg = _validate(capsys=capsys, pipeline=live)
     assert code == 0 and "warning:" not in msg
     # ... on the command line: an error, saying which folder a relative path is taken from
-    code, msg = _validate("--set", "calibration.path=no-such-calibration.yml", capsys=capsys, pipeline=live)
+    code, msg = _validate(
+        "--set", "calibration.path=no-such-calibration.yml", capsys=capsys, pipeline=live
+    )
     assert code == 2 and "node 'calibration'" in msg and f"folder, {live.parent})" in msg, msg
 
 
@@ -293,12 +397,22 @@ def test_a_misspelt_nested_key_is_matched_against_its_own_model(capsys):
     # (the suggestion came from the top-level parameters: `shadow.enabeld` got no useful hint)
     code, msg = _validate("--set", "segment.shadow.enabeld=true", capsys=capsys)
     assert code == 2 and "did you mean 'enabled'?" in msg
-    code, msg = _validate("--set", "rig.scenes=[{ball: {center_cm: [0, 40], colour: red}}]", capsys=capsys)
+    code, msg = _validate(
+        "--set", "rig.scenes=[{ball: {center_cm: [0, 40], colour: red}}]", capsys=capsys
+    )
     assert code == 2 and "'scenes.0.ball.colour'" in msg and "did you mean 'color'?" in msg
 
 
-@pytest.mark.parametrize("override", ["rig.type=nosuch", "locate.inputs.pair=nosuch.x", "locate.inputs.pair=rig.nope",
-                                      "rig.n_scenes.deep=1", "segment.object.color_bgr.0=5"])
+@pytest.mark.parametrize(
+    "override",
+    [
+        "rig.type=nosuch",
+        "locate.inputs.pair=nosuch.x",
+        "locate.inputs.pair=rig.nope",
+        "rig.n_scenes.deep=1",
+        "segment.object.color_bgr.0=5",
+    ],
+)
 def test_a_bad_set_is_located_at_the_set_not_at_the_file_line_it_replaced(override, capsys):
     # (these pointed at locate.yaml's line, which holds the pipeline's own -- correct -- value)
     code, err = _validate("--set", override, capsys=capsys)
@@ -306,38 +420,46 @@ def test_a_bad_set_is_located_at_the_set_not_at_the_file_line_it_replaced(overri
 
 
 def test_a_type_swap_on_the_command_line_keeps_params_set_before_it():
-    """`--set segment.object.radius_cm=5 --set segment.type=segmenter.color` dropped the radius (the swap
-    reset the node's params, in command-line order); type swaps now go first, wherever they stand."""
+    """`--set segment.object.radius_cm=5 --set segment.type=segmenter.color` dropped the radius (the
+    swap reset the node's params, in command-line order); type swaps now go first, wherever they
+    stand."""
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
 
     locate = LOCATE_OLD
-    for order in (["segment.object.radius_cm=5", "segment.type=segmenter.color"],
-                  ["segment.type=segmenter.color", "segment.object.radius_cm=5"]):
+    for order in (
+        ["segment.object.radius_cm=5", "segment.type=segmenter.color"],
+        ["segment.type=segmenter.color", "segment.object.radius_cm=5"],
+    ):
         seg = build_graph(load_pipeline(locate, order)).nodes["segment"]
         assert seg.type == "segmenter.color" and seg.params.object.radius_cm == 5.0, order
-        assert seg.params.object.color_bgr is not None  # (and the colour from defaults: for the new type)
+        # (and the colour from defaults: for the new type)
+        assert seg.params.object.color_bgr is not None
 
 
 def test_user_text_with_colons_is_printed_as_written(tmp_path, capsys):
-    """(rich turned ':ab:' in a message into an emoji: `--set segment.type=segmenter:ab:x` was shown as
-    'segmenter🆎x', a name the user never typed)"""
+    """(rich turned ':ab:' in a message into an emoji: `--set segment.type=segmenter:ab:x` was shown
+    as 'segmenter🆎x', a name the user never typed)"""
     code, msg = run_cli(tmp_path, GOOD, "--set", "power.type=toy:ab:power", capsys=capsys)
     assert code == 2
     assert "toy:ab:power" in msg and "\N{NEGATIVE SQUARED AB}" not in msg, msg
 
 
 def test_a_plugin_node_without_params_that_reads_one_is_told_to_declare_them(tmp_path, capsys):
-    # was "AttributeError: '_NoParams' object has no attribute 'gain'", taken for a bug in the engine
+    # was "AttributeError: '_NoParams' object has no attribute 'gain'", taken for a bug in the
+    # engine
     plug = tmp_path / "noparams.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         from stereograph.core.api import Out, node
 
         @node("mine.gain", outputs={"value": Out("Number")})
         def gain(params):
-            assert not hasattr(params, "gain") and getattr(params, "gain", 2.0) == 2.0  # (still AttributeErrors)
+            # (still AttributeErrors)
+            assert not hasattr(params, "gain") and getattr(params, "gain", 2.0) == 2.0
             return {"value": 3.0 * params.gain}
-        """))
+        """)
+    )
     f = tmp_path / "p.yaml"
     f.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  g: {{type: mine.gain}}\n")
     code = main(["run", str(f), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "out")])
@@ -349,8 +471,8 @@ def test_a_plugin_node_without_params_that_reads_one_is_told_to_declare_them(tmp
 
 
 def test_a_control_character_in_a_text_param_is_refused_by_validate(capsys):
-    """(a report title with an escape sequence reached the terminal raw, through matplotlib's warning
-    that the figure's font has no glyph for it)"""
+    """(a report title with an escape sequence reached the terminal raw, through matplotlib's
+    warning that the figure's font has no glyph for it)"""
     code, msg = _validate("--set", 'report.title="T\\e[31mRED"', capsys=capsys)
     assert code == 2 and "node 'report'" in msg and "title holds a control character" in msg, msg
     assert "\x1b" not in msg

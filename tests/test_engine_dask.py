@@ -44,7 +44,10 @@ def test_a_node_failing_on_a_worker_fails_that_item_as_in_serial(tmp_path, dask_
     serial = run(p, tmp_path, "o1", use_cache=False)
     r = run(p, tmp_path, "o2", use_cache=False, executor=dask_local)
     assert r.status == serial.status and r.status["src"] == "partial"
-    assert r.reports["src"].error == serial.reports["src"].error and "m003 is broken" in r.reports["src"].error
+    assert (
+        r.reports["src"].error == serial.reports["src"].error
+        and "m003 is broken" in r.reports["src"].error
+    )
     assert set(r.item_errors) == {("src", "m003")}
     assert r.outputs("total", "total") == serial.outputs("total", "total")
 
@@ -108,14 +111,16 @@ def _trim_threshold():
     return os.environ.get("MALLOC_TRIM_THRESHOLD_")
 
 
-_TRIM_BEFORE = _trim_threshold()  # (a Nanny writes its workers' settings into this process's environment too)
+# (a Nanny writes its workers' settings into this process's environment too)
+_TRIM_BEFORE = _trim_threshold()
 
 
 @pytest.mark.slow
 def test_local_workers_keep_the_allocators_adaptive_threshold(dask_local):
     """Dask's default MALLOC_TRIM_THRESHOLD_ made every image a fresh mmap (8 s of kernel time per
     worker on locate.yaml): our local workers start without it, unless the environment sets it."""
-    dask_local.client.wait_for_workers(2, timeout=60)  # (one may still restart after the kill tests)
+    # (one may still restart after the kill tests)
+    dask_local.client.wait_for_workers(2, timeout=60)
     seen = dask_local.client.run(_trim_threshold)
     assert len(seen) == 2
     assert set(seen.values()) == {_TRIM_BEFORE}

@@ -26,7 +26,8 @@ class NoiseParams(Params):
 @node("disk.noise", outputs={"images": Out("Image", collection=True)}, params=NoiseParams)
 def noise(params):
     rng = np.random.default_rng(0)
-    return {"images": {f"i{k}": rng.integers(0, 256, (60, 80, 3), dtype=np.uint8) for k in range(params.n)}}
+    return {"images": {f"i{k}": rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+                       for k in range(params.n)}}
 
 @node("disk.flip", inputs={"image": In("Image")}, outputs={"flipped": Out("Image")})
 def flip(params, image):
@@ -35,7 +36,8 @@ def flip(params, image):
 class MeanParams(Params):
     scale: float = Field(1.0, description="Multiplier (unitless).")
 
-@node("disk.mean", inputs={"image": In("Image")}, outputs={"mean": Out("Number")}, params=MeanParams)
+@node("disk.mean", inputs={"image": In("Image")}, outputs={"mean": Out("Number")},
+      params=MeanParams)
 def mean(params, image):
     return {"mean": params.scale * float(image[:10].mean())}
 
@@ -45,13 +47,19 @@ def total(params, values):
 """
 
 
-def pipeline(folder: Path, name: str = "p", scale: float = 1.0, shown: str = "",
-             plugin_dir: Path | None = None) -> Path:
+def pipeline(
+    folder: Path,
+    name: str = "p",
+    scale: float = 1.0,
+    shown: str = "",
+    plugin_dir: Path | None = None,
+) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     plugin = (plugin_dir or folder.parent) / "diskplug.py"
     plugin.write_text(PLUGIN)
     p = folder / f"{name}.yaml"
-    p.write_text(textwrap.dedent(f"""\
+    p.write_text(
+        textwrap.dedent(f"""\
         name: {name}
         plugins: [{plugin}]
         nodes:
@@ -59,7 +67,8 @@ def pipeline(folder: Path, name: str = "p", scale: float = 1.0, shown: str = "",
           flip: {{type: disk.flip, inputs: {{image: src.images}}}}
           mean: {{type: disk.mean, params: {{scale: {scale}}}, inputs: {{image: flip.flipped}}}}
           total: {{type: disk.sum, inputs: {{values: mean.mean}}}}
-        {shown}"""))
+        {shown}""")
+    )
     return p
 
 
@@ -102,7 +111,8 @@ def test_images_are_stored_once_as_png_and_linked_into_the_run_folder(tmp_path):
     assert len(pngs) >= 3 and not list((tmp_path / "c" / "objects").rglob("arrays.npz"))
     first = json.loads(next((tmp_path / "c" / "objects").rglob("manifest.json")).read_text())
     assert first["format"] == cache_mod.FORMAT
-    # a saved image output lands in the run folder as the entry's own file (one inode, no rendered/ copy)
+    # a saved image output lands in the run folder as the entry's own file (one inode, no rendered/
+    # copy)
     store = ArtifactStore(tmp_path / "c")
     img = np.random.default_rng(1).integers(0, 256, (40, 50), dtype=np.uint8)
     store.save("k" * 32, {"picture": img})
@@ -114,8 +124,11 @@ def test_images_are_stored_once_as_png_and_linked_into_the_run_folder(tmp_path):
 def test_toy_saved_images_share_their_inode_with_the_cache(tmp_path):
     toy = Path(__file__).parent / "plugins" / "toy.py"
     p = tmp_path / "t.yaml"
-    p.write_text(f"name: t\nplugins: [{toy}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 2, size: 20}}}}\n"
-                 "  picture: {type: toy.picture, inputs: {m: numbers.items}}\n")
+    p.write_text(
+        f"name: t\nplugins: [{toy}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: "
+        "2, size: 20}}\n"
+        "  picture: {type: toy.picture, inputs: {m: numbers.items}}\n"
+    )
     assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o").ok
     out = sorted((tmp_path / "o" / "picture" / "picture").glob("*.png"))
     cached = {f.stat().st_ino for f in (tmp_path / "c" / "objects").rglob("*.png")}
@@ -151,10 +164,13 @@ def test_a_rerun_with_nothing_changed_loads_nothing(tmp_path, monkeypatch):
     assert run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1").ok
     loaded = []
     real_load = ArtifactStore.load
-    monkeypatch.setattr(ArtifactStore, "load", lambda self, key: loaded.append(key) or real_load(self, key))
+    monkeypatch.setattr(
+        ArtifactStore, "load", lambda self, key: loaded.append(key) or real_load(self, key)
+    )
     r = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o2")
     assert r.ok and set(r.status.values()) == {"cached"}
-    assert loaded == []  # items from the manifests' indexes, the terminal JSON from its rendered copy
+    # items from the manifests' indexes, the terminal JSON from its rendered copy
+    assert loaded == []
     assert (tmp_path / "o2" / "total" / "total.json").exists()
     assert r.outputs("total", "total") is not None and len(loaded) == 1  # asked for: loaded then
 
@@ -165,7 +181,8 @@ def test_the_cache_stays_within_its_budget(tmp_path, monkeypatch):
     r = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o1")
     assert r.ok and any("budget" in n for n in r.notes)
     assert ArtifactStore(tmp_path / "c").info()["bytes"] <= 30_000
-    r2 = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o2")  # pruned: computed again
+    # pruned: computed again
+    r2 = run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o2")
     assert r2.ok and r2.outputs("total", "total") == r.outputs("total", "total")
     monkeypatch.setenv("STEREOGRAPH_CACHE_BUDGET_GB", "lots")
     with pytest.raises(ConfigError, match="STEREOGRAPH_CACHE_BUDGET_GB"):
@@ -181,19 +198,32 @@ def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, 
     index = registry._index_file()
     assert index.is_file() and str(tmp_path) in str(index)
     # the index is what is read while sys.path's folders are unchanged ...
-    index.write_text(json.dumps([{"fingerprint": registry._fingerprint(),
-                                  "groups": {registry.GROUP: {"only.this": "x:y"}}}]))
+    index.write_text(
+        json.dumps(
+            [
+                {
+                    "fingerprint": registry._fingerprint(),
+                    "groups": {registry.GROUP: {"only.this": "x:y"}},
+                }
+            ]
+        )
+    )
     registry._all_groups.cache_clear()
     assert registry.names() == ["only.this"] or "only.this" in registry.names()
     # ... and a changed folder (a package installed) makes it scan again
-    index.write_text(json.dumps([{"fingerprint": [["/nowhere", 1]], "groups": {registry.GROUP: {"only.this": "x:y"}}}]))
+    index.write_text(
+        json.dumps(
+            [{"fingerprint": [["/nowhere", 1]], "groups": {registry.GROUP: {"only.this": "x:y"}}}]
+        )
+    )
     registry._all_groups.cache_clear()
     assert "only.this" not in registry.names() and "rectifier.remap" in registry.names()
     registry._all_groups.cache_clear()
 
 
 def _left_by_a_killed_run(store: ArtifactStore, age_s: float, size: int = 50_000) -> Path:
-    """A tmp/ folder as a run killed while writing an entry leaves it, last touched ``age_s`` ago."""
+    """A tmp/ folder as a run killed while writing an entry leaves it, last touched ``age_s``
+    ago."""
     import os
     import time
     import uuid
@@ -224,13 +254,19 @@ def test_what_killed_runs_left_in_tmp_is_reported_and_pruned(tmp_path, monkeypat
     assert "1 unfinished entries killed runs left" in " ".join(capsys.readouterr().out.split())
     assert main(["cache", "prune", "--max-gb", "100", "--cache-dir", str(tmp_path / "c")]) == 0
     said = " ".join(capsys.readouterr().out.split())
-    assert "removed 0 least recently used entries (0.0 MB)" in said and "removed 0.1 MB of unfinished" in said
+    assert (
+        "removed 0 least recently used entries (0.0 MB)" in said
+        and "removed 0.1 MB of unfinished" in said
+    )
     assert not old.exists() and writing.exists() and mine.exists()
     assert store.info()["entries"] == entries
 
     # a run that stores something under a budget sweeps them too
     old = _left_by_a_killed_run(store, 2 * cache_mod.ABANDONED_AFTER_S)
     monkeypatch.setenv("STEREOGRAPH_CACHE_BUDGET_GB", "5")
-    assert run_pipeline(pipeline(tmp_path / "x", "one", scale=2.0), cache_dir=tmp_path / "c",
-                        out_dir=tmp_path / "o2").ok
+    assert run_pipeline(
+        pipeline(tmp_path / "x", "one", scale=2.0),
+        cache_dir=tmp_path / "c",
+        out_dir=tmp_path / "o2",
+    ).ok
     assert not old.exists() and writing.exists()

@@ -1,4 +1,5 @@
-"""Sources that produce their collections item by item (``items=``): caching, drops, failures, pools."""
+"""Sources that produce their collections item by item (``items=``): caching, drops, failures,
+pools."""
 
 from __future__ import annotations
 
@@ -11,14 +12,18 @@ import pytest
 from stereograph.core.executors import ProcessExecutor
 from stereograph.core.runner import run_pipeline
 
-PLUGINS = [Path(__file__).parent / "plugins" / "toy.py", Path(__file__).parent / "plugins" / "toy_items.py"]
+PLUGINS = [
+    Path(__file__).parent / "plugins" / "toy.py",
+    Path(__file__).parent / "plugins" / "toy_items.py",
+]
 
 
 def write_pipeline(tmp_path: Path, params: str = "{n: 5}") -> Path:
     f = tmp_path / "p.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: items
-        plugins: [{', '.join(str(p) for p in PLUGINS)}]
+        plugins: [{", ".join(str(p) for p in PLUGINS)}]
         nodes:
           src:
             type: toy.produce
@@ -32,7 +37,8 @@ def write_pipeline(tmp_path: Path, params: str = "{n: 5}") -> Path:
           report:
             type: toy.table
             inputs: {{m: power.m}}
-        """))
+        """)
+    )
     return f
 
 
@@ -86,9 +92,14 @@ def test_process_pool_gives_the_serial_result(tmp_path):
     ex = ProcessExecutor(2)
     try:
         pooled = run(p, tmp_path, use_cache=False, executor=ex)
-        assert pooled.ok and pooled.reports["src"].items_ran == 12 and pooled.reports["power"].items_ran == 12
+        assert (
+            pooled.ok
+            and pooled.reports["src"].items_ran == 12
+            and pooled.reports["power"].items_ran == 12
+        )
         assert pooled.outputs("total", "total") == serial  # bit for bit
-        assert not (tmp_path / "out" / ".stereograph-ahead").exists()  # items made ahead: files gone
+        # items made ahead: files gone
+        assert not (tmp_path / "out" / ".stereograph-ahead").exists()
         cached = run(p, tmp_path, executor=ex)  # workers store the entries; a rerun adopts them all
         assert cached.outputs("total", "total") == serial
         assert set(run(p, tmp_path, executor=ex).status.values()) == {"cached"}
@@ -112,7 +123,9 @@ def test_workers_inherit_what_the_source_prepares_and_use_one_library_thread(tmp
     assert r.ok and r.reports["src"].items_ran == 12
     calls = [line.split() for line in log.read_text().splitlines()]
     assert len(calls) == 12
-    assert [c for c in calls if c[1] == "1"] == [[str(os.getpid()), "1", os.environ.get("OPENCV_FOR_THREADS_NUM", "-")]]
+    assert [c for c in calls if c[1] == "1"] == [
+        [str(os.getpid()), "1", os.environ.get("OPENCV_FOR_THREADS_NUM", "-")]
+    ]
     workers = [c for c in calls if c[0] != str(os.getpid())]
     assert workers and {c[2] for c in workers} == {"1"}
 
@@ -166,9 +179,13 @@ def test_node_by_node_gives_the_streamed_result(tmp_path, monkeypatch):
     streamed = run(p, tmp_path, use_cache=False)
     monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
     plain = run(p, tmp_path, use_cache=False)
-    assert streamed.status == plain.status and streamed.outputs("total", "total") == plain.outputs("total", "total")
+    assert streamed.status == plain.status and streamed.outputs("total", "total") == plain.outputs(
+        "total", "total"
+    )
     assert streamed.outputs("report", "report") == plain.outputs("report", "report")
-    assert {n: r.items for n, r in streamed.reports.items()} == {n: r.items for n, r in plain.reports.items()}
+    assert {n: r.items for n, r in streamed.reports.items()} == {
+        n: r.items for n, r in plain.reports.items()
+    }
 
 
 def test_a_worker_process_that_dies_fails_its_items_not_the_run(tmp_path):
@@ -188,7 +205,9 @@ def test_a_worker_process_that_dies_fails_its_items_not_the_run(tmp_path):
 def _engine_pairs(tmp_path: Path, node_yaml: str, sub: str, **kw):
     f = tmp_path / f"{sub}.yaml"
     f.write_text(f"name: {sub}\nnodes:\n  src:\n{node_yaml}")
-    r = run_pipeline(f, [], out_dir=tmp_path / sub, cache_dir=tmp_path / "cache", keep={"src"}, **kw)
+    r = run_pipeline(
+        f, [], out_dir=tmp_path / sub, cache_dir=tmp_path / "cache", keep={"src"}, **kw
+    )
     return r, r.outputs("src", "pairs")
 
 
@@ -212,8 +231,18 @@ def _same(a, b) -> None:
 def test_synthetic_pairs_item_by_item_are_the_one_call_pairs(tmp_path):
     from nodes.sources.synthetic import SyntheticParams, synthetic
 
-    params = dict(image_width_px=96, image_height_px=72, focal_length_px=84, n_scenes=5, n_views=0,
-                  hard_cases=["border"], n_hard_each=1, min_distance_cm=30, max_distance_cm=60, seed=4)
+    params = dict(
+        image_width_px=96,
+        image_height_px=72,
+        focal_length_px=84,
+        n_scenes=5,
+        n_views=0,
+        hard_cases=["border"],
+        n_hard_each=1,
+        min_distance_cm=30,
+        max_distance_cm=60,
+        seed=4,
+    )
     direct = synthetic(SyntheticParams(**params))["pairs"]
     yaml = "    type: source.synthetic\n    params: " + str(params).replace("'", "") + "\n"
     r, pairs = _engine_pairs(tmp_path, yaml, "synth")
@@ -237,23 +266,29 @@ def test_files_read_item_by_item_skip_a_bad_pair(tmp_path):
         for side in ("left", "right"):
             cv2.imwrite(str(d / f"{side}_{n}.png"), np.full((24, 32, 3), ord(n), np.uint8))
     (d / "left_b.png").write_bytes(b"not a png")
-    r, pairs = _engine_pairs(tmp_path, f"    type: source.files\n    params: {{folder: {d}, train_fraction: 1}}\n",
-                             "files")
+    r, pairs = _engine_pairs(
+        tmp_path,
+        f"    type: source.files\n    params: {{folder: {d}, train_fraction: 1}}\n",
+        "files",
+    )
     assert r.ok and r.status["src"] == "ran" and list(pairs) == ["a", "c"]
     assert any("pair b skipped" in m for m in r.reports["src"].messages)
     assert int(pairs["c"]["left"][0, 0, 0]) == ord("c") and pairs["a"]["split"] == "train"
 
 
-def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(tmp_path, monkeypatch):
+def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
+    tmp_path, monkeypatch
+):
     """src -> power -> picture (saved) and power -> total (all items) -> scale (per item, reads the
     total): scale cannot run with its items' first region, so it runs in a second one, fed the
     first region's values; streamed, pooled and node-by-node runs agree."""
     import numpy as np
 
     f = tmp_path / "two.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: two
-        plugins: [{', '.join(str(p) for p in PLUGINS)}]
+        plugins: [{", ".join(str(p) for p in PLUGINS)}]
         nodes:
           src: {{type: toy.produce, params: {{n: 7, size: 6}}}}
           power: {{type: toy.power, inputs: {{m: src.items}}}}
@@ -261,7 +296,8 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
           total: {{type: toy.sum, inputs: {{values: power.norm}}}}
           scale: {{type: toy.scale, inputs: {{m: power.m, k: total.total}}}}
           report: {{type: toy.table, inputs: {{m: scale.m}}}}
-        """))
+        """)
+    )
     from stereograph.core import streaming
     from stereograph.core.config import load_pipeline
     from stereograph.core.executors import SerialExecutor
@@ -271,7 +307,10 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
     g = build_graph(load_pipeline(f))
     state = RunState(g, None, tmp_path, SerialExecutor(), set(), None)
     regions = streaming.plan_regions(g, list(g.order), state.producer)
-    assert [(r.source, r.nodes) for r in regions] == [("src", ["power", "picture"]), (None, ["scale"])]
+    assert [(r.source, r.nodes) for r in regions] == [
+        ("src", ["power", "picture"]),
+        (None, ["scale"]),
+    ]
 
     def outcome(sub, **kw):
         r = run_pipeline(f, [], out_dir=tmp_path / sub, keep={"scale"}, **kw)
@@ -294,7 +333,9 @@ def test_a_per_item_node_reading_a_sum_of_its_region_starts_a_region_of_its_own(
         assert other[2] == pics and sorted(other[1]) == sorted(scaled)
         assert all(np.array_equal(other[1][i], scaled[i]) for i in scaled)
         assert np.array_equal(other[0].outputs("picture", "picture")["m003"], img)
-        assert {n: x.items for n, x in other[0].reports.items()} == {n: x.items for n, x in streamed.reports.items()}
+        assert {n: x.items for n, x in other[0].reports.items()} == {
+            n: x.items for n, x in streamed.reports.items()
+        }
 
 
 def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
@@ -306,10 +347,11 @@ def test_chunks_cover_the_items_in_order_and_shrink_at_the_end():
         sizes = [b - a for a, b in bounds]
         assert all(0 < s <= chunk_size(n, workers) for s in sizes)
         if workers > 1 and n >= 3 * workers * chunk_size(n, workers):
-            # the workers finish together: the last tasks are a quarter chunk, the very last one item
+            # the workers finish together: the last tasks are a quarter chunk, the very last one
+            # item
             quarter = max(1, chunk_size(n, workers) // 4)
             ones = workers if quarter > 1 else 0
-            assert sizes[-2 * workers - ones:] == [quarter] * (2 * workers) + [1] * ones
+            assert sizes[-2 * workers - ones :] == [quarter] * (2 * workers) + [1] * ones
             assert sizes == sorted(sizes, reverse=True)
     assert [b - a for a, b in chunk_bounds(120, 2)] == [8] * 13 + [6] + [2] * 4 + [1] * 2
 
@@ -342,13 +384,39 @@ def test_a_workers_command_loads_numpy_with_one_blas_thread(tmp_path):
     import sys
 
     p = write_pipeline(tmp_path, "{n: 4}")
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
-                                                            "OPENCV_FOR_THREADS_NUM", "MKL_NUM_THREADS")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k
+        not in (
+            "OPENBLAS_NUM_THREADS",
+            "OMP_NUM_THREADS",
+            "OPENCV_FOR_THREADS_NUM",
+            "MKL_NUM_THREADS",
+        )
+    }
     seen = {}
     for workers in ("1", "2"):
-        out = subprocess.run([sys.executable, "-c", _FIRST_NUMPY_IMPORT, "run", str(p), "--allow-plugins",
-                              "--no-cache", "--workers", workers, "--out", str(tmp_path / f"out{workers}")],
-                             capture_output=True, text=True, env=env, cwd=tmp_path, timeout=120)
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                _FIRST_NUMPY_IMPORT,
+                "run",
+                str(p),
+                "--allow-plugins",
+                "--no-cache",
+                "--workers",
+                workers,
+                "--out",
+                str(tmp_path / f"out{workers}"),
+            ],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=tmp_path,
+            timeout=120,
+        )
         assert out.returncode == 0, out.stdout + out.stderr
         seen[workers] = out.stdout.rsplit("NumPy loaded:", 1)[1].strip()
     assert seen == {"1": "-", "2": "1"}
@@ -361,7 +429,8 @@ def test_pool_requested_reads_the_raw_command_line():
     assert pool_requested(["compare", "p.yaml", "--workers=3", "--json"])
     assert not pool_requested(["run", "p.yaml", "--workers", "1"])
     assert not pool_requested(["run", "p.yaml", "--workers", "2", "--dask", "local"])
-    assert not pool_requested(["run", "p.yaml", "--workers", "two"])  # the parser says what is wrong
+    # the parser says what is wrong
+    assert not pool_requested(["run", "p.yaml", "--workers", "two"])
     assert not pool_requested(["run", "p.yaml", "--workers"])
     assert not pool_requested(["run", "p.yaml"])
 
@@ -376,7 +445,8 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
     from stereograph.core import registry, runner
 
     p = write_pipeline(tmp_path, "{n: 6}")
-    monkeypatch.setattr(runner, "_PREPARED", set())  # (other tests' pooled runs prepared it already)
+    # (other tests' pooled runs prepared it already)
+    monkeypatch.setattr(runner, "_PREPARED", set())
     r = run(p, tmp_path, use_cache=False)  # serial (this also imports the plugin)
     prepared = registry.get("toy.table").fn.__globals__["PREPARED"]
     prepared.clear()
@@ -400,15 +470,20 @@ def test_nodes_after_a_pooled_region_prepare_while_the_process_waits(tmp_path, m
 
 
 def test_a_nodes_further_messages_are_printed_under_the_summary(tmp_path, capsys):
-    # (only the first was shown, then '(+N more in run.json)': a warning such as 'rejected 1 view(s): 03'
-    # never reached the console)
+    # (only the first was shown, then '(+N more in run.json)': a warning such as 'rejected 1
+    # view(s): 03' never reached the console)
     from stereograph.app.cli import main
 
     p = write_pipeline(tmp_path, "{n: 8, drop: [m001, m002, m003, m004, m005]}")
-    assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 0
+    assert (
+        main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 0
+    )
     out = capsys.readouterr().out
     assert "(+4 more below)" in out and "note: src: item m002 dropped (on purpose)" in out
-    assert "note: src: item m004 dropped (on purpose)" in out and "note: src: +1 more in run.json" in out
+    assert (
+        "note: src: item m004 dropped (on purpose)" in out
+        and "note: src: +1 more in run.json" in out
+    )
 
 
 def test_a_chunk_whose_items_were_all_dropped_does_not_say_the_node_had_none(tmp_path):
@@ -424,20 +499,29 @@ def test_more_than_one_failed_item_is_counted_where_the_first_is_named(tmp_path,
     from stereograph.app.cli import main
 
     p = write_pipeline(tmp_path, "{n: 6, fail: [m001, m004]}")
-    assert main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 1
+    assert (
+        main(["run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")]) == 1
+    )
     out = capsys.readouterr()
-    assert "(+1 more failed items: run.json)" in out.out and "(and 1 more items: failed_items in run.json)" in out.err
+    assert (
+        "(+1 more failed items: run.json)" in out.out
+        and "(and 1 more items: failed_items in run.json)" in out.err
+    )
 
 
-def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_of_its_items(tmp_path, capsys):
-    # (its region still ran: "add: started (4 items)" then "finished (4/4 items)", for a node skipped)
+def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_of_its_items(
+    tmp_path, capsys
+):
+    # (its region still ran: "add: started (4 items)" then "finished (4/4 items)", for a node
+    # skipped)
     import json
     import textwrap
 
     from stereograph.app.cli import main
 
     plug = tmp_path / "blocked.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         from stereograph.core.api import In, NodeError, Out, node
 
         @node("blk.items", outputs={"v": Out("Number", collection=True)})
@@ -448,14 +532,18 @@ def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_
         def boom(params, v):
             raise NodeError("boom")
 
-        @node("blk.add", inputs={"v": In("Number"), "x": In("Number")}, outputs={"y": Out("Number")})
+        @node("blk.add", inputs={"v": In("Number"), "x": In("Number")},
+              outputs={"y": Out("Number")})
         def add(params, v, x):
             return {"y": v + x}
-        """))
+        """)
+    )
     p = tmp_path / "p.yaml"
-    p.write_text(f"name: p\nplugins: [{plug}]\nnodes:\n  items: {{type: blk.items}}\n"
-                 "  boom: {type: blk.boom, inputs: {v: items.v}}\n"
-                 "  add: {type: blk.add, inputs: {v: items.v, x: boom.x}}\n")
+    p.write_text(
+        f"name: p\nplugins: [{plug}]\nnodes:\n  items: {{type: blk.items}}\n"
+        "  boom: {type: blk.boom, inputs: {v: items.v}}\n"
+        "  add: {type: blk.add, inputs: {v: items.v, x: boom.x}}\n"
+    )
     capsys.readouterr()
     assert main(["run", str(p), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "o")]) == 1
     out = capsys.readouterr().out
@@ -466,9 +554,9 @@ def test_a_per_item_node_after_a_failed_node_is_skipped_without_a_progress_line_
 
 
 def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
-    """(after a run where an item failed and one was dropped, explain said every node downstream would
-    run -- 'upstream src will run' -- while the next run tried the two items again, they failed again,
-    and everything downstream came from the cache)"""
+    """(after a run where an item failed and one was dropped, explain said every node downstream
+    would run -- 'upstream src will run' -- while the next run tried the two items again, they
+    failed again, and everything downstream came from the cache)"""
     from stereograph.app.explain import explain
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
@@ -478,45 +566,60 @@ def test_explain_after_failed_items_predicts_the_next_run(tmp_path):
     for _ in range(2):
         verdicts = {v.node: v for v in explain(build_graph(load_pipeline(p)), tmp_path / "cache")}
         actual = run(p, tmp_path).status
-        assert {n: v.fresh for n, v in verdicts.items()} == {n: s == "cached" for n, s in actual.items()}, actual
-        assert "m003 failed; m001 dropped" in verdicts["src"].reasons[0] and "tried again" in verdicts["src"].reasons[0]
+        assert {n: v.fresh for n, v in verdicts.items()} == {
+            n: s == "cached" for n, s in actual.items()
+        }, actual
+        assert (
+            "m003 failed; m001 dropped" in verdicts["src"].reasons[0]
+            and "tried again" in verdicts["src"].reasons[0]
+        )
         assert "unless" in verdicts["total"].reasons[0]
 
 
 SCALE_NODE = '''
 from stereograph.core.api import In, Out, Params, node
 
-@node("mine.scale", inputs={"m": In("Matrix"), "report": In("Report")}, outputs={"norm": Out("Number")})
+@node("mine.scale", inputs={"m": In("Matrix"), "report": In("Report")},
+      outputs={"norm": Out("Number")})
 def scale(params: Params, m, report):
     """A per-item node that also reads a gathering node's result (the item count)."""
     return {"norm": float(abs(m).sum()) * report["n"]}
 '''
 
 
-@pytest.mark.parametrize("strategy", ["node by node", "streamed", "workers",
-                                      pytest.param("dask", marks=pytest.mark.slow)])
-def test_a_gathering_node_wired_to_a_streamed_source_sees_every_item(tmp_path, monkeypatch, strategy):
-    """(issue 27: a gathering node wired straight to a streamed source's output -- segmenter.appearance on
-    bench-fit's balls.pairs -- got no items: 'none of the 0 pairs is a train placement'. It ran between the
-    source's whole part and the region that makes the items.)"""
+@pytest.mark.parametrize(
+    "strategy",
+    ["node by node", "streamed", "workers", pytest.param("dask", marks=pytest.mark.slow)],
+)
+def test_a_gathering_node_wired_to_a_streamed_source_sees_every_item(
+    tmp_path, monkeypatch, strategy
+):
+    """(issue 27: a gathering node wired straight to a streamed source's output --
+    segmenter.appearance on bench-fit's balls.pairs -- got no items: 'none of the 0 pairs is a train
+    placement'. It ran between the source's whole part and the region that makes the items.)"""
     from stereograph.core.executors import DaskExecutor
 
     (tmp_path / "mine.py").write_text(SCALE_NODE)
     p = tmp_path / "p.yaml"
-    p.write_text(textwrap.dedent(f"""\
+    p.write_text(
+        textwrap.dedent(f"""\
         name: gather
-        plugins: [{', '.join(str(x) for x in PLUGINS)}, mine.py]
+        plugins: [{", ".join(str(x) for x in PLUGINS)}, mine.py]
         nodes:
           src: {{type: toy.produce, params: {{n: 5}}}}
           direct: {{type: toy.table, inputs: {{m: src.items}}}}
           scaled: {{type: mine.scale, inputs: {{m: src.items, report: direct.report}}}}
           total: {{type: toy.sum, inputs: {{values: scaled.norm}}}}
-        """))
+        """)
+    )
     if strategy == "node by node":
         monkeypatch.setenv("STEREOGRAPH_STREAM", "0")
-    executor = {"workers": lambda: ProcessExecutor(2), "dask": lambda: DaskExecutor(None, 2)}.get(strategy)
+    executor = {"workers": lambda: ProcessExecutor(2), "dask": lambda: DaskExecutor(None, 2)}.get(
+        strategy
+    )
     import numpy as np
 
     res = run(p, tmp_path, executor=executor() if executor else None, use_cache=False)
     every = sum(float(abs(np.random.default_rng(i).normal(size=(8, 8))).sum()) for i in range(5))
-    assert res.ok and res.outputs("total", "total") == pytest.approx(5 * every)  # (0.0: the table saw 0 items)
+    # (0.0: the table saw 0 items)
+    assert res.ok and res.outputs("total", "total") == pytest.approx(5 * every)

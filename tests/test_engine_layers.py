@@ -1,6 +1,6 @@
-"""The engine's two layers (issue 27): ``stereograph.core`` never imports ``stereograph.app``, and no
-module of ``stereograph/`` imports itself back through others. Every import counts, at the top of a
-module or inside a function; each check is also run on a planted violation to show it can fail.
+"""The engine's two layers (issue 27): ``stereograph.core`` never imports ``stereograph.app``, and
+no module of ``stereograph/`` imports itself back through others. Every import counts, at the top of
+a module or inside a function; each check is also run on a planted violation to show it can fail.
 """
 
 from __future__ import annotations
@@ -54,8 +54,11 @@ def import_graph(root: Path) -> nx.DiGraph:
 
 def layer_violations(root: Path) -> list[str]:
     g = import_graph(root)
-    return sorted(f"{a} imports {b}" for a, b in g.edges
-                  if a.startswith("stereograph.core") and not b.startswith("stereograph.core"))
+    return sorted(
+        f"{a} imports {b}"
+        for a, b in g.edges
+        if a.startswith("stereograph.core") and not b.startswith("stereograph.core")
+    )
 
 
 def circles(root: Path) -> list[list[str]]:
@@ -73,19 +76,21 @@ def test_no_module_imports_itself_back():
 def test_the_checks_fail_on_a_planted_violation(tmp_path):
     copy = tmp_path / "stereograph"
     shutil.copytree(ROOT / "stereograph", copy, ignore=shutil.ignore_patterns("__pycache__"))
-    with open(copy / "core" / "cache.py", "a") as f:  # inside a function, where a reader would not look
+    # inside a function, where a reader would not look
+    with open(copy / "core" / "cache.py", "a") as f:
         f.write("\n\ndef _planted():\n    from stereograph.app import rerun\n\n    return rerun\n")
     assert layer_violations(copy) == ["stereograph.core.cache imports stereograph.app.rerun"]
     assert any({"stereograph.app.rerun", "stereograph.core.cache"} <= set(c) for c in circles(copy))
 
 
 def test_the_reading_map_names_every_core_module_in_order():
-    """The package docstring and the README's engine section list every ``core/`` module, in one order."""
+    """The package docstring and the README's engine section list every ``core/`` module, in one
+    order."""
     core = {p.stem for p in (ROOT / "stereograph" / "core").glob("*.py") if p.stem != "__init__"}
     doc = (ROOT / "stereograph" / "__init__.py").read_text().split('"""')[1]
     in_doc = re.findall(r"stereograph\.core\.([a-z_]+)", doc)
     readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## The engine in brief"):]
+    section = readme[readme.index("## The engine in brief") :]
     section = section[: section.index("\n## ", 4)]
     in_readme = re.findall(r"stereograph/core/([a-z_]+)\.py", section)
     assert set(in_doc) == core, sorted(core ^ set(in_doc))
@@ -97,14 +102,19 @@ def long_functions(root: Path, limit: int = 60) -> list[str]:
     found = []
     for path in sorted(root.rglob("*.py")):
         for n in ast.walk(ast.parse(path.read_text())):
-            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) and n.end_lineno - n.lineno + 1 > limit:
-                found.append(f"{path.name}:{n.lineno} {n.name} ({n.end_lineno - n.lineno + 1} lines)")
+            if (
+                isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))
+                and n.end_lineno - n.lineno + 1 > limit
+            ):
+                found.append(
+                    f"{path.name}:{n.lineno} {n.name} ({n.end_lineno - n.lineno + 1} lines)"
+                )
     return found
 
 
 def test_every_core_function_fits_on_a_screen(tmp_path):
-    """(issue 27) No function in core/ over 60 lines, and none over complexity 15 (ruff's C901, set for
-    core/ in pyproject.toml); both checks shown failing on a planted function."""
+    """(issue 27) No function in core/ over 60 lines, and none over complexity 15 (ruff's C901, set
+    for core/ in pyproject.toml); both checks shown failing on a planted function."""
     import subprocess
     import sys
 
@@ -116,18 +126,25 @@ def test_every_core_function_fits_on_a_screen(tmp_path):
     assert long_functions(planted) == ["big.py:1 big (82 lines)"]
     import tomllib
 
-    limit = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["ruff"]["lint"]["mccabe"]["max-complexity"]
+    limit = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["ruff"]["lint"]["mccabe"][
+        "max-complexity"
+    ]
     assert limit == 15
     ruff = [sys.executable, "-m", "ruff", "check", "--quiet", "--select", "C901"]
-    done = subprocess.run([*ruff, "stereograph/core"], cwd=ROOT, capture_output=True, text=True)  # project config
+    # project config
+    done = subprocess.run([*ruff, "stereograph/core"], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stdout
-    done = subprocess.run([*ruff, "--isolated", "--config", f"lint.mccabe.max-complexity={limit}", str(planted)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [*ruff, "--isolated", "--config", f"lint.mccabe.max-complexity={limit}", str(planted)],
+        capture_output=True,
+        text=True,
+    )
     assert done.returncode == 1 and "too complex (41 > 15)" in done.stdout, done.stdout
 
 
 def long_docstrings(root: Path, limit: int = 10) -> list[str]:
-    """Modules of ``root`` whose docstring is longer than ``limit`` lines (the package's reading map aside)."""
+    """Modules of ``root`` whose docstring is longer than ``limit`` lines (the package's reading map
+    aside)."""
     found = []
     for path in sorted(root.rglob("*.py")):
         if path == root / "__init__.py":
@@ -139,7 +156,8 @@ def long_docstrings(root: Path, limit: int = 10) -> list[str]:
 
 
 def test_every_engine_module_docstring_scans(tmp_path):
-    """Purpose, invariants, public names in at most ten lines; the long stories live in docs/engine.md."""
+    """Purpose, invariants, public names in at most ten lines; the long stories live in
+    docs/engine.md."""
     assert long_docstrings(ROOT / "stereograph") == []
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "told.py").write_text('"""' + "a line\n" * 11 + '"""\n')

@@ -68,11 +68,29 @@ def test_rich_progress_takes_the_node_count_and_back():
 @pytest.mark.slow
 def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     """`stereograph run pipelines/locate.yaml > log.txt`: lines arrive before the run ends."""
-    cmd = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "rig",
-           "--set", "rig.n_scenes=12", "--set", "rig.n_views=2", "--no-cache", "--progress-interval", "0.2",
-           "--out", str(tmp_path / "out")]
-    env = {**os.environ, "TERM": "xterm-256color"}  # a terminal type, yet stdout is a pipe: still plain lines
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env)
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(ROOT / "pipelines" / "locate.yaml"),
+        "--only",
+        "rig",
+        "--set",
+        "rig.n_scenes=12",
+        "--set",
+        "rig.n_views=2",
+        "--no-cache",
+        "--progress-interval",
+        "0.2",
+        "--out",
+        str(tmp_path / "out"),
+    ]
+    # a terminal type, yet stdout is a pipe: still plain lines
+    env = {**os.environ, "TERM": "xterm-256color"}
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env
+    )
     first_progress_while_running = None
     lines = []
     for line in proc.stdout:
@@ -84,10 +102,16 @@ def test_a_piped_run_prints_progress_lines_while_it_runs(tmp_path):
     assert proc.returncode == 0, err
     text = "\n".join(lines)
     assert "rig: started" in text and "rig: finished" in text, text
-    # the pairs are rendered one per call (items=): 12 items, counted as 12 (the whole part, the views,
-    # was counted as a 13th: "scenes: started (14 items)" where the table said 13)
-    assert any(ln.startswith("rig ") and ("/12 scenes" in ln or "/12 items" in ln) for ln in lines), text
-    assert "rig: started (12 items)" in text and "rig: finished (12/12 items" in text and "/13 items" not in text
+    # the pairs are rendered one per call (items=): 12 items, counted as 12 (the whole part, the
+    # views, was counted as a 13th: "scenes: started (14 items)" where the table said 13)
+    assert any(
+        ln.startswith("rig ") and ("/12 scenes" in ln or "/12 items" in ln) for ln in lines
+    ), text
+    assert (
+        "rig: started (12 items)" in text
+        and "rig: finished (12/12 items" in text
+        and "/13 items" not in text
+    )
     assert first_progress_while_running, "progress lines came only after the run had ended"
     assert "\x1b" not in text + err
 
@@ -120,9 +144,24 @@ def test_plain_progress_ending_lines_say_failed_and_interrupted():
 
 @pytest.mark.slow
 def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
-    cmd = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate.yaml"), "--only", "calib",
-           "--set", "rig.n_scenes=2", "--set", "rig.n_views=8", "--set", "calib.max_rms_px=0.001", "--no-cache",
-           "--out", str(tmp_path / "out")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(ROOT / "pipelines" / "locate.yaml"),
+        "--only",
+        "calib",
+        "--set",
+        "rig.n_scenes=2",
+        "--set",
+        "rig.n_views=8",
+        "--set",
+        "calib.max_rms_px=0.001",
+        "--no-cache",
+        "--out",
+        str(tmp_path / "out"),
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 1, proc.stderr
     lines = proc.stdout.splitlines()
@@ -140,8 +179,11 @@ def test_clip_cuts_after_a_whole_word():
     short = _clip(text, 40)
     assert len(short) <= 40 and short.endswith("…") and text.startswith(short[:-1])
     assert text[len(short) - 1] in " ,;(", short  # cut at a word's end, not inside one
+
+
 def test_progress_interval_must_be_a_positive_number_of_seconds(capsys):
-    # (0 or a negative interval printed a progress line per millisecond: 560 000 lines for a 7-pair run)
+    # (0 or a negative interval printed a progress line per millisecond: 560 000 lines for a 7-pair
+    # run)
     from stereograph.app.cli import main
 
     pipeline = str(Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml")

@@ -1,4 +1,5 @@
-"""`stereograph run --repeat`: only the live part reruns, failed cycles are logged, interrupts end it cleanly."""
+"""`stereograph run --repeat`: only the live part reruns, failed cycles are logged, interrupts end
+it cleanly."""
 
 from __future__ import annotations
 
@@ -24,7 +25,8 @@ TOY = Path(__file__).parent / "plugins" / "live_toy.py"
 
 def pipeline(tmp_path: Path, tick: str = "{}", check: str = "{}") -> Path:
     f = tmp_path / "live.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: live
         plugins: [{TOY}]
         nodes:
@@ -36,7 +38,8 @@ def pipeline(tmp_path: Path, tick: str = "{}", check: str = "{}") -> Path:
             type: toy.check
             params: {check}
             inputs: {{tick: tick.tick, offset: const.value}}
-        """))
+        """)
+    )
     return f
 
 
@@ -70,7 +73,8 @@ def test_a_failed_cycle_is_logged_and_the_loop_goes_on(tmp_path):
     log = cycles(tmp_path / "out")
     assert [c["status"] for c in log] == ["ok", "failed", "ok", "failed", "ok"]
     assert log[1]["failed_node"] == "check" and log[1]["error"] == "tick 2 refused"
-    assert log[1]["hint"] == "none needed"  # the fix is kept with the reason (it was lost in a loop)
+    # the fix is kept with the reason (it was lost in a loop)
+    assert log[1]["hint"] == "none needed"
     assert "check.result" not in log[1]["values"]  # nothing from the failed node
 
 
@@ -81,7 +85,10 @@ def test_the_loop_stops_when_its_source_ends(tmp_path, capsys):
     log = cycles(tmp_path / "out")
     assert [c["status"] for c in log] == ["ok", "ok", "ok", "failed"]
     out = capsys.readouterr()
-    assert "stopped: 'tick' gave no new input" in out.out and "the ticker ended after 3 ticks" in out.err
+    assert (
+        "stopped: 'tick' gave no new input" in out.out
+        and "the ticker ended after 3 ticks" in out.err
+    )
 
 
 def test_repeat_needs_a_live_node(tmp_path, capsys):
@@ -96,18 +103,27 @@ def test_sigterm_ends_the_loop_like_ctrl_c(tmp_path):
     marker = tmp_path / "closed.txt"
     f = pipeline(tmp_path, tick=f"{{sleep_s: 0.2, marker: {marker}}}")
     out = tmp_path / "out"
-    proc = subprocess.Popen([sys.executable, "-m", "stereograph", "run", str(f), "--repeat", "0", "--out",
-                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stereograph", "run", str(f), "--repeat", "0", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])},
+    )
     deadline = time.time() + 60
-    while time.time() < deadline and not ((out / "cycles.jsonl").exists() and len(cycles(out)) >= 2):
+    while time.time() < deadline and not (
+        (out / "cycles.jsonl").exists() and len(cycles(out)) >= 2
+    ):
         time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)
     stdout, _ = proc.communicate(timeout=60)
     assert proc.returncode == 130
     # The signal lands in a node (usually: the ticker sleeps) or between two cycles; either way
     # the loop ends cleanly and run.json counts exactly the cycles logged.
-    assert "stopped by an interrupt during cycle" in stdout or "stopped by an interrupt between cycles" in stdout
+    assert (
+        "stopped by an interrupt during cycle" in stdout
+        or "stopped by an interrupt between cycles" in stdout
+    )
     run_json = json.loads((out / "run.json").read_text())
     assert run_json["loop"]["interrupted"] and run_json["loop"]["cycles"] >= 2
     assert run_json["loop"]["cycles"] == len(cycles(out))
@@ -129,7 +145,10 @@ def test_an_interrupt_between_cycles_ends_the_loop_after_the_last_logged_one(tmp
 
 def test_stop_on_failure_stops_at_the_first_failed_cycle(tmp_path, capsys):
     f = pipeline(tmp_path, check="{fail_on_multiple_of: 2}")
-    assert main(["run", str(f), "--repeat", "5", "--stop-on-failure", "--out", str(tmp_path / "out")]) == 1
+    assert (
+        main(["run", str(f), "--repeat", "5", "--stop-on-failure", "--out", str(tmp_path / "out")])
+        == 1
+    )
     assert [c["status"] for c in cycles(tmp_path / "out")] == ["ok", "failed"]
     assert "stopped at the first failed cycle (2)" in capsys.readouterr().out
 
@@ -153,8 +172,11 @@ def test_a_lasting_failure_ends_the_loop_instead_of_failing_every_cycle(tmp_path
 def test_a_failure_outside_the_live_part_makes_cycle_1_failed_not_ok(tmp_path, capsys):
     # (a refused calibration file left every live node skipped, and the cycle was logged "ok")
     f = pipeline(tmp_path)
-    f.write_text(f.read_text().replace("const: {type: toy.constant}",
-                                       "const: {type: toy.constant, params: {fail: true}}"))
+    f.write_text(
+        f.read_text().replace(
+            "const: {type: toy.constant}", "const: {type: toy.constant, params: {fail: true}}"
+        )
+    )
     code = main(["run", str(f), "--repeat", "3", "--out", str(tmp_path / "out")])
     assert code == 1
     log = cycles(tmp_path / "out")
@@ -163,51 +185,73 @@ def test_a_failure_outside_the_live_part_makes_cycle_1_failed_not_ok(tmp_path, c
 
 
 def test_a_warning_given_in_a_cycle_is_logged_and_printed_with_that_cycle(tmp_path, capsys):
-    # (a live node's warning -- 'the left recording ended ... while the other goes on' -- was dropped
-    # with the cycle's report when the next cycle began: in neither cycles.jsonl nor the terminal)
+    # (a live node's warning -- 'the left recording ended ... while the other goes on' -- was
+    # dropped with the cycle's report when the next cycle began: in neither cycles.jsonl nor the
+    # terminal)
     f = pipeline(tmp_path, tick="{warn_on: 2}")
     assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out")]) == 0
     log = cycles(tmp_path / "out")
-    assert [c["nodes"]["tick"]["messages"] for c in log] == [[], ["tick 2 came from a rewound source"], [], []]
+    assert [c["nodes"]["tick"]["messages"] for c in log] == [
+        [],
+        ["tick 2 came from a rewound source"],
+        [],
+        [],
+    ]
     out = capsys.readouterr().out
     assert "cycle 2: ok" in out and "note: tick: tick 2 came from a rewound source" in out
-    assert out.index("note: tick: tick 2") < out.index("cycle 3: ok")  # with its cycle, not at the end
+    # with its cycle, not at the end
+    assert out.index("note: tick: tick 2") < out.index("cycle 3: ok")
 
 
 def test_an_interrupted_cycle_says_what_the_interrupted_node_did(tmp_path, capsys):
-    # (an actuator holds the arm on Ctrl-C and notes it on the interrupt; the cycle's record said only
-    # 'interrupted' with error null, so cycles.jsonl could not tell whether the arm was held or left moving)
+    # (an actuator holds the arm on Ctrl-C and notes it on the interrupt; the cycle's record said
+    # only 'interrupted' with error null, so cycles.jsonl could not tell whether the arm was held or
+    # left moving)
     f = pipeline(tmp_path, tick="{interrupt_on: 2}")
     assert main(["run", str(f), "--repeat", "0", "--out", str(tmp_path / "out")]) == 130
     log = cycles(tmp_path / "out")
     assert [c["status"] for c in log] == ["ok", "interrupted"]
-    assert log[1]["failed_node"] == "tick" and log[1]["error"] == "ticker: Ctrl-C during tick 2: held still"
+    assert (
+        log[1]["failed_node"] == "tick"
+        and log[1]["error"] == "ticker: Ctrl-C during tick 2: held still"
+    )
     assert "cycle 2: interrupted in" in (out := capsys.readouterr().out)
     assert "(during tick): ticker: Ctrl-C during tick 2: held still" in out
 
 
 def test_a_cycles_images_are_not_logged_as_values_whatever_their_size(tmp_path):
-    # (a segmenter's overlay turned off is a 1x1 placeholder: cycles.jsonl logged it as [[[0, 0, 0]]])
+    # (a segmenter's overlay turned off is a 1x1 placeholder: cycles.jsonl logged it as [[[0, 0,
+    # 0]]])
     plug = tmp_path / "pictures.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         import numpy as np
         from stereograph.core.api import In, Out, node
 
         @node("pic.draw", inputs={"tick": In("Number")},
               outputs={"overlay": Out("Image"), "mask": Out("Image"), "count": Out("Number")})
         def draw(params, tick):
-            return {"overlay": np.zeros((1, 1, 3), np.uint8), "mask": np.zeros((4, 5), np.uint8), "count": tick}
-        """))
+            return {"overlay": np.zeros((1, 1, 3), np.uint8), "mask": np.zeros((4, 5), np.uint8),
+                    "count": tick}
+        """)
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: pics
         plugins: [{TOY}, {plug}]
         nodes:
           tick: {{type: toy.ticker}}
           draw: {{type: pic.draw, inputs: {{tick: tick.tick}}}}
-        """))
+        """)
+    )
     loop = Loop(2)
-    run_graph(build_graph(load_pipeline(f)), cycles=loop, out_dir=tmp_path / "out", cache_dir=tmp_path / "c")
+    run_graph(
+        build_graph(load_pipeline(f)),
+        cycles=loop,
+        out_dir=tmp_path / "out",
+        cache_dir=tmp_path / "c",
+    )
     for c in cycles(tmp_path / "out"):
         assert "draw.overlay" not in c["values"] and "draw.mask" not in c["values"], c["values"]
         assert isinstance(c["values"]["draw.count"], (int, float))
@@ -218,31 +262,60 @@ def test_after_cycle_1_a_cycle_is_one_line_unless_verbose(tmp_path, capsys):
     f = pipeline(tmp_path)
     assert main(["run", str(f), "--repeat", "4", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
-    after = out[out.index("cycle 1: ok"):out.index("cycle 4: ok")].splitlines()[1:]
+    after = out[out.index("cycle 1: ok") : out.index("cycle 4: ok")].splitlines()[1:]
     assert [line.split(":")[0] for line in after] == ["cycle 2", "cycle 3"], out
-    assert "tick: started" in out[:out.index("cycle 1: ok")]  # cycle 1 runs the graph: its nodes are said
+    # cycle 1 runs the graph: its nodes are said
+    assert "tick: started" in out[: out.index("cycle 1: ok")]
     assert main(["run", str(f), "--repeat", "3", "--verbose", "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
-    assert "tick: started" in out[out.index("cycle 1: ok"):out.index("cycle 3: ok")]
+    assert "tick: started" in out[out.index("cycle 1: ok") : out.index("cycle 3: ok")]
 
 
 def test_a_node_ends_the_loop_when_its_work_is_done_and_the_pipeline_bounds_it(tmp_path, capsys):
-    """`ctx.stop_loop`: the cycle finishes, the loop stops, says who and why, and the run is a success;
-    the pipeline's `repeat:` is what a plain `run` loops by."""
+    """`ctx.stop_loop`: the cycle finishes, the loop stops, says who and why, and the run is a
+    success; the pipeline's `repeat:` is what a plain `run` loops by."""
     f = pipeline(tmp_path, tick="{done_after: 3}")
     f.write_text(f.read_text().replace("nodes:", "repeat: 10\nnodes:"))
-    assert main(["run", str(f), "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert (
+        main(
+            ["run", str(f), "--out", str(tmp_path / "out"), "--cache-dir", str(tmp_path / "cache")]
+        )
+        == 0
+    )
     log = cycles(tmp_path / "out")
-    assert [c["status"] for c in log] == ["ok", "ok", "ok"] and log[-1]["values"]["check.result"] == 10
+    assert [c["status"] for c in log] == ["ok", "ok", "ok"] and log[-1]["values"][
+        "check.result"
+    ] == 10
     run_json = json.loads((tmp_path / "out" / "run.json").read_text())
-    assert run_json["loop"]["completed"] and run_json["loop"]["stopped"] == "stopped by node 'tick': counted to 3"
+    assert (
+        run_json["loop"]["completed"]
+        and run_json["loop"]["stopped"] == "stopped by node 'tick': counted to 3"
+    )
     assert "stopped by node 'tick': counted to 3" in capsys.readouterr().out
     # without the node's word, `repeat:` bounds the loop; --repeat overrides it
     f.write_text(f.read_text().replace("{done_after: 3}", "{}").replace("repeat: 10", "repeat: 2"))
-    assert main(["run", str(f), "--out", str(tmp_path / "out2"), "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert (
+        main(
+            ["run", str(f), "--out", str(tmp_path / "out2"), "--cache-dir", str(tmp_path / "cache")]
+        )
+        == 0
+    )
     assert len(cycles(tmp_path / "out2")) == 2
-    assert main(["run", str(f), "--out", str(tmp_path / "out3"), "--cache-dir", str(tmp_path / "cache"),
-                 "--repeat", "4"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(f),
+                "--out",
+                str(tmp_path / "out3"),
+                "--cache-dir",
+                str(tmp_path / "cache"),
+                "--repeat",
+                "4",
+            ]
+        )
+        == 0
+    )
     assert len(cycles(tmp_path / "out3")) == 4
 
 
@@ -253,4 +326,6 @@ def test_a_bad_repeat_in_the_pipeline_is_named_with_its_line(tmp_path):
     f.write_text(f.read_text().replace("nodes:", "repeat: -2\nnodes:"))
     with pytest.raises(ConfigError) as e:
         load_pipeline(f)
-    assert "'repeat' must be a whole number >= 0, got -2" in str(e.value) and "live.yaml:3:" in str(e.value)
+    assert "'repeat' must be a whole number >= 0, got -2" in str(e.value) and "live.yaml:3:" in str(
+        e.value
+    )

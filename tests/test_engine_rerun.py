@@ -1,5 +1,6 @@
 """Issue 13: a rerun with nothing changed is replayed from its memo (stereograph.app.rerun) without
-building the graph; any change -- pipeline, code, a pruned entry, an edited result -- means a real run."""
+building the graph; any change -- pipeline, code, a pruned entry, an edited result -- means a real
+run."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ def act(params, values, ctx=None):
     # a node that must run every time (an actuator): each call leaves a line behind
     if os.environ.get("LIVE_FAIL"):
         ctx.out_dir.mkdir(parents=True, exist_ok=True)
-        (ctx.out_dir / "failure_log.txt").write_text("servo 3: no answer")  # (as actuator.dynamixel's)
+        # (as actuator.dynamixel's)
+        (ctx.out_dir / "failure_log.txt").write_text("servo 3: no answer")
         raise NodeError("servo 3 does not answer", hint="check its cable")
     with open(os.environ["LIVE_CALLS"], "a") as f:
         f.write("call\\n")
@@ -53,15 +55,27 @@ def _project(tmp_path: Path, power: int = 2, live: bool = False) -> Path:
         nodes += f"    act: {{type: tmp.act{uid}, inputs: {{values: power.norm}}}}\n"
     p = tmp_path / "p.yaml"
     (tmp_path / "w").mkdir()
-    p.write_text(f"name: t\nplugins: [{', '.join(plugins)}]\nnodes:\n" + textwrap.indent(textwrap.dedent(nodes), "  "))
+    p.write_text(
+        f"name: t\nplugins: [{', '.join(plugins)}]\nnodes:\n"
+        + textwrap.indent(textwrap.dedent(nodes), "  ")
+    )
     return p
 
 
 def _run(p: Path, tmp_path: Path, out: str) -> int:
     # (cache and run folders one level down: the plugins' folder is on sys.path, and a new entry in
     # it would read as "installed packages changed")
-    return main(["--allow-plugins", "run", str(p), "--cache-dir", str(tmp_path / "w" / "c"), "--out",
-                 str(tmp_path / "w" / out)])
+    return main(
+        [
+            "--allow-plugins",
+            "run",
+            str(p),
+            "--cache-dir",
+            str(tmp_path / "w" / "c"),
+            "--out",
+            str(tmp_path / "w" / out),
+        ]
+    )
 
 
 def _summary(tmp_path: Path, out: str) -> dict:
@@ -69,8 +83,11 @@ def _summary(tmp_path: Path, out: str) -> dict:
 
 
 def _files(folder: Path) -> dict[str, bytes]:
-    return {str(f.relative_to(folder)): f.read_bytes() for f in folder.rglob("*")
-            if f.is_file() and f.name not in ("run.json", "report.html")}
+    return {
+        str(f.relative_to(folder)): f.read_bytes()
+        for f in folder.rglob("*")
+        if f.is_file() and f.name not in ("run.json", "report.html")
+    }
 
 
 @pytest.fixture(autouse=True)
@@ -91,19 +108,25 @@ def test_a_rerun_with_nothing_changed_is_replayed_without_the_graph(tmp_path, ca
     p = _project(tmp_path)
     assert _run(p, tmp_path, "o1") == 0
     first = capsys.readouterr().out
-    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr(
+        "stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay")
+    )
     assert _run(p, tmp_path, "o2") == 0
     again = capsys.readouterr().out
     s1, s2 = _summary(tmp_path, "o1"), _summary(tmp_path, "o2")
-    assert {n["node"]: n["status"] for n in s2["nodes"]} == dict.fromkeys(["numbers", "power", "total", "picture"],
-                                                                          "cached")
+    assert {n["node"]: n["status"] for n in s2["nodes"]} == dict.fromkeys(
+        ["numbers", "power", "total", "picture"], "cached"
+    )
     assert [n["files"] for n in s2["nodes"]] == [n["files"] for n in s1["nodes"]]
     assert s2["run_id"] != s1["run_id"] and s2["ok"]
     assert _files(tmp_path / "w" / "o2") == _files(tmp_path / "w" / "o1")
     assert (tmp_path / "w" / "o2" / "report.html").is_file()
     # the same printed results (the total), and the images are the cache's own files, not copies
     assert "total.total" in first and "total.total" in again
-    assert first.split("total.total")[1].split("run ")[0] == again.split("total.total")[1].split("run ")[0]
+    assert (
+        first.split("total.total")[1].split("run ")[0]
+        == again.split("total.total")[1].split("run ")[0]
+    )
     png = next((tmp_path / "w" / "o2" / "picture" / "picture").iterdir())
     assert png.stat().st_nlink >= 3  # cache entry, o1, o2 (and the memo): one copy on disk
 
@@ -113,7 +136,8 @@ def test_a_pipeline_edit_that_keeps_size_and_mtime_is_noticed(tmp_path, capsys, 
     assert _run(p, tmp_path, "o1") == 0
     st = p.stat()
     p.write_text(p.read_text().replace("power: 2", "power: 3"))  # same size
-    os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))               # and the old mtime back (touch -r)
+    # and the old mtime back (touch -r)
+    os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert p.stat().st_size == st.st_size and p.stat().st_mtime_ns == st.st_mtime_ns
     memo = rerun.memo_dir(tmp_path / "w" / "c", p, []) / "memo.json"
     before = json.loads(memo.read_text())["recorded_ns"]
@@ -133,7 +157,10 @@ def test_a_code_edit_in_an_imported_helper_is_noticed(tmp_path, calls, monkeypat
     helper.write_text("OFFSET = 7.0\n")  # same size, old mtime: only the ctime tells
     os.utime(helper, ns=(st.st_atime_ns, st.st_mtime_ns))
     memo = json.loads((rerun.memo_dir(tmp_path / "w" / "c", p, []) / "memo.json").read_text())
-    assert str(helper.resolve()) in memo["inputs"] and str(next(tmp_path.glob("live_*.py")).resolve()) in memo["inputs"]
+    assert (
+        str(helper.resolve()) in memo["inputs"]
+        and str(next(tmp_path.glob("live_*.py")).resolve()) in memo["inputs"]
+    )
     assert str(Path(rerun.__file__).resolve()) in memo["inputs"]  # the engine's own code too
     from stereograph.core import graph
 
@@ -141,15 +168,20 @@ def test_a_code_edit_in_an_imported_helper_is_noticed(tmp_path, calls, monkeypat
     real = graph.build_graph
     monkeypatch.setattr(graph, "build_graph", lambda doc: built.append(doc) or real(doc))
     assert _run(p, tmp_path, "o2") == 0
-    assert len(built) == 1  # a real run (in this process the old helper stays imported; a new command imports it)
+    # a real run (in this process the old helper stays imported; a new command imports it)
+    assert len(built) == 1
     assert _run(p, tmp_path, "o3") == 0
     assert len(built) == 1  # and that run left a memo the next one replays
 
 
-def test_nodes_that_must_run_run_again_and_plugins_must_be_allowed(tmp_path, calls, monkeypatch, capsys):
+def test_nodes_that_must_run_run_again_and_plugins_must_be_allowed(
+    tmp_path, calls, monkeypatch, capsys
+):
     p = _project(tmp_path, live=True)
     assert _run(p, tmp_path, "o1") == 0
-    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr(
+        "stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay")
+    )
     assert _run(p, tmp_path, "o2") == 0
     status = {n["node"]: n["status"] for n in _summary(tmp_path, "o2")["nodes"]}
     assert status["act"] == "ran" and status["power"] == "cached"
@@ -159,7 +191,16 @@ def test_nodes_that_must_run_run_again_and_plugins_must_be_allowed(tmp_path, cal
     assert "act.log" in capsys.readouterr().out  # its value shown as a real run shows it
     # without --allow-plugins the replay does not run the plugin's code: the real run refuses it
     monkeypatch.undo()
-    code = main(["run", str(p), "--cache-dir", str(tmp_path / "w" / "c"), "--out", str(tmp_path / "w" / "o3")])
+    code = main(
+        [
+            "run",
+            str(p),
+            "--cache-dir",
+            str(tmp_path / "w" / "c"),
+            "--out",
+            str(tmp_path / "w" / "o3"),
+        ]
+    )
     assert code == 2 and "--allow-plugins" in " ".join(capsys.readouterr().err.split())
     assert calls.read_text().split() == ["call", "call"]
 
@@ -176,7 +217,8 @@ def test_a_pruned_entry_or_an_edited_result_means_a_real_run(tmp_path):
     assert _run(p, tmp_path, "o2") == 0
     assert _files(tmp_path / "w" / "o2") == good  # recomputed, never the edited picture
     picture = next(n for n in _summary(tmp_path, "o2")["nodes"] if n["node"] == "picture")
-    assert "corrupt" in " ".join(picture["messages"])  # found by the real run's digest check, and recomputed
+    # found by the real run's digest check, and recomputed
+    assert "corrupt" in " ".join(picture["messages"])
     memo = json.loads((rerun.memo_dir(tmp_path / "w" / "c", p, []) / "memo.json").read_text())
     key = memo["entries"][0]
     shutil.rmtree(tmp_path / "w" / "c" / "objects" / key[:2] / key)
@@ -185,21 +227,34 @@ def test_a_pruned_entry_or_an_edited_result_means_a_real_run(tmp_path):
     assert _files(tmp_path / "w" / "o3") == good
 
 
-def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(tmp_path, calls, monkeypatch, capsys):
+def test_a_node_that_fails_on_a_replay_fails_the_run_as_a_real_run_would(
+    tmp_path, calls, monkeypatch, capsys
+):
     p = _project(tmp_path, live=True)
     assert _run(p, tmp_path, "o1") == 0
-    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr(
+        "stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay")
+    )
     monkeypatch.setenv("LIVE_FAIL", "1")
     capsys.readouterr()
     assert _run(p, tmp_path, "o2") == 1
     err = " ".join(capsys.readouterr().err.split())
-    line = p.read_text().splitlines().index("  act: {type: " + p.read_text().split("act: {type: ")[1].split(",")[0]
-                                            + ", inputs: {values: power.norm}}") + 1
+    line = (
+        p.read_text()
+        .splitlines()
+        .index(
+            "  act: {type: "
+            + p.read_text().split("act: {type: ")[1].split(",")[0]
+            + ", inputs: {values: power.norm}}"
+        )
+        + 1
+    )
     assert f"p.yaml:{line}" in err and "node 'act'" in err and "servo 3 does not answer" in err
     assert "Fix: check its cable" in err
     s = _summary(tmp_path, "o2")
     assert not s["ok"] and {n["node"]: n["status"] for n in s["nodes"]}["act"] == "failed"
-    assert calls.read_text().split() == ["call"]  # the failed call left nothing; the first run's line only
+    # the failed call left nothing; the first run's line only
+    assert calls.read_text().split() == ["call"]
     # the log it wrote into its folder is the run's: a later run into that folder removes it
     assert "act/failure_log.txt" in {n["node"]: n for n in s["nodes"]}["act"]["files"]
     monkeypatch.delenv("LIVE_FAIL")
@@ -227,7 +282,10 @@ def test_an_edit_to_a_file_a_node_reads_is_noticed(tmp_path, monkeypatch):
     data = tmp_path / "data.txt"
     data.write_text("one")
     p = tmp_path / "p.yaml"
-    p.write_text(f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader{uid}, params: {{path: data.txt}}}}\n")
+    p.write_text(
+        f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader{uid}, params: "
+        "{path: data.txt}}\n"
+    )
     (tmp_path / "w").mkdir()
     assert _run(p, tmp_path, "o1") == 0
     st = data.stat()
@@ -235,7 +293,9 @@ def test_an_edit_to_a_file_a_node_reads_is_noticed(tmp_path, monkeypatch):
     os.utime(data, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert _run(p, tmp_path, "o2") == 0
     assert (tmp_path / "w" / "o2" / "read" / "text.json").read_text().strip() == '"two"'
-    monkeypatch.setattr("stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay"))
+    monkeypatch.setattr(
+        "stereograph.core.graph.build_graph", lambda *a, **k: pytest.fail("not a replay")
+    )
     assert _run(p, tmp_path, "o3") == 0  # nothing changed since: replayed, with the new text
     assert (tmp_path / "w" / "o3" / "read" / "text.json").read_text().strip() == '"two"'
 
@@ -247,7 +307,8 @@ from stereograph.core.api import In, Out, node
 def count(params):
     return {"n": 3}
 
-@node("tmp.actUID", inputs={"n": In("Number")}, outputs={"log": Out("Report", save=True)}, cacheable=False)
+@node("tmp.actUID", inputs={"n": In("Number")}, outputs={"log": Out("Report", save=True)},
+      cacheable=False)
 def act(params, n):
     return {"log": {"moves": n}}
 """
@@ -255,25 +316,38 @@ def act(params, n):
 
 @pytest.mark.slow
 def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_path):
-    """The replay of an actuator-like node (plain-data inputs and outputs) runs it and writes its run
-    folder without NumPy: a replayed rerun costs the node's own modules, not the engine's codecs."""
+    """The replay of an actuator-like node (plain-data inputs and outputs) runs it and writes its
+    run folder without NumPy: a replayed rerun costs the node's own modules, not the engine's
+    codecs."""
     import subprocess
     import sys
 
     uid = uuid.uuid4().hex[:8]
     (tmp_path / f"plain_{uid}.py").write_text(PLAIN.replace("UID", uid))
     p = tmp_path / "p.yaml"
-    p.write_text(f"name: t\nplugins: [plain_{uid}]\nnodes:\n  count: {{type: tmp.count{uid}}}\n"
-                 f"  act: {{type: tmp.act{uid}, inputs: {{n: count.n}}}}\n")
+    p.write_text(
+        f"name: t\nplugins: [plain_{uid}]\nnodes:\n  count: {{type: tmp.count{uid}}}\n"
+        f"  act: {{type: tmp.act{uid}, inputs: {{n: count.n}}}}\n"
+    )
     (tmp_path / "w").mkdir()
-    code = ("import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from stereograph.app.cli import main; "
-            f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'w' / 'c')!r}, "
-            "'--out', sys.argv[1]]); print('NUMPY', 'numpy' in sys.modules); sys.exit(rc)")
+    code = (
+        "import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from "
+        "stereograph.app.cli import main; "
+        f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', "
+        f"{str(tmp_path / 'w' / 'c')!r}, "
+        "'--out', sys.argv[1]]); print('NUMPY', 'numpy' in sys.modules); sys.exit(rc)"
+    )
     env = dict(os.environ, STEREOGRAPH_NO_REPLAY="")
     outs = []
     for out in ("o1", "o2"):
-        r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "w" / out)], cwd=tmp_path, env=env,
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path / "w" / out)],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert r.returncode == 0, r.stdout + r.stderr
         outs.append(r.stdout)
     assert "NUMPY True" in outs[0]  # the real run: the cache's codecs

@@ -27,7 +27,8 @@ TOY = Path(__file__).parent / "plugins" / "toy.py"
 
 def write_pipeline(tmp_path: Path, power: int = 2, n: int = 6, extra: str = "") -> Path:
     f = tmp_path / "p.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: t
         plugins: [{TOY}]
         nodes:
@@ -44,12 +45,16 @@ def write_pipeline(tmp_path: Path, power: int = 2, n: int = 6, extra: str = "") 
           report:
             type: toy.table
             inputs: {{m: power.m}}
-        """) + extra)
+        """)
+        + extra
+    )
     return f
 
 
 def run(path, tmp_path, *overrides, **kw):
-    return run_pipeline(path, list(overrides), cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", **kw)
+    return run_pipeline(
+        path, list(overrides), cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", **kw
+    )
 
 
 def test_second_run_is_all_cached_and_same_result(tmp_path):
@@ -59,7 +64,9 @@ def test_second_run_is_all_cached_and_same_result(tmp_path):
     r2 = run(p, tmp_path)
     assert set(r2.status.values()) == {"cached"}
     assert r2.outputs("total", "total") == r1.outputs("total", "total")
-    assert json.loads((tmp_path / "out" / "total" / "total.json").read_text()) == r1.outputs("total", "total")
+    assert json.loads((tmp_path / "out" / "total" / "total.json").read_text()) == r1.outputs(
+        "total", "total"
+    )
 
 
 def test_param_change_reruns_exactly_that_node_and_downstream(tmp_path):
@@ -84,7 +91,8 @@ def test_source_code_change_invalidates_including_helpers(tmp_path):
     plug = tmp_path / "plug"
     plug.mkdir()
     (plug / "helper_mod.py").write_text("OFFSET = 1.0\n")
-    (plug / "mynode.py").write_text(textwrap.dedent("""\
+    (plug / "mynode.py").write_text(
+        textwrap.dedent("""\
         import sys, os
         sys.path.insert(0, os.path.dirname(__file__))
         from stereograph.core.api import node, Out
@@ -93,18 +101,22 @@ def test_source_code_change_invalidates_including_helpers(tmp_path):
         @node("tmp.const", outputs={"value": Out("Number")})
         def const(params):
             return {"value": 41.0 + helper_mod.OFFSET}
-        """))
+        """)
+    )
     f = tmp_path / "p.yaml"
     f.write_text("name: c\nplugins: [plug/mynode.py]\nnodes:\n  c: {type: tmp.const}\n")
     code = textwrap.dedent(f"""\
         import sys, json
         from stereograph.core.runner import run_pipeline
-        r = run_pipeline({str(f)!r}, cache_dir={str(tmp_path / 'cache')!r}, out_dir={str(tmp_path / 'o')!r})
+        r = run_pipeline({str(f)!r}, cache_dir={str(tmp_path / "cache")!r},
+                         out_dir={str(tmp_path / "o")!r})
         print(json.dumps([r.status['c'], r.outputs('c', 'value')]))
         """)
 
     def once():
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        )
         return json.loads(out.stdout.strip().splitlines()[-1])
 
     assert once() == ["ran", 42.0]
@@ -120,7 +132,10 @@ def test_source_code_change_invalidates_including_helpers(tmp_path):
 def test_explain_names_the_reason(tmp_path):
     p = write_pipeline(tmp_path)
     run(p, tmp_path)
-    v = {x.node: x for x in explain(build_graph(load_pipeline(p, ["power.power=5"])), tmp_path / "cache")}
+    v = {
+        x.node: x
+        for x in explain(build_graph(load_pipeline(p, ["power.power=5"])), tmp_path / "cache")
+    }
     assert v["numbers"].fresh
     assert not v["power"].fresh and "param power changed: 2 -> 5" in v["power"].reasons[0]
     assert not v["total"].fresh and "upstream 'power'" in v["total"].reasons[0]
@@ -143,15 +158,20 @@ def test_item_failure_skips_only_that_item(tmp_path):
 
 def test_failed_single_node_stops_downstream_and_cli_says_how_to_resume(tmp_path, capsys):
     plug = tmp_path / "boom.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         from stereograph.core.api import node, In, Out, NodeError
         @node("tmp.boom", inputs={"m": In("Matrix", gather=True)}, outputs={"x": Out("Number")})
         def boom(params, m):
             raise NodeError("no object found in image left07.png", hint="check the lighting")
-        """))
-    p = write_pipeline(tmp_path, extra="  boom:\n    type: tmp.boom\n    inputs: {m: power.m}\n"
-                                       "  after:\n    type: toy.sum\n    params: {scale: 3}\n"
-                                       "    inputs: {values: power.norm}\n")
+        """)
+    )
+    p = write_pipeline(
+        tmp_path,
+        extra="  boom:\n    type: tmp.boom\n    inputs: {m: power.m}\n"
+        "  after:\n    type: toy.sum\n    params: {scale: 3}\n"
+        "    inputs: {values: power.norm}\n",
+    )
     text = p.read_text().replace(f"plugins: [{TOY}]", f"plugins: [{TOY}, {plug}]")
     p.write_text(text)
     code = main(["run", str(p), "--cache-dir", str(tmp_path / "c"), "--out", str(tmp_path / "o")])
@@ -172,7 +192,11 @@ def test_only_and_from(tmp_path):
     r = run(p, tmp_path, only="power")
     assert r.ran == {"numbers", "power"} and r.status["total"] == "not selected"
     # not its upstream
-    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == ["power", "report.html", "run.json"]
+    assert sorted(x.name for x in (tmp_path / "out").iterdir()) == [
+        "power",
+        "report.html",
+        "run.json",
+    ]
     r = run(p, tmp_path, from_node="power")
     assert r.ran == {"power", "total", "report"} and r.status["numbers"] == "cached"
 
@@ -208,7 +232,9 @@ def test_kill_mid_write_leaves_no_valid_entry(tmp_path):
     proc.join(30)
     assert proc.exitcode == 9
     store = ArtifactStore(tmp_path / "cache")
-    assert list((tmp_path / "cache" / "tmp").iterdir()), "the temp entry should exist (killed mid-write)"
+    assert list((tmp_path / "cache" / "tmp").iterdir()), (
+        "the temp entry should exist (killed mid-write)"
+    )
     assert not store.has("k" * 32)
 
 
@@ -231,7 +257,8 @@ def test_corrupt_entry_is_detected_and_recomputed(tmp_path):
     assert any("corrupt" in m for m in r2.reports["power"].messages)
     assert r2.outputs("total", "total") == pytest.approx(1.0001 * r1.outputs("total", "total"))
     r3 = run(p, tmp_path, "total.scale=1.0002")
-    assert r3.status["power"] == "cached" and not r3.reports["power"].messages  # the entries were rewritten
+    # the entries were rewritten
+    assert r3.status["power"] == "cached" and not r3.reports["power"].messages
 
 
 def _concurrent_run(args):
@@ -246,7 +273,8 @@ def _concurrent_run(args):
 @pytest.mark.slow
 def test_two_runs_at_once_share_the_cache(tmp_path):
     plug = tmp_path / "slow.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         import os, time
         from stereograph.core.api import node, In, Out
         @node("tmp.slow", inputs={"m": In("Matrix")}, outputs={"x": Out("Number")})
@@ -255,16 +283,22 @@ def test_two_runs_at_once_share_the_cache(tmp_path):
                 f.write(ctx.item + "\\n")
             time.sleep(0.2)
             return {"x": float(m.sum())}
-        """))
+        """)
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: s\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 6}}}}\n"
-                 f"  slow: {{type: tmp.slow, inputs: {{m: numbers.items}}}}\n"
-                 f"  total: {{type: toy.sum, inputs: {{values: slow.x}}}}\n")
+    f.write_text(
+        f"name: s\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, "
+        "params: {n: 6}}\n"
+        f"  slow: {{type: tmp.slow, inputs: {{m: numbers.items}}}}\n"
+        f"  total: {{type: toy.sum, inputs: {{values: slow.x}}}}\n"
+    )
     log = tmp_path / "log.txt"
     ctx = mp.get_context("spawn")
     with ctx.Pool(2) as pool:
-        oks = pool.map(_concurrent_run, [(str(f), str(tmp_path / "c"), str(tmp_path / f"o{i}"), str(log))
-                                         for i in range(2)])
+        oks = pool.map(
+            _concurrent_run,
+            [(str(f), str(tmp_path / "c"), str(tmp_path / f"o{i}"), str(log)) for i in range(2)],
+        )
     assert oks == [True, True]
     computed = log.read_text().split()
     assert sorted(computed) == sorted(set(computed)) and len(computed) == 6, computed
@@ -272,17 +306,21 @@ def test_two_runs_at_once_share_the_cache(tmp_path):
 
 def test_uncacheable_node_runs_every_time(tmp_path):
     plug = tmp_path / "live.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         import itertools
         from stereograph.core.api import node, Out
         COUNTER = itertools.count()
         @node("tmp.live", outputs={"x": Out("Number")}, cacheable=False)
         def live(params):
             return {"x": float(next(COUNTER))}
-        """))
+        """)
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: l\nplugins: [{TOY}, {plug}]\nnodes:\n  live: {{type: tmp.live}}\n"
-                 f"  total: {{type: toy.sum, inputs: {{values: live.x}}}}\n")
+    f.write_text(
+        f"name: l\nplugins: [{TOY}, {plug}]\nnodes:\n  live: {{type: tmp.live}}\n"
+        f"  total: {{type: toy.sum, inputs: {{values: live.x}}}}\n"
+    )
     with pytest.raises(ConfigError, match="gathers a collection"):
         # gathering a single artifact is a config error
         build_graph(load_pipeline(f))
@@ -294,15 +332,19 @@ def test_uncacheable_node_runs_every_time(tmp_path):
 
 
 def test_include_and_defaults(tmp_path):
-    (tmp_path / "common.yaml").write_text(f"plugins: [{TOY}]\nnodes:\n"
-                                          "  numbers: {type: toy.numbers, params: {n: 3, size: 4}}\n")
+    (tmp_path / "common.yaml").write_text(
+        f"plugins: [{TOY}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 3, size: 4}}}}\n"
+    )
     f = tmp_path / "p.yaml"
-    f.write_text("name: inc\ninclude: [common.yaml]\ndefaults:\n  toy.power: {power: 3}\nnodes:\n"
-                 "  power: {type: toy.power, inputs: {m: numbers.items}}\n"
-                 "  numbers: {type: toy.numbers, params: {size: 5}}\n")
+    f.write_text(
+        "name: inc\ninclude: [common.yaml]\ndefaults:\n  toy.power: {power: 3}\nnodes:\n"
+        "  power: {type: toy.power, inputs: {m: numbers.items}}\n"
+        "  numbers: {type: toy.numbers, params: {size: 5}}\n"
+    )
     g = build_graph(load_pipeline(f))
     assert g.nodes["power"].params.power == 3
-    assert g.nodes["numbers"].params.n == 3 and g.nodes["numbers"].params.size == 5  # merged over the include
+    # merged over the include
+    assert g.nodes["numbers"].params.n == 3 and g.nodes["numbers"].params.size == 5
 
 
 def test_process_pool_gives_the_same_result(tmp_path):
@@ -335,7 +377,8 @@ def test_dask_executor_gives_the_same_result(tmp_path):
 
 def test_files_a_node_reads_are_part_of_its_key(tmp_path):
     plug = tmp_path / "reader.py"
-    plug.write_text(textwrap.dedent("""\
+    plug.write_text(
+        textwrap.dedent("""\
         from pathlib import Path
         from stereograph.core.api import node, Out, Params, Field
 
@@ -348,11 +391,15 @@ def test_files_a_node_reads_are_part_of_its_key(tmp_path):
         @node("tmp.reader", outputs={"text": Out("Text")}, params=P, reads=_reads)
         def reader(params, ctx=None):
             return {"text": ctx.path(params.path).read_text()}
-        """))
+        """)
+    )
     data = tmp_path / "data.txt"
     data.write_text("one")
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader, params: {{path: data.txt}}}}\n")
+    f.write_text(
+        f"name: r\nplugins: [{plug}]\nnodes:\n  read: {{type: tmp.reader, params: {{path: "
+        "data.txt}}\n"
+    )
     assert run(f, tmp_path).outputs("read", "text") == "one"
     assert run(f, tmp_path).status["read"] == "cached"
     os.utime(data, ns=(1, 1))  # new mtime, same content: the digest confirms nothing changed
@@ -364,12 +411,20 @@ def test_files_a_node_reads_are_part_of_its_key(tmp_path):
     assert v[0].fresh
     data.write_text("three")
     v = explain(build_graph(load_pipeline(f)), tmp_path / "cache")
-    assert not v[0].fresh and "input files changed: " in v[0].reasons[0] and "data.txt" in v[0].reasons[0]
+    assert (
+        not v[0].fresh
+        and "input files changed: " in v[0].reasons[0]
+        and "data.txt" in v[0].reasons[0]
+    )
 
 
 def test_saved_images_are_written_on_cached_runs_too(tmp_path):
-    p = write_pipeline(tmp_path, n=3, extra="  picture:\n    type: toy.picture\n    inputs: {m: numbers.items}\n"
-                                             "  mean:\n    type: toy.sum\n    inputs: {values: picture.mean}\n")
+    p = write_pipeline(
+        tmp_path,
+        n=3,
+        extra="  picture:\n    type: toy.picture\n    inputs: {m: numbers.items}\n"
+        "  mean:\n    type: toy.sum\n    inputs: {values: picture.mean}\n",
+    )
     r1 = run_pipeline(p, cache_dir=tmp_path / "cache", out_dir=tmp_path / "o1")
     r2 = run_pipeline(p, cache_dir=tmp_path / "cache", out_dir=tmp_path / "o2")
     assert r1.ok and r2.status["picture"] == "cached"
@@ -390,9 +445,16 @@ def test_explain_agrees_with_what_the_next_run_does(tmp_path):
     run(p, tmp_path, "power.power=3")
     run(p, tmp_path)  # back to power=2: the last run of every node differs from power=3 now
     for overrides in (["power.power=3"], ["power.power=4"], ["numbers.n=7"], []):
-        predicted = {v.node: v.fresh for v in explain(build_graph(load_pipeline(p, overrides)), tmp_path / "cache")}
+        predicted = {
+            v.node: v.fresh
+            for v in explain(build_graph(load_pipeline(p, overrides)), tmp_path / "cache")
+        }
         actual = run(p, tmp_path, *overrides).status
-        assert predicted == {n: s == "cached" for n, s in actual.items()}, (overrides, predicted, actual)
+        assert predicted == {n: s == "cached" for n, s in actual.items()}, (
+            overrides,
+            predicted,
+            actual,
+        )
 
 
 def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
@@ -400,7 +462,21 @@ def test_reused_out_folder_holds_only_the_new_run(tmp_path, capsys):
     out = tmp_path / "same"
     assert main(["run", str(p), "--out", str(out), "--cache-dir", str(tmp_path / "c")]) == 0
     assert (out / "report" / "report.json").exists()
-    assert main(["run", str(p), "--out", str(out), "--cache-dir", str(tmp_path / "c"), "--only", "power"]) == 0
+    assert (
+        main(
+            [
+                "run",
+                str(p),
+                "--out",
+                str(out),
+                "--cache-dir",
+                str(tmp_path / "c"),
+                "--only",
+                "power",
+            ]
+        )
+        == 0
+    )
     assert not (out / "report").exists() and (out / "run.json").exists()  # the old report is gone
     other = tmp_path / "mine"
     other.mkdir()
@@ -414,7 +490,8 @@ LOGGER = """\
 from stereograph.core.api import Field, Out, Params, node
 
 class LogParams(Params):
-    files: list[str] = Field([], description="Files the node writes into its own folder (relative paths).")
+    files: list[str] = Field(
+        [], description="Files the node writes into its own folder (relative paths).")
 
 @node("mine.logger", outputs={"value": Out("Number")}, params=LogParams, cacheable=False)
 def logger(params, ctx=None):
@@ -427,11 +504,14 @@ def logger(params, ctx=None):
 
 
 def logger_run(tmp_path: Path, files: str) -> list[str]:
-    """The command line of a pipeline whose node `act` writes ``files`` (YAML list) into its own folder."""
+    """The command line of a pipeline whose node `act` writes ``files`` (YAML list) into its own
+    folder."""
     (tmp_path / "logger.py").write_text(LOGGER)
     p = tmp_path / "p.yaml"
-    p.write_text(f"name: p\nplugins: [{tmp_path / 'logger.py'}]\nnodes:\n"
-                 f"  act: {{type: mine.logger, params: {{files: {files}}}}}\n")
+    p.write_text(
+        f"name: p\nplugins: [{tmp_path / 'logger.py'}]\nnodes:\n"
+        f"  act: {{type: mine.logger, params: {{files: {files}}}}}\n"
+    )
     return ["run", str(p), "--allow-plugins", "--no-cache", "--out", str(tmp_path / "same")]
 
 
@@ -455,16 +535,21 @@ def test_a_users_file_in_a_nodes_folder_is_not_taken_for_the_nodes(tmp_path):
     (out / "act" / "log.txt").write_text("mine, and the node will write over it")
     assert main(run + ["--set", "act.files=[log.txt]"]) == 0
     files = json.loads((out / "run.json").read_text())["nodes"][0]["files"]
-    assert "act/notes.txt" not in files and "act/log.txt" in files  # (the one it wrote over is the run's)
+    # (the one it wrote over is the run's)
+    assert "act/notes.txt" not in files and "act/log.txt" in files
     assert main(run) == 0 and main(run) == 0
-    assert (out / "act" / "notes.txt").read_text() == "mine" and not (out / "act" / "log.txt").exists()
+    assert (out / "act" / "notes.txt").read_text() == "mine" and not (
+        out / "act" / "log.txt"
+    ).exists()
 
 
 def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path, capsys):
     plug = tmp_path / "bug.py"
-    plug.write_text("from stereograph.core.api import node, Out\n"
-                    "@node('tmp.bug', outputs={'x': Out('Number')})\n"
-                    "def bug(params):\n    return {'x': 1 / 0}\n")
+    plug.write_text(
+        "from stereograph.core.api import node, Out\n"
+        "@node('tmp.bug', outputs={'x': Out('Number')})\n"
+        "def bug(params):\n    return {'x': 1 / 0}\n"
+    )
     f = tmp_path / "p.yaml"
     f.write_text(f"name: b\nplugins: [{plug}]\nnodes:\n  bug: {{type: tmp.bug}}\n")
     assert main(["run", str(f), "--out", str(tmp_path / "o")]) == 1
@@ -478,16 +563,25 @@ def test_unexpected_node_error_points_at_debug_and_keeps_the_traceback(tmp_path,
 
 def test_node_warnings_survive_a_cached_run(tmp_path):
     plug = tmp_path / "warn.py"
-    plug.write_text("from stereograph.core.api import node, In, Out\n"
-                    "@node('tmp.warn', inputs={'m': In('Matrix')}, outputs={'x': Out('Number')})\n"
-                    "def warn(params, m, ctx=None):\n    ctx.warn(f'{ctx.item}: looks odd')\n"
-                    "    return {'x': float(m.sum())}\n")
+    plug.write_text(
+        "from stereograph.core.api import node, In, Out\n"
+        "@node('tmp.warn', inputs={'m': In('Matrix')}, outputs={'x': Out('Number')})\n"
+        "def warn(params, m, ctx=None):\n    ctx.warn(f'{ctx.item}: looks odd')\n"
+        "    return {'x': float(m.sum())}\n"
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: w\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: 3}}}}\n"
-                 f"  warn: {{type: tmp.warn, inputs: {{m: numbers.items}}}}\n")
+    f.write_text(
+        f"name: w\nplugins: [{TOY}, {plug}]\nnodes:\n  numbers: {{type: toy.numbers, "
+        "params: {n: 3}}\n"
+        f"  warn: {{type: tmp.warn, inputs: {{m: numbers.items}}}}\n"
+    )
     r1, r2 = run(f, tmp_path), run(f, tmp_path)
     assert r2.status["warn"] == "cached"
-    assert r1.reports["warn"].messages == r2.reports["warn"].messages == [f"m00{i}: looks odd" for i in range(3)]
+    assert (
+        r1.reports["warn"].messages
+        == r2.reports["warn"].messages
+        == [f"m00{i}: looks odd" for i in range(3)]
+    )
 
 
 def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
@@ -503,10 +597,15 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
     assert run(p, tmp_path, "power.power=3").status["power"] == "ran"  # the older ones did not
     entries = ArtifactStore(tmp_path / "cache").info()["entries"]
     for bad in ("-1", "nan", "inf", "five"):  # (-1 emptied the cache; nan was an "internal error")
-        assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", bad]) == 2
+        assert (
+            main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", bad]) == 2
+        )
     assert ArtifactStore(tmp_path / "cache").info()["entries"] == entries
     # the pipeline after the option, as `--help` shows it (was: "unrecognized arguments")
-    assert main(["cache", "prune", "--max-gb", "100", str(p), "--cache-dir", str(tmp_path / "cache")]) == 0
+    assert (
+        main(["cache", "prune", "--max-gb", "100", str(p), "--cache-dir", str(tmp_path / "cache")])
+        == 0
+    )
     assert main(["cache", "prune", "--cache-dir", str(tmp_path / "cache"), "--max-gb", "0"]) == 0
     assert ArtifactStore(tmp_path / "cache").info()["entries"] == 0
 
@@ -514,8 +613,10 @@ def test_cache_prune_keeps_the_recently_used(tmp_path, capsys):
 def test_node_learns_which_alternative_is_wired(tmp_path):
     from stereograph.core.executors import ProcessExecutor
 
-    extra = ("  per_item:\n    type: toy.describe\n    inputs: {x: numbers.items}\n"
-             "  whole:\n    type: toy.describe\n    inputs: {x: total.total}\n")
+    extra = (
+        "  per_item:\n    type: toy.describe\n    inputs: {x: numbers.items}\n"
+        "  whole:\n    type: toy.describe\n    inputs: {x: total.total}\n"
+    )
     p = write_pipeline(tmp_path, n=3, extra=extra)
     r = run(p, tmp_path)
     assert r.ok
@@ -534,13 +635,15 @@ def test_a_per_item_node_that_made_no_item_writes_no_output_file(tmp_path):
     # a terminal per-item node whose every item failed (or that was skipped) once wrote an empty
     # `[]` JSON per output: a file that looks like a result
     f = tmp_path / "p.yaml"
-    f.write_text(textwrap.dedent(f"""\
+    f.write_text(
+        textwrap.dedent(f"""\
         name: t
         plugins: [{TOY}]
         nodes:
           numbers: {{type: toy.numbers, params: {{n: 2, size: 4}}}}
           power: {{type: toy.power, inputs: {{m: numbers.items}}}}
-        """))
+        """)
+    )
     r = run(f, tmp_path, "power.fail_on=m000", "numbers.n=1")
     assert not r.ok and r.status["power"] == "failed"
     assert not (tmp_path / "out" / "power").exists()
@@ -564,7 +667,9 @@ def test_an_interrupted_run_leaves_a_folder_the_same_command_resumes_into(tmp_pa
     capsys.readouterr()
     assert main(args) == 0
     again = json.loads((out / "run.json").read_text())
-    assert again["ok"] is True and {n["node"]: n["status"] for n in again["nodes"]}["total"] == "ran"
+    assert (
+        again["ok"] is True and {n["node"]: n["status"] for n in again["nodes"]}["total"] == "ran"
+    )
 
 
 def test_a_symbolic_link_put_into_an_earlier_runs_folder_is_not_written_through(tmp_path):
@@ -604,39 +709,61 @@ def test_a_plugin_edited_in_a_long_lived_process_runs_its_new_code(tmp_path):
 
 
 def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neighbours(tmp_path):
-    one = _plugin(tmp_path / "a", "nodes.py", """\
+    one = _plugin(
+        tmp_path / "a",
+        "nodes.py",
+        """\
         from stereograph.core.api import node, Out
         from helper_a import VALUE
         @node("tmp.from_a", outputs={"value": Out("Number", save=True)})
         def from_a(params):
             return {"value": VALUE}
-        """)
+        """,
+    )
     _plugin(tmp_path / "a", "helper_a.py", "VALUE = 3\n")
-    two = _plugin(tmp_path / "b", "nodes.py", """\
+    two = _plugin(
+        tmp_path / "b",
+        "nodes.py",
+        """\
         from stereograph.core.api import node, Out
         @node("tmp.from_b", outputs={"value": Out("Number", save=True)})
         def from_b(params):
             return {"value": 4}
-        """)
+        """,
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: ab\nplugins: [{one}, {two}]\nnodes:\n  a: {{type: tmp.from_a}}\n  b: {{type: tmp.from_b}}\n")
+    f.write_text(
+        f"name: ab\nplugins: [{one}, {two}]\nnodes:\n  a: {{type: tmp.from_a}}\n  b: "
+        "{type: tmp.from_b}\n"
+    )
     r = run(f, tmp_path)
     assert r.outputs("a", "value") == 3 and r.outputs("b", "value") == 4
 
 
 def test_a_plugin_does_not_replace_an_installed_node_type(tmp_path):
-    plug = _plugin(tmp_path, "clash.py", """\
+    plug = _plugin(
+        tmp_path,
+        "clash.py",
+        """\
         from stereograph.core.api import node, Out
         @node("segmenter.color", outputs={"segmentation": Out("Segmentation")})
         def color(params):
             return {"segmentation": {}}
-        """)
+        """,
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: c\nplugins: [{plug}]\nnodes:\n  s: {{type: source.synthetic, params: {{n_views: 0}}}}\n")
-    with pytest.raises(ConfigError, match="defines a node type 'segmenter.color', the name of an installed node"):
+    f.write_text(
+        f"name: c\nplugins: [{plug}]\nnodes:\n  s: {{type: source.synthetic, params: "
+        "{n_views: 0}}\n"
+    )
+    with pytest.raises(
+        ConfigError, match="defines a node type 'segmenter.color', the name of an installed node"
+    ):
         build_graph(load_pipeline(f))
     from stereograph.core.registry import get
-    assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"  # the built-in is still the one
+
+    # the built-in is still the one
+    assert get("segmenter.color").fn.__module__ == "nodes.segmenters.color"
 
 
 def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, Path]:
@@ -644,7 +771,10 @@ def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, 
     (marks folder, pipeline file)."""
     marks = tmp_path / "marks"
     marks.mkdir()
-    slow = _plugin(tmp_path, "slow.py", f"""\
+    slow = _plugin(
+        tmp_path,
+        "slow.py",
+        f"""\
         import time, uuid
         from pathlib import Path
         from stereograph.core.api import node, Out, In
@@ -653,10 +783,14 @@ def _slow_items_pipeline(tmp_path: Path, n: int, seconds: float) -> tuple[Path, 
             time.sleep({seconds})
             Path({str(marks)!r}, uuid.uuid4().hex).touch()
             return {{"v": 1.0}}
-        """)
+        """,
+    )
     f = tmp_path / "p.yaml"
-    f.write_text(f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, params: {{n: {n}, "
-                 "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n")
+    f.write_text(
+        f"name: s\nplugins: [{TOY}, {slow}]\nnodes:\n  numbers: {{type: toy.numbers, "
+        f"params: {{n: {n}, "
+        "size: 4}}\n  s: {type: tmp.slow, inputs: {m: numbers.items}}\n"
+    )
     return marks, f
 
 
@@ -666,10 +800,27 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
     import signal
 
     marks, f = _slow_items_pipeline(tmp_path, n=60, seconds=0.5)
-    cmd = [sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--workers", "2", "--no-cache",
-           "--out", str(tmp_path / "out")]
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(f),
+        "--allow-plugins",
+        "--workers",
+        "2",
+        "--no-cache",
+        "--out",
+        str(tmp_path / "out"),
+    ]
+    p = subprocess.Popen(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     while len(list(marks.iterdir())) < 2 and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -678,36 +829,73 @@ def test_ctrl_c_with_workers_ends_the_workers_instead_of_waiting_for_the_queue(t
     assert p.returncode == 130 and "interrupted" in err
     done = len(list(marks.iterdir()))
     time.sleep(1.5)  # no worker left behind writing more
-    assert len(list(marks.iterdir())) == done and done < 30, done  # (60 items: the queue was not run out)
+    # (60 items: the queue was not run out)
+    assert len(list(marks.iterdir())) == done and done < 30, done
 
 
 def test_json_output_stays_json_when_a_node_prints(tmp_path):
-    # (a node's print() landed above the JSON on standard output: `stereograph run --json | jq` broke)
-    printer = _plugin(tmp_path, "printer.py", """\
+    # (a node's print() landed above the JSON on standard output: `stereograph run --json | jq`
+    # broke)
+    printer = _plugin(
+        tmp_path,
+        "printer.py",
+        """\
         from stereograph.core.api import node, Out
         @node("tmp.printer", outputs={"v": Out("Number", save=True)})
         def printer(params):
             print("HELLO FROM NODE")
             return {"v": 1}
-        """)
+        """,
+    )
     f = tmp_path / "p.yaml"
     f.write_text(f"name: pr\nplugins: [{printer}]\nnodes:\n  p: {{type: tmp.printer}}\n")
-    out = subprocess.run([sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--json",
-                          "--no-cache", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and json.loads(out.stdout)["ok"] is True and "HELLO FROM NODE" in out.stderr
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "stereograph",
+            "run",
+            str(f),
+            "--allow-plugins",
+            "--json",
+            "--no-cache",
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert (
+        out.returncode == 0
+        and json.loads(out.stdout)["ok"] is True
+        and "HELLO FROM NODE" in out.stderr
+    )
 
 
 @pytest.mark.slow
 def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
-    # (SIGTERM -- `kill`, a CI job's timeout -- killed a single run on the spot: its saved outputs stayed
-    # without a run.json, and the same command with the same --out was refused as "not the folder of
-    # an earlier stereograph run")
+    # (SIGTERM -- `kill`, a CI job's timeout -- killed a single run on the spot: its saved outputs
+    # stayed without a run.json, and the same command with the same --out was refused as "not the
+    # folder of an earlier stereograph run")
     import signal
 
     marks, f = _slow_items_pipeline(tmp_path, n=8, seconds=0.3)
-    cmd = [sys.executable, "-m", "stereograph", "run", str(f), "--allow-plugins", "--cache-dir",
-           str(tmp_path / "cache"), "--out", str(tmp_path / "out")]
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(f),
+        "--allow-plugins",
+        "--cache-dir",
+        str(tmp_path / "cache"),
+        "--out",
+        str(tmp_path / "out"),
+    ]
+    p = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
     deadline = time.monotonic() + 120
     while len(list(marks.iterdir())) < 2 and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -720,12 +908,13 @@ def test_sigterm_ends_a_run_like_ctrl_c_and_the_same_command_resumes(tmp_path):
     assert again.returncode == 0, again.stderr
     summary = json.loads((tmp_path / "out" / "run.json").read_text())
     assert summary["ok"] is True and summary["nodes"][-1]["items"] == 8
-    assert len(list(marks.iterdir())) < 8 + 8  # (the items finished before the signal were not computed again)
+    # (the items finished before the signal were not computed again)
+    assert len(list(marks.iterdir())) < 8 + 8
 
 
 def test_the_command_process_ends_after_its_exit_handlers_threads_and_output(tmp_path):
-    """The `stereograph` command ends its process without Python's slow unloading, yet after its atexit
-    handlers, with its output flushed, and never under a thread that is still running."""
+    """The `stereograph` command ends its process without Python's slow unloading, yet after its
+    atexit handlers, with its output flushed, and never under a thread that is still running."""
     import subprocess
     import sys
     import textwrap
@@ -747,9 +936,13 @@ def test_the_command_process_ends_after_its_exit_handlers_threads_and_output(tmp
     """)
     for case in ("plain", "thread"):
         marks.mkdir(exist_ok=True)
-        proc = subprocess.run([sys.executable, "-c", code, case], capture_output=True, text=True, timeout=120)
+        proc = subprocess.run(
+            [sys.executable, "-c", code, case], capture_output=True, text=True, timeout=120
+        )
         assert proc.returncode == 0, proc.stderr
-        assert "source.synthetic" in proc.stdout and proc.stdout.rstrip().endswith("┘"), proc.stdout[-300:]
+        assert "source.synthetic" in proc.stdout and proc.stdout.rstrip().endswith("┘"), (
+            proc.stdout[-300:]
+        )
         assert (marks / "atexit").read_text() == "ran"
         if case == "thread":
             assert (marks / "thread").read_text() == "ran"
@@ -776,18 +969,28 @@ class _InterruptAt:
 @pytest.mark.slow
 @pytest.mark.parametrize("node, n", [("rig → locate", 2), ("calib", 1), ("rectify", 1)])
 def test_explain_after_an_interrupt_agrees_with_the_next_run(tmp_path, node, n):
-    """(after Ctrl-C in the middle of the streamed items, explain said calib and rectify would run --
-    'upstream rig will run' -- and the rerun found both cached: rig's views were, only pairs were not)"""
+    """(after Ctrl-C in the middle of the streamed items, explain said calib and rectify would run
+    -- 'upstream rig will run' -- and the rerun found both cached: rig's views were, only pairs were
+    not)"""
     from stereograph.core.runner import run_graph
 
     pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
     sets = ["rig.n_scenes=4", "rig.n_views=6"]
     with pytest.raises(KeyboardInterrupt):
-        run_graph(build_graph(load_pipeline(pipeline, sets)), progress=_InterruptAt(node, n),
-                  cache_dir=tmp_path / "c", out_dir=tmp_path / "first")
-    predicted = {v.node: v.fresh for v in explain(build_graph(load_pipeline(pipeline, sets)), tmp_path / "c")}
-    actual = run_graph(build_graph(load_pipeline(pipeline, sets)), cache_dir=tmp_path / "c",
-                       out_dir=tmp_path / "second").status
+        run_graph(
+            build_graph(load_pipeline(pipeline, sets)),
+            progress=_InterruptAt(node, n),
+            cache_dir=tmp_path / "c",
+            out_dir=tmp_path / "first",
+        )
+    predicted = {
+        v.node: v.fresh for v in explain(build_graph(load_pipeline(pipeline, sets)), tmp_path / "c")
+    }
+    actual = run_graph(
+        build_graph(load_pipeline(pipeline, sets)),
+        cache_dir=tmp_path / "c",
+        out_dir=tmp_path / "second",
+    ).status
     assert predicted == {name: s == "cached" for name, s in actual.items()}, (predicted, actual)
     if node == "rig → locate":  # the calibration views were all made: only pairs are missing
         assert predicted["calib"] and predicted["rectify"] and not predicted["locate"]

@@ -1,10 +1,11 @@
-"""Fuzzed data files: every reader of a file from elsewhere ends in a result or a NodeError, never another
-exception (an "internal error" for the user), whatever the bytes.
+"""Fuzzed data files: every reader of a file from elsewhere ends in a result or a NodeError, never
+another exception (an "internal error" for the user), whatever the bytes.
 
 Seeds are real files (the shipped live calibration, compensation model and hand-eye; a truth CSV; a
 target-point CSV); hypothesis cuts, repeats, overwrites them and swaps numbers for hostile ones
-(nan, inf, 0, -1, huge). Bounded here (tests/fuzzing.examples); ``STEREOGRAPH_FUZZ_SCALE=25`` for the
-large version. ``FUZZ_REPORT=path`` appends each reader's count and slowest example to that file.
+(nan, inf, 0, -1, huge). Bounded here (tests/fuzzing.examples); ``STEREOGRAPH_FUZZ_SCALE=25`` for
+the large version. ``FUZZ_REPORT=path`` appends each reader's count and slowest example to that
+file.
 """
 
 from __future__ import annotations
@@ -27,11 +28,33 @@ LIVE = ROOT / "pipelines" / "live"
 pytestmark = pytest.mark.slow
 
 TRUTH_CSV = "id,x_cm,y_cm,z_cm,radius_cm,split\n" + "".join(
-    f"p{i:03d},{i * 0.5:.3f},{-i * 0.25:.3f},{30 + i:.3f},2.0,{'train' if i % 2 else 'test'}\n" for i in range(12))
+    f"p{i:03d},{i * 0.5:.3f},{-i * 0.25:.3f},{30 + i:.3f},2.0,{'train' if i % 2 else 'test'}\n"
+    for i in range(12)
+)
 TARGET_CSV = "id,x_cm,y_cm,z_cm,u_px,v_px\n" + "".join(
-    f"t{i},{i % 4 * 2.5},{i // 4 * 2.5},{(i % 3) * 1.0},{100 + 20 * i:.2f},{80 + 11 * i:.2f}\n" for i in range(16))
-HOSTILE = [b"nan", b".nan", b"inf", b"-inf", b".Inf", b"0", b"-1", b"1e308", b"-1e308", b"2000000000", b"", b"[]",
-           b"{}", b"null", b"\x00", b"[[[[[[[[", b"*a", b"&a x"]
+    f"t{i},{i % 4 * 2.5},{i // 4 * 2.5},{(i % 3) * 1.0},{100 + 20 * i:.2f},{80 + 11 * i:.2f}\n"
+    for i in range(16)
+)
+HOSTILE = [
+    b"nan",
+    b".nan",
+    b"inf",
+    b"-inf",
+    b".Inf",
+    b"0",
+    b"-1",
+    b"1e308",
+    b"-1e308",
+    b"2000000000",
+    b"",
+    b"[]",
+    b"{}",
+    b"null",
+    b"\x00",
+    b"[[[[[[[[",
+    b"*a",
+    b"&a x",
+]
 NUMBER = re.compile(rb"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
 
 
@@ -72,7 +95,10 @@ def _model(path: Path):
     from nodes.compensators.load import load
     from nodes.contracts.calibration_file import ArtifactLoadParams
 
-    return load(ArtifactLoadParams(path=str(path)), calibration=read_calibration_file(LIVE / "calibration.yml"))
+    return load(
+        ArtifactLoadParams(path=str(path)),
+        calibration=read_calibration_file(LIVE / "calibration.yml"),
+    )
 
 
 def _hand_eye(path: Path):
@@ -110,8 +136,12 @@ def test_a_fuzzed_file_is_read_or_refused_in_words(name):
     read(_write(seed, suffix))  # the seed itself reads
     stats = {"n": 0, "refused": 0, "slowest_s": 0.0}
 
-    @settings(max_examples=examples(150), deadline=None, database=None,
-              suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+    @settings(
+        max_examples=examples(150),
+        deadline=None,
+        database=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
     @given(data=mutated(seed))
     def check(data):
         path = _write(data, suffix)
@@ -128,8 +158,11 @@ def test_a_fuzzed_file_is_read_or_refused_in_words(name):
     check()
     if os.environ.get("FUZZ_REPORT"):
         with open(os.environ["FUZZ_REPORT"], "a") as f:
-            f.write(f"{name}: {stats['n']} examples, {stats['refused']} refused with a NodeError, 0 other "
-                    f"exceptions, slowest {stats['slowest_s']:.3f} s\n")
+            f.write(
+                f"{name}: {stats['n']} examples, {stats['refused']} refused with a "
+                "NodeError, 0 other "
+                f"exceptions, slowest {stats['slowest_s']:.3f} s\n"
+            )
 
 
 def _write(data: bytes, suffix: str) -> Path:

@@ -1,4 +1,5 @@
-"""pipelines/pick-live.yaml --repeat: successive balls picked from a recorded camera on the emulated servos."""
+"""pipelines/pick-live.yaml --repeat: successive balls picked from a recorded camera on the emulated
+servos."""
 
 from __future__ import annotations
 
@@ -28,9 +29,12 @@ pytestmark = pytest.mark.slow  # (one module fixture: seven pick cycles)
 
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
-    """Seven cycles: five balls, a frame without one, then another ball; each ball put down at a drop point."""
+    """Seven cycles: five balls, a frame without one, then another ball; each ball put down at a
+    drop point."""
     tmp = tmp_path_factory.mktemp("live")
-    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20", f"pick.place_cm={DROP}"])
+    doc = load_pipeline(
+        PIPELINE, [f"recording.ids={ORDER}", "act.sim_time_scale=20", f"pick.place_cm={DROP}"]
+    )
     loop = Loop(len(ORDER), save_cycles=True)
     result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "run", cache_dir=tmp / "cache")
     return loop, result, tmp
@@ -46,11 +50,16 @@ def test_five_balls_in_a_row_each_grasped_within_half_a_centimetre(live):
         # the grasp point the commanded servo goals put the tool at, against the true ball centre
         err = np.linalg.norm(np.subtract(plan["grasp_fk_cm"], plan["truth_base_cm"]))
         assert err < 0.5, (c.index, err)
-        assert summary["ok"] and summary["grasp_servo_goals"] == plan["waypoints"][plan["grasp_index"]]["servo_units"]
+        assert (
+            summary["ok"]
+            and summary["grasp_servo_goals"]
+            == plan["waypoints"][plan["grasp_index"]]["servo_units"]
+        )
         assert c.values["compensate.location"]["sigma_z_cm"] > 0
         assert c.values["cam.pairs"]["skew_ms"] == 0.0
         assert set(c.nodes) >= {"cam", "segment", "locate", "compensate", "ik", "pick", "act"}
-    assert loop.cycles[0].values["gate.health"]["verdict"] == "ok"  # the calibration checked on the live pairs
+    # the calibration checked on the live pairs
+    assert loop.cycles[0].values["gate.health"]["verdict"] == "ok"
     # cycle 1 also loaded the files and recorded the camera; later cycles ran only the live part
     assert "calibration" not in loop.cycles[1].nodes and loop.live[0] == "cam"
 
@@ -60,7 +69,8 @@ def test_a_frame_without_a_ball_moves_nothing_and_the_loop_goes_on(live):
     empty = loop.cycles[5]
     assert empty.status == "failed" and empty.failed_node == "pick"
     assert "not located" in empty.error and "refusing to move the arm" in empty.error
-    assert "act" not in empty.nodes or empty.nodes["act"]["status"] == "skipped"  # the servos were never opened
+    # the servos were never opened
+    assert "act" not in empty.nodes or empty.nodes["act"]["status"] == "skipped"
     assert "act.log" not in empty.values
     assert loop.cycles[6].status == "ok"
 
@@ -75,7 +85,8 @@ def test_the_run_folder_has_the_cycle_log_and_the_recording(live):
     left = cv2.imread(str(first / "cam" / "pairs_left.png"))
     assert left.shape == (480, 640, 3)
     assert json.loads((first / "compensate" / "location.json").read_text())["found"]
-    assert not (result.out_dir / "cycles" / "00006" / "act").exists()  # nothing moved in the empty cycle
+    # nothing moved in the empty cycle
+    assert not (result.out_dir / "cycles" / "00006" / "act").exists()
     # the ball was carried to the drop point and released there
     reached = json.loads((first / "act" / "log.json").read_text())["picks"][0]["reached"]
     names = [r["waypoint"] for r in reached]
@@ -86,10 +97,30 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
     _, _, tmp = live
     out = tmp / "interrupted"
     # real-time motion (about 6 s a pick), so that the interrupt lands while the arm moves
-    cmd = [sys.executable, "-m", "stereograph", "run", str(PIPELINE), "--repeat", "0", "--out", str(out),
-           "--cache-dir", str(tmp / "cache"), "--set", f"recording.ids={ORDER}", "--set", "act.sim_time_scale=1"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(PIPELINE.parents[1])})
+    cmd = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(PIPELINE),
+        "--repeat",
+        "0",
+        "--out",
+        str(out),
+        "--cache-dir",
+        str(tmp / "cache"),
+        "--set",
+        f"recording.ids={ORDER}",
+        "--set",
+        "act.sim_time_scale=1",
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(PIPELINE.parents[1])},
+    )
     log = out / "cycles.jsonl"
     deadline = time.time() + 120
     while time.time() < deadline and not (log.exists() and log.read_text().strip()):
@@ -109,7 +140,8 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
 
     limits = servo_limits_units(build_arm_model(ArmParams()))
     sent = [c for c in servo["commands"] if c["register"] == "goal_position"]
-    assert {str(c["id"]): c["value"] for c in sent} == servo["stop"]["goals"]  # the last goals sent: the hold
+    # the last goals sent: the hold
+    assert {str(c["id"]): c["value"] for c in sent} == servo["stop"]["goals"]
     writes = [w for w in servo["sim"]["writes"] if w["register"] == "goal_position"] + sent
     assert len(writes) > len(sent)
     for w in writes:
@@ -122,10 +154,18 @@ def test_a_motion_that_fails_half_way_ends_the_loop_before_the_arm_moves_again(l
     there -- the next cycle would reopen the port and move the arm as soon as every servo answered
     again, while a person may be at the arm reseating its connector."""
     _, _, tmp = live
-    doc = load_pipeline(PIPELINE, [f"recording.ids={ORDER[:3]}", "act.sim_time_scale=20",
-                                   "act.sim_faults={drop_reply_prob: 1.0, only_ids: [4], after_goal_writes: 12}"])
+    doc = load_pipeline(
+        PIPELINE,
+        [
+            f"recording.ids={ORDER[:3]}",
+            "act.sim_time_scale=20",
+            "act.sim_faults={drop_reply_prob: 1.0, only_ids: [4], after_goal_writes: 12}",
+        ],
+    )
     loop = Loop(3)
-    result = run_graph(build_graph(doc), cycles=loop, out_dir=tmp / "half-way", cache_dir=tmp / "cache")
+    result = run_graph(
+        build_graph(doc), cycles=loop, out_dir=tmp / "half-way", cache_dir=tmp / "cache"
+    )
     assert len(loop.cycles) == 1, [c.line() for c in loop.cycles]
     first = loop.cycles[0]
     assert first.status == "failed" and first.failed_node == "act"

@@ -29,7 +29,9 @@ def _soak_module():
 
 def test_a_background_job_inherits_sigint_ignored():
     """The premise of the background trials: `cmd &` in `sh -c` ignores SIGINT in cmd."""
-    out = subprocess.run(["sh", "-c", "grep SigIgn /proc/self/status & wait"], capture_output=True, text=True)
+    out = subprocess.run(
+        ["sh", "-c", "grep SigIgn /proc/self/status & wait"], capture_output=True, text=True
+    )
     if not out.stdout:
         pytest.skip("no /proc here")
     assert int(out.stdout.split()[1], 16) & (1 << (signal.SIGINT - 1))
@@ -38,9 +40,16 @@ def test_a_background_job_inherits_sigint_ignored():
 def test_every_signal_at_every_moment_ends_the_loop_within_a_second(tmp_path):
     soak = _soak_module()
     # one trial per target; signals and start modes alternating
-    plan = [soak.Trial(i, ("SIGINT", "SIGTERM")[i % 2], ("background", "foreground")[(i // 2) % 2], target,
-                       0.5 if target == "random" else soak.JITTER_S[target] / 2)
-            for i, target in enumerate(soak.TARGETS)]
+    plan = [
+        soak.Trial(
+            i,
+            ("SIGINT", "SIGTERM")[i % 2],
+            ("background", "foreground")[(i // 2) % 2],
+            target,
+            0.5 if target == "random" else soak.JITTER_S[target] / 2,
+        )
+        for i, target in enumerate(soak.TARGETS)
+    ]
     results = soak.soak(plan, jobs=2, work=tmp_path, echo=lambda line: None)
     assert {t.target for t in results} == set(soak.TARGETS)
     assert {t.started for t in results} == {"foreground", "background"}

@@ -112,7 +112,8 @@ def test_no_object_is_not_found_with_reason():
 
 
 def test_image_sizes_that_do_not_fit_the_setup_fail_the_node_for_good():
-    # (it was "not found" pair after pair: a live loop refused every cycle, 368 in 25 s, and exited 0)
+    # (it was "not found" pair after pair: a live loop refused every cycle, 368 in 25 s, and exited
+    # 0)
     pair = make_pair(CAL, (0.0, 0.0, 40.0), bgr=RED)
     pair["right"] = pair["right"][:400]
     with pytest.raises(NodeError, match="the two cameras must give images of one size") as e:
@@ -152,7 +153,9 @@ def test_ball_cut_by_the_border_is_located_from_its_true_edge():
         # Without the partial-view fit the old answer stands: not trusted, with the reason.
         seg = _seg(kind, pair, partial={"enabled": False})["segmentation"]
         assert not seg["found"]
-        assert "border" in seg["reason"] or (kind == "edge_morph" and "no region" in seg["reason"]), seg["reason"]
+        assert "border" in seg["reason"] or (
+            kind == "edge_morph" and "no region" in seg["reason"]
+        ), seg["reason"]
 
 
 def test_color_segmenter_needs_a_colour():
@@ -167,12 +170,22 @@ def test_shadow_suppression_lowers_error_on_a_strong_shadow():
     for i, c in enumerate([(5.0, 3.0, 35.0), (4.0, 4.0, 45.0)]):
         pair = make_pair(CAL, c, bgr=RED, shadow_factor=0.25, seed=i)
         for on in errs:
-            # Partial-view refit off: it, too, leaves a shadow's outline out (issue 15); this measures suppression.
-            seg = _seg("edge_morph", pair, shadow={"enabled": on}, min_roundness=0.0,
-                       partial={"enabled": False})["segmentation"]
+            # Partial-view refit off: it, too, leaves a shadow's outline out (issue 15); this
+            # measures suppression.
+            seg = _seg(
+                "edge_morph",
+                pair,
+                shadow={"enabled": on},
+                min_roundness=0.0,
+                partial={"enabled": False},
+            )["segmentation"]
             loc = _locate(seg, pair)
             if loc["found"]:
-                errs[on].append(np.linalg.norm(np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"])))
+                errs[on].append(
+                    np.linalg.norm(
+                        np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"])
+                    )
+                )
             else:
                 errs[on].append(np.inf)
     assert max(errs[True]) < 0.15
@@ -199,10 +212,21 @@ def test_triangulate_table_frame_and_range_checks():
     cal = rect_calibration()
     T = np.eye(4)
     T[:3, 3] = [1.0, 2.0, 3.0]
-    disp = {"id": "a", "found": True, "reason": None, "u_left_px": cal["cx_px"], "v_left_px": cal["cy_px"],
-            "disparity_px": 175.0, "sigma_disparity_px": 0.05, "method": "centroid"}
-    loc = triangulate(TriangulateParams(frame="table", T_table_from_left=T.tolist()), disparity=disp,
-                      rectification=cal)["location"]
+    disp = {
+        "id": "a",
+        "found": True,
+        "reason": None,
+        "u_left_px": cal["cx_px"],
+        "v_left_px": cal["cy_px"],
+        "disparity_px": 175.0,
+        "sigma_disparity_px": 0.05,
+        "method": "centroid",
+    }
+    loc = triangulate(
+        TriangulateParams(frame="table", T_table_from_left=T.tolist()),
+        disparity=disp,
+        rectification=cal,
+    )["location"]
     assert loc["frame"] == "table" and loc["found"]
     assert [loc["x_cm"], loc["y_cm"], loc["z_cm"]] == pytest.approx([1.0, 2.0, 43.0])
     assert loc["sigma_z_cm"] == pytest.approx(40.0**2 * 0.05 / 7000.0)
@@ -216,15 +240,18 @@ def test_triangulate_table_frame_and_range_checks():
 @pytest.mark.slow
 def test_disparity_out_of_range_is_rejected(scenes):
     seg = _seg("edge_morph", scenes[0])["segmentation"]
-    d = centroid(CentroidParams(working_range_cm=(100.0, 200.0)), segmentation=seg, rectification=CAL)
+    d = centroid(
+        CentroidParams(working_range_cm=(100.0, 200.0)), segmentation=seg, rectification=CAL
+    )
     assert not d["disparity"]["found"] and "out of range" in d["disparity"]["reason"]
 
 
 @pytest.mark.slow
 def test_coarse_first_finds_near_and_far_balls_like_the_regular_level():
-    # Near: both views found at the quarter-size first pass; far (78 cm, r ~ 18 px, ~4.5 px at quarter
-    # size): at the edge of that pass, the right view falls through to the half-size level. Either way
-    # the full-resolution refinement gives the same centroids as the half-size level alone.
+    # Near: both views found at the quarter-size first pass; far (78 cm, r ~ 18 px, ~4.5 px at
+    # quarter size): at the edge of that pass, the right view falls through to the half-size level.
+    # Either way the full-resolution refinement gives the same centroids as the half-size level
+    # alone.
     for c in [(2.0, 1.0, 28.0), (-3.0, 2.0, 78.0)]:
         pair = make_pair(CAL, c, bgr=RED, pid="cf", seed=7)
         a = _seg("edge_morph", pair)["segmentation"]
@@ -244,7 +271,8 @@ def test_a_working_range_within_the_balls_radius_is_a_clear_parameter_error():
     for bad in ({"object": {"radius_cm": 100}}, {"working_range_cm": [0.1, 0.2]}):
         with pytest.raises(pydantic.ValidationError, match="within the ball's own radius"):
             EdgeMorphParams(**bad)
-    EdgeMorphParams(object={"radius_cm": 30}, working_range_cm=[40, 90])  # a big ball far enough: fine
+    # a big ball far enough: fine
+    EdgeMorphParams(object={"radius_cm": 30}, working_range_cm=[40, 90])
 
 
 @pytest.mark.slow
@@ -253,9 +281,12 @@ def test_a_black_ball_is_found_when_its_dark_colour_is_given(kind):
     # A black ball's pixels are mostly darker than the level below which chromaticity is noise; they
     # were all "not the object's colour", so only its highlight was left and it was never found.
     black = (30, 30, 30)
-    for i, (c, shadow) in enumerate([((5.0, 3.0, 35.0), 1.0), ((-4.0, 2.0, 45.0), 0.5), ((6.0, -3.0, 55.0), 1.0)]):
+    for i, (c, shadow) in enumerate(
+        [((5.0, 3.0, 35.0), 1.0), ((-4.0, 2.0, 45.0), 0.5), ((6.0, -3.0, 55.0), 1.0)]
+    ):
         pair = make_pair(CAL, c, bgr=black, shadow_factor=shadow, seed=10 + i)
-        assert np.mean(pair["left"][pair["left"].max(axis=2) < 25]) < 25  # (most of the ball is that dark)
+        # (most of the ball is that dark)
+        assert np.mean(pair["left"][pair["left"].max(axis=2) < 25]) < 25
         seg = _seg(kind, pair, object={"radius_cm": 2.0, "color_bgr": black})["segmentation"]
         loc = _locate(seg, pair)
         assert loc["found"], (kind, c, loc["reason"])

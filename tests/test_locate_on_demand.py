@@ -62,9 +62,16 @@ def test_windows_are_the_full_remap_pixels_and_coarse_is_its_pyramid(rig):
         assert np.abs(got[inner].astype(int) - ref[inner]).mean() < 2.0  # gray levels
         # A band (cropped raw pyramid, bounded by the map positions the level samples) equals
         # the same band of the whole-image coarse level, inside the image and at its corners.
-        for u0, v0, u1, v1 in [(64, 96, 320, 224), (0, 0, 128, 96), (512, 384, 640, 480), (200, 8, 456, 121)]:
+        for u0, v0, u1, v1 in [
+            (64, 96, 320, 224),
+            (0, 0, 128, 96),
+            (512, 384, 640, 480),
+            (200, 8, 456, 121),
+        ]:
             band = view.coarse(scale, u0, v0, u1, v1)
-            assert np.array_equal(band, got[v0 // scale:-(-v1 // scale), u0 // scale:-(-u1 // scale)])
+            assert np.array_equal(
+                band, got[v0 // scale : -(-v1 // scale), u0 // scale : -(-u1 // scale)]
+            )
     # An already rectified image is sliced and pyrDown'ed.
     plain = RectifiedView(full)
     assert not plain.is_raw and np.array_equal(plain.window(5, 6, 50, 60), full[6:60, 5:50])
@@ -93,25 +100,31 @@ def test_raw_pairs_segment_like_remapped_pairs(tmp_path):
         if a[k]["found"]:
             for side in ("left", "right"):
                 assert b[k][f"{side}_mask"].shape == (480, 640)
-                np.testing.assert_allclose(b[k][side]["centroid_px"], a[k][side]["centroid_px"], atol=0.02)
+                np.testing.assert_allclose(
+                    b[k][side]["centroid_px"], a[k][side]["centroid_px"], atol=0.02
+                )
     # The overlay of the raw path shows the rectified images the masks refer to.
     ov_a, ov_b = res.outputs("seg_remapped", "overlay"), res.outputs("seg_raw", "overlay")
     k = next(iter(ov_a))
     # (the two views side by side, under a caption band that says which pair and what was found)
-    assert ov_b[k].shape == ov_a[k].shape and ov_a[k].shape[1:] == (1280, 3) and ov_a[k].shape[0] > 480
+    assert (
+        ov_b[k].shape == ov_a[k].shape and ov_a[k].shape[1:] == (1280, 3) and ov_a[k].shape[0] > 480
+    )
     assert np.abs(ov_b[k].astype(int) - ov_a[k]).mean() < 1.0
 
 
 def test_raw_pairs_without_a_rectification_are_refused_clearly(tmp_path):
     f = tmp_path / "p.yaml"
-    f.write_text(textwrap.dedent("""\
+    f.write_text(
+        textwrap.dedent("""\
         name: no-rect
         nodes:
           rig: {type: source.synthetic, params: {n_scenes: 2, n_views: 0, seed: 1}}
           seg:
             type: segmenter.edge_morph
             inputs: {pair: rig.pairs}
-        """))
+        """)
+    )
     res = run_pipeline(f, cache_dir=tmp_path / "cache", out_dir=tmp_path / "out", use_cache=False)
     assert not res.ok
     msg = res.reports["seg"].error
@@ -126,7 +139,9 @@ def test_edge_morph_canny_equals_cv2_canny(rig):
     for img in (view.coarse(2, 0, 0, 640, 480), view.window(200, 150, 420, 330)):
         blurred = cv2.GaussianBlur(img, (0, 0), 1.0)
         for lo, hi in ((30, 90), (60, 180)):
-            assert np.array_equal(canny(blurred, lo, hi), cv2.Canny(blurred, lo, hi, L2gradient=True))
+            assert np.array_equal(
+                canny(blurred, lo, hi), cv2.Canny(blurred, lo, hi, L2gradient=True)
+            )
             gray = cv2.cvtColor(blurred, cv2.COLOR_BGR2GRAY)
             assert np.array_equal(canny(gray, lo, hi), cv2.Canny(gray, lo, hi, L2gradient=True))
 
@@ -136,10 +151,21 @@ def test_band_pyramid_margin_holds_on_texture(rig):
     whole-image coarse level: the crop's margin covers pyrDown's reach at every level."""
     _, rect = rig
     noise = np.random.default_rng(1).integers(0, 256, (480, 640, 3), dtype=np.uint8)
-    maps = {"x": rect["map_left_x"], "y": rect["map_left_y"],
-            "fixed": rect.get("map_left_fixed"), "interp": rect.get("map_left_interp")}
+    maps = {
+        "x": rect["map_left_x"],
+        "y": rect["map_left_y"],
+        "fixed": rect.get("map_left_fixed"),
+        "interp": rect.get("map_left_interp"),
+    }
     for scale in (2, 4, 8):
         whole = RectifiedView(noise, maps).coarse(scale, 0, 0, 640, 480)
-        for u0, v0, u1, v1 in [(64, 96, 320, 224), (200, 8, 456, 121), (512, 384, 640, 480), (328, 240, 413, 301)]:
+        for u0, v0, u1, v1 in [
+            (64, 96, 320, 224),
+            (200, 8, 456, 121),
+            (512, 384, 640, 480),
+            (328, 240, 413, 301),
+        ]:
             band = RectifiedView(noise, maps).coarse(scale, u0, v0, u1, v1)
-            assert np.array_equal(band, whole[v0 // scale:-(-v1 // scale), u0 // scale:-(-u1 // scale)])
+            assert np.array_equal(
+                band, whole[v0 // scale : -(-v1 // scale), u0 // scale : -(-u1 // scale)]
+            )

@@ -53,18 +53,28 @@ def test_fit_partial_leaves_out_border_points_and_an_occluder_edge():
     border = np.stack([np.full(30, 505.0), np.linspace(pts[:, 1].min(), pts[:, 1].max(), 30)], 1)
     chord = np.stack([np.linspace(470, 490, 30), np.full(30, 250.0)], 1)  # a straight foreign edge
     img = np.full((480, 640, 3), 128, np.uint8)
-    fit = fit_partial(np.concatenate([pts, border, chord]), img, (0, 0), (506, 480), K, (10.0, 40.0))
+    fit = fit_partial(
+        np.concatenate([pts, border, chord]), img, (0, 0), (506, 480), K, (10.0, 40.0)
+    )
     assert fit["ok"] and fit["cause"].startswith("border: right")
     assert np.hypot(*(np.subtract(fit["center_px"], centre[:2]))) < 0.05
 
 
 @pytest.fixture(scope="module")
 def hard():
-    src = synthetic(SyntheticParams(n_scenes=0, n_views=0, seed=3, n_hard_each=2,
-                                    hard_cases=["border_cut", "touching_box", "touching_ball", "same_color",
-                                                "distractor"]))
+    src = synthetic(
+        SyntheticParams(
+            n_scenes=0,
+            n_views=0,
+            seed=3,
+            n_hard_each=2,
+            hard_cases=["border_cut", "touching_box", "touching_ball", "same_color", "distractor"],
+        )
+    )
     rect = rectify_calibration(truth_calibration(src["truth"]))
-    pairs = [remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in src["pairs"].values()]
+    pairs = [
+        remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in src["pairs"].values()
+    ]
     return pairs, rect
 
 
@@ -75,7 +85,9 @@ def _locate(node, params, pair, rect):
 
 
 def _err(loc):
-    return float(np.linalg.norm(np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"])))
+    return float(
+        np.linalg.norm(np.subtract([loc["x_cm"], loc["y_cm"], loc["z_cm"]], loc["truth_cm"]))
+    )
 
 
 @pytest.mark.slow
@@ -109,7 +121,8 @@ def test_auto_channel_picks_a_plane_where_an_orange_ball_stands_out_on_grey():
     from nodes.contracts.segmenter._channel import best_plane, normalize_exposure
 
     rng = np.random.default_rng(0)
-    img = np.clip(rng.normal(145, 12, (120, 160, 3)), 0, 255).astype(np.uint8)  # grey as bright as orange
+    # grey as bright as orange
+    img = np.clip(rng.normal(145, 12, (120, 160, 3)), 0, 255).astype(np.uint8)
     img[40:70, 60:90] = (20, 120, 245)
     name, contrast = best_plane(img, ORANGE)
     assert name in ("blue", "red", "saturation") and contrast[name] > contrast["gray"]
@@ -126,7 +139,9 @@ def test_dim_scene_is_found_with_the_auto_channel_not_with_gray():
     rng = np.random.default_rng(0)
     found = {}
     for ch in ("gray", "auto"):
-        params = EdgeMorphParams(object={"radius_cm": 2.0, "color_bgr": ORANGE}, channel=ch, overlay=False)
+        params = EdgeMorphParams(
+            object={"radius_cm": 2.0, "color_bgr": ORANGE}, channel=ch, overlay=False
+        )
         found[ch] = 0
         for p in src["pairs"].values():
             q = dict(p)
@@ -135,7 +150,9 @@ def test_dim_scene_is_found_with_the_auto_channel_not_with_gray():
             r = remap(RemapParams(), rectification=rect, pair=q)["rectified"]
             seg = edge_morph(params, pair=r, rectification=rect)["segmentation"]
             d = centroid(CentroidParams(), segmentation=seg, rectification=rect)["disparity"]
-            loc = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=r)["location"]
+            loc = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=r)[
+                "location"
+            ]
             if loc["found"]:
                 assert _err(loc) < 0.5
                 found[ch] += 1
@@ -154,7 +171,11 @@ def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
     c = 50.0
     disc = np.zeros((100, 100), np.uint8)
     cv2.circle(disc, (50, 50), int(r), 255, -1)
-    cnt = cv2.findContours(disc, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0].reshape(-1, 2).astype(float)
+    cnt = (
+        cv2.findContours(disc, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0][0]
+        .reshape(-1, 2)
+        .astype(float)
+    )
     assert coverage(cnt, np.array([c, c]), r) >= 0.95
     upper = cnt[cnt[:, 1] < c - 0.5]  # half the outline (a lower half hidden)
     assert 0.4 <= coverage(upper, np.array([c, c]), r) <= 0.6
@@ -162,17 +183,26 @@ def test_the_visible_share_of_a_small_whole_outline_is_all_of_it(r):
 
 @pytest.mark.slow
 def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_path):
-    """(plain 2 cm balls at 100-200 cm, nothing in front of them, were refused as "occluded or touching
-    another object"; the cause is a ~6 px silhouette: too few outline pixels)"""
+    """(plain 2 cm balls at 100-200 cm, nothing in front of them, were refused as "occluded or
+    touching another object"; the cause is a ~6 px silhouette: too few outline pixels)"""
     from pathlib import Path
 
     import stereograph
 
-    far = {"rig.n_scenes": 20, "rig.camera_height_cm": 40, "rig.camera_tilt_deg": 15, "rig.min_distance_cm": 100,
-           "rig.max_distance_cm": 200, "objects.working_range_cm": [80, 220], "disparity.working_range_cm": [80, 220],
-           "locate.working_range_cm": [80, 220]}
+    far = {
+        "rig.n_scenes": 20,
+        "rig.camera_height_cm": 40,
+        "rig.camera_tilt_deg": 15,
+        "rig.min_distance_cm": 100,
+        "rig.max_distance_cm": 200,
+        "objects.working_range_cm": [80, 220],
+        "disparity.working_range_cm": [80, 220],
+        "locate.working_range_cm": [80, 220],
+    }
     pipeline = Path(__file__).resolve().parents[1] / "pipelines" / "locate.yaml"
-    res = stereograph.run(pipeline, far, use_cache=False, keep=["locate"], out_dir=tmp_path / "out", progress=False)
+    res = stereograph.run(
+        pipeline, far, use_cache=False, keep=["locate"], out_dir=tmp_path / "out", progress=False
+    )
     reasons = [r["reason"] for r in res.outputs("locate", "location").values() if not r["found"]]
     assert reasons and all(r.startswith("the ball is small in the") for r in reasons), reasons
     assert not any("occluded" in r for r in reasons)
@@ -180,9 +210,10 @@ def test_a_small_far_ball_seen_whole_is_refused_as_small_not_as_occluded(tmp_pat
 
 @pytest.mark.slow
 def test_a_view_that_lost_the_balls_dark_side_is_refused_not_located():
-    """(dim side light, ambient 0.05: the unlit half of the ball merges with the dark table in one view
-    only; that silhouette still fits an ellipse, its size passed max_size_mismatch (15 %) and its area
-    max_area_ratio, and the pair was located 0.9 cm off here -- 1.8 cm with a chessboard calibration)"""
+    """(dim side light, ambient 0.05: the unlit half of the ball merges with the dark table in one
+    view only; that silhouette still fits an ellipse, its size passed max_size_mismatch (15 %) and
+    its area max_area_ratio, and the pair was located 0.9 cm off here -- 1.8 cm with a chessboard
+    calibration)"""
     from nodes.disparity.centroid import CentroidParams, centroid
 
     centres = [[0.114, 10.823], [-7.699, -11.477]]  # on the table, cm
@@ -196,7 +227,9 @@ def test_a_view_that_lost_the_balls_dark_side_is_refused_not_located():
             r = remap(RemapParams(), rectification=rect, pair=p)["rectified"]
             seg = edge_morph(params, pair=r, rectification=rect)["segmentation"]
             d = centroid(CentroidParams(), segmentation=seg, rectification=rect)["disparity"]
-            loc = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=r)["location"]
+            loc = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=r)[
+                "location"
+            ]
             if not light:  # the same placements in the default light: found, and right
                 assert loc["found"] and _err(loc) < 0.2, (p["id"], loc["reason"])
             else:

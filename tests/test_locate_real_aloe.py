@@ -13,7 +13,9 @@ from nodes.disparity.sgbm import SgbmParams, sgbm_object_disparity
 
 ALOE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "middlebury-aloe-opencv"
 
-pytestmark = pytest.mark.skipif(not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present")
+pytestmark = pytest.mark.skipif(
+    not (ALOE / "aloeGT.png").exists(), reason="../shared/data not present"
+)
 
 
 def patches(gt: np.ndarray, n: int, size: int, rng: np.random.Generator):
@@ -22,7 +24,7 @@ def patches(gt: np.ndarray, n: int, size: int, rng: np.random.Generator):
     out = []
     while len(out) < n:
         u, v = int(rng.integers(260, w - size - 10)), int(rng.integers(10, h - size - 10))
-        g = gt[v:v + size, u:u + size].astype(float)
+        g = gt[v : v + size, u : u + size].astype(float)
         if (g > 0).all() and g.std() < 1.5:
             out.append((u, v, float(np.median(g))))
     return out
@@ -39,9 +41,11 @@ def test_sgbm_object_disparity_matches_ground_truth_on_aloe():
         mask = np.zeros(gt.shape, bool)
         yy, xx = np.mgrid[: gt.shape[0], : gt.shape[1]]
         r = size / 2
-        mask[(xx - (u + r)) ** 2 + (yy - (v + r)) ** 2 <= r * r] = True  # a disc, like a ball's region
-        d, sigma, n_valid, _ = sgbm_object_disparity(left, right, mask, [u, v, u + size, v + size], (40, 220),
-                                                    SgbmParams())
+        # a disc, like a ball's region
+        mask[(xx - (u + r)) ** 2 + (yy - (v + r)) ** 2 <= r * r] = True
+        d, sigma, n_valid, _ = sgbm_object_disparity(
+            left, right, mask, [u, v, u + size, v + size], (40, 220), SgbmParams()
+        )
         assert n_valid > 100 and sigma > 0
         errors.append(d - d_true)
     errors = np.abs(errors)
@@ -56,9 +60,9 @@ BOARD = ALOE.parent / "opencv-stereo-chessboard"
 @pytest.mark.slow
 @pytest.mark.skipif(not (BOARD / "left01.jpg").exists(), reason="../shared/data not present")
 def test_no_ball_is_found_in_real_images_without_one():
-    """Real photographs with no ball (OpenCV's chessboard pairs, Middlebury Aloe), no calibration wired:
-    every segmenter refuses, colour given or not -- and segmenter.otsu's background median no longer
-    crashes when the default radius range asks for a window beyond OpenCV's 8-bit limit."""
+    """Real photographs with no ball (OpenCV's chessboard pairs, Middlebury Aloe), no calibration
+    wired: every segmenter refuses, colour given or not -- and segmenter.otsu's background median no
+    longer crashes when the default radius range asks for a window beyond OpenCV's 8-bit limit."""
     import cv2
 
     from nodes.segmenters.color import ColorParams, color
@@ -67,10 +71,17 @@ def test_no_ball_is_found_in_real_images_without_one():
 
     pairs = [(BOARD / f"left{i:02d}.jpg", BOARD / f"right{i:02d}.jpg") for i in (1, 2, 3, 4)]
     pairs.append((ALOE / "aloeL.jpg", ALOE / "aloeR.jpg"))
-    runs = [(edge_morph, EdgeMorphParams, None), (edge_morph, EdgeMorphParams, [20, 120, 245]),
-            (otsu, OtsuParams, None), (otsu, OtsuParams, [20, 120, 245]), (color, ColorParams, [20, 120, 245])]
+    runs = [
+        (edge_morph, EdgeMorphParams, None),
+        (edge_morph, EdgeMorphParams, [20, 120, 245]),
+        (otsu, OtsuParams, None),
+        (otsu, OtsuParams, [20, 120, 245]),
+        (color, ColorParams, [20, 120, 245]),
+    ]
     for left, right in pairs:
         pair = {"id": left.stem, "left": cv2.imread(str(left)), "right": cv2.imread(str(right))}
         for fn, P, colour in runs:
-            seg = fn(P(object={"radius_cm": 2.0, "color_bgr": colour}, overlay=False), pair)["segmentation"]
+            seg = fn(P(object={"radius_cm": 2.0, "color_bgr": colour}, overlay=False), pair)[
+                "segmentation"
+            ]
             assert not seg["found"] and seg["reason"], (left.name, fn.__name__, colour)

@@ -21,9 +21,13 @@ ORANGE = [20, 120, 245]
 
 @pytest.fixture(scope="module")
 def distractor():
-    src = synthetic(SyntheticParams(n_scenes=0, n_views=0, seed=3, n_hard_each=2, hard_cases=["distractor"]))
+    src = synthetic(
+        SyntheticParams(n_scenes=0, n_views=0, seed=3, n_hard_each=2, hard_cases=["distractor"])
+    )
     rect = rectify_calibration(truth_calibration(src["truth"]))
-    pairs = [remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in src["pairs"].values()]
+    pairs = [
+        remap(RemapParams(), rectification=rect, pair=p)["rectified"] for p in src["pairs"].values()
+    ]
     return pairs, rect
 
 
@@ -53,25 +57,29 @@ def test_a_distractor_of_another_colour_is_kept_as_rejected_and_drawn_in_orange(
         img = np.asarray(pair["left"])
         centre = np.asarray(seg["left"]["centroid_px"])
         r_ball = np.sqrt(seg["left"]["area_px"] / np.pi)
-        colour = [c for c, w in zip(seg["rejected_left_px"], seg["rejected_left_why"]) if w == "colour"]
+        colour = [
+            c for c, w in zip(seg["rejected_left_px"], seg["rejected_left_why"]) if w == "colour"
+        ]
         assert colour, seg["rejected_left_why"]
         c = colour[0]
         m = np.round(c.mean(axis=0)).astype(int)
         # The outline is another object: away from the ball, around pixels that are not orange.
         assert np.hypot(*(m - centre)) > 2 * r_ball
-        assert np.abs(_chroma(img[m[1], m[0]]) - _chroma(ORANGE)).sum() > params.object.color_tolerance
+        assert (
+            np.abs(_chroma(img[m[1], m[0]]) - _chroma(ORANGE)).sum() > params.object.color_tolerance
+        )
         # Outlined in orange in the segmenter's overlay (left half; the label band is above it).
         over = out["overlay"]
         band = over.shape[0] - img.shape[0]
         u, v = int(c[0, 0]), int(c[0, 1]) + band
-        patch = over[max(0, v - 1):v + 2, max(0, u - 1):u + 2].reshape(-1, 3).astype(int)
+        patch = over[max(0, v - 1) : v + 2, max(0, u - 1) : u + 2].reshape(-1, 3).astype(int)
         assert (np.abs(patch - REJECTED_BGR).sum(axis=1) < 60).any()
         # ... and passed on to the locator's overlay through the Disparity.
         d = ellipse(EllipseParams(), segmentation=seg, rectification=rect)["disparity"]
         assert len(d["rejected_left_px"]) == len(seg["rejected_left_px"])
         lo = triangulate(TriangulateParams(), disparity=d, rectification=rect, pair=pair)["overlay"]
         v = int(c[0, 1]) + lo.shape[0] - img.shape[0]
-        patch = lo[max(0, v - 1):v + 2, max(0, u - 1):u + 2].reshape(-1, 3).astype(int)
+        patch = lo[max(0, v - 1) : v + 2, max(0, u - 1) : u + 2].reshape(-1, 3).astype(int)
         assert (np.abs(patch - REJECTED_BGR).sum(axis=1) < 60).any()
 
 

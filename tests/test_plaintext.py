@@ -29,13 +29,35 @@ def _console(width: int) -> tuple[Console, io.StringIO]:
 def _value(rnd: random.Random, depth: int = 0):
     r = rnd.random()
     if depth < 4 and r < 0.25:
-        keys = ["a", "object_left_cm", "it's", 'say "hi"', "Δz_cm", "x" * rnd.randint(1, 40), "[b]", "wide 球"]
+        keys = [
+            "a",
+            "object_left_cm",
+            "it's",
+            'say "hi"',
+            "Δz_cm",
+            "x" * rnd.randint(1, 40),
+            "[b]",
+            "wide 球",
+        ]
         return {rnd.choice(keys) + str(i): _value(rnd, depth + 1) for i in range(rnd.randint(0, 6))}
     if depth < 4 and r < 0.45:
         return [_value(rnd, depth + 1) for _ in range(rnd.randint(0, 8))]
-    return rnd.choice([None, True, False, rnd.randint(-10**6, 10**6), rnd.uniform(-1e3, 1e3),
-                       round(rnd.uniform(-100, 100), 2), "x" * rnd.randint(0, 260), "a \"q\" 'b' \\ [red]", "",
-                       "±0.5 cm → 1 σ", "tab\there", ":smile:"])
+    return rnd.choice(
+        [
+            None,
+            True,
+            False,
+            rnd.randint(-(10**6), 10**6),
+            rnd.uniform(-1e3, 1e3),
+            round(rnd.uniform(-100, 100), 2),
+            "x" * rnd.randint(0, 260),
+            "a \"q\" 'b' \\ [red]",
+            "",
+            "±0.5 cm → 1 σ",
+            "tab\there",
+            ":smile:",
+        ]
+    )
 
 
 def test_pretty_values_are_printed_as_rich_prints_them():
@@ -62,7 +84,10 @@ def test_summary_tables_and_rules_are_printed_as_rich_prints_them():
     compared = 0
     for _ in range(300):
         columns = ["c" * rnd.randint(1, 8) for _ in range(rnd.randint(1, 6))]
-        rows = [[rnd.choice(odd if rnd.random() < 0.03 else cells) for _ in columns] for _ in range(rnd.randint(0, 5))]
+        rows = [
+            [rnd.choice(odd if rnd.random() < 0.03 else cells) for _ in columns]
+            for _ in range(rnd.randint(0, 5))
+        ]
         width = rnd.choice([40, 80, 160])
         title = rnd.choice(["run 20261123-191035-44f9", "run x", "r" * 50])
         con, buf = _console(width)
@@ -75,7 +100,8 @@ def test_summary_tables_and_rules_are_printed_as_rich_prints_them():
             assert mine + "\n" == buf.getvalue(), (columns, rows, width)
             compared += 1
         if any(c in odd for r in rows for c in r):
-            assert mine is None  # what rich lays out otherwise (two-cell characters, emoji codes, tabs)
+            # what rich lays out otherwise (two-cell characters, emoji codes, tabs)
+            assert mine is None
     assert compared > 60  # (the rest: wider than the console, rich wraps them)
     for title in ["act.log", "a [b] c", "x" * 150, "node.out_Δ"]:
         con, buf = _console(160)
@@ -116,16 +142,28 @@ def test_a_replayed_run_prints_what_rich_prints_without_importing_it(tmp_path):
     toy = os.path.join(os.path.dirname(__file__), "plugins", "toy.py")
     p = tmp_path / "p.yaml"
     p.write_text(PIPELINE.format(toy=toy))
-    code = ("import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from stereograph.app.cli import main; "
-            f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'c')!r}, "
-            "'--out', sys.argv[1]]); print('RICH', 'rich' in sys.modules); sys.exit(rc)")
+    code = (
+        "import sys; from stereograph.app import rerun; rerun.RACY_NS = 0; from "
+        "stereograph.app.cli import main; "
+        f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', {str(tmp_path / 'c')!r}, "
+        "'--out', sys.argv[1]]); print('RICH', 'rich' in sys.modules); sys.exit(rc)"
+    )
     outs = {}
     for name, extra in (("cold", {}), ("plain", {}), ("rich", {"TTY_COMPATIBLE": "0"})):
-        env = {k: v for k, v in os.environ.items()
-               if k not in ("FORCE_COLOR", "TTY_COMPATIBLE", "STEREOGRAPH_NO_REPLAY")}
+        env = {
+            k: v
+            for k, v in os.environ.items()
+            if k not in ("FORCE_COLOR", "TTY_COMPATIBLE", "STEREOGRAPH_NO_REPLAY")
+        }
         out = tmp_path / uuid.uuid4().hex
-        r = subprocess.run([sys.executable, "-c", code, str(out)], env={**env, **extra}, cwd=tmp_path,
-                           capture_output=True, text=True, timeout=120)
+        r = subprocess.run(
+            [sys.executable, "-c", code, str(out)],
+            env={**env, **extra},
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert r.returncode == 0, r.stdout + r.stderr
         run_id = json.loads((out / "run.json").read_text())["run_id"]
         outs[name] = r.stdout.replace(run_id, "RUN").replace(str(out), "OUT")

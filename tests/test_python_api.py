@@ -23,7 +23,8 @@ def _python_blocks(text: str) -> list[str]:
 def project(tmp_path, monkeypatch):
     """A folder laid out like the repository (pipelines/), so the cache and runs stay in tmp."""
     (tmp_path / "pipelines").mkdir()
-    (tmp_path / "pyproject.toml").write_text("")  # the project root: its cache and runs/ (docs/cache.md)
+    # the project root: its cache and runs/ (docs/cache.md)
+    (tmp_path / "pyproject.toml").write_text("")
     shutil.copy(ROOT / "pipelines" / "locate-truthcal.yaml", tmp_path / "pipelines")
     monkeypatch.chdir(tmp_path)
     return tmp_path
@@ -39,7 +40,8 @@ def test_the_documented_example_runs(project, capsys):
     assert "x, y, z (cm):" in out or "not found:" in out
     assert "10 segmentations" in out
     assert out.count("z RMS (cm):") == 2  # one row per variant
-    assert list((project / "runs" / "locate-truthcal").iterdir())  # the runs went to the project's runs/
+    # the runs went to the project's runs/
+    assert list((project / "runs" / "locate-truthcal").iterdir())
 
 
 @pytest.mark.slow
@@ -57,8 +59,13 @@ def test_result_access_and_its_errors(project):
     again = stereograph.run("pipelines/locate-truthcal.yaml", ["rig.n_scenes=4"], progress=False)
     assert again.ran == set() and "segment" in again.nodes  # all cached
     assert again.raise_for_errors() is again
-    nocache = stereograph.run("pipelines/locate-truthcal.yaml", {"rig.n_scenes": 4}, use_cache=False,
-                              keep=["disparity"], progress=False)
+    nocache = stereograph.run(
+        "pipelines/locate-truthcal.yaml",
+        {"rig.n_scenes": 4},
+        use_cache=False,
+        keep=["disparity"],
+        progress=False,
+    )
     assert set(nocache.outputs("disparity", "disparity")) == set(masks)  # kept in memory
     with pytest.raises(KeyError, match="keep="):
         nocache["segment"]  # no cache to load it from, and not kept
@@ -83,9 +90,9 @@ def test_compare_is_a_plain_function_of_the_package():
 
 
 def test_bad_arguments_of_the_python_api_are_clear_errors(project):
-    """(they were: workers=0 silently serial, workers='abc' a TypeError from inside the runner, set=5
-    "'int' object is not iterable", a set= value that is not plain a bare TypeError, and a one-string
-    vary= split letter by letter)"""
+    """(they were: workers=0 silently serial, workers='abc' a TypeError from inside the runner,
+    set=5 "'int' object is not iterable", a set= value that is not plain a bare TypeError, and a
+    one-string vary= split letter by letter)"""
     path = "pipelines/locate-truthcal.yaml"
     for bad in (0, -1, "abc", 1.5, True):
         with pytest.raises(ConfigError, match="workers= must be a whole number"):

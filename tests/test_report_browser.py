@@ -1,4 +1,5 @@
-"""report.html / compare.html opened in headless Chromium: every image decodes, the key figures are there.
+"""report.html / compare.html opened in headless Chromium: every image decodes, the key figures are
+there.
 
 Chromium is Debian's ``chromium`` package (``.ci/run`` installs it when it runs as root with apt);
 where it is missing the browser tests skip, saying so. The page checks its own images on load
@@ -35,8 +36,10 @@ def _chromium() -> str | None:
 
 CHROMIUM = _chromium()
 needs_browser = pytest.mark.skipif(
-    CHROMIUM is None, reason="headless Chromium not installed (Debian: apt-get install chromium; .ci/run installs it "
-                             "when it runs as root with apt): report.html is not checked in a browser here")
+    CHROMIUM is None,
+    reason="headless Chromium not installed (Debian: apt-get install chromium; .ci/run installs it "
+    "when it runs as root with apt): report.html is not checked in a browser here",
+)
 
 
 def _shots(tmp_path: Path) -> Path:
@@ -47,17 +50,33 @@ def _shots(tmp_path: Path) -> Path:
 
 def _browser(page: Path, tmp_path: Path, shot: Path, height: int = 3000) -> str:
     """Screenshot ``page`` to ``shot`` and return the DOM after the page's scripts ran."""
-    common = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run",
-              f"--user-data-dir={tmp_path / 'chromium-profile'}", "--virtual-time-budget=15000"]
+    common = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--hide-scrollbars",
+        "--no-first-run",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+        "--virtual-time-budget=15000",
+    ]
     url = page.resolve().as_uri()
-    subprocess.run([*common, f"--window-size=1400,{height}", f"--screenshot={shot}", url],
-                   check=True, capture_output=True, timeout=180)
-    dom = subprocess.run([*common, "--dump-dom", url], check=True, capture_output=True, timeout=180, text=True).stdout
+    subprocess.run(
+        [*common, f"--window-size=1400,{height}", f"--screenshot={shot}", url],
+        check=True,
+        capture_output=True,
+        timeout=180,
+    )
+    dom = subprocess.run(
+        [*common, "--dump-dom", url], check=True, capture_output=True, timeout=180, text=True
+    ).stdout
     return dom
 
 
 def _check(dom: str, shot: Path, figures: list[str]) -> None:
-    m = re.search(r'id="sg-images"[^>]*data-ok="(\w+)"[^>]*data-loaded="(\d+)"[^>]*data-total="(\d+)"', dom)
+    m = re.search(
+        r'id="sg-images"[^>]*data-ok="(\w+)"[^>]*data-loaded="(\d+)"[^>]*data-total="(\d+)"', dom
+    )
     assert m, "the page's image check did not run (no data-ok on #sg-images)"
     ok, loaded, total = m.group(1), int(m.group(2)), int(m.group(3))
     assert ok == "true" and loaded == total, f"{total - loaded} of {total} images did not load"
@@ -70,14 +89,27 @@ def _check(dom: str, shot: Path, figures: list[str]) -> None:
 @needs_browser
 @pytest.mark.skipif(not CHESS.is_dir(), reason="OpenCV's chessboard pairs not in ../shared/data")
 def test_calibration_report_real_pairs(tmp_path):
-    res = run_pipeline(PIPES / "calibrate.yaml", ["rig.type=source.calib_files", f"rig.folder={CHESS}"],
-                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "cal")
+    res = run_pipeline(
+        PIPES / "calibrate.yaml",
+        ["rig.type=source.calib_files", f"rig.folder={CHESS}"],
+        cache_dir=tmp_path / "cache",
+        out_dir=tmp_path / "cal",
+    )
     assert res.ok
     shot = _shots(tmp_path) / "calibrate-opencv-pairs.png"
     dom = _browser(res.out_dir / "report.html", tmp_path, shot, 3800)
-    _check(dom, shot, ["calib_report/reprojection_errors.png", "calib_report/corners.png",
-                       "calib_report/poses.png", "rectify/check_image.png"])
-    assert "sg-graph" in dom and "stereo RMS" not in dom  # the RMS is in the check image, drawn, not text
+    _check(
+        dom,
+        shot,
+        [
+            "calib_report/reprojection_errors.png",
+            "calib_report/corners.png",
+            "calib_report/poses.png",
+            "rectify/check_image.png",
+        ],
+    )
+    # the RMS is in the check image, drawn, not text
+    assert "sg-graph" in dom and "stereo RMS" not in dom
     # `stereograph report` rebuilds the page from run.json alone
     (res.out_dir / "report.html").unlink()
     assert main(["report", str(res.out_dir)]) == 0
@@ -87,8 +119,12 @@ def test_calibration_report_real_pairs(tmp_path):
 @pytest.mark.slow
 @needs_browser
 def test_locate_hard_report(tmp_path):
-    res = run_pipeline(PIPES / "locate-hard.yaml", ["rig.n_hard_each=2", "rig.n_views=10"],
-                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "hard")
+    res = run_pipeline(
+        PIPES / "locate-hard.yaml",
+        ["rig.n_hard_each=2", "rig.n_views=10"],
+        cache_dir=tmp_path / "cache",
+        out_dir=tmp_path / "hard",
+    )
     shot = _shots(tmp_path) / "locate-hard.png"
     dom = _browser(res.out_dir / "report.html", tmp_path, shot)
     _check(dom, shot, ["report/figure.png", "segment/overlay/"])
@@ -100,8 +136,13 @@ def test_locate_hard_report(tmp_path):
 def test_compare_report(tmp_path):
     from stereograph.app.compare import compare
 
-    res = compare(PIPES / "compare-compensation.yaml", ["fit.type=none,polynomial,xyz"], tmp_path / "cmp",
-                  overrides=["rig.n_scenes=24", "rig.n_views=10"], cache_dir=tmp_path / "cache")
+    res = compare(
+        PIPES / "compare-compensation.yaml",
+        ["fit.type=none,polynomial,xyz"],
+        tmp_path / "cmp",
+        overrides=["rig.n_scenes=24", "rig.n_views=10"],
+        cache_dir=tmp_path / "cache",
+    )
     page = res.out_dir / "compare.html"
     shot = _shots(tmp_path) / "compare-compensation.png"
     dom = _browser(page, tmp_path, shot, 1800)
@@ -110,7 +151,8 @@ def test_compare_report(tmp_path):
     # every variant's full settings, the shared --set overrides in the title and in each row
     assert all(f"fit.type={t}" in dom for t in ("none", "polynomial", "xyz"))
     assert dom.count("--set rig.n_scenes=24") >= 4
-    for vr in res.variants:  # each variant is a compensate.yaml run with its fit's figure on its page
+    # each variant is a compensate.yaml run with its fit's figure on its page
+    for vr in res.variants:
         assert 'data-file="fit/figure.png"' in (vr.out_dir / "report.html").read_text()
     # one of them opened: the compensation figure (curve over the training placements) loads
     xyz = next(vr for vr in res.variants if "fit.type=xyz" in vr.variant.label)
@@ -122,17 +164,24 @@ def test_compare_report(tmp_path):
 @pytest.mark.slow
 @needs_browser
 def test_pick_report(tmp_path):
-    res = run_pipeline(PIPES / "pick.yaml", ["rig.n_scenes=16", "rig.n_views=10"],
-                       cache_dir=tmp_path / "cache", out_dir=tmp_path / "pick")
+    res = run_pipeline(
+        PIPES / "pick.yaml",
+        ["rig.n_scenes=16", "rig.n_views=10"],
+        cache_dir=tmp_path / "cache",
+        out_dir=tmp_path / "pick",
+    )
     assert res.ok
     shot = _shots(tmp_path) / "pick.png"
-    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 7600)  # tall: the arm is the last node
+    # tall: the arm is the last node
+    dom = _browser(res.out_dir / "report.html", tmp_path, shot, 7600)
     _check(dom, shot, ["pick_report/arm_figure.png", "locate/overlay/"])
     assert "Joints and servos at the grasp" in dom and "goal (units)" in dom
 
 
-PAYLOAD = ("<img src=x onerror=\"document.body.setAttribute('data-pwned','img')\">"
-           "<script>document.body.setAttribute('data-pwned','script')</script>")
+PAYLOAD = (
+    "<img src=x onerror=\"document.body.setAttribute('data-pwned','img')\">"
+    "<script>document.body.setAttribute('data-pwned','script')</script>"
+)
 
 
 def _leaves(x, path=()):
@@ -149,7 +198,8 @@ def _leaves(x, path=()):
 
 
 def _plant(doc, path):
-    """A copy of ``doc`` with the payload at ``path`` (appended to a string, in place of anything else)."""
+    """A copy of ``doc`` with the payload at ``path`` (appended to a string, in place of anything
+    else)."""
     doc = json.loads(json.dumps(doc))
     *head, last = path
     box = doc
@@ -163,12 +213,15 @@ def _plant(doc, path):
 
 
 def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
-    """run.json may come from someone else (`stereograph report DIR`): whatever field carries markup,
-    the page either shows it as text or is refused -- and in a browser no planted script runs."""
+    """run.json may come from someone else (`stereograph report DIR`): whatever field carries
+    markup, the page either shows it as text or is refused -- and in a browser no planted script
+    runs."""
     from stereograph.app.report import write_report
     from stereograph.core.errors import ConfigError
 
-    res = run_pipeline(PIPES / "hello.yaml", ["numbers.n=3"], cache_dir=tmp_path / "c", out_dir=tmp_path / "run")
+    res = run_pipeline(
+        PIPES / "hello.yaml", ["numbers.n=3"], cache_dir=tmp_path / "c", out_dir=tmp_path / "run"
+    )
     summary = json.loads((res.out_dir / "run.json").read_text())
     paths = list(_leaves(summary))
     assert len(paths) > 80
@@ -181,7 +234,8 @@ def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
             refused.append(path)
             continue
         assert "<img src=x" not in page and "<script>document" not in page, path
-        if not isinstance(path[-1], tuple):  # (keys one at a time only: a renamed 'nodes' hides the rest)
+        # (keys one at a time only: a renamed 'nodes' hides the rest)
+        if not isinstance(path[-1], tuple):
             planted_all = _plant(planted_all, path)
     assert len(refused) < len(paths) // 4  # most fields are shown, escaped
     # every value that is shown, planted at once, opened in the browser: nothing ran
@@ -199,8 +253,9 @@ def test_markup_planted_in_any_run_json_field_is_shown_as_text(tmp_path):
 
 @pytest.mark.slow
 def test_a_loops_page_leads_with_its_result_and_its_cycles(tmp_path):
-    """pick-live --repeat 3 --save-cycles: the result (the pick's summary), then the cycles (counts, time
-    per stage, the last cycles' pictures), then the graph and the nodes; each cycle's servo log kept."""
+    """pick-live --repeat 3 --save-cycles: the result (the pick's summary), then the cycles (counts,
+    time per stage, the last cycles' pictures), then the graph and the nodes; each cycle's servo log
+    kept."""
     from stereograph.app.loop import Loop
     from stereograph.core.config import load_pipeline
     from stereograph.core.graph import build_graph
@@ -208,13 +263,15 @@ def test_a_loops_page_leads_with_its_result_and_its_cycles(tmp_path):
 
     doc = load_pipeline(PIPES / "pick-live.yaml", ["act.sim_time_scale=20", "segment.overlay=true"])
     loop = Loop(3, save_cycles=True)
-    res = run_graph(build_graph(doc), cycles=loop, out_dir=tmp_path / "run", cache_dir=tmp_path / "cache")
+    res = run_graph(
+        build_graph(doc), cycles=loop, out_dir=tmp_path / "run", cache_dir=tmp_path / "cache"
+    )
     page = (res.out_dir / "report.html").read_text()
     at = {k: page.index(k) for k in ('id="sg-result"', 'id="sg-cycles"', 'id="sg-details"')}
     assert at['id="sg-result"'] < at['id="sg-cycles"'] < at['id="sg-details"']
-    result = page[at['id="sg-result"']:at['id="sg-cycles"']]
+    result = page[at['id="sg-result"'] : at['id="sg-cycles"']]
     assert "act: summary" in result and "picks[0].ok" in result
-    cycles = page[at['id="sg-cycles"']:at['id="sg-details"']]
+    cycles = page[at['id="sg-cycles"'] : at['id="sg-details"']]
     assert "time per cycle" in cycles and ">segment<" in cycles and "cycle 3: ok" in cycles
     assert 'data-file="cycles/00003/segment/overlay' in cycles
     logs = (res.out_dir / "act" / "log.cycles.jsonl").read_text().splitlines()

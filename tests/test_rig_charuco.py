@@ -37,8 +37,14 @@ def _partial_view(views):
 
 @pytest.mark.slow
 def test_charuco_views_rendered(views):
-    assert views["board"] == {"cols": 9, "rows": 6, "square_cm": 2.5, "type": "charuco",
-                              "dictionary": "DICT_4X4_50", "marker_fraction": 0.7}
+    assert views["board"] == {
+        "cols": 9,
+        "rows": 6,
+        "square_cm": 2.5,
+        "type": "charuco",
+        "dictionary": "DICT_4X4_50",
+        "marker_fraction": 0.7,
+    }
     rig = make_rig()
     pose = random_board_poses(rig, 1, np.random.default_rng(3))[0]
     left, _, corners = render_board_view(rig, pose, seed=1, charuco=CHARUCO)
@@ -61,8 +67,10 @@ def test_charuco_recovers_rig(views):
     fy = [cal[k][1, 1] / t[k][1, 1] - 1 for k in ("K1", "K2")]
     base = np.linalg.norm(cal["T_cm"]) / np.linalg.norm(t["T_cm"]) - 1
     rot = np.degrees(np.linalg.norm(cv2.Rodrigues(cal["R"] @ t["R"].T)[0]))
-    print(f"fx err {np.round(np.array(fx) * 100, 3)} %, fy err {np.round(np.array(fy) * 100, 3)} %, "
-          f"baseline err {base * 100:.3f} %, rotation err {rot:.4f} deg, rms {cal['rms_px']:.3f} px")
+    print(
+        f"fx err {np.round(np.array(fx) * 100, 3)} %, fy err {np.round(np.array(fy) * 100, 3)} %, "
+        f"baseline err {base * 100:.3f} %, rotation err {rot:.4f} deg, rms {cal['rms_px']:.3f} px"
+    )
     assert max(map(abs, fx + fy)) < 0.005
     assert abs(base) < 0.005
     assert rot < 0.1
@@ -75,15 +83,23 @@ def test_charuco_recovers_rig(views):
 @pytest.mark.slow
 def test_charuco_too_few_corners(views):
     blank = np.full((480, 640, 3), 128, np.uint8)
-    v = dict(views, views=[{"id": f"b{i}", "left": blank, "right": blank} for i in range(3)]
-             + views["views"][:1])
+    v = dict(
+        views,
+        views=[{"id": f"b{i}", "left": blank, "right": blank} for i in range(3)]
+        + views["views"][:1],
+    )
     with pytest.raises(NodeError, match=r"only 1 of 4 views.*b0: 0 corners"):
         charuco(CharucoParams(), views=v)
 
 
 def test_charuco_refuses_chessboard_views():
-    v = {"views": [{"id": "a", "left": np.zeros((48, 64), np.uint8), "right": np.zeros((48, 64), np.uint8)}],
-         "image_size": [64, 48], "board": {"cols": 9, "rows": 6, "square_cm": 2.5}}
+    v = {
+        "views": [
+            {"id": "a", "left": np.zeros((48, 64), np.uint8), "right": np.zeros((48, 64), np.uint8)}
+        ],
+        "image_size": [64, 48],
+        "board": {"cols": 9, "rows": 6, "square_cm": 2.5},
+    }
     with pytest.raises(NodeError, match="not a ChArUco board"):
         charuco(CharucoParams(), views=v)
 

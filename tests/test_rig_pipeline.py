@@ -1,4 +1,5 @@
-"""pipelines/calibrate.yaml through the engine: synthetic (default), real images, Tsai, and a bad folder."""
+"""pipelines/calibrate.yaml through the engine: synthetic (default), real images, Tsai, and a bad
+folder."""
 
 from pathlib import Path
 
@@ -13,7 +14,9 @@ DATA = ROOT.parent / "shared" / "data" / "opencv-stereo-chessboard"
 
 
 def _run(tmp_path, overrides):
-    return run_pipeline(str(PIPE), overrides=overrides, cache_dir=tmp_path / "cache", out_dir=tmp_path / "out")
+    return run_pipeline(
+        str(PIPE), overrides=overrides, cache_dir=tmp_path / "cache", out_dir=tmp_path / "out"
+    )
 
 
 @pytest.mark.slow
@@ -40,15 +43,37 @@ def test_calibrate_real_images(tmp_path):
 
 def test_bad_folder_exits_nonzero_naming_it(tmp_path, capsys):
     missing = tmp_path / "no_such_folder"
-    rc = main(["run", str(PIPE), "--set", "rig.type=source.calib_files", "--set", f"rig.folder={missing}",
-               "--out", str(tmp_path / "o")])
+    rc = main(
+        [
+            "run",
+            str(PIPE),
+            "--set",
+            "rig.type=source.calib_files",
+            "--set",
+            f"rig.folder={missing}",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
     assert rc in (1, 2)
     io = capsys.readouterr()
     assert str(missing) in io.out + io.err
 
 
 def test_validate_reports_a_bad_distance_range(capsys):
-    rc = main(["validate", str(PIPE), "--set", "rig.min_distance_cm=70", "--set", "rig.max_distance_cm=40"])
+    rc = main(
+        [
+            "validate",
+            str(PIPE),
+            "--set",
+            "rig.min_distance_cm=70",
+            "--set",
+            "rig.max_distance_cm=40",
+        ]
+    )
     assert rc == 2
     err = capsys.readouterr().err
-    assert "max_distance_cm (40.0) must exceed min_distance_cm (70.0)" in err and "calibrate.yaml:" in err
+    assert (
+        "max_distance_cm (40.0) must exceed min_distance_cm (70.0)" in err
+        and "calibrate.yaml:" in err
+    )

@@ -1,4 +1,5 @@
-"""The synthetic renderer is self-consistent: silhouettes, centroids, projections, determinism, hard scenes."""
+"""The synthetic renderer is self-consistent: silhouettes, centroids, projections, determinism, hard
+scenes."""
 
 import cv2
 import numpy as np
@@ -23,7 +24,8 @@ def _centroid(cov):
 
 @pytest.mark.slow
 def test_rendered_centroid_matches_exact_silhouette(rig):
-    """Coverage centroid vs the exact (distorted) silhouette's area centroid, many placements, both cameras."""
+    """Coverage centroid vs the exact (distorted) silhouette's area centroid, many placements, both
+    cameras."""
     gaps = []
     for i in range(10):
         scene = make_scene(rig, "plain", np.random.default_rng([5, i]))
@@ -62,8 +64,12 @@ def test_triangulating_true_centres_returns_true_centre(rig):
     for i in range(10):
         scene = make_scene(rig, "plain", np.random.default_rng([11, i]))
         _, _, t = render_scene(rig, scene, seed=i)
-        nl = cv2.undistortPoints(np.array([[t["center_px_left"]]]), tr["K1"], tr["D1"], criteria=crit).reshape(2, 1)
-        nr = cv2.undistortPoints(np.array([[t["center_px_right"]]]), tr["K2"], tr["D2"], criteria=crit).reshape(2, 1)
+        nl = cv2.undistortPoints(
+            np.array([[t["center_px_left"]]]), tr["K1"], tr["D1"], criteria=crit
+        ).reshape(2, 1)
+        nr = cv2.undistortPoints(
+            np.array([[t["center_px_right"]]]), tr["K2"], tr["D2"], criteria=crit
+        ).reshape(2, 1)
         X = cv2.triangulatePoints(P1, P2, nl, nr)
         X = (X[:3] / X[3]).ravel()
         assert np.linalg.norm(X - t["center_left_cm"]) < 1e-4
@@ -78,7 +84,9 @@ def test_camera_model_inverse_is_exact(rig):
     xy = undistort_pixels(cam["K"], cam["D"], px)
     back = project_points(cam["K"], cam["D"], np.column_stack([xy, np.ones(len(xy))]))
     assert np.abs(back - px).max() < 1e-9
-    ref, _ = cv2.projectPoints(np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), cam["K"], cam["D"])
+    ref, _ = cv2.projectPoints(
+        np.column_stack([xy, np.ones(len(xy))]), np.zeros(3), np.zeros(3), cam["K"], cam["D"]
+    )
     assert np.abs(ref.reshape(-1, 2) - px).max() < 1e-6
 
 
@@ -94,9 +102,14 @@ def test_camera_model_inverse_is_exact_over_many_blocks(rig):
         xy = _lens.undistort_normalized(np.stack([xd, yd], axis=1), cam["D"], guess=guess)
         back = project_points(cam["K"], cam["D"], np.column_stack([xy, np.ones(n)]))
         assert np.abs(back - px).max() < 1e-9
-        alone = [_lens.undistort_normalized(np.stack([xd[k:k + 1], yd[k:k + 1]], axis=1), cam["D"],
-                                            guess=None if guess is None else guess[k:k + 1])
-                 for k in (0, _lens._BLOCK - 1, _lens._BLOCK, n - 1)]
+        alone = [
+            _lens.undistort_normalized(
+                np.stack([xd[k : k + 1], yd[k : k + 1]], axis=1),
+                cam["D"],
+                guess=None if guess is None else guess[k : k + 1],
+            )
+            for k in (0, _lens._BLOCK - 1, _lens._BLOCK, n - 1)
+        ]
         assert np.array_equal(np.concatenate(alone), xy[[0, _lens._BLOCK - 1, _lens._BLOCK, n - 1]])
 
 
@@ -143,8 +156,18 @@ def test_hard_scene_kinds(rig):
 
 
 def test_explicit_scene_and_bad_colour(rig):
-    scene = {"ball": {"center_cm": [0.0, 5.0], "radius_cm": 2.5, "color": [0, 200, 0]},
-             "objects": [{"type": "cylinder", "center_cm": [8, 8], "radius_cm": 1.5, "height_cm": 6, "color": "blue"}]}
+    scene = {
+        "ball": {"center_cm": [0.0, 5.0], "radius_cm": 2.5, "color": [0, 200, 0]},
+        "objects": [
+            {
+                "type": "cylinder",
+                "center_cm": [8, 8],
+                "radius_cm": 1.5,
+                "height_cm": 6,
+                "color": "blue",
+            }
+        ],
+    }
     _, _, t = render_scene(rig, scene)
     assert t["radius_cm"] == 2.5 and t["center_table_cm"] == [0.0, 5.0, 2.5]
     with pytest.raises(ValueError, match="unknown colour"):

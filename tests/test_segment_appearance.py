@@ -31,7 +31,10 @@ ORANGE = (20, 120, 245)
 def rig():
     src = synthetic(SyntheticParams(n_scenes=8, n_views=0, seed=3))
     rect = rectify_calibration(truth_calibration(src["truth"]))
-    pairs = {k: remap(RemapParams(), rectification=rect, pair=p)["rectified"] for k, p in src["pairs"].items()}
+    pairs = {
+        k: remap(RemapParams(), rectification=rect, pair=p)["rectified"]
+        for k, p in src["pairs"].items()
+    }
     return pairs, rect
 
 
@@ -41,7 +44,8 @@ def test_learns_the_balls_colour_from_the_training_placements(rig):
     train = sorted(k for k, p in pairs.items() if p["split"] == "train")
     assert out["pairs"] == train and out["n_pairs"] == len(train) >= 3
     assert out["left_out"] == {}
-    # the rendered ball is shaded, so its BGR is darker than the albedo; its chromaticity is the albedo's
+    # the rendered ball is shaded, so its BGR is darker than the albedo; its chromaticity is the
+    # albedo's
     d = color_distance_map(np.uint8([[out["color_bgr"]]]), ORANGE)[0, 0]
     assert d < 0.03, (out["color_bgr"], d)
     assert out["color_tolerance"] == pytest.approx(0.15)  # behaves as a colour given in the YAML
@@ -55,10 +59,17 @@ def test_camera_pairs_and_table_frame_truth_give_the_same_colour(rig):
     ref = learn_appearance(pairs, rect, AppearanceParams(), raw=False)
     raw = learn_appearance(src["pairs"], rect, AppearanceParams(), raw=True)  # rectified on request
     assert raw["color_bgr"] == ref["color_bgr"] and raw["pairs"] == ref["pairs"]
-    table_only = {k: {**p, "truth": {"center_table_cm": p["truth"]["center_table_cm"]}} for k, p in pairs.items()}
+    table_only = {
+        k: {**p, "truth": {"center_table_cm": p["truth"]["center_table_cm"]}}
+        for k, p in pairs.items()
+    }
     T = src["truth"]["T_table_from_left"]
-    assert learn_appearance(table_only, rect, AppearanceParams(), raw=False, T_table_from_left=T)["color_bgr"] \
+    assert (
+        learn_appearance(table_only, rect, AppearanceParams(), raw=False, T_table_from_left=T)[
+            "color_bgr"
+        ]
         == ref["color_bgr"]
+    )
     with pytest.raises(NodeError, match="wire `rig` for a table-frame one"):
         learn_appearance(table_only, rect, AppearanceParams(), raw=False)
 
@@ -69,7 +80,8 @@ def test_a_placement_whose_truth_is_wrong_is_left_out_and_listed(rig):
     pid = sorted(k for k, p in pairs.items() if p["split"] == "train")[0]
     bad = dict(pairs[pid])
     truth = dict(bad["truth"])
-    truth["center_left_cm"] = list(np.add(truth["center_left_cm"], [6.0, 0.0, 0.0]))  # 6 cm off: the table
+    # 6 cm off: the table
+    truth["center_left_cm"] = list(np.add(truth["center_left_cm"], [6.0, 0.0, 0.0]))
     bad["truth"] = truth
     pairs[pid] = bad
     out = learn_appearance(pairs, rect, AppearanceParams(), raw=False)
@@ -117,31 +129,52 @@ def test_a_second_ball_of_the_colour_merged_with_its_shadow_makes_the_result_amb
     assert reg is None and why.startswith("ambiguous"), why
     # with it the right ball's region is not round (or its median colour is pulled towards the
     # shadow's): the left ball must not come out as a confident answer
-    params = params.model_copy(update={"shadow": params.shadow.model_copy(update={"enabled": False})})
+    params = params.model_copy(
+        update={"shadow": params.shadow.model_copy(update={"enabled": False})}
+    )
     _, reg, why = segment_image(_two_balls(True), edge_morph_mask, params, (14.0, 40.0))
     assert reg is None and why.startswith("ambiguous"), (why, reg and reg["centroid_px"])
 
 
 @pytest.mark.slow
 def test_locate_learn_pipeline_finds_distractor_scenes_with_no_colour_given(tmp_path):
-    """CLI, from a pipeline file: the colour is learned, the distractor scenes are found right, and a
-    rerun with a changed segmenter parameter reuses the cached source and remap (a streamed region
+    """CLI, from a pipeline file: the colour is learned, the distractor scenes are found right, and
+    a rerun with a changed segmenter parameter reuses the cached source and remap (a streamed region
     after a gather node recomputes manifest-only items from their cached inputs)."""
-    common = [sys.executable, "-m", "stereograph", "run", str(ROOT / "pipelines" / "locate-learn.yaml"),
-              "--cache-dir", str(tmp_path / "cache"),
-              "--set", "rig.n_scenes=4", "--set", "rig.hard_cases=[distractor]", "--set", "rig.n_hard_each=8"]
-    r = subprocess.run(common + ["--out", str(tmp_path / "a")], capture_output=True, text=True, timeout=170)
+    common = [
+        sys.executable,
+        "-m",
+        "stereograph",
+        "run",
+        str(ROOT / "pipelines" / "locate-learn.yaml"),
+        "--cache-dir",
+        str(tmp_path / "cache"),
+        "--set",
+        "rig.n_scenes=4",
+        "--set",
+        "rig.hard_cases=[distractor]",
+        "--set",
+        "rig.n_hard_each=8",
+    ]
+    r = subprocess.run(
+        common + ["--out", str(tmp_path / "a")], capture_output=True, text=True, timeout=170
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     app = json.loads((tmp_path / "a" / "appearance" / "appearance.json").read_text())
     assert color_distance_map(np.uint8([[app["color_bgr"]]]), ORANGE)[0, 0] < 0.03
     locs = json.loads((tmp_path / "a" / "report" / "locations.json").read_text())
     found = [v for v in locs if v["found"]]
     assert len(found) >= 0.75 * len(locs)
-    assert {v["color_from"] for v in locs} == {"appearance"}  # each result says where its colour came from
+    # each result says where its colour came from
+    assert {v["color_from"] for v in locs} == {"appearance"}
     for v in found:
         err = np.linalg.norm(np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"]))
         assert err < 1.0, (v["pair"], err)
-    r = subprocess.run(common + ["--out", str(tmp_path / "b"), "--set", "segment.canny_high=100"],
-                       capture_output=True, text=True, timeout=170)
+    r = subprocess.run(
+        common + ["--out", str(tmp_path / "b"), "--set", "segment.canny_high=100"],
+        capture_output=True,
+        text=True,
+        timeout=170,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert "internal error" not in r.stderr

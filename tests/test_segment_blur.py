@@ -1,4 +1,5 @@
-"""The segmenters' Gaussian smoothing (contracts/segmenter/_blur.py) gives cv2.GaussianBlur's pixels, bit for bit."""
+"""The segmenters' Gaussian smoothing (contracts/segmenter/_blur.py) gives cv2.GaussianBlur's
+pixels, bit for bit."""
 
 from __future__ import annotations
 
@@ -23,8 +24,10 @@ def test_kernel_read_back_from_opencv():
     for sigma in SIGMAS:
         k = _blur._checked_kernel(sigma)
         if k is None:
-            pytest.skip(f"this OpenCV's 8-bit GaussianBlur is not the fixed-point path (sigma {sigma}): "
-                        "gaussian_blur is cv2.GaussianBlur itself")
+            pytest.skip(
+                f"this OpenCV's 8-bit GaussianBlur is not the fixed-point path (sigma {sigma}): "
+                "gaussian_blur is cv2.GaussianBlur itself"
+            )
         assert k.sum() == 256 and np.array_equal(k, k[::-1]) and k[0] > 0, (sigma, k)
         assert np.all(k == np.round(k)), (sigma, k)
 
@@ -41,7 +44,10 @@ def test_same_pixels_as_cv2(fast_everywhere):
         elif i % 4 == 2:
             img[:] = 255
         sigma = SIGMAS[i % len(SIGMAS)]
-        assert np.array_equal(gaussian_blur(img, sigma), cv2.GaussianBlur(img, (0, 0), sigma)), (img.shape, sigma)
+        assert np.array_equal(gaussian_blur(img, sigma), cv2.GaussianBlur(img, (0, 0), sigma)), (
+            img.shape,
+            sigma,
+        )
         n += 1
     # A window of a larger image (not contiguous): the segmenters' regions of interest.
     big = rng.integers(0, 256, (150, 170, 3), dtype=np.uint8)
@@ -57,8 +63,10 @@ def test_impulses_of_every_value(fast_everywhere):
     for sigma in (1.0, 2.0, 3.0):
         step = 2 * int(np.ceil(3 * sigma)) + 3
         img = np.zeros((16 * step, 16 * step), np.uint8)
-        img[step // 2::step, step // 2::step] = np.arange(256, dtype=np.uint8).reshape(16, 16)
-        assert np.array_equal(gaussian_blur(img, sigma), cv2.GaussianBlur(img, (0, 0), sigma)), sigma
+        img[step // 2 :: step, step // 2 :: step] = np.arange(256, dtype=np.uint8).reshape(16, 16)
+        assert np.array_equal(gaussian_blur(img, sigma), cv2.GaussianBlur(img, (0, 0), sigma)), (
+            sigma
+        )
 
 
 def test_other_types_and_large_images_use_opencv():

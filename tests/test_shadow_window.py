@@ -1,5 +1,6 @@
-"""Shadow suppression works on the mask's bounding box plus a frame (nodes/contracts/segmenter/_shadow.py):
-the result must be that of the whole window, pixel for pixel."""
+"""Shadow suppression works on the mask's bounding box plus a frame
+(nodes/contracts/segmenter/_shadow.py): the result must be that of the whole window, pixel for
+pixel."""
 
 from __future__ import annotations
 
@@ -13,7 +14,11 @@ from nodes.contracts.segmenter._shadow import _suppress, suppress_shadow
 def _scene(rng, h=90, w=110):
     """Textured table, an orange ball and its grey shadow; the mask covers ball + shadow."""
     img = np.clip(rng.normal(150, 25, (h, w, 3)), 0, 255).astype(np.uint8)
-    cu, cv_, r = int(rng.integers(20, w - 20)), int(rng.integers(20, h - 20)), int(rng.integers(6, 15))
+    cu, cv_, r = (
+        int(rng.integers(20, w - 20)),
+        int(rng.integers(20, h - 20)),
+        int(rng.integers(6, 15)),
+    )
     shadow = np.zeros((h, w), np.uint8)
     cv2.ellipse(shadow, (cu + r // 2, cv_ + r // 2), (r + 3, r // 2 + 2), 20, 0, 360, 255, -1)
     img[shadow > 0] = (img[shadow > 0] * 0.45).astype(np.uint8)

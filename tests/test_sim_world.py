@@ -6,9 +6,31 @@ from simbench.world import new_world, read_world, step, write_world
 
 
 def _world(**kw):
-    balls = [{"id": "b1", "object": "red", "color_bgr": [40, 40, 210], "radius_cm": 2.0, "center_cm": [10, 0, 2]},
-             {"id": "b2", "object": "red", "color_bgr": [40, 40, 210], "radius_cm": 2.0, "center_cm": [10, 8, 2]}]
-    places = [{"name": "red_place", "object": "red", "center_cm": [-10, 0], "radius_cm": 3.0, "height_cm": 3.0}]
+    balls = [
+        {
+            "id": "b1",
+            "object": "red",
+            "color_bgr": [40, 40, 210],
+            "radius_cm": 2.0,
+            "center_cm": [10, 0, 2],
+        },
+        {
+            "id": "b2",
+            "object": "red",
+            "color_bgr": [40, 40, 210],
+            "radius_cm": 2.0,
+            "center_cm": [10, 8, 2],
+        },
+    ]
+    places = [
+        {
+            "name": "red_place",
+            "object": "red",
+            "center_cm": [-10, 0],
+            "radius_cm": 3.0,
+            "height_cm": 3.0,
+        }
+    ]
     return new_world(balls, places, grasp_tolerance_cm=1.0, **kw)
 
 

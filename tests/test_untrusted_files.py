@@ -36,20 +36,30 @@ BOMB = textwrap.dedent("""\
 
 def _pipeline(tmp_path: Path, path: str) -> Path:
     p = tmp_path / "load.yaml"
-    p.write_text(f"name: load\nnodes:\n  cal: {{type: calibrator.load, params: {{path: '{path}'}}}}\n")
+    p.write_text(
+        f"name: load\nnodes:\n  cal: {{type: calibrator.load, params: {{path: '{path}'}}}}\n"
+    )
     return p
 
 
 def _cli(*argv: str, timeout: float = 60) -> tuple[int, str, float]:
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, "-m", "stereograph", *argv], capture_output=True, text=True,
-                         timeout=timeout, env=ENV, cwd=ROOT)
+    out = subprocess.run(
+        [sys.executable, "-m", "stereograph", *argv],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=ENV,
+        cwd=ROOT,
+    )
     return out.returncode, out.stdout + out.stderr, time.monotonic() - t0
 
 
 def _refused_in_words(code: int, text: str) -> None:
     assert code in (1, 2), text
-    assert "Traceback" not in text and "internal error" not in text and "looks like a bug" not in text, text
+    assert (
+        "Traceback" not in text and "internal error" not in text and "looks like a bug" not in text
+    ), text
 
 
 @pytest.mark.slow
@@ -57,8 +67,14 @@ def test_a_yaml_alias_bomb_as_ros_camera_info_is_refused_at_once(tmp_path):
     bomb = tmp_path / "left.yaml"
     bomb.write_text(BOMB)
     assert bomb.stat().st_size < 1000
-    code, text, seconds = _cli("run", str(_pipeline(tmp_path, str(bomb))), "--out", str(tmp_path / "o"),
-                               "--cache-dir", str(tmp_path / "c"))
+    code, text, seconds = _cli(
+        "run",
+        str(_pipeline(tmp_path, str(bomb))),
+        "--out",
+        str(tmp_path / "o"),
+        "--cache-dir",
+        str(tmp_path / "c"),
+    )
     _refused_in_words(code, text)
     assert seconds < 20 and "left.yaml" in text, text
 
@@ -67,8 +83,14 @@ def test_a_yaml_alias_bomb_as_ros_camera_info_is_refused_at_once(tmp_path):
 def test_a_filestorage_json_nested_100000_levels_is_refused_not_a_crash(tmp_path):
     deep = tmp_path / "calibration.json"
     deep.write_text('{"opencv-matrix": ' + "[" * 100_000 + "]" * 100_000 + "}")
-    code, text, _ = _cli("run", str(_pipeline(tmp_path, str(deep))), "--out", str(tmp_path / "o"),
-                         "--cache-dir", str(tmp_path / "c"))
+    code, text, _ = _cli(
+        "run",
+        str(_pipeline(tmp_path, str(deep))),
+        "--out",
+        str(tmp_path / "o"),
+        "--cache-dir",
+        str(tmp_path / "c"),
+    )
     _refused_in_words(code, text)
     assert "nests its values" in text, text
 
@@ -81,8 +103,15 @@ def test_a_device_or_fifo_as_a_calibration_file_is_refused_by_run_and_explain(tm
         path = str(tmp_path / "calibration.yml")
         os.mkfifo(path)
     pipe = _pipeline(tmp_path, path)
-    code, text, seconds = _cli("run", str(pipe), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"),
-                               timeout=60)
+    code, text, seconds = _cli(
+        "run",
+        str(pipe),
+        "--out",
+        str(tmp_path / "o"),
+        "--cache-dir",
+        str(tmp_path / "c"),
+        timeout=60,
+    )
     _refused_in_words(code, text)
     assert "device, FIFO or socket" in text and seconds < 20, text
     code, text, seconds = _cli("explain", str(pipe), "--cache-dir", str(tmp_path / "c"), timeout=60)
@@ -103,9 +132,13 @@ def test_a_fifo_as_the_cameras_video_file_is_refused_not_waited_on(tmp_path):
     os.mkfifo(fifo)
     (tmp_path / "right.avi").write_bytes(b"")
     p = tmp_path / "cam.yaml"
-    p.write_text("name: cam\nnodes:\n  cam: {type: source.camera, params: {left: left.avi, right: right.avi}}\n")
-    code, text, seconds = _cli("run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"),
-                               timeout=60)
+    p.write_text(
+        "name: cam\nnodes:\n  cam: {type: source.camera, params: {left: left.avi, right: "
+        "right.avi}}\n"
+    )
+    code, text, seconds = _cli(
+        "run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"), timeout=60
+    )
     _refused_in_words(code, text)
     assert "FIFO" in text and seconds < 20, text
 
@@ -128,16 +161,20 @@ def test_a_truth_file_is_read_once_for_all_the_pairs(tmp_path, monkeypatch):
 LIVE_CAL = ROOT / "pipelines" / "live" / "calibration.yml"
 
 
-@pytest.mark.parametrize("edit, said", [
-    (("data: [ 560.33467267895105,", "data: [ 0.,"), "focal lengths"),
-    (("data: [ 560.33467267895105,", "data: [ .nan,"), "not a finite 3x3"),
-    (("image_width: 640", "image_width: -640"), "image_size"),
-    (("image_width: 640", "image_width: 2000000000"), "image_size"),
-    (("image_width: 640", "image_width: .Inf"), "image_width"),
-])
+@pytest.mark.parametrize(
+    "edit, said",
+    [
+        (("data: [ 560.33467267895105,", "data: [ 0.,"), "focal lengths"),
+        (("data: [ 560.33467267895105,", "data: [ .nan,"), "not a finite 3x3"),
+        (("image_width: 640", "image_width: -640"), "image_size"),
+        (("image_width: 640", "image_width: 2000000000"), "image_size"),
+        (("image_width: 640", "image_width: .Inf"), "image_width"),
+    ],
+)
 def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, edit, said):
     """(a zero or NaN focal length loaded with exit 0 and failed later, inside pick-live, as a
-    ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV assertion)"""
+    ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV
+    assertion)"""
     from nodes.calibrators.load import read_calibration_file
     from stereograph.core.api import NodeError
 
@@ -151,17 +188,27 @@ def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, e
     assert read_calibration_file(LIVE_CAL)["image_size"] == [640, 480]  # the file as written loads
 
 
-@pytest.mark.parametrize("edit, said", [
-    (("   cols: 3\n   dt: d\n   data: [ 560.37", None), "3x-1 is not the size"),  # M2 (its first cols: 3)
-    (("rows: 1\n   cols: 5", "rows: 2000000000\n   cols: 5"), "2000000000x5"),
-    (("dt: d", "dt: *a"), "element type"),
-    (("   rows: 3\n   cols: 3\n   dt: d\n   data: [ 560.33467267895105, 0.,",
-      "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 0.,"), "data must hold 9 numbers"),
-])
+@pytest.mark.parametrize(
+    "edit, said",
+    [
+        # M2 (its first cols: 3)
+        (("   cols: 3\n   dt: d\n   data: [ 560.37", None), "3x-1 is not the size"),
+        (("rows: 1\n   cols: 5", "rows: 2000000000\n   cols: 5"), "2000000000x5"),
+        (("dt: d", "dt: *a"), "element type"),
+        (
+            (
+                "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 560.33467267895105, 0.,",
+                "   rows: 3\n   cols: 3\n   dt: d\n   data: [ 0.,",
+            ),
+            "data must hold 9 numbers",
+        ),
+    ],
+)
 def test_a_matrix_with_a_hostile_header_is_refused_not_a_crash(tmp_path, edit, said):
-    """(found by the reader fuzz test under the full suite: OpenCV 5.0.0's FileNode.mat() trusts rows
-    and cols; with cols: -1 it raises, but has corrupted the heap and the process aborts moments
-    later -- a crash, not a message. Run in a child process so that such a crash fails the test.)"""
+    """(found by the reader fuzz test under the full suite: OpenCV 5.0.0's FileNode.mat() trusts
+    rows and cols; with cols: -1 it raises, but has corrupted the heap and the process aborts
+    moments later -- a crash, not a message. Run in a child process so that such a crash fails the
+    test.)"""
     text = LIVE_CAL.read_text()
     old = edit[0]
     if edit[1] is None:  # the second matrix's cols: the first "cols: 3" followed by M2's data
@@ -186,7 +233,9 @@ def test_a_matrix_with_a_hostile_header_is_refused_not_a_crash(tmp_path, edit, s
         blocks = [np.zeros(1000) for _ in range(2000)]  # allocations that meet a corrupted heap
         print(said)
     """)
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    p = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
     assert p.returncode == 0 and said in p.stdout, (p.returncode, p.stdout, p.stderr[-500:])
 
 
@@ -211,10 +260,14 @@ def test_a_stream_that_never_answers_is_refused_within_its_timeout(tmp_path):
     threading.Thread(target=accept, daemon=True).start()
     p = tmp_path / "cam.yaml"
     url = f"http://127.0.0.1:{port}"
-    p.write_text(f"name: cam\nnodes:\n  cam: {{type: source.camera, params: {{left: '{url}/l.mjpg', "
-                 f"right: '{url}/r.mjpg', stream_timeout_s: 2}}}}\n")
+    p.write_text(
+        f"name: cam\nnodes:\n  cam: {{type: source.camera, params: {{left: '{url}/l.mjpg', "
+        f"right: '{url}/r.mjpg', stream_timeout_s: 2}}}}\n"
+    )
     try:
-        code, text, seconds = _cli("run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c"))
+        code, text, seconds = _cli(
+            "run", str(p), "--out", str(tmp_path / "o"), "--cache-dir", str(tmp_path / "c")
+        )
     finally:
         srv.close()
         for c in held:
@@ -228,20 +281,31 @@ def test_a_target_file_of_a_million_points_is_refused_in_words(tmp_path):
     from stereograph.core.api import NodeError
 
     f = tmp_path / "points.csv"
-    f.write_text("id,x_cm,y_cm,z_cm,u_px,v_px\n" + "".join(f"t{i},1,2,3,4,5\n" for i in range(MAX_POINTS + 1)))
+    f.write_text(
+        "id,x_cm,y_cm,z_cm,u_px,v_px\n"
+        + "".join(f"t{i},1,2,3,4,5\n" for i in range(MAX_POINTS + 1))
+    )
     with pytest.raises(NodeError, match=f"has {MAX_POINTS + 1} points"):
         read_target_csv(f, ("",))
 
 
-@pytest.mark.parametrize("text", [
-    '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">'
-    '<!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n<opencv_storage><M1>&c;</M1></opencv_storage>\n',
-    '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n'
-    "<opencv_storage><M1>&x;</M1></opencv_storage>\n",
-    "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\nM1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-    "   data: [ 560., 0., 320., 0.,",  # cut short
-])
-def test_an_xml_entity_bomb_an_external_entity_or_a_cut_filestorage_is_refused_in_words(tmp_path, text):
+@pytest.mark.parametrize(
+    "text",
+    [
+        '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY a "aaaaaaaaaa"><!ENTITY b '
+        '"&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">'
+        "<!ENTITY c "
+        '"&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n<opencv_storage><M1>&c;</M1></opencv_storage>\n',
+        '<?xml version="1.0"?>\n<!DOCTYPE l [<!ENTITY x SYSTEM "file:///etc/passwd">]>\n'
+        "<opencv_storage><M1>&x;</M1></opencv_storage>\n",
+        "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\nM1: !!opencv-matrix\n   "
+        "rows: 3\n   cols: 3\n   dt: d\n"
+        "   data: [ 560., 0., 320., 0.,",  # cut short
+    ],
+)
+def test_an_xml_entity_bomb_an_external_entity_or_a_cut_filestorage_is_refused_in_words(
+    tmp_path, text
+):
     """(each gave "SystemError ... looks like a bug in the node")"""
     from nodes.calibrators.load import read_calibration_file
     from stereograph.core.api import NodeError

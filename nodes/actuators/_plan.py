@@ -1,4 +1,5 @@
-"""Shared by the actuators: choosing plans, checking them against the arm model, what a waypoint sends.
+"""Shared by the actuators: choosing plans, checking them against the arm model, what a waypoint
+sends.
 
 Both actuators take every PickPlan of the run at once (``gather``), choose which to execute
 (:class:`Selection`: split, explicit items, how many) and run them one after the other, as one
@@ -51,29 +52,43 @@ def check_plan(plan: dict, arm: dict) -> None:
         goals, speeds = w.get("servo_units") or {}, w.get("speed_units") or {}
         for sid, goal in goals.items():
             if sid not in limits:
-                raise NodeError(f"refusing the whole plan: waypoint {w.get('name')!r} commands servo {sid}, which is "
-                                f"not in the arm model (servos {sorted(limits, key=int)}).",
-                                hint="build the plan and the actuator from the same ik.arm node.")
+                raise NodeError(
+                    f"refusing the whole plan: waypoint {w.get('name')!r} commands servo "
+                    f"{sid}, which is "
+                    f"not in the arm model (servos {sorted(limits, key=int)}).",
+                    hint="build the plan and the actuator from the same ik.arm node.",
+                )
             lo, hi = limits[sid]
             if not isinstance(goal, int) or not lo <= goal <= hi:
-                raise NodeError(f"refusing the whole plan: waypoint {w.get('name')!r} would send servo {sid} to "
-                                f"{goal} units, outside its joint limits {lo}..{hi} units; nothing was sent.",
-                                hint="re-plan with ik.pick_sequence from the same arm model, or fix the joint limits.")
+                raise NodeError(
+                    f"refusing the whole plan: waypoint {w.get('name')!r} would send "
+                    f"servo {sid} to "
+                    f"{goal} units, outside its joint limits {lo}..{hi} units; nothing was sent.",
+                    hint="re-plan with ik.pick_sequence from the same arm model, or fix the "
+                    "joint limits.",
+                )
             sp = speeds.get(sid, 0)
             if not isinstance(sp, int) or not 0 <= sp <= 1023:
-                raise NodeError(f"refusing the whole plan: waypoint {w.get('name')!r} has moving speed {sp} for servo "
-                                f"{sid}; AX-12A speeds are 0-1023.", hint="re-plan with ik.pick_sequence.")
+                raise NodeError(
+                    f"refusing the whole plan: waypoint {w.get('name')!r} has moving "
+                    f"speed {sp} for servo "
+                    f"{sid}; AX-12A speeds are 0-1023.",
+                    hint="re-plan with ik.pick_sequence.",
+                )
 
 
 def waypoint_data(w: dict) -> dict[int, tuple[int, int]]:
     """``{id: (goal_units, speed_units)}`` of a waypoint, ids in ascending order."""
-    return {int(k): (int(v), int(w["speed_units"].get(k, 0))) for k, v in sorted(w["servo_units"].items(),
-                                                                             key=lambda kv: int(kv[0]))}
+    return {
+        int(k): (int(v), int(w["speed_units"].get(k, 0)))
+        for k, v in sorted(w["servo_units"].items(), key=lambda kv: int(kv[0]))
+    }
 
 
 def sync_write_packet(data: dict[int, tuple[int, int]]) -> bytes:
     """The Protocol 1.0 SYNC_WRITE packet (goal position + moving speed, 4 bytes per servo)."""
     from nodes.contracts.dynamixel_protocol import BROADCAST_ID, INST_SYNC_WRITE, instruction_packet
+
     params = bytearray([ADDR_GOAL, 4])
     for sid, (goal, speed) in data.items():
         params += bytes([sid, goal & 0xFF, goal >> 8, speed & 0xFF, speed >> 8])
@@ -95,9 +110,15 @@ def move_seconds(prev: dict[int, int] | None, data: dict[int, tuple[int, int]]) 
 class Selection(Params):
     """Which plans an actuator executes."""
 
-    split: Literal["all", "train", "test"] = Field("all", description="Only plans of items in this split.")
-    items: list[str] | None = Field(None, description="Only these item ids (in this order); default all, in order.")
-    max_picks: int = Field(1, ge=1, le=10000, description="Execute at most this many plans (count).")
+    split: Literal["all", "train", "test"] = Field(
+        "all", description="Only plans of items in this split."
+    )
+    items: list[str] | None = Field(
+        None, description="Only these item ids (in this order); default all, in order."
+    )
+    max_picks: int = Field(
+        1, ge=1, le=10000, description="Execute at most this many plans (count)."
+    )
 
 
 def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
@@ -132,9 +153,14 @@ def select_plans(plans, sel: Selection) -> tuple[list[dict], dict[str, str]]:
             first = first.split("; fix: ")[0]
         # a refused plan knows its fix (arm geometry, hand-eye, ...); otherwise it is the selection
         hint = (plans[first_item].get("hint") if first_item else None) or (
-            "check the located objects (found, extrapolated, reachable) or the actuator's split / items selection")
-        raise NodeError(f"no pick plan to execute: {len(plans)} plan(s), none selected "
-                        f"({', '.join(reasons) or 'empty'})" + (f"; e.g. {first}" if first else ""), hint=hint)
+            "check the located objects (found, extrapolated, reachable) or the "
+            "actuator's split / items selection"
+        )
+        raise NodeError(
+            f"no pick plan to execute: {len(plans)} plan(s), none selected "
+            f"({', '.join(reasons) or 'empty'})" + (f"; e.g. {first}" if first else ""),
+            hint=hint,
+        )
     return chosen, skipped
 
 
@@ -146,19 +172,28 @@ def summary(picks: list[dict], plans: list[dict], skipped: dict[str, str]) -> di
     """A short, printable account of each executed pick, and why the other plans were not executed.
 
     ``not_picked`` counts them; ``not_picked_why`` counts them by reason (``max_picks 1 reached``,
-    ``split train``, ``refused``, ...), so that 119 plans not picked of 120 reads as the selection it is.
+    ``split train``, ``refused``, ...), so that 119 plans not picked of 120 reads as the selection
+    it is.
     """
     out = []
     for log_, plan in zip(picks, plans):
         g = plan["waypoints"][plan["grasp_index"]]
         # (the outcome first: what a person reads first, on the run's page too)
-        out.append({"item": plan.get("pair"), "ok": log_["ok"], "object_base_cm": _r(plan.get("target_base_cm")),
-                    "object_left_cm": _r(plan.get("location_cm")), "seconds": log_["seconds"],
-                    "servo_commands": len(log_["commands"]),
-                    "grasp_joints_deg": {k: round(v, 2) for k, v in g["joints_deg"].items()},
-                    "grasp_servo_goals": g["servo_units"]})
+        out.append(
+            {
+                "item": plan.get("pair"),
+                "ok": log_["ok"],
+                "object_base_cm": _r(plan.get("target_base_cm")),
+                "object_left_cm": _r(plan.get("location_cm")),
+                "seconds": log_["seconds"],
+                "servo_commands": len(log_["commands"]),
+                "grasp_joints_deg": {k: round(v, 2) for k, v in g["joints_deg"].items()},
+                "grasp_servo_goals": g["servo_units"],
+            }
+        )
     why: dict[str, int] = {}
     for reason in skipped.values():
-        key = reason.split(":")[0]  # a refusal's own text is in the log; here only that it was refused
+        # a refusal's own text is in the log; here only that it was refused
+        key = reason.split(":")[0]
         why[key] = why.get(key, 0) + 1
     return {"picks": out, "not_picked": len(skipped), "not_picked_why": why}

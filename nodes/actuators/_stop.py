@@ -1,4 +1,5 @@
-"""Ending a motion safely when the run is interrupted (Ctrl-C, SIGTERM) or something unexpected fails.
+"""Ending a motion safely when the run is interrupted (Ctrl-C, SIGTERM) or something unexpected
+fails.
 
 The arm is mid-way between two checked waypoints; the servos keep going to their last goal unless
 told otherwise. Three ways to end (``on_interrupt``):
@@ -39,17 +40,20 @@ def _main_thread() -> bool:
 
 @contextlib.contextmanager
 def stop_signals_as_interrupt():
-    """While the arm moves, SIGINT and SIGTERM raise a ``KeyboardInterrupt`` in the main thread, even
-    where the process inherited them ignored or blocked (a job started with ``&`` by a script) and
-    nobody else handles them: the default action would kill the process mid-motion, or do nothing,
-    leaving the arm going to its last goal with the port open. Handlers someone installed are kept."""
+    """While the arm moves, SIGINT and SIGTERM raise a ``KeyboardInterrupt`` in the main thread,
+    even where the process inherited them ignored or blocked (a job started with ``&`` by a script)
+    and nobody else handles them: the default action would kill the process mid-motion, or do
+    nothing, leaving the arm going to its last goal with the port open. Handlers someone installed
+    are kept."""
     if not _main_thread():
         yield
         return
     prev = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     if prev[signal.SIGTERM] in (signal.SIG_DFL, signal.SIG_IGN, None):
+
         def _raise(signum, frame):
             raise Terminated("SIGTERM")
+
         signal.signal(signal.SIGTERM, _raise)
     if prev[signal.SIGINT] in (signal.SIG_IGN, None):
         signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -65,7 +69,8 @@ def stop_signals_as_interrupt():
 
 @contextlib.contextmanager
 def uninterruptible():
-    """Ignore SIGINT / SIGTERM for the duration (a bounded stop sequence that must not be cut in half)."""
+    """Ignore SIGINT / SIGTERM for the duration (a bounded stop sequence that must not be cut in
+    half)."""
     if not _main_thread():
         yield
         return
@@ -100,18 +105,33 @@ def hold(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], speed_uni
             bus.sync_write({sid: (g, speed_units) for sid, g in goals.items()})
     detail = f"held at the present positions {goals} (units) with torque on"
     if silent:
-        detail += f"; servos {silent} did not answer and continue to their last goal (within limits)"
-    return {"action": "hold", "goals": {str(k): v for k, v in goals.items()}, "silent": silent, "detail": detail}
+        detail += (
+            f"; servos {silent} did not answer and continue to their last goal (within limits)"
+        )
+    return {
+        "action": "hold",
+        "goals": {str(k): v for k, v in goals.items()},
+        "silent": silent,
+        "detail": detail,
+    }
 
 
-def rest(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], rest_units: dict[int, int],
-         speed_units: int, tolerance_units: int) -> dict:
-    """Arm joints to the rest pose, the others held; a second interrupt during the move holds instead.
-    Gives up (and holds) after 1.5 x the expected move time + 2 s."""
+def rest(
+    bus: Bus,
+    ids: list[int],
+    limits: dict[str, tuple[int, int]],
+    rest_units: dict[int, int],
+    speed_units: int,
+    tolerance_units: int,
+) -> dict:
+    """Arm joints to the rest pose, the others held; a second interrupt during the move holds
+    instead. Gives up (and holds) after 1.5 x the expected move time + 2 s."""
     with uninterruptible():
         bus.recover()
         bus.waypoint = "stop: rest"
-        present = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids}
+        present = {
+            sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in ids
+        }
         # the gripper keeps what it holds
         goals = {sid: _clamp(rest_units.get(sid, present[sid]), limits[str(sid)]) for sid in ids}
         data = {sid: (g, speed_units) for sid, g in goals.items()}
@@ -129,12 +149,19 @@ def rest(bus: Bus, ids: list[int], limits: dict[str, tuple[int, int]], rest_unit
 
 def _wait_rest(bus, ids, limits, goals, speed_units, tolerance_units, t0, timeout_s) -> dict:
     while True:
-        pos = {sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in goals}
+        pos = {
+            sid: bus.read(sid, ADDR_POSITION, 2, "read of the present position") for sid in goals
+        }
         if all(abs(pos[s] - goals[s]) <= tolerance_units for s in goals):
-            return {"action": "rest", "goals": {str(k): v for k, v in goals.items()},
-                    "detail": f"moved to the rest pose {goals} (units) and holding it with torque on"}
+            return {
+                "action": "rest",
+                "goals": {str(k): v for k, v in goals.items()},
+                "detail": f"moved to the rest pose {goals} (units) and holding it with torque on",
+            }
         if time.monotonic() - t0 > timeout_s:
             out = hold(bus, ids, limits, speed_units)
-            out["detail"] = f"did not reach the rest pose within {timeout_s:.1f} s; " + out["detail"]
+            out["detail"] = (
+                f"did not reach the rest pose within {timeout_s:.1f} s; " + out["detail"]
+            )
             return out
         time.sleep(0.02)

@@ -23,8 +23,16 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-__all__ = ["coplanar_rotation", "f_sigma_rel", "jacobian", "levenberg_marquardt", "plane_frame", "refine_camera",
-           "relative_sigma", "thickness_ratio"]
+__all__ = [
+    "coplanar_rotation",
+    "f_sigma_rel",
+    "jacobian",
+    "levenberg_marquardt",
+    "plane_frame",
+    "refine_camera",
+    "relative_sigma",
+    "thickness_ratio",
+]
 
 
 def thickness_ratio(world_cm: np.ndarray) -> float:
@@ -46,8 +54,11 @@ def plane_frame(world_cm: np.ndarray) -> np.ndarray:
     return Vt
 
 
-def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Rotation and (tx, ty) of a camera seeing a flat target, by Tsai's radial alignment constraint.
+def coplanar_rotation(
+    Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray
+) -> tuple[np.ndarray, float, float]:
+    """Rotation and (tx, ty) of a camera seeing a flat target, by Tsai's radial alignment
+    constraint.
 
     The constraint uses only the direction of each image point from the principal point, which
     radial distortion does not change: this step needs neither f nor k1.
@@ -57,7 +68,8 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
     Xd, Yd : (N,) arrays
         Distorted sensor coordinates relative to the principal point, with sx already divided out.
     xy_plane : (N, 2) array
-        The target points in the plane's frame (z = 0), cm; their origin must not be near the optical axis.
+        The target points in the plane's frame (z = 0), cm; their origin must not be near the
+        optical axis.
 
     Returns
     -------
@@ -67,7 +79,8 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
         cm.
     """
     xw, yw = xy_plane[:, 0], xy_plane[:, 1]
-    # Radial alignment with z_w = 0: Xd = [Yd xw, Yd yw, Yd, -Xd xw, -Xd yw] . (r11, r12, tx, r21, r22) / ty
+    # Radial alignment with z_w = 0: Xd = [Yd xw, Yd yw, Yd, -Xd xw, -Xd yw] . (r11, r12, tx, r21,
+    # r22) / ty
     A = np.column_stack([Yd * xw, Yd * yw, Yd, -Xd * xw, -Xd * yw])
     a, *_ = np.linalg.lstsq(A, Xd, rcond=None)
     a1, a2, a3, a4, a5 = a
@@ -82,8 +95,8 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
     def pose(ty):
         return a1 * ty, a2 * ty, a4 * ty, a5 * ty, a3 * ty
 
-    # Sign of ty (as in the non-coplanar case): with the right sign every point's (xc, yc) points the way
-    # its (Xd, Yd) does; summed over all points, not decided by one.
+    # Sign of ty (as in the non-coplanar case): with the right sign every point's (xc, yc) points
+    # the way its (Xd, Yd) does; summed over all points, not decided by one.
     r11, r12, r21, r22, tx = pose(ty_abs)
     xc, yc = r11 * xw + r12 * yw + tx, r21 * xw + r22 * yw + ty_abs
     ty = ty_abs if float(xc @ Xd + yc @ Yd) > 0 else -ty_abs
@@ -98,8 +111,12 @@ def coplanar_rotation(Xd: np.ndarray, Yd: np.ndarray, xy_plane: np.ndarray) -> t
     return R, float(tx), float(ty)
 
 
-def jacobian(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np.ndarray,
-             e: np.ndarray | None = None) -> np.ndarray:
+def jacobian(
+    resid: Callable[[np.ndarray], np.ndarray],
+    q: np.ndarray,
+    steps: np.ndarray,
+    e: np.ndarray | None = None,
+) -> np.ndarray:
     """Forward-difference Jacobian of ``resid`` at ``q`` (``e`` = ``resid(q)`` if already known)."""
     e = resid(q) if e is None else e
     J = np.empty((e.size, q.size))
@@ -110,7 +127,9 @@ def jacobian(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np
     return J
 
 
-def relative_sigma(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np.ndarray, index: int) -> float:
+def relative_sigma(
+    resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, steps: np.ndarray, index: int
+) -> float:
     """1-sigma of parameter ``index`` over its value, from the fit's covariance ``s^2 (J^T J)^-1``.
 
     ``s^2`` is the residual variance (sum of squares over the degrees of freedom): how well the data
@@ -133,9 +152,14 @@ def relative_sigma(resid: Callable[[np.ndarray], np.ndarray], q: np.ndarray, ste
     return float(np.sqrt(var)) / max(abs(float(q[index])), 1e-300) if var >= 0 else float("inf")
 
 
-def levenberg_marquardt(resid: Callable[[np.ndarray], np.ndarray], q0: np.ndarray, steps: np.ndarray,
-                        iterations: int = 100) -> np.ndarray:
-    """Minimise ``|resid(q)|^2`` from ``q0``; ``steps`` are the forward-difference steps per parameter."""
+def levenberg_marquardt(
+    resid: Callable[[np.ndarray], np.ndarray],
+    q0: np.ndarray,
+    steps: np.ndarray,
+    iterations: int = 100,
+) -> np.ndarray:
+    """Minimise ``|resid(q)|^2`` from ``q0``; ``steps`` are the forward-difference steps per
+    parameter."""
     q = np.asarray(q0, float).copy()
     e = resid(q)
     cost, lam = float(e @ e), 1e-3
@@ -164,6 +188,7 @@ def _residual(Pw, Xdp, Yd, R0, sx, with_pose: bool, with_sx: bool):
     Parameters q = (tx, ty, tz, f, k1[, rotation increment (3, rad) if with_pose][, sx if with_sx]).
     Returns ``(resid, unpack)``; ``unpack(q) -> (R, tx, ty, tz, f, k1, sx)``.
     """
+
     def unpack(q):
         R = R0 if not with_pose else cv2.Rodrigues(q[5:8])[0] @ R0
         s = q[8 if with_pose else 5] if with_sx else sx
@@ -174,29 +199,41 @@ def _residual(Pw, Xdp, Yd, R0, sx, with_pose: bool, with_sx: bool):
         Xd = Xdp / s
         r2d = Xd * Xd + Yd * Yd
         xc, yc, z = Pw @ R[0] + txq, Pw @ R[1] + tyq, Pw @ R[2] + tzq
-        return np.concatenate([Xd * (1 + kq * r2d) - fq * xc / z, Yd * (1 + kq * r2d) - fq * yc / z])
+        return np.concatenate(
+            [Xd * (1 + kq * r2d) - fq * xc / z, Yd * (1 + kq * r2d) - fq * yc / z]
+        )
 
     return resid, unpack
 
 
 def _steps(Xdp, Yd, tz, f, sx, with_pose: bool, with_sx: bool) -> np.ndarray:
-    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd ** 2)), 1e-12)
-    return np.array([1e-7 * max(abs(tz), 1.0)] * 3 + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max]
-                    + [1e-8] * (3 if with_pose else 0) + ([1e-8] if with_sx else []))
+    r2max = max(float(np.max((Xdp / sx) ** 2 + Yd**2)), 1e-12)
+    return np.array(
+        [1e-7 * max(abs(tz), 1.0)] * 3
+        + [1e-7 * max(abs(f), 1.0), 1e-7 * 1e-3 / r2max]
+        + [1e-8] * (3 if with_pose else 0)
+        + ([1e-8] if with_sx else [])
+    )
 
 
 def refine_camera(Pw, Xdp, Yd, R0, tx, ty, tz, f, sx, with_sx: bool, with_pose: bool):
-    """Tsai's non-linear step over f, tz, k1; with ``with_pose`` also over a rotation increment, tx, ty,
-    and with ``with_sx`` over sx. Returns ``(R, tx, ty, tz, f, k1, sx)``."""
+    """Tsai's non-linear step over f, tz, k1; with ``with_pose`` also over a rotation increment, tx,
+    ty, and with ``with_sx`` over sx. Returns ``(R, tx, ty, tz, f, k1, sx)``."""
     resid, unpack = _residual(Pw, Xdp, Yd, R0, sx, with_pose, with_pose and with_sx)
     steps = _steps(Xdp, Yd, tz, f, sx, with_pose, with_pose and with_sx)
-    q = np.array([tx, ty, tz, f, 0.0] + ([0.0, 0.0, 0.0] if with_pose else []) + ([sx] if with_pose and with_sx
-                                                                                  else []), float)
+    q = np.array(
+        [tx, ty, tz, f, 0.0]
+        + ([0.0, 0.0, 0.0] if with_pose else [])
+        + ([sx] if with_pose and with_sx else []),
+        float,
+    )
     if with_pose:
         q = levenberg_marquardt(resid, q, steps)
     else:  # the thesis: f, tz and k1 only (tx, ty stay as the linear step found them)
+
         def sub(p):
             return resid(np.array([tx, ty, p[0], p[1], p[2]]))
+
         p = levenberg_marquardt(sub, np.array([tz, f, 0.0]), steps[2:5])
         q = np.array([tx, ty, *p])
     R, txq, tyq, tzq, fq, kq, s = unpack(q)

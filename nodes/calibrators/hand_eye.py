@@ -39,12 +39,20 @@ from stereograph.api import Field, In, NodeError, Out, Params, PathField, data_f
 
 # --------------------------------------------------------------------------- library
 def pose_matrix(translation_cm, rpy_deg) -> np.ndarray:
-    """4x4 homogeneous transform from a translation (cm) and roll/pitch/yaw (deg, applied x then y then z).
+    """4x4 homogeneous transform from a translation (cm) and roll/pitch/yaw (deg, applied x then y
+    then z).
 
     ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``.
     """
     r, p, y = (math.radians(float(a)) for a in rpy_deg)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(r),
+        math.sin(r),
+        math.cos(p),
+        math.sin(p),
+        math.cos(y),
+        math.sin(y),
+    )
     Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
@@ -98,11 +106,13 @@ def fit_rigid(src, dst, with_scale: bool = False) -> tuple[np.ndarray, float]:
     S, D = src - mu_s, dst - mu_d
     sv = np.linalg.svd(S, compute_uv=False)
     if sv[1] <= 1e-6 * max(sv[0], 1e-12):
-        raise ValueError("the camera points lie (nearly) on a line, so the rotation about it is undetermined")
+        raise ValueError(
+            "the camera points lie (nearly) on a line, so the rotation about it is undetermined"
+        )
     U, sig, Vt = np.linalg.svd(D.T @ S / len(src))
     E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])  # no reflections
     R = U @ E @ Vt
-    scale = float(np.trace(np.diag(sig) @ E) / (S ** 2).sum(1).mean()) if with_scale else 1.0
+    scale = float(np.trace(np.diag(sig) @ E) / (S**2).sum(1).mean()) if with_scale else 1.0
     T = np.eye(4)
     T[:3, :3] = scale * R
     T[:3, 3] = mu_d - scale * R @ mu_s
@@ -118,47 +128,83 @@ def residuals_cm(T, src, dst) -> np.ndarray:
 class Pose(Params):
     """A rigid pose: translation (cm) and roll/pitch/yaw (deg, R = Rz @ Ry @ Rx)."""
 
-    translation_cm: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
-                                        description="Translation (cm).")
-    rpy_deg: list[float] = Field([0.0, 0.0, 0.0], min_length=3, max_length=3,
-                                 description="Roll, pitch, yaw (deg) about x, y, z, applied in that order.")
+    translation_cm: list[float] = Field(
+        [0.0, 0.0, 0.0], min_length=3, max_length=3, description="Translation (cm)."
+    )
+    rpy_deg: list[float] = Field(
+        [0.0, 0.0, 0.0],
+        min_length=3,
+        max_length=3,
+        description="Roll, pitch, yaw (deg) about x, y, z, applied in that order.",
+    )
 
 
 class PointPair(Params):
     """One calibration pair."""
 
-    camera_cm: list[float] = Field(..., min_length=3, max_length=3,
-                                   description="Object position located by the cameras (left-camera frame, cm).")
-    arm_cm: list[float] = Field(..., min_length=3, max_length=3,
-                                description="The same point reached by the arm's tool point (arm-base frame, cm).")
+    camera_cm: list[float] = Field(
+        ...,
+        min_length=3,
+        max_length=3,
+        description="Object position located by the cameras (left-camera frame, cm).",
+    )
+    arm_cm: list[float] = Field(
+        ...,
+        min_length=3,
+        max_length=3,
+        description="The same point reached by the arm's tool point (arm-base frame, cm).",
+    )
 
 
 class HandEyeParams(Params):
     mode: Literal["given", "pairs", "rig", "located"] = Field(
-        "given", description="given: camera_in_base; pairs: fit pairs/pairs_file; rig: exact from the rig truth "
-                             "and base_in_table; located: fit located training balls to their true positions.")
-    camera_in_base: Pose | None = Field(None, description="mode given: left-camera pose in the arm-base frame.")
-    base_in_table: Pose | None = Field(None, description="Arm-base pose in the table frame (modes rig, located; "
-                                                         "also lets table-frame locations be used).")
-    pairs: list[PointPair] = Field(default_factory=list, description="mode pairs: >= 3 point pairs (cm).")
+        "given",
+        description="given: camera_in_base; pairs: fit pairs/pairs_file; rig: exact from the rig "
+        "truth "
+        "and base_in_table; located: fit located training balls to their true positions.",
+    )
+    camera_in_base: Pose | None = Field(
+        None, description="mode given: left-camera pose in the arm-base frame."
+    )
+    base_in_table: Pose | None = Field(
+        None,
+        description="Arm-base pose in the table frame (modes rig, located; "
+        "also lets table-frame locations be used).",
+    )
+    pairs: list[PointPair] = Field(
+        default_factory=list, description="mode pairs: >= 3 point pairs (cm)."
+    )
     pairs_file: str | None = PathField(
-        None, description="mode pairs: CSV with header cam_x,cam_y,cam_z,arm_x,arm_y,arm_z "
-                          "(cm), relative to the pipeline file.")
-    split: Literal["train", "test", "all"] = Field("train", description="mode located: which items to fit on.")
-    max_residual_cm: float = Field(1.0, gt=0, description="Refuse a fit whose RMS residual exceeds this (cm).")
+        None,
+        description="mode pairs: CSV with header cam_x,cam_y,cam_z,arm_x,arm_y,arm_z "
+        "(cm), relative to the pipeline file.",
+    )
+    split: Literal["train", "test", "all"] = Field(
+        "train", description="mode located: which items to fit on."
+    )
+    max_residual_cm: float = Field(
+        1.0, gt=0, description="Refuse a fit whose RMS residual exceeds this (cm)."
+    )
 
     @model_validator(mode="after")
     def _check_mode(self):
-        # What each mode needs from the YAML is checked here, so `stereograph validate` reports it (exit 2).
+        # What each mode needs from the YAML is checked here, so `stereograph validate` reports it
+        # (exit 2).
         if self.mode == "given" and self.camera_in_base is None:
-            raise ValueError("mode given needs camera_in_base: {translation_cm: [x, y, z], rpy_deg: [r, p, y]} "
-                             "(or use mode pairs with measured point pairs)")
+            raise ValueError(
+                "mode given needs camera_in_base: {translation_cm: [x, y, z], rpy_deg: [r, p, y]} "
+                "(or use mode pairs with measured point pairs)"
+            )
         if self.mode == "pairs" and not self.pairs_file and len(self.pairs) < 3:
-            raise ValueError(f"mode pairs got {len(self.pairs)} point pairs and no pairs_file; >= 3 pairs "
-                             "(camera_cm, arm_cm) or a pairs_file are needed")
+            raise ValueError(
+                f"mode pairs got {len(self.pairs)} point pairs and no pairs_file; >= 3 pairs "
+                "(camera_cm, arm_cm) or a pairs_file are needed"
+            )
         if self.mode in ("rig", "located") and self.base_in_table is None:
-            raise ValueError(f"mode {self.mode} needs base_in_table (the arm base's pose in the table frame); "
-                             "or use mode given / pairs")
+            raise ValueError(
+                f"mode {self.mode} needs base_in_table (the arm base's pose in the table frame); "
+                "or use mode given / pairs"
+            )
         return self
 
 
@@ -170,16 +216,22 @@ def _read_pairs(path) -> tuple[np.ndarray, np.ndarray]:
         cam = np.array([[float(r[k]) for k in ("cam_x", "cam_y", "cam_z")] for r in rows])
         arm_ = np.array([[float(r[k]) for k in ("arm_x", "arm_y", "arm_z")] for r in rows])
     except FileNotFoundError:
-        raise NodeError(f"hand-eye pairs file {path} does not exist.",
-                        hint="fix pairs_file (relative to the pipeline).") from None
+        raise NodeError(
+            f"hand-eye pairs file {path} does not exist.",
+            hint="fix pairs_file (relative to the pipeline).",
+        ) from None
     except (KeyError, ValueError, TypeError) as e:
-        raise NodeError(f"hand-eye pairs file {path} is not a CSV with numeric columns "
-                        f"cam_x,cam_y,cam_z,arm_x,arm_y,arm_z ({e}).", hint="fix the header / values.") from e
+        raise NodeError(
+            f"hand-eye pairs file {path} is not a CSV with numeric columns "
+            f"cam_x,cam_y,cam_z,arm_x,arm_y,arm_z ({e}).",
+            hint="fix the header / values.",
+        ) from e
     return cam.reshape(-1, 3), arm_.reshape(-1, 3)
 
 
 def _reads(params: HandEyeParams, pipeline_dir):
     from pathlib import Path
+
     if params.pairs_file:
         p = Path(params.pairs_file).expanduser()
         return [p if p.is_absolute() else Path(pipeline_dir) / p]
@@ -196,36 +248,69 @@ def _fit(cam, arm_pts, params: HandEyeParams, source: str):
     try:
         T, _ = fit_rigid(cam, arm_pts)
     except ValueError as e:
-        raise NodeError(f"hand-eye fit from {source}: {e}.",
-                        hint="use >= 3 pairs spread over the workspace, not on one line.") from e
+        raise NodeError(
+            f"hand-eye fit from {source}: {e}.",
+            hint="use >= 3 pairs spread over the workspace, not on one line.",
+        ) from e
     res = residuals_cm(T, cam, arm_pts)
-    rms = float(np.sqrt(np.mean(res ** 2)))
+    rms = float(np.sqrt(np.mean(res**2)))
     if rms > params.max_residual_cm:
-        raise NodeError(f"hand-eye fit from {source}: RMS residual {rms:.3f} cm > max_residual_cm "
-                        f"{params.max_residual_cm} cm (worst pair {int(np.argmax(res))}: {res.max():.3f} cm).",
-                        hint="check that each camera point and arm point are the same physical point, in cm, "
-                             "in the left-camera and arm-base frames.")
+        raise NodeError(
+            f"hand-eye fit from {source}: RMS residual {rms:.3f} cm > max_residual_cm "
+            f"{params.max_residual_cm} cm (worst pair {int(np.argmax(res))}: {res.max():.3f} cm).",
+            hint="check that each camera point and arm point are the same physical point, in cm, "
+            "in the left-camera and arm-base frames.",
+        )
     return T, {"rms": rms, "max": float(res.max()), "per_pair": [float(r) for r in res]}
 
 
-@node("calibrator.hand_eye",
-      inputs={"views": In("StereoViews", optional=True, description="For the rig's truth (modes rig, located)."),
-              "locations": In("Location", gather=True, optional=True, description="mode located: located balls."),
-              "table_frame": In("TableFrame", optional=True,
-                                description="mode rig: the measured table frame (calibrator.table_frame).")},
-      outputs={"hand_eye": Out("HandEye", save=True, description="Left-camera pose in the arm-base frame.")},
-      params=HandEyeParams, version="1", reads=_reads)
+@node(
+    "calibrator.hand_eye",
+    inputs={
+        "views": In(
+            "StereoViews", optional=True, description="For the rig's truth (modes rig, located)."
+        ),
+        "locations": In(
+            "Location", gather=True, optional=True, description="mode located: located balls."
+        ),
+        "table_frame": In(
+            "TableFrame",
+            optional=True,
+            description="mode rig: the measured table frame (calibrator.table_frame).",
+        ),
+    },
+    outputs={
+        "hand_eye": Out("HandEye", save=True, description="Left-camera pose in the arm-base frame.")
+    },
+    params=HandEyeParams,
+    version="1",
+    reads=_reads,
+)
 def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None, ctx=None):
-    """Left-camera pose in the arm-base frame: given, fitted from point pairs (Kabsch), or from rig truth."""
-    T_base_from_table = (invert_pose(pose_matrix(params.base_in_table.translation_cm,
-                                                 params.base_in_table.rpy_deg))
-                         if params.base_in_table else None)
+    """Left-camera pose in the arm-base frame: given, fitted from point pairs (Kabsch), or from rig
+    truth."""
+    T_base_from_table = (
+        invert_pose(pose_matrix(params.base_in_table.translation_cm, params.base_in_table.rpy_deg))
+        if params.base_in_table
+        else None
+    )
     T_tl = _truth_T_table_from_left(views)
-    T_truth = T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
-    T_measured = (T_base_from_table @ np.asarray(table_frame["T_table_from_left"], float)
-                  if (table_frame is not None and T_base_from_table is not None) else None)
+    T_truth = (
+        T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
+    )
+    T_measured = (
+        T_base_from_table @ np.asarray(table_frame["T_table_from_left"], float)
+        if (table_frame is not None and T_base_from_table is not None)
+        else None
+    )
     rig = (table_frame or {}).get("rig") or next(
-        (loc.get("rig") for loc in (locations or {}).values() if isinstance(loc, dict) and loc.get("rig")), None)
+        (
+            loc.get("rig")
+            for loc in (locations or {}).values()
+            if isinstance(loc, dict) and loc.get("rig")
+        ),
+        None,
+    )
     residual, n_pairs = None, 0
     if params.mode == "given":  # camera_in_base is required by HandEyeParams
         T = pose_matrix(params.camera_in_base.translation_cm, params.camera_in_base.rpy_deg)
@@ -239,20 +324,27 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None
             arm_pts = np.array([p.arm_cm for p in params.pairs]).reshape(-1, 3)
             source = "pairs"
         if len(cam) < 3:
-            raise NodeError(f"calibrator.hand_eye mode pairs got {len(cam)} point pairs; >= 3 are needed.",
-                            hint="add pairs (camera_cm, arm_cm) or a pairs_file.")
+            raise NodeError(
+                f"calibrator.hand_eye mode pairs got {len(cam)} point pairs; >= 3 are needed.",
+                hint="add pairs (camera_cm, arm_cm) or a pairs_file.",
+            )
         T, residual = _fit(cam, arm_pts, params, source)
         n_pairs = len(cam)
     elif params.mode == "rig" and T_measured is not None:
         T = T_measured
     else:
         if T_truth is None:
-            raise NodeError(f"calibrator.hand_eye mode {params.mode} needs the rig's truth (T_table_from_left on the "
-                            "views input)" + (" or a table_frame" if params.mode == "rig" else "")
-                            + " and base_in_table.",
-                            hint="wire table_frame: <calibrator.table_frame>.table_frame (a board on the table), or "
-                                 "views: <source>.views from a synthetic source, and set base_in_table; or use "
-                                 "mode given / pairs.")
+            raise NodeError(
+                f"calibrator.hand_eye mode {params.mode} needs the rig's truth "
+                "(T_table_from_left on the "
+                "views input)"
+                + (" or a table_frame" if params.mode == "rig" else "")
+                + " and base_in_table.",
+                hint="wire table_frame: <calibrator.table_frame>.table_frame (a board on the "
+                "table), or "
+                "views: <source>.views from a synthetic source, and set base_in_table; or use "
+                "mode given / pairs.",
+            )
         if params.mode == "rig":
             T = T_truth
         else:
@@ -263,22 +355,36 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None
                 if params.split != "all" and item.get("split", "train") != params.split:
                     continue
                 if item.get("frame", "left_camera") != "left_camera":
-                    raise NodeError(f"calibrator.hand_eye mode located needs left-camera locations, got frame "
-                                    f"{item.get('frame')!r} for {item.get('pair')}.",
-                                    hint="wire the locator's left-camera output.")
+                    raise NodeError(
+                        f"calibrator.hand_eye mode located needs left-camera locations, got frame "
+                        f"{item.get('frame')!r} for {item.get('pair')}.",
+                        hint="wire the locator's left-camera output.",
+                    )
                 cam.append([item["x_cm"], item["y_cm"], item["z_cm"]])
                 arm_pts.append(transform_points(T_truth, item["truth_cm"]))
             if len(cam) < 3:
-                raise NodeError(f"calibrator.hand_eye mode located found {len(cam)} usable {params.split} locations "
-                                "(found, with truth); >= 3 are needed.",
-                                hint="wire locations: <locator>.location over a source with ground truth, or use "
-                                     "split: all.")
+                raise NodeError(
+                    f"calibrator.hand_eye mode located found {len(cam)} usable "
+                    f"{params.split} locations "
+                    "(found, with truth); >= 3 are needed.",
+                    hint="wire locations: <locator>.location over a source with ground truth, "
+                    "or use "
+                    "split: all.",
+                )
             T, residual = _fit(np.array(cam), np.array(arm_pts), params, "located training balls")
             n_pairs = len(cam)
     if T_truth is not None and ctx is not None and params.mode != "rig":
         dt = float(np.linalg.norm(T[:3, 3] - T_truth[:3, 3]))
         if dt > 0.5:
             ctx.warn(f"hand-eye vs rig truth: translation differs by {dt:.3f} cm")
-    return {"hand_eye": {"T_base_from_left": T, "T_base_from_table": T_base_from_table, "method": params.mode,
-                         "n_pairs": int(n_pairs), "residual_cm": residual, "T_base_from_left_truth": T_truth,
-                         "rig": rig}}
+    return {
+        "hand_eye": {
+            "T_base_from_left": T,
+            "T_base_from_table": T_base_from_table,
+            "method": params.mode,
+            "n_pairs": int(n_pairs),
+            "residual_cm": residual,
+            "T_base_from_left_truth": T_truth,
+            "rig": rig,
+        }
+    }

@@ -53,15 +53,26 @@ _CAL_ARRAYS = ("K1", "D1", "K2", "D2", "R", "T_cm", "T_table_from_left")
 def _is_opencv_storage(path: Path) -> bool:
     data = path.read_bytes()
     head = data[:64].lstrip()
-    # OpenCV 4 writes "%YAML:1.0", OpenCV 5 "%YAML 1.2" + "!!opencv-matrix" tags; ROS files have neither.
-    return (head.startswith(b"%YAML:") or head.startswith(b"<?xml") or head.startswith(b"<opencv_storage")
-            or b"!!opencv-matrix" in data)
+    # OpenCV 4 writes "%YAML:1.0", OpenCV 5 "%YAML 1.2" + "!!opencv-matrix" tags; ROS files have
+    # neither.
+    return (
+        head.startswith(b"%YAML:")
+        or head.startswith(b"<?xml")
+        or head.startswith(b"<opencv_storage")
+        or b"!!opencv-matrix" in data
+    )
 
 
-def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_unit: float | None = None,
-                          image_size=None, label: str = "calibrator.load",
-                          max_principal_offset: float = MAX_PRINCIPAL_OFFSET) -> dict:
-    """A ``StereoCalibration`` from a run's JSON, an OpenCV FileStorage file or two ROS camera_info files.
+def read_calibration_file(
+    path: Path,
+    right_path: Path | None = None,
+    cm_per_unit: float | None = None,
+    image_size=None,
+    label: str = "calibrator.load",
+    max_principal_offset: float = MAX_PRINCIPAL_OFFSET,
+) -> dict:
+    """A ``StereoCalibration`` from a run's JSON, an OpenCV FileStorage file or two ROS camera_info
+    files.
 
     Raises
     ------
@@ -72,24 +83,35 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
         if p is not None:
             data_file(p, "a calibration file", label)
     suffix = path.suffix.lower()
-    if suffix == ".json" and not (_is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()):
+    if suffix == ".json" and not (
+        _is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()
+    ):
         art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
         if artifact_kind(art) != "a StereoCalibration":
-            raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
-                            hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
-                                 "FileStorage .yml/.xml, or a ROS camera_info pair")
+            raise NodeError(
+                f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
+                hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
+                "FileStorage .yml/.xml, or a ROS camera_info pair",
+            )
         cal = array_keys(art, _CAL_ARRAYS, f"{label}: {path}")
         fmt = "json"
         if cm_per_unit is None and cal.get("length_unit", "cm") == "squares":
-            # (refused as the same calibration's opencv.yml and ROS files are: one rule for the three formats)
-            raise NodeError(f"{label}: cannot use {path}: its lengths are in board squares (calibrated without a "
-                            "square size): the unit of T is one square; give cm_per_unit = the square's size in cm.",
-                            hint="set cm_per_unit to the board's square size in cm")
+            # (refused as the same calibration's opencv.yml and ROS files are: one rule for the
+            # three formats)
+            raise NodeError(
+                f"{label}: cannot use {path}: its lengths are in board squares "
+                "(calibrated without a "
+                "square size): the unit of T is one square; give cm_per_unit = the "
+                "square's size in cm.",
+                hint="set cm_per_unit to the board's square size in cm",
+            )
         if cm_per_unit is not None:
             unit = cal.get("length_unit", "cm")
             if unit == "cm":
-                raise NodeError(f"{label}: {path} is in cm already; cm_per_unit would scale it again.",
-                                hint="remove cm_per_unit (it converts a calibration made in board squares)")
+                raise NodeError(
+                    f"{label}: {path} is in cm already; cm_per_unit would scale it again.",
+                    hint="remove cm_per_unit (it converts a calibration made in board squares)",
+                )
             cal["T_cm"] = np.asarray(cal["T_cm"], float) * float(cm_per_unit)  # squares -> cm
             if cal.get("T_table_from_left") is not None:
                 cal["T_table_from_left"] = np.asarray(cal["T_table_from_left"], float).copy()
@@ -104,46 +126,69 @@ def read_calibration_file(path: Path, right_path: Path | None = None, cm_per_uni
                 ros = None
         try:
             if ros is None and right_path is not None and not _is_opencv_storage(right_path):
-                raise NodeError(f"{label}: {path} is an OpenCV FileStorage file but {right_path} is not.",
-                                hint="right_path is the right camera's ROS camera_info (with a ROS `path`) or the "
-                                     "second OpenCV file (stereo_calib's extrinsics.yml beside intrinsics.yml)")
+                raise NodeError(
+                    f"{label}: {path} is an OpenCV FileStorage file but {right_path} is not.",
+                    hint="right_path is the right camera's ROS camera_info (with a ROS "
+                    "`path`) or the "
+                    "second OpenCV file (stereo_calib's extrinsics.yml beside intrinsics.yml)",
+                )
             if ros is not None:
                 if right_path is None:
-                    raise NodeError(f"{label}: {path} is a ROS camera_info file (one camera); the right camera's "
-                                    "is needed too.", hint="set right_path to the right camera's camera_info YAML")
+                    raise NodeError(
+                        f"{label}: {path} is a ROS camera_info file (one camera); the "
+                        "right camera's "
+                        "is needed too.",
+                        hint="set right_path to the right camera's camera_info YAML",
+                    )
                 cal = read_ros_pair(path, right_path, cm_per_unit)
                 fmt = "ros"
             else:
-                cal = read_opencv(path, cm_per_unit, image_size, extra=right_path,
-                                  max_principal_offset=max_principal_offset)
+                cal = read_opencv(
+                    path,
+                    cm_per_unit,
+                    image_size,
+                    extra=right_path,
+                    max_principal_offset=max_principal_offset,
+                )
                 fmt = "opencv"
-        except (ValueError, cv2.error, SystemError) as exc:  # (OpenCV's parser on a malformed file: cv2.error, or
+        # (OpenCV's parser on a malformed file: cv2.error, or
+        except (ValueError, cv2.error, SystemError) as exc:
             # SystemError "returned a result with an exception set")
             exc = str(exc).strip().splitlines()[-1] if not isinstance(exc, ValueError) else exc
-            raise NodeError(f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
-                            hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and image_width / "
-                                 "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
-                                 "camera_info pair") from None
+            raise NodeError(
+                f"{label}: cannot use "
+                f"{path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
+                hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and "
+                "image_width / "
+                "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
+                "camera_info pair",
+            ) from None
     if image_size is not None and list(cal["image_size"]) != [int(v) for v in image_size]:
-        raise NodeError(f"{label}: {path} is for {cal['image_size'][0]}x{cal['image_size'][1]} px images, but "
-                        f"image_size says {image_size[0]}x{image_size[1]}.",
-                        hint="remove image_size, or give the calibration of these cameras")
+        raise NodeError(
+            f"{label}: {path} is for {cal['image_size'][0]}x{cal['image_size'][1]} px images, but "
+            f"image_size says {image_size[0]}x{image_size[1]}.",
+            hint="remove image_size, or give the calibration of these cameras",
+        )
     why = calibration_values_problem(cal)
     if why:
-        raise NodeError(f"{label}: {path}{' and ' + str(right_path) if right_path else ''}: {why}.",
-                        hint="give the calibration file of these cameras as the calibration tool wrote it; "
-                             "calibrate again if it was edited or damaged")
+        raise NodeError(
+            f"{label}: {path}{' and ' + str(right_path) if right_path else ''}: {why}.",
+            hint="give the calibration file of these cameras as the calibration tool wrote it; "
+            "calibrate again if it was edited or damaged",
+        )
     cal["method"] = f"loaded/{fmt}" + (f" ({cal['method']})" if cal.get("method") else "")
     cal["source_file"] = str(path) + (f" + {right_path}" if right_path else "")
     return cal
 
 
-MAX_IMAGE_SIDE_PX = 32768  # a camera's image side; beyond, a mistyped or hostile size (an allocation of exabytes)
+# a camera's image side; beyond, a mistyped or hostile size (an allocation of exabytes)
+MAX_IMAGE_SIDE_PX = 32768
 
 
 def calibration_values_problem(cal: dict) -> str | None:
     """What makes a loaded calibration unusable, in words, or None: the numbers are checked for what
-    they mean at load, not deep inside a later node (a zero focal length divided by in the live loop)."""
+    they mean at load, not deep inside a later node (a zero focal length divided by in the live
+    loop)."""
     size = cal.get("image_size")
     try:
         w, h = (int(v) for v in size)
@@ -160,10 +205,17 @@ def calibration_values_problem(cal: dict) -> str | None:
     for name in ("D1", "D2"):
         D = np.asarray(cal.get(name), float).ravel()
         if D.size not in (4, 5, 8, 12, 14) or not np.isfinite(D).all():
-            return f"{name} has {D.size} distortion coefficients (OpenCV's models have 4, 5, 8, 12 or 14, finite)"
+            return (
+                f"{name} has {D.size} distortion coefficients (OpenCV's models have 4, 5, 8, "
+                "12 or 14, finite)"
+            )
     R = np.asarray(cal.get("R"), float)
-    if R.shape != (3, 3) or not np.isfinite(R).all() or not np.allclose(R @ R.T, np.eye(3), atol=1e-3) \
-            or not np.linalg.det(R) > 0:
+    if (
+        R.shape != (3, 3)
+        or not np.isfinite(R).all()
+        or not np.allclose(R @ R.T, np.eye(3), atol=1e-3)
+        or not np.linalg.det(R) > 0
+    ):
         return "R is not a rotation (a finite 3x3 matrix with R R^T = I and det +1)"
     T = np.asarray(cal.get("T_cm"), float).ravel()
     if T.size != 3 or not np.isfinite(T).all() or not np.linalg.norm(T) > 1e-6:
@@ -172,87 +224,181 @@ def calibration_values_problem(cal: dict) -> str | None:
 
 
 class LoadParams(Params):
-    path: str = PathField(..., description="Calibration file, relative to the pipeline file: a run's calibration.json, "
-                                       "an OpenCV FileStorage .yml/.yaml/.xml, or the left camera's ROS "
-                                       "camera_info YAML.")
-    right_path: str | None = PathField(None, description="The right camera's ROS camera_info YAML (with a ROS `path`), "
-                                                     "or a second OpenCV file read with the first (stereo_calib's "
-                                                     "extrinsics.yml beside intrinsics.yml).")
+    path: str = PathField(
+        ...,
+        description="Calibration file, relative to the pipeline file: a run's calibration.json, "
+        "an OpenCV FileStorage .yml/.yaml/.xml, or the left camera's ROS "
+        "camera_info YAML.",
+    )
+    right_path: str | None = PathField(
+        None,
+        description="The right camera's ROS camera_info YAML (with a ROS `path`), "
+        "or a second OpenCV file read with the first (stereo_calib's "
+        "extrinsics.yml beside intrinsics.yml).",
+    )
     cm_per_unit: float | None = Field(
-        None, gt=0, description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the square "
-                                "size in cm for a file in squares); default: the file's `unit` entry. For a run's "
-                                "calibration.json made without a square size: the square's size in cm. For a ROS "
-                                "camera_info pair: default 100 (metres); the square's size in cm for a pair "
-                                "written without a square size (its first line says so).")
+        None,
+        gt=0,
+        description="Centimetres per unit of T in an OpenCV file (0.1 for mm, 100 for m, the "
+        "square "
+        "size in cm for a file in squares); default: the file's `unit` entry. For a run's "
+        "calibration.json made without a square size: the square's size in cm. For a ROS "
+        "camera_info pair: default 100 (metres); the square's size in cm for a pair "
+        "written without a square size (its first line says so).",
+    )
     image_size: tuple[int, int] | None = Field(
-        None, description="Image width, height (px), for OpenCV files that do not state it (stereo_calib's do "
-                          "not); checked against the file's when both exist, else against the principal points.")
+        None,
+        description="Image width, height (px), for OpenCV files that do not state it "
+        "(stereo_calib's do "
+        "not); checked against the file's when both exist, else against the principal points.",
+    )
     max_principal_offset: float = Field(
-        MAX_PRINCIPAL_OFFSET, gt=0, le=0.5,
-        description="With image_size given for a file that has none: the farthest a principal point may lie from "
-                    "the centre of images of that size (fraction of the width / height); farther -> refused as the "
-                    "wrong size.")
+        MAX_PRINCIPAL_OFFSET,
+        gt=0,
+        le=0.5,
+        description="With image_size given for a file that has none: the farthest a principal "
+        "point may lie from "
+        "the centre of images of that size (fraction of the width / height); farther -> "
+        "refused as the "
+        "wrong size.",
+    )
 
 
 def _load_reads(params: LoadParams, pipeline_dir: Path) -> list[Path]:
     return with_npz([resolve_path(p, pipeline_dir) for p in (params.path, params.right_path) if p])
 
 
-@node("calibrator.load",
-      outputs={"calibration": Out("StereoCalibration", save=True, description="The loaded calibration."),
-               **EXPORT_OUTPUTS},
-      params=LoadParams, version="1", reads=_load_reads)
+@node(
+    "calibrator.load",
+    outputs={
+        "calibration": Out("StereoCalibration", save=True, description="The loaded calibration."),
+        **EXPORT_OUTPUTS,
+    },
+    params=LoadParams,
+    version="1",
+    reads=_load_reads,
+)
 def load(params: LoadParams, ctx=None) -> dict:
     """Load a stereo calibration file (run JSON, OpenCV FileStorage, or a ROS camera_info pair)."""
     pdir = ctx.pipeline_dir if ctx is not None else Path.cwd()
     right = resolve_path(params.right_path, pdir) if params.right_path else None
-    cal = read_calibration_file(resolve_path(params.path, pdir), right, params.cm_per_unit, params.image_size,
-                                max_principal_offset=params.max_principal_offset)
+    cal = read_calibration_file(
+        resolve_path(params.path, pdir),
+        right,
+        params.cm_per_unit,
+        params.image_size,
+        max_principal_offset=params.max_principal_offset,
+    )
     return calibration_outputs(cal, ctx)
 
 
 # --------------------------------------------------------------------------- hand-eye, table frame
-def _load_matrix_artifact(params: ArtifactLoadParams, ctx, calibration, label: str, kind: str, made_by: str,
-                          key: str, arrays: tuple[str, ...]) -> dict:
+def _load_matrix_artifact(
+    params: ArtifactLoadParams,
+    ctx,
+    calibration,
+    label: str,
+    kind: str,
+    made_by: str,
+    key: str,
+    arrays: tuple[str, ...],
+) -> dict:
     path = resolve_path(params.path, ctx.pipeline_dir if ctx is not None else Path.cwd())
     art = read_artifact(path, label, kind, made_by)
     if artifact_kind(art) != f"a {kind}":
-        raise NodeError(f"{label}: {path} holds {artifact_kind(art)}, not a {kind}.",
-                        hint=f"give the file a run wrote for it: {made_by}")
+        raise NodeError(
+            f"{label}: {path} holds {artifact_kind(art)}, not a {kind}.",
+            hint=f"give the file a run wrote for it: {made_by}",
+        )
     art = array_keys(art, arrays, f"{label}: {path}")
     T = art[key]
-    if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6) or not np.allclose(
-            T[3], [0, 0, 0, 1]):
-        raise NodeError(f"{label}: {key} in {path} is not a rigid 4x4 transform.",
-                        hint=f"give the file a run wrote for it: {made_by}")
+    if (
+        T.shape != (4, 4)
+        or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6)
+        or not np.allclose(T[3], [0, 0, 0, 1])
+    ):
+        raise NodeError(
+            f"{label}: {key} in {path} is not a rigid 4x4 transform.",
+            hint=f"give the file a run wrote for it: {made_by}",
+        )
     if np.linalg.det(T[:3, :3]) < 0:  # orthonormal, yet a mirror: every target would land mirrored
-        raise NodeError(f"{label}: {key} in {path} is a mirror image, not a rotation (its determinant is -1): a "
-                        "left-handed frame, or one axis flipped by hand.",
-                        hint=f"give the file a run wrote for it ({made_by}), or fix the flipped axis")
-    check_rig(label, art.get("rig"), path, calibration, params.rig_tolerance, ctx.warn if ctx is not None else None)
+        raise NodeError(
+            f"{label}: {key} in {path} is a mirror image, not a rotation (its determinant "
+            "is -1): a "
+            "left-handed frame, or one axis flipped by hand.",
+            hint=f"give the file a run wrote for it ({made_by}), or fix the flipped axis",
+        )
+    check_rig(
+        label,
+        art.get("rig"),
+        path,
+        calibration,
+        params.rig_tolerance,
+        ctx.warn if ctx is not None else None,
+    )
     art["source_file"] = str(path)
     return art
 
 
-_CAL_IN = {"calibration": In("StereoCalibration", optional=True,
-                             description="The rig's calibration: the file must be made for it (size, f, baseline).")}
+_CAL_IN = {
+    "calibration": In(
+        "StereoCalibration",
+        optional=True,
+        description="The rig's calibration: the file must be made for it (size, f, baseline).",
+    )
+}
 
 
-@node("calibrator.load_hand_eye", inputs=_CAL_IN,
-      outputs={"hand_eye": Out("HandEye", description="Left-camera pose in the arm-base frame, as fitted.")},
-      params=ArtifactLoadParams, version="1", reads=artifact_reads)
+@node(
+    "calibrator.load_hand_eye",
+    inputs=_CAL_IN,
+    outputs={
+        "hand_eye": Out("HandEye", description="Left-camera pose in the arm-base frame, as fitted.")
+    },
+    params=ArtifactLoadParams,
+    version="1",
+    reads=artifact_reads,
+)
 def load_hand_eye(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
-    """Load a hand-eye transform a run fitted (<run>/<node>/hand_eye.json), checked against the rig."""
-    return {"hand_eye": _load_matrix_artifact(
-        params, ctx, calibration, "calibrator.load_hand_eye", "HandEye", "<run>/<hand-eye node>/hand_eye.json",
-        "T_base_from_left", ("T_base_from_left", "T_base_from_table", "T_base_from_left_truth"))}
+    """Load a hand-eye transform a run fitted (<run>/<node>/hand_eye.json), checked against the
+    rig."""
+    return {
+        "hand_eye": _load_matrix_artifact(
+            params,
+            ctx,
+            calibration,
+            "calibrator.load_hand_eye",
+            "HandEye",
+            "<run>/<hand-eye node>/hand_eye.json",
+            "T_base_from_left",
+            ("T_base_from_left", "T_base_from_table", "T_base_from_left_truth"),
+        )
+    }
 
 
-@node("calibrator.load_table_frame", inputs=_CAL_IN,
-      outputs={"table_frame": Out("TableFrame", description="T_table_from_left (cm), as fitted from the board.")},
-      params=ArtifactLoadParams, version="1", reads=artifact_reads)
+@node(
+    "calibrator.load_table_frame",
+    inputs=_CAL_IN,
+    outputs={
+        "table_frame": Out(
+            "TableFrame", description="T_table_from_left (cm), as fitted from the board."
+        )
+    },
+    params=ArtifactLoadParams,
+    version="1",
+    reads=artifact_reads,
+)
 def load_table_frame(params: ArtifactLoadParams, calibration=None, ctx=None) -> dict:
     """Load a table frame a run found (<run>/<node>/table_frame.json), checked against the rig."""
-    return {"table_frame": _load_matrix_artifact(
-        params, ctx, calibration, "calibrator.load_table_frame", "TableFrame",
-        "<run>/<table-frame node>/table_frame.json", "T_table_from_left", ("T_table_from_left",))}
+    return {
+        "table_frame": _load_matrix_artifact(
+            params,
+            ctx,
+            calibration,
+            "calibrator.load_table_frame",
+            "TableFrame",
+            "<run>/<table-frame node>/table_frame.json",
+            "T_table_from_left",
+            ("T_table_from_left",),
+        )
+    }

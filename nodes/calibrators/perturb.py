@@ -19,7 +19,10 @@ __all__ = ["perturb", "perturb_calibration"]
 
 
 def perturb_calibration(
-    calibration: dict, baseline_scale: float = 1.0, focal_scale: float = 1.0, cx_shift_right_px: float = 0.0
+    calibration: dict,
+    baseline_scale: float = 1.0,
+    focal_scale: float = 1.0,
+    cx_shift_right_px: float = 0.0,
 ) -> dict:
     """Return a copy of a StereoCalibration with scaled baseline / focal lengths.
 
@@ -41,8 +44,10 @@ def perturb_calibration(
     """
     for key in ("K1", "K2", "T_cm"):
         if key not in calibration:
-            raise NodeError(f"calibrator.perturb: the calibration lacks {key!r}.",
-                            hint="wire `calibration` to a calibrator's output (calibrator.chessboard ...).")
+            raise NodeError(
+                f"calibrator.perturb: the calibration lacks {key!r}.",
+                hint="wire `calibration` to a calibrator's output (calibrator.chessboard ...).",
+            )
     out = dict(calibration)
     out["T_cm"] = np.asarray(calibration["T_cm"], dtype=float).ravel() * baseline_scale
     for key in ("K1", "K2"):
@@ -53,28 +58,48 @@ def perturb_calibration(
             K[0, 2] += cx_shift_right_px
         out[key] = K
     out["method"] = f"{calibration.get('method', 'calibration')}+perturbed"
-    out["perturbation"] = {"baseline_scale": float(baseline_scale), "focal_scale": float(focal_scale),
-                           "cx_shift_right_px": float(cx_shift_right_px)}
+    out["perturbation"] = {
+        "baseline_scale": float(baseline_scale),
+        "focal_scale": float(focal_scale),
+        "cx_shift_right_px": float(cx_shift_right_px),
+    }
     return out
 
 
 class PerturbParams(Params):
     baseline_scale: float = Field(
-        1.0, gt=0.5, lt=2.0, description="Believed / true baseline (unitless; 1.02 = a 2 % baseline error).")
-    focal_scale: float = Field(1.0, gt=0.5, lt=2.0, description="Multiplier of both focal lengths (unitless).")
+        1.0,
+        gt=0.5,
+        lt=2.0,
+        description="Believed / true baseline (unitless; 1.02 = a 2 % baseline error).",
+    )
+    focal_scale: float = Field(
+        1.0, gt=0.5, lt=2.0, description="Multiplier of both focal lengths (unitless)."
+    )
     cx_shift_right_px: float = Field(
-        0.0, ge=-50, le=50, description="Shift of the right principal point cx (px); acts as a disparity offset.")
+        0.0,
+        ge=-50,
+        le=50,
+        description="Shift of the right principal point cx (px); acts as a disparity offset.",
+    )
 
 
 @node(
     "calibrator.perturb",
     inputs={"calibration": In("StereoCalibration", description="A calibration to degrade.")},
-    outputs={"calibration": Out("StereoCalibration", description="The same, with the injected errors."),
-             **EXPORT_OUTPUTS},
+    outputs={
+        "calibration": Out("StereoCalibration", description="The same, with the injected errors."),
+        **EXPORT_OUTPUTS,
+    },
     params=PerturbParams,
     version="1",
 )
 def perturb(params: PerturbParams, calibration: dict, ctx=None) -> dict:
-    """Inject a known calibration error (baseline, focal length, principal point) for what-if studies."""
-    return calibration_outputs(perturb_calibration(calibration, params.baseline_scale, params.focal_scale,
-                                                   params.cx_shift_right_px), ctx)
+    """Inject a known calibration error (baseline, focal length, principal point) for what-if
+    studies."""
+    return calibration_outputs(
+        perturb_calibration(
+            calibration, params.baseline_scale, params.focal_scale, params.cx_shift_right_px
+        ),
+        ctx,
+    )

@@ -1,4 +1,5 @@
-"""``calibrator.table_frame``: the table frame from one stereo pair of a chessboard lying flat on the table.
+"""``calibrator.table_frame``: the table frame from one stereo pair of a chessboard lying flat on
+the table.
 
 The frame (docs/conventions.md): origin at the board's inner corner nearest the cameras on the
 left (as the cameras see it), x along the board's rows to the right, y along its columns away
@@ -16,8 +17,8 @@ TableFrame artifact::
 
     {"T_table_from_left": 4x4 (cm),      # X_table = T @ [X_left, 1]
      "method": "board", "view": str, "board": {"cols", "rows", "square_cm"},
-     "disagreement": {"translation_cm": float, "rotation_deg": float},   # left-only vs right-only pose
-     "reprojection_rms_px": {"left": float, "right": float},             # of the joint pose
+     "disagreement": {"translation_cm": float, "rotation_deg": float},   # left-only vs right-only
+     pose "reprojection_rms_px": {"left": float, "right": float},             # of the joint pose
      "flatness_cm": float,                 # largest |z| of the corners in the table frame
      "rig": {"image_size", "fx_px", "baseline_cm"}}                       # the calibration it used
 """
@@ -77,10 +78,19 @@ def board_pose(obj: np.ndarray, px_left: np.ndarray, px_right: np.ndarray, cal: 
     obj = np.asarray(obj, np.float64)
     poses = []
     for K, D, px in ((K1, D1, px_left), (K2, D2, px_right)):
-        # IPPE gives the planar pose without a local-minimum guess; the iterative refinement polishes it.
+        # IPPE gives the planar pose without a local-minimum guess; the iterative refinement
+        # polishes it.
         ok, rv, tv = cv2.solvePnP(obj, np.asarray(px, np.float64), K, D, flags=cv2.SOLVEPNP_IPPE)
-        ok2, rv, tv = cv2.solvePnP(obj, np.asarray(px, np.float64), K, D, rv, tv, useExtrinsicGuess=True,
-                                   flags=cv2.SOLVEPNP_ITERATIVE)
+        ok2, rv, tv = cv2.solvePnP(
+            obj,
+            np.asarray(px, np.float64),
+            K,
+            D,
+            rv,
+            tv,
+            useExtrinsicGuess=True,
+            flags=cv2.SOLVEPNP_ITERATIVE,
+        )
         if not (ok and ok2):
             raise ValueError("solvePnP found no pose for the board")
         poses.append(_pose(rv, tv))
@@ -100,11 +110,17 @@ def board_pose(obj: np.ndarray, px_left: np.ndarray, px_right: np.ndarray, cal: 
     sol = least_squares(residual, x0, method="lm", xtol=1e-12, ftol=1e-12)
     T = _pose(sol.x[:3], sol.x[3:])
     r = sol.fun.reshape(2, -1, 2)
-    return {"T_left_from_board": T, "left_only": T_left, "right_only": T_right_in_left,
-            "translation_cm": float(np.linalg.norm(T_left[:3, 3] - T_right_in_left[:3, 3])),
-            "rotation_deg": _angle_deg(T_left[:3, :3], T_right_in_left[:3, :3]),
-            "rms_px": {"left": float(np.sqrt((r[0] ** 2).sum(1).mean())),
-                       "right": float(np.sqrt((r[1] ** 2).sum(1).mean()))}}
+    return {
+        "T_left_from_board": T,
+        "left_only": T_left,
+        "right_only": T_right_in_left,
+        "translation_cm": float(np.linalg.norm(T_left[:3, 3] - T_right_in_left[:3, 3])),
+        "rotation_deg": _angle_deg(T_left[:3, :3], T_right_in_left[:3, :3]),
+        "rms_px": {
+            "left": float(np.sqrt((r[0] ** 2).sum(1).mean())),
+            "right": float(np.sqrt((r[1] ** 2).sum(1).mean())),
+        },
+    }
 
 
 def _paths(view: dict) -> str:
@@ -116,12 +132,19 @@ def _paths(view: dict) -> str:
 def _poses_agree(pose: dict, params: TableFrameParams) -> bool:
     """Whether the left-only and right-only board poses agree within the parameters' tolerances."""
     distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
-    return (pose["translation_cm"] <= params.max_disagreement_fraction * distance_cm
-            and pose["rotation_deg"] <= params.max_disagreement_deg)
+    return (
+        pose["translation_cm"] <= params.max_disagreement_fraction * distance_cm
+        and pose["rotation_deg"] <= params.max_disagreement_deg
+    )
 
 
-def frame_from_board_pose(T_left_from_board: np.ndarray, cols: int, rows: int, square_cm: float,
-                          min_axis_margin_deg: float = 10.0) -> np.ndarray:
+def frame_from_board_pose(
+    T_left_from_board: np.ndarray,
+    cols: int,
+    rows: int,
+    square_cm: float,
+    min_axis_margin_deg: float = 10.0,
+) -> np.ndarray:
     """``T_table_from_left`` of a board lying on the table, by the conventions' rule.
 
     z is the board's normal on the cameras' side; y is the board axis (±rows, ±columns) closest
@@ -139,7 +162,9 @@ def frame_from_board_pose(T_left_from_board: np.ndarray, cols: int, rows: int, s
     z = n if n @ (-tb) > 0 else -n  # the normal on the cameras' side is "up out of the table"
     view = -tb / np.linalg.norm(tb)
     if abs(z @ view) < np.sin(np.radians(10)):
-        raise ValueError("the board is seen nearly edge-on (less than 10 degrees), so its plane is not reliable")
+        raise ValueError(
+            "the board is seen nearly edge-on (less than 10 degrees), so its plane is not reliable"
+        )
     away = np.array([0.0, 0.0, 1.0]) - z[2] * z  # the optical axis, projected onto the table
     if np.linalg.norm(away) < 0.2:  # looking (almost) straight down: "away" is up in the image
         away = np.array([0.0, -1.0, 0.0]) - (-z[1]) * z
@@ -148,8 +173,11 @@ def frame_from_board_pose(T_left_from_board: np.ndarray, cols: int, rows: int, s
     angles = np.degrees(np.arccos(np.clip([c @ away for c in cands], -1, 1)))
     order = np.argsort(angles)
     if angles[order[1]] - angles[order[0]] < min_axis_margin_deg:
-        raise ValueError(f"the board is turned about {angles[order[0]]:.0f} degrees from the viewing direction, so "
-                         "which of its edges points away from the cameras is ambiguous")
+        raise ValueError(
+            f"the board is turned about {angles[order[0]]:.0f} degrees from the viewing "
+            "direction, so "
+            "which of its edges points away from the cameras is ambiguous"
+        )
     y = cands[order[0]]
     x = np.cross(y, z)
     obj = board_points(cols, rows, square_cm).astype(float)
@@ -163,111 +191,192 @@ def frame_from_board_pose(T_left_from_board: np.ndarray, cols: int, rows: int, s
 
 
 class TableFrameParams(Params):
-    view: str | None = Field(None, description="Id of the view that shows the board lying on the table "
-                                               "(default: the only view).")
+    view: str | None = Field(
+        None,
+        description="Id of the view that shows the board lying on the table "
+        "(default: the only view).",
+    )
     max_disagreement_fraction: float = Field(
-        0.01, gt=0, le=0.5, description="Refuse the frame when the left-only and right-only board positions differ "
-                                        "by more than this fraction of the board's distance (unitless; 0.01 = 1 %): "
-                                        "the calibration does not fit these images.")
+        0.01,
+        gt=0,
+        le=0.5,
+        description="Refuse the frame when the left-only and right-only board positions differ "
+        "by more than this fraction of the board's distance (unitless; 0.01 = 1 %): "
+        "the calibration does not fit these images.",
+    )
     max_disagreement_deg: float = Field(
-        1.0, gt=0, description="Same, for the board's orientation (degrees).")
+        1.0, gt=0, description="Same, for the board's orientation (degrees)."
+    )
     min_axis_margin_deg: float = Field(
-        10.0, gt=0, le=45, description="Refuse a board turned so that two edges point away from the cameras "
-                                       "within this many degrees of each other (ambiguous axes).")
+        10.0,
+        gt=0,
+        le=45,
+        description="Refuse a board turned so that two edges point away from the cameras "
+        "within this many degrees of each other (ambiguous axes).",
+    )
 
 
-@node("calibrator.table_frame",
-      inputs={"views": In("StereoViews", description="One stereo pair of the calibration board lying on the table."),
-              "calibration": In("StereoCalibration", description="The rig's calibration.")},
-      outputs={"table_frame": Out("TableFrame", save=True, description="T_table_from_left (cm) and checks.")},
-      params=TableFrameParams, version="1")
+@node(
+    "calibrator.table_frame",
+    inputs={
+        "views": In(
+            "StereoViews",
+            description="One stereo pair of the calibration board lying on the table.",
+        ),
+        "calibration": In("StereoCalibration", description="The rig's calibration."),
+    },
+    outputs={
+        "table_frame": Out(
+            "TableFrame", save=True, description="T_table_from_left (cm) and checks."
+        )
+    },
+    params=TableFrameParams,
+    version="1",
+)
 def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=None) -> dict:
-    """The table frame from a chessboard lying on the table (solvePnP in both views, checked against the rig)."""
+    """The table frame from a chessboard lying on the table (solvePnP in both views, checked against
+    the rig)."""
     label = "calibrator.table_frame"
     vlist = views.get("views") or []
     if params.view is not None:
         vlist = [v for v in vlist if str(v["id"]) == params.view]
         if not vlist:
-            raise NodeError(f"{label}: no view {params.view!r} among "
-                            f"{', '.join(str(v['id']) for v in views.get('views') or []) or 'none'}.",
-                            hint="set view to the id of the pair showing the board on the table")
+            raise NodeError(
+                f"{label}: no view {params.view!r} among "
+                f"{', '.join(str(v['id']) for v in views.get('views') or []) or 'none'}.",
+                hint="set view to the id of the pair showing the board on the table",
+            )
     if len(vlist) != 1:
-        raise NodeError(f"{label}: {len(vlist)} views given; the table frame needs exactly one, the board lying on "
-                        "the table.", hint="set `view` to its id, or point the source at a folder with that pair only")
+        raise NodeError(
+            f"{label}: {len(vlist)} views given; the table frame needs exactly one, the "
+            "board lying on "
+            "the table.",
+            hint="set `view` to its id, or point the source at a folder with that pair only",
+        )
     v = vlist[0]
     board = views.get("board") or {}
     if board.get("type", "chessboard") != "chessboard":
-        raise NodeError(f"{label}: the views show a {board.get('type')} board; the table frame needs a chessboard.",
-                        hint="lay the chessboard on the table")
+        raise NodeError(
+            f"{label}: the views show a {board.get('type')} board; the table frame needs "
+            "a chessboard.",
+            hint="lay the chessboard on the table",
+        )
     cols, rows, sq = int(board["cols"]), int(board["rows"]), float(board["square_cm"])
     if list(calibration["image_size"]) != [int(v["left"].shape[1]), int(v["left"].shape[0])]:
-        raise NodeError(f"{label}: view {v['id']} is {v['left'].shape[1]}x{v['left'].shape[0]} px but the "
-                        f"calibration is for {calibration['image_size'][0]}x{calibration['image_size'][1]} px.",
-                        hint="use the calibration of these cameras at this resolution")
+        raise NodeError(
+            f"{label}: view {v['id']} is {v['left'].shape[1]}x{v['left'].shape[0]} px but the "
+            f"calibration is for {calibration['image_size'][0]}x{calibration['image_size'][1]} px.",
+            hint="use the calibration of these cameras at this resolution",
+        )
     cal_unit, board_unit = calibration.get("length_unit", "cm"), board.get("length_unit", "cm")
-    if cal_unit != board_unit:  # a pose in squares against a calibration in cm (or the reverse) never agrees
-        raise NodeError(f"{label}: the calibration's lengths are in {cal_unit} but the board's square size is in "
-                        f"{board_unit}{' (no square_cm given)' if board_unit == 'squares' else ''}.",
-                        hint="calibrate with the board's square_cm, or load the calibration with cm_per_unit = the "
-                             "square's size in cm" if cal_unit == "squares" else
-                             "give the board's square_cm (cm) to the source of the table pair")
+    # a pose in squares against a calibration in cm (or the reverse) never agrees
+    if cal_unit != board_unit:
+        raise NodeError(
+            f"{label}: the calibration's lengths are in {cal_unit} but the board's square "
+            "size is in "
+            f"{board_unit}{' (no square_cm given)' if board_unit == 'squares' else ''}.",
+            hint="calibrate with the board's square_cm, or load the calibration with "
+            "cm_per_unit = the "
+            "square's size in cm"
+            if cal_unit == "squares"
+            else "give the board's square_cm (cm) to the source of the table pair",
+        )
     pl, pr = detect_corners(v["left"], cols, rows), detect_corners(v["right"], cols, rows)
     if pl is None or pr is None:
-        which = " and ".join(str(v.get(f"{s}_path", f"the {s} image")) for s, c in (("left", pl), ("right", pr))
-                             if c is None)
-        raise NodeError(f"{label}: no {cols}x{rows} chessboard found in {which} of view {v['id']}.",
-                        hint="the whole board must be visible and sharp in both images; check cols/rows (inner "
-                             "corners) of the source's board")
+        which = " and ".join(
+            str(v.get(f"{s}_path", f"the {s} image"))
+            for s, c in (("left", pl), ("right", pr))
+            if c is None
+        )
+        raise NodeError(
+            f"{label}: no {cols}x{rows} chessboard found in {which} of view {v['id']}.",
+            hint="the whole board must be visible and sharp in both images; check cols/rows (inner "
+            "corners) of the source's board",
+        )
     bigger = larger_board(v["left"], cols, rows)
     if bigger is not None:  # the frame would sit on a part of the board, a square or more off
-        raise NodeError(f"{label}: view {v['id']} shows a board with more inner corners than {cols}x{rows} (a "
-                        f"{bigger[0]}x{bigger[1]} board is found too): the table frame would be put on a part of it, "
-                        "a square or more away from where you expect it.",
-                        hint="set the source's board cols/rows to the whole board's inner corners (the points where "
-                             "four squares meet, e.g. 9x6 on a board of 10x7 squares)")
+        raise NodeError(
+            f"{label}: view {v['id']} shows a board with more inner corners than {cols}x{rows} (a "
+            f"{bigger[0]}x{bigger[1]} board is found too): the table frame would be put "
+            "on a part of it, "
+            "a square or more away from where you expect it.",
+            hint="set the source's board cols/rows to the whole board's inner corners (the "
+            "points where "
+            "four squares meet, e.g. 9x6 on a board of 10x7 squares)",
+        )
     obj = board_points(cols, rows, sq).astype(float)
     try:
         pose = board_pose(obj, pl.astype(float), pr.astype(float), calibration)
-        T = frame_from_board_pose(pose["T_left_from_board"], cols, rows, sq, params.min_axis_margin_deg)
+        T = frame_from_board_pose(
+            pose["T_left_from_board"], cols, rows, sq, params.min_axis_margin_deg
+        )
     except ValueError as exc:
-        raise NodeError(f"{label}: view {v['id']}: {exc}.",
-                        hint="lay the board flat with its edges roughly along and across the viewing direction, "
-                             "fully visible in both images") from None
+        raise NodeError(
+            f"{label}: view {v['id']}: {exc}.",
+            hint="lay the board flat with its edges roughly along and across the viewing "
+            "direction, "
+            "fully visible in both images",
+        ) from None
     dt, dr = pose["translation_cm"], pose["rotation_deg"]
     distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
     cal_sq = (calibration.get("board") or {}).get("square_cm")
     other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
     if not _poses_agree(pose, params):
-        msg = (f"{label}: the board's pose from the left image and from the right image (carried through the "
-               f"calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
-               f"{distance_cm:.1f} cm) and {dr:.3f} deg")
+        msg = (
+            f"{label}: the board's pose from the left image and from the right image "
+            "(carried through the "
+            f"calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
+            f"{distance_cm:.1f} cm) and {dr:.3f} deg"
+        )
         try:
             swapped = board_pose(obj, pr.astype(float), pl.astype(float), calibration)
         except ValueError:
             swapped = None
-        if swapped is not None and _poses_agree(swapped, params):  # (it was blamed on the calibration)
-            raise NodeError(f"{msg}; exchanged, the two images agree ({swapped['translation_cm']:.3f} cm): the left "
-                            f"and right images of view {v['id']} are swapped{_paths(v)}.",
-                            hint="swap the table pair's left and right files (or the source's left_glob / "
-                                 "right_glob): the left image is the left camera's as the cameras look")
+        # (it was blamed on the calibration)
+        if swapped is not None and _poses_agree(swapped, params):
+            raise NodeError(
+                f"{msg}; exchanged, the two images agree ({swapped['translation_cm']:.3f} "
+                "cm): the left "
+                f"and right images of view {v['id']} are swapped{_paths(v)}.",
+                hint="swap the table pair's left and right files (or the source's left_glob / "
+                "right_glob): the left image is the left camera's as the cameras look",
+            )
         if other_square:
-            raise NodeError(f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm squares, and this "
-                            f"board's square_cm is {sq:g}.",
-                            hint="give the table pair's source the square size of the board lying on the table "
-                                 f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)")
-        raise NodeError(f"{msg}.", hint="the calibration does not fit these images: calibrate again with these "
-                                        "cameras as they stand, or check the board's square size")
+            raise NodeError(
+                f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm "
+                "squares, and this "
+                f"board's square_cm is {sq:g}.",
+                hint="give the table pair's source the square size of the board lying on the table "
+                f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)",
+            )
+        raise NodeError(
+            f"{msg}.",
+            hint="the calibration does not fit these images: calibrate again with these "
+            "cameras as they stand, or check the board's square size",
+        )
     if other_square and ctx is not None:
-        ctx.warn(f"the calibration was made with {float(cal_sq):g} cm squares, this board's square_cm is {sq:g}: "
-                 "if it is the same board, the table frame is scaled wrong")
-    corners_table = (obj @ pose["T_left_from_board"][:3, :3].T + pose["T_left_from_board"][:3, 3]) @ T[:3, :3].T \
-        + T[:3, 3]
+        ctx.warn(
+            f"the calibration was made with {float(cal_sq):g} cm squares, this board's "
+            f"square_cm is {sq:g}: "
+            "if it is the same board, the table frame is scaled wrong"
+        )
+    corners_table = (
+        obj @ pose["T_left_from_board"][:3, :3].T + pose["T_left_from_board"][:3, 3]
+    ) @ T[:3, :3].T + T[:3, 3]
     if ctx is not None:
-        ctx.warn(f"left vs right board pose: {dt:.3f} cm, {dr:.3f} deg; reprojection RMS "
-                 f"{pose['rms_px']['left']:.3f} / {pose['rms_px']['right']:.3f} px")
-    return {"table_frame": {"T_table_from_left": T, "method": "board", "view": str(v["id"]),
-                            "board": {"cols": cols, "rows": rows, "square_cm": sq},
-                            "disagreement": {"translation_cm": dt, "rotation_deg": dr},
-                            "reprojection_rms_px": pose["rms_px"],
-                            "flatness_cm": float(np.abs(corners_table[:, 2]).max()),
-                            "rig": rig_fingerprint(calibration)}}
+        ctx.warn(
+            f"left vs right board pose: {dt:.3f} cm, {dr:.3f} deg; reprojection RMS "
+            f"{pose['rms_px']['left']:.3f} / {pose['rms_px']['right']:.3f} px"
+        )
+    return {
+        "table_frame": {
+            "T_table_from_left": T,
+            "method": "board",
+            "view": str(v["id"]),
+            "board": {"cols": cols, "rows": rows, "square_cm": sq},
+            "disagreement": {"translation_cm": dt, "rotation_deg": dr},
+            "reprojection_rms_px": pose["rms_px"],
+            "flatness_cm": float(np.abs(corners_table[:, 2]).max()),
+            "rig": rig_fingerprint(calibration),
+        }
+    }

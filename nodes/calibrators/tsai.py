@@ -50,7 +50,13 @@ import numpy as np
 
 from nodes.calibrators._board import board_points, detect_views
 from nodes.calibrators._calib_io import calibration_outputs
-from nodes.calibrators._tsai_steps import coplanar_rotation, f_sigma_rel, plane_frame, refine_camera, thickness_ratio
+from nodes.calibrators._tsai_steps import (
+    coplanar_rotation,
+    f_sigma_rel,
+    plane_frame,
+    refine_camera,
+    thickness_ratio,
+)
 from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from nodes.contracts.tsai_camera import tsai_project
 from stereograph.api import Field, In, NodeError, Out, Params, node
@@ -66,10 +72,10 @@ __all__ = [
     "tsai_stereo",
 ]
 
-# A target flatter than this (out-of-plane over in-plane spread) is treated as one plane by target: auto.
-# On a nearly flat target the non-coplanar step cannot separate sx from the pose: on a sheet bowed by
-# 0.1-1.5 % it fitted to the noise level (RMS 0.28 px at 0.2 px noise) with the baseline 4-10 % off,
-# while the coplanar step (sx assumed) was within 0.3 %; at 3-9 % both were.
+# A target flatter than this (out-of-plane over in-plane spread) is treated as one plane by target:
+# auto. On a nearly flat target the non-coplanar step cannot separate sx from the pose: on a sheet
+# bowed by 0.1-1.5 % it fitted to the noise level (RMS 0.28 px at 0.2 px noise) with the baseline
+# 4-10 % off, while the coplanar step (sx assumed) was within 0.3 %; at 3-9 % both were.
 COPLANAR_THICKNESS = 0.05
 
 
@@ -78,9 +84,18 @@ def _sensor(px, u0, v0, dx, dy, ncx_over_nfx):
     return (px[:, 0] - u0) * dxp, (px[:, 1] - v0) * dy
 
 
-def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_pitch=(1.0, 1.0),
-                ncx_over_nfx: float = 1.0, refine: bool = True, target: str = "auto", coplanar_sx: float = 1.0,
-                refine_pose: bool = True) -> dict:
+def tsai_camera(
+    world_cm,
+    image_px,
+    image_size,
+    principal_point_px=None,
+    pixel_pitch=(1.0, 1.0),
+    ncx_over_nfx: float = 1.0,
+    refine: bool = True,
+    target: str = "auto",
+    coplanar_sx: float = 1.0,
+    refine_pose: bool = True,
+) -> dict:
     """Calibrate one camera with Tsai's method from a coplanar or a non-coplanar target.
 
     Parameters
@@ -125,9 +140,14 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
     coplanar = target == "coplanar" or (target == "auto" and thick < COPLANAR_THICKNESS)
     need = 5 if coplanar else 7
     if W.shape[0] != px.shape[0] or W.shape[0] < need:
-        raise ValueError(f"Tsai needs >= {need} matched points, got {W.shape[0]} world and {px.shape[0]} image points")
+        raise ValueError(
+            f"Tsai needs >= {need} matched points, got {W.shape[0]} world and "
+            f"{px.shape[0]} image points"
+        )
     w, h = image_size
-    u0, v0 = principal_point_px if principal_point_px is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
+    u0, v0 = (
+        principal_point_px if principal_point_px is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
+    )
     dx, dy = (float(v) for v in pixel_pitch)
     Xdp, Yd = _sensor(px, u0, v0, dx, dy, ncx_over_nfx)  # X'd = sx Xd, Yd (3.8, 3.9)
 
@@ -139,15 +159,20 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
         Rpw = plane_frame(W)
         xy = Pw @ Rpw[:2].T
         if np.linalg.matrix_rank(xy - xy.mean(0), tol=1e-6 * max(np.abs(xy).max(), 1e-12)) < 2:
-            raise ValueError("the target points lie on one line; Tsai's method needs them spread over a plane "
-                             "or over several planes")
+            raise ValueError(
+                "the target points lie on one line; Tsai's method needs them spread over a plane "
+                "or over several planes"
+            )
         sx = float(coplanar_sx)
         Rp, tx, ty = coplanar_rotation(Xdp / sx, Yd, xy)
         R = Rp @ Rpw  # world -> plane -> camera
     else:
         if np.linalg.matrix_rank(Pw - Pw.mean(0), tol=1e-6 * np.abs(Pw).max()) < 3:
-            raise ValueError("the target points are coplanar; Tsai's non-coplanar method needs points off one plane "
-                             "(use target: coplanar or auto)")
+            raise ValueError(
+                "the target points are coplanar; Tsai's non-coplanar method needs points "
+                "off one plane "
+                "(use target: coplanar or auto)"
+            )
         R, tx, ty, sx = _noncoplanar_rotation(Xdp, Yd, Pw)
         Rpw = np.eye(3)
     Xd = Xdp / sx
@@ -161,24 +186,43 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
         return float(sol[0]), float(sol[1])
 
     f, tz = f_tz(R, Xd)
-    if f < 0:  # Tsai: the wrong one of two mirror solutions; flip r13, r23, r31, r32 (in the target's own
+    # Tsai: the wrong one of two mirror solutions; flip r13, r23, r31, r32 (in the target's own
+    if f < 0:
         # frame: z along a flat target's normal, where the coplanar step chose the sign of r13, r23)
         R = (R @ Rpw.T * np.array([[1, 1, -1], [1, 1, -1], [-1, -1, 1]])) @ Rpw
         f, tz = f_tz(R, Xd)
     k1 = 0.0
     linear = {"f": f, "tz_cm": tz, "k1": k1}
     if refine:
-        R, tx, ty, tz, f, k1, sx = refine_camera(Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose)
+        R, tx, ty, tz, f, k1, sx = refine_camera(
+            Pw, Xdp, Yd, R, tx, ty, tz, f, sx, not coplanar, refine_pose
+        )
     f_sigma = f_sigma_rel(Pw, Xdp, Yd, R, tx, ty, tz, f, k1, sx, not coplanar)
     t = np.array([tx, ty, tz])
     # Back to the caller's world origin: Xc = R (P - p0) + t = R P + (t - R p0).
-    cam = {"f": f, "k1": k1, "sx": float(sx), "R": R, "t_cm": t - R @ p0, "u0": float(u0), "v0": float(v0),
-           "dx": dx, "dy": dy, "ncx_over_nfx": float(ncx_over_nfx), "linear": linear,
-           "target": "coplanar" if coplanar else "non_coplanar", "thickness": thick, "f_sigma_rel": f_sigma,
-           # angle between a flat target's normal and the optical axis (0 = seen face-on: f undetermined)
-           "tilt_deg": float(np.degrees(np.arccos(min(1.0, abs((R @ Rpw[2])[2]))))) if coplanar else None}
+    cam = {
+        "f": f,
+        "k1": k1,
+        "sx": float(sx),
+        "R": R,
+        "t_cm": t - R @ p0,
+        "u0": float(u0),
+        "v0": float(v0),
+        "dx": dx,
+        "dy": dy,
+        "ncx_over_nfx": float(ncx_over_nfx),
+        "linear": linear,
+        "target": "coplanar" if coplanar else "non_coplanar",
+        "thickness": thick,
+        "f_sigma_rel": f_sigma,
+        # angle between a flat target's normal and the optical axis (0 = seen face-on: f
+        # undetermined)
+        "tilt_deg": float(np.degrees(np.arccos(min(1.0, abs((R @ Rpw[2])[2])))))
+        if coplanar
+        else None,
+    }
     err = tsai_project(cam, W) - px
-    cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
     return cam
 
@@ -186,8 +230,17 @@ def tsai_camera(world_cm, image_px, image_size, principal_point_px=None, pixel_p
 def _noncoplanar_rotation(Xdp, Yd, Pw):
     """The thesis's linear step (3.16)-(3.24): R, tx, ty, sx from a non-coplanar target."""
     # (3.16)-(3.17): X'd = [Yd Xw, Yd Yw, Yd Zw, Yd, -X'd Xw, -X'd Yw, -X'd Zw] . a
-    A = np.column_stack([Yd * Pw[:, 0], Yd * Pw[:, 1], Yd * Pw[:, 2], Yd,
-                         -Xdp * Pw[:, 0], -Xdp * Pw[:, 1], -Xdp * Pw[:, 2]])
+    A = np.column_stack(
+        [
+            Yd * Pw[:, 0],
+            Yd * Pw[:, 1],
+            Yd * Pw[:, 2],
+            Yd,
+            -Xdp * Pw[:, 0],
+            -Xdp * Pw[:, 1],
+            -Xdp * Pw[:, 2],
+        ]
+    )
     a, *_ = np.linalg.lstsq(A, Xdp, rcond=None)
     ty_abs = 1.0 / np.linalg.norm(a[4:7])  # (3.20)
     sx = np.linalg.norm(a[0:3]) * ty_abs  # (3.24)
@@ -199,8 +252,9 @@ def _noncoplanar_rotation(Xdp, Yd, Pw):
         return r1, r2, tx
 
     # (3.21)-(3.22): with ty > 0, the projections must share the signs of their image points.
-    # Checked on every point, weighted by its distance from the centre (one far point near an image axis
-    # can have the wrong sign by noise): with the right sign (xc, yc) points the way (X'd, Yd) does.
+    # Checked on every point, weighted by its distance from the centre (one far point near an image
+    # axis can have the wrong sign by noise): with the right sign (xc, yc) points the way (X'd, Yd)
+    # does.
     r1, r2, tx = pose(ty_abs)
     xc, yc = Pw @ r1 + tx, Pw @ r2 + ty_abs
     ty = ty_abs if float(xc @ Xdp + yc @ Yd) > 0 else -ty_abs
@@ -218,7 +272,10 @@ def _opencv_equivalent(cam: dict, image_size) -> tuple[np.ndarray, np.ndarray]:
     fx, fy = cam["f"] * cam["sx"] / dxp, cam["f"] / cam["dy"]
     K = np.array([[fx, 0, cam["u0"]], [0, fy, cam["v0"]], [0, 0, 1.0]])
     w, h = image_size
-    corner = max(np.hypot(max(cam["u0"], w - 1 - cam["u0"]) / fx, max(cam["v0"], h - 1 - cam["v0"]) / fy), 1e-6)
+    corner = max(
+        np.hypot(max(cam["u0"], w - 1 - cam["u0"]) / fx, max(cam["v0"], h - 1 - cam["v0"]) / fy),
+        1e-6,
+    )
     # Tsai's k1 in normalised units: r_metric = f * r_normalised (y pitch convention).
     kappa = cam["k1"] * cam["f"] ** 2
     D = opencv_distortion_from_tsai(kappa, corner * 1.05)
@@ -233,23 +290,35 @@ def opencv_distortion_from_tsai(kappa_norm: float, r_max: float) -> np.ndarray:
     """
     rd = np.linspace(1e-3, r_max, 400)
     ru = rd * (1 + kappa_norm * rd * rd)
-    A = np.column_stack([ru ** 2, ru ** 4, ru ** 6])
+    A = np.column_stack([ru**2, ru**4, ru**6])
     k, *_ = np.linalg.lstsq(A, rd / ru - 1, rcond=None)
     return np.array([k[0], k[1], 0.0, 0.0, k[2]])
 
 
 def tsai_k1_of_opencv(D, r_max: float) -> float:
-    """Tsai's k1 (normalised units) that best matches an OpenCV radial model over 0..r_max (for comparisons)."""
+    """Tsai's k1 (normalised units) that best matches an OpenCV radial model over 0..r_max (for
+    comparisons)."""
     k1, k2, _, _, k3 = (list(np.ravel(D)) + [0.0] * 5)[:5]
     ru = np.linspace(1e-3, r_max, 400)
-    rd = ru * (1 + k1 * ru ** 2 + k2 * ru ** 4 + k3 * ru ** 6)
+    rd = ru * (1 + k1 * ru**2 + k2 * ru**4 + k3 * ru**6)
     # ru = rd (1 + kappa rd^2)  ->  ru / rd - 1 = kappa rd^2
-    return float(np.sum((ru / rd - 1) * rd ** 2) / np.sum(rd ** 4))
+    return float(np.sum((ru / rd - 1) * rd**2) / np.sum(rd**4))
 
 
-def tsai_stereo(world_cm, left_px, right_px, image_size, principal_left=None, principal_right=None,
-                pixel_pitch=(1.0, 1.0), ncx_over_nfx=1.0, refine=True, target="auto", coplanar_sx=1.0,
-                refine_pose=True) -> dict:
+def tsai_stereo(
+    world_cm,
+    left_px,
+    right_px,
+    image_size,
+    principal_left=None,
+    principal_right=None,
+    pixel_pitch=(1.0, 1.0),
+    ncx_over_nfx=1.0,
+    refine=True,
+    target="auto",
+    coplanar_sx=1.0,
+    refine_pose=True,
+) -> dict:
     """Calibrate both cameras against the same world points and derive the stereo pose.
 
     Two single-camera calibrations (:func:`tsai_camera`, same keyword meanings), then the
@@ -259,8 +328,14 @@ def tsai_stereo(world_cm, left_px, right_px, image_size, principal_left=None, pr
     ``X_right = R X_left + T``) plus ``tsai_left`` / ``tsai_right`` (the raw
     Tsai parameters) and ``T_world_from_left`` (4x4, cm).
     """
-    kw = dict(pixel_pitch=pixel_pitch, ncx_over_nfx=ncx_over_nfx, refine=refine, target=target,
-              coplanar_sx=coplanar_sx, refine_pose=refine_pose)
+    kw = dict(
+        pixel_pitch=pixel_pitch,
+        ncx_over_nfx=ncx_over_nfx,
+        refine=refine,
+        target=target,
+        coplanar_sx=coplanar_sx,
+        refine_pose=refine_pose,
+    )
     cl = tsai_camera(world_cm, left_px, image_size, principal_left, **kw)
     cr = tsai_camera(world_cm, right_px, image_size, principal_right, **kw)
     R = cr["R"] @ cl["R"].T
@@ -268,38 +343,72 @@ def tsai_stereo(world_cm, left_px, right_px, image_size, principal_left=None, pr
     Tw = np.eye(4)
     Tw[:3, :3] = cl["R"].T
     Tw[:3, 3] = -cl["R"].T @ cl["t_cm"]
-    raw = {s: {k: v for k, v in c.items() if k not in ("K", "D")} for s, c in (("left", cl), ("right", cr))}
-    return {"K1": cl["K"], "D1": cl["D"], "K2": cr["K"], "D2": cr["D"], "R": R, "T_cm": T,
-            "image_size": [int(image_size[0]), int(image_size[1])],
-            "rms_px": float(np.sqrt((cl["rms_px"] ** 2 + cr["rms_px"] ** 2) / 2)),
-            "per_view_rms_px": {}, "rejected_views": [], "method": "tsai",
-            "tsai_left": raw["left"], "tsai_right": raw["right"], "T_world_from_left": Tw}
+    raw = {
+        s: {k: v for k, v in c.items() if k not in ("K", "D")}
+        for s, c in (("left", cl), ("right", cr))
+    }
+    return {
+        "K1": cl["K"],
+        "D1": cl["D"],
+        "K2": cr["K"],
+        "D2": cr["D"],
+        "R": R,
+        "T_cm": T,
+        "image_size": [int(image_size[0]), int(image_size[1])],
+        "rms_px": float(np.sqrt((cl["rms_px"] ** 2 + cr["rms_px"] ** 2) / 2)),
+        "per_view_rms_px": {},
+        "rejected_views": [],
+        "method": "tsai",
+        "tsai_left": raw["left"],
+        "tsai_right": raw["right"],
+        "T_world_from_left": Tw,
+    }
 
 
 class TsaiParams(Params):
     principal_point_left_px: tuple[float, float] | None = Field(
-        None, description="Left principal point (u0, v0), pixels; default the image centre.")
+        None, description="Left principal point (u0, v0), pixels; default the image centre."
+    )
     principal_point_right_px: tuple[float, float] | None = Field(
-        None, description="Right principal point (u0, v0), pixels; default the image centre.")
+        None, description="Right principal point (u0, v0), pixels; default the image centre."
+    )
     pixel_pitch: tuple[float, float] = Field(
-        (1.0, 1.0), description="Sensor pitch (dx, dy), any length unit; (1, 1) gives f in pixels.")
+        (1.0, 1.0), description="Sensor pitch (dx, dy), any length unit; (1, 1) gives f in pixels."
+    )
     ncx_over_nfx: float = Field(1.0, gt=0, description="Ncx / Nfx of eq. (3.6) (unitless).")
     refine: bool = Field(True, description="Non-linear refinement of f, tz and k1 (switch).")
     refine_pose: bool = Field(
-        True, description="Also refine the rotation, tx, ty (and sx for a non-coplanar target) in the non-linear "
-                          "step: Tsai 1987's full optimisation (switch); false = f, tz, k1 only, as in the thesis.")
+        True,
+        description="Also refine the rotation, tx, ty (and sx for a non-coplanar target) in the "
+        "non-linear "
+        "step: Tsai 1987's full optimisation (switch); false = f, tz, k1 only, as in the thesis.",
+    )
     target: Literal["auto", "coplanar", "non_coplanar"] = Field(
-        "auto", description="Tsai's coplanar or non-coplanar linear step; auto: coplanar when the points' "
-                            "out-of-plane spread is under 5 % of their in-plane spread (unitless choice).")
+        "auto",
+        description="Tsai's coplanar or non-coplanar linear step; auto: coplanar when the points' "
+        "out-of-plane spread is under 5 % of their in-plane spread (unitless choice).",
+    )
     coplanar_sx: float = Field(
-        1.0, gt=0.5, lt=2.0, description="Horizontal scale factor sx (unitless) assumed for a coplanar target, which "
-                                         "cannot determine it (Tsai 1987); 1 = square pixels.")
+        1.0,
+        gt=0.5,
+        lt=2.0,
+        description="Horizontal scale factor sx (unitless) assumed for a coplanar target, which "
+        "cannot determine it (Tsai 1987); 1 = square pixels.",
+    )
     max_f_sigma_pct: float = Field(
-        0.5, gt=0, description="Refuse a calibration whose focal length the points leave uncertain by more than "
-                               "this (1 sigma from the fit's covariance, % of f): e.g. a flat target seen face-on.")
+        0.5,
+        gt=0,
+        description="Refuse a calibration whose focal length the points leave uncertain by more "
+        "than "
+        "this (1 sigma from the fit's covariance, % of f): e.g. a flat target seen face-on.",
+    )
     max_rms_px: float = Field(
-        2.0, gt=0, description="Refuse a calibration whose reprojection RMS exceeds this (pixels): the points do "
-                               "not fit one camera (mismatched rows, wrong unit or principal point).")
+        2.0,
+        gt=0,
+        description="Refuse a calibration whose reprojection RMS exceeds this (pixels): the "
+        "points do "
+        "not fit one camera (mismatched rows, wrong unit or principal point).",
+    )
 
 
 def _points_of(points: dict):
@@ -310,31 +419,52 @@ def _points_of(points: dict):
         Rr = np.asarray(points["right_px"], float).reshape(-1, 2)
         size = [int(v) for v in points["image_size"]]
     except (KeyError, TypeError, ValueError) as exc:
-        raise NodeError(f"calibrator.tsai: the `points` input is not a CalibrationPoints artifact ({exc!r}).",
-                        hint="wire it to source.target_points, or give world_cm Nx3, left_px Nx2, right_px Nx2 and "
-                             "image_size [w, h] (docs/artifacts.md)") from exc
+        raise NodeError(
+            f"calibrator.tsai: the `points` input is not a CalibrationPoints artifact ({exc!r}).",
+            hint="wire it to source.target_points, or give world_cm Nx3, left_px Nx2, "
+            "right_px Nx2 and "
+            "image_size [w, h] (docs/artifacts.md)",
+        ) from exc
     if not (len(W) == len(L) == len(Rr)) or len(size) != 2:
-        raise NodeError(f"calibrator.tsai: the `points` input has {len(W)} world, {len(L)} left and {len(Rr)} right "
-                        "points; they must match one to one.", hint="give every 3-D point both of its image points")
+        raise NodeError(
+            f"calibrator.tsai: the `points` input has {len(W)} world, {len(L)} left and "
+            f"{len(Rr)} right "
+            "points; they must match one to one.",
+            hint="give every 3-D point both of its image points",
+        )
     if not (np.isfinite(W).all() and np.isfinite(L).all() and np.isfinite(Rr).all()):
-        raise NodeError("calibrator.tsai: the `points` input holds NaN or infinite coordinates.",
-                        hint="drop the points a camera did not see")
+        raise NodeError(
+            "calibrator.tsai: the `points` input holds NaN or infinite coordinates.",
+            hint="drop the points a camera did not see",
+        )
     return W, L, Rr, size
 
 
 @node(
     "calibrator.tsai",
-    inputs={"views": In("StereoViews", optional=True,
-                        description="Chessboard views with known board poses (board_poses_table): a multi-plane "
-                                    "target."),
-            "points": In("CalibrationPoints", optional=True,
-                         description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.")},
+    inputs={
+        "views": In(
+            "StereoViews",
+            optional=True,
+            description="Chessboard views with known board poses (board_poses_table): a "
+            "multi-plane "
+            "target.",
+        ),
+        "points": In(
+            "CalibrationPoints",
+            optional=True,
+            description="{world_cm: Nx3, left_px: Nx2, right_px: Nx2, image_size}.",
+        ),
+    },
     outputs={"calibration": Out("StereoCalibration", save=True), **EXPORT_OUTPUTS},
     params=TsaiParams,
     version="2",
 )
-def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = None, ctx=None) -> dict:
-    """Calibrate the stereo rig with Tsai's method (the seed thesis; coplanar or non-coplanar target)."""
+def tsai(
+    params: TsaiParams, views: dict | None = None, points: dict | None = None, ctx=None
+) -> dict:
+    """Calibrate the stereo rig with Tsai's method (the seed thesis; coplanar or non-coplanar
+    target)."""
     corners_l, corners_r = {}, {}
     origin = "the views' board corners"
     if points is not None:
@@ -344,15 +474,23 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
     elif views is not None:
         poses = views.get("board_poses_table") or {}
         if not poses:
-            raise NodeError("calibrator.tsai: the views carry no board poses, so their corners have no 3-D world "
-                            "coordinates.", hint="give a `points` input (world_cm + pixels) or views with "
-                                                 "board_poses_table, e.g. from source.synthetic")
+            raise NodeError(
+                "calibrator.tsai: the views carry no board poses, so their corners have "
+                "no 3-D world "
+                "coordinates.",
+                hint="give a `points` input (world_cm + pixels) or views with "
+                "board_poses_table, e.g. from source.synthetic",
+            )
         b = views["board"]
         ids, left, right, rejected = detect_views(views["views"], int(b["cols"]), int(b["rows"]))
         ids_ok = [i for i in ids if i in poses]
         if len(ids_ok) < 2:
-            raise NodeError(f"calibrator.tsai: {len(ids_ok)} usable view(s) with a known pose; a multi-plane target "
-                            "needs at least 2.", hint="add views (different board poses)")
+            raise NodeError(
+                f"calibrator.tsai: {len(ids_ok)} usable view(s) with a known pose; a "
+                "multi-plane target "
+                "needs at least 2.",
+                hint="add views (different board poses)",
+            )
         obj = board_points(int(b["cols"]), int(b["rows"]), float(b["square_cm"])).astype(float)
         Ws, Ls, Rs = [], [], []
         for i, cl, cr in zip(ids, left, right):
@@ -366,52 +504,100 @@ def tsai(params: TsaiParams, views: dict | None = None, points: dict | None = No
         W, L, Rr = np.concatenate(Ws), np.concatenate(Ls), np.concatenate(Rs)
         size = views["image_size"]
     else:
-        raise NodeError("calibrator.tsai: wire `views` (with board poses) or `points`.",
-                        hint="see docs/rig.md, 'Tsai calibration'")
+        raise NodeError(
+            "calibrator.tsai: wire `views` (with board poses) or `points`.",
+            hint="see docs/rig.md, 'Tsai calibration'",
+        )
     try:
-        cal = tsai_stereo(W, L, Rr, size, params.principal_point_left_px, params.principal_point_right_px,
-                          params.pixel_pitch, params.ncx_over_nfx, params.refine, params.target, params.coplanar_sx,
-                          params.refine_pose)
+        cal = tsai_stereo(
+            W,
+            L,
+            Rr,
+            size,
+            params.principal_point_left_px,
+            params.principal_point_right_px,
+            params.pixel_pitch,
+            params.ncx_over_nfx,
+            params.refine,
+            params.target,
+            params.coplanar_sx,
+            params.refine_pose,
+        )
     except ValueError as exc:
-        raise NodeError(f"calibrator.tsai: {exc} ({origin}).",
-                        hint="spread the target points over the whole image, on one tilted plane or on several "
-                             "planes (target: auto picks the method)") from exc
+        raise NodeError(
+            f"calibrator.tsai: {exc} ({origin}).",
+            hint="spread the target points over the whole image, on one tilted plane or on several "
+            "planes (target: auto picks the method)",
+        ) from exc
     for side in ("left", "right"):
         c = cal[f"tsai_{side}"]
         # A wrong calibration is worse than none: refuse one whose points do not fit a camera.
         if not (c["rms_px"] <= params.max_rms_px and c["f"] > 0):
             raise NodeError(
-                f"calibrator.tsai: the {side} camera's reprojection RMS is {c['rms_px']:.2f} px (limit "
-                f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: the points do not fit one "
-                "camera.", hint="check that each row's 3-D point and pixels belong together, the length unit, the "
-                                "principal point and image_size_px; raise max_rms_px only for a coarse target")
+                f"calibrator.tsai: the {side} camera's reprojection RMS is "
+                f"{c['rms_px']:.2f} px (limit "
+                f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: "
+                "the points do not fit one "
+                "camera.",
+                hint="check that each row's 3-D point and pixels belong together, the length "
+                "unit, the "
+                "principal point and image_size_px; raise max_rms_px only for a coarse target",
+            )
         sig = 100 * c["f_sigma_rel"]
         if not sig <= params.max_f_sigma_pct:
-            tilt = f" (seen {c['tilt_deg']:.1f}° from face-on)" if c.get("tilt_deg") is not None else ""
+            tilt = (
+                f" (seen {c['tilt_deg']:.1f}° from face-on)"
+                if c.get("tilt_deg") is not None
+                else ""
+            )
             raise NodeError(
-                f"calibrator.tsai: the points from {origin} leave the {side} camera's focal length uncertain by "
-                f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = {params.max_f_sigma_pct:g}): the target does not "
+                f"calibrator.tsai: the points from {origin} leave the {side} camera's "
+                "focal length uncertain by "
+                f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = "
+                f"{params.max_f_sigma_pct:g}): the target does not "
                 f"separate f from its distance{tilt}.",
-                hint="tilt a flat target 30° or more to the cameras, or add points at other depths; spread the "
-                     "points over the whole image")
+                hint="tilt a flat target 30° or more to the cameras, or add points at other "
+                "depths; spread the "
+                "points over the whole image",
+            )
         if sig > params.max_f_sigma_pct / 2 and ctx is not None:
-            ctx.warn(f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every depth with it; a more "
-                     "tilted target or more points would tighten it")
+            ctx.warn(
+                f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every "
+                "depth with it; a more "
+                "tilted target or more points would tighten it"
+            )
         if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
-            raise NodeError(f"calibrator.tsai: some target points from {origin} come out behind the {side} camera.",
-                            hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
-                                 "right-handed")
+            raise NodeError(
+                f"calibrator.tsai: some target points from {origin} come out behind the "
+                f"{side} camera.",
+                hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
+                "right-handed",
+            )
     cal["target"] = cal["tsai_left"]["target"]
-    assumed = [s for s, pp in (("left", params.principal_point_left_px), ("right", params.principal_point_right_px))
-               if pp is None]
-    if assumed and ctx is not None:  # Tsai's method does not estimate it (docs/rig.md: 1-3 % on T when it is off)
-        ctx.warn(f"the {' and '.join(assumed)} principal point{'s are' if len(assumed) > 1 else ' is'} assumed at the "
-                 "image centre; give principal_point_*_px (from a chessboard calibration of the same camera, say) "
-                 "if it is known")
+    assumed = [
+        s
+        for s, pp in (
+            ("left", params.principal_point_left_px),
+            ("right", params.principal_point_right_px),
+        )
+        if pp is None
+    ]
+    # Tsai's method does not estimate it (docs/rig.md: 1-3 % on T when it is off)
+    if assumed and ctx is not None:
+        ctx.warn(
+            f"the {' and '.join(assumed)} principal "
+            f"point{'s are' if len(assumed) > 1 else ' is'} assumed at the "
+            "image centre; give principal_point_*_px (from a chessboard calibration of "
+            "the same camera, say) "
+            "if it is known"
+        )
     thick = cal["tsai_left"]["thickness"]
     if cal["target"] == "non_coplanar" and thick < COPLANAR_THICKNESS and ctx is not None:
-        ctx.warn(f"the target is nearly flat (out-of-plane spread {100 * thick:.1f} % of its size): the non-coplanar "
-                 "step cannot separate sx from the pose; target: auto would use the coplanar one")
+        ctx.warn(
+            f"the target is nearly flat (out-of-plane spread {100 * thick:.1f} % of its "
+            "size): the non-coplanar "
+            "step cannot separate sx from the pose; target: auto would use the coplanar one"
+        )
     cal["rejected_views"] = sorted(rejected)
     cal["rejected_reasons"] = rejected
     if corners_l:

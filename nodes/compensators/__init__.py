@@ -1,4 +1,5 @@
-"""Compensators: fit a correction of the systematic localisation error on training placements, apply it.
+"""Compensators: fit a correction of the systematic localisation error on training placements, apply
+it.
 
 Fit nodes (reduce over the ``Location`` collection, split ``train``): ``compensator.none``,
 ``.polynomial``, ``.disparity_curve``, ``.lookup``, ``.xyz``; ``compensator.apply`` corrects each

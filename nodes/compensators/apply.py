@@ -29,7 +29,9 @@ from stereograph.api import In, NodeError, Out, Params, node
 __all__ = ["apply", "apply_model"]
 
 
-def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: str = "compensator.apply") -> dict:
+def apply_model(
+    model: Mapping[str, Any], location: Mapping[str, Any], label: str = "compensator.apply"
+) -> dict:
     """Correct one Location with a CompensationModel.
 
     Parameters
@@ -51,14 +53,16 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
     Raises
     ------
     NodeError
-        Unknown model type, a frame mismatch, or a found location lacking a quantity the model reads.
+        Unknown model type, a frame mismatch, or a found location lacking a quantity the model
+        reads.
     """
     if not location.get("found"):
         return dict(location)
     mtype = model.get("type")
     if mtype not in PREDICTORS:
         raise NodeError(
-            f"{label}: unknown compensation model type {mtype!r}; known: {', '.join(sorted(PREDICTORS))}.",
+            f"{label}: unknown compensation model type {mtype!r}; known: "
+            f"{', '.join(sorted(PREDICTORS))}.",
             hint="wire the 'model' input to a compensator fit node (compensator.polynomial, ...).",
         )
     predict, needs = PREDICTORS[mtype]
@@ -71,12 +75,16 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
         )
     item = str(location.get("pair", "?"))
     samples = samples_from_locations({item: location})
-    missing = [k for k in ("x_cm", "y_cm", "z_cm", *needs) if not math.isfinite(samples.variable(k)[0])]
+    missing = [
+        k for k in ("x_cm", "y_cm", "z_cm", *needs) if not math.isfinite(samples.variable(k)[0])
+    ]
     if missing:
         raise NodeError(
-            f"{label}: location {item!r} is marked found but lacks finite {', '.join(missing)}, which the "
+            f"{label}: location {item!r} is marked found but lacks finite "
+            f"{', '.join(missing)}, which the "
             f"{mtype} model needs.",
-            hint="the locator must report x_cm, y_cm, z_cm, disparity_px, u_left_px and v_left_px for found items.",
+            hint="the locator must report x_cm, y_cm, z_cm, disparity_px, u_left_px and "
+            "v_left_px for found items.",
         )
     out = dict(location)
     corrected = np.asarray(predict(model.get("coefficients", {}), samples), dtype=float)[0]
@@ -87,8 +95,14 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
             reason=f"the {mtype} compensation is undefined for this measurement (inputs "
             + ", ".join(f"{k}={samples.variable(k)[0]:.4g}" for k in needs)
             + "), far outside its training range",
-            x_cm=None, y_cm=None, z_cm=None, sigma_z_cm=None,
-            extrapolated=True, raw_x_cm=raw[0], raw_y_cm=raw[1], raw_z_cm=raw[2],
+            x_cm=None,
+            y_cm=None,
+            z_cm=None,
+            sigma_z_cm=None,
+            extrapolated=True,
+            raw_x_cm=raw[0],
+            raw_y_cm=raw[1],
+            raw_z_cm=raw[2],
             compensation={"type": mtype, "raw_cm": raw},
         )
         return out
@@ -98,20 +112,27 @@ def apply_model(model: Mapping[str, Any], location: Mapping[str, Any], label: st
         value = samples.variable(name)[0]
         if value < rng["min"] or value > rng["max"]:
             outside.append(name)
-    # Inside the box of every input but off the placements' surface (an xyz model away from the table),
-    # or a correction far larger than any in training: the model is not supported there either.
-    outside += outside_support(model.get("support"), len(model.get("valid_range") or {}), raw, corrected)
+    # Inside the box of every input but off the placements' surface (an xyz model away from the
+    # table), or a correction far larger than any in training: the model is not supported there
+    # either.
+    outside += outside_support(
+        model.get("support"), len(model.get("valid_range") or {}), raw, corrected
+    )
     out.update(
         x_cm=float(corrected[0]),
         y_cm=float(corrected[1]),
         z_cm=float(corrected[2]),
         extrapolated=extrapolated or bool(outside),
-        raw_x_cm=raw[0], raw_y_cm=raw[1], raw_z_cm=raw[2],  # what the locator measured, next to the correction
+        # what the locator measured, next to the correction
+        raw_x_cm=raw[0],
+        raw_y_cm=raw[1],
+        raw_z_cm=raw[2],
         compensation={"type": mtype, "raw_cm": raw, "outside_range": outside},
     )
     sigma = location.get("sigma_z_cm")
     if sigma is not None and raw[2] != 0:
-        # The depth noise scales with the depth correction's local scale; the ratio is a fair first-order proxy.
+        # The depth noise scales with the depth correction's local scale; the ratio is a fair
+        # first-order proxy.
         out["sigma_z_cm"] = float(abs(sigma * corrected[2] / raw[2]))
     return out
 
@@ -126,9 +147,14 @@ class ApplyParams(Params):
         "model": In("CompensationModel", description="A fitted model (any compensator fit node)."),
         "location": In("Location", description="One measured location (runs once per item)."),
     },
-    outputs={"location": Out("Location", save=True,
-                             description="Compensated location (raw_x_cm.. as measured); extrapolated flags "
-                                         "out-of-range input.")},
+    outputs={
+        "location": Out(
+            "Location",
+            save=True,
+            description="Compensated location (raw_x_cm.. as measured); extrapolated flags "
+            "out-of-range input.",
+        )
+    },
     params=ApplyParams,
     version="1",
 )
@@ -136,6 +162,10 @@ def apply(params: ApplyParams, model, location, ctx=None):
     """Correct a measured location with a fitted compensation model (flags extrapolation)."""
     out = apply_model(model, location, node_label(ctx, "compensator.apply"))
     if not out.get("found"):  # the written records all carry the same keys
-        out.update(extrapolated=bool(out.get("extrapolated", False)), raw_x_cm=out.get("x_cm"),
-                   raw_y_cm=out.get("y_cm"), raw_z_cm=out.get("z_cm"))
+        out.update(
+            extrapolated=bool(out.get("extrapolated", False)),
+            raw_x_cm=out.get("x_cm"),
+            raw_y_cm=out.get("y_cm"),
+            raw_z_cm=out.get("z_cm"),
+        )
     return {"location": out}

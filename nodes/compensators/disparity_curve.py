@@ -64,7 +64,11 @@ def _ray_factor(samples: Samples, k_cm_px: float | None) -> np.ndarray:
 
 
 def fit_disparity_curve(
-    samples: Samples, with_offset_px: bool = True, max_iter: int = 100, xy: str = "auto", rectified: bool = True
+    samples: Samples,
+    with_offset_px: bool = True,
+    max_iter: int = 100,
+    xy: str = "auto",
+    rectified: bool = True,
 ) -> dict[str, Any]:
     """Least-squares fit of true z = a / (d + b) + c.
 
@@ -84,27 +88,38 @@ def fit_disparity_curve(
     Returns
     -------
     dict
-        ``{"a_cm_px", "b_px", "c_cm", "k_cm_px" (None when not rectified), "along_ray", "iterations"}``.
+        ``{"a_cm_px", "b_px", "c_cm", "k_cm_px" (None when not rectified), "along_ray",
+        "iterations"}``.
     """
     d = samples.disparity_px
     k_cm_px = float(np.median(samples.xyz_cm[:, 2] * d)) if rectified else None
     if k_cm_px is not None and not k_cm_px > 0:
-        raise NodeError("measured depth times disparity is not positive on the training placements.")
+        raise NodeError(
+            "measured depth times disparity is not positive on the training placements."
+        )
     g = _ray_factor(samples, k_cm_px)
     z = samples.truth_cm[:, 2] / g
     n_coef = 3 if with_offset_px else 2
     if len(d) < n_coef + 1:
-        raise NodeError(f"the disparity curve has {n_coef} coefficients and needs at least {n_coef + 1} placements, "
-                        f"got {len(d)}.")
+        raise NodeError(
+            f"the disparity curve has {n_coef} coefficients and needs at least "
+            f"{n_coef + 1} placements, "
+            f"got {len(d)}."
+        )
     if len(np.unique(d)) < n_coef:
-        raise NodeError(f"the disparity curve needs {n_coef} distinct disparities, got {len(np.unique(d))}.")
+        raise NodeError(
+            f"the disparity curve needs {n_coef} distinct disparities, got {len(np.unique(d))}."
+        )
     if np.any(d <= 0):
         raise NodeError(f"training disparities must be positive (got min {np.min(d):.3g} px).")
     p = _linear_ac(d, z, 0.0)
     iterations = 0
     if with_offset_px:
-        # Algebraic start: multiply out the denominator, z d = (a + c b) + c d - b z, linear in (a + cb, c, b).
-        (_alpha, _c, b), *_ = np.linalg.lstsq(np.column_stack([np.ones_like(d), d, -z]), z * d, rcond=None)
+        # Algebraic start: multiply out the denominator, z d = (a + c b) + c d - b z, linear in (a +
+        # cb, c, b).
+        (_alpha, _c, b), *_ = np.linalg.lstsq(
+            np.column_stack([np.ones_like(d), d, -z]), z * d, rcond=None
+        )
         if np.all(d + b > 0.05 * np.min(d)):
             start = _linear_ac(d, z, float(b))
             if np.sum((z - _curve(start, d)) ** 2) < np.sum((z - _curve(p, d)) ** 2):
@@ -119,9 +134,18 @@ def fit_disparity_curve(
             den = d + q[1]
             return np.column_stack([1.0 / den, -q[0] / den**2, np.ones_like(d)])
 
-        fit = least_squares(residuals, p, jac=jacobian, method="trf", x_scale="jac", max_nfev=max_iter,
-                            bounds=([-np.inf, b_low, -np.inf], [np.inf, np.inf, np.inf]),
-                            ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        fit = least_squares(
+            residuals,
+            p,
+            jac=jacobian,
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_iter,
+            bounds=([-np.inf, b_low, -np.inf], [np.inf, np.inf, np.inf]),
+            ftol=1e-12,
+            xtol=1e-12,
+            gtol=1e-12,
+        )
         # never worse than the start (least_squares returns its best point, but say so explicitly)
         if np.sum(fit.fun**2) <= np.sum((z - _curve(p, d)) ** 2):
             p = fit.x
@@ -153,7 +177,8 @@ class DisparityCurveParams(RayFitParams):
 
     depth: Literal["rectified", "camera"] = Field(
         "rectified",
-        description="Fit the rectified camera's depth (where z = fB/d holds; default) or the physical z (cm).",
+        description="Fit the rectified camera's depth (where z = fB/d holds; default) or the "
+        "physical z (cm).",
     )
     with_offset: bool = Field(
         True, description="Fit the disparity offset b (px) of z = a/(d+b)+c; false fixes b = 0."
@@ -163,22 +188,41 @@ class DisparityCurveParams(RayFitParams):
 def _camera_frame_only(params: DisparityCurveParams, samples: Samples, label: str) -> None:
     if samples.frame != "left_camera":
         raise NodeError(
-            f"{label}: the disparity curve models depth along the camera axis, but the locations are in the "
+            f"{label}: the disparity curve models depth along the camera axis, but the "
+            "locations are in the "
             f"'{samples.frame}' frame.",
-            hint="fit on locations in the left_camera frame (locator frame: left_camera), or use compensator.xyz.",
+            hint="fit on locations in the left_camera frame (locator frame: left_camera), or "
+            "use compensator.xyz.",
         )
 
 
 def _title(params: DisparityCurveParams, model: dict) -> str:
     c = model["coefficients"]
-    return (f"{params.depth} depth = a / (d + b) + c: a = {c['a_cm_px']:.5g} cm px, b = {c['b_px']:+.3g} px, "
-            f"c = {c['c_cm']:+.3g} cm")
+    return (
+        f"{params.depth} depth = a / (d + b) + c: a = {c['a_cm_px']:.5g} cm px, b = "
+        f"{c['b_px']:+.3g} px, "
+        f"c = {c['c_cm']:+.3g} cm"
+    )
 
 
-@fit_compensator("compensator.disparity_curve", params=DisparityCurveParams, predict=predict_disparity_curve,
-                 inputs=INPUTS, min_points=lambda p: 4 if p.with_offset else 3, span="disparity", axes=("z",),
-                 title=_title, version="3", check=_camera_frame_only, model="z = a/(d+b)+c (cm, d in px).",
-                 figure="Depth error (truth - measured, cm) vs disparity: placements, fitted curve, valid range.")
+@fit_compensator(
+    "compensator.disparity_curve",
+    params=DisparityCurveParams,
+    predict=predict_disparity_curve,
+    inputs=INPUTS,
+    min_points=lambda p: 4 if p.with_offset else 3,
+    span="disparity",
+    axes=("z",),
+    title=_title,
+    version="3",
+    check=_camera_frame_only,
+    model="z = a/(d+b)+c (cm, d in px).",
+    figure="Depth error (truth - measured, cm) vs disparity: placements, fitted curve, valid "
+    "range.",
+)
 def disparity_curve(params: DisparityCurveParams, samples: Samples) -> dict[str, Any]:
-    """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve fitting)."""
-    return fit_disparity_curve(samples, params.with_offset, xy=params.xy, rectified=params.depth == "rectified")
+    """Fit true depth against disparity, z = a/(d+b)+c, on the training placements (curve
+    fitting)."""
+    return fit_disparity_curve(
+        samples, params.with_offset, xy=params.xy, rectified=params.depth == "rectified"
+    )

@@ -47,11 +47,19 @@ class NoneParams(FitParams):
 @node(
     "compensator.none",
     inputs=TRAIN_INPUT,
-    outputs={"model": Out("CompensationModel", save=True, description="Identity model + raw training error."),
-             "figure": Out("Image", save=True, optional=True,
-                           description="Raw z error (truth - measured, cm) vs measured z:"
-                                       " the baseline the others correct."),
-             **METRICS_OUTPUT},
+    outputs={
+        "model": Out(
+            "CompensationModel", save=True, description="Identity model + raw training error."
+        ),
+        "figure": Out(
+            "Image",
+            save=True,
+            optional=True,
+            description="Raw z error (truth - measured, cm) vs measured z:"
+            " the baseline the others correct.",
+        ),
+        **METRICS_OUTPUT,
+    },
     params=NoneParams,
     version="2",
     prepare=load_figures,
@@ -62,12 +70,38 @@ def none(params: NoneParams, train, ctx=None):
     samples = training_samples(train, label, needs=INPUTS, min_points=0)
     if len(samples) == 0:
         # The baseline needs no training data: without truth it still passes locations through.
-        model = {"type": "none", "coefficients": {}, "valid_range": {}, "frame": samples.frame,
-                 "n_train": 0, "train_before_cm": None, "train_residual_cm": None,
-                 "cv": {"k": params.cv_folds, "n": 0, "skipped": "no training placements"},
-                 "fit_time_s": 0.0, "options": {}}
+        model = {
+            "type": "none",
+            "coefficients": {},
+            "valid_range": {},
+            "frame": samples.frame,
+            "n_train": 0,
+            "train_before_cm": None,
+            "train_residual_cm": None,
+            "cv": {"k": params.cv_folds, "n": 0, "skipped": "no training placements"},
+            "fit_time_s": 0.0,
+            "options": {},
+        }
     else:
-        model = build_model("none", samples, fit_none, predict_none, INPUTS, label, params.cv_folds, params.cv_seed, {})
-    figure = fit_figure(model, samples, predict_none, held_out(train, ("z_cm",)), "z_cm", ("z",),
-                        "identity: no correction (the raw training error, for comparison)", enabled=params.figure)
+        model = build_model(
+            "none",
+            samples,
+            fit_none,
+            predict_none,
+            INPUTS,
+            label,
+            params.cv_folds,
+            params.cv_seed,
+            {},
+        )
+    figure = fit_figure(
+        model,
+        samples,
+        predict_none,
+        held_out(train, ("z_cm",)),
+        "z_cm",
+        ("z",),
+        "identity: no correction (the raw training error, for comparison)",
+        enabled=params.figure,
+    )
     return {"model": model, "metrics": model_metrics(model), "figure": figure}

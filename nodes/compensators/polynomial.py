@@ -29,7 +29,9 @@ __all__ = ["fit_polynomial", "polynomial", "predict_polynomial"]
 INPUTS = ("z_cm",)
 
 
-def fit_polynomial(samples: Samples, degree: int = 2, target: str = "error", xy: str = "auto") -> dict[str, Any]:
+def fit_polynomial(
+    samples: Samples, degree: int = 2, target: str = "error", xy: str = "auto"
+) -> dict[str, Any]:
     """Least-squares polynomial of measured z, cm.
 
     Parameters
@@ -53,10 +55,13 @@ def fit_polynomial(samples: Samples, degree: int = 2, target: str = "error", xy:
     z_true = samples.truth_cm[:, 2]
     y = z_true - z if target == "error" else z_true
     if len(z) < degree + 1:
-        raise NodeError(f"a degree-{degree} polynomial needs at least {degree + 1} placements, got {len(z)}.")
+        raise NodeError(
+            f"a degree-{degree} polynomial needs at least {degree + 1} placements, got {len(z)}."
+        )
     if len(np.unique(z)) < degree + 1:
         raise NodeError(
-            f"a degree-{degree} polynomial needs {degree + 1} distinct measured distances, got {len(np.unique(z))}."
+            f"a degree-{degree} polynomial needs {degree + 1} distinct measured "
+            f"distances, got {len(np.unique(z))}."
         )
     poly = Polynomial.fit(z, y, deg=degree)
     z_new = z + poly(z) if target == "error" else poly(z)
@@ -81,9 +86,16 @@ def predict_polynomial(coefficients: Mapping[str, Any], samples: Samples) -> np.
 class PolynomialParams(RayFitParams):
     """Options of ``compensator.polynomial``."""
 
-    degree: int = Field(2, ge=0, le=8, description="Polynomial degree in measured z (unitless; 0 = constant offset).")
+    degree: int = Field(
+        2,
+        ge=0,
+        le=8,
+        description="Polynomial degree in measured z (unitless; 0 = constant offset).",
+    )
     target: Literal["error", "z"] = Field(
-        "error", description="Fit the z error (true - measured, cm) or the true z (cm) as the polynomial's value."
+        "error",
+        description="Fit the z error (true - measured, cm) or the true z (cm) as the "
+        "polynomial's value.",
     )
 
 
@@ -92,10 +104,19 @@ def _title(params: PolynomialParams, model: dict) -> str:
     return f"{what} = degree-{params.degree} polynomial of measured z"
 
 
-@fit_compensator("compensator.polynomial", params=PolynomialParams, predict=predict_polynomial, inputs=INPUTS,
-                 min_points=lambda p: p.degree + 2, span="z", axes=("z",), title=_title, version="3",
-                 model="Polynomial of measured z (cm).",
-                 figure="z error (truth - measured, cm) vs measured z: placements, fitted curve, valid range.")
+@fit_compensator(
+    "compensator.polynomial",
+    params=PolynomialParams,
+    predict=predict_polynomial,
+    inputs=INPUTS,
+    min_points=lambda p: p.degree + 2,
+    span="z",
+    axes=("z",),
+    title=_title,
+    version="3",
+    model="Polynomial of measured z (cm).",
+    figure="z error (truth - measured, cm) vs measured z: placements, fitted curve, valid range.",
+)
 def polynomial(params: PolynomialParams, samples: Samples) -> dict[str, Any]:
     """Fit the z error (or true z) as a polynomial of measured z on the training placements."""
     return fit_polynomial(samples, params.degree, params.target, params.xy)

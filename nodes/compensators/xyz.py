@@ -51,7 +51,9 @@ def _features(samples: Samples, depth_feature: str) -> np.ndarray:
 
 
 def _design(scaled: np.ndarray, exponents: list[list[int]]) -> np.ndarray:
-    return np.column_stack([np.prod(scaled ** np.asarray(e, dtype=float), axis=1) for e in exponents])
+    return np.column_stack(
+        [np.prod(scaled ** np.asarray(e, dtype=float), axis=1) for e in exponents]
+    )
 
 
 def fit_xyz(
@@ -74,13 +76,14 @@ def fit_xyz(
     Returns
     -------
     dict
-        ``{"exponents", "center", "half_range", "coef_x_cm", "coef_y_cm", "coef_z_cm", "depth_feature",
-        "degree", "ridge"}``.
+        ``{"exponents", "center", "half_range", "coef_x_cm", "coef_y_cm", "coef_z_cm",
+        "depth_feature", "degree", "ridge"}``.
     """
     exponents = monomials(3, degree)
     if len(samples) < len(exponents) + 1:
         raise NodeError(
-            f"a degree-{degree} polynomial of (u, v, disparity) has {len(exponents)} coefficients per axis and needs "
+            f"a degree-{degree} polynomial of (u, v, disparity) has {len(exponents)} "
+            "coefficients per axis and needs "
             f"at least {len(exponents) + 1} placements, got {len(samples)}."
         )
     feats = _features(samples, depth_feature)
@@ -88,7 +91,10 @@ def fit_xyz(
     center, half = (lo + hi) / 2.0, (hi - lo) / 2.0
     for name, h in zip(("u", "v", "disparity"), half):
         if not h > 0:
-            raise NodeError(f"all training placements share one {name} value; a polynomial in it cannot be fitted.")
+            raise NodeError(
+                f"all training placements share one {name} value; a polynomial in it "
+                "cannot be fitted."
+            )
     design = _design((feats - center) / half, exponents)
     target = samples.truth_cm - samples.xyz_cm
     if ridge > 0:
@@ -101,7 +107,8 @@ def fit_xyz(
     coef, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
     if rank < len(exponents):
         raise NodeError(
-            f"the training placements do not determine the {len(exponents)} coefficients (rank {rank}); they are "
+            f"the training placements do not determine the {len(exponents)} coefficients "
+            f"(rank {rank}); they are "
             "too few or too regularly placed in (u, v, disparity).",
         )
     return {
@@ -122,36 +129,55 @@ def predict_xyz(coefficients: Mapping[str, Any], samples: Samples) -> np.ndarray
     feats = _features(samples, coefficients["depth_feature"])
     scaled = (feats - np.asarray(coefficients["center"])) / np.asarray(coefficients["half_range"])
     design = _design(scaled, coefficients["exponents"])
-    coef = np.column_stack([coefficients["coef_x_cm"], coefficients["coef_y_cm"], coefficients["coef_z_cm"]])
+    coef = np.column_stack(
+        [coefficients["coef_x_cm"], coefficients["coef_y_cm"], coefficients["coef_z_cm"]]
+    )
     return samples.xyz_cm + design @ coef
 
 
 class XyzParams(FitParams):
     """Options of ``compensator.xyz``."""
 
-    degree: int = Field(2, ge=1, le=4, description="Total polynomial degree in (u, v, depth feature) (unitless).")
+    degree: int = Field(
+        2, ge=1, le=4, description="Total polynomial degree in (u, v, depth feature) (unitless)."
+    )
     ridge: float = Field(
         1e-6,
         ge=0.0,
         le=10.0,
-        description="Ridge (Tikhonov) weight relative to the design matrix's mean squared column norm (unitless).",
+        description="Ridge (Tikhonov) weight relative to the design matrix's mean squared column "
+        "norm (unitless).",
     )
     depth_feature: Literal["inverse_disparity", "disparity"] = Field(
-        "inverse_disparity", description="Third variable: 1/disparity (1/px, proportional to depth) or disparity (px)."
+        "inverse_disparity",
+        description="Third variable: 1/disparity (1/px, proportional to depth) or disparity (px).",
     )
 
 
 def _title(params: XyzParams, model: dict) -> str:
     feature = "1/d" if params.depth_feature == "inverse_disparity" else "d"
-    return (f"x, y, z corrections = degree-{params.degree} polynomials of image position (u, v) and "
-            f"{feature}")
+    return (
+        f"x, y, z corrections = degree-{params.degree} polynomials of image position (u, v) and "
+        f"{feature}"
+    )
 
 
-@fit_compensator("compensator.xyz", params=XyzParams, predict=predict_xyz, inputs=INPUTS,
-                 min_points=lambda p: len(monomials(3, p.degree)) + 1, span="disparity", axes=("x", "y", "z"),
-                 title=_title, version="3", model="x, y, z error polynomials (cm).",
-                 figure="x, y, z error (truth - measured, cm) vs disparity, one panel per axis: placements, model, "
-                        "valid range.")
+@fit_compensator(
+    "compensator.xyz",
+    params=XyzParams,
+    predict=predict_xyz,
+    inputs=INPUTS,
+    min_points=lambda p: len(monomials(3, p.degree)) + 1,
+    span="disparity",
+    axes=("x", "y", "z"),
+    title=_title,
+    version="3",
+    model="x, y, z error polynomials (cm).",
+    figure="x, y, z error (truth - measured, cm) vs disparity, one panel per axis: placements, "
+    "model, "
+    "valid range.",
+)
 def xyz(params: XyzParams, samples: Samples) -> dict[str, Any]:
-    """Fit x, y and z corrections as polynomials of image position and disparity on the training placements."""
+    """Fit x, y and z corrections as polynomials of image position and disparity on the training
+    placements."""
     return fit_xyz(samples, params.degree, params.ridge, params.depth_feature)

@@ -23,8 +23,8 @@ In the arm's vertical plane (radial coordinate ``r`` along the yaw direction, he
   ``phi`` and ``tool_normal_cm`` perpendicular to it (towards ``phi + 90 deg``).
 
 Servo units (AX-12A): 0-1023 over 300 deg, so ``units = zero_units + direction * deg * 1023 / 300``.
-A joint may be driven by several servos (a doubled shoulder, one mounted mirrored: ``direction -1``).
-Moving speed: 1 unit = 0.111 rpm = 0.666 deg/s, 0 = "as fast as possible" (no speed control).
+A joint may be driven by several servos (a doubled shoulder, one mounted mirrored: ``direction
+-1``). Moving speed: 1 unit = 0.111 rpm = 0.666 deg/s, 0 = "as fast as possible" (no speed control).
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ import math
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # NumPy is imported by the functions that compute with it: the actuator, which
-    import numpy as np  # converts joint angles to servo units only, runs a replayed rerun without it
+    # converts joint angles to servo units only, runs a replayed rerun without it
+    import numpy as np
 
 UNITS_PER_DEG = 1023.0 / 300.0
 """AX-12A position units per degree (0..1023 spans 300 deg)."""
@@ -81,12 +82,19 @@ def limits_rad(model: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 
 def geometry(model: dict[str, Any]) -> tuple[float, float, float, float, float, float]:
-    """``(base_height, shoulder_offset, upper_arm, forearm+tool_along, tool_normal)`` in cm, and reach."""
+    """``(base_height, shoulder_offset, upper_arm, forearm+tool_along, tool_normal)`` in cm, and
+    reach."""
     L = model["links"]
     a = L["forearm_cm"] + L["tool_along_cm"]
     b = L["tool_normal_cm"]
-    return (L["base_height_cm"], L["shoulder_offset_cm"], L["upper_arm_cm"], a, b,
-            L["upper_arm_cm"] + math.hypot(a, b))
+    return (
+        L["base_height_cm"],
+        L["shoulder_offset_cm"],
+        L["upper_arm_cm"],
+        a,
+        b,
+        L["upper_arm_cm"] + math.hypot(a, b),
+    )
 
 
 def all_servo_ids(model: dict[str, Any]) -> list[int]:
@@ -179,7 +187,10 @@ def servo_limits_units(model: dict[str, Any]) -> dict[str, tuple[int, int]]:
             u1 = s["zero_units"] + s["direction"] * j["min_deg"] * UNITS_PER_DEG
             u2 = s["zero_units"] + s["direction"] * j["max_deg"] * UNITS_PER_DEG
             lo, hi = min(u1, u2), max(u1, u2)
-            out[str(s["id"])] = (max(0, math.ceil(lo - 1e-9)), min(MAX_POSITION_UNITS, math.floor(hi + 1e-9)))
+            out[str(s["id"])] = (
+                max(0, math.ceil(lo - 1e-9)),
+                min(MAX_POSITION_UNITS, math.floor(hi + 1e-9)),
+            )
     return out
 
 

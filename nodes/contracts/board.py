@@ -1,4 +1,5 @@
-"""Calibration board definitions shared by the renderer that draws a board and the calibrators that detect it.
+"""Calibration board definitions shared by the renderer that draws a board and the calibrators that
+detect it.
 
 A ChArUco board is named by its inner-corner count ``cols x rows`` (the chessboard convention:
 ``cols + 1 x rows + 1`` squares), its square side (cm), the ArUco dictionary and the marker side
@@ -13,8 +14,13 @@ import cv2
 __all__ = ["charuco_board"]
 
 
-def charuco_board(cols: int, rows: int, square_cm: float, dictionary: str = "DICT_4X4_50",
-                  marker_fraction: float = 0.7):
+def charuco_board(
+    cols: int,
+    rows: int,
+    square_cm: float,
+    dictionary: str = "DICT_4X4_50",
+    marker_fraction: float = 0.7,
+):
     """``cv2.aruco.CharucoBoard`` with ``cols x rows`` inner corners (``cols+1 x rows+1`` squares).
 
     Raises ValueError for an unknown dictionary name or a board needing more
@@ -27,6 +33,10 @@ def charuco_board(cols: int, rows: int, square_cm: float, dictionary: str = "DIC
     d = cv2.aruco.getPredefinedDictionary(code)
     n_markers = ((cols + 1) * (rows + 1)) // 2
     if n_markers > d.bytesList.shape[0]:
-        raise ValueError(f"a {cols}x{rows} ChArUco board needs {n_markers} markers but {dictionary} holds "
-                         f"{d.bytesList.shape[0]}")
-    return cv2.aruco.CharucoBoard((cols + 1, rows + 1), float(square_cm), float(marker_fraction * square_cm), d)
+        raise ValueError(
+            f"a {cols}x{rows} ChArUco board needs {n_markers} markers but {dictionary} holds "
+            f"{d.bytesList.shape[0]}"
+        )
+    return cv2.aruco.CharucoBoard(
+        (cols + 1, rows + 1), float(square_cm), float(marker_fraction * square_cm), d
+    )

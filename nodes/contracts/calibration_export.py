@@ -1,4 +1,5 @@
-"""A calibration written as the files other tools read: OpenCV FileStorage YAML and ROS ``camera_info``.
+"""A calibration written as the files other tools read: OpenCV FileStorage YAML and ROS
+``camera_info``.
 
 Shared by the calibrators (the calibration at ``alpha`` 1) and ``rectifier.opencv`` (with the
 rectification the run uses: its ``alpha``, recorded as ``rectify_alpha``). Lengths: cm in the OpenCV
@@ -17,7 +18,14 @@ import cv2
 import numpy as np
 import yaml
 
-__all__ = ["EXPORT_OUTPUTS", "EXPORT_OUTPUTS_DOC", "export_texts", "opencv_text", "rectify_params", "ros_camera_info"]
+__all__ = [
+    "EXPORT_OUTPUTS",
+    "EXPORT_OUTPUTS_DOC",
+    "export_texts",
+    "opencv_text",
+    "rectify_params",
+    "ros_camera_info",
+]
 
 
 def rectify_params(cal: dict, alpha: float = 1.0) -> dict:
@@ -25,14 +33,16 @@ def rectify_params(cal: dict, alpha: float = 1.0) -> dict:
     w, h = (int(v) for v in cal["image_size"])
     K1, D1, K2, D2, R = (np.asarray(cal[k], dtype=float) for k in ("K1", "D1", "K2", "D2", "R"))
     T = np.asarray(cal["T_cm"], dtype=float).reshape(3, 1)
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, D1, K2, D2, (w, h), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
-                                                alpha=alpha)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        K1, D1, K2, D2, (w, h), R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha
+    )
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q, "alpha": float(alpha)}
 
 
 def opencv_text(cal: dict, rect: dict | None = None) -> str:
     """The calibration as OpenCV FileStorage YAML (stereo_calib's names, lengths in cm), with the
-    ``R1 R2 P1 P2 Q`` of ``rect`` (default: :func:`rectify_params` at alpha 1) and its ``rectify_alpha``."""
+    ``R1 R2 P1 P2 Q`` of ``rect`` (default: :func:`rectify_params` at alpha 1) and its
+    ``rectify_alpha``."""
     rect = rect if rect is not None else rectify_params(cal)
     w, h = (int(v) for v in cal["image_size"])
     fd, tmp = tempfile.mkstemp(suffix=".yml")
@@ -48,11 +58,16 @@ def opencv_text(cal: dict, rect: dict | None = None) -> str:
             fs.write("rms_px", float(cal["rms_px"]))
         board = cal.get("board") or {}
         if all(isinstance(board.get(k), (int, float)) for k in ("cols", "rows", "square_cm")):
-            for k in ("cols", "rows", "square_cm"):  # (read back by calibrator.load: the board survives)
+            # (read back by calibrator.load: the board survives)
+            for k in ("cols", "rows", "square_cm"):
                 fs.write(f"board_{k}", board[k])
         for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
-            fs.write(name, np.asarray(cal[key], np.float64).reshape(3, 3) if name[0] in "MR"
-                     else np.asarray(cal[key], np.float64).reshape(1, -1))
+            fs.write(
+                name,
+                np.asarray(cal[key], np.float64).reshape(3, 3)
+                if name[0] in "MR"
+                else np.asarray(cal[key], np.float64).reshape(1, -1),
+            )
         fs.write("T", np.asarray(cal["T_cm"], np.float64).reshape(3, 1))
         for name in ("R1", "R2", "P1", "P2", "Q"):
             fs.write(name, np.asarray(rect[name], np.float64))
@@ -67,7 +82,9 @@ def _distortion_model(D: np.ndarray) -> str:
     return "plumb_bob" if D.size <= 5 else "rational_polynomial"
 
 
-def ros_camera_info(cal: dict, side: str, camera_name: str | None = None, rect: dict | None = None) -> dict:
+def ros_camera_info(
+    cal: dict, side: str, camera_name: str | None = None, rect: dict | None = None
+) -> dict:
     """One camera's ROS ``camera_info`` (as a dict), lengths in metres.
 
     Parameters
@@ -78,7 +95,8 @@ def ros_camera_info(cal: dict, side: str, camera_name: str | None = None, rect: 
     camera_name : str, optional
         Default ``"left"`` / ``"right"``.
     rect : dict, optional
-        The rectification whose ``R`` and ``P`` to write (default: :func:`rectify_params` at alpha 1).
+        The rectification whose ``R`` and ``P`` to write (default: :func:`rectify_params` at alpha
+        1).
     """
     rect = rect if rect is not None else rectify_params(cal)
     s = "1" if side == "left" else "2"
@@ -91,18 +109,29 @@ def ros_camera_info(cal: dict, side: str, camera_name: str | None = None, rect: 
     w, h = (int(v) for v in cal["image_size"])
 
     def block(rows, cols, m):
-        return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(m, float).ravel()]}
+        return {
+            "rows": rows,
+            "cols": cols,
+            "data": [float(v) for v in np.asarray(m, float).ravel()],
+        }
 
-    return {"image_width": w, "image_height": h, "camera_name": camera_name or side,
-            "camera_matrix": block(3, 3, K), "distortion_model": _distortion_model(D),
-            "distortion_coefficients": block(1, D.size, D),
-            "rectification_matrix": block(3, 3, rect["R" + s]), "projection_matrix": block(3, 4, P)}
+    return {
+        "image_width": w,
+        "image_height": h,
+        "camera_name": camera_name or side,
+        "camera_matrix": block(3, 3, K),
+        "distortion_model": _distortion_model(D),
+        "distortion_coefficients": block(1, D.size, D),
+        "rectification_matrix": block(3, 3, rect["R" + s]),
+        "projection_matrix": block(3, 4, P),
+    }
 
 
 #: The export outputs every calibrator declares beside ``calibration`` (``TextFile`` artifacts:
 #: the engine writes each as ``<run>/<node>/<output><suffix>``).
 EXPORT_OUTPUTS_DOC = {
-    "opencv": "OpenCV FileStorage YAML (stereo_calib's M1 D1 M2 D2 R T R1 R2 P1 P2 Q; lengths in cm).",
+    "opencv": "OpenCV FileStorage YAML (stereo_calib's M1 D1 M2 D2 R T R1 R2 P1 P2 Q; lengths in "
+    "cm).",
     "camera_info_left": "ROS camera_info YAML of the left camera (metres).",
     "camera_info_right": "ROS camera_info YAML of the right camera (metres).",
 }
@@ -112,21 +141,32 @@ _SUFFIX = {"opencv": ".yml", "camera_info_left": ".yaml", "camera_info_right": "
 def _export_outputs():
     from stereograph.api import Out
 
-    return {k: Out("TextFile", save=True, optional=True, description=d) for k, d in EXPORT_OUTPUTS_DOC.items()}
+    return {
+        k: Out("TextFile", save=True, optional=True, description=d)
+        for k, d in EXPORT_OUTPUTS_DOC.items()
+    }
 
 
 EXPORT_OUTPUTS = _export_outputs()
 
 
 def export_texts(cal: dict, rect: dict | None = None) -> dict:
-    """The three export outputs of a calibration, as ``TextFile`` values ``{"file_text", "file_suffix"}``
-    (with the rectification ``rect``, default :func:`rectify_params` at alpha 1)."""
+    """The three export outputs of a calibration, as ``TextFile`` values ``{"file_text",
+    "file_suffix"}`` (with the rectification ``rect``, default :func:`rectify_params` at alpha
+    1)."""
     unit = cal.get("length_unit", "cm")
-    # ROS has no unit field: a calibration in squares is flagged in a comment, and by the run's warning
-    head = "" if unit == "cm" else f"# projection_matrix lengths are in {unit}/100, not metres: no square size given\n"
-    texts = {"opencv": opencv_text(cal, rect),
-             "camera_info_left": head + yaml.safe_dump(ros_camera_info(cal, "left", rect=rect), sort_keys=False),
-             "camera_info_right": head + yaml.safe_dump(ros_camera_info(cal, "right", rect=rect), sort_keys=False)}
+    # ROS has no unit field: a calibration in squares is flagged in a comment, and by the run's
+    # warning
+    head = (
+        ""
+        if unit == "cm"
+        else f"# projection_matrix lengths are in {unit}/100, not metres: no square size given\n"
+    )
+    texts = {
+        "opencv": opencv_text(cal, rect),
+        "camera_info_left": head
+        + yaml.safe_dump(ros_camera_info(cal, "left", rect=rect), sort_keys=False),
+        "camera_info_right": head
+        + yaml.safe_dump(ros_camera_info(cal, "right", rect=rect), sort_keys=False),
+    }
     return {k: {"file_text": t, "file_suffix": _SUFFIX[k]} for k, t in texts.items()}
-
-

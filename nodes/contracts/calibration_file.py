@@ -22,8 +22,16 @@ import numpy as np
 from stereograph.api import Field, NodeError, Params, PathField, data_file
 
 __all__ = [
-    "ArtifactLoadParams", "array_keys", "artifact_kind", "artifact_reads", "check_rig", "read_artifact",
-    "resolve_path", "rig_fingerprint", "rig_from_file", "with_npz",
+    "ArtifactLoadParams",
+    "array_keys",
+    "artifact_kind",
+    "artifact_reads",
+    "check_rig",
+    "read_artifact",
+    "resolve_path",
+    "rig_fingerprint",
+    "rig_from_file",
+    "with_npz",
 ]
 
 
@@ -40,15 +48,16 @@ def _restore(v: Any, npz) -> Any:
     return v
 
 
-# The most a file's arrays may take once decompressed. A run's arrays are a few MB (rectification maps of
-# 4000x3000 cameras: ~200 MB); an .npz is a zip, and a few MB of zeros from someone else can decompress
-# into tens of GB.
+# The most a file's arrays may take once decompressed. A run's arrays are a few MB (rectification
+# maps of 4000x3000 cameras: ~200 MB); an .npz is a zip, and a few MB of zeros from someone else can
+# decompress into tens of GB.
 MAX_NPZ_BYTES = 2 << 30
 
 
 def _check_npz_size(npz_path: Path, label: str) -> None:
-    """Refuse an ``.npz`` whose arrays would take more than :data:`MAX_NPZ_BYTES` (its zip directory's
-    sizes, read before anything is decompressed: a member cannot yield more than its recorded size)."""
+    """Refuse an ``.npz`` whose arrays would take more than :data:`MAX_NPZ_BYTES` (its zip
+    directory's sizes, read before anything is decompressed: a member cannot yield more than its
+    recorded size)."""
     import zipfile
 
     try:
@@ -57,10 +66,13 @@ def _check_npz_size(npz_path: Path, label: str) -> None:
     except (OSError, zipfile.BadZipFile) as exc:
         raise ValueError(exc) from None
     if total > MAX_NPZ_BYTES:
-        raise NodeError(f"{label}: {npz_path} would decompress into {total / 2**30:.1f} GB of arrays, more than "
-                        f"the {MAX_NPZ_BYTES / 2**30:.0f} GB a run's file holds.",
-                        hint="give the .npz the run wrote beside the JSON (a file from someone else may be a "
-                             "decompression bomb)")
+        raise NodeError(
+            f"{label}: {npz_path} would decompress into {total / 2**30:.1f} GB of arrays, "
+            "more than "
+            f"the {MAX_NPZ_BYTES / 2**30:.0f} GB a run's file holds.",
+            hint="give the .npz the run wrote beside the JSON (a file from someone else may be a "
+            "decompression bomb)",
+        )
 
 
 def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
@@ -83,18 +95,26 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
         Missing or unreadable file, a per-item list, or a missing ``.npz``.
     """
     if not path.exists():
-        raise NodeError(f"{label}: {path} does not exist.",
-                        hint=f"give the {kind} file a run wrote ({made_by}); relative paths start at the pipeline "
-                             "file's folder")
+        raise NodeError(
+            f"{label}: {path} does not exist.",
+            hint=f"give the {kind} file a run wrote ({made_by}); relative paths start at the "
+            "pipeline "
+            "file's folder",
+        )
     data_file(path, f"the {kind} file a run wrote ({made_by})", label)
     try:
         data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # (nested deeper than Python's stack)
-        raise NodeError(f"{label}: {path} is not a JSON file a run wrote ({exc}).",
-                        hint=f"give the {kind} file a run wrote ({made_by})") from None
+    # (nested deeper than Python's stack)
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise NodeError(
+            f"{label}: {path} is not a JSON file a run wrote ({exc}).",
+            hint=f"give the {kind} file a run wrote ({made_by})",
+        ) from None
     if not isinstance(data, dict):
-        raise NodeError(f"{label}: {path} holds a list (a per-item output, such as locations), not a {kind}.",
-                        hint=f"give the {kind} file a run wrote ({made_by})")
+        raise NodeError(
+            f"{label}: {path} holds a list (a per-item output, such as locations), not a {kind}.",
+            hint=f"give the {kind} file a run wrote ({made_by})",
+        )
     npz_path = path.with_suffix(".npz")
     npz = None
     try:
@@ -104,12 +124,16 @@ def read_artifact(path: Path, label: str, kind: str, made_by: str) -> dict:
                 npz = {k: z[k] for k in z.files}
         return _restore(data, npz)
     except KeyError as exc:
-        raise NodeError(f"{label}: {path} refers to array {exc} in {npz_path}, which "
-                        f"{'lacks it' if npz is not None else 'does not exist'}.",
-                        hint="copy the .npz the run wrote beside the JSON together with it") from None
+        raise NodeError(
+            f"{label}: {path} refers to array {exc} in {npz_path}, which "
+            f"{'lacks it' if npz is not None else 'does not exist'}.",
+            hint="copy the .npz the run wrote beside the JSON together with it",
+        ) from None
     except (OSError, ValueError) as exc:
-        raise NodeError(f"{label}: cannot read {npz_path} ({exc}).",
-                        hint="copy the .npz the run wrote beside the JSON together with it") from None
+        raise NodeError(
+            f"{label}: cannot read {npz_path} ({exc}).",
+            hint="copy the .npz the run wrote beside the JSON together with it",
+        ) from None
 
 
 def array_keys(art: dict, keys, source: str = "the file") -> dict:
@@ -120,33 +144,44 @@ def array_keys(art: dict, keys, source: str = "the file") -> dict:
             try:
                 art[k] = np.asarray(art[k], dtype=float)
             except (TypeError, ValueError) as exc:
-                raise NodeError(f"{source}: `{k}` is not a matrix of numbers ({str(exc).split('.')[0]}).",
-                                hint="give the file as the run wrote it") from None
+                raise NodeError(
+                    f"{source}: `{k}` is not a matrix of numbers ({str(exc).split('.')[0]}).",
+                    hint="give the file as the run wrote it",
+                ) from None
     return art
 
 
 def rig_fingerprint(calibration: dict | None) -> dict | None:
-    """``{"image_size", "fx_px", "baseline_cm"}`` of a StereoCalibration or Rectification (None if unknown)."""
+    """``{"image_size", "fx_px", "baseline_cm"}`` of a StereoCalibration or Rectification (None if
+    unknown)."""
     if not calibration or calibration.get("K1") is None or calibration.get("image_size") is None:
         return None
-    size = calibration.get("source_size") or calibration["image_size"]  # a Rectification may be rescaled
+    # a Rectification may be rescaled
+    size = calibration.get("source_size") or calibration["image_size"]
     if calibration.get("T_cm") is not None:
         baseline = float(np.linalg.norm(np.asarray(calibration["T_cm"], float)))
     elif calibration.get("baseline_cm") is not None:
         baseline = abs(float(calibration["baseline_cm"]))
     else:
         return None
-    return {"image_size": [int(v) for v in size], "fx_px": float(np.asarray(calibration["K1"], float)[0, 0]),
-            "baseline_cm": baseline}
+    return {
+        "image_size": [int(v) for v in size],
+        "fx_px": float(np.asarray(calibration["K1"], float)[0, 0]),
+        "baseline_cm": baseline,
+    }
 
 
 def rig_from_file(calibration: dict) -> str:
     """Where a calibration came from, for messages."""
-    return str(calibration.get("source_file") or f"the wired calibration ({calibration.get('method', '?')})")
+    return str(
+        calibration.get("source_file")
+        or f"the wired calibration ({calibration.get('method', '?')})"
+    )
 
 
-def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None, tolerance: float,
-              warn=None) -> None:
+def check_rig(
+    label: str, rig: dict | None, path: Path, calibration: dict | None, tolerance: float, warn=None
+) -> None:
     """Refuse an artifact made for another rig than ``calibration``; both files are named.
 
     Parameters
@@ -161,8 +196,10 @@ def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None
     now = rig_fingerprint(calibration)
     if rig is None or now is None:
         if warn is not None:
-            warn(f"{path} records no rig (image size, focal length, baseline): not checked against "
-                 f"{rig_from_file(calibration)}")
+            warn(
+                f"{path} records no rig (image size, focal length, baseline): not checked against "
+                f"{rig_from_file(calibration)}"
+            )
         return
     try:  # (the file's own record: it may be damaged)
         size = [int(v) for v in rig["image_size"]]
@@ -170,20 +207,29 @@ def check_rig(label: str, rig: dict | None, path: Path, calibration: dict | None
     except (KeyError, TypeError, ValueError, OverflowError):
         size, stored = [], {}
     if len(size) != 2 or len(stored) != 2 or not all(np.isfinite(list(stored.values()))):
-        raise NodeError(f"{label}: {path} records its rig (image_size, fx_px, baseline_cm) in a form a run does "
-                        "not write.", hint="give the file as the run wrote it, or fit it again")
+        raise NodeError(
+            f"{label}: {path} records its rig (image_size, fx_px, baseline_cm) in a form "
+            "a run does "
+            "not write.",
+            hint="give the file as the run wrote it, or fit it again",
+        )
     problems = []
     if size != now["image_size"]:
-        problems.append(f"image size {size[0]}x{size[1]} vs {now['image_size'][0]}x{now['image_size'][1]} px")
+        problems.append(
+            f"image size {size[0]}x{size[1]} vs {now['image_size'][0]}x{now['image_size'][1]} px"
+        )
     for key, name, unit in (("fx_px", "focal length", "px"), ("baseline_cm", "baseline", "cm")):
         a, b = stored[key], now[key]
         if abs(a - b) > tolerance * abs(b):
             problems.append(f"{name} {a:.4g} vs {b:.4g} {unit} ({100 * (a / b - 1):+.2f} %)")
     if problems:
-        raise NodeError(f"{label}: {path} was made for another rig than {rig_from_file(calibration)}: "
-                        + "; ".join(problems) + ".",
-                        hint="use the calibration it was fitted with, or fit it again with this calibration "
-                             f"(rig_tolerance {tolerance:g} allows relative differences up to that)")
+        raise NodeError(
+            f"{label}: {path} was made for another rig than {rig_from_file(calibration)}: "
+            + "; ".join(problems)
+            + ".",
+            hint="use the calibration it was fitted with, or fit it again with this calibration "
+            f"(rig_tolerance {tolerance:g} allows relative differences up to that)",
+        )
 
 
 def artifact_kind(art: dict) -> str:
@@ -210,7 +256,8 @@ def resolve_path(value: str, pipeline_dir: Path) -> Path:
 
 
 def with_npz(paths: list[Path]) -> list[Path]:
-    """The paths, each ``.json`` followed by its ``.npz`` where one lies beside it (for a node's ``reads``)."""
+    """The paths, each ``.json`` followed by its ``.npz`` where one lies beside it (for a node's
+    ``reads``)."""
     out = []
     for p in paths:
         out.append(p)
@@ -222,11 +269,18 @@ def with_npz(paths: list[Path]) -> list[Path]:
 class ArtifactLoadParams(Params):
     """Parameters of a node that loads one artifact a run wrote (``*.load``)."""
 
-    path: str = PathField(..., description="The JSON file a run wrote for this output, relative to the pipeline file "
-                                       "(its .npz, if any, beside it).")
+    path: str = PathField(
+        ...,
+        description="The JSON file a run wrote for this output, relative to the pipeline file "
+        "(its .npz, if any, beside it).",
+    )
     rig_tolerance: float = Field(
-        0.01, gt=0, le=0.5, description="Largest relative difference of focal length and baseline between the "
-                                        "file's rig and the wired calibration (unitless; 0.01 = 1 %).")
+        0.01,
+        gt=0,
+        le=0.5,
+        description="Largest relative difference of focal length and baseline between the "
+        "file's rig and the wired calibration (unitless; 0.01 = 1 %).",
+    )
 
 
 def artifact_reads(params: ArtifactLoadParams, pipeline_dir: Path) -> list[Path]:

@@ -26,12 +26,18 @@ def wrap(text: str, width_px: int, scale: float = FONT_SCALE) -> list[str]:
         line = ""
         for word in para.split(" "):
             trial = f"{line} {word}" if line else word
-            if cv2.getTextSize(trial, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] <= width_px or not line:
+            if (
+                cv2.getTextSize(trial, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] <= width_px
+                or not line
+            ):
                 line = trial
             else:
                 out.append(line)
                 line = word
-            while cv2.getTextSize(line, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width_px and len(line) > 1:
+            while (
+                cv2.getTextSize(line, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width_px
+                and len(line) > 1
+            ):
                 # a single word wider than the image (a long path): cut it, keep every character
                 full = cv2.getTextSize(line, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
                 cut = max(1, int(len(line) * width_px / full))
@@ -41,8 +47,11 @@ def wrap(text: str, width_px: int, scale: float = FONT_SCALE) -> list[str]:
     return out
 
 
-def caption(img: np.ndarray, lines: Iterable[str | tuple[str, tuple[int, int, int]]],
-            background: tuple[int, int, int] = (255, 255, 255)) -> np.ndarray:
+def caption(
+    img: np.ndarray,
+    lines: Iterable[str | tuple[str, tuple[int, int, int]]],
+    background: tuple[int, int, int] = (255, 255, 255),
+) -> np.ndarray:
     """``img`` (BGR or grey uint8) with a band of text above it.
 
     ``lines``: text, or ``(text, bgr_colour)``; each is wrapped to the image width. Returns a new
@@ -53,21 +62,34 @@ def caption(img: np.ndarray, lines: Iterable[str | tuple[str, tuple[int, int, in
     base = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img[..., :3]
     w = base.shape[1]
     k_scale = max(1.0, w / 900)  # text stays readable when a wide image is shown scaled down
-    scale, line_px, thick = FONT_SCALE * k_scale, int(round(LINE_PX * k_scale)), max(1, int(round(k_scale)))
+    scale, line_px, thick = (
+        FONT_SCALE * k_scale,
+        int(round(LINE_PX * k_scale)),
+        max(1, int(round(k_scale))),
+    )
     rows: list[tuple[str, tuple[int, int, int]]] = []
     for item in lines:
         text, colour = (item, (0, 0, 0)) if isinstance(item, str) else item
         rows += [(t, colour) for t in wrap(text, w - 12, scale)]
     band = np.full((line_px * len(rows) + 8, w, 3), background, np.uint8)
     for k, (text, colour) in enumerate(rows):
-        cv2.putText(band, text, (6, line_px * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
+        cv2.putText(
+            band,
+            text,
+            (6, line_px * (k + 1)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            colour,
+            thick,
+            cv2.LINE_AA,
+        )
     return np.ascontiguousarray(np.vstack([band, base]))
 
 
 def load_figures() -> None:
-    """Import what :func:`new_figure` and :func:`figure_bgr` use (~1 s: matplotlib, its Agg canvas and
-    font list). A node that draws declares it as its ``prepare`` (stereograph.api.node): a run may
-    then load it while the process would wait for its workers, not alone at the end."""
+    """Import what :func:`new_figure` and :func:`figure_bgr` use (~1 s: matplotlib, its Agg canvas
+    and font list). A node that draws declares it as its ``prepare`` (stereograph.api.node): a run
+    may then load it while the process would wait for its workers, not alone at the end."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)

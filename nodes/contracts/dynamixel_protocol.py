@@ -9,18 +9,47 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-INST_PING, INST_READ, INST_WRITE, INST_REG_WRITE, INST_ACTION, INST_RESET = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+INST_PING, INST_READ, INST_WRITE, INST_REG_WRITE, INST_ACTION, INST_RESET = (
+    0x01,
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+)
 INST_SYNC_WRITE, INST_BULK_READ = 0x83, 0x92
-INSTRUCTION_NAMES = {INST_PING: "PING", INST_READ: "READ", INST_WRITE: "WRITE", INST_REG_WRITE: "REG_WRITE",
-                     INST_ACTION: "ACTION", INST_RESET: "RESET", INST_SYNC_WRITE: "SYNC_WRITE",
-                     INST_BULK_READ: "BULK_READ"}
+INSTRUCTION_NAMES = {
+    INST_PING: "PING",
+    INST_READ: "READ",
+    INST_WRITE: "WRITE",
+    INST_REG_WRITE: "REG_WRITE",
+    INST_ACTION: "ACTION",
+    INST_RESET: "RESET",
+    INST_SYNC_WRITE: "SYNC_WRITE",
+    INST_BULK_READ: "BULK_READ",
+}
 BROADCAST_ID = 0xFE
-ERR_VOLTAGE, ERR_ANGLE, ERR_OVERHEAT, ERR_RANGE, ERR_CHECKSUM, ERR_OVERLOAD, ERR_INSTRUCTION = 1, 2, 4, 8, 16, 32, 64
-ERROR_WORDS = {ERR_VOLTAGE: "input voltage error", ERR_ANGLE: "angle limit error", ERR_OVERHEAT: "overheating error",
-               ERR_RANGE: "range error", ERR_CHECKSUM: "checksum error", ERR_OVERLOAD: "overload error",
-               ERR_INSTRUCTION: "instruction error"}
+ERR_VOLTAGE, ERR_ANGLE, ERR_OVERHEAT, ERR_RANGE, ERR_CHECKSUM, ERR_OVERLOAD, ERR_INSTRUCTION = (
+    1,
+    2,
+    4,
+    8,
+    16,
+    32,
+    64,
+)
+ERROR_WORDS = {
+    ERR_VOLTAGE: "input voltage error",
+    ERR_ANGLE: "angle limit error",
+    ERR_OVERHEAT: "overheating error",
+    ERR_RANGE: "range error",
+    ERR_CHECKSUM: "checksum error",
+    ERR_OVERLOAD: "overload error",
+    ERR_INSTRUCTION: "instruction error",
+}
 
-# AX-12A control table: address -> (name, size, writable, min, max, default). None default = dynamic.
+# AX-12A control table: address -> (name, size, writable, min, max, default). None default =
+# dynamic.
 CONTROL_TABLE: dict[int, tuple[str, int, bool, int, int, int | None]] = {
     0: ("model_number", 2, False, 0, 65535, 12),
     2: ("firmware_version", 1, False, 0, 255, 24),
@@ -75,7 +104,8 @@ def status_packet(dxl_id: int, error: int, params: bytes = b"") -> bytes:
 
 
 def instruction_packet(dxl_id: int, instruction: int, params: bytes = b"") -> bytes:
-    """A Protocol 1.0 instruction packet (for tests and tools that speak to the emulator directly)."""
+    """A Protocol 1.0 instruction packet (for tests and tools that speak to the emulator
+    directly)."""
     body = bytes([dxl_id, len(params) + 2, instruction]) + bytes(params)
     return b"\xff\xff" + body + bytes([checksum(body)])
 
@@ -83,5 +113,3 @@ def instruction_packet(dxl_id: int, instruction: int, params: bytes = b"") -> by
 def decode_error(error: int) -> list[str]:
     """Words for the error bits of a Protocol 1.0 status packet."""
     return [w for bit, w in ERROR_WORDS.items() if error & bit]
-
-

@@ -2,8 +2,8 @@
 
 Two pairs refused for the same cause say it with their own numbers ("different rows (dv = 6.9 px)",
 "(dv = 11.2 px)"): counted as distinct strings, twenty pairs with one shared cause (swapped images,
-another rig's calibration) looked like twenty causes of one pair each. Grouped by their wording, each
-number becomes the range it took: "different rows (dv = 3.6–11.2 px)", 20 pairs.
+another rig's calibration) looked like twenty causes of one pair each. Grouped by their wording,
+each number becomes the range it took: "different rows (dv = 3.6–11.2 px)", 20 pairs.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
-"""Lossless stereo video files: write pairs with ``cv2.VideoWriter``, and the ``StereoRecording`` artifact.
+"""Lossless stereo video files: write pairs with ``cv2.VideoWriter``, and the ``StereoRecording``
+artifact.
 
 ``StereoRecording`` (one artifact)::
 
     {"left_video": uint8 (n,), "right_video": uint8 (n,),  # the two files' bytes
-     "container": "avi" | "mkv", "codec": "HFYU" | "FFV1" | "RGBA", "fps": float, "image_size": [w, h],
-     "ids": [str, ...], "truth": [StereoPair.truth | None, ...]}   # per frame
+     "container": "avi" | "mkv", "codec": "HFYU" | "FFV1" | "RGBA", "fps": float, "image_size": [w,
+     h], "ids": [str, ...], "truth": [StereoPair.truth | None, ...]}   # per frame
 
 The bytes travel in the artifact (and the cache) so that a camera source can write them into its
 run folder and open them with ``cv2.VideoCapture`` — the same path as a real camera's recording.
@@ -42,13 +43,19 @@ def write_video(frames: Iterable[np.ndarray], path: Path, fps: float, codec: str
             f = np.ascontiguousarray(f if f.ndim == 3 else cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
             if writer is None:
                 size = (f.shape[1], f.shape[0])
-                writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), float(fps), size)
+                writer = cv2.VideoWriter(
+                    str(path), cv2.VideoWriter_fourcc(*codec), float(fps), size
+                )
                 if not writer.isOpened():
-                    raise NodeError(f"cv2.VideoWriter cannot write {codec} into {path.name}.",
-                                    hint=f"use codec {' or '.join(LOSSLESS)} with an .avi or .mkv file")
+                    raise NodeError(
+                        f"cv2.VideoWriter cannot write {codec} into {path.name}.",
+                        hint=f"use codec {' or '.join(LOSSLESS)} with an .avi or .mkv file",
+                    )
             if (f.shape[1], f.shape[0]) != size:
-                raise NodeError(f"frame {n} is {f.shape[1]}x{f.shape[0]} px, the video {size[0]}x{size[1]} px.",
-                                hint="record pairs of one image size")
+                raise NodeError(
+                    f"frame {n} is {f.shape[1]}x{f.shape[0]} px, the video {size[0]}x{size[1]} px.",
+                    hint="record pairs of one image size",
+                )
             writer.write(f)
             n += 1
     finally:
@@ -57,12 +64,21 @@ def write_video(frames: Iterable[np.ndarray], path: Path, fps: float, codec: str
     return n
 
 
-def encode_recording(pairs: list[dict], fps: float = 30.0, codec: str = "RGBA", container: str = "avi") -> dict:
+def encode_recording(
+    pairs: list[dict], fps: float = 30.0, codec: str = "RGBA", container: str = "avi"
+) -> dict:
     """A ``StereoRecording`` of ``pairs`` (StereoPair dicts, in playing order)."""
     if not pairs:
-        raise NodeError("nothing to record: no stereo pairs.", hint="wire a source with at least one pair")
-    out: dict = {"container": container, "codec": codec, "fps": float(fps),
-                 "ids": [str(p["id"]) for p in pairs], "truth": [p.get("truth") for p in pairs]}
+        raise NodeError(
+            "nothing to record: no stereo pairs.", hint="wire a source with at least one pair"
+        )
+    out: dict = {
+        "container": container,
+        "codec": codec,
+        "fps": float(fps),
+        "ids": [str(p["id"]) for p in pairs],
+        "truth": [p.get("truth") for p in pairs],
+    }
     with tempfile.TemporaryDirectory(prefix="stereograph-rec-") as tmp:
         for side in ("left", "right"):
             path = Path(tmp) / f"{side}.{container}"

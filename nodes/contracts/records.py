@@ -18,7 +18,9 @@ def _found_record(value: Any) -> str | None:
     if not isinstance(value, dict):
         return f"got a {type(value).__name__}, not a record (a dict)"
     if "found" not in value:
-        return f"a record without 'found' (keys: {', '.join(sorted(map(str, value))[:8]) or 'none'})"
+        return (
+            f"a record without 'found' (keys: {', '.join(sorted(map(str, value))[:8]) or 'none'})"
+        )
     return None
 
 

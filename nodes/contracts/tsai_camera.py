@@ -11,7 +11,8 @@ import numpy as np
 
 
 def tsai_project(cam: dict, world_cm: np.ndarray) -> np.ndarray:
-    """Project world points (N, 3, cm) with a Tsai camera (see :func:`tsai_camera`) to pixels (N, 2)."""
+    """Project world points (N, 3, cm) with a Tsai camera (see :func:`tsai_camera`) to pixels (N,
+    2)."""
     P = np.asarray(world_cm, float) @ cam["R"].T + cam["t_cm"]
     Xu, Yu = cam["f"] * P[:, 0] / P[:, 2], cam["f"] * P[:, 1] / P[:, 2]
     ru = np.hypot(Xu, Yu)

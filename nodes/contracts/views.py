@@ -31,7 +31,8 @@ _LEVEL_MAPS: dict[tuple[int, int], tuple[weakref.ref, np.ndarray, np.ndarray]] =
 
 
 def level_maps(map_x: np.ndarray, map_y: np.ndarray, level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Fixed-point remap maps from pyramid level ``level`` of the raw image to that of the rectified one.
+    """Fixed-point remap maps from pyramid level ``level`` of the raw image to that of the rectified
+    one.
 
     Pixel i of a ``cv2.pyrDown`` level k sits at full-resolution pixel ``2**k * i``, so the
     level's map is the full map sampled every ``2**k`` pixels, divided by ``2**k``.
@@ -89,7 +90,9 @@ class RectifiedView:
             return self.image[v0:v1, u0:u1]
         m = self.maps
         if m.get("fixed") is not None:
-            return cv2.remap(self.image, m["fixed"][v0:v1, u0:u1], m["interp"][v0:v1, u0:u1], cv2.INTER_LINEAR)
+            return cv2.remap(
+                self.image, m["fixed"][v0:v1, u0:u1], m["interp"][v0:v1, u0:u1], cv2.INTER_LINEAR
+            )
         return cv2.remap(self.image, m["x"][v0:v1, u0:u1], m["y"][v0:v1, u0:u1], cv2.INTER_LINEAR)
 
     def coarse(self, scale: int, u0: int, v0: int, u1: int, v1: int) -> np.ndarray:
@@ -115,7 +118,10 @@ class RectifiedView:
             # so its pyramid equals the whole image's wherever the maps sample it. The level's
             # maps read the full maps at every ``scale``-th row and column from (u0, v0) (both
             # on that grid): only those positions are sampled, so only they bound the crop.
-            xs, ys = self.maps["x"][v0:v1:scale, u0:u1:scale], self.maps["y"][v0:v1:scale, u0:u1:scale]
+            xs, ys = (
+                self.maps["x"][v0:v1:scale, u0:u1:scale],
+                self.maps["y"][v0:v1:scale, u0:u1:scale],
+            )
             ih, iw = self.image.shape[:2]
             pad = 4 * scale
             x0 = max(0, int(math.floor(float(xs.min()))) - pad) // scale * scale
@@ -124,7 +130,8 @@ class RectifiedView:
             y1 = min(ih, int(math.ceil(float(ys.max()))) + pad + 1)
             if x1 > x0 and y1 > y0:
                 small = _pyramid_level(self.image[y0:y1, x0:x1], level)
-                shifted = fixed - np.int16([x0 // scale, y0 // scale])  # integer part of the fixed-point map
+                # integer part of the fixed-point map
+                shifted = fixed - np.int16([x0 // scale, y0 // scale])
                 return cv2.remap(small, shifted, interp, cv2.INTER_LINEAR)
         while len(self._levels) <= level:
             self._levels.append(cv2.pyrDown(self._levels[-1]))
@@ -136,14 +143,20 @@ class RectifiedView:
         return self.window(0, 0, w, h)
 
 
-def pair_views(rect: dict | None, left: np.ndarray, right: np.ndarray,
-               raw: bool) -> tuple[RectifiedView, RectifiedView]:
-    """Views of a stereo pair: ``raw=True`` rectifies the camera images on request with ``rect``'s maps."""
+def pair_views(
+    rect: dict | None, left: np.ndarray, right: np.ndarray, raw: bool
+) -> tuple[RectifiedView, RectifiedView]:
+    """Views of a stereo pair: ``raw=True`` rectifies the camera images on request with ``rect``'s
+    maps."""
     if not raw:
         return RectifiedView(left), RectifiedView(right)
     views = []
     for side, im in (("left", left), ("right", right)):
-        maps = {"x": rect[f"map_{side}_x"], "y": rect[f"map_{side}_y"],
-                "fixed": rect.get(f"map_{side}_fixed"), "interp": rect.get(f"map_{side}_interp")}
+        maps = {
+            "x": rect[f"map_{side}_x"],
+            "y": rect[f"map_{side}_y"],
+            "fixed": rect.get(f"map_{side}_fixed"),
+            "interp": rect.get(f"map_{side}_interp"),
+        }
         views.append(RectifiedView(im, maps))
     return views[0], views[1]

@@ -15,9 +15,9 @@ __all__ = ["working_range"]
 
 
 def working_range(params: Any, record: Any) -> tuple[float, float]:
-    """``(near, far)`` in cm: ``params.working_range_cm`` if the pipeline set it (YAML, ``defaults:``,
-    ``--set``), else ``record["working_range_cm"]`` when the upstream record has one, else the
-    params' default."""
+    """``(near, far)`` in cm: ``params.working_range_cm`` if the pipeline set it (YAML,
+    ``defaults:``, ``--set``), else ``record["working_range_cm"]`` when the upstream record has one,
+    else the params' default."""
     own = params.working_range_cm
     if "working_range_cm" in params.model_fields_set or not isinstance(record, dict):
         return tuple(sorted(float(z) for z in own))

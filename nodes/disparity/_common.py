@@ -34,7 +34,9 @@ from stereograph.api import Field, Params, PositiveRange
 
 def _odd(value: int) -> int:
     if value % 2 == 0:
-        raise ValueError(f"a block size must be odd (got {value}; OpenCV centres the block on the pixel)")
+        raise ValueError(
+            f"a block size must be odd (got {value}; OpenCV centres the block on the pixel)"
+        )
     return value
 
 
@@ -46,18 +48,24 @@ class DisparityParams(Params):
     """Parameters shared by every disparity estimator."""
 
     working_range_cm: PositiveRange = Field(
-        (20.0, 80.0), description="Nearest and farthest plausible object distance (cm); outside -> not found. "
-                                  "Not set in the pipeline: the segmenter's, carried in its records.")
+        (20.0, 80.0),
+        description="Nearest and farthest plausible object distance (cm); outside -> not found. "
+        "Not set in the pipeline: the segmenter's, carried in its records.",
+    )
     range_slack: float = Field(
-        0.25, ge=0, le=2, description="Relative slack on the working range before rejecting a disparity (ratio)."
+        0.25,
+        ge=0,
+        le=2,
+        description="Relative slack on the working range before rejecting a disparity (ratio).",
     )
     min_sigma_disparity_px: float = Field(
         0.02, gt=0, description="Floor of the reported disparity uncertainty (px)."
     )
 
 
-def disparity_range_px(rectification: dict | None, params: DisparityParams,
-                       seg: dict | None = None) -> tuple[float, float] | None:
+def disparity_range_px(
+    rectification: dict | None, params: DisparityParams, seg: dict | None = None
+) -> tuple[float, float] | None:
     """Plausible disparity range (px) from f*B and the working range (``working_range``: this node's
     if the pipeline set it, else the Segmentation's), or None without calibration."""
     if rectification is None:
@@ -68,7 +76,14 @@ def disparity_range_px(rectification: dict | None, params: DisparityParams,
 
 
 REJECTED_KEYS = ("rejected_left_px", "rejected_left_why", "rejected_right_px", "rejected_right_why")
-PASSED_ON = (*REJECTED_KEYS, "color_from", "working_range_cm", "object_radius_cm", "object", "merged")
+PASSED_ON = (
+    *REJECTED_KEYS,
+    "color_from",
+    "working_range_cm",
+    "object_radius_cm",
+    "object",
+    "merged",
+)
 
 
 def _passed_on(seg) -> dict:
@@ -84,27 +99,57 @@ def not_found(seg_or_id, reason: str, method: str) -> dict:
     sid = seg_or_id["id"] if isinstance(seg_or_id, dict) else str(seg_or_id)
     split = seg_or_id.get("split") if isinstance(seg_or_id, dict) else None
     return {
-        "id": sid, "found": False, "reason": reason, "u_left_px": None, "v_left_px": None,
-        "disparity_px": None, "sigma_disparity_px": None, "method": method, "split": split,
-        "depth_offset_cm": 0.0, **_passed_on(seg_or_id),
+        "id": sid,
+        "found": False,
+        "reason": reason,
+        "u_left_px": None,
+        "v_left_px": None,
+        "disparity_px": None,
+        "sigma_disparity_px": None,
+        "method": method,
+        "split": split,
+        "depth_offset_cm": 0.0,
+        **_passed_on(seg_or_id),
     }
 
 
-def finish(seg: dict, u: float, v: float, d: float, sigma_d: float, method: str,
-           rectification: dict | None, params: DisparityParams, ctx=None, **extra) -> dict:
+def finish(
+    seg: dict,
+    u: float,
+    v: float,
+    d: float,
+    sigma_d: float,
+    method: str,
+    rectification: dict | None,
+    params: DisparityParams,
+    ctx=None,
+    **extra,
+) -> dict:
     """A Disparity record, or a not-found one when d lies outside the plausible range."""
     rng = disparity_range_px(rectification, params, seg)
     used = list(working_range(params, seg))
     if not np.isfinite(d) or d <= 0:
         rec = not_found(seg, f"disparity out of range ({d:.2f} px <= 0)", method)
     elif rng is not None and not (rng[0] <= d <= rng[1]):
-        rec = not_found(seg, f"disparity out of range ({d:.2f} px not in {rng[0]:.1f}-{rng[1]:.1f} px "
-                             f"= working range {used} cm)", method)
+        rec = not_found(
+            seg,
+            f"disparity out of range ({d:.2f} px not in {rng[0]:.1f}-{rng[1]:.1f} px "
+            f"= working range {used} cm)",
+            method,
+        )
     else:
         rec = {
-            "id": seg["id"], "found": True, "reason": None, "u_left_px": float(u), "v_left_px": float(v),
-            "disparity_px": float(d), "sigma_disparity_px": float(max(sigma_d, params.min_sigma_disparity_px)),
-            "method": method, "split": seg.get("split"), "depth_offset_cm": 0.0, **_passed_on(seg),
+            "id": seg["id"],
+            "found": True,
+            "reason": None,
+            "u_left_px": float(u),
+            "v_left_px": float(v),
+            "disparity_px": float(d),
+            "sigma_disparity_px": float(max(sigma_d, params.min_sigma_disparity_px)),
+            "method": method,
+            "split": seg.get("split"),
+            "depth_offset_cm": 0.0,
+            **_passed_on(seg),
         }
         rec.update(extra)
     rec["working_range_cm"] = used  # (the locator's default)
@@ -118,8 +163,10 @@ def seg_reason(seg: dict) -> str | None:
     if not isinstance(seg, dict) or "found" not in seg:
         from stereograph.api import NodeError
 
-        raise NodeError("disparity input is not a Segmentation record.",
-                        hint="wire `segmentation` to a segmenter's `segmentation` output.")
+        raise NodeError(
+            "disparity input is not a Segmentation record.",
+            hint="wire `segmentation` to a segmenter's `segmentation` output.",
+        )
     if not seg["found"]:
         return seg.get("reason") or "segmentation found no object"
     return None

@@ -10,7 +10,9 @@ import numpy as np
 
 __all__ = ["PLY_DTYPE", "encode_ply", "decode_ply"]
 
-PLY_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+PLY_DTYPE = np.dtype(
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+)
 
 
 def encode_ply(points_cm: np.ndarray, rgb: np.ndarray, comments: list[str] = ()) -> bytes:
@@ -31,14 +33,25 @@ def encode_ply(points_cm: np.ndarray, rgb: np.ndarray, comments: list[str] = ())
         rec[name] = points_cm[:, k]
     for k, name in enumerate(("red", "green", "blue")):
         rec[name] = rgb[:, k]
-    lines = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments),
-             f"element vertex {n}", "property float x", "property float y", "property float z",
-             "property uchar red", "property uchar green", "property uchar blue", "end_header"]
+    lines = [
+        "ply",
+        "format binary_little_endian 1.0",
+        *(f"comment {c}" for c in comments),
+        f"element vertex {n}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "property uchar red",
+        "property uchar green",
+        "property uchar blue",
+        "end_header",
+    ]
     return ("\n".join(lines) + "\n").encode("ascii") + rec.tobytes()
 
 
 def decode_ply(data: bytes) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Read back a file written by :func:`encode_ply`: points (N, 3) cm, colours (N, 3) uint8, comments."""
+    """Read back a file written by :func:`encode_ply`: points (N, 3) cm, colours (N, 3) uint8,
+    comments."""
     end = data.index(b"end_header\n") + len(b"end_header\n")
     header = data[:end].decode("ascii").splitlines()
     if header[:2] != ["ply", "format binary_little_endian 1.0"]:

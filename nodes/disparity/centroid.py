@@ -20,13 +20,18 @@ class CentroidParams(DisparityParams):
     """Parameters of ``disparity.centroid``."""
 
     max_sphere_bias_cm: float = Field(
-        0.5, gt=0, description="Refuse a pair whose silhouette-centroid depth error, predicted for a sphere from "
-                               "its angular size, exceeds this (cm): a large ball near the cameras "
-                               "(disparity.ellipse has no such error).")
+        0.5,
+        gt=0,
+        description="Refuse a pair whose silhouette-centroid depth error, predicted for a sphere "
+        "from "
+        "its angular size, exceeds this (cm): a large ball near the cameras "
+        "(disparity.ellipse has no such error).",
+    )
 
 
-def sphere_bias(left_region: dict, right_region: dict, d_px: float, f_px: float,
-                baseline_cm: float) -> tuple[float, float]:
+def sphere_bias(
+    left_region: dict, right_region: dict, d_px: float, f_px: float, baseline_cm: float
+) -> tuple[float, float]:
     """(disparity bias px, depth bias cm) of the centroid estimator for a sphere.
 
     A sphere's silhouette is the image of its tangent cone (half-angle alpha): its centre lies
@@ -35,8 +40,10 @@ def sphere_bias(left_region: dict, right_region: dict, d_px: float, f_px: float,
     (1 + tan^2 alpha) times the centre's and the depth comes out Z tan^2 alpha too near. tan(alpha)
     is read from the image: the silhouette's area-equivalent radius over f (the larger view's).
     """
-    r_px = math.sqrt(max(float(left_region.get("area_px") or 0.0), float(right_region.get("area_px") or 0.0))
-                     / math.pi)
+    r_px = math.sqrt(
+        max(float(left_region.get("area_px") or 0.0), float(right_region.get("area_px") or 0.0))
+        / math.pi
+    )
     t2 = (r_px / f_px) ** 2
     z_cm = f_px * baseline_cm / d_px
     return d_px * t2 / (1.0 + t2), z_cm * t2
@@ -55,7 +62,9 @@ def centroid_disparity(left_region: dict, right_region: dict) -> tuple[float, fl
     "disparity.centroid",
     inputs={
         "segmentation": In("Segmentation", description="Regions in the rectified pair."),
-        "rectification": In("Rectification", optional=True, description="For the plausible disparity range."),
+        "rectification": In(
+            "Rectification", optional=True, description="For the plausible disparity range."
+        ),
     },
     outputs={"disparity": Out("Disparity", description="Object disparity (px).")},
     params=CentroidParams,
@@ -69,15 +78,28 @@ def centroid(params: CentroidParams, segmentation, rectification=None, ctx=None)
     u, v, d, s = centroid_disparity(segmentation["left"], segmentation["right"])
     extra = {}
     if rectification is not None and d > 0:
-        bias_px, bias_cm = sphere_bias(segmentation["left"], segmentation["right"], d,
-                                       float(rectification["f_px"]), float(rectification["baseline_cm"]))
+        bias_px, bias_cm = sphere_bias(
+            segmentation["left"],
+            segmentation["right"],
+            d,
+            float(rectification["f_px"]),
+            float(rectification["baseline_cm"]),
+        )
         if bias_cm > params.max_sphere_bias_cm:  # a wrong answer is worse than none
-            rec = not_found(segmentation, f"the ball is so large and near that its silhouette centroids put it "
-                                          f"~{bias_cm:.2f} cm too near (over max_sphere_bias_cm "
-                                          f"{params.max_sphere_bias_cm:g}); use disparity.ellipse, which "
-                                          "measures the sphere's centre", "centroid")
+            rec = not_found(
+                segmentation,
+                f"the ball is so large and near that its silhouette centroids put it "
+                f"~{bias_cm:.2f} cm too near (over max_sphere_bias_cm "
+                f"{params.max_sphere_bias_cm:g}); use disparity.ellipse, which "
+                "measures the sphere's centre",
+                "centroid",
+            )
             if ctx is not None:
                 ctx.warn(f"{rec['id']}: {rec['reason']}")
             return {"disparity": rec}
         extra["sphere_bias_cm"] = bias_cm
-    return {"disparity": finish(segmentation, u, v, d, s, "centroid", rectification, params, ctx, **extra)}
+    return {
+        "disparity": finish(
+            segmentation, u, v, d, s, "centroid", rectification, params, ctx, **extra
+        )
+    }

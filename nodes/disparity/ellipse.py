@@ -24,7 +24,10 @@ class EllipseParams(DisparityParams):
     """Parameters of ``disparity.ellipse``."""
 
     max_anisotropy: float = Field(
-        0.5, gt=0, description="Max mismatch of the cone's two equal eigenvalues (ratio); above -> not a sphere."
+        0.5,
+        gt=0,
+        description="Max mismatch of the cone's two equal eigenvalues (ratio); above -> not a "
+        "sphere.",
     )
 
 
@@ -65,8 +68,10 @@ def sphere_center_images(left_region: dict, right_region: dict, K1: np.ndarray, 
 def ellipse(params: EllipseParams, segmentation, rectification, ctx=None):
     """Sphere-aware disparity: centre images from the silhouette ellipses' tangent cones."""
     if rectification is None or "P1" not in rectification:
-        raise NodeError("disparity.ellipse needs a Rectification (P1, P2).",
-                        hint="wire `rectification` to rectifier.opencv's output.")
+        raise NodeError(
+            "disparity.ellipse needs a Rectification (P1, P2).",
+            hint="wire `rectification` to rectifier.opencv's output.",
+        )
     why = seg_reason(segmentation)
     if why is not None:
         return {"disparity": not_found(segmentation, why, "ellipse")}
@@ -76,9 +81,14 @@ def ellipse(params: EllipseParams, segmentation, rectification, ctx=None):
     except ValueError as exc:
         return {"disparity": not_found(segmentation, f"ellipse unusable: {exc}", "ellipse")}
     if max(cl["anisotropy"], cr["anisotropy"]) > params.max_anisotropy:
-        return {"disparity": not_found(
-            segmentation, f"silhouette is not the image of a sphere (anisotropy "
-                          f"{max(cl['anisotropy'], cr['anisotropy']):.2f} > {params.max_anisotropy})", "ellipse")}
+        return {
+            "disparity": not_found(
+                segmentation,
+                f"silhouette is not the image of a sphere (anisotropy "
+                f"{max(cl['anisotropy'], cr['anisotropy']):.2f} > {params.max_anisotropy})",
+                "ellipse",
+            )
+        }
     uL, vL = cl["center_px"]
     uR, _ = cr["center_px"]
     # Uncertainty of an ellipse centre: outline rms x sqrt(2/N) per view.
@@ -93,6 +103,20 @@ def ellipse(params: EllipseParams, segmentation, rectification, ctx=None):
     extra = {}
     if R > 0:
         # Distance of the centre from the known radius, per view (monocular cross-check).
-        extra["z_from_size_cm"] = [R / math.sin(c["half_angle_rad"]) * c["axis"][2] for c in (cl, cr)]
-    return {"disparity": finish(segmentation, uL, vL, uL - uR, math.hypot(*s), "ellipse",
-                                rectification, params, ctx, **extra)}
+        extra["z_from_size_cm"] = [
+            R / math.sin(c["half_angle_rad"]) * c["axis"][2] for c in (cl, cr)
+        ]
+    return {
+        "disparity": finish(
+            segmentation,
+            uL,
+            vL,
+            uL - uR,
+            math.hypot(*s),
+            "ellipse",
+            rectification,
+            params,
+            ctx,
+            **extra,
+        )
+    }

@@ -32,18 +32,26 @@ class SgbmParams(DisparityParams):
 
     block_size: OddSize = Field(5, ge=1, le=21, description="SGBM matched block size (px, odd).")
     uniqueness_ratio: int = Field(5, ge=0, le=100, description="SGBM uniqueness margin (percent).")
-    speckle_window: int = Field(0, ge=0, description="SGBM speckle filter window (px area; 0 = off).")
-    wls: bool = Field(False, description="Apply the ximgproc WLS filter to the disparity map (bool).")
+    speckle_window: int = Field(
+        0, ge=0, description="SGBM speckle filter window (px area; 0 = off)."
+    )
+    wls: bool = Field(
+        False, description="Apply the ximgproc WLS filter to the disparity map (bool)."
+    )
     wls_lambda: float = Field(8000.0, gt=0, description="WLS smoothness weight (unitless).")
     wls_sigma: float = Field(1.5, gt=0, description="WLS colour sensitivity (gray levels, scaled).")
     erode_fraction: float = Field(
-        0.3, ge=0, lt=1, description="Erode the mask by this fraction of the region radius before the statistic."
+        0.3,
+        ge=0,
+        lt=1,
+        description="Erode the mask by this fraction of the region radius before the statistic.",
     )
     margin_px: int = Field(16, ge=0, description="Extra crop margin around the region (px).")
 
 
-def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray, bbox, d_range,
-                          params: SgbmParams) -> tuple[float, float, int, float]:
+def sgbm_object_disparity(
+    left: np.ndarray, right: np.ndarray, mask: np.ndarray, bbox, d_range, params: SgbmParams
+) -> tuple[float, float, int, float]:
     """Robust disparity of the masked object from a dense SGBM map.
 
     Parameters
@@ -78,8 +86,14 @@ def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray,
     gl = cv2.copyMakeBorder(gl, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
     gr = cv2.copyMakeBorder(gr, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
     matcher = cv2.StereoSGBM_create(
-        minDisparity=d_min, numDisparities=num, blockSize=bs, P1=8 * bs * bs, P2=32 * bs * bs,
-        uniquenessRatio=params.uniqueness_ratio, speckleWindowSize=params.speckle_window, speckleRange=2,
+        minDisparity=d_min,
+        numDisparities=num,
+        blockSize=bs,
+        P1=8 * bs * bs,
+        P2=32 * bs * bs,
+        uniquenessRatio=params.uniqueness_ratio,
+        speckleWindowSize=params.speckle_window,
+        speckleRange=2,
         mode=cv2.STEREO_SGBM_MODE_SGBM,
     )
     disp = matcher.compute(gl, gr)
@@ -105,7 +119,8 @@ def sgbm_object_disparity(left: np.ndarray, right: np.ndarray, mask: np.ndarray,
 
 
 def surface_depth_offset(radius_cm: float, rho_m: float) -> float:
-    """Mean front-surface depth deficit (cm) of a sphere over its central disc of relative radius rho_m."""
+    """Mean front-surface depth deficit (cm) of a sphere over its central disc of relative radius
+    rho_m."""
     t = rho_m**2
     return radius_cm * (2.0 / 3.0) * (1.0 - (1.0 - t) ** 1.5) / t
 
@@ -124,19 +139,28 @@ def surface_depth_offset(radius_cm: float, rho_m: float) -> float:
 def sgbm(params: SgbmParams, segmentation, pair, rectification, ctx=None):
     """Dense StereoSGBM disparity; the object's value is a robust mean inside the eroded mask."""
     if rectification is None or "f_px" not in rectification:
-        raise NodeError("disparity.sgbm needs a Rectification (f_px, baseline_cm) for its search range.",
-                        hint="wire `rectification` to rectifier.opencv's output.")
+        raise NodeError(
+            "disparity.sgbm needs a Rectification (f_px, baseline_cm) for its search range.",
+            hint="wire `rectification` to rectifier.opencv's output.",
+        )
     why = seg_reason(segmentation)
     if why is not None:
         return {"disparity": not_found(segmentation, why, "sgbm")}
     rng = disparity_range_px(rectification, params, segmentation)
     L, R = np.asarray(pair["left"]), np.asarray(pair["right"])
-    d, s, n, rho_m = sgbm_object_disparity(L, R, np.asarray(segmentation["left_mask"], bool),
-                                           segmentation["left"]["bbox"], rng, params)
+    d, s, n, rho_m = sgbm_object_disparity(
+        L, R, np.asarray(segmentation["left_mask"], bool), segmentation["left"]["bbox"], rng, params
+    )
     if not np.isfinite(d):
-        return {"disparity": not_found(segmentation, f"too few valid SGBM disparities in the mask ({n})", "sgbm")}
+        return {
+            "disparity": not_found(
+                segmentation, f"too few valid SGBM disparities in the mask ({n})", "sgbm"
+            )
+        }
     u, v = segmentation["left"]["centroid_px"]
     rec = finish(segmentation, u, v, d, s, "sgbm", rectification, params, ctx, n_valid_px=n)
     if rec["found"]:
-        rec["depth_offset_cm"] = surface_depth_offset(float(segmentation.get("object_radius_cm") or 0.0), rho_m)
+        rec["depth_offset_cm"] = surface_depth_offset(
+            float(segmentation.get("object_radius_cm") or 0.0), rho_m
+        )
     return {"disparity": rec}

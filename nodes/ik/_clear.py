@@ -38,13 +38,16 @@ def at_place(t: dict, places_base: dict[str, dict]) -> bool:
     return p is not None and _dist(t["target_base_cm"][:2], p["center_cm"][:2]) <= p["radius_cm"]
 
 
-def look_again(memory: Memory, seen: list[dict], n_now: int, tolerance_cm: float, max_retries: int) -> dict | None:
-    """Judge the last pick from what is seen now: ``seen`` the found balls, ``n_now`` how many of its object
-    are on the table now (found or not, none at its place).
+def look_again(
+    memory: Memory, seen: list[dict], n_now: int, tolerance_cm: float, max_retries: int
+) -> dict | None:
+    """Judge the last pick from what is seen now: ``seen`` the found balls, ``n_now`` how many of
+    its object are on the table now (found or not, none at its place).
 
     Gone: one fewer of its object than when it was chosen, and none where it was. Else it was missed
     (still there, or knocked elsewhere: then the nearest of its object to where it was is the one):
-    retried first, up to ``max_retries``, then given up. Returns the verdict, or None with no last pick.
+    retried first, up to ``max_retries``, then given up. Returns the verdict, or None with no last
+    pick.
     """
     last = memory.last
     if last is None:
@@ -58,21 +61,34 @@ def look_again(memory: Memory, seen: list[dict], n_now: int, tolerance_cm: float
         memory.last = None
         return {"verdict": "gone", "object": last["object"], "where": last["where"]}
     if last["attempt"] > max_retries or not mine:
-        memory.given_up.append({"object": last["object"], "where": last["where"],
-                                "reason": f"still there after {last['attempt']} picks" if mine else
-                                "missed, and not seen since"})
+        memory.given_up.append(
+            {
+                "object": last["object"],
+                "where": last["where"],
+                "reason": f"still there after {last['attempt']} picks"
+                if mine
+                else "missed, and not seen since",
+            }
+        )
         memory.last = None
         return {"verdict": "given up", "object": last["object"], "where": last["where"]}
     memory.n_retries += 1
     nearest = min(mine, key=lambda t: _dist(t["target_base_cm"], last["where"]))
     moved = _dist(nearest["target_base_cm"], last["where"])
-    return {"verdict": "retry", "object": last["object"], "where": last["where"], "target": nearest["pair"],
-            "moved_cm": round(moved, 2), "attempt": last["attempt"] + 1}
+    return {
+        "verdict": "retry",
+        "object": last["object"],
+        "where": last["where"],
+        "target": nearest["pair"],
+        "moved_cm": round(moved, 2),
+        "attempt": last["attempt"] + 1,
+    }
 
 
 def sort_picks(targets: list[dict], first: str | None = None) -> list[dict]:
     """Nearest the arm's base axis first (the shortest reach clears the way for the longer ones); a
     retry (``first``) before everything."""
+
     def key(t):
         x, y, _ = t["target_base_cm"]
         return (t["pair"] != first, math.hypot(x, y))
@@ -80,12 +96,17 @@ def sort_picks(targets: list[dict], first: str | None = None) -> list[dict]:
     return sorted(targets, key=key)
 
 
-def path_clearance(model: dict, plan: dict, obstacles_base: list[tuple[np.ndarray, float]], finger_cm: float,
-                   steps: int = 12) -> tuple[float, str | None]:
+def path_clearance(
+    model: dict,
+    plan: dict,
+    obstacles_base: list[tuple[np.ndarray, float]],
+    finger_cm: float,
+    steps: int = 12,
+) -> tuple[float, str | None]:
     """Smallest gap (cm) between the tool's swept path and any obstacle ball, and where.
 
-    Each move between waypoints is joint-linear (the servos arrive together); the tool, and while the
-    gripper is closed the carried ball (radius ``plan``'s object radius), are sampled along it.
+    Each move between waypoints is joint-linear (the servos arrive together); the tool, and while
+    the gripper is closed the carried ball (radius ``plan``'s object radius), are sampled along it.
     """
     worst, where = math.inf, None
     carried = float(plan.get("object_radius_cm") or 0.0)

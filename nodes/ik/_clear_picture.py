@@ -1,6 +1,7 @@
-"""The clear-table planner's picture of a cycle: the table as the left camera saw it (rectified), each
-located ball with its label and place in the order, the refused ones with a short reason, and the arm
-(drawn in the pose that grasps the next ball, or at home) projected from the arm-base frame."""
+"""The clear-table planner's picture of a cycle: the table as the left camera saw it (rectified),
+each located ball with its label and place in the order, the refused ones with a short reason, and
+the arm (drawn in the pose that grasps the next ball, or at home) projected from the arm-base
+frame."""
 
 from __future__ import annotations
 
@@ -34,8 +35,16 @@ def _project(points_base: np.ndarray, hand_eye: dict, rect: dict) -> np.ndarray:
     return uvw[:, :2] / uvw[:, 2:3]
 
 
-def draw_cycle(pair: dict, rect: dict, targets: list[dict], status: dict, arm: dict, hand_eye: dict,
-               plan: dict | None, raw: bool) -> np.ndarray:
+def draw_cycle(
+    pair: dict,
+    rect: dict,
+    targets: list[dict],
+    status: dict,
+    arm: dict,
+    hand_eye: dict,
+    plan: dict | None,
+    raw: bool,
+) -> np.ndarray:
     """The cycle's picture (BGR uint8): see the module docstring."""
     view, _ = pair_views(rect, np.asarray(pair["left"]), np.asarray(pair["right"]), raw)
     img = view.full().copy()
@@ -49,11 +58,19 @@ def draw_cycle(pair: dict, rect: dict, targets: list[dict], status: dict, arm: d
         elif t["pair"] in order:
             colour, text = LATER_BGR, f"{order[t['pair']]} {t.get('object')}"
         else:
-            colour, text = REFUSED_BGR, f"{t.get('object')}: {(status['not_pickable'].get(t['pair']) or '')[:28]}"
+            colour, text = (
+                REFUSED_BGR,
+                f"{t.get('object')}: {(status['not_pickable'].get(t['pair']) or '')[:28]}",
+            )
         cv2.circle(img, (u, v), 5, colour, 2)
-        cv2.putText(img, text, (u + 8, v - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
-    grasp = plan["waypoints"][plan["grasp_index"]]["joints_deg"] if plan else {
-        n: joint(arm, n)["home_deg"] for n in JOINTS}
+        cv2.putText(
+            img, text, (u + 8, v - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA
+        )
+    grasp = (
+        plan["waypoints"][plan["grasp_index"]]["joints_deg"]
+        if plan
+        else {n: joint(arm, n)["home_deg"] for n in JOINTS}
+    )
     uv = _project(arm_points_base(arm, grasp), hand_eye, rect)
     if np.all(np.isfinite(uv)) and np.all(np.abs(uv) < 1e5):
         pts = np.round(uv).astype(np.int32)
@@ -61,6 +78,10 @@ def draw_cycle(pair: dict, rect: dict, targets: list[dict], status: dict, arm: d
         for p in pts:
             cv2.circle(img, tuple(int(c) for c in p), 4, ARM_BGR, -1)
     la = status.get("look_again") or {}
-    detail = (f"cycle {status['cycle']}: {status['found']} ball(s) to place, picked {status['picked']}, "
-              f"retries {status['retries']}" + (f"; last pick: {la.get('verdict')}" if la else ""))
-    return label_pair(img, pair.get("id"), True, None, detail + ("" if plan else f"; {status.get('why')}"))
+    detail = (
+        f"cycle {status['cycle']}: {status['found']} ball(s) to place, picked {status['picked']}, "
+        f"retries {status['retries']}" + (f"; last pick: {la.get('verdict')}" if la else "")
+    )
+    return label_pair(
+        img, pair.get("id"), True, None, detail + ("" if plan else f"; {status.get('why')}")
+    )

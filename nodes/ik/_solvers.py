@@ -1,4 +1,5 @@
-"""Inverse kinematics of the arm model (``nodes/contracts/arm.py``): closed form and damped least squares.
+"""Inverse kinematics of the arm model (``nodes/contracts/arm.py``): closed form and damped least
+squares.
 
 Each solver has a scalar form (one target -> one pose or an :class:`Unreachable` error naming why)
 and a vectorised batch form (N targets -> N poses + a status code per target), both on the same
@@ -16,8 +17,13 @@ from nodes.contracts.arm import JOINTS, fk, fk_jacobian, geometry, joint, limits
 from stereograph.api import NodeError
 
 OK, TOO_FAR, TOO_CLOSE, LIMITS, NO_CONVERGENCE = 0, 1, 2, 3, 4
-STATUS_WORDS = {OK: "ok", TOO_FAR: "beyond reach", TOO_CLOSE: "inside minimum reach",
-                LIMITS: "outside joint limits", NO_CONVERGENCE: "no convergence"}
+STATUS_WORDS = {
+    OK: "ok",
+    TOO_FAR: "beyond reach",
+    TOO_CLOSE: "inside minimum reach",
+    LIMITS: "outside joint limits",
+    NO_CONVERGENCE: "no convergence",
+}
 _TWO_PI = 2.0 * math.pi
 _LIMIT_EPS = 1e-9  # rad: a pose computed exactly on a limit must not be refused by round-off
 
@@ -28,8 +34,11 @@ class Unreachable(NodeError):
 
 def _wrap(a):
     """Angle(s) wrapped into (-pi, pi]."""
-    return a - _TWO_PI * np.floor((a + math.pi) / _TWO_PI) if isinstance(a, np.ndarray) else \
-        a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+    return (
+        a - _TWO_PI * np.floor((a + math.pi) / _TWO_PI)
+        if isinstance(a, np.ndarray)
+        else a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+    )
 
 
 def _distance_error(model, p, d_shoulder, too_far: bool) -> Unreachable:
@@ -39,12 +48,16 @@ def _distance_error(model, p, d_shoulder, too_far: bool) -> Unreachable:
     if too_far:
         return Unreachable(
             f"unreachable: distance {d_shoulder:.2f} cm > reach {reach:.2f} cm "
-            f"(target [{p_txt}] cm in the arm-base frame, distance measured from the shoulder axis)",
-            hint="move the object closer to the arm, or check the hand-eye transform and the link lengths.")
+            f"(target [{p_txt}] cm in the arm-base frame, distance measured from the "
+            "shoulder axis)",
+            hint="move the object closer to the arm, or check the hand-eye transform and the "
+            "link lengths.",
+        )
     return Unreachable(
         f"unreachable: distance {d_shoulder:.2f} cm < minimum reach {abs(l1 - l2):.2f} cm "
         f"(target [{p_txt}] cm is too close to the shoulder axis)",
-        hint="move the object further from the arm base.")
+        hint="move the object further from the arm base.",
+    )
 
 
 # =========================================================================== analytic
@@ -58,17 +71,24 @@ def _candidates(elbow: str, allow_back: bool) -> list[tuple[int, int]]:
 
 
 def configuration(model: dict[str, Any], p, q) -> tuple[int, int]:
-    """The arm configuration of joint angles ``q`` (rad) reaching tool point ``p``: (branch, elbow) with
-    branch +1 reaching forwards, -1 backwards over the base, elbow -1 up, +1 down (as :func:`_candidates`)."""
+    """The arm configuration of joint angles ``q`` (rad) reaching tool point ``p``: (branch, elbow)
+    with branch +1 reaching forwards, -1 backwards over the base, elbow -1 up, +1 down (as
+    :func:`_candidates`)."""
     x, y, _ = (float(v) for v in p)
     _, _, _, a, b, _ = geometry(model)
     branch = 1 if math.cos(float(q[0]) - math.atan2(y, x)) >= 0 or math.hypot(x, y) < 1e-9 else -1
     psi = _wrap(float(q[2]) + math.atan2(b, a))
-    return branch, (0 if abs(psi) < 1e-6 else -1 if psi * branch < 0 else 1)  # (0: stretched, either)
+    # (0: stretched, either)
+    return branch, (0 if abs(psi) < 1e-6 else -1 if psi * branch < 0 else 1)
 
 
-def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool = True,
-                config: tuple[int, int] | None = None) -> np.ndarray:
+def analytic_ik(
+    model: dict[str, Any],
+    p,
+    elbow: str = "auto",
+    allow_back: bool = True,
+    config: tuple[int, int] | None = None,
+) -> np.ndarray:
     """Closed-form IK for one target.
 
     yaw = atan2(y, x) (or that + 180 deg when reaching backwards over the base), then the planar
@@ -110,7 +130,7 @@ def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool 
     rho = math.hypot(x, y)
     yaw_front = math.atan2(y, x)
     violations = []
-    for branch, esign in ([config] if config is not None else _candidates(elbow, allow_back)):
+    for branch, esign in [config] if config is not None else _candidates(elbow, allow_back):
         r = rho * branch
         q0 = yaw_front if branch > 0 else _wrap(yaw_front + math.pi)
         dx, dz = r - r0, z - h0
@@ -133,17 +153,21 @@ def analytic_ik(model: dict[str, Any], p, elbow: str = "auto", allow_back: bool 
         violations.append(
             f"{JOINTS[i]} {math.degrees(q[i]):.1f} deg outside [{math.degrees(lo[i]):.1f}, "
             f"{math.degrees(hi[i]):.1f}] deg ({'back' if branch < 0 else 'front'}, "
-            f"elbow {'up' if esign < 0 else 'down'})")
+            f"elbow {'up' if esign < 0 else 'down'})"
+        )
     p_txt = ", ".join(f"{v:.2f}" for v in (x, y, z))
     raise Unreachable(
         f"unreachable within joint limits: target [{p_txt}] cm needs "
         + ("; or ".join(violations) or "a pose out of reach in this configuration"),
-        hint="widen the joint limits in the arm model if the hardware allows it, set elbow: auto, or move "
-             "the object.")
+        hint="widen the joint limits in the arm model if the hardware allows it, set elbow: "
+        "auto, or move "
+        "the object.",
+    )
 
 
-def analytic_ik_batch(model: dict[str, Any], P, elbow: str = "auto",
-                      allow_back: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def analytic_ik_batch(
+    model: dict[str, Any], P, elbow: str = "auto", allow_back: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """Vectorised :func:`analytic_ik` for N targets.
 
     Parameters
@@ -201,9 +225,17 @@ def _seeds(model: dict[str, Any], n_random: int, rng: np.random.Generator) -> np
     return np.array(seeds)
 
 
-def numeric_ik_batch(model: dict[str, Any], P, *, tol_cm: float = 1e-5, max_iter: int = 100,
-                     damping_cm: float = 1.0, n_random_seeds: int = 12, seed: int = 0,
-                     q_init=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def numeric_ik_batch(
+    model: dict[str, Any],
+    P,
+    *,
+    tol_cm: float = 1e-5,
+    max_iter: int = 100,
+    damping_cm: float = 1.0,
+    n_random_seeds: int = 12,
+    seed: int = 0,
+    q_init=None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Damped-least-squares IK (Levenberg-Marquardt step control, joint limits by projection).
 
     Each iteration takes ``dq = J^T (J J^T + lambda^2 I)^-1 e`` with the chain's Jacobian, clips
@@ -241,11 +273,16 @@ def numeric_ik_batch(model: dict[str, Any], P, *, tol_cm: float = 1e-5, max_iter
     lo, hi = limits_rad(model)
     rng = np.random.default_rng(seed)
     # Seeds: the caller's guess, then the poses of a coarse joint-space grid whose tool points lie
-    # nearest the target (only FK is needed, so this carries over to any chain), then home, the middle
-    # of the limits and seeded random poses.
+    # nearest the target (only FK is needed, so this carries over to any chain), then home, the
+    # middle of the limits and seeded random poses.
     from scipy.spatial import cKDTree
-    grid = np.stack(np.meshgrid(*[np.linspace(lo[i], hi[i], g) for i, g in enumerate((24, 13, 13))],
-                                indexing="ij"), axis=-1).reshape(-1, 3)
+
+    grid = np.stack(
+        np.meshgrid(
+            *[np.linspace(lo[i], hi[i], g) for i, g in enumerate((24, 13, 13))], indexing="ij"
+        ),
+        axis=-1,
+    ).reshape(-1, 3)
     n_near = 4
     near = cKDTree(fk(model, grid)).query(P, k=n_near)[1].reshape(n, n_near)
     per_target = [grid[near[:, k]] for k in range(n_near)]
@@ -270,7 +307,7 @@ def numeric_ik_batch(model: dict[str, Any], P, *, tol_cm: float = 1e-5, max_iter
             if not active.any():
                 break
             J = fk_jacobian(model, q)
-            JJt = J @ np.swapaxes(J, 1, 2) + (lam ** 2)[:, None, None] * eye
+            JJt = J @ np.swapaxes(J, 1, 2) + (lam**2)[:, None, None] * eye
             dq = np.einsum("nji,nj->ni", J, np.linalg.solve(JJt, e[:, :, None])[:, :, 0])
             q_new = np.clip(q + dq, lo, hi)
             e_new = P[idx] - fk(model, q_new)
@@ -298,7 +335,8 @@ def _shoulder_distance(model, P) -> np.ndarray:
 
 
 def numeric_ik(model: dict[str, Any], p, **kw) -> np.ndarray:
-    """Scalar :func:`numeric_ik_batch`: one target -> ``[yaw, shoulder, elbow]`` (rad) or Unreachable."""
+    """Scalar :func:`numeric_ik_batch`: one target -> ``[yaw, shoulder, elbow]`` (rad) or
+    Unreachable."""
     q, status, err = numeric_ik_batch(model, np.asarray(p, float)[None, :], **kw)
     if status[0] == OK:
         return q[0]
@@ -307,10 +345,18 @@ def numeric_ik(model: dict[str, Any], p, **kw) -> np.ndarray:
     if status[0] == TOO_FAR:
         raise _distance_error(model, [float(v) for v in p], d, True)
     lo, hi = limits_rad(model)
-    at_limit = [f"{JOINTS[i]} at {'min' if abs(q[0, i] - lo[i]) < 1e-6 else 'max'} "
-                f"{math.degrees(q[0, i]):.1f} deg" for i in range(3)
-                if abs(q[0, i] - lo[i]) < 1e-6 or abs(q[0, i] - hi[i]) < 1e-6]
-    why = f"; closest pose misses by {err[0]:.3f} cm" + (f" with {', '.join(at_limit)}" if at_limit else "")
+    at_limit = [
+        f"{JOINTS[i]} at {'min' if abs(q[0, i] - lo[i]) < 1e-6 else 'max'} "
+        f"{math.degrees(q[0, i]):.1f} deg"
+        for i in range(3)
+        if abs(q[0, i] - lo[i]) < 1e-6 or abs(q[0, i] - hi[i]) < 1e-6
+    ]
+    why = f"; closest pose misses by {err[0]:.3f} cm" + (
+        f" with {', '.join(at_limit)}" if at_limit else ""
+    )
     raise Unreachable(
-        f"unreachable within joint limits: target [{p_txt}] cm (distance {d:.2f} cm from the shoulder axis){why}",
-        hint="widen the joint limits in the arm model if the hardware allows it, or move the object.")
+        f"unreachable within joint limits: target [{p_txt}] cm (distance {d:.2f} cm from "
+        f"the shoulder axis){why}",
+        hint="widen the joint limits in the arm model if the hardware allows it, or move the "
+        "object.",
+    )

@@ -1,4 +1,5 @@
-"""``locator.triangulate``'s overlay: where the ball was located, in the rectified pair, and what it means.
+"""``locator.triangulate``'s overlay: where the ball was located, in the rectified pair, and what it
+means.
 
 Left | right rectified images; the located image point in the left view and the matching point
 ``u - d`` in the right (red circles), joined by their epipolar line (yellow: matching points of a
@@ -34,7 +35,9 @@ def _rectified(pair: dict, rect: dict, raw: bool) -> tuple[np.ndarray, np.ndarra
     return L, R
 
 
-def location_overlay(loc: dict, disparity: dict, rect: dict, pair: dict | None, raw: bool) -> np.ndarray:
+def location_overlay(
+    loc: dict, disparity: dict, rect: dict, pair: dict | None, raw: bool
+) -> np.ndarray:
     """The labelled overlay (BGR uint8) for one Location."""
     import cv2
 
@@ -49,8 +52,15 @@ def location_overlay(loc: dict, disparity: dict, rect: dict, pair: dict | None, 
     w = L.shape[1]
     img = np.hstack([L, R])
     # The segmenter's rejected candidates (orange, passed on by the disparity estimator).
-    draw_rejected(img, disparity.get("rejected_left_px"), reasons=disparity.get("rejected_left_why"))
-    draw_rejected(img, disparity.get("rejected_right_px"), offset_u=w, reasons=disparity.get("rejected_right_why"))
+    draw_rejected(
+        img, disparity.get("rejected_left_px"), reasons=disparity.get("rejected_left_why")
+    )
+    draw_rejected(
+        img,
+        disparity.get("rejected_right_px"),
+        offset_u=w,
+        reasons=disparity.get("rejected_right_why"),
+    )
     u, v, d = disparity.get("u_left_px"), disparity.get("v_left_px"), disparity.get("disparity_px")
     if u is not None and v is not None and np.isfinite([u, v]).all():
         y = int(round(v))
@@ -61,7 +71,13 @@ def location_overlay(loc: dict, disparity: dict, rect: dict, pair: dict | None, 
             cv2.circle(img, (int(round(u - d)) + w, y), r, (0, 0, 255), 2, cv2.LINE_AA)
     extra: list[Any] = []
     if loc.get("truth_cm") is not None and loc.get("found"):
-        err = np.asarray([loc["x_cm"], loc["y_cm"], loc["z_cm"]]) - np.asarray(loc["truth_cm"], float)
-        extra.append((f"error vs truth: x {err[0]:+.3f}  y {err[1]:+.3f}  z {err[2]:+.3f} cm", (90, 90, 90)))
+        err = np.asarray([loc["x_cm"], loc["y_cm"], loc["z_cm"]]) - np.asarray(
+            loc["truth_cm"], float
+        )
+        extra.append(
+            (f"error vs truth: x {err[0]:+.3f}  y {err[1]:+.3f}  z {err[2]:+.3f} cm", (90, 90, 90))
+        )
     detail = f"{location_text(loc)}, disparity {d:.2f} px" if loc.get("found") else None
-    return label_pair(img, loc.get("pair"), bool(loc.get("found")), loc.get("reason"), detail, extra)
+    return label_pair(
+        img, loc.get("pair"), bool(loc.get("found")), loc.get("reason"), detail, extra
+    )

@@ -28,19 +28,27 @@ class TriangulateParams(Params):
     """Parameters of ``locator.triangulate``."""
 
     frame: Literal["left_camera", "table"] = Field(
-        "left_camera", description="Output frame: the physical left camera, or the table (needs a transform)."
+        "left_camera",
+        description="Output frame: the physical left camera, or the table (needs a transform).",
     )
     T_table_from_left: list[list[float]] | None = Field(
-        None, description="4x4 transform from left-camera to table frame (cm); None = take it from `rig`."
+        None,
+        description="4x4 transform from left-camera to table frame (cm); None = take it from "
+        "`rig`.",
     )
     working_range_cm: PositiveRange = Field(
-        (20.0, 80.0), description="Plausible object distance (cm); outside (with 25 % slack) -> not found. Not "
-                                  "set in the pipeline: the disparity estimator's (the segmenter's), from its records.")
-    overlay: bool = Field(True, description="Draw the labelled left | right overlay (bool); off = no overlay output.")
+        (20.0, 80.0),
+        description="Plausible object distance (cm); outside (with 25 % slack) -> not found. Not "
+        "set in the pipeline: the disparity estimator's (the segmenter's), from its records.",
+    )
+    overlay: bool = Field(
+        True, description="Draw the labelled left | right overlay (bool); off = no overlay output."
+    )
 
 
-def triangulate_point(u_px: float, v_px: float, d_px: float, rectification: dict,
-                      depth_offset_cm: float = 0.0) -> np.ndarray:
+def triangulate_point(
+    u_px: float, v_px: float, d_px: float, rectification: dict, depth_offset_cm: float = 0.0
+) -> np.ndarray:
     """Point in the physical left-camera frame (cm) from a rectified left point and its disparity.
 
     Parameters
@@ -64,7 +72,9 @@ def triangulate_point(u_px: float, v_px: float, d_px: float, rectification: dict
     else:
         f, B = float(rectification["f_px"]), float(rectification["baseline_cm"])
         z = f * B / d_px
-        p = np.array([(u_px - rectification["cx_px"]) * z / f, (v_px - rectification["cy_px"]) * z / f, z])
+        p = np.array(
+            [(u_px - rectification["cx_px"]) * z / f, (v_px - rectification["cy_px"]) * z / f, z]
+        )
     if p[2] < 0:  # Q of a rig with the right camera on the other side: flip.
         p = -p
     if depth_offset_cm:
@@ -86,8 +96,13 @@ def apply_transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def _known_transform(params: TriangulateParams, rig: dict | None) -> np.ndarray | None:
-    """T_table_from_left from the params or the wired rig / table frame, whatever the output frame."""
-    T = params.T_table_from_left if params.T_table_from_left is not None else (rig or {}).get("T_table_from_left")
+    """T_table_from_left from the params or the wired rig / table frame, whatever the output
+    frame."""
+    T = (
+        params.T_table_from_left
+        if params.T_table_from_left is not None
+        else (rig or {}).get("T_table_from_left")
+    )
     return None if T is None or np.asarray(T).shape != (4, 4) else np.asarray(T, float)
 
 
@@ -100,19 +115,34 @@ def _transform(params: TriangulateParams, rig: dict | None) -> np.ndarray | None
     if T is None:
         raise NodeError(
             "locator.triangulate: frame is 'table' but no table transform is known.",
-            hint="set `T_table_from_left` (4x4, cm) in its params or wire `rig` to a RigTruth with one.",
+            hint="set `T_table_from_left` (4x4, cm) in its params or wire `rig` to a RigTruth "
+            "with one.",
         )
     T = np.asarray(T, float)
     if T.shape != (4, 4):
-        raise NodeError(f"locator.triangulate: T_table_from_left has shape {T.shape}, expected 4x4.",
-                        hint="give a 4x4 homogeneous matrix in cm.")
+        raise NodeError(
+            f"locator.triangulate: T_table_from_left has shape {T.shape}, expected 4x4.",
+            hint="give a 4x4 homogeneous matrix in cm.",
+        )
     return T
 
 
 def _record(pid, split, frame, reason=None, **kw) -> dict:
-    rec = {"pair": pid, "found": reason is None, "reason": reason, "x_cm": None, "y_cm": None, "z_cm": None,
-           "sigma_z_cm": None, "frame": frame, "disparity_px": None, "u_left_px": None, "v_left_px": None,
-           "truth_cm": None, "split": split}
+    rec = {
+        "pair": pid,
+        "found": reason is None,
+        "reason": reason,
+        "x_cm": None,
+        "y_cm": None,
+        "z_cm": None,
+        "sigma_z_cm": None,
+        "frame": frame,
+        "disparity_px": None,
+        "u_left_px": None,
+        "v_left_px": None,
+        "truth_cm": None,
+        "split": split,
+    }
     rec.update(kw)
     return rec
 
@@ -122,15 +152,29 @@ def _record(pid, split, frame, reason=None, **kw) -> dict:
     inputs={
         "disparity": In("Disparity", description="Object disparity and left image point."),
         "rectification": In("Rectification", description="Q, R1, f, baseline."),
-        "pair": In("RectifiedPair | StereoPair", optional=True, description="For the ground truth, when it exists."),
-        "rig": In("RigTruth | TableFrame", optional=True,
-                  description="For T_table_from_left when frame is table (the rig's truth, or a table frame from a "
-                              "board: calibrator.table_frame / load_table_frame)."),
+        "pair": In(
+            "RectifiedPair | StereoPair",
+            optional=True,
+            description="For the ground truth, when it exists.",
+        ),
+        "rig": In(
+            "RigTruth | TableFrame",
+            optional=True,
+            description="For T_table_from_left when frame is table (the rig's truth, or a table "
+            "frame from a "
+            "board: calibrator.table_frame / load_table_frame).",
+        ),
     },
-    outputs={"location": Out("Location", description="Object centre (cm) in the chosen frame."),
-             "overlay": Out("Image", save=True, lossy=True,
-                            description="Rectified left | right with the located point and its epipolar line, "
-                                        "labelled x/y/z, sigma_z or the reason.")},
+    outputs={
+        "location": Out("Location", description="Object centre (cm) in the chosen frame."),
+        "overlay": Out(
+            "Image",
+            save=True,
+            lossy=True,
+            description="Rectified left | right with the located point and its epipolar line, "
+            "labelled x/y/z, sigma_z or the reason.",
+        ),
+    },
     params=TriangulateParams,
     version="1",
 )
@@ -145,12 +189,16 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
 
 def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx) -> dict:
     if not isinstance(disparity, dict) or "found" not in disparity:
-        raise NodeError("locator.triangulate: `disparity` is not a Disparity record.",
-                        hint="wire it to a disparity.* node's `disparity` output.")
+        raise NodeError(
+            "locator.triangulate: `disparity` is not a Disparity record.",
+            hint="wire it to a disparity.* node's `disparity` output.",
+        )
     for key in ("f_px", "baseline_cm"):
         if rectification is None or key not in rectification:
-            raise NodeError(f"locator.triangulate: the Rectification lacks {key!r}.",
-                            hint="wire `rectification` to rectifier.opencv's output.")
+            raise NodeError(
+                f"locator.triangulate: the Rectification lacks {key!r}.",
+                hint="wire `rectification` to rectifier.opencv's output.",
+            )
     T = _transform(params, rig)
     frame = params.frame
     pid = disparity.get("id") or (ctx.item if ctx else None)
@@ -161,31 +209,62 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
         tc = np.asarray(t["center_left_cm"], float)
         truth = (apply_transform(T, tc) if T is not None else tc).tolist()
     elif t and t.get("center_table_cm") is not None:
-        # measured on the table only (a ruler on the bench), in the table frame the wired table frame defines
+        # measured on the table only (a ruler on the bench), in the table frame the wired table
+        # frame defines
         T_known = T if T is not None else _known_transform(params, rig)
         if T_known is not None:
             tc = np.asarray(t["center_table_cm"], float)
-            truth = (tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])).tolist()
+            truth = (
+                tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])
+            ).tolist()
     # where the segmenter's object colour came from (given, learned): kept beside each result
-    # ... and the ball's radius the segmenter looked for (ik.pick_sequence: its centre must be a radius
-    # above the table, else the location is wrong)
-    seen = {k: disparity[k] for k in ("color_from", "object_radius_cm", "object", "merged") if k in disparity}
+    # ... and the ball's radius the segmenter looked for (ik.pick_sequence: its centre must be a
+    # radius above the table, else the location is wrong)
+    seen = {
+        k: disparity[k]
+        for k in ("color_from", "object_radius_cm", "object", "merged")
+        if k in disparity
+    }
     if not disparity["found"]:
-        return _record(pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth, **seen)
+        return _record(
+            pid, split, frame, disparity.get("reason") or "no disparity", truth_cm=truth, **seen
+        )
     d = float(disparity["disparity_px"])
     u, v = float(disparity["u_left_px"]), float(disparity["v_left_px"])
     f, B = float(rectification["f_px"]), float(rectification["baseline_cm"])
     # The rig it was measured with travels along, so that a model fitted on it can be checked later.
-    base = dict(disparity_px=d, u_left_px=u, v_left_px=v, truth_cm=truth, rig=rig_fingerprint(rectification), **seen)
+    base = dict(
+        disparity_px=d,
+        u_left_px=u,
+        v_left_px=v,
+        truth_cm=truth,
+        rig=rig_fingerprint(rectification),
+        **seen,
+    )
     if d <= 0:
         return _record(pid, split, frame, f"disparity out of range ({d:.2f} px <= 0)", **base)
     p = triangulate_point(u, v, d, rectification, float(disparity.get("depth_offset_cm") or 0.0))
     z0, z1 = working_range(params, disparity)
     if not (0.75 * z0 <= p[2] <= 1.25 * z1):
-        return _record(pid, split, frame,
-                                    f"depth {p[2]:.1f} cm outside the working range {z0:g}-{z1:g} cm", **base)
+        return _record(
+            pid,
+            split,
+            frame,
+            f"depth {p[2]:.1f} cm outside the working range {z0:g}-{z1:g} cm",
+            **base,
+        )
     sz = sigma_z_cm(float(p[2]), float(disparity.get("sigma_disparity_px") or 0.0), f, B)
     if T is not None:
         p = apply_transform(T, p)
-    return _record(pid, split, frame, None, x_cm=float(p[0]), y_cm=float(p[1]), z_cm=float(p[2]),
-                                sigma_z_cm=sz, method=disparity.get("method"), **base)
+    return _record(
+        pid,
+        split,
+        frame,
+        None,
+        x_cm=float(p[0]),
+        y_cm=float(p[1]),
+        z_cm=float(p[2]),
+        sigma_z_cm=sz,
+        method=disparity.get("method"),
+        **base,
+    )

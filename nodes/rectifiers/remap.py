@@ -1,4 +1,5 @@
-"""``rectifier.remap``: apply a rectification to every stereo pair (``cv2.remap`` with precomputed maps)."""
+"""``rectifier.remap``: apply a rectification to every stereo pair (``cv2.remap`` with precomputed
+maps)."""
 
 from __future__ import annotations
 
@@ -20,9 +21,13 @@ def remap_pair(rect: dict, left: np.ndarray, right: np.ndarray, interpolation: s
     w, h = rect.get("source_size", rect["image_size"])
     for side, im in (("left", left), ("right", right)):
         if im.shape[1] != w or im.shape[0] != h:
-            raise NodeError(f"rectifier.remap: the {side} image is {im.shape[1]}x{im.shape[0]} but the calibration "
-                            f"is for {w}x{h}.", hint="calibrate with images from the same cameras and "
-                            "resolution (a rectifier.given camera: set its image_size to the images' size)")
+            raise NodeError(
+                f"rectifier.remap: the {side} image is {im.shape[1]}x{im.shape[0]} but "
+                "the calibration "
+                f"is for {w}x{h}.",
+                hint="calibrate with images from the same cameras and "
+                "resolution (a rectifier.given camera: set its image_size to the images' size)",
+            )
     flag = _INTERP[interpolation]
     if "map_left_fixed" in rect:
         ml = (rect["map_left_fixed"], rect["map_left_interp"])
@@ -46,13 +51,16 @@ def rectified_truth(rect: dict, truth: dict | None) -> dict | None:
         out[f"center_px_rect_{side}"] = [float(p[0] / p[2]), float(p[1] / p[2])]
     sil = truth.get("silhouette_left")
     if sil is not None:
-        out["silhouette_centroid_px_rect_left"] = [float(v) for v in rectified_points(rect, sil["centroid_px"])[0]]
+        out["silhouette_centroid_px_rect_left"] = [
+            float(v) for v in rectified_points(rect, sil["centroid_px"])[0]
+        ]
     return out
 
 
 class RemapParams(Params):
     interpolation: Literal["linear", "cubic", "nearest"] = Field(
-        "linear", description="Resampling kernel (name); linear uses the fast fixed-point maps.")
+        "linear", description="Resampling kernel (name); linear uses the fast fixed-point maps."
+    )
 
 
 @node(
@@ -65,9 +73,17 @@ class RemapParams(Params):
 def remap(params: RemapParams, rectification: dict, pair: dict) -> dict:
     """Rectify one stereo pair; copies ``split`` and adds the rectified-frame truth."""
     left, right = remap_pair(rectification, pair["left"], pair["right"], params.interpolation)
-    out = {"id": pair["id"], "left": left, "right": right, "truth": rectified_truth(rectification, pair.get("truth"))}
+    out = {
+        "id": pair["id"],
+        "left": left,
+        "right": right,
+        "truth": rectified_truth(rectification, pair.get("truth")),
+    }
     if "split" in pair:
         out["split"] = pair["split"]
-    if pair.get("truth_disparity_path") and all(np.allclose(rectification.get(k, 0), np.eye(3)) for k in ("R1", "R2")):
-        out["truth_disparity_path"] = pair["truth_disparity_path"]  # a dataset's truth holds for unrotated images
+    if pair.get("truth_disparity_path") and all(
+        np.allclose(rectification.get(k, 0), np.eye(3)) for k in ("R1", "R2")
+    ):
+        # a dataset's truth holds for unrotated images
+        out["truth_disparity_path"] = pair["truth_disparity_path"]
     return {"rectified": out}

@@ -28,9 +28,12 @@ class AccuracyParams(Params):
     )
     title: str = Field("Localisation error", description="Title of the table and figure (text).")
     figure: bool = Field(True, description="Render the matplotlib figure (bool).")
-    by_kind: bool = Field(False, description="Also per kind of pair (its id without the trailing number: "
-                                             "source.synthetic's touching_ball003 is a touching_ball) in the "
-                                             "metrics: found_<kind> (rate) and off_1cm_<kind> (found, > 1 cm off).")
+    by_kind: bool = Field(
+        False,
+        description="Also per kind of pair (its id without the trailing number: "
+        "source.synthetic's touching_ball003 is a touching_ball) in the "
+        "metrics: found_<kind> (rate) and off_1cm_<kind> (found, > 1 cm off).",
+    )
 
 
 AXES = ("x", "y", "z")
@@ -67,6 +70,7 @@ def error_table(measured_cm: np.ndarray, true_cm: np.ndarray) -> dict:
 
 def markdown_table(axes: dict, n: int, n_found: int, n_truth: int, title: str, split: str) -> str:
     """The thesis-style Markdown table of :func:`error_table`'s result."""
+
     def f(v):
         return "–" if v is None else f"{v:.3f}"
 
@@ -80,7 +84,10 @@ def markdown_table(axes: dict, n: int, n_found: int, n_truth: int, title: str, s
     ]
     for ax in AXES:
         s = axes[ax]
-        lines.append(f"| {ax} | {f(s['mean_cm'])} | {f(s['std_cm'])} | {f(s['max_abs_cm'])} | {f(s['rms_cm'])} |")
+        lines.append(
+            f"| {ax} | {f(s['mean_cm'])} | {f(s['std_cm'])} | {f(s['max_abs_cm'])} | "
+            f"{f(s['rms_cm'])} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -95,24 +102,38 @@ def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np
     err = np.asarray(measured_cm, float) - np.asarray(true_cm, float)
     dist = np.linalg.norm(np.asarray(true_cm, float), axis=1) if len(err) else np.zeros(0)
     fig = new_figure(8.0, 6.2)
-    # one layout pass (a plain 2 x 2 grid: nothing constrained layout would place better), 0.55 -> 0.38 s;
-    # rect=None: the engine's default rect (0, 0, 1, 1), the whole figure too, makes matplotlib measure
-    # every label twice for the same margins (same pixels, ~0.1 s less at the end of every run)
+    # one layout pass (a plain 2 x 2 grid: nothing constrained layout would place better), 0.55 ->
+    # 0.38 s; rect=None: the engine's default rect (0, 0, 1, 1), the whole figure too, makes
+    # matplotlib measure every label twice for the same margins (same pixels, ~0.1 s less at the end
+    # of every run)
     fig.set_layout_engine("tight", rect=None)
     colours, markers = ("C0", "C1", "C2"), ("o", "s", "^")
     for i, ax_name in enumerate(AXES):
         ax = fig.add_subplot(2, 2, i + 1)
         if len(err):
             # one filled outline, not a rectangle per bin: looks the same, draws and lays out faster
-            ax.hist(err[:, i], bins=max(5, min(30, len(err) // 3)), color=colours[i], histtype="stepfilled")
+            ax.hist(
+                err[:, i],
+                bins=max(5, min(30, len(err) // 3)),
+                color=colours[i],
+                histtype="stepfilled",
+            )
         ax.set_xlabel(f"{ax_name} error, measured − truth (cm)")
         ax.set_ylabel("pairs")
-        ax.locator_params(axis="x", nbins=5)  # (matplotlib's default crowded '−0.075−0.050' into each other)
+        # (matplotlib's default crowded '−0.075−0.050' into each other)
+        ax.locator_params(axis="x", nbins=5)
     ax = fig.add_subplot(2, 2, 4)
     for i, ax_name in enumerate(AXES):
         if len(err):
-            ax.plot(dist, err[:, i], markers[i], ms=4, mfc="none" if i else colours[i], label=ax_name,
-                    color=colours[i])
+            ax.plot(
+                dist,
+                err[:, i],
+                markers[i],
+                ms=4,
+                mfc="none" if i else colours[i],
+                label=ax_name,
+                color=colours[i],
+            )
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("distance to the camera (cm)")
     ax.set_ylabel("error, measured − truth (cm)")
@@ -126,8 +147,21 @@ def error_figure(measured_cm: np.ndarray, true_cm: np.ndarray, title: str) -> np
 
 def location_records(locations: dict) -> list[dict]:
     """The ``locations.json`` records, one per pair, ordered by pair id."""
-    keys = ("pair", "found", "reason", "x_cm", "y_cm", "z_cm", "sigma_z_cm", "frame", "split", "truth_cm",
-            "disparity_px", "method", "color_from")
+    keys = (
+        "pair",
+        "found",
+        "reason",
+        "x_cm",
+        "y_cm",
+        "z_cm",
+        "sigma_z_cm",
+        "frame",
+        "split",
+        "truth_cm",
+        "disparity_px",
+        "method",
+        "color_from",
+    )
     out = []
     for item, loc in locations.items():
         rec = {k: loc.get(k) for k in keys}
@@ -138,7 +172,8 @@ def location_records(locations: dict) -> list[dict]:
 
 
 def raw_location_fields(loc: dict) -> dict:
-    """``extrapolated`` and the raw (uncompensated) ``raw_x_cm``, ``raw_y_cm``, ``raw_z_cm`` of a Location.
+    """``extrapolated`` and the raw (uncompensated) ``raw_x_cm``, ``raw_y_cm``, ``raw_z_cm`` of a
+    Location.
 
     A compensated location keeps what the locator measured in ``compensation.raw_cm``; an
     uncompensated one's raw values are its own. Written next to the corrected values so that a
@@ -147,21 +182,47 @@ def raw_location_fields(loc: dict) -> dict:
     raw = (loc.get("compensation") or {}).get("raw_cm")
     if raw is None:
         raw = [loc.get("x_cm"), loc.get("y_cm"), loc.get("z_cm")]
-    return {"extrapolated": bool(loc.get("extrapolated", False)), "raw_x_cm": raw[0], "raw_y_cm": raw[1],
-            "raw_z_cm": raw[2]}
+    return {
+        "extrapolated": bool(loc.get("extrapolated", False)),
+        "raw_x_cm": raw[0],
+        "raw_y_cm": raw[1],
+        "raw_z_cm": raw[2],
+    }
 
 
 @node(
     "report.accuracy",
-    inputs={"locations": In("Location", gather=True, description="All located pairs (with truth).")},
+    inputs={
+        "locations": In("Location", gather=True, description="All located pairs (with truth).")
+    },
     outputs={
-        "report": Out("AccuracyReport", save=True, headline=True, description="Per-axis error statistics (cm)."),
-        "locations": Out("any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."),
-        "figure": Out("Image", save=True, headline=True, description="Error histograms and error vs distance (cm)."),
-        "metrics": Out("Metrics", save=True, optional=True,
-                       description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat."),
-        "accuracy": Out("TextFile", save=True, optional=True,
-                        description="The table as Markdown (accuracy.md), thesis-style."),
+        "report": Out(
+            "AccuracyReport",
+            save=True,
+            headline=True,
+            description="Per-axis error statistics (cm).",
+        ),
+        "locations": Out(
+            "any", save=True, description="One record per pair: found, x/y/z, sigma_z, frame."
+        ),
+        "figure": Out(
+            "Image",
+            save=True,
+            headline=True,
+            description="Error histograms and error vs distance (cm).",
+        ),
+        "metrics": Out(
+            "Metrics",
+            save=True,
+            optional=True,
+            description="Counts, found rate and per-axis mean/std/RMS/max |error| (cm), flat.",
+        ),
+        "accuracy": Out(
+            "TextFile",
+            save=True,
+            optional=True,
+            description="The table as Markdown (accuracy.md), thesis-style.",
+        ),
     },
     params=AccuracyParams,
     version="3",
@@ -170,15 +231,28 @@ def raw_location_fields(loc: dict) -> dict:
 def accuracy(params: AccuracyParams, locations, ctx=None):
     """Per-axis error table (mean, std, max |err|, RMS in cm) of the located pairs against truth."""
     if not isinstance(locations, dict):
-        raise NodeError("report.accuracy expects the gathered Location items ({pair: Location}).",
-                        hint="wire `locations` to locator.triangulate's `location` output.")
-    sel = {k: v for k, v in locations.items()
-           if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))}
-    if params.split != "all" and sel and all(v.get("split") is None for v in sel.values()) and ctx is not None:
+        raise NodeError(
+            "report.accuracy expects the gathered Location items ({pair: Location}).",
+            hint="wire `locations` to locator.triangulate's `location` output.",
+        )
+    sel = {
+        k: v
+        for k, v in locations.items()
+        if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))
+    }
+    if (
+        params.split != "all"
+        and sel
+        and all(v.get("split") is None for v in sel.values())
+        and ctx is not None
+    ):
         ctx.warn("no item carries a `split`; all items evaluated")
     if not sel and locations and ctx is not None:
-        ctx.warn(f"none of the {len(locations)} locations is in the '{params.split}' split: the report is empty "
-                 f"(set `split: all`, or leave some placements for {params.split})")
+        ctx.warn(
+            f"none of the {len(locations)} locations is in the '{params.split}' split: "
+            "the report is empty "
+            f"(set `split: all`, or leave some placements for {params.split})"
+        )
     found = [v for v in sel.values() if v.get("found")]
     with_truth = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None]
     meas = np.array([[v["x_cm"], v["y_cm"], v["z_cm"]] for v in with_truth], float).reshape(-1, 3)
@@ -197,37 +271,66 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
     if kinds:
         shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
         more = sum(n for _, n in kinds[MAX_REASON_LINES:])
-        md = (f"{md.rstrip()}\n\nNot found ({len(sel) - len(found)} pairs):\n\n" + "\n".join(shown)
-              + (f"\n- {more} × other kinds of reason (`not_found_kinds` in report.json)" if more else "") + "\n")
-    # Pairs that failed before reaching this report (a node's error, not a "not found") are not in `n`:
-    # their split is unknown here. Said, so that fewer pairs never look like a better method.
+        md = (
+            f"{md.rstrip()}\n\nNot found ({len(sel) - len(found)} pairs):\n\n"
+            + "\n".join(shown)
+            + (
+                f"\n- {more} × other kinds of reason (`not_found_kinds` in report.json)"
+                if more
+                else ""
+            )
+            + "\n"
+        )
+    # Pairs that failed before reaching this report (a node's error, not a "not found") are not in
+    # `n`: their split is unknown here. Said, so that fewer pairs never look like a better method.
     lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
     if lost:
         first = next(iter(lost.items()))
-        note = (f"{len(lost)} pair(s) failed before reaching this report and are not counted here (first: "
-                f"{first[0]}: {first[1]}); `lost` in report.json lists each.")
+        note = (
+            f"{len(lost)} pair(s) failed before reaching this report and are not counted "
+            "here (first: "
+            f"{first[0]}: {first[1]}); `lost` in report.json lists each."
+        )
         md = f"{md.rstrip()}\n\n{note}\n"
         ctx.warn(note)
     report = {
-        "n": len(sel), "n_found": len(found), "n_evaluated": len(with_truth), "split": params.split,
-        "frame": frames[0] if len(frames) == 1 else frames, "axes": axes, "markdown": md,
-        "not_found_reasons": reasons, "not_found_kinds": [{"reason": t, "count": n} for t, n in kinds],
-        "n_lost": len(lost), "lost": lost,
+        "n": len(sel),
+        "n_found": len(found),
+        "n_evaluated": len(with_truth),
+        "split": params.split,
+        "frame": frames[0] if len(frames) == 1 else frames,
+        "axes": axes,
+        "markdown": md,
+        "not_found_reasons": reasons,
+        "not_found_kinds": [{"reason": t, "count": n} for t, n in kinds],
+        "n_lost": len(lost),
+        "lost": lost,
     }
     fig = error_figure(meas, true, params.title) if params.figure else None  # off: no file
     n_extrapolated = sum(bool(v.get("extrapolated")) for v in with_truth)
-    if n_extrapolated:  # corrected outside the range the compensation was fitted on: said where people read
-        note = (f"{n_extrapolated} of the {len(with_truth)} evaluated results were corrected outside the range the "
-                "compensation was fitted on (`extrapolated` in locations.json).")
+    # corrected outside the range the compensation was fitted on: said where people read
+    if n_extrapolated:
+        note = (
+            f"{n_extrapolated} of the {len(with_truth)} evaluated results were corrected "
+            "outside the range the "
+            "compensation was fitted on (`extrapolated` in locations.json)."
+        )
         md = f"{md.rstrip()}\n\n{note}\n"
         report["markdown"] = md
         if ctx is not None:
             ctx.warn(note)
     # (an output, so that a cached report's run folder gets it too, and a later run clears it)
-    return {"report": report, "locations": location_records(locations), "figure": fig,
-            "metrics": {**accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
-                        "n_lost": len(lost), **(kind_metrics(sel) if params.by_kind else {})},
-            "accuracy": {"file_text": md, "file_suffix": ".md"}}
+    return {
+        "report": report,
+        "locations": location_records(locations),
+        "figure": fig,
+        "metrics": {
+            **accuracy_metrics(axes, len(sel), len(found), len(with_truth), n_extrapolated),
+            "n_lost": len(lost),
+            **(kind_metrics(sel) if params.by_kind else {}),
+        },
+        "accuracy": {"file_text": md, "file_suffix": ".md"},
+    }
 
 
 def kind_metrics(locations: dict[str, dict]) -> dict[str, float | int]:
@@ -239,8 +342,13 @@ def kind_metrics(locations: dict[str, dict]) -> dict[str, float | int]:
         groups.setdefault(re.sub(r"\d+$", "", str(pid)) or "pair", []).append(v)
     for kind, vs in sorted(groups.items()):
         found = [v for v in vs if v.get("found")]
-        off = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None and np.linalg.norm(
-            np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"])) > 1.0]
+        off = [
+            v
+            for v in found
+            if v.get("truth_cm") is not None
+            and v.get("x_cm") is not None
+            and np.linalg.norm(np.subtract([v["x_cm"], v["y_cm"], v["z_cm"]], v["truth_cm"])) > 1.0
+        ]
         out[f"found_{kind}"] = len(found) / len(vs)
         out[f"off_1cm_{kind}"] = len(off)
     return out
@@ -263,8 +371,13 @@ def accuracy_metrics(axes: dict, n: int, n_found: int, n_truth: int, n_extrapola
         ``{"n", "n_found", "found_rate" (found / n, None for n = 0), "n_truth", "n_extrapolated",
         "x_mean_cm", "x_std_cm", "x_rms_cm", "x_max_abs_cm", "y_...", "z_..."}``.
     """
-    out = {"n": n, "n_found": n_found, "found_rate": n_found / n if n else None, "n_truth": n_truth,
-           "n_extrapolated": n_extrapolated}
+    out = {
+        "n": n,
+        "n_found": n_found,
+        "found_rate": n_found / n if n else None,
+        "n_truth": n_truth,
+        "n_extrapolated": n_extrapolated,
+    }
     for ax in AXES:
         for stat in ("mean_cm", "std_cm", "rms_cm", "max_abs_cm"):
             out[f"{ax}_{stat}"] = axes[ax][stat]

@@ -8,7 +8,8 @@ as ``Metrics`` (so ``stereograph compare`` can rank SGBM settings by bad-2.0) an
 The truth is an image whose grey level times ``truth_scale`` is the disparity in px, 0 where it is
 unknown (the Middlebury convention), or a PFM of disparities (inf = unknown). With no ``truth`` the
 report uses the truth the source found beside each pair (``truth_disparity_path``); with no
-``truth_scale`` the scale is read from the data, among the datasets' conventions (1, 1/2, 1/3, 1/4, 1/8, 1/16).
+``truth_scale`` the scale is read from the data, among the datasets' conventions (1, 1/2, 1/3, 1/4,
+1/8, 1/16).
 """
 
 from __future__ import annotations
@@ -27,15 +28,27 @@ __all__ = ["DisparityScoreParams", "disparity_score", "truth_path"]
 class DisparityScoreParams(Params):
     """Parameters of ``report.disparity``."""
 
-    truth: str | None = Field(None, description="Ground-truth disparity image, relative to the pipeline file; "
-                              "`{id}` is replaced by the pair's id (text). None = the dataset's own truth found "
-                              "beside each pair by source.files (disp2.png for im2.png, disp0.pfm, aloeGT.png).")
-    truth_scale: float | None = Field(None, gt=0, description="Disparity per grey level of the truth image "
-                                      "(px per level; 1 for full-size Middlebury 2005-2006, 0.25 for 2003's x4 "
-                                      "maps). None = read from the data among 1, 1/2, 1/3, 1/4, 1/8, 1/16 (said in a "
-                                      "warning); PFM truth is in px.")
-    threshold_px: float = Field(2.0, gt=0, le=50, description="A pixel is bad when its disparity is more than "
-                                                               "this far from the truth (px; 2.0 = bad-2.0).")
+    truth: str | None = Field(
+        None,
+        description="Ground-truth disparity image, relative to the pipeline file; "
+        "`{id}` is replaced by the pair's id (text). None = the dataset's own truth found "
+        "beside each pair by source.files (disp2.png for im2.png, disp0.pfm, aloeGT.png).",
+    )
+    truth_scale: float | None = Field(
+        None,
+        gt=0,
+        description="Disparity per grey level of the truth image "
+        "(px per level; 1 for full-size Middlebury 2005-2006, 0.25 for 2003's x4 "
+        "maps). None = read from the data among 1, 1/2, 1/3, 1/4, 1/8, 1/16 (said in a "
+        "warning); PFM truth is in px.",
+    )
+    threshold_px: float = Field(
+        2.0,
+        gt=0,
+        le=50,
+        description="A pixel is bad when its disparity is more than "
+        "this far from the truth (px; 2.0 = bad-2.0).",
+    )
 
 
 def truth_path(params: DisparityScoreParams, pipeline_dir: Path, pair_id: str = "*") -> Path:
@@ -50,7 +63,8 @@ TRUTH_SCALES = (1.0, 1 / 2, 1 / 3, 1 / 4, 1 / 8, 1 / 16)
 
 
 def read_truth(path: Path) -> np.ndarray | None:
-    """A truth disparity image as float32 levels, 0 = unknown (a PFM's inf too); None if unreadable."""
+    """A truth disparity image as float32 levels, 0 = unknown (a PFM's inf too); None if
+    unreadable."""
     truth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
     if truth is None:
         return None
@@ -76,10 +90,20 @@ def _reads(params: DisparityScoreParams, pipeline_dir: Path) -> list[Path]:
 
 @node(
     "report.disparity",
-    inputs={"disparity_map": In("DisparityMap", gather=True, description="Dense disparity maps (disparity.dense).")},
+    inputs={
+        "disparity_map": In(
+            "DisparityMap", gather=True, description="Dense disparity maps (disparity.dense)."
+        )
+    },
     outputs={
-        "metrics": Out("Metrics", save=True, optional=True, headline=True,
-                       description="n_pairs, fill_fraction, bad_<T>px_fraction, match_s (means over the pairs)."),
+        "metrics": Out(
+            "Metrics",
+            save=True,
+            optional=True,
+            headline=True,
+            description="n_pairs, fill_fraction, bad_<T>px_fraction, match_s (means over the "
+            "pairs).",
+        ),
         "pairs": Out("any", save=True, optional=True, description="The same scores per pair."),
     },
     params=DisparityScoreParams,
@@ -98,30 +122,53 @@ def disparity_score(params: DisparityScoreParams, disparity_map, ctx=None):
         path = Path(given) if given else truth_path(params, pdir, pair_id) if params.truth else None
         truth = read_truth(path) if path is not None else None
         if truth is None:
-            raise NodeError(f"{label}: no readable truth image for pair '{pair_id}'"
-                            + (f" at {path}." if path else ": none beside the pair and no `truth` param."),
-                            hint="set `truth` to the ground-truth disparity image (relative to the pipeline file; "
-                                 "`{id}` stands for the pair id)")
+            raise NodeError(
+                f"{label}: no readable truth image for pair '{pair_id}'"
+                + (f" at {path}." if path else ": none beside the pair and no `truth` param."),
+                hint="set `truth` to the ground-truth disparity image (relative to the "
+                "pipeline file; "
+                "`{id}` stands for the pair id)",
+            )
         disp = np.asarray(dmap["disparity_px"], dtype=np.float32)
         if truth.shape != disp.shape:
-            raise NodeError(f"{label}: the truth {path.name} is {truth.shape[1]}x{truth.shape[0]} px but pair "
-                            f"'{pair_id}''s disparity map is {disp.shape[1]}x{disp.shape[0]} px.",
-                            hint="use the truth image of the same resolution as the matched pair")
-        scale = params.truth_scale or (1.0 if path.suffix.lower() == ".pfm" else scale_from_data(disp, truth))
+            raise NodeError(
+                f"{label}: the truth {path.name} is {truth.shape[1]}x{truth.shape[0]} px but pair "
+                f"'{pair_id}''s disparity map is {disp.shape[1]}x{disp.shape[0]} px.",
+                hint="use the truth image of the same resolution as the matched pair",
+            )
+        scale = params.truth_scale or (
+            1.0 if path.suffix.lower() == ".pfm" else scale_from_data(disp, truth)
+        )
         if params.truth_scale is None and scale != 1.0 and ctx is not None:
-            ctx.warn(f"pair '{pair_id}': the truth {path.name} read as {scale:.4g} px per grey level (from the "
-                     "data); set truth_scale if that is wrong")
+            ctx.warn(
+                f"pair '{pair_id}': the truth {path.name} read as {scale:.4g} px per grey "
+                "level (from the "
+                "data); set truth_scale if that is wrong"
+            )
         fill, bad = bad_pixels(disp, truth * scale, params.threshold_px)
-        rows.append({"pair": pair_id, "truth": path.name, "truth_scale": scale, "fill_fraction": fill,
-                     bad_name: None if np.isnan(bad) else bad,
-                     "match_s": dmap.get("compute_seconds")})
+        rows.append(
+            {
+                "pair": pair_id,
+                "truth": path.name,
+                "truth_scale": scale,
+                "fill_fraction": fill,
+                bad_name: None if np.isnan(bad) else bad,
+                "match_s": dmap.get("compute_seconds"),
+            }
+        )
     if not rows:
-        raise NodeError(f"{label}: no disparity map to score.", hint="wire `disparity_map` to disparity.dense")
+        raise NodeError(
+            f"{label}: no disparity map to score.", hint="wire `disparity_map` to disparity.dense"
+        )
 
     def mean(key: str) -> float | None:
         vals = [r[key] for r in rows if isinstance(r[key], (int, float))]
         return float(np.mean(vals)) if vals else None
 
-    metrics = {"n_pairs": len(rows), "fill_fraction": mean("fill_fraction"), bad_name: mean(bad_name),
-               "match_s": mean("match_s")}
+    metrics = {
+        "n_pairs": len(rows),
+        "fill_fraction": mean("fill_fraction"),
+        bad_name: mean(bad_name),
+        "match_s": mean("match_s"),
+    }
     return {"metrics": metrics, "pairs": rows}

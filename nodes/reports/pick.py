@@ -1,10 +1,11 @@
-"""``report.pick``: the arm drawn at the grasp pose, with the ball and the workspace box, and its servo table.
+"""``report.pick``: the arm drawn at the grasp pose, with the ball and the workspace box, and its
+servo table.
 
 A stick figure from forward kinematics (base, shoulder, elbow, tool point; the same geometry as
 ``ik``'s ``fk``), side view (radial distance vs height, in the arm's plane) and top view (x, y),
 for the pick the actuator executed when its ``log`` is wired, else the first plan not refused of the
-chosen split (the actuator's own default choice; wiring ``log`` would make the actuator a non-terminal
-node, whose summary a run then does not keep). The
+chosen split (the actuator's own default choice; wiring ``log`` would make the actuator a
+non-terminal node, whose summary a run then does not keep). The
 ball is drawn at its located centre with its radius, and the true centre when there is one. The
 table lists every joint at the grasp: angle (deg), servo ids, goal positions and speeds (AX-12A
 units). Refused plans are counted, with their reasons, in the table's title.
@@ -25,13 +26,18 @@ from stereograph.api import Field, In, NodeError, Out, Params, node
 class PickReportParams(Params):
     """Parameters of ``report.pick``."""
 
-    ball_radius_cm: float = Field(2.0, gt=0, le=50, description="Radius of the ball drawn at the target (cm).")
+    ball_radius_cm: float = Field(
+        2.0, gt=0, le=50, description="Radius of the ball drawn at the target (cm)."
+    )
     split: Literal["test", "train", "all"] = Field(
-        "test", description="Without a wired log: draw the first plan not refused of this split (name).")
+        "test",
+        description="Without a wired log: draw the first plan not refused of this split (name).",
+    )
 
 
 def chain_points(arm: dict, joints_deg: dict) -> np.ndarray:
-    """Base, shoulder-column top, shoulder axis, elbow, forearm end and tool point (cm, arm-base frame), (6, 3)."""
+    """Base, shoulder-column top, shoulder axis, elbow, forearm end and tool point (cm, arm-base
+    frame), (6, 3)."""
     h0, r0, l1, a, b, _ = geometry(arm)
     q0, q1, q2 = (math.radians(float(joints_deg[k])) for k in ("yaw", "shoulder", "elbow"))
     phi = q1 + q2
@@ -49,23 +55,54 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     pts = chain_points(arm, g["joints_deg"])
     target = np.asarray(plan["target_base_cm"], float)
     truth = plan.get("truth_base_cm")
-    box = plan.get("workspace_cm")  # the box ik.pick_sequence checked this plan against (absent: not drawn)
+    # the box ik.pick_sequence checked this plan against (absent: not drawn)
+    box = plan.get("workspace_cm")
     yaw = math.radians(float(g["joints_deg"]["yaw"]))
     fig = new_figure(8, 4.6)  # 720 px: report.html's figure width, so the text is not scaled down
     fig.set_layout_engine("constrained")
     side, top = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     # side view: the plane of the arm (radial distance along the yaw direction vs height)
     radial = pts[:, 0] * math.cos(yaw) + pts[:, 1] * math.sin(yaw)
-    side.plot(radial, pts[:, 2], "-o", color="#34495e", lw=3, ms=5, label="arm (forward kinematics)")
+    side.plot(
+        radial, pts[:, 2], "-o", color="#34495e", lw=3, ms=5, label="arm (forward kinematics)"
+    )
     t_r = target[0] * math.cos(yaw) + target[1] * math.sin(yaw)
-    side.add_patch(Circle((t_r, target[2]), params.ball_radius_cm, color="#e67e22", alpha=0.6, label="ball (located)"))
-    side.plot([pts[-1, 0] * math.cos(yaw) + pts[-1, 1] * math.sin(yaw)], [pts[-1, 2]], "x", color="red", ms=10,
-              mew=2, label="tool point")
+    side.add_patch(
+        Circle(
+            (t_r, target[2]),
+            params.ball_radius_cm,
+            color="#e67e22",
+            alpha=0.6,
+            label="ball (located)",
+        )
+    )
+    side.plot(
+        [pts[-1, 0] * math.cos(yaw) + pts[-1, 1] * math.sin(yaw)],
+        [pts[-1, 2]],
+        "x",
+        color="red",
+        ms=10,
+        mew=2,
+        label="tool point",
+    )
     if box is not None:
         lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
-        side.add_patch(Rectangle((lo[0], lo[2]), hi[0] - lo[0], hi[2] - lo[2], fill=False, ls="--",
-                                 color="#7f8c8d", label="workspace box (x extent)"))
-        top.add_patch(Rectangle((lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"))
+        side.add_patch(
+            Rectangle(
+                (lo[0], lo[2]),
+                hi[0] - lo[0],
+                hi[2] - lo[2],
+                fill=False,
+                ls="--",
+                color="#7f8c8d",
+                label="workspace box (x extent)",
+            )
+        )
+        top.add_patch(
+            Rectangle(
+                (lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"
+            )
+        )
     side.axhline(0, color="k", lw=0.8)
     side.set_xlabel("distance from the base axis, in the arm's plane (cm)")
     side.set_ylabel("height z (cm)")
@@ -75,17 +112,29 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     top.add_patch(Circle((target[0], target[1]), params.ball_radius_cm, color="#e67e22", alpha=0.6))
     if truth is not None:
         top.plot([truth[0]], [truth[1]], "+", color="green", ms=12, mew=2, label="true centre")
-        side.plot([truth[0] * math.cos(yaw) + truth[1] * math.sin(yaw)], [truth[2]], "+", color="green", ms=12, mew=2,
-                  label="true centre")
+        side.plot(
+            [truth[0] * math.cos(yaw) + truth[1] * math.sin(yaw)],
+            [truth[2]],
+            "+",
+            color="green",
+            ms=12,
+            mew=2,
+            label="true centre",
+        )
     top.set_xlabel("x (cm, arm base)")
     top.set_ylabel("y (cm, arm base)")
     top.set_title("top view", fontsize=10)
     top.set_aspect("equal", adjustable="datalim")
-    handles, labels = side.get_legend_handles_labels()  # under the views: inside, it hid the workspace box
+    # under the views: inside, it hid the workspace box
+    handles, labels = side.get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
     fk_pt = plan.get("grasp_fk_cm") or pts[-1].tolist()
-    fig.suptitle(f"pick {plan.get('pair')}: ball at [{target[0]:.2f}, {target[1]:.2f}, {target[2]:.2f}] cm (arm base), "
-                 f"tool at [{fk_pt[0]:.2f}, {fk_pt[1]:.2f}, {fk_pt[2]:.2f}] cm", fontsize=10)
+    fig.suptitle(
+        f"pick {plan.get('pair')}: ball at [{target[0]:.2f}, {target[1]:.2f}, "
+        f"{target[2]:.2f}] cm (arm base), "
+        f"tool at [{fk_pt[0]:.2f}, {fk_pt[1]:.2f}, {fk_pt[2]:.2f}] cm",
+        fontsize=10,
+    )
     return figure_bgr(fig)
 
 
@@ -96,10 +145,16 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
     for j in arm["joints"]:
         name = j["name"]
         ids = [s["id"] for s in j["servos"]]
-        rows.append([name, round(float(g["joints_deg"].get(name, float("nan"))), 2),
-                     f"{j['min_deg']:g} .. {j['max_deg']:g}", ", ".join(str(i) for i in ids),
-                     ", ".join(str(g["servo_units"].get(str(i), "")) for i in ids),
-                     ", ".join(str(g.get("speed_units", {}).get(str(i), "")) for i in ids)])
+        rows.append(
+            [
+                name,
+                round(float(g["joints_deg"].get(name, float("nan"))), 2),
+                f"{j['min_deg']:g} .. {j['max_deg']:g}",
+                ", ".join(str(i) for i in ids),
+                ", ".join(str(g["servo_units"].get(str(i), "")) for i in ids),
+                ", ".join(str(g.get("speed_units", {}).get(str(i), "")) for i in ids),
+            ]
+        )
     title = f"Joints and servos at the grasp of {plan.get('pair')}"
     if plan.get("target_base_cm") is not None:  # where the ball was: what a person checks first
         x, y, z = (float(v) for v in plan["target_base_cm"])
@@ -108,24 +163,48 @@ def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> di
             title += f", sigma_z {float(plan['sigma_z_cm']):.2f} cm"
     if n_refused:
         title += f"; {n_refused} other plans refused (first: {reasons[0]})"
-    return {"title": title, "columns": ["joint", "angle (deg)", "limits (deg)", "servo ids", "goal (units)",
-                                        "speed (units)"], "rows": rows}
+    return {
+        "title": title,
+        "columns": [
+            "joint",
+            "angle (deg)",
+            "limits (deg)",
+            "servo ids",
+            "goal (units)",
+            "speed (units)",
+        ],
+        "rows": rows,
+    }
 
 
 @node(
     "report.pick",
-    inputs={"arm": In("ArmModel"), "plans": In("PickPlan", gather=True),
-            "log": In("ServoLog", optional=True, description="Which plan the actuator executed.")},
-    outputs={"arm_figure": Out("Image", save=True, headline=True,
-                                description="Arm at the grasp pose: side and top views (cm)."),
-             "servo_table": Out("any", save=True, headline=True,
-                                description="Joint angles (deg) and servo goals (units) at the grasp (a table).")},
+    inputs={
+        "arm": In("ArmModel"),
+        "plans": In("PickPlan", gather=True),
+        "log": In("ServoLog", optional=True, description="Which plan the actuator executed."),
+    },
+    outputs={
+        "arm_figure": Out(
+            "Image",
+            save=True,
+            headline=True,
+            description="Arm at the grasp pose: side and top views (cm).",
+        ),
+        "servo_table": Out(
+            "any",
+            save=True,
+            headline=True,
+            description="Joint angles (deg) and servo goals (units) at the grasp (a table).",
+        ),
+    },
     params=PickReportParams,
     version="2",
     prepare=load_figures,
 )
 def pick(params: PickReportParams, arm: dict, plans, log: dict | None = None, ctx=None) -> dict:
-    """Picture of the arm at the grasp (forward kinematics, side and top views) and its joint / servo table."""
+    """Picture of the arm at the grasp (forward kinematics, side and top views) and its joint /
+    servo table."""
     plans = list(plans.values()) if isinstance(plans, dict) else list(plans)
     ok = [p for p in plans if not p.get("refused")]
     refused = [p for p in plans if p.get("refused")]
@@ -133,8 +212,14 @@ def pick(params: PickReportParams, arm: dict, plans, log: dict | None = None, ct
     in_split = [p for p in ok if params.split == "all" or p.get("split") == params.split]
     chosen = next((p for p in ok if str(p.get("pair")) in executed), (in_split or ok or [None])[0])
     if chosen is None:
-        raise NodeError(f"no pick to draw: all {len(plans)} plans were refused"
-                        + (f" (first: {refused[0].get('reason')})" if refused else ""),
-                        hint="see ik.pick_sequence's reasons in run.json; nothing was picked")
-    return {"arm_figure": arm_figure(arm, chosen, params),
-            "servo_table": servo_table(arm, chosen, len(refused), [str(p.get("reason")) for p in refused])}
+        raise NodeError(
+            f"no pick to draw: all {len(plans)} plans were refused"
+            + (f" (first: {refused[0].get('reason')})" if refused else ""),
+            hint="see ik.pick_sequence's reasons in run.json; nothing was picked",
+        )
+    return {
+        "arm_figure": arm_figure(arm, chosen, params),
+        "servo_table": servo_table(
+            arm, chosen, len(refused), [str(p.get("reason")) for p in refused]
+        ),
+    }

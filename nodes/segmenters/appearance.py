@@ -28,7 +28,8 @@ from nodes.contracts.segmenter._color import color_distance_map
 from nodes.contracts.views import pair_views
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
-MIN_TOLERANCE = 0.15  # ObjectSpec.color_tolerance's default: a learned colour is never tighter than a given one
+# ObjectSpec.color_tolerance's default: a learned colour is never tighter than a given one
+MIN_TOLERANCE = 0.15
 MAX_TOLERANCE = 0.3  # chromaticity L1: looser than this, other coloured objects pass as the ball
 DARK = 25  # gray levels: chromaticity is noise below this (as color_distance_map)
 
@@ -37,22 +38,41 @@ class AppearanceParams(Params):
     """Parameters of ``segmenter.appearance``."""
 
     split: Literal["train", "all"] = Field(
-        "train", description="Which placements with truth to learn from: train = those of the training split, all = "
-                             "every pair with truth (name).")
+        "train",
+        description="Which placements with truth to learn from: train = those of the training "
+        "split, all = "
+        "every pair with truth (name).",
+    )
     radius_cm: float = Field(
-        2.0, gt=0, le=100, description="Ball radius when the truth does not give one (cm).")
+        2.0, gt=0, le=100, description="Ball radius when the truth does not give one (cm)."
+    )
     disc_fraction: float = Field(
-        0.6, gt=0.1, le=0.9, description="Radius of the disc read around the projected centre, as a share of the "
-                                         "ball's image radius (ratio): the inner part, away from the outline.")
+        0.6,
+        gt=0.1,
+        le=0.9,
+        description="Radius of the disc read around the projected centre, as a share of the "
+        "ball's image radius (ratio): the inner part, away from the outline.",
+    )
     min_pairs: int = Field(
-        3, ge=1, le=1000, description="Fewest placements whose colour agrees; fewer -> the node refuses (count).")
+        3,
+        ge=1,
+        le=1000,
+        description="Fewest placements whose colour agrees; fewer -> the node refuses (count).",
+    )
     max_outlier_distance: float = Field(
-        0.08, gt=0, le=2, description="A placement whose median colour is farther than this from the others' "
-                                      "(chromaticity L1, unitless), and than 4 times their spread, is left out.")
+        0.08,
+        gt=0,
+        le=2,
+        description="A placement whose median colour is farther than this from the others' "
+        "(chromaticity L1, unitless), and than 4 times their spread, is left out.",
+    )
 
 
-def _centre_in_rectified(X_left_cm: np.ndarray, rect: dict, side: str) -> tuple[float, float, float] | None:
-    """(u, v, z_cm) of a left-camera-frame point in the rectified ``side`` image, None behind the camera."""
+def _centre_in_rectified(
+    X_left_cm: np.ndarray, rect: dict, side: str
+) -> tuple[float, float, float] | None:
+    """(u, v, z_cm) of a left-camera-frame point in the rectified ``side`` image, None behind the
+    camera."""
     Xr = np.asarray(rect["R1"], float) @ X_left_cm  # rectified-left frame
     P = np.asarray(rect["P1" if side == "left" else "P2"], float)
     x = P @ np.append(Xr, 1.0)
@@ -87,9 +107,11 @@ def _truth_centre(truth: dict | None, T_table_from_left) -> np.ndarray | None:
     return None
 
 
-def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: bool,
-                     T_table_from_left=None) -> dict:
-    """The ``ObjectAppearance`` of the ball from the placements with truth (see the module docstring)."""
+def learn_appearance(
+    pairs: dict, rect: dict, params: AppearanceParams, raw: bool, T_table_from_left=None
+) -> dict:
+    """The ``ObjectAppearance`` of the ball from the placements with truth (see the module
+    docstring)."""
     colours, used, left_out = [], [], {}
     considered = 0
     for pid, pair in sorted(pairs.items()):
@@ -102,7 +124,10 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
         X = _truth_centre(truth, T_table_from_left)
         if X is None:
             if truth:
-                left_out[pid] = "truth has no ball centre in the left-camera frame (wire `rig` for a table-frame one)"
+                left_out[pid] = (
+                    "truth has no ball centre in the left-camera frame (wire `rig` for a "
+                    "table-frame one)"
+                )
             continue
         R = float((truth or {}).get("radius_cm") or params.radius_cm)
         views = pair_views(rect, np.asarray(pair["left"]), np.asarray(pair["right"]), raw)
@@ -116,8 +141,11 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
             r_px = params.disc_fraction * float(rect["f_px"]) * R / z
             p = disc_pixels(view, u, v, r_px) if view.image.ndim == 3 else None
             if p is None:
-                why = (f"the ball's disc is not wholly inside the {side} image" if view.image.ndim == 3
-                       else "gray images carry no colour")
+                why = (
+                    f"the ball's disc is not wholly inside the {side} image"
+                    if view.image.ndim == 3
+                    else "gray images carry no colour"
+                )
                 break
             px.append(p)
         if why is not None:
@@ -132,24 +160,34 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
         used.append(pid)
     if not colours:
         raise NodeError(
-            f"segmenter.appearance: none of the {len(pairs)} pairs is a {params.split} placement with a usable "
+            f"segmenter.appearance: none of the {len(pairs)} pairs is a {params.split} "
+            "placement with a usable "
             f"ball centre in its truth{_first_reasons(left_out)}.",
-            hint="learn from pairs with ground truth (source.files with a `truth` file, source.synthetic), set "
-                 "`split: all` to use every pair with truth, or give object.color_bgr to the segmenter instead.")
+            hint="learn from pairs with ground truth (source.files with a `truth` file, "
+            "source.synthetic), set "
+            "`split: all` to use every pair with truth, or give object.color_bgr to the "
+            "segmenter instead.",
+        )
     colours = np.asarray(colours)
     dist = _distances(colours, np.median(colours, axis=0))
     spread = 1.4826 * float(np.median(dist)) + 1e-3
     keep = dist <= max(params.max_outlier_distance, 4.0 * spread)
     for pid, d, k in zip(used, dist, keep, strict=True):
         if not k:
-            left_out[pid] = f"its colour is {d:.3f} from the others' (chromaticity L1): wrong truth or ball hidden?"
+            left_out[pid] = (
+                f"its colour is {d:.3f} from the others' (chromaticity L1): wrong truth "
+                "or ball hidden?"
+            )
     n_keep = int(keep.sum())
     if n_keep < params.min_pairs:
         raise NodeError(
-            f"segmenter.appearance: {n_keep} of the {considered} {params.split} placement(s) with truth give the "
+            f"segmenter.appearance: {n_keep} of the {considered} {params.split} "
+            "placement(s) with truth give the "
             f"ball's colour, fewer than min_pairs {params.min_pairs}{_first_reasons(left_out)}.",
-            hint="add training placements with ground truth, lower `min_pairs`, or give object.color_bgr to the "
-                 "segmenter.")
+            hint="add training placements with ground truth, lower `min_pairs`, or give "
+            "object.color_bgr to the "
+            "segmenter.",
+        )
     colour = np.median(colours[keep], axis=0)
     d_keep = _distances(colours[keep], colour)
     spread_tol = 3.0 * 1.4826 * float(np.median(d_keep))
@@ -157,9 +195,11 @@ def learn_appearance(pairs: dict, rect: dict, params: AppearanceParams, raw: boo
     return {
         "color_bgr": [int(round(c)) for c in colour],
         "color_tolerance": tol,
-        "tolerance_widened": bool(spread_tol > MIN_TOLERANCE),  # the placements' colours spread more than 0.15
-        "note": "color_bgr is the median of the ball's lit and shaded pixels: darker than its paint, with the "
-                "same chromaticity, which is what the segmenters compare (distance: chromaticity L1, 0-2)",
+        # the placements' colours spread more than 0.15
+        "tolerance_widened": bool(spread_tol > MIN_TOLERANCE),
+        "note": "color_bgr is the median of the ball's lit and shaded pixels: darker than its "
+        "paint, with the "
+        "same chromaticity, which is what the segmenters compare (distance: chromaticity L1, 0-2)",
         "n_considered": considered,
         "n_pairs": n_keep,
         "pairs": [p for p, k in zip(used, keep, strict=True) if k],
@@ -186,17 +226,30 @@ def _first_reasons(left_out: dict) -> str:
 @node(
     "segmenter.appearance",
     inputs={
-        "pair": In("RectifiedPair | StereoPair", gather=True,
-                   description="All pairs; the training placements with truth are read (camera pairs are "
-                               "rectified on request)."),
-        "rectification": In("Rectification", description="R1, P1, P2 to project the true centres; the maps for "
-                                                         "camera pairs."),
-        "rig": In("RigTruth | TableFrame", optional=True,
-                  description="T_table_from_left, for truth given in the table frame only."),
+        "pair": In(
+            "RectifiedPair | StereoPair",
+            gather=True,
+            description="All pairs; the training placements with truth are read (camera pairs are "
+            "rectified on request).",
+        ),
+        "rectification": In(
+            "Rectification",
+            description="R1, P1, P2 to project the true centres; the maps for camera pairs.",
+        ),
+        "rig": In(
+            "RigTruth | TableFrame",
+            optional=True,
+            description="T_table_from_left, for truth given in the table frame only.",
+        ),
     },
-    outputs={"appearance": Out("ObjectAppearance", save=True,
-                               description="Learned color_bgr and color_tolerance, with the placements used and "
-                                           "left out.")},
+    outputs={
+        "appearance": Out(
+            "ObjectAppearance",
+            save=True,
+            description="Learned color_bgr and color_tolerance, with the placements used and "
+            "left out.",
+        )
+    },
     params=AppearanceParams,
     version="1",
 )
@@ -204,21 +257,32 @@ def appearance(params: AppearanceParams, pair, rectification, rig=None, ctx=None
     """Learn the ball's colour from the training placements' truth, for segmenters given no colour.
 
     Wire a segmenter's `appearance` input to this node's output; a colour in the segmenter's own
-    object.color_bgr wins. Placements whose colour disagrees with the others are left out and listed.
+    object.color_bgr wins. Placements whose colour disagrees with the others are left out and
+    listed.
     """
     if not isinstance(pair, dict):
-        raise NodeError("segmenter.appearance expects the gathered pairs ({id: pair}).",
-                        hint="wire `pair` to a source's `pairs` output or rectifier.remap's `rectified`.")
+        raise NodeError(
+            "segmenter.appearance expects the gathered pairs ({id: pair}).",
+            hint="wire `pair` to a source's `pairs` output or rectifier.remap's `rectified`.",
+        )
     for key in ("R1", "P1", "P2", "f_px"):
         if not isinstance(rectification, dict) or rectification.get(key) is None:
-            raise NodeError(f"segmenter.appearance: the Rectification lacks {key!r}.",
-                            hint="wire `rectification` to rectifier.opencv's output.")
+            raise NodeError(
+                f"segmenter.appearance: the Rectification lacks {key!r}.",
+                hint="wire `rectification` to rectifier.opencv's output.",
+            )
     raw = pair_is_raw(ctx, rectification)
     out = learn_appearance(pair, rectification, params, raw, (rig or {}).get("T_table_from_left"))
     if ctx is not None:
         b, g, r = out["color_bgr"]
-        ctx.warn(f"learned BGR ({b}, {g}, {r}), tolerance {out['color_tolerance']:.2f}, from {out['n_pairs']}/"
-                 f"{out['n_considered']} {params.split} placements with truth")
+        ctx.warn(
+            f"learned BGR ({b}, {g}, {r}), tolerance {out['color_tolerance']:.2f}, from "
+            f"{out['n_pairs']}/"
+            f"{out['n_considered']} {params.split} placements with truth"
+        )
         if out["left_out"]:
-            ctx.warn(f"{len(out['left_out'])} placement(s) left out of the colour{_first_reasons(out['left_out'])}")
+            ctx.warn(
+                f"{len(out['left_out'])} placement(s) left out of the "
+                f"colour{_first_reasons(out['left_out'])}"
+            )
     return {"appearance": out}

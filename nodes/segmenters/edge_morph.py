@@ -3,8 +3,8 @@
 Edges (Canny or a Sobel magnitude threshold on the smoothed gray image) are dilated to
 close gaps in the outline, the holes are filled (a closed outline becomes a solid region),
 the result is eroded back and opened to cut thin structures (texture, shadow bridges), and
-the largest plausible region is kept (see ``_pair`` for the shared plan: selection, refinement and checks).
-Structuring-element sizes default to fractions of the smallest expected ball radius, which
+the largest plausible region is kept (see ``_pair`` for the shared plan: selection, refinement and
+checks). Structuring-element sizes default to fractions of the smallest expected ball radius, which
 comes from the calibration's focal length, the object's radius and the working range.
 """
 
@@ -35,32 +35,52 @@ class EdgeMorphParams(SegmenterParams):
 
     edge_detector: Literal["canny", "sobel"] = Field("canny", description="Edge operator (name).")
     channel: Channel | Literal["auto"] = Field(
-        "color", description="Image plane for edges: color (max over B,G,R), gray (thesis), saturation, or auto = "
-                             "the plane (B, G, R, gray, saturation) where object.color_bgr contrasts most with the "
-                             "background, per image (needs object.color_bgr; else color) (name)."
+        "color",
+        description="Image plane for edges: color (max over B,G,R), gray (thesis), saturation, "
+        "or auto = "
+        "the plane (B, G, R, gray, saturation) where object.color_bgr contrasts most with the "
+        "background, per image (needs object.color_bgr; else color) (name).",
     )
     normalize_exposure: bool = Field(
-        True, description="For a single plane (gray, saturation, auto): stretch it so its 99th percentile is 255, so "
-                          "the Canny thresholds hold on a dim exposure (bool)."
+        True,
+        description="For a single plane (gray, saturation, auto): stretch it so its 99th "
+        "percentile is 255, so "
+        "the Canny thresholds hold on a dim exposure (bool).",
     )
-    blur_sigma_px: float = Field(2.0, ge=0, le=10, description="Gaussian smoothing before edges (px).")
+    blur_sigma_px: float = Field(
+        2.0, ge=0, le=10, description="Gaussian smoothing before edges (px)."
+    )
     canny_low: float = Field(
-        30.0, ge=0, le=1000, description="Canny lower hysteresis threshold (gradient, gray levels per px)."
+        30.0,
+        ge=0,
+        le=1000,
+        description="Canny lower hysteresis threshold (gradient, gray levels per px).",
     )
     canny_high: float = Field(
-        90.0, ge=0, le=2000, description="Canny upper hysteresis threshold (gradient, gray levels per px)."
+        90.0,
+        ge=0,
+        le=2000,
+        description="Canny upper hysteresis threshold (gradient, gray levels per px).",
     )
     sobel_threshold: float = Field(
-        60.0, gt=0, description="Sobel gradient magnitude threshold (gray levels per px, 3x3 kernel)."
+        60.0,
+        gt=0,
+        description="Sobel gradient magnitude threshold (gray levels per px, 3x3 kernel).",
     )
     dilate_px: int | None = Field(
-        None, ge=1, le=101, description="Dilation element diameter (px); None = 0.4 x smallest expected radius."
+        None,
+        ge=1,
+        le=101,
+        description="Dilation element diameter (px); None = 0.4 x smallest expected radius.",
     )
     erode_px: int | None = Field(
         None, ge=1, le=101, description="Erosion element diameter (px); None = same as dilation."
     )
     open_px: int | None = Field(
-        None, ge=1, le=101, description="Opening element diameter (px); None = 0.4 x smallest expected radius."
+        None,
+        ge=1,
+        le=101,
+        description="Opening element diameter (px); None = 0.4 x smallest expected radius.",
     )
 
 
@@ -104,11 +124,12 @@ def _odd(x: float) -> int:
     return max(1, int(round(x)) | 1)
 
 
-def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, scale: int = 1,
-                    roi: bool = False) -> np.ndarray:
-    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's method);
-    give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
-    refused as ambiguous.
+def edge_morph_mask(
+    img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, scale: int = 1, roi: bool = False
+) -> np.ndarray:
+    """Segment the ball by edge detection, morphology and largest-region selection (the thesis's
+    method); give object.color_bgr (or wire `appearance`: learned from training truth), else
+    look-alikes are refused as ambiguous.
 
     The edge + morphology mask of an image (uint8 0/255). Without object.color_bgr two round objects
     of similar size are refused as ambiguous (not found), and a ball touching another object cannot
@@ -130,8 +151,16 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     else:
         name = params.channel
         if name == "auto":
-            name = best_plane(img_bgr, params.object.color_bgr)[0] if params.object.color_bgr is not None else "color"
-        gray = to_channel(img_bgr, name) if name in ("color", "gray", "saturation") else plane(img_bgr, name)
+            name = (
+                best_plane(img_bgr, params.object.color_bgr)[0]
+                if params.object.color_bgr is not None
+                else "color"
+            )
+        gray = (
+            to_channel(img_bgr, name)
+            if name in ("color", "gray", "saturation")
+            else plane(img_bgr, name)
+        )
         if params.normalize_exposure and gray.ndim == 2:
             gray = normalize_exposure(gray)
     sigma = params.blur_sigma_px / scale
@@ -160,5 +189,6 @@ def edge_morph_mask(img_bgr: np.ndarray, params: EdgeMorphParams, r_range_px, sc
     return m
 
 
-#: ``segmenter.edge_morph``: the node (the shared shell of nodes.contracts.segmenter around edge_morph_mask)
+# : ``segmenter.edge_morph``: the node (the shared shell of nodes.contracts.segmenter around
+# edge_morph_mask)
 edge_morph = segmenter("segmenter.edge_morph", params=EdgeMorphParams)(edge_morph_mask)

@@ -39,14 +39,22 @@ class OtsuParams(SegmenterParams):
     )
     channel: Literal["auto", "gray", "saturation"] = Field(
         "auto",
-        description="Image plane to threshold: gray, HSV saturation, or auto = the more separable one (name).",
+        description="Image plane to threshold: gray, HSV saturation, or auto = the more "
+        "separable one (name).",
     )
-    blur_sigma_px: float = Field(2.0, ge=0, le=10, description="Gaussian smoothing before thresholding (px).")
+    blur_sigma_px: float = Field(
+        2.0, ge=0, le=10, description="Gaussian smoothing before thresholding (px)."
+    )
     flatten_background: bool = Field(
-        True, description="Threshold the difference from a median-filtered background instead of raw gray (bool)."
+        True,
+        description="Threshold the difference from a median-filtered background instead of raw "
+        "gray (bool).",
     )
     open_px: int | None = Field(
-        None, ge=1, le=101, description="Opening element diameter (px); None = 0.3 x smallest expected radius."
+        None,
+        ge=1,
+        le=101,
+        description="Opening element diameter (px); None = 0.3 x smallest expected radius.",
     )
 
 
@@ -88,7 +96,9 @@ def _median_background(gray: np.ndarray, k: int) -> np.ndarray:
     return cv2.resize(cv2.medianBlur(small, max(ks, 3)), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def background_difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool) -> np.ndarray:
+def background_difference(
+    gray: np.ndarray, params: OtsuParams, r_range_px, roi: bool
+) -> np.ndarray:
     """The image's difference from its background (polarity applied), uint8."""
     if roi:
         border = np.concatenate([gray[0], gray[-1], gray[:, 0], gray[:, -1]])
@@ -104,7 +114,9 @@ def background_difference(gray: np.ndarray, params: OtsuParams, r_range_px, roi:
     return cv2.absdiff(gray, bg)
 
 
-def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 1, roi: bool = False) -> np.ndarray:
+def otsu_mask(
+    img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 1, roi: bool = False
+) -> np.ndarray:
     """Segment the ball with an Otsu threshold of the gray image's difference from its background;
     give object.color_bgr (or wire `appearance`: learned from training truth), else look-alikes are
     refused as ambiguous.
@@ -114,7 +126,11 @@ def otsu_mask(img_bgr: np.ndarray, params: OtsuParams, r_range_px, scale: int = 
     object cannot be split from it.
     """
     sigma = params.blur_sigma_px / scale
-    planes = ["gray", "saturation"] if params.channel == "auto" and img_bgr.ndim == 3 else [params.channel]
+    planes = (
+        ["gray", "saturation"]
+        if params.channel == "auto" and img_bgr.ndim == 3
+        else [params.channel]
+    )
     best = None
     for ch in planes:
         g = to_channel(img_bgr, "gray" if ch == "auto" else ch)

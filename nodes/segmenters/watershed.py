@@ -1,4 +1,5 @@
-"""``segmenter.watershed``: the foreground split by a watershed on its distance transform (scikit-image)."""
+"""``segmenter.watershed``: the foreground split by a watershed on its distance transform
+(scikit-image)."""
 
 from __future__ import annotations
 
@@ -16,10 +17,19 @@ from .otsu import OtsuParams, otsu_mask
 class WatershedParams(OtsuParams):
     """Parameters of ``segmenter.watershed`` (Otsu's foreground, plus the common ones)."""
 
-    min_separation: float = Field(1.0, gt=0, le=4, description="Least distance of two balls' centres, in "
-                                  "smallest expected radii (ratio).")
-    max_disc_excess: float = Field(1.5, ge=1, le=4, description="Largest area of a piece over the disc of "
-                                   "its inscribed radius (ratio); larger pieces are not balls.")
+    min_separation: float = Field(
+        1.0,
+        gt=0,
+        le=4,
+        description="Least distance of two balls' centres, in smallest expected radii (ratio).",
+    )
+    max_disc_excess: float = Field(
+        1.5,
+        ge=1,
+        le=4,
+        description="Largest area of a piece over the disc of "
+        "its inscribed radius (ratio); larger pieces are not balls.",
+    )
 
 
 def split_lines(labels: np.ndarray) -> np.ndarray:
@@ -28,8 +38,9 @@ def split_lines(labels: np.ndarray) -> np.ndarray:
     return (labels > 0) & (ndi.grey_erosion(positive, size=3) != ndi.grey_dilation(labels, size=3))
 
 
-def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, scale: int = 1,
-                   roi: bool = False) -> np.ndarray:
+def watershed_mask(
+    img_bgr: np.ndarray, params: WatershedParams, r_range_px, scale: int = 1, roi: bool = False
+) -> np.ndarray:
     """Segment the ball by splitting Otsu's foreground with a watershed on its distance transform:
     one marker per distance peak at least a ball radius deep, so touching balls become separate
     regions.
@@ -39,8 +50,13 @@ def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, sca
     """
     fg = otsu_mask(img_bgr, params, r_range_px, scale, roi) > 0
     dist = ndi.distance_transform_edt(fg)
-    peaks = peak_local_max(dist, min_distance=max(1, int(params.min_separation * r_range_px[0])),
-                           threshold_abs=0.5 * r_range_px[0], labels=ndi.label(fg)[0], exclude_border=False)
+    peaks = peak_local_max(
+        dist,
+        min_distance=max(1, int(params.min_separation * r_range_px[0])),
+        threshold_abs=0.5 * r_range_px[0],
+        labels=ndi.label(fg)[0],
+        exclude_border=False,
+    )
     ids = np.arange(1, len(peaks) + 1)
     markers = np.zeros(dist.shape, np.int32)
     markers[tuple(peaks.T)] = ids
@@ -53,6 +69,7 @@ def watershed_mask(img_bgr: np.ndarray, params: WatershedParams, r_range_px, sca
     return (keep[labels] & ~split_lines(labels)).astype(np.uint8) * 255
 
 
-#: ``segmenter.watershed``: the node (the shared shell of nodes.contracts.segmenter around watershed_mask);
+# : ``segmenter.watershed``: the node (the shared shell of nodes.contracts.segmenter around
+# watershed_mask);
 #: named as its method, so that a worker process finds it by name
 watershed = segmenter("segmenter.watershed", params=WatershedParams)(watershed_mask)

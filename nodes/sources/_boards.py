@@ -29,8 +29,9 @@ def _board_extent(cols, rows, square_cm):
     return np.array([-2.0, -2.0]) * square_cm, np.array([cols + 1.0, rows + 1.0]) * square_cm
 
 
-def board_distance_range(rig: dict, cols: int, rows: int, square_cm: float,
-                         margin_px: float = 12.0) -> tuple[float, float]:
+def board_distance_range(
+    rig: dict, cols: int, rows: int, square_cm: float, margin_px: float = 12.0
+) -> tuple[float, float]:
     """Distances (cm) a person would hold this board at to calibrate this rig: from just farther
     than where the printed board (with its margin) first fits the left image face-on, to twice
     that -- the board filling most of the view, then about half of it. Never nearer than 30 cm
@@ -39,14 +40,25 @@ def board_distance_range(rig: dict, cols: int, rows: int, square_cm: float,
     lo, hi = _board_extent(cols, rows, square_cm)
     K = rig["truth"]["K1"]
     w, h = rig["truth"]["image_size"]
-    fits_cm = max(K[0, 0] * (hi[0] - lo[0]) / max(w - 2 * margin_px, 1.0),
-                  K[1, 1] * (hi[1] - lo[1]) / max(h - 2 * margin_px, 1.0))
+    fits_cm = max(
+        K[0, 0] * (hi[0] - lo[0]) / max(w - 2 * margin_px, 1.0),
+        K[1, 1] * (hi[1] - lo[1]) / max(h - 2 * margin_px, 1.0),
+    )
     return max(30.0, 1.05 * float(fits_cm)), max(60.0, 2.1 * float(fits_cm))
 
 
-def random_board_poses(rig: dict, n: int, rng, cols: int = 9, rows: int = 6, square_cm: float = 2.5,
-                       min_distance_cm: float | None = None, max_distance_cm: float | None = None,
-                       max_tilt_deg: float = 35.0, margin_px: float = 12.0) -> list[np.ndarray]:
+def random_board_poses(
+    rig: dict,
+    n: int,
+    rng,
+    cols: int = 9,
+    rows: int = 6,
+    square_cm: float = 2.5,
+    min_distance_cm: float | None = None,
+    max_distance_cm: float | None = None,
+    max_tilt_deg: float = 35.0,
+    margin_px: float = 12.0,
+) -> list[np.ndarray]:
     """Board poses ``T_left_from_board`` (4x4, cm) fully visible in both cameras.
 
     Distances are spread evenly over the range (default :func:`board_distance_range`) and tilts
@@ -58,7 +70,9 @@ def random_board_poses(rig: dict, n: int, rng, cols: int = 9, rows: int = 6, squ
     max_distance_cm = far if max_distance_cm is None else max_distance_cm
     lo, hi = _board_extent(cols, rows, square_cm)
     outline = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]])
-    edge = np.concatenate([outline + (np.roll(outline, -1, 0) - outline) * s for s in np.linspace(0, 1, 9)])
+    edge = np.concatenate(
+        [outline + (np.roll(outline, -1, 0) - outline) * s for s in np.linspace(0, 1, 9)]
+    )
     centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0])
     w, h = rig["truth"]["image_size"]
     R, T = rig["truth"]["R"], rig["truth"]["T_cm"]
@@ -67,8 +81,13 @@ def random_board_poses(rig: dict, n: int, rng, cols: int = 9, rows: int = 6, squ
         for _ in range(2000):
             z = rng.uniform(min_distance_cm, max_distance_cm)
             sgn = 1 if i % 2 == 0 else -1
-            tilt = np.radians([sgn * rng.uniform(5, max_tilt_deg), rng.uniform(-max_tilt_deg, max_tilt_deg),
-                               rng.uniform(-20, 20)])
+            tilt = np.radians(
+                [
+                    sgn * rng.uniform(5, max_tilt_deg),
+                    rng.uniform(-max_tilt_deg, max_tilt_deg),
+                    rng.uniform(-20, 20),
+                ]
+            )
             Rb, _ = cv2.Rodrigues(tilt.reshape(3, 1))
             spread = 0.35 * z
             pos = np.array([rng.uniform(-spread, spread) + 4.0, rng.uniform(-0.7, 0.7) * spread, z])
@@ -78,11 +97,17 @@ def random_board_poses(rig: dict, n: int, rng, cols: int = 9, rows: int = 6, squ
             if pl[:, 2].min() < 5 or pr[:, 2].min() < 5:
                 continue
             ok = True
-            for K, D, pts in ((rig["truth"]["K1"], rig["truth"]["D1"], pl),
-                              (rig["truth"]["K2"], rig["truth"]["D2"], pr)):
+            for K, D, pts in (
+                (rig["truth"]["K1"], rig["truth"]["D1"], pl),
+                (rig["truth"]["K2"], rig["truth"]["D2"], pr),
+            ):
                 px = project_points(K, D, pts)
-                if (px[:, 0].min() < margin_px or px[:, 1].min() < margin_px or px[:, 0].max() > w - 1 - margin_px
-                        or px[:, 1].max() > h - 1 - margin_px):
+                if (
+                    px[:, 0].min() < margin_px
+                    or px[:, 1].min() < margin_px
+                    or px[:, 0].max() > w - 1 - margin_px
+                    or px[:, 1].max() > h - 1 - margin_px
+                ):
                     ok = False
                     break
             if ok:
@@ -105,13 +130,20 @@ def _filtered_square(x, w):
     return (_tri(x + w / 2) - _tri(x - w / 2)) / w
 
 
-_CHARUCO_PX_PER_SQUARE = 84  # texture resolution of a ChArUco board's markers (6 texels per 4x4 marker cell at 0.7)
+# texture resolution of a ChArUco board's markers (6 texels per 4x4 marker cell at 0.7)
+_CHARUCO_PX_PER_SQUARE = 84
 
 
 @functools.lru_cache(maxsize=4)
-def charuco_texture(cols: int, rows: int, dictionary: str = "DICT_4X4_50", marker_fraction: float = 0.7,
-                    px_per_square: int = _CHARUCO_PX_PER_SQUARE) -> tuple[np.ndarray, int]:
-    """OpenCV's ChArUco board image (``CharucoBoard.generateImage``) for ``cols x rows`` inner corners.
+def charuco_texture(
+    cols: int,
+    rows: int,
+    dictionary: str = "DICT_4X4_50",
+    marker_fraction: float = 0.7,
+    px_per_square: int = _CHARUCO_PX_PER_SQUARE,
+) -> tuple[np.ndarray, int]:
+    """OpenCV's ChArUco board image (``CharucoBoard.generateImage``) for ``cols x rows`` inner
+    corners.
 
     Returns the uint8 image ((rows+1)*px, (cols+1)*px), no margin, and the
     parity of the black squares (square (i, j) is black when ``(i + j) % 2 ==
@@ -135,11 +167,16 @@ def _charuco_reflectance(bx, by, gu, gv, cols, rows, charuco: dict) -> np.ndarra
     image at 4x4 points spread over each pixel's footprint (``gu`` / ``gv``:
     d(bx, by)/du and /dv).
     """
-    tex, parity = charuco_texture(cols, rows, str(charuco.get("dictionary", "DICT_4X4_50")),
-                                  float(charuco.get("marker_fraction", 0.7)))
+    tex, parity = charuco_texture(
+        cols,
+        rows,
+        str(charuco.get("dictionary", "DICT_4X4_50")),
+        float(charuco.get("marker_fraction", 0.7)),
+    )
     wx = np.abs(gu[0]) + np.abs(gv[0])
     wy = np.abs(gu[1]) + np.abs(gv[1])
-    # sign(sin(pi bx)) * sign(sin(pi by)) is +1 on the squares whose (i + j) is even (i = floor(bx) + 1)
+    # sign(sin(pi bx)) * sign(sin(pi by)) is +1 on the squares whose (i + j) is even (i = floor(bx)
+    # + 1)
     s = _filtered_square(bx, wx) * _filtered_square(by, wy)
     light = 0.5 + 0.5 * s if parity == 1 else 0.5 - 0.5 * s
     px = tex.shape[0] // (rows + 1)
@@ -156,9 +193,16 @@ def _charuco_reflectance(bx, by, gu, gv, cols, rows, charuco: dict) -> np.ndarra
     return np.clip(light - dark / len(offs) ** 2, 0.0, 1.0)
 
 
-def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9, rows: int = 6,
-                      square_cm: float = 2.5, seed: int = 0, noise_sigma: float | None = None,
-                      charuco: dict | None = None):
+def render_board_view(
+    rig: dict,
+    pose_left_from_board: np.ndarray,
+    cols: int = 9,
+    rows: int = 6,
+    square_cm: float = 2.5,
+    seed: int = 0,
+    noise_sigma: float | None = None,
+    charuco: dict | None = None,
+):
     """Render a chessboard (rigid plate, matte) floating over the table, seen by both cameras.
 
     The checker pattern is box-filtered analytically over each pixel's
@@ -194,13 +238,17 @@ def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9
         rays_all = _ray_grid(cam, (w, h)).reshape(h, w, 3)
         img = _empty_table(rig, i, tex).astype(float)
         # Only the board's screen rectangle is traced (outline projected, plus a margin).
-        outline = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]])
-        edge = np.concatenate([outline + (np.roll(outline, -1, 0) - outline) * f for f in np.linspace(0, 1, 9)])
+        outline = np.array(
+            [[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]]
+        )
+        edge = np.concatenate(
+            [outline + (np.roll(outline, -1, 0) - outline) * f for f in np.linspace(0, 1, 9)]
+        )
         epx = project_points(cam["K"], cam["D"], edge @ Rcb.T + tcb)
         u0, v0 = int(max(epx[:, 0].min() - 3, 0)), int(max(epx[:, 1].min() - 3, 0))
         u1, v1 = int(min(epx[:, 0].max() + 3, w - 1)), int(min(epx[:, 1].max() + 3, h - 1))
         sh = (v1 - v0 + 1, u1 - u0 + 1)
-        rays = rays_all[v0: v1 + 1, u0: u1 + 1].reshape(-1, 3)
+        rays = rays_all[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
         # Ray-plane intersection in the board frame: X(t) = t * ray, board z = 0.
         n = Rcb[:, 2]
         denom = rays @ n
@@ -210,7 +258,13 @@ def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9
         B = (P - tcb) @ Rcb  # board coordinates (cm)
         bx = (B[:, 0] / square_cm).reshape(sh)
         by = (B[:, 1] / square_cm).reshape(sh)
-        inside = ((t > 0) & (B[:, 0] >= lo[0]) & (B[:, 0] <= hi[0]) & (B[:, 1] >= lo[1]) & (B[:, 1] <= hi[1]))
+        inside = (
+            (t > 0)
+            & (B[:, 0] >= lo[0])
+            & (B[:, 0] <= hi[0])
+            & (B[:, 1] >= lo[1])
+            & (B[:, 1] <= hi[1])
+        )
         # Footprint of a pixel in board squares (for the box filter).
         gxu, gxv = np.gradient(bx, axis=1), np.gradient(bx, axis=0)
         gyu, gyv = np.gradient(by, axis=1), np.gradient(by, axis=0)
@@ -228,17 +282,26 @@ def render_board_view(rig: dict, pose_left_from_board: np.ndarray, cols: int = 9
         lam = np.abs(to_l @ n) / np.linalg.norm(to_l, axis=1)
         # Boards are held up facing the cameras, so they get more ambient light than the table.
         shade = (0.6 + 0.4 * lam) * refl
-        roi = img[v0: v1 + 1, u0: u1 + 1].reshape(-1, 3)
+        roi = img[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
         roi[inside] = shade[inside, None]
-        img[v0: v1 + 1, u0: u1 + 1] = roi.reshape(*sh, 3)
+        img[v0 : v1 + 1, u0 : u1 + 1] = roi.reshape(*sh, 3)
         imgs.append(_to_uint8(img, sigma, rng))
-        corners["left_px" if i == 0 else "right_px"] = project_points(cam["K"], cam["D"], pts_b @ Rcb.T + tcb)
+        corners["left_px" if i == 0 else "right_px"] = project_points(
+            cam["K"], cam["D"], pts_b @ Rcb.T + tcb
+        )
     corners["T_table_from_board"] = T_tl @ pose_left_from_board
     return imgs[0], imgs[1], corners
 
 
-def render_table_board(rig: dict, cols: int = 9, rows: int = 6, square_cm: float = 2.5, yaw_deg: float = 0.0,
-                       centre_table_cm=(0.0, 5.0), seed: int = 1):
+def render_table_board(
+    rig: dict,
+    cols: int = 9,
+    rows: int = 6,
+    square_cm: float = 2.5,
+    yaw_deg: float = 0.0,
+    centre_table_cm=(0.0, 5.0),
+    seed: int = 1,
+):
     """Render a chessboard lying flat on the table, turned ``yaw_deg`` about the vertical.
 
     Returns
@@ -255,7 +318,9 @@ def render_table_board(rig: dict, cols: int = 9, rows: int = 6, square_cm: float
     centre = np.array([(cols - 1) * square_cm / 2, (rows - 1) * square_cm / 2, 0.0])
     T_tb[:3, 3] = np.array([*centre_table_cm, 0.0]) - T_tb[:3, :3] @ centre
     T_tl = np.asarray(rig["truth"]["T_table_from_left"], float)
-    left, right, corners = render_board_view(rig, np.linalg.inv(T_tl) @ T_tb, cols, rows, square_cm, seed=seed)
+    left, right, corners = render_board_view(
+        rig, np.linalg.inv(T_tl) @ T_tb, cols, rows, square_cm, seed=seed
+    )
     P = corners["board_cm"] @ T_tb[:3, :3].T + T_tb[:3, 3]
     T = np.eye(4)
     T[:3, 3] = -P[np.argmin(P[:, 0] + P[:, 1])]

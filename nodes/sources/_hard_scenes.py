@@ -26,7 +26,14 @@ from typing import Any
 
 import numpy as np
 
-HARD_KINDS = ("border_cut", "occluded_part", "touching_box", "touching_ball", "distractor", "same_color")
+HARD_KINDS = (
+    "border_cut",
+    "occluded_part",
+    "touching_box",
+    "touching_ball",
+    "distractor",
+    "same_color",
+)
 
 _N_RAYS = 600  # rays per view for the visibility estimate (binomial sd ~2 % at 50 %)
 
@@ -89,10 +96,18 @@ def _other_colors(color: Any) -> list[str]:
     return [n for n in COLORS if n not in {own, "white", "black", "grey"} | near]
 
 
-def make_hard_scene(rig: dict, kind: str, rng: np.random.Generator, radius_cm: float, color: Any,
-                    draw_ball, inside_both) -> dict:
+def make_hard_scene(
+    rig: dict,
+    kind: str,
+    rng: np.random.Generator,
+    radius_cm: float,
+    color: Any,
+    draw_ball,
+    inside_both,
+) -> dict:
     """One scene of ``kind`` (see the module docstring); ``draw_ball(accept)`` and ``inside_both``
-    are :func:`nodes.sources._scenes.make_scene`'s ball sampler and its "inside both images" test."""
+    are :func:`nodes.sources._scenes.make_scene`'s ball sampler and its "inside both images"
+    test."""
     r = float(radius_cm)
     others = _other_colors(color)
     w, _ = rig["truth"]["image_size"]
@@ -104,6 +119,7 @@ def make_hard_scene(rig: dict, kind: str, rng: np.random.Generator, radius_cm: f
             def cut(c, sils, side=side):
                 u0, _, u1, _ = sils[0]["bbox_px"]
                 return u0 < 0 < u1 if side == 0 else u0 < w - 1 < u1
+
             c, _ = draw_ball(cut)
             lo, hi = 0.4, 0.9
         else:
@@ -122,30 +138,52 @@ def make_hard_scene(rig: dict, kind: str, rng: np.random.Generator, radius_cm: f
             sight = c[2] + (C1[2] - c[2]) * gap / dist_xy
             pos = c[:2] + u * gap + perp * rng.choice([-1, 1]) * r * rng.uniform(0.9, 2.0)
             size = [2.0 * r, 1.5, sight + r * rng.uniform(0.3, 1.5)]
-            scene["objects"].append({"type": "box", "center_cm": [float(pos[0]), float(pos[1])],
-                                     "size_cm": [float(s) for s in size],
-                                     "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
-                                     "color": str(rng.choice(others))})
+            scene["objects"].append(
+                {
+                    "type": "box",
+                    "center_cm": [float(pos[0]), float(pos[1])],
+                    "size_cm": [float(s) for s in size],
+                    "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
+                    "color": str(rng.choice(others)),
+                }
+            )
         elif kind == "touching_box":
             sx, sy = rng.uniform(2.5, 6.0), rng.uniform(2.5, 6.0)
             # Box face perpendicular to dirv at distance r from the centre: they touch.
             pos = c[:2] + dirv * (r + sy / 2.0)
-            scene["objects"].append({"type": "box", "center_cm": [float(pos[0]), float(pos[1])],
-                                     "size_cm": [float(sx), float(sy), float(rng.uniform(1.5, 2.5 * r))],
-                                     "yaw_deg": float(math.degrees(ang) - 90.0),
-                                     "color": str(rng.choice(others))})
+            scene["objects"].append(
+                {
+                    "type": "box",
+                    "center_cm": [float(pos[0]), float(pos[1])],
+                    "size_cm": [float(sx), float(sy), float(rng.uniform(1.5, 2.5 * r))],
+                    "yaw_deg": float(math.degrees(ang) - 90.0),
+                    "color": str(rng.choice(others)),
+                }
+            )
         elif kind in ("touching_ball", "distractor", "same_color"):
             if kind == "touching_ball":
                 r2, gap = r * rng.uniform(0.8, 1.3), 0.0
             elif kind == "distractor":
                 r2, gap = r * rng.uniform(0.85, 1.15), rng.uniform(0.5, 5.0) * r
             else:
-                r2, gap = r * rng.uniform(0.9, 1.1), (0.0 if rng.random() < 0.5 else rng.uniform(0.2, 2.0) * r)
+                r2, gap = (
+                    r * rng.uniform(0.9, 1.1),
+                    (0.0 if rng.random() < 0.5 else rng.uniform(0.2, 2.0) * r),
+                )
             pos = c[:2] + dirv * (r + r2 + gap)
             col = color if kind == "same_color" else str(rng.choice(others))
-            scene["objects"].append({"type": "ball", "center_cm": [float(pos[0]), float(pos[1])],
-                                     "radius_cm": float(r2), "color": col})
-        vis = [visible_fraction(rig, scene, i, rng_seed=int(rng.integers(0, 2**31 - 1))) for i in (0, 1)]
+            scene["objects"].append(
+                {
+                    "type": "ball",
+                    "center_cm": [float(pos[0]), float(pos[1])],
+                    "radius_cm": float(r2),
+                    "color": col,
+                }
+            )
+        vis = [
+            visible_fraction(rig, scene, i, rng_seed=int(rng.integers(0, 2**31 - 1)))
+            for i in (0, 1)
+        ]
         if kind == "border_cut":
             ok = lo <= min(vis) <= hi and max(vis) >= lo
         elif kind == "occluded_part":
@@ -154,4 +192,6 @@ def make_hard_scene(rig: dict, kind: str, rng: np.random.Generator, radius_cm: f
             ok = min(vis) >= lo
         if ok:
             return scene
-    raise RuntimeError(f"could not build a {kind!r} scene with the required visibility; widen the distance range")
+    raise RuntimeError(
+        f"could not build a {kind!r} scene with the required visibility; widen the distance range"
+    )

@@ -37,7 +37,9 @@ def distort_normalized(xy: np.ndarray, D) -> np.ndarray:
     return np.stack([xd, yd], axis=-1)
 
 
-def undistort_normalized(xyd: np.ndarray, D, iterations: int = 12, guess: np.ndarray | None = None) -> np.ndarray:
+def undistort_normalized(
+    xyd: np.ndarray, D, iterations: int = 12, guess: np.ndarray | None = None
+) -> np.ndarray:
     """Exact inverse of :func:`distort_normalized` (Newton's method).
 
     OpenCV's ``undistortPoints`` stops after 5 fixed-point iterations, which
@@ -57,14 +59,23 @@ def undistort_normalized(xyd: np.ndarray, D, iterations: int = 12, guess: np.nda
     # grid: ~0.09 -> ~0.05 s).
     D5 = _dist5(D)
     for i in range(0, x.size, _BLOCK):
-        _newton(x[i:i + _BLOCK], y[i:i + _BLOCK], xd[i:i + _BLOCK], yd[i:i + _BLOCK], D5, iterations)
+        _newton(
+            x[i : i + _BLOCK],
+            y[i : i + _BLOCK],
+            xd[i : i + _BLOCK],
+            yd[i : i + _BLOCK],
+            D5,
+            iterations,
+        )
     return np.stack([x.reshape(shape), y.reshape(shape)], axis=-1)
 
 
 _BLOCK = 32768  # points per block of undistort_normalized
 
 
-def _newton(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray, D5: tuple, iterations: int) -> None:
+def _newton(
+    x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray, D5: tuple, iterations: int
+) -> None:
     """Newton's iterations of :func:`undistort_normalized` on 1-D views ``x``, ``y`` (the start,
     overwritten with the answer) towards the distorted ``xd``, ``yd``."""
     k1, k2, p1, p2, k3 = D5
@@ -89,7 +100,13 @@ def _newton(x: np.ndarray, y: np.ndarray, xd: np.ndarray, yd: np.ndarray, D5: tu
         x[active], y[active] = xa, ya
         moving = (sx != 0) | (sy != 0) | np.isnan(sx) | np.isnan(sy)
         if not moving.all():
-            active, xa, ya, xda, yda = active[moving], xa[moving], ya[moving], xda[moving], yda[moving]
+            active, xa, ya, xda, yda = (
+                active[moving],
+                xa[moving],
+                ya[moving],
+                xda[moving],
+                yda[moving],
+            )
             if not active.size:
                 break
 
@@ -99,11 +116,14 @@ def project_points(K: np.ndarray, D, pts_cam: np.ndarray) -> np.ndarray:
     pts = np.asarray(pts_cam, dtype=float).reshape(-1, 3)
     xy = pts[:, :2] / pts[:, 2:3]
     xyd = distort_normalized(xy, D)
-    return np.stack([K[0, 0] * xyd[:, 0] + K[0, 1] * xyd[:, 1] + K[0, 2], K[1, 1] * xyd[:, 1] + K[1, 2]], axis=1)
+    return np.stack(
+        [K[0, 0] * xyd[:, 0] + K[0, 1] * xyd[:, 1] + K[0, 2], K[1, 1] * xyd[:, 1] + K[1, 2]], axis=1
+    )
 
 
-def undistort_pixels(K: np.ndarray, D, px: np.ndarray, guess: np.ndarray | None = None,
-                     iterations: int = 12) -> np.ndarray:
+def undistort_pixels(
+    K: np.ndarray, D, px: np.ndarray, guess: np.ndarray | None = None, iterations: int = 12
+) -> np.ndarray:
     """Normalised undistorted coordinates (x/z, y/z) of distorted pixels: (N, 2) -> (N, 2).
 
     ``guess`` (N, 2) optionally starts the Newton iterations closer to the answer.

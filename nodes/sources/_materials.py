@@ -1,5 +1,4 @@
-"""Surface appearance of the synthetic scenes: named colours and the table's repeating texture.
-"""
+"""Surface appearance of the synthetic scenes: named colours and the table's repeating texture."""
 
 from __future__ import annotations
 
@@ -35,8 +34,6 @@ def color_bgr(color: Any) -> np.ndarray:
     if np.any(c < 0) or np.any(c > 255):
         raise ValueError(f"colour {list(c)} is out of 0..255")
     return c / 255.0
-
-
 
 
 _TEX_CM = 100.0  # the texture tile covers 100 x 100 cm and repeats

@@ -21,8 +21,15 @@ def _objects_of(scene: dict) -> list[dict]:
         r = float(ball.get("radius_cm", 2.0))
         if len(c) == 2:
             c = [c[0], c[1], r]
-        objs.append({"type": "sphere", "c": np.asarray(c, float), "r": r,
-                     "albedo": color_bgr(ball.get("color", "orange")), "target": True})
+        objs.append(
+            {
+                "type": "sphere",
+                "c": np.asarray(c, float),
+                "r": r,
+                "albedo": color_bgr(ball.get("color", "orange")),
+                "target": True,
+            }
+        )
     for o in scene.get("objects", []) or []:
         t = o.get("type", "box")
         col = color_bgr(o.get("color", "grey"))
@@ -31,16 +38,41 @@ def _objects_of(scene: dict) -> list[dict]:
             c = list(o["center_cm"])
             if len(c) == 2:
                 c = [c[0], c[1], r]
-            objs.append({"type": "sphere", "c": np.asarray(c, float), "r": r, "albedo": col, "target": False})
+            objs.append(
+                {
+                    "type": "sphere",
+                    "c": np.asarray(c, float),
+                    "r": r,
+                    "albedo": col,
+                    "target": False,
+                }
+            )
         elif t == "box":
             sx, sy, sz = (float(v) for v in o["size_cm"])
             yaw = math.radians(float(o.get("yaw_deg", 0.0)))
-            Rz = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]])
+            Rz = np.array(
+                [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]]
+            )
             c = np.array([o["center_cm"][0], o["center_cm"][1], sz / 2.0], float)
-            objs.append({"type": "box", "c": c, "half": np.array([sx, sy, sz]) / 2.0, "Rz": Rz, "albedo": col})
+            objs.append(
+                {
+                    "type": "box",
+                    "c": c,
+                    "half": np.array([sx, sy, sz]) / 2.0,
+                    "Rz": Rz,
+                    "albedo": col,
+                }
+            )
         elif t == "cylinder":
-            objs.append({"type": "cylinder", "c": np.array([o["center_cm"][0], o["center_cm"][1], 0.0], float),
-                         "r": float(o["radius_cm"]), "h": float(o["height_cm"]), "albedo": col})
+            objs.append(
+                {
+                    "type": "cylinder",
+                    "c": np.array([o["center_cm"][0], o["center_cm"][1], 0.0], float),
+                    "r": float(o["radius_cm"]),
+                    "h": float(o["height_cm"]),
+                    "albedo": col,
+                }
+            )
         else:
             raise ValueError(f"unknown object type {t!r}; use box, cylinder or ball")
     return objs
@@ -65,7 +97,8 @@ def _hit_sphere(O, D, c, r):
 
 
 def _hit_box(O, D, obj, tmin=1e-9):
-    """Slab test in the box's frame; O may be (3,) or (N, 3). Returns t (N,) and the hit axis (N,)."""
+    """Slab test in the box's frame; O may be (3,) or (N, 3). Returns t (N,) and the hit axis
+    (N,)."""
     Rz, c, half = obj["Rz"], obj["c"], obj["half"]
     o = (np.atleast_2d(O) - c) @ Rz  # rotate into the box frame (R^T x == x @ R)
     d = D @ Rz
@@ -84,7 +117,8 @@ def _hit_box(O, D, obj, tmin=1e-9):
 
 
 def _hit_cylinder(O, D, obj, tmin=1e-9):
-    """Vertical capped cylinder standing on the table; O (3,) or (N, 3). Returns t and a 'side' flag."""
+    """Vertical capped cylinder standing on the table; O (3,) or (N, 3). Returns t and a 'side'
+    flag."""
     O2 = np.atleast_2d(O)
     ox, oy, oz = O2[:, 0] - obj["c"][0], O2[:, 1] - obj["c"][1], O2[:, 2]
     dx, dy, dz = D[:, 0], D[:, 1], D[:, 2]

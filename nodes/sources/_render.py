@@ -90,8 +90,6 @@ from nodes.sources._silhouette import silhouette
 _SUPERSAMPLE = 10  # rays per pixel side near a ball's silhouette (100 per pixel)
 
 
-
-
 def _empty_table(rig: dict, i: int, tex: np.ndarray) -> np.ndarray:
     """The lit, empty table as seen by camera ``i`` (H, W, 3 float32); cached in the rig."""
     cache = rig.setdefault("_cache", {})
@@ -110,8 +108,15 @@ def _object_points(o: dict) -> np.ndarray:
         return o["c"] + 1.8 * o["r"] * g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1)
     if o["type"] == "box":
         s = np.linspace(-1, 1, 7)
-        g = np.array([[x, y, z] for x in s for y in s for z in s
-                      if int(abs(x) == 1) + int(abs(y) == 1) + int(abs(z) == 1) >= 2])
+        g = np.array(
+            [
+                [x, y, z]
+                for x in s
+                for y in s
+                for z in s
+                if int(abs(x) == 1) + int(abs(y) == 1) + int(abs(z) == 1) >= 2
+            ]
+        )
         return o["c"] + (g * o["half"]) @ o["Rz"].T
     th = np.linspace(0, 2 * np.pi, 32, endpoint=False)
     ring = np.stack([np.cos(th), np.sin(th), np.zeros_like(th)], axis=1) * o["r"] * 1.05
@@ -142,7 +147,10 @@ def _roi(rig: dict, i: int, objs: list[dict]) -> tuple[int, int, int, int] | Non
     px = project_points(cam["K"], cam["D"], P)
     m = 4  # px: bowing of straight edges under distortion, soft shadow edges
     u0, v0 = int(max(np.floor(px[:, 0].min()) - m, 0)), int(max(np.floor(px[:, 1].min()) - m, 0))
-    u1, v1 = int(min(np.ceil(px[:, 0].max()) + m, w - 1)), int(min(np.ceil(px[:, 1].max()) + m, h - 1))
+    u1, v1 = (
+        int(min(np.ceil(px[:, 0].max()) + m, w - 1)),
+        int(min(np.ceil(px[:, 1].max()) + m, h - 1)),
+    )
     if u0 > u1 or v0 > v1:
         return None
     return u0, v0, u1, v1
@@ -161,11 +169,11 @@ def _render_camera(rig, i, objs, tex):
         return img, cov
     u0, v0, u1, v1 = roi
     # Only the rectangle holding the objects and their shadows differs from the empty table.
-    sub = rays.reshape(h, w, 3)[v0: v1 + 1, u0: u1 + 1].reshape(-1, 3)
+    sub = rays.reshape(h, w, 3)[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
     rad, ids = _trace(rig, i, sub, objs, tex)
-    img[v0: v1 + 1, u0: u1 + 1] = rad.reshape(v1 - v0 + 1, u1 - u0 + 1, 3)
+    img[v0 : v1 + 1, u0 : u1 + 1] = rad.reshape(v1 - v0 + 1, u1 - u0 + 1, 3)
     if has_target:
-        cov[v0: v1 + 1, u0: u1 + 1] = (ids == 0).reshape(v1 - v0 + 1, u1 - u0 + 1)
+        cov[v0 : v1 + 1, u0 : u1 + 1] = (ids == 0).reshape(v1 - v0 + 1, u1 - u0 + 1)
     # Supersample the band of pixels around every sphere's silhouette (analytic cone test).
     S = _SUPERSAMPLE
     off = (np.arange(S) + 0.5) / S - 0.5
@@ -186,7 +194,7 @@ def _render_camera(rig, i, objs, tex):
         iu1, iv1 = min(int(math.ceil(su1)) + 2, w - 1), min(int(math.ceil(sv1)) + 2, h - 1)
         if iu0 > iu1 or iv0 > iv1:
             continue
-        box = rays.reshape(h, w, 3)[iv0: iv1 + 1, iu0: iu1 + 1].reshape(-1, 3)
+        box = rays.reshape(h, w, 3)[iv0 : iv1 + 1, iu0 : iu1 + 1].reshape(-1, 3)
         ang = np.arccos(np.clip(box @ (cc / dist) / np.linalg.norm(box, axis=1), -1, 1))
         # A pixel's half-diagonal spans ~0.71/f rad (a little more where distortion stretches
         # the image): pixels whose centre ray is farther than 1.1/f from the cone are pure.
@@ -201,7 +209,9 @@ def _render_camera(rig, i, objs, tex):
         guess = np.repeat(rays.reshape(h, w, 3)[vv, uu, :2], S * S, axis=0)
         guess[:, 0] += (pu - np.repeat(uu, S * S)) / cam["K"][0, 0]
         guess[:, 1] += (pv - np.repeat(vv, S * S)) / cam["K"][1, 1]
-        xy = undistort_pixels(cam["K"], cam["D"], np.stack([pu, pv], axis=1), guess=guess, iterations=3)
+        xy = undistort_pixels(
+            cam["K"], cam["D"], np.stack([pu, pv], axis=1), guess=guess, iterations=3
+        )
         srays = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
         sc, sid = _trace(rig, i, srays, objs, tex)
         img[vv, uu] = sc.reshape(-1, S * S, 3).mean(axis=1)
@@ -210,8 +220,9 @@ def _render_camera(rig, i, objs, tex):
     return img, cov
 
 
-def render_scene(rig: dict, scene: dict, seed: int = 0, noise_sigma: float | None = None,
-                 coverage: bool = False) -> tuple[np.ndarray, np.ndarray, dict | None]:
+def render_scene(
+    rig: dict, scene: dict, seed: int = 0, noise_sigma: float | None = None, coverage: bool = False
+) -> tuple[np.ndarray, np.ndarray, dict | None]:
     """Render a stereo pair of a scene with its ground truth.
 
     Parameters
@@ -253,14 +264,17 @@ def render_scene(rig: dict, scene: dict, seed: int = 0, noise_sigma: float | Non
         T = rig["truth"]["T_table_from_left"]
         c_left = (b["c"] - T[:3, 3]) @ T[:3, :3]
         c_right = rig["truth"]["R"] @ c_left + rig["truth"]["T_cm"]
-        sils = [silhouette(rig["cams"][0]["K"], rig["cams"][0]["D"], c_left, b["r"]),
-                silhouette(rig["cams"][1]["K"], rig["cams"][1]["D"], c_right, b["r"])]
+        sils = [
+            silhouette(rig["cams"][0]["K"], rig["cams"][0]["D"], c_left, b["r"]),
+            silhouette(rig["cams"][1]["K"], rig["cams"][1]["D"], c_right, b["r"]),
+        ]
         truth = {
             "kind": scene.get("kind", "custom"),
             "center_left_cm": [float(v) for v in c_left],
             "center_table_cm": [float(v) for v in b["c"]],
             "radius_cm": float(b["r"]),
-            "color": scene["ball"].get("color", "orange") if isinstance(scene["ball"].get("color", "orange"), str)
+            "color": scene["ball"].get("color", "orange")
+            if isinstance(scene["ball"].get("color", "orange"), str)
             else [int(v) for v in scene["ball"]["color"]],
             "center_px_left": sils[0]["center_px"],
             "center_px_right": sils[1]["center_px"],

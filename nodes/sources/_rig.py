@@ -34,9 +34,6 @@ RIG_DEFAULTS: dict[str, Any] = {
 }
 
 
-
-
-
 def make_rig(**params: Any) -> dict:
     """Build a synthetic stereo rig looking down at a table.
 
@@ -57,7 +54,9 @@ def make_rig(**params: Any) -> dict:
     """
     unknown = set(params) - set(RIG_DEFAULTS)
     if unknown:
-        raise ValueError(f"unknown rig parameter(s) {sorted(unknown)}; known: {sorted(RIG_DEFAULTS)}")
+        raise ValueError(
+            f"unknown rig parameter(s) {sorted(unknown)}; known: {sorted(RIG_DEFAULTS)}"
+        )
     p = {**RIG_DEFAULTS, **params}
     w, h = int(p["image_width_px"]), int(p["image_height_px"])
     f = float(p["focal_length_px"])
@@ -79,7 +78,11 @@ def make_rig(**params: Any) -> dict:
     height = float(p["camera_height_cm"])
     # Columns = left camera axes expressed in the table frame (x right, y down-ish, z forward-down).
     R_tl = np.column_stack(
-        [[1.0, 0.0, 0.0], [0.0, -math.sin(tilt), -math.cos(tilt)], [0.0, math.cos(tilt), -math.sin(tilt)]]
+        [
+            [1.0, 0.0, 0.0],
+            [0.0, -math.sin(tilt), -math.cos(tilt)],
+            [0.0, math.cos(tilt), -math.sin(tilt)],
+        ]
     )
     C1_table = np.array([0.0, -height / math.tan(tilt), height])
     T_table_from_left = np.eye(4)

@@ -1,6 +1,7 @@
-"""The explicit scenes ``source.synthetic`` takes in YAML (``scenes: [...]``), as pydantic models, so that
-a misspelt key or a missing size is refused by ``stereograph validate`` at its line instead of being
-ignored. The renderer reads them as plain dicts (``model_dump``): see :mod:`._raycast` (``_objects_of``).
+"""The explicit scenes ``source.synthetic`` takes in YAML (``scenes: [...]``), as pydantic models,
+so that a misspelt key or a missing size is refused by ``stereograph validate`` at its line instead
+of being ignored. The renderer reads them as plain dicts (``model_dump``): see :mod:`._raycast`
+(``_objects_of``).
 """
 
 from __future__ import annotations
@@ -18,20 +19,29 @@ Point = tuple[float, float] | tuple[float, float, float]
 class SceneBall(Params):
     """The ball to locate."""
 
-    center_cm: Point = Field(..., description="Centre on the table, x, y (z = its radius) or x, y, z (cm, table "
-                                              "frame).")
+    center_cm: Point = Field(
+        ..., description="Centre on the table, x, y (z = its radius) or x, y, z (cm, table frame)."
+    )
     radius_cm: float = Field(2.0, gt=0, le=100, description="Radius (cm).")
-    color: Colour = Field("orange", description="A colour name of nodes/sources/_materials.py or [b, g, r] 0-255.")
+    color: Colour = Field(
+        "orange", description="A colour name of nodes/sources/_materials.py or [b, g, r] 0-255."
+    )
 
 
 class SceneObject(Params):
     """Clutter: a box, a cylinder or another ball."""
 
     type: Literal["box", "cylinder", "ball", "sphere"] = Field("box", description="Shape (name).")
-    center_cm: Point = Field(..., description="Centre on the table, x, y (cm, table frame); a ball's may give z.")
-    size_cm: tuple[float, float, float] | None = Field(None, description="A box's x, y, z size (cm).")
+    center_cm: Point = Field(
+        ..., description="Centre on the table, x, y (cm, table frame); a ball's may give z."
+    )
+    size_cm: tuple[float, float, float] | None = Field(
+        None, description="A box's x, y, z size (cm)."
+    )
     yaw_deg: float = Field(0.0, description="A box's rotation about the table's normal (degrees).")
-    radius_cm: float | None = Field(None, gt=0, description="A cylinder's or ball's radius (cm; a ball's default 2).")
+    radius_cm: float | None = Field(
+        None, gt=0, description="A cylinder's or ball's radius (cm; a ball's default 2)."
+    )
     height_cm: float | None = Field(None, gt=0, description="A cylinder's height (cm).")
     color: Colour = Field("grey", description="A colour name or [b, g, r] 0-255.")
 

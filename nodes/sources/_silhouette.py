@@ -15,7 +15,9 @@ from nodes.sources._lens import project_points
 def _cross(a, b) -> np.ndarray:
     """``np.cross`` of two 3-vectors, same arithmetic; the plan calls this hundreds of times and
     ``np.cross``'s axis handling costs ten times the products."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+    return np.array(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )
 
 
 @functools.lru_cache(maxsize=8)
@@ -89,11 +91,18 @@ def silhouette(K: np.ndarray, D, center_cam_cm, radius_cm: float, n_boundary: in
     poly = project_points(K, D, rays)
     area, cen = _polygon_centroid(poly)
     return {
-        "ellipse_px": {"center_px": [float(centre[0]), float(centre[1])],
-                       "axes_px": [float(axes[0]), float(axes[1])], "angle_deg": float(ang)},
+        "ellipse_px": {
+            "center_px": [float(centre[0]), float(centre[1])],
+            "axes_px": [float(axes[0]), float(axes[1])],
+            "angle_deg": float(ang),
+        },
         "centroid_px": [float(cen[0]), float(cen[1])],
         "area_px": float(area),
         "center_px": [float(v) for v in project_points(K, D, c[None, :])[0]],
-        "bbox_px": [float(poly[:, 0].min()), float(poly[:, 1].min()), float(poly[:, 0].max()),
-                    float(poly[:, 1].max())],
+        "bbox_px": [
+            float(poly[:, 0].min()),
+            float(poly[:, 1].min()),
+            float(poly[:, 0].max()),
+            float(poly[:, 1].max()),
+        ],
     }

@@ -1,4 +1,5 @@
-"""Synthetic Tsai calibration targets seen by the synthetic rig's two cameras, modelled as Tsai cameras.
+"""Synthetic Tsai calibration targets seen by the synthetic rig's two cameras, modelled as Tsai
+cameras.
 
 Used by the Tsai benchmark, the tests and ``pipelines/examples/make_tsai_example.py``. The world
 frame is the rig's table frame (cm; x right, y away from the cameras, z up). Two targets:
@@ -35,20 +36,38 @@ def tsai_cameras(rig: dict, kappa_left: float = 0.15, kappa_right: float = 0.12)
     poses = ((Rw, tl), (tr["R"] @ Rw, tr["R"] @ tl + tr["T_cm"]))
     cams = []
     for (K, kappa), (Rx, tx) in zip(((tr["K1"], kappa_left), (tr["K2"], kappa_right)), poses):
-        cams.append({"f": float(K[1, 1]), "k1": kappa / K[1, 1] ** 2, "sx": float(K[0, 0] / K[1, 1]), "R": Rx,
-                     "t_cm": np.asarray(tx, float), "u0": float(K[0, 2]), "v0": float(K[1, 2]), "dx": 1.0,
-                     "dy": 1.0, "ncx_over_nfx": 1.0})
+        cams.append(
+            {
+                "f": float(K[1, 1]),
+                "k1": kappa / K[1, 1] ** 2,
+                "sx": float(K[0, 0] / K[1, 1]),
+                "R": Rx,
+                "t_cm": np.asarray(tx, float),
+                "u0": float(K[0, 2]),
+                "v0": float(K[1, 2]),
+                "dx": 1.0,
+                "dy": 1.0,
+                "ncx_over_nfx": 1.0,
+            }
+        )
     return cams
 
 
-def target_points(rig: dict, cams: list[dict], kind: str = "coplanar", spacing_cm: float = 2.5,
-                  heights_cm: tuple[float, ...] = (0.0, 5.0, 10.0), margin_px: float = 8.0):
+def target_points(
+    rig: dict,
+    cams: list[dict],
+    kind: str = "coplanar",
+    spacing_cm: float = 2.5,
+    heights_cm: tuple[float, ...] = (0.0, 5.0, 10.0),
+    margin_px: float = 8.0,
+):
     """World points (N, 3, cm) of a target and their exact left and right pixels (N, 2 each).
 
     Parameters
     ----------
     kind : {"coplanar", "non_coplanar"}
-        A grid on the table, or the grid in front of a wall plus a grid on the wall at ``wall_y_cm``.
+        A grid on the table, or the grid in front of a wall plus a grid on the wall at
+        ``wall_y_cm``.
     spacing_cm : float
         Grid spacing, cm.
     margin_px : float
@@ -74,7 +93,8 @@ def target_points(rig: dict, cams: list[dict], kind: str = "coplanar", spacing_c
 
 
 def opencv_pixels(rig: dict, world_cm: np.ndarray, margin_px: float = 5.0):
-    """The same world points seen through the rig's own OpenCV cameras (k1 k2 p1 p2: not Tsai's model).
+    """The same world points seen through the rig's own OpenCV cameras (k1 k2 p1 p2: not Tsai's
+    model).
 
     Returns ``(world_cm, left_px, right_px)`` for the points inside both images (with the margin):
     a lens that Tsai's radial-k1 model does not describe exactly, as real lenses.

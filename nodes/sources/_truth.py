@@ -12,8 +12,9 @@ Formats:
   the table frame ``table_x_cm, table_y_cm, table_z_cm``, optionally ``radius_cm`` and ``split``.
   Any other column is refused (it would be ignored), naming the closest known name.
 * JSON: ``{id: {"center_left_cm": [x, y, z], "center_table_cm": [...], "split": "train"}}`` or a
-  list of such records with an ``"id"`` key. An id (or a field of one record) given twice is refused:
-  a JSON reader keeps the last one, silently; so is a key the reader does not know (``center_cm``).
+  list of such records with an ``"id"`` key. An id (or a field of one record) given twice is
+  refused: a JSON reader keeps the last one, silently; so is a key the reader does not know
+  (``center_cm``).
 
 The split (:func:`truth_split`): the pairs the file lists are the **training** placements (used to
 fit compensation and hand-eye), the others are the targets (``test``) -- unless the file has a
@@ -33,35 +34,58 @@ from stereograph.api import NodeError, data_file
 __all__ = ["read_truth_file", "truth_split"]
 
 _SPLITS = ("train", "test")
-# every CSV column the reader knows; any other is refused (it would be ignored: `radius` for radius_cm,
-# a typo'd tabel_z_cm beside x_cm,y_cm,z_cm)
-COLUMNS = ("id", "x_cm", "y_cm", "z_cm", "table_x_cm", "table_y_cm", "table_z_cm", "radius_cm", "split")
-# every key of a JSON record the reader knows (the same rule: `center_cm`, `centre_left_cm` would be ignored)
+# every CSV column the reader knows; any other is refused (it would be ignored: `radius` for
+# radius_cm, a typo'd tabel_z_cm beside x_cm,y_cm,z_cm)
+COLUMNS = (
+    "id",
+    "x_cm",
+    "y_cm",
+    "z_cm",
+    "table_x_cm",
+    "table_y_cm",
+    "table_z_cm",
+    "radius_cm",
+    "split",
+)
+# every key of a JSON record the reader knows (the same rule: `center_cm`, `centre_left_cm` would be
+# ignored)
 FIELDS = ("id", "center_left_cm", "center_table_cm", "radius_cm", "split")
-_HEADER_HINT = ("CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm][,split], "
-                "comma-separated with a decimal point")
+_HEADER_HINT = (
+    "CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm][,split], "
+    "comma-separated with a decimal point"
+)
 
 
-def _unknown_columns(fields: list[str], path: Path, known: tuple[str, ...] = COLUMNS, where: str = "") -> None:
-    """Refuse a header with a column named twice, or with columns (JSON: a record's keys, ``where`` naming
-    the record) the reader does not know, naming each with its closest known name."""
+def _unknown_columns(
+    fields: list[str], path: Path, known: tuple[str, ...] = COLUMNS, where: str = ""
+) -> None:
+    """Refuse a header with a column named twice, or with columns (JSON: a record's keys, ``where``
+    naming the record) the reader does not know, naming each with its closest known name."""
     twice = sorted({f for f in fields if f and fields.count(f) > 1})
     if twice:  # (the reader keeps the last column of a name, silently)
-        raise NodeError(f"truth file {path} has the column(s) {', '.join(twice)} twice (header: {', '.join(fields)}).",
-                        hint="keep one column of each name")
+        raise NodeError(
+            f"truth file {path} has the column(s) {', '.join(twice)} twice (header: "
+            f"{', '.join(fields)}).",
+            hint="keep one column of each name",
+        )
     unknown = [f for f in fields if f and f not in known]
     if not unknown:
         return
     said = []
     for f in unknown:
-        close = difflib.get_close_matches(f, known, n=1, cutoff=0.6) or \
-            difflib.get_close_matches(f"{f}_cm", known, n=1, cutoff=0.6)  # `radius` -> radius_cm
+        close = difflib.get_close_matches(f, known, n=1, cutoff=0.6) or difflib.get_close_matches(
+            f"{f}_cm", known, n=1, cutoff=0.6
+        )  # `radius` -> radius_cm
         said.append(f"{f!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
     what = "column" if known is COLUMNS else "key"
-    raise NodeError(f"truth file {path}{where} has {what}(s) it does not know: {', '.join(said)}; they would be "
-                    f"ignored. Known {what}s: {', '.join(known)}.",
-                    hint=f"rename the {what} to one of the known names (lengths in cm: convert millimetres first), or "
-                         "delete it")
+    raise NodeError(
+        f"truth file {path}{where} has {what}(s) it does not know: {', '.join(said)}; "
+        "they would be "
+        f"ignored. Known {what}s: {', '.join(known)}.",
+        hint=f"rename the {what} to one of the known names (lengths in cm: convert millimetres "
+        "first), or "
+        "delete it",
+    )
 
 
 class _DuplicateKey(ValueError):
@@ -69,7 +93,8 @@ class _DuplicateKey(ValueError):
 
 
 def _no_duplicate_keys(pairs: list[tuple[str, object]]) -> dict:
-    """json.loads' object hook: a key given twice is refused (the parser keeps the last, silently)."""
+    """json.loads' object hook: a key given twice is refused (the parser keeps the last,
+    silently)."""
     out: dict = {}
     for k, v in pairs:
         if k in out:
@@ -85,8 +110,10 @@ def _xyz(row: dict, keys, where: str) -> list[float] | None:
     try:
         return [float(v) for v in vals]
     except (TypeError, ValueError):
-        raise NodeError(f"{where}: {', '.join(keys)} must be numbers, got {vals}.",
-                        hint="write the ball centre in cm, e.g. 1.5,-2.0,42.3") from None
+        raise NodeError(
+            f"{where}: {', '.join(keys)} must be numbers, got {vals}.",
+            hint="write the ball centre in cm, e.g. 1.5,-2.0,42.3",
+        ) from None
 
 
 def _split_value(v, where: str) -> str | None:
@@ -94,16 +121,20 @@ def _split_value(v, where: str) -> str | None:
         return None
     s = str(v).strip().lower()
     if s not in _SPLITS:
-        raise NodeError(f"{where}: split is {v!r}; it must be 'train' or 'test'.",
-                        hint="write train for placements to fit on, test for the targets")
+        raise NodeError(
+            f"{where}: split is {v!r}; it must be 'train' or 'test'.",
+            hint="write train for placements to fit on, test for the targets",
+        )
     return s
 
 
-_LAST_READ: dict[tuple, tuple] = {}  # (path, size, mtime, inode) -> what it gave: read once, not once per pair
+# (path, size, mtime, inode) -> what it gave: read once, not once per pair
+_LAST_READ: dict[tuple, tuple] = {}
 
 
 def read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
-    """Ground truth per pair id, and the file's explicit split when it has one (see :func:`_read_truth_file`).
+    """Ground truth per pair id, and the file's explicit split when it has one (see
+    :func:`_read_truth_file`).
 
     A source that reads its pairs one per call asks for the same file once per pair: the last file
     read is kept while its size, modification time and inode are unchanged (a million rows: once).
@@ -136,13 +167,17 @@ def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None
         A missing or malformed file; the message names the file and the line (CSV) or id (JSON).
     """
     if not path.is_file():
-        raise NodeError(f"truth file {path} does not exist.", hint="fix the `truth` parameter or remove it")
+        raise NodeError(
+            f"truth file {path} does not exist.", hint="fix the `truth` parameter or remove it"
+        )
     truth: dict[str, dict] = {}
     split: dict[str, str] = {}
     has_split = False
     if path.suffix.lower() == ".json":
         try:
-            data = json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicate_keys)
+            data = json.loads(
+                path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicate_keys
+            )
             if isinstance(data, list):
                 ids = [str(r["id"]) for r in data]
                 twice = next((i for k, i in enumerate(ids) if i in ids[:k]), None)
@@ -152,13 +187,19 @@ def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None
             items = {str(k): dict(v) for k, v in data.items()}
         except _DuplicateKey as exc:
             what = "field" if str(exc) in FIELDS else "id"
-            raise NodeError(f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader keeps only the "
-                            "last one, silently.",
-                            hint="keep one record per pair id (one value per field): the ball's measured centre for "
-                                 "those images") from None
+            raise NodeError(
+                f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader "
+                "keeps only the "
+                "last one, silently.",
+                hint="keep one record per pair id (one value per field): the ball's measured "
+                "centre for "
+                "those images",
+            ) from None
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            raise NodeError(f"cannot parse truth file {path}: {exc!r}.",
-                            hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id") from None
+            raise NodeError(
+                f"cannot parse truth file {path}: {exc!r}.",
+                hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id",
+            ) from None
         for pid, rec in items.items():
             _unknown_columns(list(rec), path, FIELDS, f", id {pid},")
             if "split" in rec:
@@ -170,64 +211,100 @@ def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None
             truth[pid] = rec
         return truth, (split if has_split else None)
     try:
-        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which would become part of `id`
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which would become part of
+        # `id`
         with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in reader.fieldnames or []]
             if "id" not in fields:
                 sep = next((c for c in ";\t" if len(fields) == 1 and c in fields[0]), None)
-                raise NodeError(f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
-                                + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
-                                hint=_HEADER_HINT)
+                raise NodeError(
+                    f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
+                    + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
+                    hint=_HEADER_HINT,
+                )
             has_split = "split" in fields
-            centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or \
-                {"table_x_cm", "table_y_cm", "table_z_cm"} <= set(fields)
+            centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or {
+                "table_x_cm",
+                "table_y_cm",
+                "table_z_cm",
+            } <= set(fields)
             if not centre_cols:  # a header problem, said as one (it was blamed on line 2)
-                raise NodeError(f"truth file {path} has no centre columns (header: {', '.join(fields)}): the centre "
-                                "is x_cm,y_cm,z_cm (left-camera frame) or table_x_cm,table_y_cm,table_z_cm (cm).",
-                                hint="CSV header: id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
-                                     "[,split]; convert millimetres to cm")
+                raise NodeError(
+                    f"truth file {path} has no centre columns (header: "
+                    f"{', '.join(fields)}): the centre "
+                    "is x_cm,y_cm,z_cm (left-camera frame) or "
+                    "table_x_cm,table_y_cm,table_z_cm (cm).",
+                    hint="CSV header: "
+                    "id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
+                    "[,split]; convert millimetres to cm",
+                )
             _unknown_columns(fields, path)
             line_of: dict[str, int] = {}
             for row in reader:
                 where = f"truth file {path}, line {reader.line_num}"
-                # values under no column name (an unnamed header cell, more cells than the header) would be dropped
-                extra = [x for k, v in row.items() if not (k or "").strip()
-                         for x in (v if isinstance(v, list) else [v]) if x and x.strip()]
-                row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+                # values under no column name (an unnamed header cell, more cells than the header)
+                # would be dropped
+                extra = [
+                    x
+                    for k, v in row.items()
+                    if not (k or "").strip()
+                    for x in (v if isinstance(v, list) else [v])
+                    if x and x.strip()
+                ]
+                row = {
+                    (k or "").strip(): (v.strip() if isinstance(v, str) else v)
+                    for k, v in row.items()
+                }
                 if extra:
-                    raise NodeError(f"{where}: value(s) {', '.join(map(repr, extra))} stand under no column name "
-                                    f"(header: {', '.join(fields)}).", hint=_HEADER_HINT)
+                    raise NodeError(
+                        f"{where}: value(s) {', '.join(map(repr, extra))} stand under no "
+                        "column name "
+                        f"(header: {', '.join(fields)}).",
+                        hint=_HEADER_HINT,
+                    )
                 pid = row.get("id")
                 if not pid:
-                    raise NodeError(f"{where}: the id is empty.", hint="give every row the pair id of its images")
+                    raise NodeError(
+                        f"{where}: the id is empty.",
+                        hint="give every row the pair id of its images",
+                    )
                 if pid in line_of:  # (the later row silently replaced the earlier one)
-                    raise NodeError(f"{where}: pair {pid} is listed again (first on line {line_of[pid]}).",
-                                    hint="keep one row per pair: the ball's measured centre for those images")
+                    raise NodeError(
+                        f"{where}: pair {pid} is listed again (first on line {line_of[pid]}).",
+                        hint="keep one row per pair: the ball's measured centre for those images",
+                    )
                 line_of[pid] = reader.line_num
                 left = _xyz(row, ("x_cm", "y_cm", "z_cm"), where)
                 table = _xyz(row, ("table_x_cm", "table_y_cm", "table_z_cm"), where)
                 if left is None and table is None:
-                    raise NodeError(f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
-                                    hint="give the ball centre in the left-camera or the table frame, in cm")
+                    raise NodeError(
+                        f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
+                        hint="give the ball centre in the left-camera or the table frame, in cm",
+                    )
                 radius = row.get("radius_cm")
                 try:
                     radius = float(radius) if radius else None
                 except ValueError:
-                    raise NodeError(f"{where}: radius_cm must be a number, got {radius!r}.",
-                                    hint="the ball's radius in cm, e.g. 2.0, or leave it empty") from None
+                    raise NodeError(
+                        f"{where}: radius_cm must be a number, got {radius!r}.",
+                        hint="the ball's radius in cm, e.g. 2.0, or leave it empty",
+                    ) from None
                 truth[pid] = {"center_left_cm": left, "center_table_cm": table, "radius_cm": radius}
                 s = _split_value(row.get("split"), where) if has_split else None
                 if s:
                     split[pid] = s
     except (OSError, UnicodeDecodeError, csv.Error, ValueError) as exc:
-        raise NodeError(f"cannot read truth file {path}: {exc}.",
-                        hint="CSV with a header id,x_cm,y_cm,z_cm (UTF-8), or JSON") from None
+        raise NodeError(
+            f"cannot read truth file {path}: {exc}.",
+            hint="CSV with a header id,x_cm,y_cm,z_cm (UTF-8), or JSON",
+        ) from None
     return truth, (split if has_split else None)
 
 
-def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | None,
-                path: Path) -> tuple[dict[str, str], list[str]]:
+def truth_split(
+    ids: list[str], truth: dict[str, dict], split: dict[str, str] | None, path: Path
+) -> tuple[dict[str, str], list[str]]:
     """The split of each pair id decided by a truth file, and the warnings to show.
 
     Parameters
@@ -247,15 +324,25 @@ def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | 
         Truth ids without images; images without truth.
     """
     if truth and ids and not set(truth) & set(ids):
-        # (every figure of the accuracy report would be blank, and the compensation would have nothing to fit)
+        # (every figure of the accuracy report would be blank, and the compensation would have
+        # nothing to fit)
         theirs = ", ".join(sorted(truth)[:5]) + (" ..." if len(truth) > 5 else "")
         ours = ", ".join(sorted(ids)[:5]) + (" ..." if len(ids) > 5 else "")
         zeros = {i.lstrip("0") or "0" for i in ids} & {str(t).lstrip("0") or "0" for t in truth}
-        raise NodeError(f"none of the {len(ids)} pairs has a row in {path.name}: its ids ({theirs}) are not the "
-                        f"pairs' ({ours})" + ("; they match once leading zeros are ignored: a spreadsheet dropped "
-                                              "them (format the id column as text)." if zeros else "."),
-                        hint="the truth file's id column must hold the pair names the image files give (left_s000.png "
-                             "-> s000)")
+        raise NodeError(
+            f"none of the {len(ids)} pairs has a row in {path.name}: its ids ({theirs}) "
+            "are not the "
+            f"pairs' ({ours})"
+            + (
+                "; they match once leading zeros are ignored: a spreadsheet dropped "
+                "them (format the id column as text)."
+                if zeros
+                else "."
+            ),
+            hint="the truth file's id column must hold the pair names the image files give "
+            "(left_s000.png "
+            "-> s000)",
+        )
     if split is None:
         splits = {pid: "train" if pid in truth else "test" for pid in ids}
     else:
@@ -263,10 +350,15 @@ def truth_split(ids: list[str], truth: dict[str, dict], split: dict[str, str] | 
     warnings = []
     no_images = sorted(set(truth) - set(ids))
     if no_images:
-        warnings.append(f"{len(no_images)} id(s) in {path.name} have no images: {', '.join(no_images[:20])}"
-                        + (" ..." if len(no_images) > 20 else ""))
+        warnings.append(
+            f"{len(no_images)} id(s) in {path.name} have no images: {', '.join(no_images[:20])}"
+            + (" ..." if len(no_images) > 20 else "")
+        )
     no_truth = [pid for pid in ids if pid not in truth]
     if no_truth:
-        warnings.append(f"{len(no_truth)} pair(s) have no row in {path.name} (targets, no ground truth): "
-                        + ", ".join(no_truth[:20]) + (" ..." if len(no_truth) > 20 else ""))
+        warnings.append(
+            f"{len(no_truth)} pair(s) have no row in {path.name} (targets, no ground truth): "
+            + ", ".join(no_truth[:20])
+            + (" ..." if len(no_truth) > 20 else "")
+        )
     return splits, warnings

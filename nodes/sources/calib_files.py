@@ -10,15 +10,27 @@ from stereograph.api import Field, NodeError, Out, Params, PathField, node
 
 
 class CalibFilesParams(Params):
-    folder: str = PathField(..., description="Folder of the images (relative to the pipeline file).")
-    left_glob: str = Field("*left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png).")
+    folder: str = PathField(
+        ..., description="Folder of the images (relative to the pipeline file)."
+    )
+    left_glob: str = Field(
+        "*left*", description="Glob of the left images in `folder` (e.g. left*.jpg, left/*.png)."
+    )
     right_glob: str = Field("*right*", description="Glob of the right images in `folder`.")
     pairing: Literal["auto", "globs"] = Field("auto", description=PAIRING_DOC)
     board_cols: int = Field(9, ge=3, le=40, description="Chessboard inner corners per row (count).")
-    board_rows: int = Field(6, ge=3, le=40, description="Chessboard inner corners per column (count).")
-    square_cm: float = Field(1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown).")
-    max_image_mpx: float = Field(DEFAULT_MAX_MPX, gt=0, description="Largest image read, megapixels (checked from "
-                                 "the file's header before decoding); a view with a larger image is rejected.")
+    board_rows: int = Field(
+        6, ge=3, le=40, description="Chessboard inner corners per column (count)."
+    )
+    square_cm: float = Field(
+        1.0, gt=0, description="Square size, cm (1.0 = lengths in squares when unknown)."
+    )
+    max_image_mpx: float = Field(
+        DEFAULT_MAX_MPX,
+        gt=0,
+        description="Largest image read, megapixels (checked from "
+        "the file's header before decoding); a view with a larger image is rejected.",
+    )
 
 
 def _reads(params: CalibFilesParams, pipeline_dir: Path) -> list[Path]:
@@ -58,17 +70,36 @@ def calib_files(params: CalibFilesParams, ctx=None) -> dict:
             if size is None:
                 size = s
             elif s != size:
-                raise NodeError(f"image {p} is {s[0]}x{s[1]} but the others are {size[0]}x{size[1]}.",
-                                hint="calibrate with images of one resolution from the same cameras")
-        views.append({"id": pid, "left": left, "right": right, "left_path": str(lp), "right_path": str(rp)})
+                raise NodeError(
+                    f"image {p} is {s[0]}x{s[1]} but the others are {size[0]}x{size[1]}.",
+                    hint="calibrate with images of one resolution from the same cameras",
+                )
+        views.append(
+            {"id": pid, "left": left, "right": right, "left_path": str(lp), "right_path": str(rp)}
+        )
     if rejected and ctx is not None:
-        ctx.warn(f"rejected {len(rejected)} unreadable view(s): " + "; ".join(f"{k}: {v}" for k, v in rejected.items()))
+        ctx.warn(
+            f"rejected {len(rejected)} unreadable view(s): "
+            + "; ".join(f"{k}: {v}" for k, v in rejected.items())
+        )
     if not views:
-        raise NodeError(f"none of the {len(pairs)} views could be read: "
-                        + "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:5]),
-                        hint="replace or remove the unreadable images")
-    return {"views": {"views": views, "image_size": size, "rejected": rejected,
-                      "board": {"cols": params.board_cols, "rows": params.board_rows, "square_cm": params.square_cm,
-                                # a square size nobody gave means lengths in squares, and the exports say so
-                                "length_unit": "cm" if "square_cm" in params.model_fields_set else "squares"},
-                      "truth": None}}
+        raise NodeError(
+            f"none of the {len(pairs)} views could be read: "
+            + "; ".join(f"{k}: {v}" for k, v in list(rejected.items())[:5]),
+            hint="replace or remove the unreadable images",
+        )
+    return {
+        "views": {
+            "views": views,
+            "image_size": size,
+            "rejected": rejected,
+            "board": {
+                "cols": params.board_cols,
+                "rows": params.board_rows,
+                "square_cm": params.square_cm,
+                # a square size nobody gave means lengths in squares, and the exports say so
+                "length_unit": "cm" if "square_cm" in params.model_fields_set else "squares",
+            },
+            "truth": None,
+        }
+    }

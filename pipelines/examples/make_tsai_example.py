@@ -1,6 +1,7 @@
 """Write the example target files of docs/rig.md ("Tsai on your own target") from the synthetic rig.
 
-    python pipelines/examples/make_tsai_example.py      # rewrites pipelines/examples/tsai-target/*.csv
+    python pipelines/examples/make_tsai_example.py      # rewrites
+    pipelines/examples/tsai-target/*.csv
 
 The synthetic rig's two cameras are modelled as Tsai cameras (radial k1 only; kappa 0.15 left,
 0.12 right, normalised units) and see, in the table frame (cm):
@@ -36,8 +37,14 @@ def main(out: Path = OUT, noise_px: float = 0.2, seed: int = 0) -> None:
     out.mkdir(parents=True, exist_ok=True)
     W, L, R = target_points(rig, cams, "coplanar", spacing_cm=5.0)
     L, R = L + rng.normal(0, noise_px, L.shape), R + rng.normal(0, noise_px, R.shape)
-    write_target_csv(out / "points.csv", W, L, R, comment="Coplanar target: 5 cm dot grid on the table (z = 0), "
-                     "table frame in cm; pixels of each dot centre in the left and right images (640x480).")
+    write_target_csv(
+        out / "points.csv",
+        W,
+        L,
+        R,
+        comment="Coplanar target: 5 cm dot grid on the table (z = 0), "
+        "table frame in cm; pixels of each dot centre in the left and right images (640x480).",
+    )
     W, L, R = target_points(rig, cams, "non_coplanar", spacing_cm=5.0)
     L, R = L + rng.normal(0, noise_px, L.shape), R + rng.normal(0, noise_px, R.shape)
     ids = [f"z{int(round(w[2])):02d}_{k:03d}" for k, w in enumerate(W)]
@@ -45,15 +52,36 @@ def main(out: Path = OUT, noise_px: float = 0.2, seed: int = 0) -> None:
     keep_l, keep_r = np.ones(len(W), bool), np.ones(len(W), bool)
     keep_l[[3, 40]] = False
     keep_r[[7]] = False
-    note = "Non-coplanar target: the dot sheet at z = 0, 5, 10 cm (table frame, cm); {} camera pixels (640x480)."
+    note = (
+        "Non-coplanar target: the dot sheet at z = 0, 5, 10 cm (table frame, cm); {} camera "
+        "pixels (640x480)."
+    )
     for name, keep, px in (("left", keep_l, L), ("right", keep_r, R)):
-        write_target_csv(out / f"{name}.csv", W[keep], px[keep], None, [i for i, k in zip(ids, keep) if k],
-                         comment=note.format(name))
-    truth = {side: {"f_px": c["f"], "kappa": c["k1"] * c["f"] ** 2, "sx": c["sx"], "u0_px": c["u0"],
-                    "v0_px": c["v0"], "R": c["R"].tolist(), "t_cm": c["t_cm"].tolist()}
-             for side, c in zip(("left", "right"), cams)}
-    truth["stereo"] = {"R": rig["truth"]["R"].tolist(), "T_cm": rig["truth"]["T_cm"].tolist(),
-                       "baseline_cm": float(np.linalg.norm(rig["truth"]["T_cm"]))}
+        write_target_csv(
+            out / f"{name}.csv",
+            W[keep],
+            px[keep],
+            None,
+            [i for i, k in zip(ids, keep) if k],
+            comment=note.format(name),
+        )
+    truth = {
+        side: {
+            "f_px": c["f"],
+            "kappa": c["k1"] * c["f"] ** 2,
+            "sx": c["sx"],
+            "u0_px": c["u0"],
+            "v0_px": c["v0"],
+            "R": c["R"].tolist(),
+            "t_cm": c["t_cm"].tolist(),
+        }
+        for side, c in zip(("left", "right"), cams)
+    }
+    truth["stereo"] = {
+        "R": rig["truth"]["R"].tolist(),
+        "T_cm": rig["truth"]["T_cm"].tolist(),
+        "baseline_cm": float(np.linalg.norm(rig["truth"]["T_cm"])),
+    }
     (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
 
 

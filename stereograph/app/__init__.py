@@ -12,7 +12,8 @@ from stereograph.core import hooks
 
 
 def write_report(out_dir: Path) -> None:
-    """``report.html`` for a run folder (imported on use: a run that writes no page pays nothing)."""
+    """``report.html`` for a run folder (imported on use: a run that writes no page pays
+    nothing)."""
     from stereograph.app import report
 
     report.write_report(out_dir)

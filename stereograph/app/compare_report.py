@@ -24,48 +24,77 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return "" if v is None else (f"{v:.{digits}f}" if isinstance(v, float) else str(v))
 
 
-MAIN_COLUMNS = 10  # metric columns in the first table (a 1280 px window); the others that vary follow
+# metric columns in the first table (a 1280 px window); the others that vary follow
+MAIN_COLUMNS = 10
 
 
 def compare_table(res: Any, overrides: list[str], names: list[str] | None = None) -> dict[str, Any]:
-    """The comparison as a *table* value (page.table_html renders it): one column per metric in ``names``
-    (default: the ranked one, then those that differ between variants)."""
-    varying = [k for k in res.keys if len({show(v.variant.settings[k]) for v in res.variants}) > 1] or res.keys
-    fixed = [f"{k}={show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in varying]
+    """The comparison as a *table* value (page.table_html renders it): one column per metric in
+    ``names`` (default: the ranked one, then those that differ between variants)."""
+    varying = [
+        k for k in res.keys if len({show(v.variant.settings[k]) for v in res.variants}) > 1
+    ] or res.keys
+    fixed = [
+        f"{k}={show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in varying
+    ]
     split = f", split {res.split}" if res.split else ""
-    title = (f"compare {Path(res.pipeline).name}: {len(res.variants)} variants{split}. Every variant: "
-             + ("; ".join([f"--set {o}" for o in overrides] + fixed) or "no other overrides")
-             + f". Varied: {', '.join(varying)}.")
+    title = (
+        f"compare {Path(res.pipeline).name}: {len(res.variants)} variants{split}. Every variant: "
+        + ("; ".join([f"--set {o}" for o in overrides] + fixed) or "no other overrides")
+        + f". Varied: {', '.join(varying)}."
+    )
     names = names if names is not None else res.shown_metrics()[0]
     cols = ["variant", "ok"] + ["pair ms" if n == PER_PAIR else n for n in names] + ["report"]
     try:
         top = best_row(res, res.ranked_by)
-    except UsageError:  # a metric no variant declared: the CLI's table says so; the page marks nothing
+    # a metric no variant declared: the CLI's table says so; the page marks nothing
+    except UsageError:
         top = None
     rows = []
     for r, vr in zip(res.rows, res.variants):
         label = ", ".join(show(vr.variant.settings[k]) for k in varying)
-        cells = [label + (f" (best {top[0]})" if is_best(top, r) else ""), "yes" if r.get("ok") else "NO"]
+        cells = [
+            label + (f" (best {top[0]})" if is_best(top, r) else ""),
+            "yes" if r.get("ok") else "NO",
+        ]
         for n in names:
             v = r.get(n)
-            cells.append("" if v is None else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4 if n.endswith("_s")
-                                                                                          else 3)))
-        cells.append(str(Path("variants") / vr.out_dir.name / "report.html") if vr.out_dir is not None else "")
+            cells.append(
+                ""
+                if v is None
+                else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4 if n.endswith("_s") else 3))
+            )
+        cells.append(
+            str(Path("variants") / vr.out_dir.name / "report.html")
+            if vr.out_dir is not None
+            else ""
+        )
         rows.append(cells)
     return {"title": title, "columns": cols, "rows": rows}
 
 
 def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
     """Each variant's full settings (the --set overrides and its varied keys), and the metrics every
-    variant has the same value of: below the main table, which keeps to what tells variants apart."""
+    variant has the same value of: below the main table, which keeps to what tells variants
+    apart."""
     _, constant = res.shown_metrics()
-    rows = [[", ".join(show(v) for v in vr.variant.settings.values()),
-             " ".join([f"--set {o}" for o in overrides] + [f"{k}={show(v)}" for k, v in vr.variant.settings.items()])]
-            for vr in res.variants]
+    rows = [
+        [
+            ", ".join(show(v) for v in vr.variant.settings.values()),
+            " ".join(
+                [f"--set {o}" for o in overrides]
+                + [f"{k}={show(v)}" for k, v in vr.variant.settings.items()]
+            ),
+        ]
+        for vr in res.variants
+    ]
     if constant and res.rows:
         rows.append(["(every variant)", res.same_in_every(constant)])
-    return {"title": "full settings of each variant, and the metrics that do not change",
-            "columns": ["variant", "settings"], "rows": rows}
+    return {
+        "title": "full settings of each variant, and the metrics that do not change",
+        "columns": ["variant", "settings"],
+        "rows": rows,
+    }
 
 
 def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
@@ -79,26 +108,38 @@ def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
         tables.append({**more, "title": "more metrics that differ between variants"})
     body = "".join(table_html(t, "sg-compare") for t in tables)
     for link in {r[-1] for r in tables[0]["rows"] if r[-1]}:  # the report column as links
-        body = body.replace(f"<td>{html.escape(link)}</td>",
-                            f'<td><a href="{html.escape(link)}">variant report</a></td>')
-    parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'>",
-             f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{STYLE}"
-             ".sg-compare{font-size:.82em}.sg-compare td,.sg-compare th{padding:2px 5px}"
-             ".sg-compare caption{font-weight:normal}</style></head><body>",
-             f"<h1>compare {html.escape(Path(res.pipeline).name)}</h1>",
-             '<p id="sg-images" data-ok="unknown">image check did not run</p>', body,
-             table_html(settings_table(res, list(overrides or [])), "sg-settings")]
+        body = body.replace(
+            f"<td>{html.escape(link)}</td>",
+            f'<td><a href="{html.escape(link)}">variant report</a></td>',
+        )
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>compare {html.escape(Path(res.pipeline).name)}</title><style>{STYLE}"
+        ".sg-compare{font-size:.82em}.sg-compare td,.sg-compare th{padding:2px 5px}"
+        ".sg-compare caption{font-weight:normal}</style></head><body>",
+        f"<h1>compare {html.escape(Path(res.pipeline).name)}</h1>",
+        '<p id="sg-images" data-ok="unknown">image check did not run</p>',
+        body,
+        table_html(settings_table(res, list(overrides or [])), "sg-settings"),
+    ]
     for vr in res.variants:
         if not vr.ok:
-            parts.append(f'<p class="err">variant {html.escape(vr.variant.label)} failed: '
-                         f"{html.escape(str(vr.error))}</p>")
+            parts.append(
+                f'<p class="err">variant {html.escape(vr.variant.label)} failed: '
+                f"{html.escape(str(vr.error))}</p>"
+            )
     for label, why in res.skipped:
-        parts.append(f'<p class="err">left out (its settings do not validate): {html.escape(label)}: '
-                     f"{html.escape(why)}</p>")
+        parts.append(
+            f'<p class="err">left out (its settings do not validate): {html.escape(label)}: '
+            f"{html.escape(why)}</p>"
+        )
     for name, path in (res.files or {}).items():
         p = Path(path)
         if p.suffix.lower() in (".png", ".svg"):
-            parts.append(f"<h2>{html.escape(name.replace('_', ' '))}</h2>"
-                         + page.image(str(p.relative_to(out)), p.name, "wide"))  # a panel per metric: full width
+            parts.append(
+                f"<h2>{html.escape(name.replace('_', ' '))}</h2>"
+                # a panel per metric: full width
+                + page.image(str(p.relative_to(out)), p.name, "wide")
+            )
     parts.append(CHECK + "</body></html>")
     return write_html(out / COMPARE_NAME, "\n".join(parts))

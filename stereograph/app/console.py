@@ -2,7 +2,8 @@
 
 Shared by ``stereograph run`` (:mod:`stereograph.app.cli`), ``compare`` and a replayed rerun, so
 that each reads ``--workers`` and echoes a result the same way. Public names:
-:func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`, :func:`echo_entry`.
+:func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`,
+:func:`echo_entry`.
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ def size_gb(text: str) -> float:
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of GB") from None
     if not math.isfinite(value) or value < 0:
-        raise argparse.ArgumentTypeError(f"must be a size in GB, 0 or more (got {text}; 0 empties the cache)")
+        raise argparse.ArgumentTypeError(
+            f"must be a size in GB, 0 or more (got {text}; 0 empties the cache)"
+        )
     return value
 
 
@@ -48,13 +51,15 @@ def seconds(text: str) -> float:
 
 
 def echo_entry(v: Any) -> tuple[str, str] | None:
-    """How the console shows one small terminal value: ``("markdown", text)`` for a report that renders
-    itself, ``("json", text)`` for plain data, None for what only the output folder holds."""
+    """How the console shows one small terminal value: ``("markdown", text)`` for a report that
+    renders itself, ``("json", text)`` for plain data, None for what only the output folder
+    holds."""
     from stereograph.core.outputs import is_file_value, to_json
 
     if not isinstance(v, (dict, list, float, int, str)):
         return None
-    if is_file_value(v):  # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
+    # a file the node encoded (YAML export, PLY cloud): in the output folder, not the console
+    if is_file_value(v):
         return None
     if isinstance(v, dict) and isinstance(v.get("markdown"), str):
         return "markdown", v["markdown"]  # a report that renders itself: shown as the table it is
@@ -62,9 +67,16 @@ def echo_entry(v: Any) -> tuple[str, str] | None:
     text = json.dumps(to_json(v, arrays), default=str)
     if (arrays or len(text) > 3000) and isinstance(v, dict):
         # big artifacts (a calibration, say): show their scalar facts only
-        small = {k: x for k, x in v.items() if isinstance(x, (int, float, str, bool)) or
-                 (isinstance(x, (list, tuple)) and len(x) <= 6 and
-                  all(isinstance(y, (int, float, str, bool)) for y in x))}
+        small = {
+            k: x
+            for k, x in v.items()
+            if isinstance(x, (int, float, str, bool))
+            or (
+                isinstance(x, (list, tuple))
+                and len(x) <= 6
+                and all(isinstance(y, (int, float, str, bool)) for y in x)
+            )
+        }
         if not small:
             return None
         text = json.dumps(to_json(small, {}), default=str)

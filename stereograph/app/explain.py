@@ -45,7 +45,9 @@ def _diff(old: dict[str, Any], new: dict[str, Any], root: Path) -> list[str]:
     po, pn = _flat(old.get("params", {})), _flat(new["params"])
     for k in sorted(set(po) | set(pn)):
         if po.get(k, "<unset>") != pn.get(k, "<unset>"):
-            reasons.append(f"param {k} changed: {po.get(k, '<unset>')!r} -> {pn.get(k, '<unset>')!r}")
+            reasons.append(
+                f"param {k} changed: {po.get(k, '<unset>')!r} -> {pn.get(k, '<unset>')!r}"
+            )
     if old.get("code") != new["code"]:
         fo, fn = old.get("code_files", {}), new.get("code_files", {})
         changed = [f for f in sorted(set(fo) | set(fn)) if fo.get(f) != fn.get(f)]
@@ -55,7 +57,9 @@ def _diff(old: dict[str, Any], new: dict[str, Any], root: Path) -> list[str]:
     changed = [f for f in sorted(set(fo) | set(fn)) if fo.get(f) != fn.get(f)]
     if changed:
         more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
-        reasons.append("input files changed: " + ", ".join(_rel(f, root) for f in changed[:3]) + more)
+        reasons.append(
+            "input files changed: " + ", ".join(_rel(f, root) for f in changed[:3]) + more
+        )
     return reasons
 
 
@@ -78,7 +82,8 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     verdicts: list[Verdict] = []
     stale: set[str] = set()
     retrying: dict[str, list[str]] = {}  # node -> the items it tries again (failed in its last run)
-    unknown: set[tuple[str, str]] = set()  # outputs whose keys (or items) are known only after their node runs
+    # outputs whose keys (or items) are known only after their node runs
+    unknown: set[tuple[str, str]] = set()
     for name in graph.order:
         inst = graph.nodes[name]
         preds = list(graph.dag.predecessors(name))
@@ -86,9 +91,9 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
         computable = not any(wire in unknown for wire in inst.inputs.values())
         missing, n_entries = 0, 0
         last = store.last(run.pipeline_id, name)
-        # entries the last run looked up under these very keys and did not keep: items that failed or
-        # were dropped. A run tries them again; predicted as failing again (their downstream entries
-        # then stay as they are), and said so.
+        # entries the last run looked up under these very keys and did not keep: items that failed
+        # or were dropped. A run tries them again; predicted as failing again (their downstream
+        # entries then stay as they are), and said so.
         tried_before = set((last or {}).get("keys") or ())
         failed_before: dict[str, str] = (last or {}).get("failed") or {}
         retried: list[str] = []
@@ -130,31 +135,54 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
                 v.reasons.append("cached by an earlier run with these settings")
             again = [a for a in graph.upstream(name) if a in retrying]
             if again:
-                v.reasons.append("cached -- unless the items " + ", ".join(f"'{a}'" for a in again)
-                                 + " tries again succeed this time")
+                v.reasons.append(
+                    "cached -- unless the items "
+                    + ", ".join(f"'{a}'" for a in again)
+                    + " tries again succeed this time"
+                )
         elif computable and not missing and inst.spec.cacheable:
+
             def names(items: list[str]) -> str:
-                return ", ".join(items[:5]) + (f" and {len(items) - 5} more" if len(items) > 5 else "")
+                return ", ".join(items[:5]) + (
+                    f" and {len(items) - 5} more" if len(items) > 5 else ""
+                )
 
             was_failed = [i for i in retried if i in failed_before]
             others = [i for i in retried if i not in failed_before]
             said = ([f"{names(was_failed)} failed"] if was_failed else []) + (
-                [f"{names(others)} dropped (or pruned since)"] if others else [])
-            v.reasons.append(f"{len(retried)} of {n_entries} entries the last run looked up with these same inputs "
-                             f"are not in the cache ({'; '.join(said)}): tried again; what depends on them stays "
-                             "cached if they fail again")
+                [f"{names(others)} dropped (or pruned since)"] if others else []
+            )
+            v.reasons.append(
+                f"{len(retried)} of {n_entries} entries the last run looked up with these "
+                "same inputs "
+                f"are not in the cache ({'; '.join(said)}): tried again; what depends on "
+                "them stays "
+                "cached if they fail again"
+            )
         else:
             stale.add(name)
             if not inst.spec.cacheable:
-                v.reasons.append("never cached (it has side effects or live input): runs every time")
+                v.reasons.append(
+                    "never cached (it has side effects or live input): runs every time"
+                )
             v.reasons += own
             up = [s for s in preds if s in stale]
             if up:
-                v.reasons.append("its input changes: upstream " + ", ".join(f"'{s}'" for s in up) + " will run")
+                v.reasons.append(
+                    "its input changes: upstream " + ", ".join(f"'{s}'" for s in up) + " will run"
+                )
             if not v.reasons:
-                v.reasons.append(f"{missing} of {n_entries} cache entries are missing (cleared, or never computed "
-                                 "with these inputs)" if last else "not computed yet with these settings")
-            unknown.update((name, out) for out, o in inst.spec.outputs.items()
-                           if not computable or not inst.spec.cacheable or o.collection)
+                v.reasons.append(
+                    f"{missing} of {n_entries} cache entries are missing (cleared, or "
+                    "never computed "
+                    "with these inputs)"
+                    if last
+                    else "not computed yet with these settings"
+                )
+            unknown.update(
+                (name, out)
+                for out, o in inst.spec.outputs.items()
+                if not computable or not inst.spec.cacheable or o.collection
+            )
         verdicts.append(v)
     return verdicts

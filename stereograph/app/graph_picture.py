@@ -1,10 +1,10 @@
 """The pipeline DAG as a picture: SVG (hand-written, no dependency) or PNG (matplotlib).
 
-Works on a plain description -- ``{node: {"type": str, "mapped": bool, "inputs": {port: [src, out]}}}``
--- so that it can draw a :class:`~stereograph.core.graph.Graph` (``stereograph graph --format svg``) and a
-finished run from its ``run.json`` alike (``report.html``), and knows nothing of what the nodes do.
-Layout, top to bottom, layered as Graphviz's dot does (:func:`layout`): a long wire passes through a
-slot of its own in each row it crosses, beside the boxes, never across one.
+Works on a plain description -- ``{node: {"type": str, "mapped": bool, "inputs": {port: [src,
+out]}}}`` -- so that it can draw a :class:`~stereograph.core.graph.Graph` (``stereograph graph
+--format svg``) and a finished run from its ``run.json`` alike (``report.html``), and knows nothing
+of what the nodes do. Layout, top to bottom, layered as Graphviz's dot does (:func:`layout`): a long
+wire passes through a slot of its own in each row it crosses, beside the boxes, never across one.
 """
 
 from __future__ import annotations
@@ -16,20 +16,32 @@ import networkx as nx
 
 BOX_W, BOX_H, GAP_X, GAP_Y, PAD, SLOT_W = 170, 46, 24, 40, 12, 14
 MAX_SLOTS = 20000  # row crossings of long wires laid out (beyond: straight wires)
-STATUS_FILL = {"ran": "#d9f2d9", "cached": "#e3ecfa", "partial": "#fde9c4", "failed": "#f8d0d0",
-               "skipped": "#e6e6e6", "not selected": "#f4f4f4"}
+STATUS_FILL = {
+    "ran": "#d9f2d9",
+    "cached": "#e3ecfa",
+    "partial": "#fde9c4",
+    "failed": "#f8d0d0",
+    "skipped": "#e6e6e6",
+    "not selected": "#f4f4f4",
+}
 
 
 def describe(graph: Any) -> dict[str, dict[str, Any]]:
     """The plain description of a validated :class:`~stereograph.core.graph.Graph`."""
-    return {n: {"type": inst.type, "mapped": bool(inst.mapped),
-                "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()}}
-            for n, inst in graph.nodes.items()}
+    return {
+        n: {
+            "type": inst.type,
+            "mapped": bool(inst.mapped),
+            "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()},
+        }
+        for n, inst in graph.nodes.items()
+    }
 
 
 def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
-    """The wires between the described nodes as a DAG, nodes in their listed order. A description read
-    from a foreign ``run.json`` may hold a cycle: the wires a depth-first walk finds closing one are left out."""
+    """The wires between the described nodes as a DAG, nodes in their listed order. A description
+    read from a foreign ``run.json`` may hold a cycle: the wires a depth-first walk finds closing
+    one are left out."""
     g = nx.DiGraph()
     g.add_nodes_from(nodes)
     g.add_edges_from((src, dst) for src, _, dst, _ in _edges(nodes) if src != dst)
@@ -77,30 +89,36 @@ def _edges(nodes: dict[str, dict[str, Any]]):
                 yield src, out, n, port
 
 
-def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, float]], list, tuple[float, float]]:
-    """Box corners (top-left, px), each wire as ``(src, out, dst, port, [(x, y), ...])``, and the size (px).
+def layout(
+    nodes: dict[str, dict[str, Any]],
+) -> tuple[dict[str, tuple[float, float]], list, tuple[float, float]]:
+    """Box corners (top-left, px), each wire as ``(src, out, dst, port, [(x, y), ...])``, and the
+    size (px).
 
-    Layered, as Graphviz's dot lays out a DAG: a node's row is its longest path from a source; a wire
-    that spans rows passes through a narrow slot in every row between (so it never crosses a box);
-    each row is ordered by the mean position of what it is wired to, a few sweeps down and up (fewer
-    crossings); slots and boxes are then spaced out in their row's order.
+    Layered, as Graphviz's dot lays out a DAG: a node's row is its longest path from a source; a
+    wire that spans rows passes through a narrow slot in every row between (so it never crosses a
+    box); each row is ordered by the mean position of what it is wired to, a few sweeps down and up
+    (fewer crossings); slots and boxes are then spaced out in their row's order.
     """
     row = _rows(nodes)
     edges = list(_edges(nodes))
     n_rows = max(row.values(), default=-1) + 1
-    order: list[list[Any]] = [[] for _ in range(n_rows)]  # per row: node names and (edge index, row) slots
+    # per row: node names and (edge index, row) slots
+    order: list[list[Any]] = [[] for _ in range(n_rows)]
     for n in nodes:
         order[row[n]].append(n)
     up: dict[Any, list[Any]] = {}  # each box or slot -> what feeds it from the row above
     chains = []
-    # (a huge foreign run.json: past MAX_SLOTS the long wires are drawn straight, the page stays fast)
+    # (a huge foreign run.json: past MAX_SLOTS the long wires are drawn straight, the page stays
+    # fast)
     slots = sum(max(0, row[d] - row[s_] - 1) for s_, _, d, _ in edges) <= MAX_SLOTS
     for i, (src, _out, dst, _port) in enumerate(edges):
         chain = [src] + ([(i, r) for r in range(row[src] + 1, row[dst])] if slots else []) + [dst]
         for r, slot in enumerate(chain[1:-1], row[src] + 1):
             order[r].append(slot)
         for a_, b_ in zip(chain, chain[1:]):
-            if _row_of(b_, row) == _row_of(a_, row) + 1:  # (a long wire drawn straight links no rows)
+            # (a long wire drawn straight links no rows)
+            if _row_of(b_, row) == _row_of(a_, row) + 1:
                 up.setdefault(b_, []).append(a_)
         chains.append(chain)
     down: dict[Any, list[Any]] = {}
@@ -112,8 +130,13 @@ def layout(nodes: dict[str, dict[str, Any]]) -> tuple[dict[str, tuple[float, flo
             for r in rows_:
                 near = {v: k for k, v in enumerate(order[r - 1 if links is up else r + 1])}
                 at = {v: k for k, v in enumerate(order[r])}
-                order[r].sort(key=lambda v: (sum(near[u] for u in links.get(v, ())) / len(links[v])
-                                             if links.get(v) else at[v]))
+                order[r].sort(
+                    key=lambda v: (
+                        sum(near[u] for u in links.get(v, ())) / len(links[v])
+                        if links.get(v)
+                        else at[v]
+                    )
+                )
     pos: dict[Any, tuple[float, float]] = {}
     width = 0.0
     for r, items in enumerate(order):
@@ -148,29 +171,48 @@ def to_svg(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = Non
     """An SVG document; ``status`` (node -> ran / cached / failed ...) colours the boxes."""
     pos, wires, (w, h) = layout(nodes)
     e = html.escape
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" class="sg-graph" width="{w:.0f}" height="{h:.0f}" '
-             f'viewBox="0 0 {w:.0f} {h:.0f}" font-family="sans-serif">',
-             '<defs><marker id="sg-arrow" viewBox="0 0 10 10" refX="10" refY="5" markerWidth="7" '
-             'markerHeight="7" orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" fill="#555"/></marker></defs>']
+    parts = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" class="sg-graph" width="{w:.0f}" '
+        f'height="{h:.0f}" '
+        f'viewBox="0 0 {w:.0f} {h:.0f}" font-family="sans-serif">',
+        '<defs><marker id="sg-arrow" viewBox="0 0 10 10" refX="10" refY="5" markerWidth="7" '
+        'markerHeight="7" orient="auto-start-reverse"><path d="M0,0 L10,5 L0,10 z" '
+        'fill="#555"/></marker></defs>',
+    ]
     for src, out, dst, port, pts in wires:
         d = "M" + " L".join(f"{x:.0f},{y:.0f}" for x, y in pts)
-        parts.append(f'<path d="{d}" fill="none" stroke="#555" stroke-width="1.2" marker-end="url(#sg-arrow)">'
-                     f'<title>{e(f"{src}.{out} -> {dst}.{port}")}</title></path>')
+        parts.append(
+            f'<path d="{d}" fill="none" stroke="#555" stroke-width="1.2" '
+            'marker-end="url(#sg-arrow)">'
+            f"<title>{e(f'{src}.{out} -> {dst}.{port}')}</title></path>"
+        )
     for n, d in nodes.items():
         x, y = pos[n]
         st = (status or {}).get(n)
         fill = STATUS_FILL.get(st or "", "#ffffff")
-        tip = f"{n} ({d.get('type', '?')})" + (f": {st}" if st else "") + (", once per item" if d.get("mapped") else "")
+        tip = (
+            f"{n} ({d.get('type', '?')})"
+            + (f": {st}" if st else "")
+            + (", once per item" if d.get("mapped") else "")
+        )
         parts.append(f'<g class="sg-node" data-node="{e(n)}"><title>{e(tip)}</title>')
         if d.get("mapped"):  # a stacked look for per-item nodes
-            parts.append(f'<rect x="{x + 4:.0f}" y="{y + 4:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" '
-                         f'fill="{fill}" stroke="#777"/>')
-        parts.append(f'<rect x="{x:.0f}" y="{y:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" fill="{fill}" '
-                     f'stroke="#333"/>')
-        parts.append(f'<text x="{x + BOX_W / 2:.0f}" y="{y + 19:.0f}" text-anchor="middle" font-size="13" '
-                     f'font-weight="bold">{e(_clip(n, 22))}</text>')
-        parts.append(f'<text x="{x + BOX_W / 2:.0f}" y="{y + 36:.0f}" text-anchor="middle" font-size="11" '
-                     f'fill="#444">{e(_clip(str(d.get("type", "")), 26))}</text></g>')
+            parts.append(
+                f'<rect x="{x + 4:.0f}" y="{y + 4:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" '
+                f'fill="{fill}" stroke="#777"/>'
+            )
+        parts.append(
+            f'<rect x="{x:.0f}" y="{y:.0f}" width="{BOX_W}" height="{BOX_H}" rx="6" fill="{fill}" '
+            f'stroke="#333"/>'
+        )
+        parts.append(
+            f'<text x="{x + BOX_W / 2:.0f}" y="{y + 19:.0f}" text-anchor="middle" font-size="13" '
+            f'font-weight="bold">{e(_clip(n, 22))}</text>'
+        )
+        parts.append(
+            f'<text x="{x + BOX_W / 2:.0f}" y="{y + 36:.0f}" text-anchor="middle" font-size="11" '
+            f'fill="#444">{e(_clip(str(d.get("type", "")), 26))}</text></g>'
+        )
     parts.append("</svg>")
     return "\n".join(parts)
 
@@ -179,7 +221,9 @@ def _clip(text: str, n: int) -> str:
     return text if len(text) <= n else text[: n - 1] + "…"
 
 
-def to_png(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None, dpi: int = 100) -> bytes:
+def to_png(
+    nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None, dpi: int = 100
+) -> bytes:
     """The same picture as :func:`to_svg`, rendered by matplotlib (Agg) as PNG bytes."""
     import io
 
@@ -198,18 +242,55 @@ def to_png(nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = Non
     for *_, pts in wires:
         xs, ys = zip(*pts)
         ax.plot(xs[:-1], ys[:-1], color="#555", lw=1.0)
-        ax.add_patch(FancyArrowPatch(pts[-2], pts[-1], arrowstyle="-|>", mutation_scale=10, color="#555", lw=1.0,
-                                     shrinkA=0, shrinkB=0))
+        ax.add_patch(
+            FancyArrowPatch(
+                pts[-2],
+                pts[-1],
+                arrowstyle="-|>",
+                mutation_scale=10,
+                color="#555",
+                lw=1.0,
+                shrinkA=0,
+                shrinkB=0,
+            )
+        )
     for n, d in nodes.items():
         x, y = pos[n]
         fill = STATUS_FILL.get((status or {}).get(n) or "", "#ffffff")
         if d.get("mapped"):
-            ax.add_patch(FancyBboxPatch((x + 4, y + 4), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6",
-                                        fc=fill, ec="#777"))
-        ax.add_patch(FancyBboxPatch((x, y), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6", fc=fill, ec="#333"))
-        ax.text(x + BOX_W / 2, y + 17, _clip(n, 22), ha="center", va="center", fontsize=9.5, weight="bold")
-        ax.text(x + BOX_W / 2, y + 34, _clip(str(d.get("type", "")), 26), ha="center", va="center", fontsize=8,
-                color="#444")
+            ax.add_patch(
+                FancyBboxPatch(
+                    (x + 4, y + 4),
+                    BOX_W,
+                    BOX_H,
+                    boxstyle="round,pad=0,rounding_size=6",
+                    fc=fill,
+                    ec="#777",
+                )
+            )
+        ax.add_patch(
+            FancyBboxPatch(
+                (x, y), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6", fc=fill, ec="#333"
+            )
+        )
+        ax.text(
+            x + BOX_W / 2,
+            y + 17,
+            _clip(n, 22),
+            ha="center",
+            va="center",
+            fontsize=9.5,
+            weight="bold",
+        )
+        ax.text(
+            x + BOX_W / 2,
+            y + 34,
+            _clip(str(d.get("type", "")), 26),
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="#444",
+        )
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()

@@ -43,14 +43,21 @@ class Cycle:
 
     def line(self) -> str:
         """One line for the terminal, then one line per warning a live node gave in this cycle."""
-        times = ", ".join(f"{n} {d['seconds'] * 1000:.0f} ms" for n, d in self.nodes.items()
-                          if d["status"] in ("ran", "partial", "failed"))
+        times = ", ".join(
+            f"{n} {d['seconds'] * 1000:.0f} ms"
+            for n, d in self.nodes.items()
+            if d["status"] in ("ran", "partial", "failed")
+        )
         head = f"cycle {self.index}: {self.status} in {self.seconds:.2f} s"
         if self.status == "failed":
-            head += f" at {self.failed_node}: {self.error}" + (f" Fix: {self.hint}" if self.hint else "")
+            head += f" at {self.failed_node}: {self.error}" + (
+                f" Fix: {self.hint}" if self.hint else ""
+            )
         elif self.status == "interrupted":
             head += f" (during {self.failed_node})" + (f": {self.error}" if self.error else "")
-        notes = "".join(f"\n  note: {n}: {m}" for n, d in self.nodes.items() for m in d.get("messages", []))
+        notes = "".join(
+            f"\n  note: {n}: {m}" for n, d in self.nodes.items() for m in d.get("messages", [])
+        )
         return head + (f"  [{times}]" if times else "") + notes
 
 
@@ -70,7 +77,8 @@ class Loop:
         Called with each finished :class:`Cycle` (the CLI prints its line).
     stop_requested : callable, optional
         ``() -> str | None``: where a stop signal landed, once one was received (the CLI's). Checked
-        before every node: an interrupt that some code swallowed still ends the loop at the next node.
+        before every node: an interrupt that some code swallowed still ends the loop at the next
+        node.
     """
 
     repeat: int
@@ -94,7 +102,9 @@ class Loop:
         if failed:
             reasons: dict[str, int] = {}
             for c in failed:
-                reasons[f"{c.failed_node}: {c.error}"] = reasons.get(f"{c.failed_node}: {c.error}", 0) + 1
+                reasons[f"{c.failed_node}: {c.error}"] = (
+                    reasons.get(f"{c.failed_node}: {c.error}", 0) + 1
+                )
             text += " (" + "; ".join(f"{n}x {r}" for r, n in list(reasons.items())[:3]) + ")"
         return text + f"; {self.stopped}"
 
@@ -108,14 +118,20 @@ class Loop:
         for n in seeds:
             live |= ({n} | g.downstream(n)) & chosen
         if not live:
-            raise ConfigError(f"--repeat: every node of {g.doc.path.name} can be cached, so every cycle would give "
-                              "the same result.", hint="add a live node (a camera, an actuator) or drop --repeat")
+            raise ConfigError(
+                f"--repeat: every node of {g.doc.path.name} can be cached, so every cycle "
+                "would give "
+                "the same result.",
+                hint="add a live node (a camera, an actuator) or drop --repeat",
+            )
         self.live = [n for n in selected if n in live]
         run.memory_only = set(live)
         # Kept in memory across cycles: what the live part reads, and each cycle's own values
         # until they are logged (the next cycle's reset drops them).
         keep = set(run.keep)
-        run.keep |= {src for n in self.live for src in g.dag.predecessors(n) if src not in live} | live
+        run.keep |= {
+            src for n in self.live for src in g.dag.predecessors(n) if src not in live
+        } | live
         try:
             self._cycles(run, selected, live, log_path=run.out_dir / "cycles.jsonl")
         finally:
@@ -124,10 +140,18 @@ class Loop:
 
     def info(self) -> dict[str, Any]:
         """What happened, for ``run.json``."""
-        return {"repeat": self.repeat, "cycles": len(self.cycles), "ok": self.n_ok,
-                "failed": sum(1 for c in self.cycles if c.status == "failed"), "interrupted": self.interrupted,
-                "completed": self.completed, "stopped": self.stopped, "summary": self.summary(), "live": self.live,
-                "log": "cycles.jsonl"}
+        return {
+            "repeat": self.repeat,
+            "cycles": len(self.cycles),
+            "ok": self.n_ok,
+            "failed": sum(1 for c in self.cycles if c.status == "failed"),
+            "interrupted": self.interrupted,
+            "completed": self.completed,
+            "stopped": self.stopped,
+            "summary": self.summary(),
+            "live": self.live,
+            "log": "cycles.jsonl",
+        }
 
     @property
     def completed(self) -> bool:
@@ -139,7 +163,8 @@ class Loop:
         log_path.write_text("")
         try:
             self._loop(run, selected, live, log_path)
-        except KeyboardInterrupt:  # outside any node: between two cycles, or while one was being logged
+        # outside any node: between two cycles, or while one was being logged
+        except KeyboardInterrupt:
             self.interrupted = True
             k = len(self.cycles)
             self.stopped = f"stopped by an interrupt between cycles {k} and {k + 1}"
@@ -163,9 +188,11 @@ class Loop:
                     current = name
                     run.run_node(g.nodes[name])
             except KeyboardInterrupt as e:
-                # what the interrupted node did to end safely, as it noted on the interrupt (an arm held still)
+                # what the interrupted node did to end safely, as it noted on the interrupt (an arm
+                # held still)
                 cycle.error = " ".join(getattr(e, "__notes__", ()) or [str(e)]) or None
-                if current is None:  # before its first node: a cycle that did not begin (the last one's reports)
+                # before its first node: a cycle that did not begin (the last one's reports)
+                if current is None:
                     order = []
                 for name in order:  # the interrupted node and those after it did not finish
                     rep = run.reports[name]
@@ -174,30 +201,41 @@ class Loop:
                 cycle.status, cycle.failed_node = "interrupted", current
                 self.interrupted = True
             cycle.seconds = time.perf_counter() - t0
-            # The log line and the count in run.json must agree: a signal here waits until both are done.
+            # The log line and the count in run.json must agree: a signal here waits until both are
+            # done.
             with _signals_deferred():
                 self._record(run, cycle, order, log_path)
             if self.on_cycle is not None:
                 self.on_cycle(cycle)
             if self.interrupted:
-                self.stopped = (f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
-                                if cycle.failed_node else f"stopped by an interrupt as cycle {k} began")
+                self.stopped = (
+                    f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
+                    if cycle.failed_node
+                    else f"stopped by an interrupt as cycle {k} began"
+                )
                 return
             asked = run.resources.pop(STOP_LOOP, None)
             if asked is not None:
                 self.stopped = f"stopped by node '{asked[0]}': {asked[1]}"
                 self.finished = True
                 return
-            outside = [n for n in order if n not in live and run.reports[n].status in ("failed", "skipped")]
+            outside = [
+                n for n in order if n not in live and run.reports[n].status in ("failed", "skipped")
+            ]
             if outside:
-                self.stopped = f"stopped: node '{outside[0]}' (outside the live part) failed, so no cycle can run"
+                self.stopped = (
+                    f"stopped: node '{outside[0]}' (outside the live part) failed, so "
+                    "no cycle can run"
+                )
                 return
             if cycle.status == "failed" and cycle.failed_node in roots:
                 self.stopped = f"stopped: '{cycle.failed_node}' gave no new input"
                 return
             if cycle.status == "failed" and run.reports[cycle.failed_node].lasting:
-                self.stopped = (f"stopped: '{cycle.failed_node}' failed in a way no later cycle can change: a "
-                                "person must see to it before another cycle runs")
+                self.stopped = (
+                    f"stopped: '{cycle.failed_node}' failed in a way no later cycle can change: a "
+                    "person must see to it before another cycle runs"
+                )
                 return
             if cycle.status == "failed" and self.stop_on_failure:
                 self.stopped = f"stopped at the first failed cycle ({k})"
@@ -208,42 +246,80 @@ class Loop:
         """Raise the interrupt a stop signal should have raised, if it was lost on its way."""
         landed = self.stop_requested() if self.stop_requested is not None else None
         if landed:
-            raise KeyboardInterrupt(f"a stop signal received in {landed} did not end the node it reached")
+            raise KeyboardInterrupt(
+                f"a stop signal received in {landed} did not end the node it reached"
+            )
 
     def _record(self, run: Any, cycle: Cycle, order: list[str], log_path: Path) -> None:
         g = run.g
         for name in order:
             r = run.reports[name]
-            if name not in self.live:  # (cycle 1 runs the rest too: its failure leaves the live part skipped)
+            # (cycle 1 runs the rest too: its failure leaves the live part skipped)
+            if name not in self.live:
                 if cycle.status == "running" and r.status == "failed":
-                    cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
+                    cycle.status, cycle.failed_node, cycle.error, cycle.hint = (
+                        "failed",
+                        name,
+                        r.error,
+                        r.hint,
+                    )
                 continue
             # its warnings too: the next cycle's reset drops the report, so they would reach no one
-            cycle.nodes[name] = {"status": r.status, "seconds": round(r.seconds, 5), "error": r.error,
-                                 "messages": list(r.messages)}
+            cycle.nodes[name] = {
+                "status": r.status,
+                "seconds": round(r.seconds, 5),
+                "error": r.error,
+                "messages": list(r.messages),
+            }
             if cycle.status == "running" and r.status in ("failed", "partial"):
-                cycle.status, cycle.failed_node, cycle.error, cycle.hint = "failed", name, r.error, r.hint
+                cycle.status, cycle.failed_node, cycle.error, cycle.hint = (
+                    "failed",
+                    name,
+                    r.error,
+                    r.hint,
+                )
             for out in g.nodes[name].spec.outputs:
                 v = _value(run, name, out)
-                # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0, 0, 0]]])
+                # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0,
+                # 0, 0]]])
                 if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
                     continue
                 text = json.dumps(outputs_mod.to_json(v, {}), default=str)
                 if len(text) <= SMALL_JSON and '"npz"' not in text:
                     cycle.values[f"{name}.{out}"] = json.loads(text)
-                elif isinstance(v, dict):  # a big value: keep its scalar facts (ids, timestamps, flags)
-                    small = {key: x for key, x in v.items() if isinstance(x, (int, float, str, bool)) or x is None}
+                # a big value: keep its scalar facts (ids, timestamps, flags)
+                elif isinstance(v, dict):
+                    small = {
+                        key: x
+                        for key, x in v.items()
+                        if isinstance(x, (int, float, str, bool)) or x is None
+                    }
                     if small:
-                        cycle.values[f"{name}.{out}"] = json.loads(json.dumps(outputs_mod.to_json(small, {})))
-            # every output with --save-cycles; else the pictures the node saves (Out(save=True)), kept for
-            # every cycle as its other saved outputs are (in <node>/<output>.cycles.jsonl)
-            _save(run, name, run.out_dir / "cycles" / f"{cycle.index:05d}", pictures_only=not self.save_cycles)
+                        cycle.values[f"{name}.{out}"] = json.loads(
+                            json.dumps(outputs_mod.to_json(small, {}))
+                        )
+            # every output with --save-cycles; else the pictures the node saves (Out(save=True)),
+            # kept for every cycle as its other saved outputs are (in <node>/<output>.cycles.jsonl)
+            _save(
+                run,
+                name,
+                run.out_dir / "cycles" / f"{cycle.index:05d}",
+                pictures_only=not self.save_cycles,
+            )
             _append_saved(run, name, cycle.index)
         if cycle.status == "running":
             cycle.status = "ok"
-        rec = {"cycle": cycle.index, "status": cycle.status, "seconds": round(cycle.seconds, 5),
-               "failed_node": cycle.failed_node, "error": cycle.error, "hint": cycle.hint, "time": time.time(),
-               "nodes": cycle.nodes, "values": cycle.values}
+        rec = {
+            "cycle": cycle.index,
+            "status": cycle.status,
+            "seconds": round(cycle.seconds, 5),
+            "failed_node": cycle.failed_node,
+            "error": cycle.error,
+            "hint": cycle.hint,
+            "time": time.time(),
+            "nodes": cycle.nodes,
+            "values": cycle.values,
+        }
         with log_path.open("a") as f:
             f.write(json.dumps(rec, default=str) + "\n")
         self.cycles.append(cycle)
@@ -255,7 +331,9 @@ def _signals_deferred() -> Iterator[None]:
 
     Only where the platform can (POSIX) and in the main thread, where Python runs its handlers.
     """
-    can = hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    can = (
+        hasattr(signal, "pthread_sigmask") and threading.current_thread() is threading.main_thread()
+    )
     held = {signal.SIGINT, signal.SIGTERM}
     if can:
         signal.pthread_sigmask(signal.SIG_BLOCK, held)
@@ -267,16 +345,22 @@ def _signals_deferred() -> Iterator[None]:
 
 
 def _value(run: Any, node: str, out: str) -> Any:
-    """An output's value this cycle; a collection of one dict (a live cycle's usual single pair) as that dict."""
+    """An output's value this cycle; a collection of one dict (a live cycle's usual single pair) as
+    that dict."""
     v = run.value_of(node, out)
-    if run.g.is_collection(node, out) and v is not None and len(v) == 1 and isinstance(next(iter(v.values())), dict):
+    if (
+        run.g.is_collection(node, out)
+        and v is not None
+        and len(v) == 1
+        and isinstance(next(iter(v.values())), dict)
+    ):
         return next(iter(v.values()))
     return v
 
 
 def _save(run: Any, node: str, folder: Path, pictures_only: bool = False) -> None:
-    """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest as JSON;
-    with ``pictures_only``, only the images the node saves (``Out(save=True)``)."""
+    """Every output of ``node`` in this cycle: images as PNG (also images inside a dict), the rest
+    as JSON; with ``pictures_only``, only the images the node saves (``Out(save=True)``)."""
     for out, decl in run.g.nodes[node].spec.outputs.items():
         v = _value(run, node, out)
         if v is None or (pictures_only and not (decl.save and outputs_mod.is_image(v))):
@@ -292,14 +376,17 @@ def _save(run: Any, node: str, folder: Path, pictures_only: bool = False) -> Non
 
 
 def _append_saved(run: Any, node: str, index: int) -> None:
-    """Each saved output (``Out(save=True)``) of a live node that is not a picture gets one line per cycle
-    in ``<node>/<output>.cycles.jsonl``: the run folder's ``<node>/<output>.json`` holds the last cycle's
-    only (a servo log, say)."""
+    """Each saved output (``Out(save=True)``) of a live node that is not a picture gets one line per
+    cycle in ``<node>/<output>.cycles.jsonl``: the run folder's ``<node>/<output>.json`` holds the
+    last cycle's only (a servo log, say)."""
     for out, decl in run.g.nodes[node].spec.outputs.items():
         v = _value(run, node, out)
         if not decl.save or v is None or outputs_mod.is_image(v):
             continue
         path = run.out_dir / node / f"{out}.cycles.jsonl"
         path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("a") as f:  # (large arrays are left out: they go to --save-cycles' .npz files)
-            f.write(json.dumps({"cycle": index, out: outputs_mod.to_json(v, {})}, default=str) + "\n")
+        # (large arrays are left out: they go to --save-cycles' .npz files)
+        with path.open("a") as f:
+            f.write(
+                json.dumps({"cycle": index, out: outputs_mod.to_json(v, {})}, default=str) + "\n"
+            )

@@ -3,7 +3,8 @@
 Shared by ``report.html`` (:mod:`stereograph.app.report`, its cycles section) and ``compare.html``.
 A page is ASCII, loads nothing from elsewhere, embeds pictures while a byte budget lasts and shows
 only files inside its run folder (:meth:`Page.inside`). Public names: :class:`Page`, :func:`escape`,
-:func:`table_html`, :func:`markdown_html`, :func:`is_table`, :func:`write_html`, :data:`STYLE`, :data:`CHECK`.
+:func:`table_html`, :func:`markdown_html`, :func:`is_table`, :func:`write_html`, :data:`STYLE`,
+:data:`CHECK`.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-EMBED_BUDGET_BYTES = 48 * 2**20  # beyond this, images are linked (they lie beside the page) instead of embedded
+# beyond this, images are linked (they lie beside the page) instead of embedded
+EMBED_BUDGET_BYTES = 48 * 2**20
 MAX_JSON_BYTES = 2 * 2**20
 SMALL_JSON_BYTES = 4096  # a headline JSON value up to this size is shown as text (a pick's summary)
 FIELDS_SHOWN = 10  # ... its first fields
@@ -35,7 +37,8 @@ td,th{border:1px solid #bbb;padding:2px 7px;text-align:right}
 th{background:#f0f0f0}
 td:first-child,th:first-child{text-align:left}caption{text-align:left;font-weight:bold;padding:3px}
 figure{display:inline-block;margin:.4em;vertical-align:top}figcaption{font-size:.8em;color:#555}
-figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}figure.wide img{max-width:100%}
+figure img{max-width:720px;border:1px solid #ddd}figure.item img{max-width:640px}
+figure.wide img{max-width:100%}
 .graph-row{display:flex;gap:2em;align-items:flex-start;flex-wrap:wrap}.err{color:#a00}.hint{color:#555}
 pre{background:#f7f7f7;padding:.5em;overflow-x:auto;font-size:.85em}.graph{overflow-x:auto}
 .sg-headline{display:flex;flex-wrap:wrap;gap:0 1.5em;align-items:flex-start}
@@ -77,18 +80,27 @@ class Page:
         self._root: str | None = None
 
     def inside(self, rel: str) -> bool:
-        """Whether ``rel`` names a file in the run folder. run.json may come from someone else (a run
-        folder handed over, then ``stereograph report``): a path that is absolute, climbs out with
-        ``..`` or passes through a symbolic link (stereograph makes none) must not put a file from
-        elsewhere on the page -- embedded, it would go wherever the page goes."""
-        if not isinstance(rel, str) or not rel or os.path.isabs(rel) or ".." in path_parts(rel) or "\0" in rel:
+        """Whether ``rel`` names a file in the run folder. run.json may come from someone else (a
+        run folder handed over, then ``stereograph report``): a path that is absolute, climbs out
+        with ``..`` or passes through a symbolic link (stereograph makes none) must not put a file
+        from elsewhere on the page -- embedded, it would go wherever the page goes."""
+        if (
+            not isinstance(rel, str)
+            or not rel
+            or os.path.isabs(rel)
+            or ".." in path_parts(rel)
+            or "\0" in rel
+        ):
             return False
         if self._root is None:
             self._root = os.path.realpath(self.dir)
-        return os.path.realpath(os.path.join(self.dir, rel)) == os.path.join(self._root, *path_parts(rel))
+        return os.path.realpath(os.path.join(self.dir, rel)) == os.path.join(
+            self._root, *path_parts(rel)
+        )
 
     def image(self, rel: str, caption: str, css_class: str = "") -> str:
-        """One figure: embedded while the budget lasts, else linked (the file lies beside the page)."""
+        """One figure: embedded while the budget lasts, else linked (the file lies beside the
+        page)."""
         p = self.dir / rel
         mime = MIME.get(p.suffix.lower())
         if not self.inside(rel):
@@ -102,9 +114,12 @@ class Page:
             src = f"data:{mime};base64," + base64.b64encode(p.read_bytes()).decode("ascii")
         else:
             src = href(rel)
-        return (f'<figure class="{css_class}"><img src="{src}" alt="{escape(rel)}" data-file="{escape(rel)}" '
-                'loading="eager">'
-                f"<figcaption>{escape(rel)}</figcaption></figure>")
+        return (
+            f'<figure class="{css_class}"><img src="{src}" alt="{escape(rel)}" '
+            f'data-file="{escape(rel)}" '
+            'loading="eager">'
+            f"<figcaption>{escape(rel)}</figcaption></figure>"
+        )
 
     def json_block(self, rel: str, small_as_text: bool = False) -> str:
         p = self.dir / rel
@@ -115,13 +130,27 @@ class Page:
             if size > MAX_JSON_BYTES:
                 return link(rel)
             data = p.read_bytes()
-            if small_as_text and size <= SMALL_JSON_BYTES and not (b'"columns"' in data or b'"markdown"' in data):
+            if (
+                small_as_text
+                and size <= SMALL_JSON_BYTES
+                and not (b'"columns"' in data or b'"markdown"' in data)
+            ):
                 rows = flat_rows(json.loads(data))
-                more = f"<p>&#8230; {len(rows) - FIELDS_SHOWN} more fields in</p>" if len(rows) > FIELDS_SHOWN else ""
-                return table_html({"columns": ["field", "value"], "rows": rows[:FIELDS_SHOWN]}, "sg-fields") \
-                    + more + link(rel)
-            # Only a table or a markdown value is shown: a file without their keys is linked unparsed
-            # (json.dumps writes a key's ASCII letters as they are; a run's records are most of its JSON).
+                more = (
+                    f"<p>&#8230; {len(rows) - FIELDS_SHOWN} more fields in</p>"
+                    if len(rows) > FIELDS_SHOWN
+                    else ""
+                )
+                return (
+                    table_html(
+                        {"columns": ["field", "value"], "rows": rows[:FIELDS_SHOWN]}, "sg-fields"
+                    )
+                    + more
+                    + link(rel)
+                )
+            # Only a table or a markdown value is shown: a file without their keys is linked
+            # unparsed (json.dumps writes a key's ASCII letters as they are; a run's records are
+            # most of its JSON).
             if not ((b'"columns"' in data and b'"rows"' in data) or b'"markdown"' in data):
                 return link(rel)
             value = json.loads(data)
@@ -135,11 +164,17 @@ class Page:
 
 
 def flat_rows(value: Any, path: str = "") -> list[list[str]]:
-    """A small JSON value as ``[field path, value]`` rows; a list of plain values stays on one row."""
+    """A small JSON value as ``[field path, value]`` rows; a list of plain values stays on one
+    row."""
     if isinstance(value, dict) and value:
-        return [r for k, v in value.items() for r in flat_rows(v, f"{path}.{k}" if path else str(k))]
-    if isinstance(value, list) and value and not all(isinstance(v, (int, float, str, bool)) or v is None
-                                                     for v in value):
+        return [
+            r for k, v in value.items() for r in flat_rows(v, f"{path}.{k}" if path else str(k))
+        ]
+    if (
+        isinstance(value, list)
+        and value
+        and not all(isinstance(v, (int, float, str, bool)) or v is None for v in value)
+    ):
         return [r for i, v in enumerate(value) for r in flat_rows(v, f"{path}[{i}]")]
     return [[path or "value", json.dumps(value)]]
 
@@ -160,8 +195,12 @@ def link(rel: str) -> str:
 
 def is_table(v: Any) -> bool:
     """A saved *table* value: ``{"columns": [...], "rows": [[...], ...]}`` (``title`` optional)."""
-    return (isinstance(v, dict) and isinstance(v.get("columns"), list) and isinstance(v.get("rows"), list)
-            and all(isinstance(r, list) for r in v["rows"]))
+    return (
+        isinstance(v, dict)
+        and isinstance(v.get("columns"), list)
+        and isinstance(v.get("rows"), list)
+        and all(isinstance(r, list) for r in v["rows"])
+    )
 
 
 def table_html(t: dict[str, Any], css_class: str = "sg-table") -> str:
@@ -172,13 +211,18 @@ def table_html(t: dict[str, Any], css_class: str = "sg-table") -> str:
 
     cap = f"<caption>{escape(t['title'])}</caption>" if t.get("title") else ""
     head = "".join(f"<th>{escape(c)}</th>" for c in t["columns"])
-    body = "".join("<tr>" + "".join(f"<td>{escape(cell(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
-    return f'<table class="{css_class}">{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
+    body = "".join(
+        "<tr>" + "".join(f"<td>{escape(cell(c))}</td>" for c in r) + "</tr>" for r in t["rows"]
+    )
+    return (
+        f'<table class="{css_class}">{cap}<thead><tr>{head}</tr></thead>'
+        f"<tbody>{body}</tbody></table>"
+    )
 
 
 def markdown_html(md: str) -> str:
-    """The little Markdown a node writes -- ``#`` headings, pipe tables, paragraphs -- as HTML (escaped);
-    anything else in it stays text. A table read as monospace text is hard to scan."""
+    """The little Markdown a node writes -- ``#`` headings, pipe tables, paragraphs -- as HTML
+    (escaped); anything else in it stays text. A table read as monospace text is hard to scan."""
     out: list[str] = []
     lines = md.splitlines()
     i = 0
@@ -204,7 +248,8 @@ def markdown_html(md: str) -> str:
 
 
 def path_parts(rel: str) -> list[str]:
-    """``Path(rel).parts`` of a run-folder path, without making a Path (hundreds of files a page)."""
+    """``Path(rel).parts`` of a run-folder path, without making a Path (hundreds of files a
+    page)."""
     return [p for p in re.split(r"[\\/]", rel) if p and p != "."]
 
 

@@ -17,7 +17,13 @@ import re
 from typing import Any
 
 # Environment variables that make rich colour, or lay out as a terminal, output that is not one.
-_RICH_FORCING = ("FORCE_COLOR", "TTY_COMPATIBLE", "TTY_INTERACTIVE", "JUPYTER_COLUMNS", "JUPYTER_LINES")
+_RICH_FORCING = (
+    "FORCE_COLOR",
+    "TTY_COMPATIBLE",
+    "TTY_INTERACTIVE",
+    "JUPYTER_COLUMNS",
+    "JUPYTER_LINES",
+)
 
 
 def plain_width(stream: Any, width: int) -> int | None:
@@ -43,8 +49,13 @@ def _one_cell(c: str) -> bool:
     U+2010..U+22FF (combining marks for symbols left out) -- the test checks every one against
     rich's own cell widths."""
     o = ord(c)
-    return c.isprintable() and (o < 0x300 or 0x370 <= o < 0x483 or 0x48A <= o < 0x530
-                                or 0x2010 <= o < 0x20D0 or 0x2100 <= o < 0x2300)
+    return c.isprintable() and (
+        o < 0x300
+        or 0x370 <= o < 0x483
+        or 0x48A <= o < 0x530
+        or 0x2010 <= o < 0x20D0
+        or 0x2100 <= o < 0x2300
+    )
 
 
 def _plain(s: str, text: bool = True) -> bool:
@@ -97,7 +108,9 @@ class _Node:
 
     __slots__ = ("key", "text", "open", "close", "children", "last")
 
-    def __init__(self, text: str = "", open_: str = "", close: str = "", children: list | None = None):
+    def __init__(
+        self, text: str = "", open_: str = "", close: str = "", children: list | None = None
+    ):
         self.key, self.text, self.open, self.close = "", text, open_, close
         self.children, self.last = children, False
 
@@ -176,15 +189,20 @@ def pretty(value: Any, width: int, max_string: int = 200) -> str | None:
     i = 0
     while i < len(lines):
         ws, text, node, suffix, last, expandable = lines[i]
-        if expandable and node is not None and node.children and \
-                not node.fits(len(ws) + len(text) + len(suffix), width):
+        if (
+            expandable
+            and node is not None
+            and node.children
+            and not node.fits(len(ws) + len(text) + len(suffix), width)
+        ):
             head = f"{node.key}: {node.open}" if node.key else node.open
             new = [[ws, head, None, "", False, False]]
             inner = ws + "    "
             for c in node.children:
-                new.append([inner, "", c, ", ", c.last, True])  # (", " counts 2 in the fit, as in rich)
+                # (", " counts 2 in the fit, as in rich)
+                new.append([inner, "", c, ", ", c.last, True])
             new.append([ws, node.close, None, suffix, last, False])
-            lines[i:i + 1] = new
+            lines[i : i + 1] = new
         i += 1
     out = []
     for ws, text, node, suffix, last, _ in lines:

@@ -40,7 +40,8 @@ class _NodeState:
     done: float = 0  # the node's own count (item_progress), within the current call
     total: float = 0
     unit: str = ""
-    unit_started: float = 0.0  # when this unit's count began (a node may report phases: scenes, then views)
+    # when this unit's count began (a node may report phases: scenes, then views)
+    unit_started: float = 0.0
     failed: int = 0  # entries that failed
 
     def line(self, name: str, now: float) -> str:
@@ -51,7 +52,11 @@ class _NodeState:
             parts.append(f"{self.done:g}/{self.total:g} {self.unit}".rstrip())
             eta = eta_seconds(self.done, self.total, now - self.unit_started)
         else:
-            eta = eta_seconds(self.entries_done, self.items, now - self.started) if self.items > 1 else None
+            eta = (
+                eta_seconds(self.entries_done, self.items, now - self.started)
+                if self.items > 1
+                else None
+            )
         text = " ".join(parts[:1]) + (" " + ", ".join(parts[1:]) if len(parts) > 1 else "")
         text += f", {_duration(now - self.started)} elapsed"
         if eta is not None:
@@ -117,7 +122,8 @@ class PlainProgress:
 
     def node_started(self, name: str, n_items: int) -> None:
         with self._lock:
-            for other in list(self.nodes):  # the serial runner starts a node once the previous one ended
+            # the serial runner starts a node once the previous one ended
+            for other in list(self.nodes):
                 self._finish(other)
             now = time.monotonic()
             self.nodes[name] = _NodeState(items=n_items, started=now, unit_started=now)
@@ -185,9 +191,17 @@ class RichProgress:
             TimeRemainingColumn,
         )
 
-        self.p = Progress(TextColumn("{task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                          TextColumn("{task.fields[unit]}"), TimeElapsedColumn(), TextColumn("ETA"),
-                          TimeRemainingColumn(), console=console, transient=True)
+        self.p = Progress(
+            TextColumn("{task.description:<24}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[unit]}"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
+        )
         self.tasks: dict[str, Any] = {}
         self.items: dict[str, int] = {}
 
@@ -200,7 +214,9 @@ class RichProgress:
 
     def node_started(self, name: str, n_items: int) -> None:
         self.items[name] = max(n_items, 1)
-        self.tasks[name] = self.p.add_task(name, total=self.items[name], unit="items" if n_items > 1 else "")
+        self.tasks[name] = self.p.add_task(
+            name, total=self.items[name], unit="items" if n_items > 1 else ""
+        )
 
     def advance(self, name: str) -> None:
         task = self.tasks.get(name)
@@ -208,8 +224,13 @@ class RichProgress:
             return
         t = self.p.tasks[[x.id for x in self.p.tasks].index(task)]
         if t.fields.get("own"):  # the bar showed the node's own count: back to its entries
-            self.p.reset(task, total=self.items[name], completed=t.fields.get("entries", 0),
-                         unit="items" if self.items[name] > 1 else "", own=False)
+            self.p.reset(
+                task,
+                total=self.items[name],
+                completed=t.fields.get("entries", 0),
+                unit="items" if self.items[name] > 1 else "",
+                own=False,
+            )
         entries = t.fields.get("entries", 0) + 1
         self.p.update(task, completed=entries, entries=entries)
 
@@ -219,15 +240,23 @@ class RichProgress:
             return
         t = self.p.tasks[[x.id for x in self.p.tasks].index(task)]
         if not t.fields.get("own") or t.fields.get("unit") != unit or done < t.completed:
-            # a new count (or a new phase: scenes, then views): restart so the ETA uses this count's rate
-            self.p.reset(task, total=total, completed=done, unit=unit, own=True, entries=t.fields.get("entries", 0))
+            # a new count (or a new phase: scenes, then views): restart so the ETA uses this count's
+            # rate
+            self.p.reset(
+                task,
+                total=total,
+                completed=done,
+                unit=unit,
+                own=True,
+                entries=t.fields.get("entries", 0),
+            )
         else:
             self.p.update(task, total=total, completed=done)
 
 
 class Mutable:
-    """A progress display that can be switched off part-way: a ``--repeat`` loop's later cycles, whose
-    one line per cycle says it all (``--verbose`` keeps the per-node lines)."""
+    """A progress display that can be switched off part-way: a ``--repeat`` loop's later cycles,
+    whose one line per cycle says it all (``--verbose`` keeps the per-node lines)."""
 
     def __init__(self, inner: Any):
         self.inner = inner

@@ -26,21 +26,29 @@ def _set_texts(set_: Mapping[str, Any] | Iterable[str] | None, name: str = "set"
         return []
     if isinstance(set_, str):
         return [set_]
-    example = '{"rig.n_scenes": 20}' if name == "set" else '{"segment.type": ["segmenter.color", "segmenter.otsu"]}'
+    example = (
+        '{"rig.n_scenes": 20}'
+        if name == "set"
+        else '{"segment.type": ["segmenter.color", "segmenter.otsu"]}'
+    )
     if isinstance(set_, Mapping):
         texts = []
         for key, value in set_.items():
             try:  # JSON is YAML: the value reads back as the same number, text, list or mapping
                 text = json.dumps(_plain(value), allow_nan=False)
             except (TypeError, ValueError) as e:
-                raise ConfigError(f"{name}= value of {key!r} is not a plain value ({type(value).__name__}: {e})",
-                                  hint="give numbers, text, lists or mappings of them, as in the pipeline YAML") \
-                    from None
+                raise ConfigError(
+                    f"{name}= value of {key!r} is not a plain value ({type(value).__name__}: {e})",
+                    hint="give numbers, text, lists or mappings of them, as in the pipeline YAML",
+                ) from None
             texts.append(f"{key}={text}")
         return texts
     if not isinstance(set_, Iterable) or isinstance(set_, bytes):
-        raise ConfigError(f"{name}= must be a mapping or a list of 'NODE.PARAM=VALUE' texts, not "
-                          f"{type(set_).__name__} ({set_!r})", hint=f"for example {name}={example}")
+        raise ConfigError(
+            f"{name}= must be a mapping or a list of 'NODE.PARAM=VALUE' texts, not "
+            f"{type(set_).__name__} ({set_!r})",
+            hint=f"for example {name}={example}",
+        )
     return [str(s) for s in set_]
 
 
@@ -49,8 +57,10 @@ def _workers(workers: Any) -> int | None:
     if workers is None:
         return None
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise ConfigError(f"workers= must be a whole number of processes, 1 or more (got {workers!r})",
-                          hint="workers=2 runs per-item nodes in two processes; None or 1 runs them here")
+        raise ConfigError(
+            f"workers= must be a whole number of processes, 1 or more (got {workers!r})",
+            hint="workers=2 runs per-item nodes in two processes; None or 1 runs them here",
+        )
     return workers
 
 
@@ -93,7 +103,8 @@ class Result:
     ran : set
         Nodes that computed anything in this run (the rest came from the cache).
     reports : dict
-        Node -> :class:`stereograph.core.run_state.NodeReport` (seconds, items, messages, error, hint).
+        Node -> :class:`stereograph.core.run_state.NodeReport` (seconds, items, messages, error,
+        hint).
     seconds : float
         Wall time of the run.
     """
@@ -129,7 +140,9 @@ class Result:
         out = {}
         for name, rep in self.reports.items():
             if rep.status in ("failed", "partial") and rep.error:
-                out[name] = sentence(rep.error) + (" Fix: " + sentence(rep.hint) if rep.hint else "")
+                out[name] = sentence(rep.error) + (
+                    " Fix: " + sentence(rep.hint) if rep.hint else ""
+                )
         return out
 
     def outputs(self, node: str, output: str) -> Any:
@@ -149,8 +162,10 @@ class Result:
             return r.outputs(node, output)
         run = r._run
         if run is None or run.store is None:
-            raise KeyError(f"the result does not hold {node}.{output} (a run without the cache keeps only the "
-                           f"terminal, saved and keep= outputs): pass keep=['{node}'] to stereograph.run")
+            raise KeyError(
+                f"the result does not hold {node}.{output} (a run without the cache keeps only the "
+                f"terminal, saved and keep= outputs): pass keep=['{node}'] to stereograph.run"
+            )
         if run.g.is_collection(node, output):
             return {i: run.get((node, output, i)) for i in run.items_of(node, output)}
         return run.get((node, output, None))
@@ -164,17 +179,27 @@ class Result:
         run = self._r._run
         if run is not None:
             return list(run.g.nodes[node].spec.outputs)
-        return sorted({o for (n, o, _) in self._r._values if n == node} | {o for (n, o) in self._r._items if n == node})
+        return sorted(
+            {o for (n, o, _) in self._r._values if n == node}
+            | {o for (n, o) in self._r._items if n == node}
+        )
 
     def _check(self, node: str, output: str | None) -> None:
         if node not in self.reports:
             raise KeyError(f"no node '{node}' in this pipeline (nodes: {sorted(self.reports)})")
         rep = self.reports[node]
         if rep.status in ("failed", "skipped", "not selected", "pending"):
-            what = {"not selected": "was not selected (only=)", "pending": "did not run"}.get(rep.status, rep.status)
-            raise KeyError(f"node '{node}' has no outputs: it {what}" + (f" ({rep.error})" if rep.error else ""))
+            what = {"not selected": "was not selected (only=)", "pending": "did not run"}.get(
+                rep.status, rep.status
+            )
+            raise KeyError(
+                f"node '{node}' has no outputs: it {what}"
+                + (f" ({rep.error})" if rep.error else "")
+            )
         if output is not None and output not in self._spec_outputs(node):
-            raise KeyError(f"node '{node}' has no output '{output}' (its outputs: {self._spec_outputs(node)})")
+            raise KeyError(
+                f"node '{node}' has no output '{output}' (its outputs: {self._spec_outputs(node)})"
+            )
 
     def raise_for_errors(self) -> Result:
         """Raise :class:`NodeFailed` naming every failed node and its fix; else return self."""
@@ -187,8 +212,11 @@ class Result:
         counts: dict[str, int] = {}
         for s in self.status.values():
             counts[s] = counts.get(s, 0) + 1
-        return (f"<stereograph.Result {self.run_id}: {state}; " + ", ".join(f"{n} {s}" for s, n in counts.items())
-                + f"; {self.seconds:.1f} s; {self.out_dir}>")
+        return (
+            f"<stereograph.Result {self.run_id}: {state}; "
+            + ", ".join(f"{n} {s}" for s, n in counts.items())
+            + f"; {self.seconds:.1f} s; {self.out_dir}>"
+        )
 
 
 def run(
@@ -248,12 +276,22 @@ def run(
         kept = set_of(keep or ())
     unknown = sorted(kept - set_of(graph.nodes))
     if unknown:
-        raise ConfigError(f"keep= names nodes that are not in {graph.doc.path.name}: {unknown}",
-                          hint=f"nodes are {sorted(graph.nodes)}")
+        raise ConfigError(
+            f"keep= names nodes that are not in {graph.doc.path.name}: {unknown}",
+            hint=f"nodes are {sorted(graph.nodes)}",
+        )
     executor = workers_executor(_workers(workers))
     prog = _progress(progress)
-    kw = dict(cache_dir=cache_dir, out_dir=out_dir, use_cache=use_cache, only=only, from_node=from_node,
-              executor=executor, progress=prog, keep=kept)
+    kw = dict(
+        cache_dir=cache_dir,
+        out_dir=out_dir,
+        use_cache=use_cache,
+        only=only,
+        from_node=from_node,
+        executor=executor,
+        progress=prog,
+        keep=kept,
+    )
     try:
         if hasattr(prog, "__enter__"):  # (the heartbeat thread of the plain lines)
             with prog:
@@ -271,7 +309,9 @@ def set_of(items: Iterable[str]) -> set[str]:
     return {str(i) for i in items}
 
 
-def check(path: str | Path, set: Mapping[str, Any] | Iterable[str] | None = None) -> list[ConfigError]:  # noqa: A002
+def check(
+    path: str | Path, set: Mapping[str, Any] | Iterable[str] | None = None
+) -> list[ConfigError]:  # noqa: A002
     """Every problem of a pipeline file at once (``stereograph validate``); ``[]`` when it is valid.
 
     Each problem's ``str()`` is one paragraph: ``file:line: node 'x': what. Fix: how.``; its
@@ -301,7 +341,8 @@ def compare(
     path : str or Path
         The pipeline YAML (its ``variants:`` block applies; ``vary`` adds to it).
     vary : mapping or list of str, optional
-        ``{"segment.type": ["segmenter.color", "segmenter.otsu"]}`` or ``["segment.type=color,otsu"]``.
+        ``{"segment.type": ["segmenter.color", "segmenter.otsu"]}`` or
+        ``["segment.type=color,otsu"]``.
     set : mapping or list of str, optional
         Overrides applied to every variant, as for :func:`run`.
     out_dir, cache_dir, split, skip_invalid, plots :
@@ -322,15 +363,25 @@ def compare(
         vary_texts = []
         for key, values in vary.items():
             if isinstance(values, (str, bytes)) or not isinstance(values, Iterable):
-                raise ConfigError(f"vary= values of {key!r} must be a list of the values to try (got {values!r})",
-                                  hint=f'for example vary={{"{key}": [1, 2]}}')
-            vary_texts.append(f"{key}=" + ", ".join(_set_texts({key: v}, "vary")[0].split("=", 1)[1]
-                                                     for v in values))
+                raise ConfigError(
+                    f"vary= values of {key!r} must be a list of the values to try (got {values!r})",
+                    hint=f'for example vary={{"{key}": [1, 2]}}',
+                )
+            vary_texts.append(
+                f"{key}="
+                + ", ".join(_set_texts({key: v}, "vary")[0].split("=", 1)[1] for v in values)
+            )
     else:
         vary_texts = _set_texts(vary, "vary")
     # True: a line per variant, and the per-node lines of run(), on stderr
     prog = compare_mod._PlainProgress(sys.stderr) if progress is True else (progress or None)
-    kw = dict(overrides=_set_texts(set), cache_dir=cache_dir, split=split, skip_invalid=skip_invalid, plots=plots)
+    kw = dict(
+        overrides=_set_texts(set),
+        cache_dir=cache_dir,
+        split=split,
+        skip_invalid=skip_invalid,
+        plots=plots,
+    )
     if hasattr(prog, "__enter__"):  # compare does not enter it: start (and stop) the heartbeat here
         with prog:
             return compare_mod.compare(path, vary_texts, out_dir, progress=prog, **kw)

@@ -23,20 +23,31 @@ RANK = {"min": lambda v: v, "max": lambda v: -v, "abs": abs}
 
 
 def best_row(res: Any, best: str | None) -> tuple[str, str, float] | None:
-    """``(metric, how, ranked value)`` of the best row for ``--best NAME`` (lowest), ``NAME:max`` (highest)
-    or ``NAME:abs`` (closest to zero); None when no variant that ran to the end has a value."""
+    """``(metric, how, ranked value)`` of the best row for ``--best NAME`` (lowest), ``NAME:max``
+    (highest) or ``NAME:abs`` (closest to zero); None when no variant that ran to the end has a
+    value."""
     if not best:
         return None
     name, _, how = best.partition(":")
     how = how or "min"
     if name not in res.metric_names:
-        raise UsageError(f"--best {best}: no metric '{name}'", hint="choose one of " + ", ".join(res.metric_names))
+        raise UsageError(
+            f"--best {best}: no metric '{name}'",
+            hint="choose one of " + ", ".join(res.metric_names),
+        )
     if how not in RANK:
-        raise UsageError(f"--best {best}: '{how}' is not a way to rank", hint=f"use {name}, {name}:max (highest is "
-                         f"best) or {name}:abs (closest to zero is best)")
-    # Only a variant that ran to the end can be best: a failed one's numbers cover the items that got
-    # through (its hardest ones may be the ones missing), so they are shown but never ranked.
-    vals = [RANK[how](r[name]) for r in res.rows if r.get("ok") and isinstance(r.get(name), (int, float))]
+        raise UsageError(
+            f"--best {best}: '{how}' is not a way to rank",
+            hint=f"use {name}, {name}:max (highest is "
+            f"best) or {name}:abs (closest to zero is best)",
+        )
+    # Only a variant that ran to the end can be best: a failed one's numbers cover the items that
+    # got through (its hardest ones may be the ones missing), so they are shown but never ranked.
+    vals = [
+        RANK[how](r[name])
+        for r in res.rows
+        if r.get("ok") and isinstance(r.get(name), (int, float))
+    ]
     return (name, how, min(vals)) if vals else None
 
 

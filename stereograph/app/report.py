@@ -33,8 +33,12 @@ from stereograph.app.page import (
 )
 
 REPORT_NAME = "report.html"
-IMAGES_PER_OUTPUT = 6  # per-item image folders (120 overlays): the first ones embedded, the rest linked
-MESSAGES_SHOWN = 20  # warnings per node on the page (a hard set warns for dozens of pairs); the rest stay in run.json
+# per-item image folders (120 overlays): the first ones embedded, the rest linked
+IMAGES_PER_OUTPUT = 6
+# warnings per node on the page (a hard set warns for dozens of pairs); the rest stay in run.json
+MESSAGES_SHOWN = 20
+
+
 def _group(files: list[str]) -> dict[str, list[str]]:
     """Files by output: ``node/out.png`` -> ``out``; ``node/out/item.png`` -> ``out``."""
     groups: dict[str, list[str]] = {}
@@ -48,13 +52,18 @@ def _group(files: list[str]) -> dict[str, list[str]]:
 def node_section(page: Page, n: dict[str, Any]) -> str:
     name, status = n.get("node", "?"), n.get("status", "?")
     items = n.get("items") or 0
-    bits = [f'<h2 id="node-{escape(name)}">{escape(name)} <small>({escape(n.get("type", ""))})</small> '
-            f'<span class="st st-{escape(str(status).replace(" ", ""))}">{escape(status)}</span></h2>',
-            f"<p>{float(n.get('seconds') or 0):.2f} s"
-            + (f"; {escape(items)} items ({escape(n.get('items_ran', 0))} computed, "
-               f"{escape(n.get('items_failed', 0))} failed)"
-               if items else "")
-            + "</p>"]
+    bits = [
+        f'<h2 id="node-{escape(name)}">{escape(name)} <small>({escape(n.get("type", ""))})</small> '
+        f'<span class="st st-{escape(str(status).replace(" ", ""))}">{escape(status)}</span></h2>',
+        f"<p>{float(n.get('seconds') or 0):.2f} s"
+        + (
+            f"; {escape(items)} items ({escape(n.get('items_ran', 0))} computed, "
+            f"{escape(n.get('items_failed', 0))} failed)"
+            if items
+            else ""
+        )
+        + "</p>",
+    ]
     if n.get("error"):
         bits.append(f'<p class="err">{escape(n["error"])}</p>')
     if n.get("hint"):
@@ -63,18 +72,26 @@ def node_section(page: Page, n: dict[str, Any]) -> str:
     for m in messages[:MESSAGES_SHOWN]:
         bits.append(f'<p class="hint">{escape(m)}</p>')
     if len(messages) > MESSAGES_SHOWN:  # say that the list goes on, and where
-        bits.append(f'<p class="hint">&#8230; and {len(messages) - MESSAGES_SHOWN} more messages in '
-                    f'<a href="run.json">run.json</a></p>')
+        bits.append(
+            f'<p class="hint">&#8230; and {len(messages) - MESSAGES_SHOWN} more messages in '
+            f'<a href="run.json">run.json</a></p>'
+        )
     heads = n.get("headline") if isinstance(n.get("headline"), list) else []
     for out, files in _group([f for f in n.get("files", []) if isinstance(f, str)]).items():
-        bits.append(f'<p><a href="#sg-result">{escape(out)}</a>: in the result above</p>' if out in heads
-                    else output_block(page, out, files))
+        bits.append(
+            f'<p><a href="#sg-result">{escape(out)}</a>: in the result above</p>'
+            if out in heads
+            else output_block(page, out, files)
+        )
     return "\n".join(bits)
 
 
-def output_block(page: Page, out: str, files: list[str], title: str | None = None, small_json: bool = False) -> str:
-    """One output's files: pictures (per-item ones folded: the first few, then a link to the folder),
-    tables and Markdown rendered, the rest linked; ``small_json`` shows a short JSON value as text."""
+def output_block(
+    page: Page, out: str, files: list[str], title: str | None = None, small_json: bool = False
+) -> str:
+    """One output's files: pictures (per-item ones folded: the first few, then a link to the
+    folder), tables and Markdown rendered, the rest linked; ``small_json`` shows a short JSON value
+    as text."""
     imgs = [f for f in files if os.path.splitext(f)[1].lower() in MIME]
     rest = [f for f in files if f not in imgs]
     bits = [f'<div class="sg-output" data-output="{escape(out)}"><h3>{escape(title or out)}</h3>']
@@ -85,49 +102,86 @@ def output_block(page: Page, out: str, files: list[str], title: str | None = Non
     bits += [page.image(f, f, "item" if per_item else "") for f in imgs[:IMAGES_PER_OUTPUT]]
     if len(imgs) > IMAGES_PER_OUTPUT:
         folder = Path(imgs[0]).parent.as_posix()
-        bits.append(f'<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in '
-                    f'<a href="{href(folder)}">{escape(folder)}</a></p>')
+        bits.append(
+            f"<p>&#8230; and {len(imgs) - IMAGES_PER_OUTPUT} more in "
+            f'<a href="{href(folder)}">{escape(folder)}</a></p>'
+        )
     if fold:
         bits.append("</details>")
     for f in rest:
-        bits.append(page.json_block(f, small_json) if f.endswith(".json") else
-                    link(f) if page.inside(f) else not_shown(f))
+        bits.append(
+            page.json_block(f, small_json)
+            if f.endswith(".json")
+            else link(f)
+            if page.inside(f)
+            else not_shown(f)
+        )
     bits.append("</div>")
     return "\n".join(bits)
 
 
 def result_section(page: Page, nodes: list[dict[str, Any]]) -> str:
-    """The answer first: what failed, the one-line summaries nodes gave (a calibration's RMS), and the
-    outputs nodes declare as the run's headline (``Out(headline=True)``), in data-flow order."""
+    """The answer first: what failed, the one-line summaries nodes gave (a calibration's RMS), and
+    the outputs nodes declare as the run's headline (``Out(headline=True)``), in data-flow order."""
     bits = ['<section id="sg-result"><h2>result</h2>']
     for n in nodes:
         if n.get("error"):
-            bits.append(f'<p class="err">{escape(n.get("node"))} ({escape(n.get("type"))}): {escape(n["error"])}</p>')
-    said = [[n.get("node"), n["messages"][0]] for n in nodes
-            if isinstance(n.get("messages"), list) and len(n["messages"]) == 1 and not n.get("error")]
+            bits.append(
+                f'<p class="err">{escape(n.get("node"))} ({escape(n.get("type"))}): '
+                f"{escape(n['error'])}</p>"
+            )
+    said = [
+        [n.get("node"), n["messages"][0]]
+        for n in nodes
+        if isinstance(n.get("messages"), list) and len(n["messages"]) == 1 and not n.get("error")
+    ]
     if said:
-        bits.append(table_html({"title": "what the nodes said", "columns": ["node", "note"], "rows": said},
-                               "sg-notes"))
-    blocks = []  # pictures first, side by side with the tables: the answer fits a laptop's first screen
+        bits.append(
+            table_html(
+                {"title": "what the nodes said", "columns": ["node", "note"], "rows": said},
+                "sg-notes",
+            )
+        )
+    # pictures first, side by side with the tables: the answer fits a laptop's first screen
+    blocks = []
     for n in nodes:
         heads = n.get("headline") if isinstance(n.get("headline"), list) else []
         groups = _group([f for f in n.get("files", []) if isinstance(f, str)])
         for out in [o for o in heads if o in groups]:
             pictures = any(os.path.splitext(f)[1].lower() in MIME for f in groups[out])
-            blocks.append((not pictures, output_block(page, out, groups[out], f"{n.get('node')}: {out}", True)))
+            blocks.append(
+                (
+                    not pictures,
+                    output_block(page, out, groups[out], f"{n.get('node')}: {out}", True),
+                )
+            )
     if blocks:
-        bits.append('<div class="sg-headline">' + "".join(b for _, b in sorted(blocks, key=lambda b: b[0]))
-                    + "</div>")
+        bits.append(
+            '<div class="sg-headline">'
+            + "".join(b for _, b in sorted(blocks, key=lambda b: b[0]))
+            + "</div>"
+        )
     if len(bits) == 1:
-        bits.append("<p>No node of this pipeline declares a headline output: see the nodes below.</p>")
+        bits.append(
+            "<p>No node of this pipeline declares a headline output: see the nodes below.</p>"
+        )
     return "\n".join(bits) + "</section>"
 
 
 def _contents(nodes: list[dict[str, Any]]) -> str:
-    """Links to the nodes that saved pictures or tables (a long page: 120 overlays, a dozen nodes)."""
-    links = [f'<li><a href="#node-{escape(n["node"])}">{escape(n["node"])}</a>: '
-             + ", ".join(sorted({escape(k) for k in _group([f for f in n.get("files", []) if isinstance(f, str)])}))
-             + "</li>" for n in nodes if n.get("files") and "node" in n]
+    """Links to the nodes that saved pictures or tables (a long page: 120 overlays, a dozen
+    nodes)."""
+    links = [
+        f'<li><a href="#node-{escape(n["node"])}">{escape(n["node"])}</a>: '
+        + ", ".join(
+            sorted(
+                {escape(k) for k in _group([f for f in n.get("files", []) if isinstance(f, str)])}
+            )
+        )
+        + "</li>"
+        for n in nodes
+        if n.get("files") and "node" in n
+    ]
     return f"<h3>outputs</h3><ul>{''.join(links)}</ul>" if links else ""
 
 
@@ -138,30 +192,60 @@ def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
     including file rewires can come before its inputs; the page reads top to bottom like the graph.
     """
     by_name = {n.get("node"): n for n in nodes}
-    desc = {name: {"inputs": n.get("inputs") if isinstance(n.get("inputs"), dict) else {}}
-            for name, n in by_name.items()}
+    desc = {
+        name: {"inputs": n.get("inputs") if isinstance(n.get("inputs"), dict) else {}}
+        for name, n in by_name.items()
+    }
     index = {name: i for i, name in enumerate(by_name)}
     order = nx.lexicographical_topological_sort(graph_picture.dag(desc), key=index.__getitem__)
-    return [by_name[name] for name in order] + [n for n in nodes if by_name.get(n.get("node")) is not n]
+    return [by_name[name] for name in order] + [
+        n for n in nodes if by_name.get(n.get("node")) is not n
+    ]
 
 
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     page = Page(run_dir)
     nodes = flow_order([n for n in summary.get("nodes", []) if isinstance(n, dict)])
-    desc = {n["node"]: {"type": n.get("type", ""), "mapped": bool(n.get("mapped")), "inputs": n.get("inputs") or {}}
-            for n in nodes if "node" in n}
+    desc = {
+        n["node"]: {
+            "type": n.get("type", ""),
+            "mapped": bool(n.get("mapped")),
+            "inputs": n.get("inputs") or {},
+        }
+        for n in nodes
+        if "node" in n
+    }
     status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
     title = f"{Path(str(summary.get('pipeline', 'run'))).name} — run {summary.get('run_id', '')}"
-    overview = {"title": "nodes", "columns": ["node", "type", "status", "seconds", "items", "error"],
-                "rows": [[n.get("node"), n.get("type"), n.get("status"), round(float(n.get("seconds") or 0), 3),
-                          n.get("items") or "", n.get("error") or ""] for n in nodes]}
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{escape(title)}</title>",
-             f"<style>{STYLE}</style></head><body>", f"<h1>{escape(title)}</h1>",
-             f"<p>pipeline <code>{escape(summary.get('pipeline', ''))}</code>; result: "
-             f"<b>{'ok' if summary.get('ok') else 'FAILED'}</b>"
-             + (f"; overrides: <code>{escape(' '.join(summary.get('overrides') or []))}</code>"
-                if summary.get("overrides") else "") + "</p>",
-             '<p id="sg-images" data-ok="unknown">image check did not run</p>']
+    overview = {
+        "title": "nodes",
+        "columns": ["node", "type", "status", "seconds", "items", "error"],
+        "rows": [
+            [
+                n.get("node"),
+                n.get("type"),
+                n.get("status"),
+                round(float(n.get("seconds") or 0), 3),
+                n.get("items") or "",
+                n.get("error") or "",
+            ]
+            for n in nodes
+        ],
+    }
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{escape(title)}</title>",
+        f"<style>{STYLE}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
+        f"<p>pipeline <code>{escape(summary.get('pipeline', ''))}</code>; result: "
+        f"<b>{'ok' if summary.get('ok') else 'FAILED'}</b>"
+        + (
+            f"; overrides: <code>{escape(' '.join(summary.get('overrides') or []))}</code>"
+            if summary.get("overrides")
+            else ""
+        )
+        + "</p>",
+        '<p id="sg-images" data-ok="unknown">image check did not run</p>',
+    ]
     for note in summary.get("notes") or []:
         parts.append(f'<p class="hint">note: {escape(note)}</p>')
     parts.append(result_section(page, nodes))
@@ -170,12 +254,16 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
 
         parts.append(report_cycles.cycles_section(page, summary["loop"], run_dir))
     svg = ascii_only(graph_picture.to_svg(desc, status))
-    parts.append(f'<h2 id="sg-details">graph and nodes</h2><div class="graph-row">'
-                 f'<div class="graph" id="sg-graph">{svg}</div>'
-                 f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>")
+    parts.append(
+        f'<h2 id="sg-details">graph and nodes</h2><div class="graph-row">'
+        f'<div class="graph" id="sg-graph">{svg}</div>'
+        f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>"
+    )
     for n in nodes:
-        parts.append(f'<section class="sg-node-section" data-node="{escape(n.get("node", ""))}">'
-                     f"{node_section(page, n)}</section>")
+        parts.append(
+            f'<section class="sg-node-section" data-node="{escape(n.get("node", ""))}">'
+            f"{node_section(page, n)}</section>"
+        )
     parts.append(CHECK + "</body></html>")
     return "\n".join(parts)
 
@@ -183,7 +271,8 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
 def write_report(run_dir: str | Path) -> Path:
     """(Re)build ``RUN_DIR/report.html`` from ``RUN_DIR/run.json``; returns its path.
 
-    Raises :class:`~stereograph.core.errors.ConfigError` when the folder holds no readable ``run.json``.
+    Raises :class:`~stereograph.core.errors.ConfigError` when the folder holds no readable
+    ``run.json``.
     """
     from stereograph.core.errors import ConfigError
 
@@ -193,14 +282,21 @@ def write_report(run_dir: str | Path) -> Path:
         if not isinstance(summary, dict):
             raise ValueError("not a JSON object")
     except FileNotFoundError:
-        raise ConfigError(f"{d} has no run.json: it is not the folder of a stereograph run",
-                          hint="give the folder a run wrote (printed as 'outputs:' at the end of `stereograph run`)"
-                          ) from None
+        raise ConfigError(
+            f"{d} has no run.json: it is not the folder of a stereograph run",
+            hint="give the folder a run wrote (printed as 'outputs:' at the end of "
+            "`stereograph run`)",
+        ) from None
     except (OSError, ValueError) as e:
-        raise ConfigError(f"cannot read {d / 'run.json'}: {e}", hint="run the pipeline again to rewrite it") from None
+        raise ConfigError(
+            f"cannot read {d / 'run.json'}: {e}", hint="run the pipeline again to rewrite it"
+        ) from None
     try:
         page = build_html(summary, d)
-    except (TypeError, AttributeError, KeyError, ValueError) as e:  # a hand-edited or foreign run.json
-        raise ConfigError(f"{d / 'run.json'} is not in the form stereograph writes ({type(e).__name__}: {e})",
-                          hint="give the folder a run wrote, or run the pipeline again to rewrite it") from None
+    # a hand-edited or foreign run.json
+    except (TypeError, AttributeError, KeyError, ValueError) as e:
+        raise ConfigError(
+            f"{d / 'run.json'} is not in the form stereograph writes ({type(e).__name__}: {e})",
+            hint="give the folder a run wrote, or run the pipeline again to rewrite it",
+        ) from None
     return write_html(d / REPORT_NAME, page)

@@ -1,4 +1,5 @@
-"""The cycles section of ``report.html`` for a ``run --repeat`` loop, from ``run.json`` and ``cycles.jsonl``.
+"""The cycles section of ``report.html`` for a ``run --repeat`` loop, from ``run.json`` and
+``cycles.jsonl``.
 
 Outcome counts, why the loop stopped, each live node's time per cycle (median, 95th percentile)
 and the last cycles' pictures when they were kept (``--save-cycles``). ``cycles.jsonl`` may come
@@ -17,7 +18,8 @@ import numpy as np
 
 from stereograph.app.page import MIME, Page, escape, table_html
 
-MAX_LOG_BYTES = 8 * 2**20  # the tail of cycles.jsonl that is read (a long loop logs a few KB a cycle)
+# the tail of cycles.jsonl that is read (a long loop logs a few KB a cycle)
+MAX_LOG_BYTES = 8 * 2**20
 CYCLES_PICTURED = 30  # the last cycles whose saved pictures are shown
 
 
@@ -45,12 +47,21 @@ def _stage_table(records: list[dict[str, Any]]) -> dict[str, Any]:
     for rec in records:
         nodes = rec.get("nodes") if isinstance(rec.get("nodes"), dict) else {}
         for name, d in nodes.items():
-            if isinstance(d, dict) and d.get("status") == "ran" and isinstance(d.get("seconds"), (int, float)):
+            if (
+                isinstance(d, dict)
+                and d.get("status") == "ran"
+                and isinstance(d.get("seconds"), (int, float))
+            ):
                 times.setdefault(str(name), []).append(float(d["seconds"]) * 1000)
-    rows = [[n, len(v), round(float(np.median(v)), 1), round(float(np.percentile(v, 95)), 1)]
-            for n, v in times.items()]
-    return {"title": "time per cycle, live nodes", "columns": ["node", "cycles", "median (ms)", "p95 (ms)"],
-            "rows": rows}
+    rows = [
+        [n, len(v), round(float(np.median(v)), 1), round(float(np.percentile(v, 95)), 1)]
+        for n, v in times.items()
+    ]
+    return {
+        "title": "time per cycle, live nodes",
+        "columns": ["node", "cycles", "median (ms)", "p95 (ms)"],
+        "rows": rows,
+    }
 
 
 def _pictures(page: Page, run_dir: Path, records: list[dict[str, Any]]) -> str:
@@ -62,22 +73,34 @@ def _pictures(page: Page, run_dir: Path, records: list[dict[str, Any]]) -> str:
             continue
         folder = Path("cycles") / f"{n:05d}"
         try:
-            files = sorted(str(p.relative_to(run_dir)) for p in (run_dir / folder).rglob("*")
-                           if p.suffix.lower() in MIME and p.is_file())
+            files = sorted(
+                str(p.relative_to(run_dir))
+                for p in (run_dir / folder).rglob("*")
+                if p.suffix.lower() in MIME and p.is_file()
+            )
         except OSError:
             continue
         if files:
-            bits.append(f"<h3>cycle {n}: {escape(rec.get('status'))}</h3>"
-                        + "".join(page.image(f.replace(os.sep, "/"), f, "item") for f in files[:8]))
+            bits.append(
+                f"<h3>cycle {n}: {escape(rec.get('status'))}</h3>"
+                + "".join(page.image(f.replace(os.sep, "/"), f, "item") for f in files[:8])
+            )
     return "".join(bits)
 
 
 def cycles_section(page: Page, loop: dict[str, Any], run_dir: Path) -> str:
     """The loop's section: counts, why it stopped, time per stage, the last cycles' pictures."""
-    counts = {"cycles": loop.get("cycles"), "ok": loop.get("ok"), "failed": loop.get("failed"),
-              "interrupted": bool(loop.get("interrupted"))}
+    counts = {
+        "cycles": loop.get("cycles"),
+        "ok": loop.get("ok"),
+        "failed": loop.get("failed"),
+        "interrupted": bool(loop.get("interrupted")),
+    }
     said = ", ".join(f"{k} <b>{escape(v)}</b>" for k, v in counts.items())
-    bits = ['<section id="sg-cycles"><h2>cycles</h2>', f"<p>{said}; {escape(loop.get('stopped', ''))}</p>"]
+    bits = [
+        '<section id="sg-cycles"><h2>cycles</h2>',
+        f"<p>{said}; {escape(loop.get('stopped', ''))}</p>",
+    ]
     log = loop.get("log") if isinstance(loop.get("log"), str) else "cycles.jsonl"
     if page.inside(log):
         records = _tail_records(run_dir / log)
@@ -88,8 +111,15 @@ def cycles_section(page: Page, loop: dict[str, Any], run_dir: Path) -> str:
                 failed[key] = failed.get(key, 0) + 1
         if failed:
             rows = sorted(([k, v] for k, v in failed.items()), key=lambda r: -r[1])[:5]
-            bits.append(table_html({"title": "failed cycles, by reason", "columns": ["node: reason", "cycles"],
-                                    "rows": rows}))
+            bits.append(
+                table_html(
+                    {
+                        "title": "failed cycles, by reason",
+                        "columns": ["node: reason", "cycles"],
+                        "rows": rows,
+                    }
+                )
+            )
         if records:
             bits.append(table_html(_stage_table(records)))
             bits.append(_pictures(page, run_dir, records))

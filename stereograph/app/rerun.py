@@ -30,7 +30,8 @@ RACY_NS = 2_000_000_000  # coarser than any file system's timestamps (FAT: 2 s),
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
 MEMO_DIR = "reruns"
 STAMPS = "stamps.json"  # beside memo.json: the stamps its files have now (see _restamp)
-SMALL_INPUTS_BYTES = 4 << 20  # a must-run node's inputs up to this size (as JSON) are kept in its memo
+# a must-run node's inputs up to this size (as JSON) are kept in its memo
+SMALL_INPUTS_BYTES = 4 << 20
 _ENGINE_DIR = Path(__file__).resolve().parent
 
 
@@ -63,7 +64,9 @@ def fingerprint(pipeline: str | Path) -> list:
     from stereograph.core import registry
 
     out = []
-    skip = {str(Path(pipeline).resolve().parent)} | {os.path.abspath(p) for p in registry.PLUGIN_PATHS}
+    skip = {str(Path(pipeline).resolve().parent)} | {
+        os.path.abspath(p) for p in registry.PLUGIN_PATHS
+    }
     for p in sys.path:
         p = os.path.abspath(p or ".")
         if p in skip:
@@ -101,16 +104,28 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     live = [n for n, inst in graph.nodes.items() if not inst.spec.cacheable or n in run.memory_only]
     for n in live:  # a node that must run: terminal, one call, whole values (see _run_live)
         inst = graph.nodes[n]
-        if inst.mapped or graph.consumers(n) or any(o.collection for o in inst.spec.outputs.values()):
+        if (
+            inst.mapped
+            or graph.consumers(n)
+            or any(o.collection for o in inst.spec.outputs.values())
+        ):
             return False
     t_rec = time.time_ns()
     inputs: dict[str, list[int] | None] = {}
-    # the pipeline as this run read it: the files' stamps now, and their content now equal to the run's
-    config_files = {str(doc.path)} | {w.file for w in doc.lines.values() if getattr(w, "file", None)}
+    # the pipeline as this run read it: the files' stamps now, and their content now equal to the
+    # run's
+    config_files = {str(doc.path)} | {
+        w.file for w in doc.lines.values() if getattr(w, "file", None)
+    }
     for f in sorted(config_files):
         inputs[f] = _stamp(f)
     again = load_pipeline(doc.path, list(doc.overrides))
-    if (again.nodes, again.defaults, again.name, again.plugins) != (doc.nodes, doc.defaults, doc.name, doc.plugins):
+    if (again.nodes, again.defaults, again.name, again.plugins) != (
+        doc.nodes,
+        doc.defaults,
+        doc.name,
+        doc.plugins,
+    ):
         return False
     # the code the keys were computed from: each file's digest now equal to the one the run used
     for f, d in run.code_digests().items():
@@ -130,20 +145,36 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
             if st is not None and not (isinstance(rec, list) and len(rec) == 6 and rec[:4] == st):
                 return False
             # hashed within a timestamp tick of its mtime: the content now must be what was hashed
-            if st is not None and rec[5] - rec[1] < RACY_NS and (file_digest(Path(rp)) != rec[4] or _stamp(rp) != st):
+            if (
+                st is not None
+                and rec[5] - rec[1] < RACY_NS
+                and (file_digest(Path(rp)) != rec[4] or _stamp(rp) != st)
+            ):
                 return False
             inputs[rp] = st
     if any(st is not None and max(st[1], st[2]) > t_rec - RACY_NS for st in inputs.values()):
         return False  # changed a moment ago (mtime or ctime): the next run decides for itself
     live_keys = {run.entry_key_of(n) for n in live}
-    entries = sorted(k for k in run.used_keys() if "/" not in k and not k.startswith("volatile")
-                     and k not in live_keys)
+    entries = sorted(
+        k
+        for k in run.used_keys()
+        if "/" not in k and not k.startswith("volatile") and k not in live_keys
+    )
     summary = json.loads((result.out_dir / "run.json").read_text())
     memo: dict[str, Any] = {
-        "format": FORMAT, "recorded_ns": t_rec, "pipeline": str(doc.path), "overrides": list(doc.overrides),
-        "name": doc.name, "pipeline_dir": str(doc.directory), "plugins": list(doc.plugins),
+        "format": FORMAT,
+        "recorded_ns": t_rec,
+        "pipeline": str(doc.path),
+        "overrides": list(doc.overrides),
+        "name": doc.name,
+        "pipeline_dir": str(doc.directory),
+        "plugins": list(doc.plugins),
         "fingerprint": _now(sys_path, doc.path),
-        "inputs": inputs, "entries": entries, "echo": echo, "files": {}, "summary": summary,
+        "inputs": inputs,
+        "entries": entries,
+        "echo": echo,
+        "files": {},
+        "summary": summary,
         "where": {n: str(doc.where("nodes", n)) for n in graph.nodes},
         "upstream": {n: bool(graph.upstream(n)) for n in graph.nodes},
         "live": {n: _live_record(run, graph.nodes[n]) for n in live},
@@ -164,8 +195,13 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
             for rel in node.get("files", []):
                 src, dest = result.out_dir / rel, tmp / "files" / rel
                 dest.parent.mkdir(parents=True, exist_ok=True)
-                os.link(src, dest)  # (another disk than the cache: no memo rather than a second copy)
-                memo["files"][rel] = {"stamp": _stamp(dest), "digest": file_digest(dest), "verified_ns": t_rec}
+                # (another disk than the cache: no memo rather than a second copy)
+                os.link(src, dest)
+                memo["files"][rel] = {
+                    "stamp": _stamp(dest),
+                    "digest": file_digest(dest),
+                    "verified_ns": t_rec,
+                }
         (tmp / "memo.json").write_text(json.dumps(memo))
         final.parent.mkdir(parents=True, exist_ok=True)
         os.rename(tmp, final)  # (a concurrent run's memo there first: ours is dropped)
@@ -179,16 +215,22 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
 
 def _now(sys_path: list | None, pipeline: Path) -> list:
     """The fingerprint now, of the folders that were on ``sys.path`` as the command started (the run
-    itself may have made the first ``runs/`` in a folder that is on it: that is no package change)."""
+    itself may have made the first ``runs/`` in a folder that is on it: that is no package
+    change)."""
     now = fingerprint(pipeline)
     if sys_path is None:
         return now
     start = [p for p, _ in sys_path]
-    return [e for e in now if e[0] in start] if [e[0] for e in now if e[0] in start] == start else sys_path
+    return (
+        [e for e in now if e[0] in start]
+        if [e[0] for e in now if e[0] in start] == start
+        else sys_path
+    )
 
 
 def _key(run: Any, ref: Any) -> str:
-    """The entry key of an input: a memo is never recorded with one missing (the caller gives up on it)."""
+    """The entry key of an input: a memo is never recorded with one missing (the caller gives up on
+    it)."""
     key = run.key_of(ref)
     if key is None:
         raise KeyError(ref)
@@ -205,8 +247,13 @@ def _live_record(run: Any, inst: Any) -> dict[str, Any]:
             ports[port] = {"gather": [[i, _key(run, rr), rr[1]] for i, rr in r]}
         else:
             ports[port] = {"key": _key(run, r), "output": r[1]}
-    rec = {"type": inst.type, "params": inst.params.model_dump(mode="json"), "ports": ports,
-           "input_types": run.input_types(inst), "outputs": list(inst.spec.outputs)}
+    rec = {
+        "type": inst.type,
+        "params": inst.params.model_dump(mode="json"),
+        "ports": ports,
+        "input_types": run.input_types(inst),
+        "outputs": list(inst.spec.outputs),
+    }
     # Inputs that are small plain data (an arm, pick plans) are kept in the memo as the cache keeps
     # them (JSON): a replay then reads one file instead of an entry per item.
     from stereograph.core.cache import encode
@@ -253,16 +300,30 @@ class Replayed:
 
 
 def _report(name: str, type_: str, status: str, **kw: Any) -> SimpleNamespace:
-    """A node's line of a replayed run: the attributes of run_state.NodeReport (not imported: it brings
-    NumPy and pydantic, which a replay without nodes to run does without)."""
-    fields = dict(seconds=0.0, items=0, items_ran=0, items_failed=0, error=None, hint=None, trace=None,
-                  unexpected=False, messages=[], files=[])
+    """A node's line of a replayed run: the attributes of run_state.NodeReport (not imported: it
+    brings NumPy and pydantic, which a replay without nodes to run does without)."""
+    fields = dict(
+        seconds=0.0,
+        items=0,
+        items_ran=0,
+        items_failed=0,
+        error=None,
+        hint=None,
+        trace=None,
+        unexpected=False,
+        messages=[],
+        files=[],
+    )
     fields.update(kw)
     return SimpleNamespace(name=name, type=type_, status=status, **fields)
 
 
-def replay(pipeline: str | Path, overrides: list[str], cache_dir: str | Path | None = None,
-           out_dir: str | Path | None = None) -> Replayed | None:
+def replay(
+    pipeline: str | Path,
+    overrides: list[str],
+    cache_dir: str | Path | None = None,
+    out_dir: str | Path | None = None,
+) -> Replayed | None:
     """Replay the run of this command line from its memo, or None when a real run is needed."""
     from stereograph.core import project
 
@@ -273,8 +334,12 @@ def replay(pipeline: str | Path, overrides: list[str], cache_dir: str | Path | N
         cache = Path(cache_dir) if cache_dir else project.cache_dir(path.parent)
         mdir = memo_dir(cache, path, overrides)
         memo = json.loads((mdir / "memo.json").read_text())
-        if not isinstance(memo, dict) or memo.get("format") != FORMAT or memo.get("pipeline") != str(path) \
-                or memo.get("overrides") != list(overrides):
+        if (
+            not isinstance(memo, dict)
+            or memo.get("format") != FORMAT
+            or memo.get("pipeline") != str(path)
+            or memo.get("overrides") != list(overrides)
+        ):
             return None
         _restamp(memo, mdir)
         live_inputs = _check(memo, mdir, cache)
@@ -349,12 +414,14 @@ def _live_inputs(cache: Path, spec: dict[str, Any]) -> dict[str, Any]:
     return values
 
 
-def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
-           live_inputs: dict[str, dict[str, Any]]) -> Replayed | None:
+def _write(
+    memo: dict[str, Any], mdir: Path, out_dir: Path | None, live_inputs: dict[str, dict[str, Any]]
+) -> Replayed | None:
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
     from stereograph.core import outputs, project
 
-    run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]  # run_state.new_run_id's form
+    # run_state.new_run_id's form
+    run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     foreign = outputs.prepare_out_dir(out)
     made: list[Path] = []
@@ -374,13 +441,15 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
     except OSError:  # (a full disk, say) leave the folder as it was and let a real run report it
         for f in made:
             f.unlink(missing_ok=True)
-        for d, _dirs, _files in sorted(os.walk(out), key=lambda w: -len(w[0])):  # the folders made for them
+        # the folders made for them
+        for d, _dirs, _files in sorted(os.walk(out), key=lambda w: -len(w[0])):
             with contextlib.suppress(OSError):
                 os.rmdir(d)
         return None
     files = str(mdir / "files")
     stamps = {}
-    for rel, rec in memo["files"].items():  # (the link moved the ctime: the content was checked before)
+    # (the link moved the ctime: the content was checked before)
+    for rel, rec in memo["files"].items():
         rec["stamp"] = _stamp(f"{files}/{rel}")
         stamps[rel] = [rec["stamp"], rec["verified_ns"]]
     with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
@@ -394,22 +463,46 @@ def _write(memo: dict[str, Any], mdir: Path, out_dir: Path | None,
         name = n["node"]
         n.pop("traceback", None)
         if name in memo["live"]:
-            rep, values = _run_live(name, memo["live"][name], live_inputs[name], out, Path(memo["pipeline_dir"]),
-                                    memo["plugins"])
+            rep, values = _run_live(
+                name,
+                memo["live"][name],
+                live_inputs[name],
+                out,
+                Path(memo["pipeline_dir"]),
+                memo["plugins"],
+            )
             # (with what it wrote into its folder itself, a failure log: as a real run records it)
             files = rep.files + outputs.node_files(out, name, set(rep.files), foreign)
-            n.update(status=rep.status, seconds=round(rep.seconds, 4), items_ran=0, error=rep.error, hint=rep.hint,
-                     messages=rep.messages, files=files)
+            n.update(
+                status=rep.status,
+                seconds=round(rep.seconds, 4),
+                items_ran=0,
+                error=rep.error,
+                hint=rep.hint,
+                messages=rep.messages,
+                files=files,
+            )
             if rep.unexpected and rep.trace:
                 n["traceback"] = rep.trace
             echo_live.update({(name, o): v for o, v in values.items()})
         else:
             n.update(status="cached", seconds=0.0, items_ran=0)
-        reports[name] = _report(name, n["type"], n["status"], seconds=n["seconds"], items=n.get("items", 0),
-                                items_failed=n.get("items_failed", 0), error=n.get("error"), hint=n.get("hint"),
-                                trace=n.get("traceback"), unexpected=bool(n.get("traceback")),
-                                messages=list(n.get("messages", [])))
-    result = Replayed(run_id, out, reports, _echo(memo["echo"], echo_live), memo["where"], memo["upstream"])
+        reports[name] = _report(
+            name,
+            n["type"],
+            n["status"],
+            seconds=n["seconds"],
+            items=n.get("items", 0),
+            items_failed=n.get("items_failed", 0),
+            error=n.get("error"),
+            hint=n.get("hint"),
+            trace=n.get("traceback"),
+            unexpected=bool(n.get("traceback")),
+            messages=list(n.get("messages", [])),
+        )
+    result = Replayed(
+        run_id, out, reports, _echo(memo["echo"], echo_live), memo["where"], memo["upstream"]
+    )
     summary[outputs.MARKER] = {"format": 1, "run_id": run_id}
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
     outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
@@ -427,8 +520,14 @@ def _restamp(memo: dict[str, Any], mdir: Path) -> None:
                 memo["files"][rel].update(stamp=stamp, verified_ns=verified_ns)
 
 
-def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path, pipeline_dir: Path,
-              plugins: list[str]) -> tuple[SimpleNamespace, dict[str, Any]]:
+def _run_live(
+    name: str,
+    spec: dict[str, Any],
+    inputs: dict[str, Any],
+    out: Path,
+    pipeline_dir: Path,
+    plugins: list[str],
+) -> tuple[SimpleNamespace, dict[str, Any]]:
     """Run a node that must run, as the runner does (same ``execute``), and write its outputs."""
     from stereograph.core import outputs
     from stereograph.core.calls import Task, close_resources, execute
@@ -436,18 +535,42 @@ def _run_live(name: str, spec: dict[str, Any], inputs: dict[str, Any], out: Path
     resources: dict[str, Any] = {}
     try:
         # params as data: execute() validates them with the node's model, as for a worker process
-        res = execute(Task(spec["type"], plugins, spec["params"], inputs, name, None, str(out), str(pipeline_dir),
-                           spec["input_types"], resources))
+        res = execute(
+            Task(
+                spec["type"],
+                plugins,
+                spec["params"],
+                inputs,
+                name,
+                None,
+                str(out),
+                str(pipeline_dir),
+                spec["input_types"],
+                resources,
+            )
+        )
     finally:
         close_resources(resources)
-    rep = _report(name, spec["type"], "ran" if res.ok else "failed", seconds=res.seconds, messages=list(res.messages))
+    rep = _report(
+        name,
+        spec["type"],
+        "ran" if res.ok else "failed",
+        seconds=res.seconds,
+        messages=list(res.messages),
+    )
     if not res.ok:
-        rep.error, rep.hint, rep.trace, rep.unexpected = res.error, res.hint, res.trace, not res.user_error
+        rep.error, rep.hint, rep.trace, rep.unexpected = (
+            res.error,
+            res.hint,
+            res.trace,
+            not res.user_error,
+        )
         return rep, {}
     for o, v in (res.outputs or {}).items():
         try:
             files = outputs.write_value(out / name / o, v)
-        except Exception as e:  # as write_run_outputs: an output that cannot be written fails the node
+        # as write_run_outputs: an output that cannot be written fails the node
+        except Exception as e:
             rep.messages.append(f"could not write output '{o}': {e}")
             if isinstance(e, OSError) and rep.error is None:
                 rep.status, rep.error = "failed", f"could not write output '{o}': {e.strerror or e}"

@@ -51,24 +51,33 @@ class Params(BaseModel):
     ``Field(..., allow_inf_nan=True)``.
     """
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid", validate_assignment=True, frozen=True, allow_inf_nan=False
+    )
 
     @model_validator(mode="before")
     @classmethod
     def _no_control_characters(cls, data: Any) -> Any:
-        # A title or a name goes to terminals, pictures and pages: an escape sequence in it (YAML's "\e")
-        # would reach a terminal raw through a library's warning. Newlines and tabs are text.
+        # A title or a name goes to terminals, pictures and pages: an escape sequence in it (YAML's
+        # "\e") would reach a terminal raw through a library's warning. Newlines and tabs are text.
         where = _control_character_at(data)
         if where is not None:
-            raise ValueError(f"{where or 'a value'} holds a control character (an escape sequence?): "
-                             "write it as plain text")
+            raise ValueError(
+                f"{where or 'a value'} holds a control character (an escape sequence?): "
+                "write it as plain text"
+            )
         return data
 
 
 def _control_character_at(value: Any, path: str = "") -> str | None:
-    """The key path of the first string (in nested dicts and lists) holding a control character, else None."""
+    """The key path of the first string (in nested dicts and lists) holding a control character,
+    else None."""
     if isinstance(value, str):
-        return path if any(ord(c) < 32 and c not in "\n\t\r" or 0x7F <= ord(c) < 0xA0 for c in value) else None
+        return (
+            path
+            if any(ord(c) < 32 and c not in "\n\t\r" or 0x7F <= ord(c) < 0xA0 for c in value)
+            else None
+        )
     if isinstance(value, dict):
         items = ((f"{path}.{k}" if path else str(k), v) for k, v in value.items())
     elif isinstance(value, (list, tuple)):
@@ -89,39 +98,52 @@ def PathField(default: Any = ..., **kwargs: Any) -> Any:  # noqa: N802  (a Field
     return Field(default, json_schema_extra={"reads_path": True}, **kwargs)
 
 
-MAX_DATA_FILE_MB = 64.0  # a calibration, truth or target file is KB to a few MB: beyond this, not one
-MAX_DATA_NESTING = 64  # brackets / tags nested deeper than this: no data file of ours, a parser's stack bomb
+# a calibration, truth or target file is KB to a few MB: beyond this, not one
+MAX_DATA_FILE_MB = 64.0
+# brackets / tags nested deeper than this: no data file of ours, a parser's stack bomb
+MAX_DATA_NESTING = 64
 
 
 def data_file(path: str | Path, what: str, label: str, max_mb: float = MAX_DATA_FILE_MB) -> Path:
-    """``path``, checked before a node reads it as ``what`` (a data file may come from anyone): it exists,
-    it is a regular file -- a device, FIFO or socket is refused before it is opened (``/dev/zero`` never
-    ends, a FIFO never answers) --, it holds at most ``max_mb`` MB, and it does not nest brackets or XML
-    tags deeper than :data:`MAX_DATA_NESTING` (a parser's stack). :class:`NodeError` naming it, else."""
+    """``path``, checked before a node reads it as ``what`` (a data file may come from anyone): it
+    exists, it is a regular file -- a device, FIFO or socket is refused before it is opened
+    (``/dev/zero`` never ends, a FIFO never answers) --, it holds at most ``max_mb`` MB, and it does
+    not nest brackets or XML tags deeper than :data:`MAX_DATA_NESTING` (a parser's stack).
+    :class:`NodeError` naming it, else."""
     import stat
 
     p = Path(path)
     try:
         st = p.stat()
     except OSError:
-        raise NodeError(f"{label}: {p} does not exist.", hint="relative paths start at the pipeline file's "
-                        "folder") from None
+        raise NodeError(
+            f"{label}: {p} does not exist.",
+            hint="relative paths start at the pipeline file's folder",
+        ) from None
     if not stat.S_ISREG(st.st_mode):
         kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a device, FIFO or socket"
-        raise NodeError(f"{label}: {p} is {kind}, not a file: it is not read as {what}.",
-                        hint=f"give the path of {what} (a regular file)")
+        raise NodeError(
+            f"{label}: {p} is {kind}, not a file: it is not read as {what}.",
+            hint=f"give the path of {what} (a regular file)",
+        )
     if st.st_size > max_mb * 2**20:
-        raise NodeError(f"{label}: {p} holds {st.st_size / 2**20:.0f} MB, more than {what} can ({max_mb:g} MB).",
-                        hint=f"give {what}; a file this large is another kind of file")
+        raise NodeError(
+            f"{label}: {p} holds {st.st_size / 2**20:.0f} MB, more than {what} can "
+            f"({max_mb:g} MB).",
+            hint=f"give {what}; a file this large is another kind of file",
+        )
     depth = _nesting(p.read_bytes())
     if depth > MAX_DATA_NESTING:
-        raise NodeError(f"{label}: {p} nests its values {depth} levels deep; {what} needs a few.",
-                        hint=f"give {what}; this one was not written by a calibration or measuring tool")
+        raise NodeError(
+            f"{label}: {p} nests its values {depth} levels deep; {what} needs a few.",
+            hint=f"give {what}; this one was not written by a calibration or measuring tool",
+        )
     return p
 
 
 def _nesting(data: bytes) -> int:
-    """How deep ``[``/``{`` brackets (JSON, YAML flow) or XML elements nest (a rough count: strings aside)."""
+    """How deep ``[``/``{`` brackets (JSON, YAML flow) or XML elements nest (a rough count: strings
+    aside)."""
     import re
 
     deepest = level = 0
@@ -133,13 +155,15 @@ def _nesting(data: bytes) -> int:
 
 
 def parse_yaml_data(text: str, source: str, label: str) -> Any:
-    """YAML from a data file, with the bounds a pipeline file has (safe_load semantics, depth, values
-    after alias expansion: a few hundred bytes of aliases cannot ask for gigabytes)."""
+    """YAML from a data file, with the bounds a pipeline file has (safe_load semantics, depth,
+    values after alias expansion: a few hundred bytes of aliases cannot ask for gigabytes)."""
 
     try:
         return parse_yaml(text, source, record_lines=False)[0]
     except ConfigError as e:
-        raise NodeError(f"{label}: {e}", hint="give a YAML file written by the tool it comes from") from None
+        raise NodeError(
+            f"{label}: {e}", hint="give a YAML file written by the tool it comes from"
+        ) from None
 
 
 def _ordered(value: tuple[float, float]) -> tuple[float, float]:
@@ -151,6 +175,7 @@ def _ordered(value: tuple[float, float]) -> tuple[float, float]:
 
 OrderedRange = Annotated[tuple[float, float], AfterValidator(_ordered)]
 """A ``[low, high]`` range with ``low < high`` (both finite); use as a params field type."""
+
 
 def _positive_ordered(value: tuple[float, float]) -> tuple[float, float]:
     if not value[0] > 0:
@@ -303,7 +328,9 @@ class RunContext:
     messages: list[str] = field(default_factory=list)
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None
-    on_progress: Callable[[float, float, str], None] | None = field(default=None, repr=False, compare=False)
+    on_progress: Callable[[float, float, str], None] | None = field(
+        default=None, repr=False, compare=False
+    )
     producing_items: bool = False
     lost: dict[str, dict[str, str]] = field(default_factory=dict)
 
@@ -386,10 +413,9 @@ class _Registry(dict):
 REGISTRY: _Registry = _Registry()
 
 
-
 class _UndeclaredParam(NodeError, AttributeError):
-    """A node declared without ``params=`` read a param. An AttributeError too, so that ``hasattr`` and
-    ``getattr(params, name, default)`` still work; a NodeError, so the run says it plainly."""
+    """A node declared without ``params=`` read a param. An AttributeError too, so that ``hasattr``
+    and ``getattr(params, name, default)`` still work; a NodeError, so the run says it plainly."""
 
 
 class _NoParams(Params):
@@ -400,13 +426,16 @@ class _NoParams(Params):
             return super().__getattr__(name)
         raise _UndeclaredParam(
             f"the node reads params.{name}, but its @node(...) declares no params model",
-            hint=f"declare one: class MyParams(Params): {name}: float = Field(..., description='... (unit)'), "
-                 "then @node(..., params=MyParams); the pipeline's params: then set it")
+            hint=f"declare one: class MyParams(Params): {name}: float = Field(..., "
+            "description='... (unit)'), "
+            "then @node(..., params=MyParams); the pipeline's params: then set it",
+        )
 
 
 def type_name(ann: Any) -> str:
-    """A parameter's type as a person reads it: ``'train' | 'all'``, ``float | None``, ``tuple[float, float]``
-    (constraints such as ``PositiveRange``'s validator are left out: the description states them)."""
+    """A parameter's type as a person reads it: ``'train' | 'all'``, ``float | None``,
+    ``tuple[float, float]`` (constraints such as ``PositiveRange``'s validator are left out: the
+    description states them)."""
     import typing
 
     origin = typing.get_origin(ann)
@@ -418,7 +447,9 @@ def type_name(ann: Any) -> str:
         args = [type_name(a) for a in typing.get_args(ann)]
         name = getattr(origin, "__name__", str(origin).replace("typing.", ""))
         return " | ".join(args) if name in ("Union", "UnionType") else f"{name}[{', '.join(args)}]"
-    return "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
+    return (
+        "None" if ann is type(None) else getattr(ann, "__name__", str(ann).replace("typing.", ""))
+    )
 
 
 def node(
@@ -461,14 +492,26 @@ def node(
 
     def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
         doc = inspect.getdoc(fn) or ""
-        spec = NodeSpec(name=name, fn=fn, params=params or _NoParams, inputs=dict(inputs or {}),
-                        outputs=dict(outputs or {}), version=str(version), cacheable=cacheable, reads=reads,
-                        items=items, prepare=prepare, check=check,
-                        description=doc.split("\n\n", 1)[0].replace("\n", " "))
+        spec = NodeSpec(
+            name=name,
+            fn=fn,
+            params=params or _NoParams,
+            inputs=dict(inputs or {}),
+            outputs=dict(outputs or {}),
+            version=str(version),
+            cacheable=cacheable,
+            reads=reads,
+            items=items,
+            prepare=prepare,
+            check=check,
+            description=doc.split("\n\n", 1)[0].replace("\n", " "),
+        )
         sig = inspect.signature(fn)
         missing = [i for i in spec.inputs if i not in sig.parameters]
         if missing:
-            raise TypeError(f"node {name!r}: function {fn.__name__} lacks parameters for inputs {missing}")
+            raise TypeError(
+                f"node {name!r}: function {fn.__name__} lacks parameters for inputs {missing}"
+            )
         REGISTRY[name] = spec
         fn.spec = spec  # type: ignore[attr-defined]
         return fn

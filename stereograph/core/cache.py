@@ -68,7 +68,8 @@ def in_use(root: Path) -> Iterator[None]:
 
 @contextlib.contextmanager
 def exclusive(root: Path, wait_s: float) -> Iterator[None]:
-    """The cache to oneself (no run holds :func:`in_use`), waiting at most ``wait_s``; :class:`CacheBusy` else."""
+    """The cache to oneself (no run holds :func:`in_use`), waiting at most ``wait_s``;
+    :class:`CacheBusy` else."""
     fd = _lock_fd(root)
     if fd is None:
         yield
@@ -104,12 +105,17 @@ class NotStored(Exception):
 
 def is_png_image(a: Any) -> bool:
     """An 8-bit image PNG holds exactly (HxW, HxWx3, HxWx4 ``uint8``, not tiny)."""
-    return (isinstance(a, np.ndarray) and a.dtype == np.uint8 and a.size > 64
-            and (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))))
+    return (
+        isinstance(a, np.ndarray)
+        and a.dtype == np.uint8
+        and a.size > 64
+        and (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4)))
+    )
 
 
 def _png_encode(a: np.ndarray) -> bytes | None:
-    """PNG bytes (OpenCV's default level: fast, lossless), byte-identical to what the run folder gets."""
+    """PNG bytes (OpenCV's default level: fast, lossless), byte-identical to what the run folder
+    gets."""
     import cv2
 
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(a))
@@ -138,7 +144,9 @@ def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
     known = _DECODED_FROM.get(id(a))
     if known is not None and known[0]() is a:
         return known[1], a
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    ok, buf = cv2.imencode(
+        ".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
+    )
     if not ok:
         return None
     data = buf.tobytes()
@@ -183,7 +191,10 @@ def encode(value: Any, arrays: dict[str, np.ndarray], where: str = "value") -> A
                 raise TypeError(f"{where} has a non-string key {k!r}")
             out[k] = encode(v, arrays, f"{where}.{k}")
         return out
-    raise TypeError(f"{where} is a {type(value).__name__}, not plain data (dict/list/str/number/bool/None/ndarray)")
+    raise TypeError(
+        f"{where} is a {type(value).__name__}, not plain data "
+        "(dict/list/str/number/bool/None/ndarray)"
+    )
 
 
 def decode(value: Any, arrays: Any) -> Any:
@@ -211,7 +222,8 @@ def content_key(value: Any) -> str:
 # --------------------------------------------------------------------------- source-code hashing
 
 _SYSTEM_DIRS = tuple(
-    str(Path(p).resolve()) for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
+    str(Path(p).resolve())
+    for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
 )
 _ENGINE_DIR = str(Path(__file__).resolve().parent)
 
@@ -235,7 +247,9 @@ def _top_is_local(top: str) -> bool:
         return False
     if spec.origin and spec.origin not in ("namespace", "built-in", "frozen"):
         return _is_local(spec.origin)
-    return any(_is_local(str(Path(p) / "__init__.py")) for p in (spec.submodule_search_locations or []))
+    return any(
+        _is_local(str(Path(p) / "__init__.py")) for p in (spec.submodule_search_locations or [])
+    )
 
 
 def _find_origin(name: str) -> str | None:
@@ -282,7 +296,8 @@ def _resolved(file: str) -> str:
     return str(Path(file).resolve())
 
 
-_NAMES: dict[str, str] = {}  # resolved module file -> module name, for the sys.modules it was built from
+# resolved module file -> module name, for the sys.modules it was built from
+_NAMES: dict[str, str] = {}
 _NAMES_SEEN = [0]
 
 
@@ -360,7 +375,8 @@ class FileIndex:
                 data = None
             if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):
                 self.data = data
-            else:  # someone's own files.json (a --cache-dir that is a folder of theirs): never overwritten
+            # someone's own files.json (a --cache-dir that is a folder of theirs): never overwritten
+            else:
                 self.path = None
 
     def digest(self, path: Path) -> str:
@@ -369,11 +385,17 @@ class FileIndex:
             st = os.stat(p)
         except OSError:
             return "missing"
-        if not stat.S_ISREG(st.st_mode):  # a device or FIFO would never end (/dev/zero) or never answer
+        # a device or FIFO would never end (/dev/zero) or never answer
+        if not stat.S_ISREG(st.st_mode):
             return "not a regular file"
         stamp = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
         rec = self.data.get(p)
-        if isinstance(rec, list) and len(rec) == 6 and rec[:4] == stamp and rec[5] - rec[1] >= RACY_SECONDS * 1e9:
+        if (
+            isinstance(rec, list)
+            and len(rec) == 6
+            and rec[:4] == stamp
+            and rec[5] - rec[1] >= RACY_SECONDS * 1e9
+        ):
             return rec[4]
         try:
             d = file_digest(Path(p))
@@ -385,7 +407,8 @@ class FileIndex:
 
     def save(self) -> None:
         if self.path and self.dirty:
-            with contextlib.suppress(OSError):  # a read-only or full cache: the digests are only a fast path
+            # a read-only or full cache: the digests are only a fast path
+            with contextlib.suppress(OSError):
                 _atomic_write(self.path, json.dumps(self.data).encode())
             self.dirty = False
 
@@ -415,10 +438,12 @@ class ArtifactStore:
         self.locks = self.root / "locks"
         self.notes: list[str] = []  # what a user should know about this cache (read-only, full)
         if self.root.exists() and not self.root.is_dir():
-
-            raise ConfigError(f"cache folder {self.root} is an existing file",
-                              hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the project's "
-                                   "pyproject.toml cache_dir, whichever set this one), or remove that file")
+            raise ConfigError(
+                f"cache folder {self.root} is an existing file",
+                hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or "
+                "the project's "
+                "pyproject.toml cache_dir, whichever set this one), or remove that file",
+            )
         self.writable = self._probe()
         self.files = FileIndex(self.root)
         self._written = 0
@@ -430,21 +455,27 @@ class ArtifactStore:
         while not probe.exists() and probe != probe.parent:
             probe = probe.parent
         if not probe.is_dir():
-
-            raise ConfigError(f"cache folder {self.root} cannot be made: {probe} is a file",
-                              hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the "
-                                   "project's pyproject.toml cache_dir, whichever set this one)")
+            raise ConfigError(
+                f"cache folder {self.root} cannot be made: {probe} is a file",
+                hint="choose another folder with --cache-dir (or STEREOGRAPH_CACHE_DIR, or the "
+                "project's pyproject.toml cache_dir, whichever set this one)",
+            )
         dirs = [probe] + [d for d in (self.objects, self.tmp) if d.is_dir()]
         # access() reports a read-only file system (EROFS) even to root; permissions too for others
         if all(os.access(d, os.W_OK | os.X_OK) for d in dirs):
             return True
-        self.notes.append(f"cache {self.root} is not writable: results are read from it, new ones are not stored")
+        self.notes.append(
+            f"cache {self.root} is not writable: results are read from it, new ones are not stored"
+        )
         return False
 
     def _cannot_store(self, e: OSError) -> None:
         if self.writable:
-            self.notes.append(f"cache {self.root}: cannot store more entries ({e.strerror or e}); the run goes on "
-                              "without storing them")
+            self.notes.append(
+                f"cache {self.root}: cannot store more entries ({e.strerror or e}); the "
+                "run goes on "
+                "without storing them"
+            )
         self.writable = False
 
     def _dir(self, key: str) -> Path:
@@ -456,7 +487,9 @@ class ArtifactStore:
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
-            if not all((d / name).stat().st_size == rec["size"] for name, rec in man["files"].items()):
+            if not all(
+                (d / name).stat().st_size == rec["size"] for name, rec in man["files"].items()
+            ):
                 return None
             if self.writable:
                 with contextlib.suppress(OSError):
@@ -470,7 +503,8 @@ class ArtifactStore:
         return self.complete(key) is not None
 
     def load(self, key: str) -> dict[str, Any]:
-        """The outputs stored under ``key``; :class:`CorruptEntry` if the files fail their digests."""
+        """The outputs stored under ``key``; :class:`CorruptEntry` if the files fail their
+        digests."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
@@ -499,8 +533,8 @@ class ArtifactStore:
             raise CorruptEntry(str(e)) from e
 
     def ready_file(self, key: str, output: str) -> Path | None:
-        """The stored PNG (JPEG for a lossy output) of a top-level image ``output`` of entry ``key`` -- the
-        very file a run folder gets for it -- if it matches its digest, else None."""
+        """The stored PNG (JPEG for a lossy output) of a top-level image ``output`` of entry ``key``
+        -- the very file a run folder gets for it -- if it matches its digest, else None."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
@@ -518,17 +552,23 @@ class ArtifactStore:
         except (OSError, ValueError):
             return None
 
-    def save(self, key: str, outputs: dict[str, Any], meta: dict[str, Any] | None = None,
-             compute_seconds: float | None = None, encoded: dict[str, bytes] | None = None) -> None:
+    def save(
+        self,
+        key: str,
+        outputs: dict[str, Any],
+        meta: dict[str, Any] | None = None,
+        compute_seconds: float | None = None,
+        encoded: dict[str, bytes] | None = None,
+    ) -> None:
         """Store ``outputs`` atomically (temp folder + rename); a racing writer's copy is kept.
 
         On a read-only or full cache nothing is stored (the run goes on; :attr:`notes` says so).
         A value that is not plain data raises ``TypeError`` whatever the cache.
 
         ``compute_seconds``: what computing ``outputs`` took, given when the caller may do without a
-        stored copy. If it is less than encoding the entry's images took (measured here, now: decoding
-        costs about as much), only the manifest is kept (see :class:`NotStored`): the entry reads as
-        fresh, and whoever needs its value computes it again from its cached inputs.
+        stored copy. If it is less than encoding the entry's images took (measured here, now:
+        decoding costs about as much), only the manifest is kept (see :class:`NotStored`): the entry
+        reads as fresh, and whoever needs its value computes it again from its cached inputs.
 
         ``encoded``: top-level image outputs already encoded as JPEG (:func:`jpeg_roundtrip`; the
         value in ``outputs`` is what those bytes decode to), stored as those bytes.
@@ -545,7 +585,11 @@ class ArtifactStore:
         # 8-bit images as PNG (lossless, 3-10x smaller than raw); a top-level image output's PNG
         # is also the run folder's file for it, copied as it is (no second copy under rendered/)
         for out, ref in tree.items() if isinstance(tree, dict) else ():
-            if out in (encoded or {}) and isinstance(ref, dict) and ref.get("__ndarray__") in arrays:
+            if (
+                out in (encoded or {})
+                and isinstance(ref, dict)
+                and ref.get("__ndarray__") in arrays
+            ):
                 blobs[f"{ref['__ndarray__']}.jpg"] = encoded[out]  # type: ignore[index]
                 del arrays[ref["__ndarray__"]]
         t0 = time.perf_counter()
@@ -555,26 +599,43 @@ class ArtifactStore:
                 blobs[f"{name}.png"] = png
                 del arrays[name]
         codec_seconds = time.perf_counter() - t0
-        recompute = (compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds)
+        recompute = (
+            compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds
+        )
         for out, ref in tree.items() if isinstance(tree, dict) else ():
             for ext in (".png", ".jpg"):
-                if isinstance(ref, dict) and ref.get("__ndarray__") and f"{ref['__ndarray__']}{ext}" in blobs:
+                if (
+                    isinstance(ref, dict)
+                    and ref.get("__ndarray__")
+                    and f"{ref['__ndarray__']}{ext}" in blobs
+                ):
                     ready[out] = f"{ref['__ndarray__']}{ext}"
         if arrays:
             buf = io.BytesIO()
             # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
             # float arrays barely compress, so they are stored as they are
-            (np.savez_compressed if any(a.dtype == np.bool_ for a in arrays.values()) else np.savez)(buf, **arrays)
+            (
+                np.savez_compressed
+                if any(a.dtype == np.bool_ for a in arrays.values())
+                else np.savez
+            )(buf, **arrays)
             blobs["arrays.npz"] = buf.getvalue()
-        manifest = {"key": key, "format": FORMAT, "created": time.time(), "meta": meta or {},
-                    "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},
-                    **({"png_outputs": ready} if ready else {})}
+        manifest = {
+            "key": key,
+            "format": FORMAT,
+            "created": time.time(),
+            "meta": meta or {},
+            "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},
+            **({"png_outputs": ready} if ready else {}),
+        }
         if recompute:
             # only the manifest: the entry reads as fresh, and its value is computed again from its
             # (cached) inputs by whoever needs it -- cheaper than reading it back
             blobs, manifest["files"], manifest["recompute"] = {}, {}, True
-            manifest["recompute_reason"] = (f"computing took {compute_seconds * 1e3:.1f} ms, encoding its images "
-                                            f"{codec_seconds * 1e3:.1f} ms")
+            manifest["recompute_reason"] = (
+                f"computing took {compute_seconds * 1e3:.1f} ms, encoding its images "
+                f"{codec_seconds * 1e3:.1f} ms"
+            )
             manifest.pop("png_outputs", None)
         self._write_entry(key, blobs, manifest)
 
@@ -588,7 +649,8 @@ class ArtifactStore:
         try:
             for name, b in blobs.items():
                 (tmp / name).write_bytes(b)
-            (tmp / "manifest.json").write_text(json.dumps(manifest))  # last: marks the entry complete
+            # last: marks the entry complete
+            (tmp / "manifest.json").write_text(json.dumps(manifest))
             final = self._dir(key)
             final.parent.mkdir(parents=True, exist_ok=True)
             if final.exists():
@@ -619,7 +681,8 @@ class ArtifactStore:
 
         ``filelock`` rather than ``fcntl``: the same lock on Windows (``msvcrt``) as on POSIX.
         """
-        from filelock import FileLock, Timeout  # (here: a replayed rerun reads entries and takes no lock)
+        # (here: a replayed rerun reads entries and takes no lock)
+        from filelock import FileLock, Timeout
 
         path = self.locks / key[:2] / f"{key}.lock"
         try:
@@ -632,7 +695,8 @@ class ArtifactStore:
             got = True
         except Timeout:  # held by another run (non-blocking only)
             got = False
-        except OSError:  # nothing will be stored, so there is nothing to share: compute without a lock
+        # nothing will be stored, so there is nothing to share: compute without a lock
+        except OSError:
             yield True
             return
         try:
@@ -648,7 +712,9 @@ class ArtifactStore:
         if not self.writable:
             return
         try:
-            _atomic_write(self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode())
+            _atomic_write(
+                self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode()
+            )
         except OSError as e:
             self._cannot_store(e)
 
@@ -661,7 +727,8 @@ class ArtifactStore:
     # ---- `stereograph cache info|clear`
 
     def info(self, budget: int | None = None) -> dict[str, Any]:
-        """Entries, bytes (entries and their rendered files) by node type, and the budget if given."""
+        """Entries, bytes (entries and their rendered files) by node type, and the budget if
+        given."""
         n, size, by_node = 0, 0, {}
         for _used, s, key, d in self._usage():
             if d is None:  # rendered files whose entry is gone
@@ -673,11 +740,20 @@ class ArtifactStore:
             cnt, sz = by_node.get(t, (0, 0))
             by_node[t] = (cnt + 1, sz + s)
         left = self.abandoned()
-        return {"root": str(self.root), "entries": n, "bytes": size, "by_type": by_node, "budget": budget,
-                "abandoned": len(left), "abandoned_bytes": sum(b for _d, b in left)}
+        return {
+            "root": str(self.root),
+            "entries": n,
+            "bytes": size,
+            "by_type": by_node,
+            "budget": budget,
+            "abandoned": len(left),
+            "abandoned_bytes": sum(b for _d, b in left),
+        }
 
     def _usage(self) -> list[tuple[float, int, str, Path | None]]:
-        """(last use, bytes, key, entry folder or None) per entry, its rendered files counted with it."""
+        """(last use, bytes, key, entry folder or None) per entry, its rendered files counted with
+        it."""
+
         def du(d: Path) -> int:
             with contextlib.suppress(OSError):
                 return sum(f.stat().st_size for f in d.iterdir() if f.is_file())
@@ -689,7 +765,8 @@ class ArtifactStore:
             for sub in rroot.iterdir():
                 if sub.is_dir() and not sub.is_symlink():
                     for r in sub.iterdir():
-                        if _named(r, "rendered", 1) and r.name[:2] == sub.name:  # (nothing else is pruned)
+                        # (nothing else is pruned)
+                        if _named(r, "rendered", 1) and r.name[:2] == sub.name:
                             rendered.setdefault(r.name.split("-", 1)[0], []).append(r)
         rows = []
         if self.objects.is_dir():
@@ -740,8 +817,9 @@ class ArtifactStore:
         (:meth:`abandoned`) goes first, whatever the budget.
         """
         if not self.writable:
-
-            raise ConfigError(f"cannot prune cache {self.root}: it is not writable", hint="check its permissions")
+            raise ConfigError(
+                f"cannot prune cache {self.root}: it is not writable", hint="check its permissions"
+            )
         with exclusive(self.root, wait_s):
             return self._prune(max_bytes)
 
@@ -758,12 +836,14 @@ class ArtifactStore:
             for r in (self.root / "rendered" / key[:2]).glob(f"{key}-*"):
                 shutil.rmtree(r, ignore_errors=True)
             freed += size
-        if removed:  # rerun memos hard-link run-folder files: they must not keep pruned images on disk
+        # rerun memos hard-link run-folder files: they must not keep pruned images on disk
+        if removed:
             hooks.announce("cache_pruned", self.root)
         return removed, freed
 
     def stored_bytes(self) -> int:
-        """Bytes this store object wrote in this process (decides whether a prune is worth a look)."""
+        """Bytes this store object wrote in this process (decides whether a prune is worth a
+        look)."""
         return self._written
 
     def _entries(self) -> Iterator[Path]:
@@ -771,17 +851,23 @@ class ArtifactStore:
         for sub in self.objects.iterdir():
             if sub.is_dir() and not sub.is_symlink():
                 for d in sub.iterdir():
-                    if d.is_dir() and not d.is_symlink() and d.name[:2] == sub.name and _named(d, "objects", 1):
+                    if (
+                        d.is_dir()
+                        and not d.is_symlink()
+                        and d.name[:2] == sub.name
+                        and _named(d, "objects", 1)
+                    ):
                         yield d
 
     def clear(self, wait_s: float = 0.0) -> int:
         """Remove every entry and what a cache keeps beside them; returns the number of entries.
         Waits up to ``wait_s`` for running runs to end (:class:`CacheBusy` then), as :meth:`prune`.
 
-        Only what a cache holds, named as the store names it, is removed (see :data:`_CACHE_LAYOUT`):
-        a cache folder that is a folder of yours -- ``--cache-dir ~`` by mistake, a project's
-        ``pyproject.toml`` or a symbolic link that points it there -- loses nothing else (its ``tmp/``,
-        its ``files.json``). A folder left empty is removed; one holding anything else stays."""
+        Only what a cache holds, named as the store names it, is removed (see
+        :data:`_CACHE_LAYOUT`): a cache folder that is a folder of yours -- ``--cache-dir ~`` by
+        mistake, a project's ``pyproject.toml`` or a symbolic link that points it there -- loses
+        nothing else (its ``tmp/``, its ``files.json``). A folder left empty is removed; one holding
+        anything else stays."""
         with exclusive(self.root, wait_s):
             return self._clear()
 
@@ -791,8 +877,13 @@ class ArtifactStore:
             _sweep(self.root / sub, levels)
         index = self.root / "files.json"
         with contextlib.suppress(OSError, ValueError):
-            data = json.loads(index.read_text()) if index.is_file() and not index.is_symlink() else None
-            if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):  # (a FileIndex)
+            data = (
+                json.loads(index.read_text())
+                if index.is_file() and not index.is_symlink()
+                else None
+            )
+            # (a FileIndex)
+            if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):
                 index.unlink()
         lock = self.root / IN_USE_LOCK
         with contextlib.suppress(OSError):
@@ -802,21 +893,24 @@ class ArtifactStore:
 
 
 _HEX = r"[0-9a-f]"
-ABANDONED_AFTER_S = 3600.0  # a tmp/ folder untouched this long was left by a killed run (see abandoned())
+# a tmp/ folder untouched this long was left by a killed run (see abandoned())
+ABANDONED_AFTER_S = 3600.0
 # What ArtifactStore.clear removes: under each folder of the cache, the names at each level down
 # to what is removed whole (an entry's folder, a lock file); anything else is left where it is.
 _CACHE_LAYOUT: dict[str, list[str]] = {
-    "objects": [f"{_HEX}{{2}}", f"c?{_HEX}{{32}}"],       # objects/ab/<key>/ (c...: a content key)
+    "objects": [f"{_HEX}{{2}}", f"c?{_HEX}{{32}}"],  # objects/ab/<key>/ (c...: a content key)
     "rendered": [f"{_HEX}{{2}}", rf"c?{_HEX}{{32}}-[\w.-]+"],  # rendered/ab/<key>-<output>/
-    "locks": [f"{_HEX}{{2}}", rf"c?{_HEX}{{32}}\.lock"],        # locks/ab/<key>.lock
-    "last": [f"{_HEX}{{32}}", r"[\w.-]+\.json"],                 # last/<pipeline id>/<node>.json
-    "reruns": [f"{_HEX}{{24}}"],                                  # reruns/<memo id>/
-    "tmp": [rf"(?:(?:del|memo|r)-)?{_HEX}{{32}}"],                # tmp/<uuid>/ (an entry, a memo being made)
+    "locks": [f"{_HEX}{{2}}", rf"c?{_HEX}{{32}}\.lock"],  # locks/ab/<key>.lock
+    "last": [f"{_HEX}{{32}}", r"[\w.-]+\.json"],  # last/<pipeline id>/<node>.json
+    "reruns": [f"{_HEX}{{24}}"],  # reruns/<memo id>/
+    # tmp/<uuid>/ (an entry, a memo being made)
+    "tmp": [rf"(?:(?:del|memo|r)-)?{_HEX}{{32}}"],
 }
 
 
 def _named(p: Path, folder: str, level: int) -> bool:
-    """Whether ``p``'s name is one the store gives at that level of ``folder`` (:data:`_CACHE_LAYOUT`)."""
+    """Whether ``p``'s name is one the store gives at that level of ``folder``
+    (:data:`_CACHE_LAYOUT`)."""
     import re
 
     return re.fullmatch(_CACHE_LAYOUT[folder][level], p.name) is not None

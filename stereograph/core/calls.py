@@ -2,8 +2,8 @@
 
 A module of its own, apart from the scheduler (:mod:`stereograph.core.runner`), so that running one
 node without the scheduler -- a replayed rerun's node that must run
-(:mod:`stereograph.app.rerun`) -- imports the node API and the registry only: not the cache's codecs,
-NumPy or the streaming machinery.
+(:mod:`stereograph.app.rerun`) -- imports the node API and the registry only: not the cache's
+codecs, NumPy or the streaming machinery.
 """
 
 from __future__ import annotations
@@ -25,7 +25,9 @@ from stereograph.core.errors import ConfigError
 # The run's progress display, for nodes that report progress inside a call (ctx.progress). A
 # context variable, not a Task field: the display cannot travel to worker processes (there
 # ctx.progress is a no-op and the per-item count still advances).
-_PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar("stereograph_progress", default=None)
+_PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar(
+    "stereograph_progress", default=None
+)
 
 
 def _progress_hook(node_name: str) -> Callable[[float, float, str], None] | None:
@@ -50,7 +52,8 @@ class Task:
     input_types: dict[str, str] = field(default_factory=dict)
     resources: dict[str, Any] | None = None  # objects kept open for the run (this process only)
     producing: bool = False  # the node produces its collections item by item (``items=``)
-    lost: dict[str, dict[str, str]] = field(default_factory=dict)  # gather port -> {item: why} (RunContext.lost)
+    # gather port -> {item: why} (RunContext.lost)
+    lost: dict[str, dict[str, str]] = field(default_factory=dict)
 
 
 @dataclass
@@ -70,7 +73,8 @@ def execute(task: Task) -> TaskResult:
     """Run one node call; never raises (failures come back as a TaskResult)."""
     t0 = time.perf_counter()
     try:
-        if task.plugins:  # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
+        # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
+        if task.plugins:
             registry.import_plugins(task.plugins, Path(task.pipeline_dir))
         spec = REGISTRY.get(task.node_type)
         if spec is None:
@@ -81,39 +85,72 @@ def execute(task: Task) -> TaskResult:
         kwargs = dict(task.inputs)
         ctx = None
         if spec.wants_ctx:
-            ctx = RunContext(task.node_name, task.item, Path(task.out_dir) / task.node_name,
-                             Path(task.pipeline_dir), input_types=task.input_types, resources=task.resources,
-                             on_progress=_progress_hook(task.node_name), producing_items=task.producing,
-                             lost=task.lost)
+            ctx = RunContext(
+                task.node_name,
+                task.item,
+                Path(task.out_dir) / task.node_name,
+                Path(task.pipeline_dir),
+                input_types=task.input_types,
+                resources=task.resources,
+                on_progress=_progress_hook(task.node_name),
+                producing_items=task.producing,
+                lost=task.lost,
+            )
             kwargs["ctx"] = ctx
         out = spec.fn(params, **kwargs)
         if task.producing:
             _check_part(spec, task.item, out)
         elif not isinstance(out, dict) or set(out) != set(spec.outputs):
-            if len(spec.outputs) == 1 and not (isinstance(out, dict) and set(out) == set(spec.outputs)):
+            if len(spec.outputs) == 1 and not (
+                isinstance(out, dict) and set(out) == set(spec.outputs)
+            ):
                 out = {next(iter(spec.outputs)): out}
             elif not isinstance(out, dict):
-                raise TypeError(f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs")
+                raise TypeError(
+                    f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs"
+                )
             else:
                 missing = set(spec.outputs) - set(out)
                 extra = set(out) - set(spec.outputs)
-                raise TypeError(f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
-                                + (f", unexpected {sorted(extra)}" if extra else ""))
+                raise TypeError(
+                    f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
+                    + (f", unexpected {sorted(extra)}" if extra else "")
+                )
         _check_shapes(spec, out, task.producing)
         return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
     except NodeError as e:
-        return TaskResult(False, None, time.perf_counter() - t0, [], e.message, e.hint, traceback.format_exc(), True,
-                          e.lasting)
+        return TaskResult(
+            False,
+            None,
+            time.perf_counter() - t0,
+            [],
+            e.message,
+            e.hint,
+            traceback.format_exc(),
+            True,
+            e.lasting,
+        )
     except ConfigError as e:
-        return TaskResult(False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True)
+        return TaskResult(
+            False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True
+        )
     except Exception as e:  # a bug in a node: keep the traceback for --debug
-        return TaskResult(False, None, time.perf_counter() - t0, [], f"{type(e).__name__}: {e}", None,
-                          traceback.format_exc(), False)
+        return TaskResult(
+            False,
+            None,
+            time.perf_counter() - t0,
+            [],
+            f"{type(e).__name__}: {e}",
+            None,
+            traceback.format_exc(),
+            False,
+        )
 
 
 def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
-    """Each output's value against its declared type's registered check (:func:`api.artifact_check`);
-    a collection made whole is checked item by item. Raises NodeError naming the output."""
+    """Each output's value against its declared type's registered check
+    (:func:`api.artifact_check`); a collection made whole is checked item by item. Raises NodeError
+    naming the output."""
 
     for name, value in out.items():
         decl = spec.outputs.get(name)
@@ -121,13 +158,16 @@ def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:
         if check is None or value is None:
             continue
         whole = decl.collection and not producing and isinstance(value, dict)
-        for item, v in (value.items() if whole else [(None, value)]):
+        for item, v in value.items() if whole else [(None, value)]:
             why = check(v)
             if why:
                 at = f" for item {item!r}" if item is not None else ""
-                raise NodeError(f"{spec.name}: its output '{name}'{at} is not a {decl.type}: {why}",
-                                hint=f"return a {decl.type} as docs/artifacts.md describes it (the node that reads "
-                                     "it would only see a malformed input)")
+                raise NodeError(
+                    f"{spec.name}: its output '{name}'{at} is not a {decl.type}: {why}",
+                    hint=f"return a {decl.type} as docs/artifacts.md describes it (the node "
+                    "that reads "
+                    "it would only see a malformed input)",
+                )
 
 
 def _check_part(spec: Any, item: str | None, out: Any) -> None:
@@ -136,10 +176,16 @@ def _check_part(spec: Any, item: str | None, out: Any) -> None:
     want = colls if item is not None else set(spec.outputs) - colls
     got = set(out) if isinstance(out, dict) else None
     if got is None or not got <= want or (item is None and got != want):
-        raise TypeError(f"{spec.name} produces items: called for " + (f"item {item!r} it must return a dict with "
-                        f"keys among {sorted(want)} (or {{}} to drop the item)" if item is not None else
-                        f"its other outputs it must return a dict of {sorted(want)}") +
-                        f", got {sorted(got) if got is not None else type(out).__name__}")
+        raise TypeError(
+            f"{spec.name} produces items: called for "
+            + (
+                f"item {item!r} it must return a dict with "
+                f"keys among {sorted(want)} (or {{}} to drop the item)"
+                if item is not None
+                else f"its other outputs it must return a dict of {sorted(want)}"
+            )
+            + f", got {sorted(got) if got is not None else type(out).__name__}"
+        )
 
 
 def close_resources(resources: dict[str, Any]) -> None:

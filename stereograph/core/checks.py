@@ -13,7 +13,9 @@ __all__ = ["ARTIFACT_CHECKS", "artifact_check"]
 ARTIFACT_CHECKS: dict[str, Callable[[Any], str | None]] = {}
 
 
-def artifact_check(type_name: str) -> Callable[[Callable[[Any], str | None]], Callable[[Any], str | None]]:
+def artifact_check(
+    type_name: str,
+) -> Callable[[Callable[[Any], str | None]], Callable[[Any], str | None]]:
     """Register a check of an artifact type's shape, run on every output declared of that type.
 
     ``check(value)`` returns None when the value has the type's shape, else a few words on why not.
@@ -21,6 +23,7 @@ def artifact_check(type_name: str) -> Callable[[Callable[[Any], str | None]], Ca
     instead of the next node, which would only see a malformed input. Register cheap checks (the
     keys a record must have), once, where the type's contract is defined.
     """
+
     def register(check: Callable[[Any], str | None]) -> Callable[[Any], str | None]:
         ARTIFACT_CHECKS[type_name] = check
         return check

@@ -23,7 +23,17 @@ from stereograph.core.errors import ConfigError, UsageError, Where, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 
-TOP_KEYS = {"name", "description", "include", "plugins", "defaults", "variants", "compare", "repeat", "nodes"}
+TOP_KEYS = {
+    "name",
+    "description",
+    "include",
+    "plugins",
+    "defaults",
+    "variants",
+    "compare",
+    "repeat",
+    "nodes",
+}
 NODE_KEYS = {"type", "params", "inputs", "description"}
 
 
@@ -40,9 +50,12 @@ class PipelineDoc:
     nodes: dict[str, dict[str, Any]]
     lines: dict[Path_, Where] = field(default_factory=dict)
     overrides: list[str] = field(default_factory=list)
-    compare_metric: str | None = None  # `compare: {metric: NAME[:max|:abs]}`: what `stereograph compare` ranks by
-    repeat: int | None = None  # `repeat: N`: cycles of the live part a plain `run` runs (0 = until stopped)
-    broken: set[str] = field(default_factory=set)  # nodes left out for a problem of their own (already reported)
+    # `compare: {metric: NAME[:max|:abs]}`: what `stereograph compare` ranks by
+    compare_metric: str | None = None
+    # `repeat: N`: cycles of the live part a plain `run` runs (0 = until stopped)
+    repeat: int | None = None
+    # nodes left out for a problem of their own (already reported)
+    broken: set[str] = field(default_factory=set)
 
     @property
     def directory(self) -> Path:
@@ -67,12 +80,15 @@ MAX_YAML_VALUES = 20_000  # scalars and collections after expanding aliases
 MAX_YAML_DEPTH = 64  # nested mappings / lists
 MAX_INCLUDED_FILES = 64  # files read for one pipeline, includes of includes counted
 
-_SAFE_NAME = re.compile(r"^[^\W][\w-]*$")  # letters, digits, '_' and '-' (no dot, separator or space)
+# letters, digits, '_' and '-' (no dot, separator or space)
+_SAFE_NAME = re.compile(r"^[^\W][\w-]*$")
 _SAFE_PIPELINE_NAME = re.compile(r"^[^\W][\w.-]*$")
 MAX_NAME_CHARS = 100
 
 
-def check_name(name: str, what: str, where: Where, node: str | None = None, dots: bool = False) -> None:
+def check_name(
+    name: str, what: str, where: Where, node: str | None = None, dots: bool = False
+) -> None:
     """Refuse a node or pipeline name that is not a safe file-name component.
 
     Names become folder and file names (``<out>/<node>/<output>.json``, ``runs/<pipeline>/``), so
@@ -81,10 +97,14 @@ def check_name(name: str, what: str, where: Where, node: str | None = None, dots
     pattern = _SAFE_PIPELINE_NAME if dots else _SAFE_NAME
     if not pattern.match(name) or len(name) > MAX_NAME_CHARS or ".." in name:
         allowed = "letters, digits, '_', '-'" + (" and '.'" if dots else "")
-        raise ConfigError(f"invalid {what} {name!r}", where, node,
-                          hint=f"a {what} is used as a file name: use {allowed} only, starting with a letter, "
-                               f"digit or '_', at most {MAX_NAME_CHARS} characters"
-                               + ("" if dots else " ('.' separates node and output in inputs)"))
+        raise ConfigError(
+            f"invalid {what} {name!r}",
+            where,
+            node,
+            hint=f"a {what} is used as a file name: use {allowed} only, starting with a letter, "
+            f"digit or '_', at most {MAX_NAME_CHARS} characters"
+            + ("" if dots else " ('.' separates node and output in inputs)"),
+        )
 
 
 try:  # libyaml's parser gives the same events about six times faster; the composer stays Python's
@@ -134,13 +154,18 @@ def merge_params(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     """
     out = dict(base)
     for k, v in over.items():
-        out[k] = merge_params(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        out[k] = (
+            merge_params(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        )
     return out
 
 
 def _too_deep(where: Where) -> ConfigError:
-    return ConfigError(f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep", where,
-                       hint="a pipeline needs a few levels; flatten the data or put it in a file a node reads")
+    return ConfigError(
+        f"the YAML is nested more than {MAX_YAML_DEPTH} levels deep",
+        where,
+        hint="a pipeline needs a few levels; flatten the data or put it in a file a node reads",
+    )
 
 
 def _expanded_size(root: yaml.Node, filename: str) -> int:
@@ -154,9 +179,11 @@ def _expanded_size(root: yaml.Node, filename: str) -> int:
         if k in sizes:
             return sizes[k]
         if k in active:
-            raise ConfigError("a YAML alias refers to the collection that contains it",
-                              Where(filename, node.start_mark.line + 1, node.start_mark.column + 1),
-                              hint="remove the recursive '*alias'")
+            raise ConfigError(
+                "a YAML alias refers to the collection that contains it",
+                Where(filename, node.start_mark.line + 1, node.start_mark.column + 1),
+                hint="remove the recursive '*alias'",
+            )
         active.add(k)
         n = 1
         if isinstance(node, yaml.MappingNode):
@@ -176,28 +203,46 @@ def _yaml_error(e: yaml.YAMLError, filename: str, text: str) -> ConfigError:
     if mark is not None:
         line, col = mark.line + 1, mark.column + 1
     elif isinstance(e, yaml.reader.ReaderError):  # a character YAML does not allow (NUL, control)
-        before = text.encode("utf-8", "surrogatepass")[:e.position].decode("utf-8", "replace") if _LIBYAML \
-            else text[:e.position]  # libyaml counts bytes, PyYAML characters
+        before = (
+            text.encode("utf-8", "surrogatepass")[: e.position].decode("utf-8", "replace")
+            if _LIBYAML
+            else text[: e.position]
+        )  # libyaml counts bytes, PyYAML characters
         line = before.count("\n") + 1
         col = len(before) - (before.rfind("\n") + 1) + 1
         ch = e.character if isinstance(e.character, int) else ord(str(e.character)[:1] or "?")
-        err = ConfigError(f"character U+{ch:04X} is not allowed in YAML", Where(filename, line, col),
-                          hint="remove it (control characters and NUL cannot appear in a pipeline file)")
+        err = ConfigError(
+            f"character U+{ch:04X} is not allowed in YAML",
+            Where(filename, line, col),
+            hint="remove it (control characters and NUL cannot appear in a pipeline file)",
+        )
         err.syntax = True  # type: ignore[attr-defined]
         return err
     what = getattr(e, "problem", None) or getattr(e, "context", None) or str(e)
-    if "nesting depth" in what:  # libyaml >= 0.2.6 stops at its own limit (1000) while scanning ahead
-        return _too_deep(Where(filename, line, col))  # (a bound, not a syntax error: never taken as text)
-    err = ConfigError(f"not valid YAML: {what}", Where(filename, line, col),
-                      hint="check indentation and quoting around that line")
+    # libyaml >= 0.2.6 stops at its own limit (1000) while scanning ahead
+    if "nesting depth" in what:
+        # (a bound, not a syntax error: never taken as text)
+        return _too_deep(Where(filename, line, col))
+    err = ConfigError(
+        f"not valid YAML: {what}",
+        Where(filename, line, col),
+        hint="check indentation and quoting around that line",
+    )
     err.syntax = True  # type: ignore[attr-defined]  # (a --set value that is not YAML is taken as text)
     return err
 
 
-def _record_keys(loader: Any, node: yaml.Node, filename: str, lines: dict[Path_, Where] | None,
-                 path: Path_ = (), walked: set[int] | None = None) -> None:
-    """Check every key (a plain name, not twice in a mapping) and, into ``lines``, the line of each key
-    and list item, in document order; a node reached again through an alias has its lines already."""
+def _record_keys(
+    loader: Any,
+    node: yaml.Node,
+    filename: str,
+    lines: dict[Path_, Where] | None,
+    path: Path_ = (),
+    walked: set[int] | None = None,
+) -> None:
+    """Check every key (a plain name, not twice in a mapping) and, into ``lines``, the line of each
+    key and list item, in document order; a node reached again through an alias has its lines
+    already."""
     walked = set() if walked is None else walked
     if id(node) in walked:
         return
@@ -213,19 +258,27 @@ def _record_keys(loader: Any, node: yaml.Node, filename: str, lines: dict[Path_,
     for k, v in node.value:
         at = Where(filename, k.start_mark.line + 1, k.start_mark.column + 1)
         if not isinstance(k, yaml.ScalarNode):
-            raise ConfigError("a key must be a plain name, not a list or mapping", at,
-                              hint="write 'name: value' (a '? [a, b]' complex key is not a name)")
+            raise ConfigError(
+                "a key must be a plain name, not a list or mapping",
+                at,
+                hint="write 'name: value' (a '? [a, b]' complex key is not a name)",
+            )
         key = loader.construct_object(k, deep=True)
         if key in seen:
-            raise ConfigError(f"duplicate key '{key}' (first at line {seen[key]})", at, hint="keep one of them")
+            raise ConfigError(
+                f"duplicate key '{key}' (first at line {seen[key]})", at, hint="keep one of them"
+            )
         seen[key] = k.start_mark.line + 1
         if lines is not None:
             lines[path + (key,)] = at
         _record_keys(loader, v, filename, lines, path + (key,), walked)
 
 
-def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any, dict[Path_, Where]]:
-    """Parse YAML with safe_load semantics, within the bounds above, and record the line of each key.
+def parse_yaml(
+    text: str, filename: str, record_lines: bool = True
+) -> tuple[Any, dict[Path_, Where]]:
+    """Parse YAML with safe_load semantics, within the bounds above, and record the line of each
+    key.
 
     Parameters
     ----------
@@ -254,22 +307,25 @@ def parse_yaml(text: str, filename: str, record_lines: bool = True) -> tuple[Any
             return None, lines
         n = _expanded_size(root, filename)
         if n > MAX_YAML_VALUES:
-            raise ConfigError(f"the YAML holds more than {MAX_YAML_VALUES} values once its aliases are expanded",
-                              Where(filename, 1),
-                              hint="a pipeline file sets parameters; put large data in a file that a node reads")
+            raise ConfigError(
+                f"the YAML holds more than {MAX_YAML_VALUES} values once its aliases are expanded",
+                Where(filename, 1),
+                hint="a pipeline file sets parameters; put large data in a file that a node reads",
+            )
         _record_keys(loader, root, filename, lines if record_lines else None)
         data = loader.construct_document(root)
         return data, lines
     except yaml.YAMLError as e:
         raise _yaml_error(e, filename, text) from None
     except RecursionError:  # belt and braces: the depth bound should stop it first
-        raise ConfigError("the YAML is nested too deeply", Where(filename),
-                          hint=f"keep it within {MAX_YAML_DEPTH} levels") from None
+        raise ConfigError(
+            "the YAML is nested too deeply",
+            Where(filename),
+            hint=f"keep it within {MAX_YAML_DEPTH} levels",
+        ) from None
     finally:
         if loader is not None:
             loader.dispose()
-
-
 
 
 def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
@@ -277,32 +333,47 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
         if not path.exists():
             raise ConfigError(f"pipeline file not found: {path}", hint="check the path")
         if not path.is_file():
-            raise ConfigError(f"{path} is not a regular file", hint="give the path of a pipeline .yaml file")
+            raise ConfigError(
+                f"{path} is not a regular file", hint="give the path of a pipeline .yaml file"
+            )
         with path.open("rb") as fh:
             raw = fh.read(MAX_FILE_BYTES + 1)
     except ConfigError:
         raise
     except (OSError, ValueError) as e:
-        raise ConfigError(f"cannot read pipeline file {path}: {getattr(e, 'strerror', None) or e}") from None
+        raise ConfigError(
+            f"cannot read pipeline file {path}: {getattr(e, 'strerror', None) or e}"
+        ) from None
     if len(raw) > MAX_FILE_BYTES:
-        raise ConfigError(f"pipeline file {path} is larger than {MAX_FILE_BYTES // 1024} KiB",
-                          hint="a pipeline file sets parameters; put large data in a file that a node reads")
+        raise ConfigError(
+            f"pipeline file {path} is larger than {MAX_FILE_BYTES // 1024} KiB",
+            hint="a pipeline file sets parameters; put large data in a file that a node reads",
+        )
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         line = raw.count(b"\n", 0, e.start) + 1
-        raise ConfigError(f"byte 0x{raw[e.start]:02x} is not UTF-8 text", Where(str(path), line),
-                          hint="save the file as UTF-8") from None
+        raise ConfigError(
+            f"byte 0x{raw[e.start]:02x} is not UTF-8 text",
+            Where(str(path), line),
+            hint="save the file as UTF-8",
+        ) from None
     data, lines = parse_yaml(text, str(path))
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ConfigError("a pipeline file must be a mapping with a 'nodes:' key", Where(str(path), 1))
+        raise ConfigError(
+            "a pipeline file must be a mapping with a 'nodes:' key", Where(str(path), 1)
+        )
     return data, lines
 
 
-def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: tuple = (),
-                  _budget: list[int] | None = None) -> PipelineDoc:
+def load_pipeline(
+    path: str | Path,
+    overrides: list[str] | None = None,
+    _stack: tuple = (),
+    _budget: list[int] | None = None,
+) -> PipelineDoc:
     """Load a pipeline file, its includes, and ``--set`` overrides.
 
     Parameters
@@ -323,17 +394,32 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None, _stack: 
 
     # Problems that leave the rest of the file readable are collected, so that one `validate`
     # reports them all; the file is read on without the part in error.
-    problems = [ConfigError(f"unknown top-level key '{key}'", where(key), hint=f"use one of {sorted(TOP_KEYS)}")
-                for key in sorted(set(data) - TOP_KEYS, key=str)]
-    doc = PipelineDoc(path=path, name=_pipeline_name(data, path, where), description=str(data.get("description", "")),
-                      plugins=[], defaults={}, variants={}, nodes={}, lines={})
+    problems = [
+        ConfigError(
+            f"unknown top-level key '{key}'", where(key), hint=f"use one of {sorted(TOP_KEYS)}"
+        )
+        for key in sorted(set(data) - TOP_KEYS, key=str)
+    ]
+    doc = PipelineDoc(
+        path=path,
+        name=_pipeline_name(data, path, where),
+        description=str(data.get("description", "")),
+        plugins=[],
+        defaults={},
+        variants={},
+        nodes={},
+        lines={},
+    )
     _include(doc, data, lines, where, _stack + (path,), budget)
     doc.lines.update(lines)
     _top_level(doc, data, where)
     nodes = data.get("nodes")
     if not nodes and not doc.nodes:
-        raise ConfigError("the pipeline has no nodes", where("nodes") if "nodes" in data else Where(str(path), 1),
-                          hint="add a 'nodes:' mapping of node instances, each with a 'type:'")
+        raise ConfigError(
+            "the pipeline has no nodes",
+            where("nodes") if "nodes" in data else Where(str(path), 1),
+            hint="add a 'nodes:' mapping of node instances, each with a 'type:'",
+        )
     for name, decl in (nodes or {}).items():
         name = str(name)
         try:
@@ -354,14 +440,19 @@ def _open(path: str | Path, stack: tuple, budget: list[int] | None) -> tuple[Pat
     try:
         path = Path(path).resolve()
     except (OSError, ValueError) as e:  # a NUL in the name, a loop of symlinks
-        raise ConfigError(f"cannot use pipeline path {str(path)!r}: {e}", hint="check the path") from None
+        raise ConfigError(
+            f"cannot use pipeline path {str(path)!r}: {e}", hint="check the path"
+        ) from None
     if path in stack:
         raise ConfigError("include cycle: " + " -> ".join(str(p) for p in stack + (path,)))
     budget = budget if budget is not None else [MAX_INCLUDED_FILES]
     budget[0] -= 1
     if budget[0] < 0:
-        raise ConfigError(f"more than {MAX_INCLUDED_FILES} files are read through include:",
-                          Where(str(path)), hint="include each shared file once")
+        raise ConfigError(
+            f"more than {MAX_INCLUDED_FILES} files are read through include:",
+            Where(str(path)),
+            hint="include each shared file once",
+        )
     return path, budget
 
 
@@ -376,29 +467,46 @@ def _pipeline_name(data: dict, path: Path, where: Callable[..., Where]) -> str:
     return str(name)
 
 
-def _include(doc: PipelineDoc, data: dict, lines: dict, where: Callable[..., Where], stack: tuple,
-             budget: list[int]) -> None:
-    """Read the ``include:`` files into ``doc``, in order (a later one's nodes over an earlier one's)."""
+def _include(
+    doc: PipelineDoc,
+    data: dict,
+    lines: dict,
+    where: Callable[..., Where],
+    stack: tuple,
+    budget: list[int],
+) -> None:
+    """Read the ``include:`` files into ``doc``, in order (a later one's nodes over an earlier
+    one's)."""
     includes = data.get("include") or []
     if isinstance(includes, str):
         includes = [includes]
     if not isinstance(includes, list):
-        raise ConfigError("'include' must be a file name or a list of file names", where("include"),
-                          hint="for example 'include: [common.yaml]' (relative to this file)")
+        raise ConfigError(
+            "'include' must be a file name or a list of file names",
+            where("include"),
+            hint="for example 'include: [common.yaml]' (relative to this file)",
+        )
     for i, inc in enumerate(includes):
         at = where("include", i) if ("include", i) in lines else where("include")
         if not isinstance(inc, str) or not inc.strip():
-            raise ConfigError(f"include: {inc!r} is not a file name", at,
-                              hint="list YAML files relative to this file, e.g. [common.yaml]")
-        inc_path = (stack[-1].parent / inc)
+            raise ConfigError(
+                f"include: {inc!r} is not a file name",
+                at,
+                hint="list YAML files relative to this file, e.g. [common.yaml]",
+            )
+        inc_path = stack[-1].parent / inc
         try:
             ok, there = inc_path.is_file(), inc_path.exists()
         except (OSError, ValueError):
             ok = there = False
         if not ok:
-            raise ConfigError(f"included {inc} is not a regular file (a folder or a device)" if there else
-                              f"included file not found: {inc}", at,
-                              hint="paths in include: are relative to this file and name a YAML file")
+            raise ConfigError(
+                f"included {inc} is not a regular file (a folder or a device)"
+                if there
+                else f"included file not found: {inc}",
+                at,
+                hint="paths in include: are relative to this file and name a YAML file",
+            )
         sub = load_pipeline(inc_path, None, stack, budget)
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
@@ -414,24 +522,39 @@ def _top_level(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> Non
     """``plugins``, ``defaults``, ``variants`` and ``compare`` into ``doc``, checked."""
     for key, kind in (("plugins", list), ("defaults", dict), ("variants", dict), ("nodes", dict)):
         if key in data and data[key] is not None and not isinstance(data[key], kind):
-            raise ConfigError(f"'{key}' must be a {'list' if kind is list else 'mapping'}", where(key))
+            raise ConfigError(
+                f"'{key}' must be a {'list' if kind is list else 'mapping'}", where(key)
+            )
     for i, p in enumerate(data.get("plugins") or []):
         if not isinstance(p, str) or not p.strip():
-            raise ConfigError(f"plugin {p!r} is not a module name or .py path", where("plugins", i),
-                              hint="for example 'plugins: [my_nodes.py]' (relative to this file)")
+            raise ConfigError(
+                f"plugin {p!r} is not a module name or .py path",
+                where("plugins", i),
+                hint="for example 'plugins: [my_nodes.py]' (relative to this file)",
+            )
         doc.plugins.append(p)
     for t, p in (data.get("defaults") or {}).items():
         if not isinstance(p, dict):
-            raise ConfigError(f"defaults for '{t}' must be a mapping of params", where("defaults", t))
+            raise ConfigError(
+                f"defaults for '{t}' must be a mapping of params", where("defaults", t)
+            )
         doc.defaults[str(t)] = merge_params(doc.defaults.get(str(t), {}), p)
     for k, v in (data.get("variants") or {}).items():
         doc.variants[str(k)] = v if isinstance(v, list) else [v]
     if data.get("compare") is not None:
         block = data["compare"]
-        if not isinstance(block, dict) or set(block) - {"metric"} or not isinstance(block.get("metric"), str):
-            raise ConfigError("'compare' must be a mapping with one key, 'metric'", where("compare"),
-                              hint="for example 'compare: {metric: NAME}', NAME a metric the nodes declare (lowest "
-                                   "is best; NAME:max for highest, NAME:abs for closest to zero)")
+        if (
+            not isinstance(block, dict)
+            or set(block) - {"metric"}
+            or not isinstance(block.get("metric"), str)
+        ):
+            raise ConfigError(
+                "'compare' must be a mapping with one key, 'metric'",
+                where("compare"),
+                hint="for example 'compare: {metric: NAME}', NAME a metric the nodes declare "
+                "(lowest "
+                "is best; NAME:max for highest, NAME:abs for closest to zero)",
+            )
         doc.compare_metric = block["metric"]
     doc.repeat = _repeat(data, where) if data.get("repeat") is not None else doc.repeat
 
@@ -440,40 +563,63 @@ def _repeat(data: dict, where: Callable[..., Where]) -> int:
     """``repeat: N``, checked."""
     n = data["repeat"]
     if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-        raise ConfigError(f"'repeat' must be a whole number >= 0, got {n!r}", where("repeat"),
-                          hint="for example 'repeat: 30' (cycles of the live part; 0 = until a node or Ctrl-C "
-                               "stops the loop); `run --repeat N` overrides it")
+        raise ConfigError(
+            f"'repeat' must be a whole number >= 0, got {n!r}",
+            where("repeat"),
+            hint="for example 'repeat: 30' (cycles of the live part; 0 = until a node or Ctrl-C "
+            "stops the loop); `run --repeat N` overrides it",
+        )
     return n
 
 
 def _node_decl(base: dict, name: str, decl: Any, where: Callable[..., Where]) -> dict:
-    """One node's declaration, checked and merged over an included one of the same name (whose params
-    it keeps only if the type is the same)."""
+    """One node's declaration, checked and merged over an included one of the same name (whose
+    params it keeps only if the type is the same)."""
     decl = {} if decl is None else decl
     if not isinstance(decl, dict):
-        raise ConfigError("a node must be a mapping with 'type', 'params', 'inputs'", where("nodes", name), node=name)
+        raise ConfigError(
+            "a node must be a mapping with 'type', 'params', 'inputs'",
+            where("nodes", name),
+            node=name,
+        )
     for key in decl:
         if key not in NODE_KEYS:
-            raise ConfigError(f"unknown key '{key}' in node", where("nodes", name, key), node=name,
-                              hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'")
+            raise ConfigError(
+                f"unknown key '{key}' in node",
+                where("nodes", name, key),
+                node=name,
+                hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'",
+            )
     if "type" not in decl:
-        raise ConfigError("node has no 'type'", where("nodes", name), node=name,
-                          hint="add 'type: kind.method' (see `stereograph nodes`)")
+        raise ConfigError(
+            "node has no 'type'",
+            where("nodes", name),
+            node=name,
+            hint="add 'type: kind.method' (see `stereograph nodes`)",
+        )
     for key in ("params", "inputs"):
         if decl.get(key) is not None and not isinstance(decl[key], dict):
             raise ConfigError(f"'{key}' must be a mapping", where("nodes", name, key), node=name)
     check_name(name, "node name", where("nodes", name), node=name)
     if not isinstance(decl["type"], str):
-        raise ConfigError(f"'type' must be a node type name, not {decl['type']!r}", where("nodes", name, "type"),
-                          node=name, hint="add 'type: kind.method' (see `stereograph nodes`)")
+        raise ConfigError(
+            f"'type' must be a node type name, not {decl['type']!r}",
+            where("nodes", name, "type"),
+            node=name,
+            hint="add 'type: kind.method' (see `stereograph nodes`)",
+        )
     base_params = (base.get("params") or {}) if base.get("type") == decl["type"] else {}
-    return {"type": decl["type"], "params": merge_params(base_params, decl.get("params") or {}),
-            "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})}}
+    return {
+        "type": decl["type"],
+        "params": merge_params(base_params, decl.get("params") or {}),
+        "inputs": {**(base.get("inputs") or {}), **(decl.get("inputs") or {})},
+    }
 
 
 def types_first(overrides: list[str]) -> list[str]:
-    """``--set`` texts with the type swaps (``NODE.type=NAME``) first, the rest in their order: a swap
-    resets the node's params, so a param set before it on the line was silently dropped."""
+    """``--set`` texts with the type swaps (``NODE.type=NAME``) first, the rest in their order: a
+    swap resets the node's params, so a param set before it on the line was silently dropped."""
+
     def is_type(text: str) -> bool:
         return text.split("=", 1)[0].strip().split(".")[1:] == ["type"]
 
@@ -483,16 +629,22 @@ def types_first(overrides: list[str]) -> list[str]:
 def parse_override(text: str) -> tuple[str, list[str], Any]:
     """Split ``node.field[.sub]=value`` into (node, [field, sub], parsed value)."""
     if "=" not in text:
-        raise UsageError(f"--set '{text}' is not of the form node.param=value",
-                         hint="for example --set segment.canny_low=40")
+        raise UsageError(
+            f"--set '{text}' is not of the form node.param=value",
+            hint="for example --set segment.canny_low=40",
+        )
     lhs, rhs = text.split("=", 1)
     parts = lhs.strip().split(".")
     if len(parts) < 2 or not all(parts) or parts[1:] == ["params"]:
-        raise UsageError(f"--set '{text}': the left side must be node.param",
-                         hint="for example --set segment.canny_low=40")
+        raise UsageError(
+            f"--set '{text}': the left side must be node.param",
+            hint="for example --set segment.canny_low=40",
+        )
     if len(text) > MAX_FILE_BYTES:
-        raise UsageError(f"--set {lhs}=...: the value is longer than {MAX_FILE_BYTES // 1024} KiB",
-                         hint="put large data in a file that a node reads")
+        raise UsageError(
+            f"--set {lhs}=...: the value is longer than {MAX_FILE_BYTES // 1024} KiB",
+            hint="put large data in a file that a node reads",
+        )
     try:
         value = parse_yaml(rhs, f"--set {lhs}", record_lines=False)[0] if rhs.strip() else ""
     except ConfigError as e:
@@ -517,7 +669,8 @@ def check_node_named(doc: PipelineDoc, node: str, what: str, where: Where | None
 
 
 def _index(container: Any, field: str) -> int | None:
-    """``field`` as an index into ``container`` when it is a list and the field a whole number inside it."""
+    """``field`` as an index into ``container`` when it is a list and the field a whole number
+    inside it."""
     if isinstance(container, list) and field.isdigit() and int(field) < len(container):
         return int(field)
     return None
@@ -525,12 +678,15 @@ def _index(container: Any, field: str) -> int | None:
 
 def _set_param(target: dict, fields: list[str], value: Any) -> list[int]:
     """Set ``value`` at the path ``fields`` in nested params (a number indexes a list the file gave:
-    ``objects.0.color_bgr``); returns the depths at which a missing or scalar value was replaced by a mapping."""
+    ``objects.0.color_bgr``); returns the depths at which a missing or scalar value was replaced by
+    a mapping."""
     replaced = []
     for k, f in enumerate(fields[:-1]):
         i = _index(target, f)
         nxt = target[i] if i is not None else target.get(f) if isinstance(target, dict) else None
-        if not isinstance(nxt, (dict, list)) or (isinstance(nxt, list) and _index(nxt, fields[k + 1]) is None):
+        if not isinstance(nxt, (dict, list)) or (
+            isinstance(nxt, list) and _index(nxt, fields[k + 1]) is None
+        ):
             nxt = {}
             if i is not None:
                 target[i] = nxt
@@ -549,7 +705,8 @@ def _set_param(target: dict, fields: list[str], value: Any) -> list[int]:
 def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
     """Apply one ``--set`` to the document (validation happens later, with the rest).
 
-    ``source`` is what a problem with it is said to come from (``--vary`` for a compared variant's setting).
+    ``source`` is what a problem with it is said to come from (``--vary`` for a compared variant's
+    setting).
     """
     node, fields, value = parse_override(text)
     check_node_named(doc, node, f"{source} '{text}'")
@@ -558,7 +715,8 @@ def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
     if fields == ["type"]:
         decl["type"] = str(value)
         decl["params"] = {}  # params of another type rarely fit; defaults apply
-        doc.lines[("nodes", node, "type")] = where  # (a problem with it is the --set's, not the file's line)
+        # (a problem with it is the --set's, not the file's line)
+        doc.lines[("nodes", node, "type")] = where
     elif fields[0] == "inputs" and len(fields) == 2:
         decl["inputs"][fields[1]] = str(value)
         doc.lines[("nodes", node, "inputs", fields[1])] = where
@@ -567,9 +725,9 @@ def apply_override(doc: PipelineDoc, text: str, source: str = "--set") -> None:
             fields = fields[1:]
         replaced = _set_param(decl.setdefault("params", {}), fields, value)
         for k in replaced:  # (the value it replaced was the file's)
-            doc.lines[("nodes", node, "params", *fields[:k + 1])] = where
+            doc.lines[("nodes", node, "params", *fields[: k + 1])] = where
     key = ("nodes", node, "params", *fields)
-    for stale in [k for k in doc.lines if k[:len(key)] == key]:  # lines of the value it replaces
+    for stale in [k for k in doc.lines if k[: len(key)] == key]:  # lines of the value it replaces
         del doc.lines[stale]
     doc.lines[key] = where
     doc.overrides.append(text)

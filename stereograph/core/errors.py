@@ -38,8 +38,13 @@ class ConfigError(Exception):
 
     exit_code = 2
 
-    def __init__(self, message: str, where: Where | None = None, node: str | None = None,
-                 hint: str | None = None):
+    def __init__(
+        self,
+        message: str,
+        where: Where | None = None,
+        node: str | None = None,
+        hint: str | None = None,
+    ):
         super().__init__(message)
         self.message, self.where, self.node, self.hint = message, where, node, hint
 
@@ -92,7 +97,8 @@ class ConfigErrors(ConfigError):
 
 
 def raise_all(errors: list[ConfigError], doc: object | None = None) -> None:
-    """Raise nothing, the one error, or a :class:`ConfigErrors` of all of them (sorted by file and line)."""
+    """Raise nothing, the one error, or a :class:`ConfigErrors` of all of them (sorted by file and
+    line)."""
     if not errors:
         return
     flat = in_file_order(errors)
@@ -106,8 +112,14 @@ def in_file_order(errors: list[ConfigError]) -> list[ConfigError]:
     flat: list[ConfigError] = []
     for e in errors:
         flat += e.errors if isinstance(e, ConfigErrors) else [e]
-    return sorted(flat, key=lambda e: (e.where is None, e.where.file if e.where else "",
-                                       (e.where.line or 0) if e.where else 0))
+    return sorted(
+        flat,
+        key=lambda e: (
+            e.where is None,
+            e.where.file if e.where else "",
+            (e.where.line or 0) if e.where else 0,
+        ),
+    )
 
 
 # Control characters (ESC, CR, BEL, ...) and the bidirectional overrides. User text -- a value in a
@@ -118,7 +130,8 @@ _UNPRINTABLE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u206
 
 
 def printable(text: str) -> str:
-    """``text`` with its control characters written as escapes (``\\x1b``), newlines and tabs kept."""
+    """``text`` with its control characters written as escapes (``\\x1b``), newlines and tabs
+    kept."""
     return _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], text)
 
 
@@ -126,15 +139,18 @@ _CONSOLE_CLASS: Any = None
 
 
 def console(**kw: Any) -> Any:
-    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay), no emoji codes."""
+    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay),
+    no emoji codes."""
     global _CONSOLE_CLASS
     if _CONSOLE_CLASS is None:
         from rich.console import Console
 
         class _Console(Console):
-            def render_str(self, text: str, *a: Any, **k: Any) -> Any:  # print(), table cells, titles, rules
+            # print(), table cells, titles, rules
+            def render_str(self, text: str, *a: Any, **k: Any) -> Any:
                 return super().render_str(printable(text), *a, **k)
 
         _CONSOLE_CLASS = _Console
-    kw.setdefault("emoji", False)  # (rich would show a user's ':ab:' -- in a value, a path -- as an emoji)
+    # (rich would show a user's ':ab:' -- in a value, a path -- as an emoji)
+    kw.setdefault("emoji", False)
     return _CONSOLE_CLASS(**kw)

@@ -21,16 +21,16 @@ from stereograph.core.calls import TaskResult
 from stereograph.core.errors import ConfigError
 from stereograph.core.threads import ONE_THREAD, one_thread_each
 
-if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+# (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+if TYPE_CHECKING:
     pass
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
 
-
 def progress_advance(progress: Any, name: str, ok: bool = True) -> None:
-    """One entry of ``name`` done on a progress display (stereograph.app.progress); a failed one is said
-    first to a display that counts them (``item_failed`` is optional)."""
+    """One entry of ``name`` done on a progress display (stereograph.app.progress); a failed one is
+    said first to a display that counts them (``item_failed`` is optional)."""
     if not ok and hasattr(progress, "item_failed"):
         progress.item_failed(name)
     progress.advance(name)
@@ -38,11 +38,14 @@ def progress_advance(progress: Any, name: str, ok: bool = True) -> None:
 
 @dataclass
 class TaskLost:
-    """A task whose worker died (killed, out of memory) or whose cluster failed: not the node's fault."""
+    """A task whose worker died (killed, out of memory) or whose cluster failed: not the node's
+    fault."""
 
     error: str
-    hint: str = ("a worker ran out of memory or was killed: run again (finished items are cached), "
-                 "with fewer --workers or more memory per worker")
+    hint: str = (
+        "a worker ran out of memory or was killed: run again (finished items are cached), "
+        "with fewer --workers or more memory per worker"
+    )
 
     def as_result(self) -> TaskResult:
         return TaskResult(False, error=self.error, hint=self.hint)
@@ -63,19 +66,21 @@ class SerialExecutor:
 
 
 def _worker_start() -> None:
-    """A pool worker's set-up: one thread per library pool (below), and Ctrl-C left to the process that
-    owns the pool. A terminal's Ctrl-C reaches every process of its group: a worker waiting for its
-    next task printed a KeyboardInterrupt traceback; the owner ends its workers itself (close(now=True))."""
+    """A pool worker's set-up: one thread per library pool (below), and Ctrl-C left to the process
+    that owns the pool. A terminal's Ctrl-C reaches every process of its group: a worker waiting for
+    its next task printed a KeyboardInterrupt traceback; the owner ends its workers itself
+    (close(now=True))."""
     import signal
 
     one_thread_each()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-# Libraries' own thread pools run one thread each in a worker process (stereograph.core.threads): the
-# pool's processes are the parallelism. A worker forked after the parent started a library's threads
-# keeps what it inherited (no call into a library's pool from a forked child: that can deadlock on a
-# lock a parent thread held); the command line sets the variables before NumPy loads (cli).
+# Libraries' own thread pools run one thread each in a worker process (stereograph.core.threads):
+# the pool's processes are the parallelism. A worker forked after the parent started a library's
+# threads keeps what it inherited (no call into a library's pool from a forked child: that can
+# deadlock on a lock a parent thread held); the command line sets the variables before NumPy loads
+# (cli).
 class ProcessExecutor:
     """Runs tasks in a pool of worker processes (results in order).
 
@@ -94,7 +99,8 @@ class ProcessExecutor:
         self._ended = False  # closed at once (Ctrl-C): no pool is started again
 
     def _submit(self, fn: Callable[[Any], Any], task: Any) -> cf.Future:
-        if self._ended:  # (a thread still handing tasks over, compare's variants: each is lost at once)
+        # (a thread still handing tasks over, compare's variants: each is lost at once)
+        if self._ended:
             raise cf.process.BrokenProcessPool("the run was interrupted")
         if not self._forked:
             # The pool forks its workers at its first task. Objects alive now are moved out of the
@@ -129,10 +135,15 @@ class ProcessExecutor:
         for fut in futures:
             fut.cancel()
         cf.wait(futures)
-        if any(not f.cancelled() and isinstance(f.exception(), cf.process.BrokenProcessPool) for f in futures):
+        if any(
+            not f.cancelled() and isinstance(f.exception(), cf.process.BrokenProcessPool)
+            for f in futures
+        ):
             self._restart()  # a worker died making items ahead: their region tasks make them again
 
-    def _results(self, fn: Callable[[Any], Any], tasks: list[Any], futures: list[cf.Future]) -> Iterable[Any]:
+    def _results(
+        self, fn: Callable[[Any], Any], tasks: list[Any], futures: list[cf.Future]
+    ) -> Iterable[Any]:
         for k, fut in enumerate(futures):
             try:
                 yield fut.result()
@@ -182,7 +193,8 @@ class DaskExecutor:
     Parameters
     ----------
     address : str, optional
-        A running scheduler (``tcp://host:8786``); default: a local cluster of ``workers`` processes.
+        A running scheduler (``tcp://host:8786``); default: a local cluster of ``workers``
+        processes.
     """
 
     remote = True
@@ -191,8 +203,10 @@ class DaskExecutor:
         try:
             from distributed import Client, LocalCluster
         except ImportError:
-            raise ConfigError("the Dask executor needs the 'dask' extra",
-                              hint="pip install -e '.[dask]', or use --workers N for a local process pool") from None
+            raise ConfigError(
+                "the Dask executor needs the 'dask' extra",
+                hint="pip install -e '.[dask]', or use --workers N for a local process pool",
+            ) from None
         # One library thread per worker process, as in the process pool (see ONE_THREAD).
         self.cluster = None if address else _local_cluster(LocalCluster, workers)
         self.client = Client(address or self.cluster)
@@ -207,8 +221,10 @@ class DaskExecutor:
             try:
                 yield fut.result()
             except Exception as e:  # KilledWorker, a lost connection: not the node's fault
-                yield TaskLost(f"the Dask cluster lost it ({type(e).__name__}: {e})",
-                               "a worker died or the cluster failed: run again (finished items are cached)")
+                yield TaskLost(
+                    f"the Dask cluster lost it ({type(e).__name__}: {e})",
+                    "a worker died or the cluster failed: run again (finished items are cached)",
+                )
 
     def check_shared(self, folders: list[Path]) -> None:
         """Refuse a cluster whose workers do not see ``folders`` (the cache and the run folder).
@@ -232,10 +248,12 @@ class DaskExecutor:
                 Path(p).unlink(missing_ok=True)
         blind = sorted(w for w, ok in seen.items() if not ok)
         if blind:
-            raise ConfigError(f"Dask workers {', '.join(blind[:3])} do not see this run's cache and run folder "
-                              f"({', '.join(str(d) for d in folders)})",
-                              hint="put --cache-dir and --out on storage every worker mounts at the same path "
-                                   "(a network file system), or use --dask local / --workers N")
+            raise ConfigError(
+                f"Dask workers {', '.join(blind[:3])} do not see this run's cache and run folder "
+                f"({', '.join(str(d) for d in folders)})",
+                hint="put --cache-dir and --out on storage every worker mounts at the same path "
+                "(a network file system), or use --dask local / --workers N",
+            )
 
     def close(self, now: bool = False) -> None:
         self.client.close()
@@ -249,8 +267,8 @@ def _local_cluster(LocalCluster: Any, workers: int) -> Any:
 
     Dask starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back to the
     system sooner). Setting that turns off glibc's adaptive threshold, so every image-sized array
-    is a fresh ``mmap`` and page-faulted in again: on ``locate.yaml`` the two workers spent 8 s each in
-    the kernel (of 22 s of CPU) and the Dask run was slower than a serial one. Our items are
+    is a fresh ``mmap`` and page-faulted in again: on ``locate.yaml`` the two workers spent 8 s each
+    in the kernel (of 22 s of CPU) and the Dask run was slower than a serial one. Our items are
     released after each chunk anyway, so the shipped default is dropped -- another value in the
     Dask config, or the variable in this process's environment (which workers inherit), is kept.
     """
@@ -259,8 +277,13 @@ def _local_cluster(LocalCluster: Any, workers: int) -> Any:
     key = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
     drop = {key: None} if dask.config.get(key, None) in (65536, "65536") else {}
     with dask.config.set(drop):
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                            env={k: os.environ.get(k, v) for k, v in ONE_THREAD.items()})
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            env={k: os.environ.get(k, v) for k, v in ONE_THREAD.items()},
+        )
 
 
 def _sees(paths: list[str], token: str) -> bool:
@@ -269,9 +292,6 @@ def _sees(paths: list[str], token: str) -> bool:
         return all(Path(p).read_text() == token for p in paths)
     except OSError:
         return False
-
-
-
 
 
 def workers_executor(workers: int | None, dask: str | None = None) -> Any:

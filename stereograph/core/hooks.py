@@ -11,13 +11,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-#: ``run_written(out_dir)``: ``run.json`` is in place; ``cache_pruned(cache_root)``: entries were deleted.
+# : ``run_written(out_dir)``: ``run.json`` is in place; ``cache_pruned(cache_root)``: entries were
+# deleted.
 EVENTS = ("run_written", "cache_pruned")
 _CALLBACKS: dict[str, dict[str, Callable[..., Any]]] = {event: {} for event in EVENTS}
 
 
 def register(event: str, what: str, callback: Callable[..., Any]) -> None:
-    """Call ``callback`` on ``event``; ``what`` names the work in a failure's note (one per name)."""
+    """Call ``callback`` on ``event``; ``what`` names the work in a failure's note (one per
+    name)."""
     if event not in _CALLBACKS:
         raise ValueError(f"unknown event {event!r}; the core announces {', '.join(EVENTS)}")
     _CALLBACKS[event][what] = callback

@@ -27,7 +27,8 @@ if TYPE_CHECKING:
     import numpy as np
 
 SMALL_ARRAY = 4096  # elements; larger arrays go to .npz beside the JSON
-MARKER = "stereograph_run"  # a run.json key only stereograph writes: the folder holds its run (prepare_out_dir)
+# a run.json key only stereograph writes: the folder holds its run (prepare_out_dir)
+MARKER = "stereograph_run"
 _PLAIN_ID = re.compile(r"^[^\W][\w.-]{0,119}$")
 
 
@@ -44,7 +45,11 @@ def file_name(item: Any) -> str:
         return text
     enc = urllib.parse.quote(text, safe="-_").replace(".", "%2E")
     if len(enc) > 120:
-        enc = enc[:96] + "~" + hashlib.blake2b(text.encode("utf-8", "surrogatepass"), digest_size=8).hexdigest()
+        enc = (
+            enc[:96]
+            + "~"
+            + hashlib.blake2b(text.encode("utf-8", "surrogatepass"), digest_size=8).hexdigest()
+        )
     return enc or "%00"
 
 
@@ -57,12 +62,16 @@ def _numpy() -> Any:
 def image_shaped(v: Any, channels: tuple[int, ...] = (3, 4)) -> bool:
     """A uint8 array H x W, or H x W x C with C in ``channels``, of any size."""
     np = _numpy()
-    return np is not None and (isinstance(v, np.ndarray) and v.dtype == np.uint8 and
-            (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in channels)))
+    return np is not None and (
+        isinstance(v, np.ndarray)
+        and v.dtype == np.uint8
+        and (v.ndim == 2 or (v.ndim == 3 and v.shape[2] in channels))
+    )
 
 
 def is_image(v: Any) -> bool:
-    """An image written as PNG (:func:`image_shaped`, more than 64 values: smaller ones are data)."""
+    """An image written as PNG (:func:`image_shaped`, more than 64 values: smaller ones are
+    data)."""
     return image_shaped(v) and v.size > 64
 
 
@@ -70,8 +79,13 @@ _SUFFIX = re.compile(r"^\.[A-Za-z0-9]{1,10}$")
 
 
 def is_file_value(v: Any) -> bool:
-    """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text": str, ...}``."""
-    if not (isinstance(v, dict) and isinstance(v.get("file_suffix"), str) and _SUFFIX.match(v["file_suffix"])):
+    """A node-encoded file: ``{"file_suffix": ".ext", "file_bytes": uint8 1-D array | "file_text":
+    str, ...}``."""
+    if not (
+        isinstance(v, dict)
+        and isinstance(v.get("file_suffix"), str)
+        and _SUFFIX.match(v["file_suffix"])
+    ):
         return False
     np = _numpy()
     content = v.get("file_bytes")
@@ -124,8 +138,9 @@ def write_whole(path: Path, data: bytes) -> None:
 
 def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     """Write one value as PNG or JSON (+ .npz for large arrays); returns the files written.
-    ``lossy``: an image output declared ``Out(lossy=True)`` (a picture for people) is written as JPEG.
-    ``None`` is an output the node did not produce (an overlay switched off): nothing is written."""
+    ``lossy``: an image output declared ``Out(lossy=True)`` (a picture for people) is written as
+    JPEG. ``None`` is an output the node did not produce (an overlay switched off): nothing is
+    written."""
     if value is None:
         return []
     if lossy:
@@ -168,8 +183,9 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
 
 
 def write_collection(stem: Path, items: dict[str, Any], lossy: bool = False) -> list[Path]:
-    """Write a per-item output: a folder of PNG images (JPEG for a ``lossy`` output), or one JSON list of
-    records. Items whose value is ``None`` (not produced) are left out; none produced, no file."""
+    """Write a per-item output: a folder of PNG images (JPEG for a ``lossy`` output), or one JSON
+    list of records. Items whose value is ``None`` (not produced) are left out; none produced, no
+    file."""
     if not items:
         return write_value(stem, [])
     items = {i: v for i, v in items.items() if v is not None}
@@ -195,7 +211,8 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
     ready = store.ready_file(key, output) if hasattr(store, "ready_file") else None
-    if ready is not None:  # the entry keeps this image as the very PNG (or JPEG) the run folder gets
+    # the entry keeps this image as the very PNG (or JPEG) the run folder gets
+    if ready is not None:
         dest = _with_ext(stem, ready.suffix)
         _link_or_copy(ready, dest)
         return [dest]
@@ -211,7 +228,9 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     if rdir.exists() and getattr(store, "writable", True):  # corrupt or unverifiable: render again
         shutil.rmtree(rdir, ignore_errors=True)
     files = produce()
-    if not getattr(store, "writable", True) or (hasattr(store, "ready_file") and store.ready_file(key, output)):
+    if not getattr(store, "writable", True) or (
+        hasattr(store, "ready_file") and store.ready_file(key, output)
+    ):
         return files  # (an entry stored just now keeps the PNG itself: no second copy)
     tmp = store.tmp / f"r-{uuid.uuid4().hex}"
     try:
@@ -225,7 +244,8 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
         rdir.parent.mkdir(parents=True, exist_ok=True)
         os.rename(tmp, rdir)
     except OSError:
-        pass  # another run rendered it first, or the cache cannot take it: the result is written anyway
+        # another run rendered it first, or the cache cannot take it: the result is written anyway
+        pass
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
@@ -233,7 +253,8 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
 
 
 def _link_or_copy(src: Path, dest: Path) -> None:
-    """Put ``src`` at ``dest`` as a hard link (no second copy on disk), else as a copy (another disk).
+    """Put ``src`` at ``dest`` as a hard link (no second copy on disk), else as a copy (another
+    disk).
 
     The cache checks its files' digests before any use, so a linked result edited in place is
     detected there, and recomputed, never delivered."""
@@ -280,7 +301,9 @@ def check_folder_path(out: Path) -> Path:
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
     if not probe.is_dir():
-        raise ConfigError(f"output folder {out} cannot be made: {probe} is a file", hint="choose another --out")
+        raise ConfigError(
+            f"output folder {out} cannot be made: {probe} is a file", hint="choose another --out"
+        )
     return probe
 
 
@@ -301,14 +324,17 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
 
     probe = check_folder_path(out_dir)
     if not os.access(probe, os.W_OK | os.X_OK):  # (a read-only file system says so even to root)
-        raise ConfigError(f"output folder {out_dir} cannot be written: {probe} is not writable",
-                          hint="choose another --out")
+        raise ConfigError(
+            f"output folder {out_dir} cannot be written: {probe} is not writable",
+            hint="choose another --out",
+        )
     try:
         if not out_dir.exists() or not any(out_dir.iterdir()):
             return {}
     except OSError as e:
-        raise ConfigError(f"cannot use output folder {out_dir}: {e.strerror or e}",
-                          hint="choose another --out") from None
+        raise ConfigError(
+            f"cannot use output folder {out_dir}: {e.strerror or e}", hint="choose another --out"
+        ) from None
     summary = out_dir / "run.json"
     try:
         earlier = json.loads(summary.read_text()) if summary.is_file() else None
@@ -317,8 +343,12 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
     except (OSError, ValueError, AttributeError, TypeError):
         ours, written = False, []
     if not ours:
-        raise ConfigError(f"output folder {out_dir} is not empty and is not the folder of an earlier stereograph run "
-                          "(no run.json that stereograph wrote)", hint="choose another --out, or empty that folder")
+        raise ConfigError(
+            f"output folder {out_dir} is not empty and is not the folder of an earlier "
+            "stereograph run "
+            "(no run.json that stereograph wrote)",
+            hint="choose another --out, or empty that folder",
+        )
     root = out_dir.resolve()
     parents: set[Path] = set()
     for rel in written:
@@ -329,7 +359,8 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
             p.unlink()
             parents.update(q for q in p.parents if root in q.parents)
     summary.unlink()
-    (out_dir / "report.html").unlink(missing_ok=True)  # written from that run.json (stereograph.app.report)
+    # written from that run.json (stereograph.app.report)
+    (out_dir / "report.html").unlink(missing_ok=True)
     # stereograph never makes symbolic links: one inside the folder was put there since, and writing
     # through it (a node's folder linked elsewhere) would write outside the run's folder
     for dirpath, dirnames, filenames in os.walk(out_dir):  # (does not follow links)
@@ -366,9 +397,9 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-
-        raise ConfigError(f"cannot make output folder {out_dir}: {e.strerror or e}",
-                          hint="choose another --out") from None
+        raise ConfigError(
+            f"cannot make output folder {out_dir}: {e.strerror or e}", hint="choose another --out"
+        ) from None
     written: dict[str, list[str]] = {}
     terminal = set(graph.terminal())
     for name in selected:
@@ -383,59 +414,96 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
             except Exception as e:  # an output we cannot write must not lose the others ...
                 rep = run.reports[name]
                 rep.messages.append(f"could not write output '{out}': {e}")
-                if isinstance(e, OSError) and rep.error is None:  # ... nor pass for a delivered result
-                    rep.status, rep.error = "failed", f"could not write output '{out}': {e.strerror or e}"
-                    rep.hint = "free space on that disk, or choose another --out; the result is cached"
+                # ... nor pass for a delivered result
+                if isinstance(e, OSError) and rep.error is None:
+                    rep.status, rep.error = (
+                        "failed",
+                        f"could not write output '{out}': {e.strerror or e}",
+                    )
+                    rep.hint = (
+                        "free space on that disk, or choose another --out; the result is cached"
+                    )
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files or [])
     add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
-    summary = _summary(graph, run, result.run_id, result.pipeline, out_dir, result.ok,
-                       list(getattr(result, "notes", [])), written)
+    summary = _summary(
+        graph,
+        run,
+        result.run_id,
+        result.pipeline,
+        out_dir,
+        result.ok,
+        list(getattr(result, "notes", [])),
+        written,
+    )
     try:
         write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
     except OSError as e:
-
-        raise ConfigError(f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
-                          hint="free space on that disk, or choose another --out") from None
+        raise ConfigError(
+            f"cannot write {out_dir / 'run.json'}: {e.strerror or e}",
+            hint="free space on that disk, or choose another --out",
+        ) from None
     notes = hooks.announce("run_written", out_dir)  # the app's page; never a failed run
     if hasattr(result, "notes"):
         result.notes.extend(notes)
 
 
-def _output_files(graph: Any, run: Any, name: str, out: str, decl: Any, stem: Path) -> list[Path] | None:
-    """Write one output of a node (each item's, for a per-item output); the files, or None for nothing."""
+def _output_files(
+    graph: Any, run: Any, name: str, out: str, decl: Any, stem: Path
+) -> list[Path] | None:
+    """Write one output of a node (each item's, for a per-item output); the files, or None for
+    nothing."""
     store, status = run.store, run.reports[name].status
     if not graph.is_collection(name, out):
         if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
             return None
-        return _rendered(store, run.ref_keys.get((name, out, None)), out, stem,
-                         lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(p, run.get(r), lo))
+        return _rendered(
+            store,
+            run.ref_keys.get((name, out, None)),
+            out,
+            stem,
+            lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(p, run.get(r), lo),
+        )
     ids = run.items.get((name, out), [])
     streamed = getattr(run, "streamed", {}).get((name, out), {})
-    if streamed and all(i in streamed for i in ids):  # written item by item as each finished (streaming)
+    # written item by item as each finished (streaming)
+    if streamed and all(i in streamed for i in ids):
         return [f for i in ids for f in streamed[i]]
     if not ids and status in ("failed", "skipped"):
         return None  # (the items that did finish are kept; none is not an empty result)
     # an image per item is known from the first entry's manifest, without loading it
-    ready = (store is not None and ids and hasattr(store, "ready_file") and
-             store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None)
+    ready = (
+        store is not None
+        and ids
+        and hasattr(store, "ready_file")
+        and store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None
+    )
     if not (ids and (ready or is_image(run.get((name, out, ids[0]))))):
         return write_collection(stem, {i: run.get((name, out, i)) for i in ids})
     files = []
     for i in ids:  # one file per item
         p = stem / file_name(i)
-        files += _rendered(store, run.ref_keys.get((name, out, i)), out, p,
-                           lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(p, run.get(r), lo))
+        files += _rendered(
+            store,
+            run.ref_keys.get((name, out, i)),
+            out,
+            p,
+            lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(p, run.get(r), lo),
+        )
     return files
 
 
-def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tuple[int, int, int]]) -> list[str]:
-    """Files in the node's folder that it wrote itself (through ``ctx.out_dir``: a failure log, say).
+def node_files(
+    out_dir: Path, name: str, known: set[str], foreign: dict[str, tuple[int, int, int]]
+) -> list[str]:
+    """Files in the node's folder that it wrote itself (through ``ctx.out_dir``: a failure log,
+    say).
 
-    Recorded in ``run.json`` with its outputs (``known``), so that a later run into this folder removes
-    them with the rest (:func:`prepare_out_dir`) instead of leaving them beside its own results. A file
-    that was there before the run, unchanged (``foreign``, from :func:`prepare_out_dir`: a user's notes),
-    is not the run's: recording it would have the next run delete what stereograph did not write.
+    Recorded in ``run.json`` with its outputs (``known``), so that a later run into this folder
+    removes them with the rest (:func:`prepare_out_dir`) instead of leaving them beside its own
+    results. A file that was there before the run, unchanged (``foreign``, from
+    :func:`prepare_out_dir`: a user's notes), is not the run's: recording it would have the next run
+    delete what stereograph did not write.
     """
     folder = out_dir / name
     if folder.is_symlink() or not folder.is_dir():
@@ -443,24 +511,41 @@ def node_files(out_dir: Path, name: str, known: set[str], foreign: dict[str, tup
     found = []
     for rel, stamp in _present(folder).items():
         rel = str(Path(name) / rel)
-        if rel not in known and not Path(rel).name.startswith(".") and foreign.get(rel) != stamp \
-                and not (out_dir / rel).is_symlink():  # (.x.tmp: being written; a link: not ours)
+        if (
+            rel not in known
+            and not Path(rel).name.startswith(".")
+            and foreign.get(rel) != stamp
+            and not (out_dir / rel).is_symlink()
+        ):  # (.x.tmp: being written; a link: not ours)
             found.append(rel)
     return sorted(found)
 
 
-def add_node_files(out_dir: Path, names: Any, written: dict[str, list[str]],
-                   foreign: dict[str, tuple[int, int, int]]) -> None:
-    """Add to ``written`` (node -> files of the run) what each named node wrote into its folder itself
-    (:func:`node_files`): a run's, an interrupted run's and a compare variant's ``run.json`` record it."""
+def add_node_files(
+    out_dir: Path,
+    names: Any,
+    written: dict[str, list[str]],
+    foreign: dict[str, tuple[int, int, int]],
+) -> None:
+    """Add to ``written`` (node -> files of the run) what each named node wrote into its folder
+    itself (:func:`node_files`): a run's, an interrupted run's and a compare variant's ``run.json``
+    record it."""
     for name in names:
         extra = node_files(out_dir, name, set(written.get(name, [])), foreign)
         if extra:
             written.setdefault(name, []).extend(extra)
 
 
-def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok: bool, notes: list[str],
-             written: dict[str, list[str]]) -> dict[str, Any]:
+def _summary(
+    graph: Any,
+    run: Any,
+    run_id: str,
+    pipeline: str,
+    out_dir: Path,
+    ok: bool,
+    notes: list[str],
+    written: dict[str, list[str]],
+) -> dict[str, Any]:
     """``run.json``'s content."""
     return {
         MARKER: {"format": 1, "run_id": run_id},
@@ -470,21 +555,39 @@ def _summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path, ok
         "overrides": list(graph.doc.overrides),
         "ok": ok,
         "notes": notes,
-        "nodes": [{"node": r.name, "type": r.type, "status": r.status, "seconds": round(r.seconds, 4),
-                   "items": r.items, "items_ran": r.items_ran, "items_failed": r.items_failed,
-                   "error": r.error, "hint": r.hint, "messages": r.messages, "files": written.get(r.name, []),
-                   **_wiring(graph, r.name),
-                   **({"traceback": r.trace} if r.unexpected and r.trace else {})}
-                  for r in run.reports.values()],
-        "failed_items": [{"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()],
-        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),  # stereograph.app.loop
+        "nodes": [
+            {
+                "node": r.name,
+                "type": r.type,
+                "status": r.status,
+                "seconds": round(r.seconds, 4),
+                "items": r.items,
+                "items_ran": r.items_ran,
+                "items_failed": r.items_failed,
+                "error": r.error,
+                "hint": r.hint,
+                "messages": r.messages,
+                "files": written.get(r.name, []),
+                **_wiring(graph, r.name),
+                **({"traceback": r.trace} if r.unexpected and r.trace else {}),
+            }
+            for r in run.reports.values()
+        ],
+        "failed_items": [
+            {"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()
+        ],
+        # stereograph.app.loop
+        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),
     }
 
 
-def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path) -> None:
-    """A ``run.json`` for a run stopped by Ctrl-C / SIGTERM: the nodes' states and the files written so far
-    (the items streamed into the folder), so that the same command with the same ``--out`` can reuse the
-    folder -- emptied of those files first -- while the cache resumes the work. Never raises."""
+def write_interrupted_summary(
+    graph: Any, run: Any, run_id: str, pipeline: str, out_dir: Path
+) -> None:
+    """A ``run.json`` for a run stopped by Ctrl-C / SIGTERM: the nodes' states and the files written
+    so far (the items streamed into the folder), so that the same command with the same ``--out``
+    can reuse the folder -- emptied of those files first -- while the cache resumes the work. Never
+    raises."""
     for rep in run.reports.values():
         if rep.status in ("pending", "running"):
             rep.status = "interrupted"
@@ -492,8 +595,11 @@ def write_interrupted_summary(graph: Any, run: Any, run_id: str, pipeline: str, 
     with contextlib.suppress(Exception):
         for (name, _out), per_item in dict(getattr(run, "streamed", {})).items():
             for files in per_item.values():
-                written.setdefault(name, []).extend(str(Path(f).relative_to(out_dir)) for f in files)
-        add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))  # (as write_run_outputs)
+                written.setdefault(name, []).extend(
+                    str(Path(f).relative_to(out_dir)) for f in files
+                )
+        # (as write_run_outputs)
+        add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
         summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)
@@ -506,5 +612,8 @@ def _wiring(graph: Any, name: str) -> dict[str, Any]:
     if inst is None:
         return {}
     headline = [o for o, decl in inst.spec.outputs.items() if decl.headline]
-    return {"mapped": bool(inst.mapped), "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()},
-            **({"headline": headline} if headline else {})}
+    return {
+        "mapped": bool(inst.mapped),
+        "inputs": {p: [s, o] for p, (s, o) in inst.inputs.items()},
+        **({"headline": headline} if headline else {}),
+    }

@@ -19,8 +19,8 @@ MARKERS = ("pyproject.toml", ".git")
 
 
 def project_root(start: str | Path) -> Path:
-    """The nearest folder at or above ``start`` (a file's folder, or a folder) with a project marker;
-    ``start`` (its folder) itself when there is none."""
+    """The nearest folder at or above ``start`` (a file's folder, or a folder) with a project
+    marker; ``start`` (its folder) itself when there is none."""
     here = Path(start).resolve()
     if not here.is_dir():
         here = here.parent
@@ -56,13 +56,17 @@ def cache_dir(pipeline_dir: str | Path) -> Path:
     if isinstance(conf, str) and conf:
         path = (root / Path(conf).expanduser()).resolve()
         if path != root and root not in path.parents:
-            # a project's files come with the project (a repository cloned, a folder handed over): they
-            # must not point the cache -- written to by every run, emptied by `cache clear` -- at your files
+            # a project's files come with the project (a repository cloned, a folder handed over):
+            # they must not point the cache -- written to by every run, emptied by `cache clear` --
+            # at your files
 
-            raise ConfigError(f"{root / 'pyproject.toml'}: [tool.stereograph] cache_dir = {conf!r} is outside the "
-                              f"project ({root})",
-                              hint="give a folder inside the project; for a cache elsewhere, choose it yourself "
-                                   "with --cache-dir or STEREOGRAPH_CACHE_DIR")
+            raise ConfigError(
+                f"{root / 'pyproject.toml'}: [tool.stereograph] cache_dir = {conf!r} is "
+                "outside the "
+                f"project ({root})",
+                hint="give a folder inside the project; for a cache elsewhere, choose it yourself "
+                "with --cache-dir or STEREOGRAPH_CACHE_DIR",
+            )
         return path
     return root / ".stereograph" / "cache"
 
@@ -85,7 +89,10 @@ def budget_bytes(pipeline_dir: str | Path | None = None) -> int:
         value, source = env, "STEREOGRAPH_CACHE_BUDGET_GB"
     else:
         conf = _tool_config(project_root(pipeline_dir)) if pipeline_dir is not None else {}
-        value, source = conf.get("cache_budget_gb", DEFAULT_BUDGET_GB), "[tool.stereograph] cache_budget_gb"
+        value, source = (
+            conf.get("cache_budget_gb", DEFAULT_BUDGET_GB),
+            "[tool.stereograph] cache_budget_gb",
+        )
     try:
         gb = float(value)
     except (TypeError, ValueError):

@@ -29,8 +29,8 @@ COMMANDS_GROUP = "stereograph.commands"
 
 
 class EntryPoint:
-    """A named ``module:attr`` reference, imported on :meth:`load` (what ``importlib.metadata`` gives,
-    without its import and its scan of every installed package)."""
+    """A named ``module:attr`` reference, imported on :meth:`load` (what ``importlib.metadata``
+    gives, without its import and its scan of every installed package)."""
 
     def __init__(self, name: str, value: str):
         self.name, self.value = name, value
@@ -56,7 +56,8 @@ def _fingerprint() -> list:
 
 
 def _index_file() -> Path:
-    """One folder per Python environment (two virtual environments must not take turns rewriting it)."""
+    """One folder per Python environment (two virtual environments must not take turns rewriting
+    it)."""
     import hashlib
 
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
@@ -66,8 +67,9 @@ def _index_file() -> Path:
 
 @lru_cache(maxsize=1)
 def _all_groups() -> dict[str, dict[str, str]]:
-    """Both entry-point groups as {group: {name: value}}, from a small index file while the installed
-    packages are unchanged (scanning every package's metadata costs more than the rest of ``--help``)."""
+    """Both entry-point groups as {group: {name: value}}, from a small index file while the
+    installed packages are unchanged (scanning every package's metadata costs more than the rest of
+    ``--help``)."""
     fp = _fingerprint()
     path = _index_file()
     known: list = []
@@ -78,7 +80,9 @@ def _all_groups() -> dict[str, dict[str, str]]:
                 return e["groups"]
     from importlib.metadata import entry_points
 
-    groups = {g: {ep.name: ep.value for ep in entry_points(group=g)} for g in (GROUP, COMMANDS_GROUP)}
+    groups = {
+        g: {ep.name: ep.value for ep in entry_points(group=g)} for g in (GROUP, COMMANDS_GROUP)
+    }
     with contextlib.suppress(OSError):  # a read-only home: the index is only a fast path
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -93,7 +97,8 @@ def _entry_points() -> dict[str, EntryPoint]:
 
 def names() -> list[str]:
     """All known node type names, sorted."""
-    api = sys.modules.get("stereograph.core.api")  # (no node can be registered before it is imported)
+    # (no node can be registered before it is imported)
+    api = sys.modules.get("stereograph.core.api")
     return sorted(set(_entry_points()) | set(api.REGISTRY if api else ()))
 
 
@@ -112,23 +117,35 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
     ep = _entry_points().get(name)
     if ep is None:
         close = difflib.get_close_matches(name, names(), n=3, cutoff=0.5)
-        hint = f"did you mean {' or '.join(repr(c) for c in close)}?" if close else \
-            "run `stereograph nodes` to list the node types"
+        hint = (
+            f"did you mean {' or '.join(repr(c) for c in close)}?"
+            if close
+            else "run `stereograph nodes` to list the node types"
+        )
         raise ConfigError(f"unknown node type '{name}'", where, node, hint)
     try:
         fn = ep.load()
     except KeyboardInterrupt:
         raise
-    except BaseException as e:  # a broken node module must not read as "unknown type", nor end the command
-        raise ConfigError(f"node type '{name}' is registered as {ep.value} but failed to import: "
-                          f"{type(e).__name__}: {e}", where, node,
-                          hint="fix that module, or reinstall with `pip install -e .`") from None
+    # a broken node module must not read as "unknown type", nor end the command
+    except BaseException as e:
+        raise ConfigError(
+            f"node type '{name}' is registered as {ep.value} but failed to import: "
+            f"{type(e).__name__}: {e}",
+            where,
+            node,
+            hint="fix that module, or reinstall with `pip install -e .`",
+        ) from None
     spec = getattr(fn, "spec", None)
     if not isinstance(spec, NodeSpec):
         raise ConfigError(f"entry point {ep.value} is not a @node-decorated function", where, node)
     if spec.name != name:
-        raise ConfigError(f"entry point '{name}' points at a node declared as '{spec.name}'", where, node,
-                          hint="make the entry-point name and the @node name agree in pyproject.toml")
+        raise ConfigError(
+            f"entry point '{name}' points at a node declared as '{spec.name}'",
+            where,
+            node,
+            hint="make the entry-point name and the @node name agree in pyproject.toml",
+        )
     return spec
 
 
@@ -161,10 +178,13 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
         it raises on import (``sys.exit()`` included).
     """
     if plugins and not PLUGINS_ALLOWED:
-        raise ConfigError(f"this pipeline imports Python code (plugins: {', '.join(plugins)}), and importing "
-                          "runs that code; stereograph does not do that for a pipeline file unless told to", where,
-                          hint="if you trust this file and its plugins, add --allow-plugins (or set "
-                               "STEREOGRAPH_ALLOW_PLUGINS=1); otherwise remove 'plugins:'")
+        raise ConfigError(
+            f"this pipeline imports Python code (plugins: {', '.join(plugins)}), and importing "
+            "runs that code; stereograph does not do that for a pipeline file unless told to",
+            where,
+            hint="if you trust this file and its plugins, add --allow-plugins (or set "
+            "STEREOGRAPH_ALLOW_PLUGINS=1); otherwise remove 'plugins:'",
+        )
     from stereograph.core.api import REGISTRY
 
     for plugin in plugins:
@@ -177,16 +197,23 @@ def import_plugins(plugins: list[str], base_dir: Path, where: Where | None = Non
         except (ConfigError, KeyboardInterrupt):
             raise
         except BaseException as e:  # SystemExit too: a plugin must not end or hijack the command
-            what = f"called sys.exit({e.code!r})" if isinstance(e, SystemExit) else f"{type(e).__name__}: {e}"
-            raise ConfigError(f"plugin '{plugin}' failed to import: {what}", where,
-                              hint="plugins are module names or .py paths relative to the pipeline file (a .py "
-                                   "plugin may import modules beside it)") from None
+            what = (
+                f"called sys.exit({e.code!r})"
+                if isinstance(e, SystemExit)
+                else f"{type(e).__name__}: {e}"
+            )
+            raise ConfigError(
+                f"plugin '{plugin}' failed to import: {what}",
+                where,
+                hint="plugins are module names or .py paths relative to the pipeline file (a .py "
+                "plugin may import modules beside it)",
+            ) from None
         _keep_installed(plugin, before, where)
 
 
 def _import_file(path: Path) -> None:
-    """Import a ``.py`` plugin as a module of its own (two plugins named nodes.py in two folders are two
-    modules); a file changed since this process imported it is imported again -- the cache key
+    """Import a ``.py`` plugin as a module of its own (two plugins named nodes.py in two folders are
+    two modules); a file changed since this process imported it is imported again -- the cache key
     follows the file, so the code run must too."""
     path = path.resolve()
     mod_name = f"stereograph_plugin_{path.stem}_{digest(str(path).encode())[:8]}"
@@ -215,14 +242,18 @@ def _import_file(path: Path) -> None:
 
 
 def _import_module(plugin: str, base_dir: Path) -> None:
-    """Import a plugin module by name (from the pipeline's folder first); again if its file changed."""
+    """Import a plugin module by name (from the pipeline's folder first); again if its file
+    changed."""
     if str(base_dir) not in sys.path:
         sys.path.insert(0, str(base_dir))
         PLUGIN_PATHS.add(str(base_dir))
     mod = sys.modules.get(plugin)
     file = getattr(mod, "__file__", None)
-    if mod is not None and file and getattr(mod, "__stereograph_digest__", None) not in (
-            None, file_digest(Path(file))):
+    if (
+        mod is not None
+        and file
+        and getattr(mod, "__stereograph_digest__", None) not in (None, file_digest(Path(file)))
+    ):
         mod = importlib.reload(mod)
     else:
         mod = importlib.import_module(plugin)
@@ -240,14 +271,20 @@ def _keep_installed(plugin: str, before: dict, where: Where | None) -> None:
         old = before.get(name)
         if spec is old:
             continue
-        if name in installed and installed[name].value.partition(":")[0].strip() != spec.fn.__module__:
+        if (
+            name in installed
+            and installed[name].value.partition(":")[0].strip() != spec.fn.__module__
+        ):
             if old is not None:
                 REGISTRY[name] = old
             else:
                 del REGISTRY[name]
-            raise ConfigError(f"plugin '{plugin}' defines a node type '{name}', the name of an installed node "
-                              "type: a plugin does not replace one", where,
-                              hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type")
+            raise ConfigError(
+                f"plugin '{plugin}' defines a node type '{name}', the name of an installed node "
+                "type: a plugin does not replace one",
+                where,
+                hint=f"give your node its own name (e.g. '{name}_mine') and use that as the type",
+            )
 
 
 def commands() -> dict[str, EntryPoint]:
@@ -275,9 +312,9 @@ def _module_stamp(value: str) -> list:
 
 
 def summaries() -> dict[str, dict[str, str]]:
-    """For ``stereograph nodes``: each node type's ``io`` ("in:Type → out:Type") and ``description``,
-    or its ``error``; kept in an index beside the entry-point one and recomputed (importing the node
-    modules) only for node types whose module folder changed."""
+    """For ``stereograph nodes``: each node type's ``io`` ("in:Type → out:Type") and
+    ``description``, or its ``error``; kept in an index beside the entry-point one and recomputed
+    (importing the node modules) only for node types whose module folder changed."""
     eps = _entry_points()
     path = _index_file().with_name("node-summaries.json")
     try:
@@ -297,9 +334,14 @@ def summaries() -> dict[str, dict[str, str]]:
             continue
         try:
             spec = get(name)
-            summary = {"io": (", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items()) + " → " +
-                              ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items())),
-                       "description": spec.description}
+            summary = {
+                "io": (
+                    ", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items())
+                    + " → "
+                    + ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items())
+                ),
+                "description": spec.description,
+            }
         except ConfigError as e:
             summary, stamp = {"error": str(e)}, None  # never remembered: the next call tries again
         out[name] = summary
@@ -307,8 +349,11 @@ def summaries() -> dict[str, dict[str, str]]:
             stamps[name] = stamp
             changed = True
     if changed:
-        index = {n: {"stamp": stamps.get(n, (old.get(n) or {}).get("stamp")), "summary": out[n]}
-                 for n in out if n in stamps or isinstance(old.get(n), dict)}
+        index = {
+            n: {"stamp": stamps.get(n, (old.get(n) or {}).get("stamp")), "summary": out[n]}
+            for n in out
+            if n in stamps or isinstance(old.get(n), dict)
+        }
         with contextlib.suppress(OSError):
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

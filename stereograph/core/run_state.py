@@ -33,14 +33,14 @@ from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
 from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
 
-if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+# (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+if TYPE_CHECKING:
     from stereograph.core.config import PipelineDoc
     from stereograph.core.graph import Graph, NodeInstance
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 NO_ITEMS = "no items to process (upstream produced none)"
 _HERE_SERIAL = SerialExecutor()  # a node with one entry runs here, not in the pool
-
 
 
 @dataclass
@@ -57,7 +57,8 @@ class NodeReport:
     trace: str | None = None
     unexpected: bool = False  # a bug in the node rather than bad input
     messages: list[str] = field(default_factory=list)
-    lasting: bool = False  # its failure would come back on every later call (NodeError(lasting=True))
+    # its failure would come back on every later call (NodeError(lasting=True))
+    lasting: bool = False
 
 
 @dataclass
@@ -71,8 +72,10 @@ class RunResult:
     _items: dict[tuple[str, str], list[str]]
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
     terminal: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)  # about the run as a whole (a read-only cache, say)
-    _run: Any = field(default=None, repr=False)  # the finished run: loads any node's output from the cache
+    # about the run as a whole (a read-only cache, say)
+    notes: list[str] = field(default_factory=list)
+    # the finished run: loads any node's output from the cache
+    _run: Any = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -89,8 +92,11 @@ class RunResult:
     def outputs(self, node: str, output: str) -> Any:
         """A terminal (or saved) output: the value, or ``{item: value}`` for per-item outputs."""
         if (node, output) in self._items:
-            return {i: self._values[(node, output, i)] for i in self._items[(node, output)]
-                    if (node, output, i) in self._values}
+            return {
+                i: self._values[(node, output, i)]
+                for i in self._items[(node, output)]
+                if (node, output, i) in self._values
+            }
         return self._values.get((node, output, None))
 
 
@@ -107,32 +113,47 @@ def default_cache_dir(doc: PipelineDoc) -> Path:
 
 
 class RunState:
-    def __init__(self, graph: Graph, store: ArtifactStore | None, out_dir: Path, executor: Any,
-                 force: set[str], progress: Any):
+    def __init__(
+        self,
+        graph: Graph,
+        store: ArtifactStore | None,
+        out_dir: Path,
+        executor: Any,
+        force: set[str],
+        progress: Any,
+    ):
         self.g, self.store, self.out_dir, self.executor = graph, store, out_dir, executor
         self.force, self.progress = force, progress
-        self.keys: dict[tuple[str, str | None], str] = {}      # (node, item) -> entry key
-        self.ref_keys: dict[Ref, str] = {}                      # ref -> key of the entry holding it
+        self.keys: dict[tuple[str, str | None], str] = {}  # (node, item) -> entry key
+        self.ref_keys: dict[Ref, str] = {}  # ref -> key of the entry holding it
         self.mem: dict[Ref, Any] = {}
-        self.items: dict[tuple[str, str], list[str]] = {}       # collection output -> item ids (ok ones)
-        self.failed_items: dict[tuple[str, str], str] = {}      # (node, item) -> message
-        self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}  # the table reads in run order
+        # collection output -> item ids (ok ones)
+        self.items: dict[tuple[str, str], list[str]] = {}
+        self.failed_items: dict[tuple[str, str], str] = {}  # (node, item) -> message
+        # the table reads in run order
+        self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}
         self.pipeline_id = hash_json(str(graph.doc.path))
         self.code: dict[str, str] = {}
         self.code_files: dict[str, dict[str, str]] = {}
         self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
         self.keep = set(graph.terminal())
-        self.resources: dict[str, Any] = {}   # RunContext.resource objects, closed when the run ends
-        self.memory_only: set[str] = set()     # nodes whose results stay in memory (see stereograph.app.loop)
-        self.ref_ids: dict[Ref, str] = {}       # ref -> content key of a produced item (see ident)
+        # RunContext.resource objects, closed when the run ends
+        self.resources: dict[str, Any] = {}
+        # nodes whose results stay in memory (see stereograph.app.loop)
+        self.memory_only: set[str] = set()
+        self.ref_ids: dict[Ref, str] = {}  # ref -> content key of a produced item (see ident)
         self.declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
-        self.deferred: set[str] = set()         # producers whose items a streamed region makes
-        self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}  # (node, out) -> item -> files
-        self.sub = False                        # a part of a run (stereograph.core.streaming): records nothing
-        self.streaming: set[str] = set()        # per-item nodes run in streamed regions
+        self.deferred: set[str] = set()  # producers whose items a streamed region makes
+        # (node, out) -> item -> files
+        self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}
+        # a part of a run (stereograph.core.streaming): records nothing
+        self.sub = False
+        self.streaming: set[str] = set()  # per-item nodes run in streamed regions
         self.selected: set[str] = set(graph.nodes)
-        self.ahead: dict[str, Any] = {}          # source -> its items being made ahead (streaming.start_ahead)
-        self.foreign: dict[str, tuple[int, int, int]] = {}  # files in out_dir before the run (prepare_out_dir)
+        # source -> its items being made ahead (streaming.start_ahead)
+        self.ahead: dict[str, Any] = {}
+        # files in out_dir before the run (prepare_out_dir)
+        self.foreign: dict[str, tuple[int, int, int]] = {}
 
     # ---- keys
 
@@ -143,16 +164,24 @@ class RunState:
         try:
             params = inst.params.model_dump(mode="json")
         except Exception as e:
-            raise ConfigError(f"a parameter value cannot be hashed for the cache: {e}",
-                              self.g.doc.where("nodes", inst.name, "params"), inst.name,
-                              "use plain numbers, strings, lists and mappings") from None
+            raise ConfigError(
+                f"a parameter value cannot be hashed for the cache: {e}",
+                self.g.doc.where("nodes", inst.name, "params"),
+                inst.name,
+                "use plain numbers, strings, lists and mappings",
+            ) from None
         files = {}
         if inst.spec.reads is not None:
             paths = inst.spec.reads(inst.params, self.g.doc.directory)
             for p in paths:
                 files[str(p)] = self.store.files.digest(Path(p)) if self.store else "nocache"
-        return {"type": inst.type, "version": inst.spec.version, "code": self.code[inst.type],
-                "params": params, "files": files}
+        return {
+            "type": inst.type,
+            "version": inst.spec.version,
+            "code": self.code[inst.type],
+            "params": params,
+            "files": files,
+        }
 
     def input_refs(self, inst: NodeInstance, item: str | None) -> dict[str, Any]:
         """For each input port: a ref, a list of (item, ref) for a gather, or None (unwired)."""
@@ -170,8 +199,13 @@ class RunState:
                 refs[port] = None
         return refs
 
-    def entry_key(self, base: dict[str, Any], refs: dict[str, Any], item: str | None,
-                  lost: dict[str, dict[str, str]] | None = None) -> str:
+    def entry_key(
+        self,
+        base: dict[str, Any],
+        refs: dict[str, Any],
+        item: str | None,
+        lost: dict[str, dict[str, str]] | None = None,
+    ) -> str:
         ins = {}
         for port, r in refs.items():
             if r is None:
@@ -184,8 +218,8 @@ class RunState:
         return hash_json({**base, "inputs": ins, "item": item, **({"lost": lost} if lost else {})})
 
     def lost_items(self, inst: NodeInstance) -> dict[str, dict[str, str]]:
-        """For each gathering port: ``{item: "node: why"}`` of the items that failed at or upstream of
-        the wired node, and so are not in the collection it gathers (:attr:`RunContext.lost`)."""
+        """For each gathering port: ``{item: "node: why"}`` of the items that failed at or upstream
+        of the wired node, and so are not in the collection it gathers (:attr:`RunContext.lost`)."""
         out: dict[str, dict[str, str]] = {}
         for port, (src, o) in inst.inputs.items():
             if not inst.spec.inputs[port].gather or not self.failed_items:
@@ -224,19 +258,31 @@ class RunState:
         except NotStored:  # kept as a manifest only: computing it again is the cheaper read
             self.recompute(node, item, store=False)
             if ref not in self.mem:
-                raise NodeError(f"recomputing '{node}'" + (f" for item '{item}'" if item is not None else "")
-                                + f" no longer gives '{out}'", hint="run again with --from " + node) from None
+                raise NodeError(
+                    f"recomputing '{node}'"
+                    + (f" for item '{item}'" if item is not None else "")
+                    + f" no longer gives '{out}'",
+                    hint="run again with --from " + node,
+                ) from None
             return self.mem[ref]
         except CorruptEntry as e:
-            self.reports[node].messages.append(f"cache entry {key[:12]} was corrupt ({e}); recomputed")
+            self.reports[node].messages.append(
+                f"cache entry {key[:12]} was corrupt ({e}); recomputed"
+            )
             self.store.delete(key)  # type: ignore[union-attr]
-            # an item of a collection (or its index) comes from the one entry of the node that yields it
+            # an item of a collection (or its index) comes from the one entry of the node that
+            # yields it
             inst = self.g.nodes[node]
-            self.recompute(node, None if inst.spec.outputs[out].collection and not self.producer(inst) else item)
+            self.recompute(
+                node,
+                None if inst.spec.outputs[out].collection and not self.producer(inst) else item,
+            )
             if ref not in self.mem:
-                raise NodeError(f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
-                                f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
-                                hint="run again with --from " + node) from None
+                raise NodeError(
+                    f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
+                    f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
+                    hint="run again with --from " + node,
+                ) from None
             return self.mem[ref]
         for o, v in entry.items():
             self.mem[(node, o, item)] = v
@@ -253,21 +299,49 @@ class RunState:
                 vals[port] = self.get(r)
         return vals
 
-    def task(self, inst: NodeInstance, item: str | None, values: dict[str, Any], remote: bool | None = None,
-             lost: dict[str, dict[str, str]] | None = None) -> Task:
+    def task(
+        self,
+        inst: NodeInstance,
+        item: str | None,
+        values: dict[str, Any],
+        remote: bool | None = None,
+        lost: dict[str, dict[str, str]] | None = None,
+    ) -> Task:
         # a params model may come from a plugin module another process has not imported yet
         remote = getattr(self.executor, "remote", False) if remote is None else remote
         params = inst.params.model_dump() if remote else inst.params
-        return Task(inst.type, list(self.g.doc.plugins), params, values, inst.name, item,
-                    str(self.out_dir), str(self.g.doc.directory), self.input_types(inst),
-                    None if remote else self.resources, self.producer(inst), dict(lost or {}))
+        return Task(
+            inst.type,
+            list(self.g.doc.plugins),
+            params,
+            values,
+            inst.name,
+            item,
+            str(self.out_dir),
+            str(self.g.doc.directory),
+            self.input_types(inst),
+            None if remote else self.resources,
+            self.producer(inst),
+            dict(lost or {}),
+        )
 
     def input_types(self, inst: NodeInstance) -> dict[str, str]:
         """Port -> declared type of the output wired to it (for nodes accepting alternatives)."""
-        return {port: self.g.nodes[src].spec.outputs[out].type for port, (src, out) in inst.inputs.items()}
+        return {
+            port: self.g.nodes[src].spec.outputs[out].type
+            for port, (src, out) in inst.inputs.items()
+        }
 
-    def store_result(self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any],
-                     messages: list[str] | None = None, seconds: float | None = None, save: bool = True) -> None:
+    def store_result(
+        self,
+        inst: NodeInstance,
+        item: str | None,
+        key: str | None,
+        out: dict[str, Any],
+        messages: list[str] | None = None,
+        seconds: float | None = None,
+        save: bool = True,
+    ) -> None:
         """Keep a computed entry's outputs in memory and in the store; split collections into items.
 
         ``seconds`` (what computing took) lets the store keep a manifest only when recomputing is
@@ -280,7 +354,8 @@ class RunState:
         delivered = inst.name in self.keep or self._saves(inst.name)
         if delivered or any(o.collection for o in inst.spec.outputs.values()):
             seconds = None
-        encoded: dict[str, bytes] = {}  # lossy outputs (pictures for people): stored as JPEG, read as decoded
+        # lossy outputs (pictures for people): stored as JPEG, read as decoded
+        encoded: dict[str, bytes] = {}
         for name, o in inst.spec.outputs.items():
             jpeg = jpeg_roundtrip(out.get(name)) if o.lossy and not o.collection else None
             if jpeg is not None:
@@ -290,7 +365,9 @@ class RunState:
         for name, val in out.items():
             if inst.spec.outputs[name].collection:
                 if not isinstance(val, dict):
-                    raise NodeError(f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)")
+                    raise NodeError(
+                        f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)"
+                    )
                 colls[name] = {str(k): v for k, v in val.items()}
             else:
                 single[name] = val
@@ -306,7 +383,9 @@ class RunState:
                 self.ref_keys[(inst.name, name, i)] = ikey
                 self.mem[(inst.name, name, i)] = v
                 if self.store is not None and key is not None and not self.store.has(ikey):
-                    self.store.save(ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i})
+                    self.store.save(
+                        ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i}
+                    )
             single[name] = {"__items__": ids, "__keys__": ikeys}
             # the index too, so that a recompute (a corrupt entry) serves it as a load would
             self.mem[(inst.name, name, item)] = single[name]
@@ -318,14 +397,29 @@ class RunState:
         if save and self.store is not None and key is not None:
             # collection indexes in the manifest too: a rerun learns the items without loading the
             # entry (which may hold big values beside them, such as calibration views)
-            self.store.save(key, single, {"type": inst.type, "node": inst.name, "item": item,
-                                          "messages": list(messages or []),
-                                          "indexes": {n: single[n] for n in colls},
-                                          "indexes_digest": hash_json({n: single[n] for n in colls})},
-                            compute_seconds=seconds, **({"encoded": encoded} if encoded else {}))
+            self.store.save(
+                key,
+                single,
+                {
+                    "type": inst.type,
+                    "node": inst.name,
+                    "item": item,
+                    "messages": list(messages or []),
+                    "indexes": {n: single[n] for n in colls},
+                    "indexes_digest": hash_json({n: single[n] for n in colls}),
+                },
+                compute_seconds=seconds,
+                **({"encoded": encoded} if encoded else {}),
+            )
 
-    def _store_item(self, inst: NodeInstance, item: str, key: str | None, out: dict[str, Any],
-                    messages: list[str] | None) -> None:
+    def _store_item(
+        self,
+        inst: NodeInstance,
+        item: str,
+        key: str | None,
+        out: dict[str, Any],
+        messages: list[str] | None,
+    ) -> None:
         """One item of an item-producing node: stored under its own key, known downstream by its
         content key (as the items of a whole collection are). ``{}`` (the node dropped the item)
         stores nothing."""
@@ -337,11 +431,21 @@ class RunState:
             if key is not None:
                 content[name] = self.ref_ids[ref] = content_key(v)
         if out and self.store is not None and key is not None:
-            self.store.save(key, out, {"type": inst.type, "node": inst.name, "item": item,
-                                       "messages": list(messages or []), "content": content})
+            self.store.save(
+                key,
+                out,
+                {
+                    "type": inst.type,
+                    "node": inst.name,
+                    "item": item,
+                    "messages": list(messages or []),
+                    "content": content,
+                },
+            )
 
-    def adopt_cached(self, inst: NodeInstance, item: str | None, key: str,
-                     manifest: dict[str, Any] | None = None) -> None:
+    def adopt_cached(
+        self, inst: NodeInstance, item: str | None, key: str, manifest: dict[str, Any] | None = None
+    ) -> None:
         """Register a cached entry's refs without loading big values (collections: load the index).
 
         ``manifest`` is the one the cache lookup already read, if any (saves reading it again).
@@ -349,10 +453,11 @@ class RunState:
         if manifest is None and self.store is not None:
             manifest = self.store.meta(key)
         meta = (manifest or {}).get("meta", {})
-        self.reports[inst.name].messages += meta.get("messages", [])  # warnings the node gave when it ran
+        # warnings the node gave when it ran
+        self.reports[inst.name].messages += meta.get("messages", [])
         if self.producer(inst) and item is not None:
             content = meta.get("content")
-            for name, ck in (content.items() if isinstance(content, dict) else []):
+            for name, ck in content.items() if isinstance(content, dict) else []:
                 if name in inst.spec.outputs and isinstance(ck, str):
                     self.ref_keys[(inst.name, name, item)] = key
                     self.ref_ids[(inst.name, name, item)] = ck
@@ -363,25 +468,37 @@ class RunState:
             self.ref_keys[(inst.name, name, item)] = key
             if o.collection:
                 indexes = meta.get("indexes")
-                # (a damaged manifest must not name wrong items: its digest decides, else the entry is read)
-                index = indexes.get(name) if isinstance(indexes, dict) and \
-                    hash_json(indexes) == meta.get("indexes_digest") else None
-                if not (isinstance(index, dict) and isinstance(index.get("__items__"), list)
-                        and isinstance(index.get("__keys__"), list)
-                        and len(index["__items__"]) == len(index["__keys__"])):
-                    index = self.get((inst.name, name, item))  # an entry from before indexes were kept there
+                # (a damaged manifest must not name wrong items: its digest decides, else the entry
+                # is read)
+                index = (
+                    indexes.get(name)
+                    if isinstance(indexes, dict)
+                    and hash_json(indexes) == meta.get("indexes_digest")
+                    else None
+                )
+                if not (
+                    isinstance(index, dict)
+                    and isinstance(index.get("__items__"), list)
+                    and isinstance(index.get("__keys__"), list)
+                    and len(index["__items__"]) == len(index["__keys__"])
+                ):
+                    # an entry from before indexes were kept there
+                    index = self.get((inst.name, name, item))
                 ids = index["__items__"]
                 self.items[(inst.name, name)] = ids
                 for i, k in zip(ids, index["__keys__"]):
                     self.ref_keys[(inst.name, name, i)] = k
 
     def recompute(self, node: str, item: str | None, store: bool = True) -> None:
-        """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest only)."""
+        """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest
+        only)."""
         inst = self.g.nodes[node]
         refs = self.input_refs(inst, item)
         res = execute(self.task(inst, item, self.inputs_for(refs)))
         if not res.ok:
-            raise NodeError(f"recomputing a cache entry of '{node}' failed: {res.error}", hint=res.hint)
+            raise NodeError(
+                f"recomputing a cache entry of '{node}' failed: {res.error}", hint=res.hint
+            )
         self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {}, save=store)
 
     # ---- one node
@@ -410,8 +527,14 @@ class RunState:
 
     def produced_ids(self, inst: NodeInstance) -> list[str]:
         """The item ids an item-producing node declares (cheap: no item is produced)."""
-        ctx = RunContext(inst.name, None, self.out_dir / inst.name, self.g.doc.directory,
-                         input_types=self.input_types(inst), producing_items=True)
+        ctx = RunContext(
+            inst.name,
+            None,
+            self.out_dir / inst.name,
+            self.g.doc.directory,
+            input_types=self.input_types(inst),
+            producing_items=True,
+        )
         try:
             ids = [str(i) for i in inst.spec.items(inst.params, ctx)]  # type: ignore[misc]
         except NodeError:
@@ -421,8 +544,10 @@ class RunState:
         seen: set[str] = set()
         dup = sorted({i for i in ids if i in seen or seen.add(i)})  # type: ignore[func-returns-value]
         if dup:
-            raise NodeError(f"it declares item ids more than once: {', '.join(dup[:5])}",
-                            hint="give every item (scene, file) its own id")
+            raise NodeError(
+                f"it declares item ids more than once: {', '.join(dup[:5])}",
+                hint="give every item (scene, file) its own id",
+            )
         self.reports[inst.name].messages += ctx.messages
         return ids
 
@@ -430,13 +555,22 @@ class RunState:
         """A producer none of whose declared items came out has failed as a whole."""
         rep = self.reports[inst.name]
         ids = self.declared.get(inst.name, [])
-        if ids and (inst.name, None) not in self.failed_items and \
-                not any(self.items.get((inst.name, o)) for o in self.item_outputs(inst, "")):
-            why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[:400] \
-                or "; ".join(rep.messages[:5])
-            self.fail_item(inst, None, f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
-                           "fix or remove the inputs these reasons name" if why else
-                           "see the node's messages in run.json")
+        if (
+            ids
+            and (inst.name, None) not in self.failed_items
+            and not any(self.items.get((inst.name, o)) for o in self.item_outputs(inst, ""))
+        ):
+            why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[
+                :400
+            ] or "; ".join(rep.messages[:5])
+            self.fail_item(
+                inst,
+                None,
+                f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
+                "fix or remove the inputs these reasons name"
+                if why
+                else "see the node's messages in run.json",
+            )
 
     def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
         """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``.
@@ -455,10 +589,18 @@ class RunState:
         if entries is None:  # the producer could not say which items it makes
             rep.seconds = time.perf_counter() - t0
             return
-        makes_items = inst.mapped or (producer and (items is not None or inst.name not in self.deferred))
+        makes_items = inst.mapped or (
+            producer and (items is not None or inst.name not in self.deferred)
+        )
         for out in self.item_outputs(inst, "") if makes_items else []:
             self.items[(inst.name, out)] = []
-        rep.items = len(entries) if inst.mapped else len(self.declared.get(inst.name, [])) if producer else 0
+        rep.items = (
+            len(entries)
+            if inst.mapped
+            else len(self.declared.get(inst.name, []))
+            if producer
+            else 0
+        )
         if self.progress:  # (a producer's own entry is not one of its items: "13 items", not 14)
             self.progress.node_started(inst.name, sum(self._counted(inst, i) for i in entries))
         cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
@@ -483,9 +625,12 @@ class RunState:
             rep.messages.append(NO_ITEMS)
         self.release(inst.name)
 
-    def _entries(self, inst: NodeInstance, items: list[str] | None, producer: bool) -> list[str | None] | None:
+    def _entries(
+        self, inst: NodeInstance, items: list[str] | None, producer: bool
+    ) -> list[str | None] | None:
         """The node's entries: one per item of a per-item node, else one (None); a producer's own
-        entry and then its items (unless a streamed region makes them); None if it cannot list them."""
+        entry and then its items (unless a streamed region makes them); None if it cannot list
+        them."""
         entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
         if producer and items is not None:
             return list(items)
@@ -500,8 +645,14 @@ class RunState:
                 entries += self.declared[inst.name]
         return entries
 
-    def _look_up(self, inst: NodeInstance, entries: list[str | None], base: dict[str, Any] | None,
-                 cacheable: bool, lost: dict) -> list[tuple[str | None, str | None, dict[str, Any]]]:
+    def _look_up(
+        self,
+        inst: NodeInstance,
+        entries: list[str | None],
+        base: dict[str, Any] | None,
+        cacheable: bool,
+        lost: dict,
+    ) -> list[tuple[str | None, str | None, dict[str, Any]]]:
         """Key every entry and adopt what the store holds; returns the entries still to compute."""
         todo = []
         for item in entries:
@@ -521,13 +672,24 @@ class RunState:
                 self.progress.advance(inst.name)
         return todo
 
-    def _compute(self, inst: NodeInstance, todo: list, lost: dict, store_on: bool, cacheable: bool,
-                 producer: bool) -> None:
+    def _compute(
+        self,
+        inst: NodeInstance,
+        todo: list,
+        lost: dict,
+        store_on: bool,
+        cacheable: bool,
+        producer: bool,
+    ) -> None:
         """Compute the entries the store did not have, and store what they made."""
         # Lock what we compute so a concurrent run waits and then shares the result. A node called
         # once (calibration, a report) runs here: shipping its inputs to a worker would only add
         # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
-        ex = self.executor if inst.mapped or any(item is not None for item, _, _ in todo) else _HERE_SERIAL
+        ex = (
+            self.executor
+            if inst.mapped or any(item is not None for item, _, _ in todo)
+            else _HERE_SERIAL
+        )
         tasks, metas = [], []
         for item, key, refs in todo:
             try:
@@ -539,10 +701,19 @@ class RunState:
             tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
             metas.append((item, key))
         volatile = not store_on or not inst.spec.cacheable
-        for (item, key), (res, stored) in zip(metas, self._run_locked(inst, tasks, metas, cacheable, ex)):
+        for (item, key), (res, stored) in zip(
+            metas, self._run_locked(inst, tasks, metas, cacheable, ex)
+        ):
             if res is not None and not res.ok:
-                self.fail_item(inst, item, res.error or "failed", res.hint, res.trace, not res.user_error,
-                               res.lasting)
+                self.fail_item(
+                    inst,
+                    item,
+                    res.error or "failed",
+                    res.hint,
+                    res.trace,
+                    not res.user_error,
+                    res.lasting,
+                )
                 continue
             if res is None:  # another run computed it while we waited
                 self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
@@ -552,17 +723,36 @@ class RunState:
                 if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
                     self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
 
-    def _keep_result(self, inst: NodeInstance, item: str | None, key: str | None, res: TaskResult, stored: bool,
-                     volatile: bool, store_on: bool, producer: bool) -> bool:
-        """Store a computed entry's outputs (if the worker did not) and count it; False if they cannot be."""
+    def _keep_result(
+        self,
+        inst: NodeInstance,
+        item: str | None,
+        key: str | None,
+        res: TaskResult,
+        stored: bool,
+        volatile: bool,
+        store_on: bool,
+        producer: bool,
+    ) -> bool:
+        """Store a computed entry's outputs (if the worker did not) and count it; False if they
+        cannot be."""
         rep = self.reports[inst.name]
         ok = True
         if not stored:
             try:
                 # uncacheable output (live camera, actuator): a fresh key, so nothing downstream is
                 # ever served a stale result
-                self.store_result(inst, item, ("volatile-" + uuid.uuid4().hex) if volatile and store_on
-                                  else key if not volatile else None, res.outputs or {}, res.messages)
+                self.store_result(
+                    inst,
+                    item,
+                    ("volatile-" + uuid.uuid4().hex)
+                    if volatile and store_on
+                    else key
+                    if not volatile
+                    else None,
+                    res.outputs or {},
+                    res.messages,
+                )
             except (NodeError, TypeError) as e:
                 self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
                 ok = False
@@ -571,8 +761,11 @@ class RunState:
             rep.items_ran += 1
         return ok
 
-    def status_of(self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool) -> str:
-        """ran | cached | failed | partial, from what happened to the node's entries (streamed ones too)."""
+    def status_of(
+        self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool
+    ) -> str:
+        """ran | cached | failed | partial, from what happened to the node's entries (streamed ones
+        too)."""
         if (inst.name, None) in self.failed_items:
             return "failed"
         if (inst.mapped or producer) and n_failed and n_failed < n_entries:
@@ -588,12 +781,16 @@ class RunState:
         comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
         comps["code_files"] = self.code_files.get(inst.type, {})
         comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
-        # its items that failed, with why (a gathering node downstream keys on them): explain's guess
-        # of the next run, which tries them again, is that they fail again the same way
-        comps["failed"] = {i: why for (n, i), why in self.failed_items.items() if n == inst.name and i is not None}
+        # its items that failed, with why (a gathering node downstream keys on them): explain's
+        # guess of the next run, which tries them again, is that they fail again the same way
+        comps["failed"] = {
+            i: why for (n, i), why in self.failed_items.items() if n == inst.name and i is not None
+        }
         self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
 
-    def _run_locked(self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any) -> list:
+    def _run_locked(
+        self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any
+    ) -> list:
         """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
         if not tasks:
             return []
@@ -613,7 +810,9 @@ class RunState:
                 if res.ok:  # store while still holding the lock
                     item, key = metas[idx]
                     try:
-                        self.store_result(inst, item, key, res.outputs or {}, res.messages, res.seconds)
+                        self.store_result(
+                            inst, item, key, res.outputs or {}, res.messages, res.seconds
+                        )
                         stored = True
                     except (NodeError, TypeError) as e:
                         res = TaskResult(False, error=f"its outputs are not storable: {e}")
@@ -640,14 +839,25 @@ class RunState:
         if self.progress and self._counted(inst, item):
             progress_advance(self.progress, inst.name, ok)
 
-    def _advancing(self, inst: NodeInstance, tasks: list[Task], results: Iterable[TaskResult]) -> Iterable[TaskResult]:
-        """The executor's results (in the order of ``tasks``), advancing the progress display as each arrives."""
+    def _advancing(
+        self, inst: NodeInstance, tasks: list[Task], results: Iterable[TaskResult]
+    ) -> Iterable[TaskResult]:
+        """The executor's results (in the order of ``tasks``), advancing the progress display as
+        each arrives."""
         for task, res in zip(tasks, lost_as_failed(results)):
             self._advance(inst, task.item, res.ok)
             yield res
 
-    def fail_item(self, inst: NodeInstance, item: str | None, msg: str, hint: str | None, trace: str | None = None,
-                  unexpected: bool = False, lasting: bool = False):
+    def fail_item(
+        self,
+        inst: NodeInstance,
+        item: str | None,
+        msg: str,
+        hint: str | None,
+        trace: str | None = None,
+        unexpected: bool = False,
+        lasting: bool = False,
+    ):
         rep = self.reports[inst.name]
         self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
         rep.lasting |= lasting
@@ -686,7 +896,8 @@ class RunState:
         return bool(self.failed_items)
 
     def code_digests(self, node_type: str | None = None) -> dict[str, str]:
-        """Every code file the entry keys (of ``node_type``'s nodes, or all) were computed from, with its digest."""
+        """Every code file the entry keys (of ``node_type``'s nodes, or all) were computed from,
+        with its digest."""
         if node_type is not None:
             return dict(self.code_files.get(node_type, {}))
         return {f: d for files in self.code_files.values() for f, d in files.items()}
@@ -700,12 +911,13 @@ class RunState:
         self.keys[(inst.name, item)] = key
 
     def expect_failure(self, inst: NodeInstance, item: str, why: str) -> None:
-        """Predict that ``item`` of ``inst`` fails again, as it did in the last run (``explain``)."""
+        """Predict that ``item`` of ``inst`` fails again, as it did in the last run
+        (``explain``)."""
         self.failed_items[(inst.name, item)] = why
 
     def expect_missing(self, inst: NodeInstance, item: str | None, key: str) -> None:
-        """Predict that an entry is computed and stored under ``key``: its items reach downstream, and
-        downstream keys follow from it (``explain``)."""
+        """Predict that an entry is computed and stored under ``key``: its items reach downstream,
+        and downstream keys follow from it (``explain``)."""
         for out, o in inst.spec.outputs.items():
             if not o.collection:
                 self.ref_keys[(inst.name, out, item)] = key
@@ -718,8 +930,8 @@ class RunState:
                 self.items.setdefault((inst.name, out), []).append(item)  # type: ignore[arg-type]
 
     def forget(self, nodes: Iterable[str]) -> None:
-        """Drop the results of ``nodes`` in this run (values, item lists, failures, reports), so that
-        they run again: a loop's next cycle."""
+        """Drop the results of ``nodes`` in this run (values, item lists, failures, reports), so
+        that they run again: a loop's next cycle."""
         names = set(nodes)
         for n in names:
             self.reports[n] = NodeReport(n, self.g.nodes[n].type)
@@ -729,22 +941,28 @@ class RunState:
                 del table[key]
 
     def value_of(self, node: str, out: str) -> Any:
-        """The value an output of ``node`` holds in memory now: ``{item: value}`` for a collection (None
-        when it holds no item), else the value (None when it has none)."""
+        """The value an output of ``node`` holds in memory now: ``{item: value}`` for a collection
+        (None when it holds no item), else the value (None when it has none)."""
         if self.g.is_collection(node, out):
-            return {i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])} or None
+            return {
+                i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])
+            } or None
         return self.mem.get((node, out, None))
 
 
 def _read_back(files: list[Path]) -> Any:
-    """An item's image as written to the run folder: PNG is lossless (the very array); a lossy output's
-    JPEG decodes to the very array too, since every reader of a lossy output gets the decoded JPEG."""
+    """An item's image as written to the run folder: PNG is lossless (the very array); a lossy
+    output's JPEG decodes to the very array too, since every reader of a lossy output gets the
+    decoded JPEG."""
     import cv2
 
     png = next((f for f in files if f.suffix == ".png"), None) or next(
-        (f for f in files if f.suffix == ".jpg"), None)
+        (f for f in files if f.suffix == ".jpg"), None
+    )
     img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED) if png is not None else None
     if img is None:
-        raise NodeError(f"the image written to {files[0] if files else '?'} can no longer be read",
-                        hint="run again (the run folder was changed while the run went on)")
+        raise NodeError(
+            f"the image written to {files[0] if files else '?'} can no longer be read",
+            hint="run again (the run folder was changed while the run went on)",
+        )
     return img

@@ -26,17 +26,29 @@ from stereograph.core.executors import SerialExecutor
 from stereograph.core.graph import build_graph
 from stereograph.core.run_state import RunResult, RunState, default_cache_dir, new_run_id
 
-if TYPE_CHECKING:  # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+# (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
+if TYPE_CHECKING:
     from stereograph.core.graph import Graph
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
-def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str | Path | None = None,
-              use_cache: bool = True, only: str | None = None, from_node: str | None = None,
-              executor: Any = None, progress: Any = None, run_id: str | None = None,
-              write_outputs: bool = True, keep: set[str] | None = None,
-              cycles: Callable[[RunState, list[str]], None] | None = None,
-              prepare: Sequence[Callable[[], Any]] = ()) -> RunResult:
+
+def run_graph(
+    graph: Graph,
+    *,
+    cache_dir: str | Path | None = None,
+    out_dir: str | Path | None = None,
+    use_cache: bool = True,
+    only: str | None = None,
+    from_node: str | None = None,
+    executor: Any = None,
+    progress: Any = None,
+    run_id: str | None = None,
+    write_outputs: bool = True,
+    keep: set[str] | None = None,
+    cycles: Callable[[RunState, list[str]], None] | None = None,
+    prepare: Sequence[Callable[[], Any]] = (),
+) -> RunResult:
     """Run a validated graph; see the module docstring.
 
     ``keep`` names extra (non-terminal) nodes whose outputs the result should hold.
@@ -49,24 +61,31 @@ def run_graph(graph: Graph, *, cache_dir: str | Path | None = None, out_dir: str
     t0 = time.perf_counter()
     selected, force = _selection(graph, only, from_node)
     run_id = run_id or new_run_id()
-    out = Path(out_dir) if out_dir else project.runs_dir(graph.doc.directory) / graph.doc.name / run_id
+    out = (
+        Path(out_dir)
+        if out_dir
+        else project.runs_dir(graph.doc.directory) / graph.doc.name / run_id
+    )
     foreign = outputs_mod.prepare_out_dir(out)
     store, budget = _open_store(graph.doc, cache_dir, use_cache)
     own_executor = executor is None
     executor = executor or SerialExecutor()
     if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
         executor.check_shared([out] + ([store.root] if store is not None else []))
-    lease = contextlib.ExitStack()  # no prune or clear takes an entry from under this run while it runs
+    # no prune or clear takes an entry from under this run while it runs
+    lease = contextlib.ExitStack()
     if store is not None:
         lease.enter_context(in_use(store.root))
     run = RunState(graph, store, out, executor, force, progress)
     run.foreign, run.selected = foreign, set(selected)
-    run.keep = ({only} if only is not None else run.keep) | set(keep or ())  # default: the terminal nodes
+    # default: the terminal nodes
+    run.keep = ({only} if only is not None else run.keep) | set(keep or ())
     progress_token = _PROGRESS.set(progress)
     try:
         _execute(run, selected, cycles, write_outputs, prepare)
     except BaseException as e:
-        if isinstance(e, KeyboardInterrupt) and write_outputs:  # the same command resumes into this folder
+        # the same command resumes into this folder
+        if isinstance(e, KeyboardInterrupt) and write_outputs:
             outputs_mod.write_interrupted_summary(graph, run, run_id, str(graph.doc.path), out)
         lease.close()
         raise
@@ -90,26 +109,40 @@ def _selection(graph: Graph, only: str | None, from_node: str | None) -> tuple[l
             import difflib
 
             close = difflib.get_close_matches(name, list(graph.nodes), n=1)
-            raise ConfigError(f"{flag} {name}: no such node in {graph.doc.path.name}", None, None,
-                              f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}")
+            raise ConfigError(
+                f"{flag} {name}: no such node in {graph.doc.path.name}",
+                None,
+                None,
+                f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}",
+            )
     wanted = graph.upstream(only) | {only} if only is not None else set(graph.order)
     force = graph.downstream(from_node) | {from_node} if from_node is not None else set()
     return [n for n in graph.order if n in wanted], force
 
 
-def _open_store(doc: Any, cache_dir: str | Path | None, use_cache: bool) -> tuple[ArtifactStore | None, int]:
+def _open_store(
+    doc: Any, cache_dir: str | Path | None, use_cache: bool
+) -> tuple[ArtifactStore | None, int]:
     """The run's artifact store (None: ``--no-cache``) and the cache's budget in bytes (0: none)."""
     store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
     try:
         return store, project.budget_bytes(doc.directory) if store is not None else 0
     except ValueError as e:
-        raise ConfigError(f"cache budget: {e}", hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 "
-                          "(0: no limit)") from None
+        raise ConfigError(
+            f"cache budget: {e}",
+            hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 (0: no limit)",
+        ) from None
 
 
-def _execute(run: RunState, selected: list[str], cycles: Any, write_outputs: bool,
-             prepare: Sequence[Callable[[], Any]]) -> None:
-    """The selected nodes, node by node or a streamed region at a time (or the caller's ``cycles``)."""
+def _execute(
+    run: RunState,
+    selected: list[str],
+    cycles: Any,
+    write_outputs: bool,
+    prepare: Sequence[Callable[[], Any]],
+) -> None:
+    """The selected nodes, node by node or a streamed region at a time (or the caller's
+    ``cycles``)."""
     if cycles is not None:
         cycles(run, selected)
         return
@@ -122,12 +155,15 @@ def _execute(run: RunState, selected: list[str], cycles: Any, write_outputs: boo
             run.run_node(run.g.nodes[unit])
             continue
         if hasattr(run.executor, "start"):  # a local pool: this process only waits
-            _prepare_ahead([run.g.nodes[u].spec for u in units[k + 1:] if isinstance(u, str)], prepare)
+            _prepare_ahead(
+                [run.g.nodes[u].spec for u in units[k + 1 :] if isinstance(u, str)], prepare
+            )
         streaming.run_region(run, unit, write_outputs)
 
 
 def _release(run: RunState, out: Path, own_executor: bool) -> None:
-    """What the run holds, let go of whatever happened: items made ahead, open resources, our pool."""
+    """What the run holds, let go of whatever happened: items made ahead, open resources, our
+    pool."""
     for source in list(run.ahead):
         streaming.stop_ahead(run, source)
     if (out / streaming.AHEAD_DIR).exists():
@@ -139,15 +175,29 @@ def _release(run: RunState, out: Path, own_executor: bool) -> None:
         run.store.files.save()
 
 
-def _result(run: RunState, run_id: str, selected: list[str], write_outputs: bool,
-            lease: contextlib.ExitStack) -> RunResult:
+def _result(
+    run: RunState,
+    run_id: str,
+    selected: list[str],
+    write_outputs: bool,
+    lease: contextlib.ExitStack,
+) -> RunResult:
     """The run's result, its folder written (then the cache lease released)."""
     for name in run.g.order:
         if name not in selected:
             run.reports[name].status = "not selected"
     store = run.store
-    result = RunResult(run_id, str(run.g.doc.path), run.out_dir, run.reports, 0.0, {}, {},
-                       dict(run.failed_items), notes=list(store.notes) if store is not None else [])
+    result = RunResult(
+        run_id,
+        str(run.g.doc.path),
+        run.out_dir,
+        run.reports,
+        0.0,
+        {},
+        {},
+        dict(run.failed_items),
+        notes=list(store.notes) if store is not None else [],
+    )
     try:
         if write_outputs:
             outputs_mod.write_run_outputs(run.g, run, result, selected)
@@ -164,17 +214,20 @@ def _prune(store: ArtifactStore | None, budget: int, result: RunResult) -> None:
     with contextlib.suppress(OSError, CacheBusy):
         n, freed = store.prune(budget)
         if n:
-            result.notes.append(f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
-                                f"entries ({freed / 1e6:.0f} MB)")
+            result.notes.append(
+                f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
+                f"entries ({freed / 1e6:.0f} MB)"
+            )
 
 
 _PREPARED: set[str] = set()  # node types whose prepare() ran (or runs) in this process
-_PREPARED_EXTRA: set[Callable[[], Any]] = set()  # run_graph(prepare=...) functions called in this process
+# run_graph(prepare=...) functions called in this process
+_PREPARED_EXTRA: set[Callable[[], Any]] = set()
 
 
 def _prepare_ahead(specs: list[Any], extra: Sequence[Callable[[], Any]] = ()) -> None:
-    """Call the ``prepare()`` of these node types in a background thread (once per type and process),
-    then the ``extra`` functions (once per function and process).
+    """Call the ``prepare()`` of these node types in a background thread (once per type and
+    process), then the ``extra`` functions (once per function and process).
 
     For the nodes that run in this process after a region whose work is in a pool's processes:
     this process only waits meanwhile, so what they load (a plotting library: ~1 s) is loaded on
@@ -276,4 +329,3 @@ def run_pipeline(path: str | Path, overrides: list[str] | None = None, **kwargs:
 
     doc = load_pipeline(path, overrides)
     return run_graph(build_graph(doc), **kwargs)
-

@@ -34,17 +34,21 @@ _MISSING = "__stereograph_missing__"
 class Region:
     """Per-item nodes run together, item chunk by item chunk."""
 
-    source: str | None            # the item-producing node whose items the region makes, if any
-    nodes: list[str] = field(default_factory=list)   # per-item nodes, in run order
+    source: str | None  # the item-producing node whose items the region makes, if any
+    nodes: list[str] = field(default_factory=list)  # per-item nodes, in run order
 
 
 def _item_consumers(graph: Any, src: str) -> set[str]:
-    return {c for c in graph.consumers(src)
-            if any(s == src and graph.is_collection(s, o) for s, o in graph.nodes[c].inputs.values())}
+    return {
+        c
+        for c in graph.consumers(src)
+        if any(s == src and graph.is_collection(s, o) for s, o in graph.nodes[c].inputs.values())
+    }
 
 
 def _needs_items(graph: Any, node: str, src: str) -> bool:
-    """Whether ``node`` or anything upstream of it reads ``src``'s items (so it runs after all are made)."""
+    """Whether ``node`` or anything upstream of it reads ``src``'s items (so it runs after all are
+    made)."""
     return bool(({node} | graph.upstream(node)) & _item_consumers(graph, src))
 
 
@@ -66,8 +70,11 @@ def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]
         inst = graph.nodes[name]
         if name not in sel or not inst.mapped:
             continue
-        colls = [(port, s, o) for port, (s, o) in inst.inputs.items()
-                 if graph.is_collection(s, o) and not inst.spec.inputs[port].gather]
+        colls = [
+            (port, s, o)
+            for port, (s, o) in inst.inputs.items()
+            if graph.is_collection(s, o) and not inst.spec.inputs[port].gather
+        ]
         reg = next((of[s] for _p, s, _o in colls if s in of), None)
         ok = reg is not None
         for port, (s, o) in inst.inputs.items():
@@ -76,14 +83,28 @@ def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]
             if graph.is_collection(s, o) and not inst.spec.inputs[port].gather:
                 ok = s in reg.nodes or s == reg.source
             else:  # read whole: must not wait for the region's items
-                ok = s not in reg.nodes and not (s == reg.source and graph.is_collection(s, o)) \
+                ok = (
+                    s not in reg.nodes
+                    and not (s == reg.source and graph.is_collection(s, o))
                     and not depends(s, reg)
+                )
         if not ok:
-            src = next((s for _p, s, _o in colls if s in sel and producer(graph.nodes[s]) and s not in claimed), None)
-            whole = [s for port, (s, o) in inst.inputs.items()
-                     if not (graph.is_collection(s, o) and not inst.spec.inputs[port].gather)]
+            src = next(
+                (
+                    s
+                    for _p, s, _o in colls
+                    if s in sel and producer(graph.nodes[s]) and s not in claimed
+                ),
+                None,
+            )
+            whole = [
+                s
+                for port, (s, o) in inst.inputs.items()
+                if not (graph.is_collection(s, o) and not inst.spec.inputs[port].gather)
+            ]
             if src is not None and any(_needs_items(graph, s, src) for s in whole):
-                src = None  # what it reads whole gathers the source's items: they are made first, not streamed
+                # what it reads whole gathers the source's items: they are made first, not streamed
+                src = None
             reg = Region(src)
             if src:
                 claimed.add(src)
@@ -96,7 +117,8 @@ def plan_regions(graph: Any, selected: list[str], producer: Any) -> list[Region]
 def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[Any] | None:
     """Selected nodes and regions in an order that runs each after everything it reads
     (None if grouping would need a cycle: then the run goes node by node)."""
-    import networkx as nx  # here, not at import: a replayed rerun imports this module but schedules nothing
+    # here, not at import: a replayed rerun imports this module but schedules nothing
+    import networkx as nx
 
     of = {n: k for k, r in enumerate(regions) for n in r.nodes}
     unit = {n: ("r", of[n]) if n in of else ("n", n) for n in selected}
@@ -108,7 +130,8 @@ def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[A
     for k, r in enumerate(regions):
         if r.source in unit:
             dag.add_edge(unit[r.source], ("r", k))
-            # a node outside the region that reads the source's items (a gathering node) runs after them
+            # a node outside the region that reads the source's items (a gathering node) runs after
+            # them
             for c in _item_consumers(graph, r.source) & set(unit):
                 if unit[c] != ("r", k):
                     dag.add_edge(("r", k), unit[c])
@@ -116,8 +139,10 @@ def unit_order(graph: Any, selected: list[str], regions: list[Region]) -> list[A
         return None
     pos = {n: i for i, n in enumerate(graph.order)}
     first = {u: min(pos[n] for n in selected if unit[n] == u) for u in dag.nodes}
-    return [regions[u[1]] if u[0] == "r" else u[1]
-            for u in nx.lexicographical_topological_sort(dag, key=lambda u: first[u])]
+    return [
+        regions[u[1]] if u[0] == "r" else u[1]
+        for u in nx.lexicographical_topological_sort(dag, key=lambda u: first[u])
+    ]
 
 
 def chunk_size(n_items: int, workers: int) -> int:
@@ -145,25 +170,29 @@ def chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
 class Chunk:
     """One task: a chunk of items through a region (picklable for the pools)."""
 
-    graph: Any                   # the Graph (in this process) or its pickle (for another one)
+    graph: Any  # the Graph (in this process) or its pickle (for another one)
     plugins: list[str]
     pipeline_dir: str
     region: Region
     items: list[str]
-    inputs: dict[Ref, tuple[str, str | None, Any]]   # ref -> (key, content key, value or _MISSING)
-    collections: dict[tuple[str, str], list[str]]    # outside collections: (node, out) -> this chunk's ids
+    inputs: dict[Ref, tuple[str, str | None, Any]]  # ref -> (key, content key, value or _MISSING)
+    # outside collections: (node, out) -> this chunk's ids
+    collections: dict[tuple[str, str], list[str]]
     statuses: dict[str, str]
     code: dict[str, str]
     code_files: dict[str, dict[str, str]]
     cache_root: str | None
     out_dir: str
     force: set[str]
-    back: set[tuple[str, str]]        # outputs whose item values the run needs back (read outside, kept)
-    deliver: set[tuple[str, str]]     # outputs the run folder gets (saved, terminal)
-    keep: set[str] = field(default_factory=set)   # the run's kept nodes (terminal, --only) in the region
-    store: Any = None                 # the run's own store, when run in its process
-    ahead: dict[str, str] = field(default_factory=dict)   # item -> file of an item made ahead
-    shared: str | None = None         # file of the whole values every chunk reads (sent once per process)
+    # outputs whose item values the run needs back (read outside, kept)
+    back: set[tuple[str, str]]
+    deliver: set[tuple[str, str]]  # outputs the run folder gets (saved, terminal)
+    # the run's kept nodes (terminal, --only) in the region
+    keep: set[str] = field(default_factory=set)
+    store: Any = None  # the run's own store, when run in its process
+    ahead: dict[str, str] = field(default_factory=dict)  # item -> file of an item made ahead
+    # file of the whole values every chunk reads (sent once per process)
+    shared: str | None = None
 
 
 @dataclass
@@ -178,12 +207,14 @@ class ChunkResult:
     files: dict[tuple[str, str], dict[str, list[str]]]
     notes: list[str]
     seconds: float
-    stored_bytes: int = 0   # what the task stored in the cache (the run's budget check counts it)
-    messages: dict[str, list[str]] = field(default_factory=dict)  # about nodes outside (a corrupt entry read)
+    stored_bytes: int = 0  # what the task stored in the cache (the run's budget check counts it)
+    # about nodes outside (a corrupt entry read)
+    messages: dict[str, list[str]] = field(default_factory=dict)
 
 
-_STORES: dict[str, Any] = {}   # a worker's stores, by root: opened once per process
-_SHARED: dict[str, dict] = {}  # a worker's copy of a region's whole inputs, by file: read once per process
+_STORES: dict[str, Any] = {}  # a worker's stores, by root: opened once per process
+# a worker's copy of a region's whole inputs, by file: read once per process
+_SHARED: dict[str, dict] = {}
 
 
 def _shared_values(path: str) -> dict:
@@ -200,12 +231,15 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     run, store, written0 = _chunk_state(chunk)
     reg, graph = chunk.region, run.g
     for name in ([reg.source] if reg.source else []) + list(reg.nodes):
-        run.executor = _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
+        run.executor = (
+            _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
+        )
         if name == reg.source:
             run.declared[name] = list(chunk.items)
         run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
         if run.reports[name].status == "failed" and (name, None) not in run.failed_items:
-            run.reports[name].status = "partial"  # all of this chunk's items: the others go on downstream
+            # all of this chunk's items: the others go on downstream
+            run.reports[name].status = "partial"
     files, values = _chunk_outputs(chunk, run, store)
     inside = set(reg.nodes) | ({reg.source} if reg.source else set())
     mine = lambda ref: ref[0] in inside  # noqa: E731
@@ -217,11 +251,13 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         ref_keys={r: k for r, k in run.ref_keys.items() if mine(r)},
         ref_ids={r: k for r, k in run.ref_ids.items() if mine(r)},
         keys={k: v for k, v in run.keys.items() if k[0] in inside},
-        values=values, files=files,
+        values=values,
+        files=files,
         notes=list(store.notes) if own_store else [],
         seconds=time.perf_counter() - t0,
         stored_bytes=store._written - written0 if own_store else 0,
-        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages})
+        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages},
+    )
 
 
 def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
@@ -240,7 +276,8 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
     run = RunState(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
     run.sub = True
     run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
-    run.keep = set(chunk.keep)  # (what the cache may keep as a manifest only follows the whole run's rule)
+    # (what the cache may keep as a manifest only follows the whole run's rule)
+    run.keep = set(chunk.keep)
     for name, status in chunk.statuses.items():
         run.reports[name].status = status
     if chunk.shared:
@@ -261,24 +298,36 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
 
 
 def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]:
-    """``(files, values)``: the images the chunk wrote into the run folder itself, per output and item,
-    and the values it sends back (what nodes outside read, and what it could not write)."""
+    """``(files, values)``: the images the chunk wrote into the run folder itself, per output and
+    item, and the values it sends back (what nodes outside read, and what it could not write)."""
     files: dict[tuple[str, str], dict[str, list[str]]] = {}
     values: dict[Ref, Any] = {}
     for node, out in sorted(chunk.deliver | chunk.back):
         ids = run.items.get((node, out), [])
         written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
-        lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))  # pictures: JPEG
+        # pictures: JPEG
+        lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))
         for i in ids:
             ref = (node, out, i)
             if written:
                 stem = Path(chunk.out_dir) / node / out / outputs_mod.file_name(i)
                 try:
-                    files.setdefault((node, out), {})[i] = [str(p) for p in outputs_mod._rendered(
-                        store, run.ref_keys.get(ref), out, stem,
-                        lambda r=ref, p=stem, lo=lossy: outputs_mod.write_value(p, run.get(r), lo))]
+                    files.setdefault((node, out), {})[i] = [
+                        str(p)
+                        for p in outputs_mod._rendered(
+                            store,
+                            run.ref_keys.get(ref),
+                            out,
+                            stem,
+                            lambda r=ref, p=stem, lo=lossy: outputs_mod.write_value(
+                                p, run.get(r), lo
+                            ),
+                        )
+                    ]
                 except Exception as e:  # the run folder writes it again, and says why if it cannot
-                    run.reports[node].messages.append(f"could not write output '{out}' of item {i}: {e}")
+                    run.reports[node].messages.append(
+                        f"could not write output '{out}' of item {i}: {e}"
+                    )
                     files.get((node, out), {}).pop(i, None)
                     written = False
             if not written and ref in run.mem:
@@ -290,7 +339,11 @@ def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
     """Whether this output goes to the run folder as one image file per item."""
 
     store, key = run.store, run.ref_keys.get((node, out, first), "")
-    if store is not None and hasattr(store, "ready_file") and store.ready_file(key, out) is not None:
+    if (
+        store is not None
+        and hasattr(store, "ready_file")
+        and store.ready_file(key, out) is not None
+    ):
         return True
     try:
         return outputs_mod.is_image(run.get((node, out, first)))
@@ -304,8 +357,9 @@ def _label(reg: Region) -> str:
 
 
 def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
-    """Run a region for the parent run ``run`` (a :class:`stereograph.core.run_state.RunState`): plan its
-    chunks, hand them to the run's executor, and merge what comes back as if each node had run."""
+    """Run a region for the parent run ``run`` (a :class:`stereograph.core.run_state.RunState`):
+    plan its chunks, hand them to the run's executor, and merge what comes back as if each node had
+    run."""
     g, members = run.g, reg.nodes
     inside = set(members) | ({reg.source} if reg.source else set())
     if not reg.source and _all_blocked(run, members):
@@ -335,7 +389,8 @@ def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
 
 
 def _region_items(run: Any, reg: Region, inside: set[str]) -> list[str]:
-    """The items the region iterates over, in order: the source's, or those of its outside collections."""
+    """The items the region iterates over, in order: the source's, or those of its outside
+    collections."""
     g = run.g
     if reg.source:
         ok_source = run.reports[reg.source].status not in ("failed", "skipped")
@@ -359,15 +414,19 @@ def _region_outputs(run: Any, inside: set[str], write_outputs: bool) -> tuple[se
     for n in inside:
         inst = g.nodes[n]
         for o in run.item_outputs(inst, ""):
-            if n in run.keep or any(c not in inside and c in run.selected and (n, o) in g.nodes[c].inputs.values()
-                                    for c in g.consumers(n)):
+            if n in run.keep or any(
+                c not in inside and c in run.selected and (n, o) in g.nodes[c].inputs.values()
+                for c in g.consumers(n)
+            ):
                 back.add((n, o))
             if inst.spec.outputs[o].save or n in terminal or n in run.keep:
                 (deliver if write_outputs else back).add((n, o))
     return back, deliver
 
 
-def _plan_chunks(run: Any, reg: Region, ids: list[str], inside: set[str], back: set, deliver: set) -> list[Chunk]:
+def _plan_chunks(
+    run: Any, reg: Region, ids: list[str], inside: set[str], back: set, deliver: set
+) -> list[Chunk]:
     """The region's items cut into chunks, each with the outside values (or their keys) it reads."""
     import networkx as nx  # (the graph is built: NetworkX is loaded already)
 
@@ -387,22 +446,42 @@ def _plan_chunks(run: Any, reg: Region, ids: list[str], inside: set[str], back: 
         for ref, key in upstream_keys:
             if ref not in inputs and (ref[2] is None or ref[2] in want):
                 inputs[ref] = (key, run.ref_ids.get(ref), _MISSING)
-        chunks.append(Chunk(g, list(g.doc.plugins), str(g.doc.directory), reg, part, inputs, colls,
-                            statuses, dict(run.code), dict(run.code_files),
-                            str(run.store.root) if store_on else None, str(run.out_dir), set(run.force),
-                            back, deliver, keep=run.keep & inside, store=run.store))
+        chunks.append(
+            Chunk(
+                g,
+                list(g.doc.plugins),
+                str(g.doc.directory),
+                reg,
+                part,
+                inputs,
+                colls,
+                statuses,
+                dict(run.code),
+                dict(run.code_files),
+                str(run.store.root) if store_on else None,
+                str(run.out_dir),
+                set(run.force),
+                back,
+                deliver,
+                keep=run.keep & inside,
+                store=run.store,
+            )
+        )
     return chunks
 
 
-def _chunk_inputs(run: Any, members: list[str], inside: set[str], part: list[str]) -> tuple[dict, dict]:
-    """``(inputs, collections)`` of one chunk: every outside value its nodes read, as (key, id, value)
-    -- the value itself when this process holds it, else :data:`_MISSING` (read from the cache)."""
+def _chunk_inputs(
+    run: Any, members: list[str], inside: set[str], part: list[str]
+) -> tuple[dict, dict]:
+    """``(inputs, collections)`` of one chunk: every outside value its nodes read, as (key, id,
+    value) -- the value itself when this process holds it, else :data:`_MISSING` (read from the
+    cache)."""
     g, store_on = run.g, run.store is not None
     inputs: dict[Ref, tuple[str, str | None, Any]] = {}
     colls = {}
     want = set(part)
     for n in members:
-        for (s, o) in g.nodes[n].inputs.values():
+        for s, o in g.nodes[n].inputs.values():
             if s in inside:
                 continue
             if g.is_collection(s, o):
@@ -412,7 +491,11 @@ def _chunk_inputs(run: Any, members: list[str], inside: set[str], part: list[str
                 refs = [(s, o, None)]
             for ref in refs:
                 if ref not in inputs:
-                    inputs[ref] = (run.ref_keys.get(ref, ""), run.ref_ids.get(ref), _outside_value(run, ref, store_on))
+                    inputs[ref] = (
+                        run.ref_keys.get(ref, ""),
+                        run.ref_ids.get(ref),
+                        _outside_value(run, ref, store_on),
+                    )
     return inputs, colls
 
 
@@ -427,9 +510,11 @@ def _outside_value(run: Any, ref: Ref, store_on: bool) -> Any:
         return _MISSING
 
 
-def _run_chunks(run: Any, reg: Region, chunks: list[Chunk], skipped: dict[str, str], label: str) -> None:
-    """Run the chunks (here or in the pool) and settle each; a chunk whose worker died is run again one
-    item per task, so that an item that kills its worker every time is lost alone."""
+def _run_chunks(
+    run: Any, reg: Region, chunks: list[Chunk], skipped: dict[str, str], label: str
+) -> None:
+    """Run the chunks (here or in the pool) and settle each; a chunk whose worker died is run again
+    one item per task, so that an item that kills its worker every time is lost alone."""
     first = run.g.nodes[reg.source or reg.nodes[0]]
     local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
     made = stop_ahead(run, reg.source)
@@ -445,27 +530,38 @@ def _run_chunks(run: Any, reg: Region, chunks: list[Chunk], skipped: dict[str, s
     if not local and chunks:
         _ship(run, chunks)
     lost: list[Chunk] = []
-    for chunk, res in zip(chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)):
+    for chunk, res in zip(
+        chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)
+    ):
         if isinstance(res, TaskLost) and len(chunk.items) > 1:
             lost.append(chunk)  # its worker died: run its items again one per task, below
             continue
         _settle(run, reg, chunk, res, skipped, label, first)
-    alone = [dataclasses.replace(c, items=[i], collections={k: [j for j in v if j == i]
-                                                             for k, v in c.collections.items()})
-             for c in lost for i in c.items]
+    alone = [
+        dataclasses.replace(
+            c,
+            items=[i],
+            collections={k: [j for j in v if j == i] for k, v in c.collections.items()},
+        )
+        for c in lost
+        for i in c.items
+    ]
     for chunk, res in zip(alone, run.executor.map(run_chunk, alone)):
         _settle(run, reg, chunk, res, skipped, label, first)
 
 
 def _ship(run: Any, chunks: list[Chunk]) -> None:
-    """Make chunks fit for another process: the graph as bytes, no store object, and what every chunk
-    reads whole (the rectification and its maps, ~9 MB) once in a file of the run folder, read once
-    per worker process, instead of pickled into every task."""
+    """Make chunks fit for another process: the graph as bytes, no store object, and what every
+    chunk reads whole (the rectification and its maps, ~9 MB) once in a file of the run folder, read
+    once per worker process, instead of pickled into every task."""
     graph_bytes = pickle.dumps(run.g)
     for chunk in chunks:
         chunk.graph, chunk.store = graph_bytes, None
-    whole = {ref: v[2] for ref, v in chunks[0].inputs.items()
-             if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)}
+    whole = {
+        ref: v[2]
+        for ref, v in chunks[0].inputs.items()
+        if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)
+    }
     if not whole:
         return
     folder = Path(run.out_dir) / AHEAD_DIR
@@ -474,11 +570,14 @@ def _ship(run: Any, chunks: list[Chunk]) -> None:
     path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
     for chunk in chunks:
         chunk.shared = str(path)
-        chunk.inputs = {ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()}
+        chunk.inputs = {
+            ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()
+        }
 
 
 def _source_status(run: Any, source: str) -> None:
-    """The region's source: its items checked and counted, its status, its record for ``explain``."""
+    """The region's source: its items checked and counted, its status, its record for
+    ``explain``."""
     src, rep = run.g.nodes[source], run.reports[source]
     run.check_produced(src)
     rep.items_failed = sum(1 for (n, i) in run.failed_items if n == source and i is not None)
@@ -489,7 +588,8 @@ def _source_status(run: Any, source: str) -> None:
     elif rep.items_ran:
         rep.status = "ran"
     if run.store is not None and source not in run.memory_only:
-        run.record(src, run.node_components(src))  # now with its items' keys (explain: which to try again)
+        # now with its items' keys (explain: which to try again)
+        run.record(src, run.node_components(src))
 
 
 def _member_status(run: Any, n: str, skipped: dict[str, str], base: dict | None) -> None:
@@ -508,13 +608,14 @@ def _member_status(run: Any, n: str, skipped: dict[str, str], base: dict | None)
 
 
 def _all_blocked(run: Any, members: list[str]) -> bool:
-    """Whether every member of a region waits on a node outside it that failed or was skipped (directly,
-    or through a member before it); then each is marked skipped, as a node-by-node run would, and
-    released, and the region is not run at all."""
+    """Whether every member of a region waits on a node outside it that failed or was skipped
+    (directly, or through a member before it); then each is marked skipped, as a node-by-node run
+    would, and released, and the region is not run at all."""
     blocked: dict[str, str] = {}
     for n in members:  # (in topological order)
         bad = run.upstream_failed(run.g.nodes[n]) or next(
-            (p for p in run.g.dag.predecessors(n) if p in blocked), None)
+            (p for p in run.g.dag.predecessors(n) if p in blocked), None
+        )
         if bad is None:
             return False
         blocked[n] = bad
@@ -525,7 +626,9 @@ def _all_blocked(run: Any, members: list[str]) -> bool:
     return True
 
 
-def _settle(run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any) -> None:
+def _settle(
+    run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any
+) -> None:
 
     if isinstance(res, TaskLost):
         failed = set(chunk.items)
@@ -546,7 +649,8 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
         if n != reg.source:
             rep.items += r.items
         rep.items_ran += r.items_ran
-        # (a chunk whose items were all dropped upstream says NO_ITEMS; the region's end says it if true)
+        # (a chunk whose items were all dropped upstream says NO_ITEMS; the region's end says it if
+        # true)
         rep.messages += [m for m in r.messages if m not in rep.messages and m != NO_ITEMS]
         if r.status == "skipped":
             skipped.setdefault(n, r.error or "upstream did not finish")
@@ -562,7 +666,9 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
     run.keys.update(res.keys)
     run.mem.update(res.values)
     for k, by_item in res.files.items():
-        run.streamed.setdefault(k, {}).update({i: [Path(f) for f in fs] for i, fs in by_item.items()})
+        run.streamed.setdefault(k, {}).update(
+            {i: [Path(f) for f in fs] for i, fs in by_item.items()}
+        )
     if run.store is not None:
         run.store.notes += [m for m in res.notes if m not in run.store.notes]
         run.store._written += res.stored_bytes
@@ -570,7 +676,7 @@ def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> 
 
 # ---------------------------------------------------------------- items made ahead
 
-AHEAD_DIR = ".stereograph-ahead"   # in the run folder, removed when the run ends
+AHEAD_DIR = ".stereograph-ahead"  # in the run folder, removed when the run ends
 
 
 @dataclass
@@ -597,13 +703,28 @@ def produce_ahead(task: AheadTask) -> list[str]:
     inst = graph.nodes[task.source]
     done = []
     for i in task.items:
-        res = execute(Task(inst.type, list(task.plugins), inst.params.model_dump(), {}, inst.name, i,
-                           task.out_dir, task.pipeline_dir, {}, None, True))
+        res = execute(
+            Task(
+                inst.type,
+                list(task.plugins),
+                inst.params.model_dump(),
+                {},
+                inst.name,
+                i,
+                task.out_dir,
+                task.pipeline_dir,
+                {},
+                None,
+                True,
+            )
+        )
         if not res.ok:
             continue
         path = Path(task.folder) / f"{outputs_mod.file_name(i)}.pkl"
         tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_bytes(pickle.dumps((res.outputs, res.messages, res.seconds), protocol=pickle.HIGHEST_PROTOCOL))
+        tmp.write_bytes(
+            pickle.dumps((res.outputs, res.messages, res.seconds), protocol=pickle.HIGHEST_PROTOCOL)
+        )
         tmp.replace(path)  # whole or absent: a cancelled run leaves no half item
         done.append(i)
     return done
@@ -633,8 +754,15 @@ def start_ahead(run: Any, reg: Region) -> None:
     graph = pickle.dumps(run.g)
 
     def task(items: list[str]) -> AheadTask:
-        return AheadTask(graph, list(run.g.doc.plugins), str(run.g.doc.directory), reg.source, items, str(folder),
-                         str(run.out_dir))
+        return AheadTask(
+            graph,
+            list(run.g.doc.plugins),
+            str(run.g.doc.directory),
+            reg.source,
+            items,
+            str(folder),
+            str(run.out_dir),
+        )
 
     # The first item is made here, before the pool's processes start (a pool forks them at its
     # first task): what the node prepares once per process for its items (source.synthetic: the
@@ -642,7 +770,7 @@ def start_ahead(run: Any, reg: Region) -> None:
     # by every worker instead of being prepared again in each one.
     here: cf.Future = cf.Future()
     here.set_result(produce_ahead(task(ids[:1])))
-    later = ex.start(produce_ahead, [task(ids[k:k + 2]) for k in range(1, len(ids), 2)])
+    later = ex.start(produce_ahead, [task(ids[k : k + 2]) for k in range(1, len(ids), 2)])
     run.ahead[reg.source] = ([here, *later], folder, outputs_mod.file_name)
 
 

@@ -14,8 +14,12 @@ import os
 
 __all__ = ["ONE_THREAD", "one_thread_each", "pool_requested"]
 
-ONE_THREAD = {"OPENCV_FOR_THREADS_NUM": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-              "MKL_NUM_THREADS": "1"}
+ONE_THREAD = {
+    "OPENCV_FOR_THREADS_NUM": "1",
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
 
 
 def one_thread_each() -> None:
@@ -34,8 +38,11 @@ def pool_requested(argv: list[str]) -> bool:
     if any(a == "--dask" or a.startswith("--dask=") for a in argv):
         return False
     for k, a in enumerate(argv):
-        value = a.split("=", 1)[1] if a.startswith("--workers=") else (
-            argv[k + 1] if a == "--workers" and k + 1 < len(argv) else None)
+        value = (
+            a.split("=", 1)[1]
+            if a.startswith("--workers=")
+            else (argv[k + 1] if a == "--workers" and k + 1 < len(argv) else None)
+        )
         if value is not None:
             try:
                 return int(value) > 1

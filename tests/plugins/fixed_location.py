@@ -1,5 +1,5 @@
-"""``toy.fixed_location``: one Location given in params (no images), for actuator tests through the CLI.
-Not part of the built-in library."""
+"""``toy.fixed_location``: one Location given in params (no images), for actuator tests through the
+CLI. Not part of the built-in library."""
 
 from __future__ import annotations
 
@@ -12,8 +12,21 @@ class FixedParams(Params):
     z_cm: float = Field(2.5, description="z in the left-camera frame (cm).")
 
 
-@node("toy.fixed_location", outputs={"location": Out("Location", collection=True)}, params=FixedParams)
+@node(
+    "toy.fixed_location", outputs={"location": Out("Location", collection=True)}, params=FixedParams
+)
 def fixed_location(params: FixedParams):
     """One item, ``fixed``: a found object at the given point."""
-    return {"location": {"fixed": {"pair": "fixed", "found": True, "reason": None, "x_cm": params.x_cm,
-                                   "y_cm": params.y_cm, "z_cm": params.z_cm, "frame": "left_camera"}}}
+    return {
+        "location": {
+            "fixed": {
+                "pair": "fixed",
+                "found": True,
+                "reason": None,
+                "x_cm": params.x_cm,
+                "y_cm": params.y_cm,
+                "z_cm": params.z_cm,
+                "frame": "left_camera",
+            }
+        }
+    }

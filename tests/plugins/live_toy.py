@@ -1,4 +1,5 @@
-"""Toy nodes for the --repeat loop tests: a live counter source (kept open across cycles) and a checker."""
+"""Toy nodes for the --repeat loop tests: a live counter source (kept open across cycles) and a
+checker."""
 
 from __future__ import annotations
 
@@ -12,10 +13,17 @@ class TickParams(Params):
     stop_after: int = Field(1000, ge=0, description="Ticks before the source 'ends' (count).")
     sleep_s: float = Field(0.0, ge=0, description="Time each tick takes, seconds.")
     marker: str = Field("", description="File touched when the source is closed (tests).")
-    warn_on: int = Field(0, ge=0, description="Give a warning on this tick, as a rewound recording does (0: never).")
-    interrupt_on: int = Field(0, ge=0, description="Be interrupted (Ctrl-C) on this tick and say how it stopped "
-                                                    "(0: never).")
-    done_after: int = Field(0, ge=0, description="Ask the loop to stop after this tick: the work is done (0: never).")
+    warn_on: int = Field(
+        0, ge=0, description="Give a warning on this tick, as a rewound recording does (0: never)."
+    )
+    interrupt_on: int = Field(
+        0,
+        ge=0,
+        description="Be interrupted (Ctrl-C) on this tick and say how it stopped (0: never).",
+    )
+    done_after: int = Field(
+        0, ge=0, description="Ask the loop to stop after this tick: the work is done (0: never)."
+    )
 
 
 class Ticker:
@@ -37,7 +45,8 @@ def ticker(params: TickParams, ctx=None):
         raise NodeError(f"the ticker ended after {t.n} ticks", hint="raise stop_after")
     time.sleep(params.sleep_s)
     t.n += 1
-    if t.n == params.interrupt_on:  # as an actuator does: end safely, say what it did, let the interrupt go on
+    # as an actuator does: end safely, say what it did, let the interrupt go on
+    if t.n == params.interrupt_on:
         e = KeyboardInterrupt()
         e.add_note(f"ticker: Ctrl-C during tick {t.n}: held still")
         raise e
@@ -49,12 +58,20 @@ def ticker(params: TickParams, ctx=None):
 
 
 class CheckParams(Params):
-    fail_on_multiple_of: int = Field(0, ge=0, description="Fail when the tick is a multiple of this (0: never).")
-    lasting_from: int = Field(0, ge=0, description="From this tick on, fail for good (NodeError lasting; 0: never).")
+    fail_on_multiple_of: int = Field(
+        0, ge=0, description="Fail when the tick is a multiple of this (0: never)."
+    )
+    lasting_from: int = Field(
+        0, ge=0, description="From this tick on, fail for good (NodeError lasting; 0: never)."
+    )
 
 
-@node("toy.check", inputs={"tick": In("Number"), "offset": In("Number")},
-      outputs={"result": Out("Number")}, params=CheckParams)
+@node(
+    "toy.check",
+    inputs={"tick": In("Number"), "offset": In("Number")},
+    outputs={"result": Out("Number")},
+    params=CheckParams,
+)
 def check(params: CheckParams, tick, offset):
     """tick + offset, or a failure on chosen ticks (a 'nothing found' cycle)."""
     if params.lasting_from and tick >= params.lasting_from:

@@ -1,4 +1,4 @@
-"""``toy.saturation``: a segmenter written as a plugin, outside ``nodes/``, on the public contract only.
+"""``toy.saturation``: a segmenter written as a plugin on the public contract only.
 
 A coloured ball on a grey or beige table is its most saturated region: threshold the HSV saturation
 at Otsu's level. Everything else -- candidate search, checks, partial views, overlay -- is the
@@ -10,18 +10,28 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nodes.contracts.segmenter import SegmenterParams, fill_holes, max_hole_area, segmenter, to_channel
+from nodes.contracts.segmenter import (
+    SegmenterParams,
+    fill_holes,
+    max_hole_area,
+    segmenter,
+    to_channel,
+)
 from stereograph.api import Field
 
 
 class SaturationParams(SegmenterParams):
-    blur_px: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the threshold (px).")
+    blur_px: float = Field(
+        1.5, ge=0, le=10, description="Gaussian smoothing before the threshold (px)."
+    )
 
 
 @segmenter("toy.saturation", params=SaturationParams)
-def saturation_mask(image_bgr: np.ndarray, params: SaturationParams, r_range_px, scale: int = 1,
-                    roi: bool = False) -> np.ndarray:
-    """Segment the ball as the image's most saturated region (Otsu's threshold of HSV saturation)."""
+def saturation_mask(
+    image_bgr: np.ndarray, params: SaturationParams, r_range_px, scale: int = 1, roi: bool = False
+) -> np.ndarray:
+    """Segment the ball as the image's most saturated region (Otsu's threshold of HSV
+    saturation)."""
     s = to_channel(image_bgr, "saturation")
     if params.blur_px / scale > 0.3:
         s = cv2.GaussianBlur(s, (0, 0), params.blur_px / scale)

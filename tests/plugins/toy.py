@@ -17,17 +17,25 @@ class NumbersParams(Params):
 def numbers(params: NumbersParams):
     """A collection of random square matrices, one per item."""
     rng = np.random.default_rng(params.seed)
-    return {"items": {f"m{i:03d}": rng.normal(size=(params.size, params.size)) for i in range(params.n)}}
+    return {
+        "items": {f"m{i:03d}": rng.normal(size=(params.size, params.size)) for i in range(params.n)}
+    }
 
 
 class PowerParams(Params):
     power: int = Field(2, ge=1, le=64, description="Matrix power (unitless).")
     fail_on: str | None = Field(None, description="Item id to fail on (for tests).")
-    interrupt_on: str | None = Field(None, description="Item id to raise KeyboardInterrupt on, as Ctrl-C (tests).")
+    interrupt_on: str | None = Field(
+        None, description="Item id to raise KeyboardInterrupt on, as Ctrl-C (tests)."
+    )
 
 
-@node("toy.power", inputs={"m": In("Matrix")}, outputs={"m": Out("Matrix"), "norm": Out("Number")},
-      params=PowerParams)
+@node(
+    "toy.power",
+    inputs={"m": In("Matrix")},
+    outputs={"m": Out("Matrix"), "norm": Out("Number")},
+    params=PowerParams,
+)
 def power(params: PowerParams, m, ctx=None):
     """Matrix power (real work: a few matrix products)."""
     if params.interrupt_on is not None and ctx is not None and ctx.item == params.interrupt_on:
@@ -42,8 +50,12 @@ class SumParams(Params):
     scale: float = Field(1.0, description="Multiplier (unitless).")
 
 
-@node("toy.sum", inputs={"values": In("Number", gather=True)}, outputs={"total": Out("Number", save=True)},
-      params=SumParams)
+@node(
+    "toy.sum",
+    inputs={"values": In("Number", gather=True)},
+    outputs={"total": Out("Number", save=True)},
+    params=SumParams,
+)
 def total(params: SumParams, values):
     """Sum of all items (a reduce)."""
     return {"total": params.scale * float(sum(values.values()))}
@@ -58,14 +70,22 @@ def _prepare_table() -> None:
     PREPARED.append(threading.current_thread().name)
 
 
-@node("toy.table", inputs={"m": In("Matrix", gather=True)}, outputs={"report": Out("Report")},
-      prepare=_prepare_table)
+@node(
+    "toy.table",
+    inputs={"m": In("Matrix", gather=True)},
+    outputs={"report": Out("Report")},
+    prepare=_prepare_table,
+)
 def table(params, m):
     """Shape report of all items (its ``prepare`` only records where it ran)."""
     return {"report": {"n": len(m), "items": sorted(m)}}
 
 
-@node("toy.picture", inputs={"m": In("Matrix")}, outputs={"picture": Out("Image", save=True), "mean": Out("Number")})
+@node(
+    "toy.picture",
+    inputs={"m": In("Matrix")},
+    outputs={"picture": Out("Image", save=True), "mean": Out("Number")},
+)
 def picture(params, m):
     """A grey image of the matrix (saved to the run folder on every run)."""
     img = (255 * (m - m.min()) / max(float(np.ptp(m)), 1e-9)).astype(np.uint8)

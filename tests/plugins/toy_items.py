@@ -13,13 +13,22 @@ from stereograph.api import Field, In, NodeError, Out, Params, node
 class ProduceParams(Params):
     n: int = Field(4, ge=0, le=10_000, description="How many items (count).")
     size: int = Field(8, ge=1, description="Side of each item's array (elements).")
-    drop: list[str] = Field(default_factory=list, description="Item ids the node drops with a warning.")
-    fail: list[str] = Field(default_factory=list, description="Item ids the node fails on (NodeError).")
-    kill_once: str | None = Field(None, description="Marker file: the first call for item m001 kills its process.")
+    drop: list[str] = Field(
+        default_factory=list, description="Item ids the node drops with a warning."
+    )
+    fail: list[str] = Field(
+        default_factory=list, description="Item ids the node fails on (NodeError)."
+    )
+    kill_once: str | None = Field(
+        None, description="Marker file: the first call for item m001 kills its process."
+    )
     kill_always: str | None = Field(None, description="Item id whose every call kills its process.")
-    log: str | None = Field(None, description="File: each item call appends its process id, whether the process "
-                                              "prepared for items then (once per process) and its OpenCV thread "
-                                              "setting.")
+    log: str | None = Field(
+        None,
+        description="File: each item call appends its process id, whether the process "
+        "prepared for items then (once per process) and its OpenCV thread "
+        "setting.",
+    )
 
 
 _PREPARED: set[str] = set()  # logs this process has prepared for (see ``log``)
@@ -29,8 +38,12 @@ def _ids(params: ProduceParams, ctx) -> list[str]:
     return [f"m{i:03d}" for i in range(params.n)]
 
 
-@node("toy.produce", outputs={"items": Out("Matrix", collection=True), "count": Out("Number")},
-      params=ProduceParams, items=_ids)
+@node(
+    "toy.produce",
+    outputs={"items": Out("Matrix", collection=True), "count": Out("Number")},
+    params=ProduceParams,
+    items=_ids,
+)
 def produce(params: ProduceParams, ctx=None):
     """Random matrices seeded by item number, produced one per call; ``count`` is the whole part."""
     if ctx is None or not ctx.producing_items:  # a direct call: everything
@@ -42,7 +55,8 @@ def produce(params: ProduceParams, ctx=None):
         os._exit(3)  # the worker dies mid-task
     if ctx.item == params.kill_always:
         os._exit(3)
-    if params.log:  # what a process prepares once for its items (a plan, lookup tables), like source.synthetic
+    # what a process prepares once for its items (a plan, lookup tables), like source.synthetic
+    if params.log:
         fresh = params.log not in _PREPARED
         _PREPARED.add(params.log)
         with open(params.log, "a") as f:

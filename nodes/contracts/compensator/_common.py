@@ -55,9 +55,14 @@ class FitParams(Params):
     """Parameters every fitting compensator shares."""
 
     cv_folds: int = Field(
-        5, ge=2, le=50, description="k of the k-fold cross-validation reported with the fit (folds, unitless)."
+        5,
+        ge=2,
+        le=50,
+        description="k of the k-fold cross-validation reported with the fit (folds, unitless).",
     )
-    cv_seed: int = Field(0, ge=0, description="Seed of the shuffle that assigns placements to CV folds (unitless).")
+    cv_seed: int = Field(
+        0, ge=0, description="Seed of the shuffle that assigns placements to CV folds (unitless)."
+    )
     min_span_fraction: float = Field(
         0.02,
         ge=0.0,
@@ -72,9 +77,12 @@ class FitParams(Params):
         gt=0,
         le=100,
         description=(
-            "A training placement whose residual against the fitted model (3-D, cm) lies more than this many "
-            "robust standard deviations (1.4826 x median absolute deviation of all residuals) above their median "
-            "is a mis-detection: left out of the fit and listed in the model (unitless; null keeps every placement)."
+            "A training placement whose residual against the fitted model (3-D, cm) lies "
+            "more than this many "
+            "robust standard deviations (1.4826 x median absolute deviation of all "
+            "residuals) above their median "
+            "is a mis-detection: left out of the fit and listed in the model (unitless; "
+            "null keeps every placement)."
         ),
     )
     min_inlier_fraction: float = Field(
@@ -82,23 +90,30 @@ class FitParams(Params):
         ge=0.5,
         le=1.0,
         description=(
-            "Fewest training placements, as a fraction of the usable ones, that must agree with the fit; fewer and "
-            "the fit refuses (unitless; below one half the median no longer describes the correct placements)."
+            "Fewest training placements, as a fraction of the usable ones, that must "
+            "agree with the fit; fewer and "
+            "the fit refuses (unitless; below one half the median no longer describes "
+            "the correct placements)."
         ),
     )
     figure: bool = Field(
         True,
-        description="Draw the fit's figure (figure.png, shown in report.html: the correction over the training "
-        "placements, the valid range, the outliers); false skips the drawing, about half a second per fit (bool).",
+        description="Draw the fit's figure (figure.png, shown in report.html: the correction "
+        "over the training "
+        "placements, the valid range, the outliers); false skips the drawing, about half "
+        "a second per fit (bool).",
     )
     max_residual_sigma: float | None = Field(
         20.0,
         gt=1,
         le=1000,
         description=(
-            "The fit refuses when the median depth residual of the placements it keeps exceeds this many times "
-            "their median stated depth uncertainty (sigma_z_cm): the training set then disagrees with itself, as "
-            "when most placements are mis-detections (unitless; null skips the check, as does data without sigma_z_cm)."
+            "The fit refuses when the median depth residual of the placements it keeps "
+            "exceeds this many times "
+            "their median stated depth uncertainty (sigma_z_cm): the training set then "
+            "disagrees with itself, as "
+            "when most placements are mis-detections (unitless; null skips the check, as "
+            "does data without sigma_z_cm)."
         ),
     )
 
@@ -108,18 +123,31 @@ class RayFitParams(FitParams):
 
     xy: Literal["auto", "along_ray", "keep"] = Field(
         "auto",
-        description="What a depth correction does to x, y: along_ray rescales them by z_corrected / z_measured "
-        "(errors of baseline or disparity offset move a point along its viewing ray), keep leaves them "
-        "(errors of focal length change z only), auto picks whichever fits the training x, y better.",
+        description="What a depth correction does to x, y: along_ray rescales them by "
+        "z_corrected / z_measured "
+        "(errors of baseline or disparity offset move a point along its viewing ray), "
+        "keep leaves them "
+        "(errors of focal length change z only), auto picks whichever fits the training "
+        "x, y better.",
     )
 
 
 #: The input of every fit node: the gathered Location collection (only split 'train' is used).
-TRAIN_INPUT = {"train": In("Location", gather=True, description="Located placements; only split 'train' is used.")}
+TRAIN_INPUT = {
+    "train": In(
+        "Location", gather=True, description="Located placements; only split 'train' is used."
+    )
+}
 
 #: The ``Metrics`` output of every fit node (what ``stereograph compare`` tabulates).
-METRICS_OUTPUT = {"metrics": Out("Metrics", save=True, optional=True,
-                                 description="fit_time_s, n_train, n_outliers, cv_z_rms_cm (flat).")}
+METRICS_OUTPUT = {
+    "metrics": Out(
+        "Metrics",
+        save=True,
+        optional=True,
+        description="fit_time_s, n_train, n_outliers, cv_z_rms_cm (flat).",
+    )
+}
 
 
 def model_metrics(model: Mapping[str, Any]) -> dict[str, float | int | None]:
@@ -132,8 +160,12 @@ def model_metrics(model: Mapping[str, Any]) -> dict[str, float | int | None]:
         "cv_z_rms_cm": cross-validated z RMS error (cm), None when no cross-validation ran}``.
     """
     cv_z = ((model.get("cv") or {}).get("axes") or {}).get("z") or {}
-    return {"fit_time_s": model.get("fit_time_s"), "n_train": model.get("n_train"),
-            "n_outliers": model.get("n_outliers", 0), "cv_z_rms_cm": cv_z.get("rms_cm")}
+    return {
+        "fit_time_s": model.get("fit_time_s"),
+        "n_train": model.get("n_train"),
+        "n_outliers": model.get("n_outliers", 0),
+        "cv_z_rms_cm": cv_z.get("rms_cm"),
+    }
 
 
 @dataclass(frozen=True)
@@ -217,7 +249,9 @@ def _num(value: Any) -> float:
         return math.nan
 
 
-def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Mapping[str, Any]]) -> Samples:
+def samples_from_locations(
+    locations: Mapping[str, Mapping[str, Any]] | list[Mapping[str, Any]],
+) -> Samples:
     """Arrays from Location records (found ones are expected; no filtering here).
 
     Parameters
@@ -230,9 +264,11 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
     Samples
         ``truth_cm`` is None unless every record carries ``truth_cm``.
     """
-    items = list(locations.items()) if isinstance(locations, Mapping) else [
-        (str(loc.get("pair", i)), loc) for i, loc in enumerate(locations)
-    ]
+    items = (
+        list(locations.items())
+        if isinstance(locations, Mapping)
+        else [(str(loc.get("pair", i)), loc) for i, loc in enumerate(locations)]
+    )
     n = len(items)
     xyz = np.full((n, 3), np.nan)
     truth = np.full((n, 3), np.nan)
@@ -256,7 +292,10 @@ def samples_from_locations(locations: Mapping[str, Mapping[str, Any]] | list[Map
             truth[i] = [_num(c) for c in list(t)[:3]]
         frames.add(loc.get("frame", "left_camera"))
     if len(frames) > 1:
-        raise NodeError(f"Location records mix coordinate frames {sorted(frames)}; a compensator needs one frame.")
+        raise NodeError(
+            f"Location records mix coordinate frames {sorted(frames)}; a compensator "
+            "needs one frame."
+        )
     return Samples(
         ids=[str(k) for k, _ in items],
         xyz_cm=xyz,
@@ -300,8 +339,16 @@ def training_samples(
         many items were dropped for which reason.
     """
     if not isinstance(train, Mapping):
-        raise NodeError(f"{label}: input 'train' must be the gathered Location collection, got {type(train).__name__}.")
-    dropped = {"not in the train split": 0, "not found": 0, "no ground truth": 0, "non-finite values": 0}
+        raise NodeError(
+            f"{label}: input 'train' must be the gathered Location collection, got "
+            f"{type(train).__name__}."
+        )
+    dropped = {
+        "not in the train split": 0,
+        "not found": 0,
+        "no ground truth": 0,
+        "non-finite values": 0,
+    }
     reasons: dict[str, int] = {}  # why the training placements were not found
     keep: dict[str, Mapping[str, Any]] = {}
     for item_id, loc in train.items():
@@ -317,29 +364,48 @@ def training_samples(
         if truth is None:
             dropped["no ground truth"] += 1
             continue
-        values = [_num(loc.get(k)) for k in ("x_cm", "y_cm", "z_cm", *needs)] + [_num(t) for t in truth]
+        values = [_num(loc.get(k)) for k in ("x_cm", "y_cm", "z_cm", *needs)] + [
+            _num(t) for t in truth
+        ]
         if not all(math.isfinite(x) for x in values):
             dropped["non-finite values"] += 1
             continue
         keep[item_id] = loc
     if len(keep) < min_points:
-        why = ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n) or "the collection is empty"
-        hint = ("use a source with ground truth and more training placements (e.g. source.synthetic n_scenes / "
-                "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins).")
+        why = (
+            ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n)
+            or "the collection is empty"
+        )
+        hint = (
+            "use a source with ground truth and more training placements (e.g. "
+            "source.synthetic n_scenes / "
+            "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins)."
+        )
         in_split = len(train) - dropped["not in the train split"]
-        if reasons:  # the locator's own words: a cause shared by every pair (swapped images ...) shows here
+        # the locator's own words: a cause shared by every pair (swapped images ...) shows here
+        if reasons:
             top, n_top = group_reasons(reasons)[0]
             why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
-            if 2 * dropped["not found"] >= in_split:  # the cause is upstream: more placements would not help
-                hint = (f"most training placements were not located ({dropped['not found']} of {in_split}), most "
-                        f"often because: {top}. Fix that first: the object's declared colour and radius, or the "
-                        "segmenter's settings (look at the segment overlays in the run folder); then run again.")
+            # the cause is upstream: more placements would not help
+            if 2 * dropped["not found"] >= in_split:
+                hint = (
+                    f"most training placements were not located ({dropped['not found']} "
+                    f"of {in_split}), most "
+                    f"often because: {top}. Fix that first: the object's declared colour "
+                    "and radius, or the "
+                    "segmenter's settings (look at the segment overlays in the run "
+                    "folder); then run again."
+                )
         elif dropped["no ground truth"] and 2 * dropped["no ground truth"] >= in_split:
-            hint = ("the training placements carry no ground truth (truth_cm): give the source a truth file, or "
-                    "use source.synthetic, whose placements know where the ball is.")
+            hint = (
+                "the training placements carry no ground truth (truth_cm): give the "
+                "source a truth file, or "
+                "use source.synthetic, whose placements know where the ball is."
+            )
         raise NodeError(
             f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
-            f"this model needs at least {min_points} (found, with truth_cm, split 'train', finite {', '.join(needs)}).",
+            f"this model needs at least {min_points} (found, with truth_cm, split "
+            f"'train', finite {', '.join(needs)}).",
             hint=hint,
         )
     return samples_from_locations(keep)
@@ -357,13 +423,17 @@ def require_span(values: np.ndarray, name: str, label: str, min_fraction: float,
         raise NodeError(
             f"{label}: the training placements all lie at one {name} "
             f"({np.min(values):.4g}-{np.max(values):.4g} {unit}, "
-            f"spread {span:.3g} {unit} < {min_fraction:.0%} of {scale:.4g} {unit}); a distance-dependent "
+            f"spread {span:.3g} {unit} < {min_fraction:.0%} of {scale:.4g} {unit}); a "
+            "distance-dependent "
             "correction cannot be fitted from them.",
-            hint="place the training objects over the working range of distances, or lower min_span_fraction.",
+            hint="place the training objects over the working range of distances, or lower "
+            "min_span_fraction.",
         )
 
 
-def along_ray(xyz_cm: np.ndarray, z_new_cm: np.ndarray, frame: str, enabled: bool = True) -> np.ndarray:
+def along_ray(
+    xyz_cm: np.ndarray, z_new_cm: np.ndarray, frame: str, enabled: bool = True
+) -> np.ndarray:
     """Move measured points to a corrected depth.
 
     In the left-camera frame a measured point lies on the viewing ray through
@@ -420,7 +490,8 @@ def axis_stats(errors_cm: np.ndarray) -> dict[str, dict[str, float]] | None:
     Returns
     -------
     dict or None
-        ``{"x": {"mean_cm", "std_cm", "rms_cm", "max_abs_cm"}, "y": ..., "z": ...}``; None for no rows.
+        ``{"x": {"mean_cm", "std_cm", "rms_cm", "max_abs_cm"}, "y": ..., "z": ...}``; None for no
+        rows.
     """
     e = np.asarray(errors_cm, dtype=float).reshape(-1, 3)
     if len(e) == 0:
@@ -458,7 +529,11 @@ def kfold_cv(
     """
     n = len(samples)
     if n < 2 * k:
-        return {"k": k, "n": n, "skipped": f"{n} training placements are too few for {k}-fold CV (need {2 * k})"}
+        return {
+            "k": k,
+            "n": n,
+            "skipped": f"{n} training placements are too few for {k}-fold CV (need {2 * k})",
+        }
     order = np.random.default_rng(seed).permutation(n)
     folds = np.array_split(order, k)
     errors = np.full((n, 3), np.nan)
@@ -472,18 +547,26 @@ def kfold_cv(
             return {"k": k, "n": n, "skipped": f"a fold could not be fitted: {exc.message}"}
         err = pred - samples.truth_cm[held]
         if not np.all(np.isfinite(err)):
-            return {"k": k, "n": n, "skipped": "a fold's model gave non-finite predictions on its held-out placements"}
+            return {
+                "k": k,
+                "n": n,
+                "skipped": "a fold's model gave non-finite predictions on its held-out placements",
+            }
         errors[held] = err
         fold_rms.append(float(np.sqrt(np.mean(err[:, 2] ** 2))))
     return {"k": k, "n": n, "axes": axis_stats(errors), "fold_rms_z_cm": fold_rms}
 
 
-#: A correction whose held-out error is this many times the uncorrected error makes results worse: refused.
+# : A correction whose held-out error is this many times the uncorrected error makes results worse:
+# refused.
 WORSE_THAN_NONE = 2.0
-#: A held-out z error this many times the training residual: the model follows the placements' noise.
+# : A held-out z error this many times the training residual: the model follows the placements'
+# noise.
 OVERFIT_RATIO = 3.0
-#: Training truth whose median 3-D distance from the located centres is more than this fraction of the
-#: balls' distance from the cameras is not a stereo error (a few per cent even for a poor calibration):
+# : Training truth whose median 3-D distance from the located centres is more than this fraction of
+# the
+# : balls' distance from the cameras is not a stereo error (a few per cent even for a poor
+# calibration):
 #: it is a truth in another unit (mm) or frame. Fitted, it would move every later location as far.
 MAX_TRUTH_GAP_FRACTION = 0.2
 
@@ -493,7 +576,8 @@ def _camera_distance_cm(samples: Samples) -> np.ndarray | None:
     if samples.frame == "left_camera":
         return np.linalg.norm(samples.xyz_cm, axis=1)
     rig = samples.rig or {}
-    if rig.get("fx_px") and rig.get("baseline_cm"):  # z = f B / d, near enough for a plausibility check
+    # z = f B / d, near enough for a plausibility check
+    if rig.get("fx_px") and rig.get("baseline_cm"):
         return float(rig["fx_px"]) * float(rig["baseline_cm"]) / samples.disparity_px
     return None
 
@@ -516,14 +600,20 @@ def require_plausible_truth(samples: Samples, label: str) -> None:
         return
     i = int(np.argsort(gap)[len(gap) // 2])
     raise NodeError(
-        f"{label}: the training truth is far from where the balls were located: by {np.median(gap):.3g} cm "
-        f"(median of {len(samples)} placements), {fraction:.0%} of their distance from the cameras, where a stereo "
-        f"error is a few per cent (e.g. {samples.ids[i]}: located {np.round(samples.xyz_cm[i], 2).tolist()} cm, "
-        f"truth {np.round(samples.truth_cm[i], 2).tolist()} cm, {samples.frame} frame). A correction fitted to this "
+        f"{label}: the training truth is far from where the balls were located: by "
+        f"{np.median(gap):.3g} cm "
+        f"(median of {len(samples)} placements), {fraction:.0%} of their distance from "
+        "the cameras, where a stereo "
+        f"error is a few per cent (e.g. {samples.ids[i]}: located "
+        f"{np.round(samples.xyz_cm[i], 2).tolist()} cm, "
+        f"truth {np.round(samples.truth_cm[i], 2).tolist()} cm, {samples.frame} frame). A "
+        "correction fitted to this "
         "would move every later location as far.",
-        hint="check the truth file: centres in cm (not mm or m); x_cm,y_cm,z_cm only for the left-camera frame, "
-             "table_x_cm,table_y_cm,table_z_cm for the board's table frame; ids that name the right pairs; "
-             "and that the calibration and table frame are this bench's",
+        hint="check the truth file: centres in cm (not mm or m); x_cm,y_cm,z_cm only for the "
+        "left-camera frame, "
+        "table_x_cm,table_y_cm,table_z_cm for the board's table frame; ids that name the "
+        "right pairs; "
+        "and that the calibration and table frame are this bench's",
     )
 
 
@@ -533,33 +623,50 @@ def _total_rms(axes: Mapping[str, Any] | None) -> float | None:
     return float(np.sqrt(sum(float(axes[a]["rms_cm"]) ** 2 for a in AXES)))
 
 
-def judge_cross_validation(model: Mapping[str, Any], label: str, model_type: str, ctx: Any = None) -> None:
+def judge_cross_validation(
+    model: Mapping[str, Any], label: str, model_type: str, ctx: Any = None
+) -> None:
     """Say what cross-validation says about a fitted model (the honest estimate of its error on new
-    placements): refuse one that makes results worse than no correction, warn of one that overfits or
-    could not be cross-validated."""
+    placements): refuse one that makes results worse than no correction, warn of one that overfits
+    or could not be cross-validated."""
     warn = ctx.warn if ctx is not None and hasattr(ctx, "warn") else (lambda _msg: None)
     cv = model.get("cv") or {}
     if cv.get("skipped"):
-        warn(f"cross-validation skipped ({cv['skipped']}): the correction's error on new placements is unknown")
+        warn(
+            f"cross-validation skipped ({cv['skipped']}): the correction's error on new "
+            "placements is unknown"
+        )
         return
     held, before = _total_rms(cv.get("axes")), _total_rms(model.get("train_before_cm"))
     if held is None or before is None:
         return
     n = model.get("n_train")
     if held > WORSE_THAN_NONE * before:
-        raise NodeError(f"{label}: cross-validated on its {n} training placements, this {model_type} correction makes "
-                        f"the results worse than none (held-out RMS error {held:.3g} cm against {before:.3g} cm "
-                        "uncorrected): it follows the placements' noise, not the error.",
-                        hint="use fewer coefficients (a lower degree, fewer bins) or more training placements over "
-                             "the working range; compensator.none if the rig needs no correction")
+        raise NodeError(
+            f"{label}: cross-validated on its {n} training placements, this {model_type} "
+            "correction makes "
+            f"the results worse than none (held-out RMS error {held:.3g} cm against "
+            f"{before:.3g} cm "
+            "uncorrected): it follows the placements' noise, not the error.",
+            hint="use fewer coefficients (a lower degree, fewer bins) or more training "
+            "placements over "
+            "the working range; compensator.none if the rig needs no correction",
+        )
     cv_z = float(cv["axes"]["z"]["rms_cm"])
     fit_z = float(((model.get("train_residual_cm") or {}).get("z") or {}).get("rms_cm", np.nan))
     if held > before:
-        warn(f"in cross-validation this correction does not improve on none (held-out RMS {held:.3g} cm, "
-             f"uncorrected {before:.3g} cm)")
+        warn(
+            "in cross-validation this correction does not improve on none (held-out RMS "
+            f"{held:.3g} cm, "
+            f"uncorrected {before:.3g} cm)"
+        )
     elif np.isfinite(fit_z) and cv_z > OVERFIT_RATIO * fit_z:
-        warn(f"the correction fits its training placements far better than held-out ones (z RMS {fit_z:.3g} cm "
-             f"fitted, {cv_z:.3g} cm cross-validated): it may follow their noise; fewer coefficients would be safer")
+        warn(
+            "the correction fits its training placements far better than held-out ones "
+            f"(z RMS {fit_z:.3g} cm "
+            f"fitted, {cv_z:.3g} cm cross-validated): it may follow their noise; fewer "
+            "coefficients would be safer"
+        )
 
 
 def build_model(
@@ -618,7 +725,13 @@ def build_model(
     try:
         if robust is not None and robust.outlier_mad is not None:
             screen, coefficients = screen_outliers(
-                samples, fit, predict, robust.outlier_mad, robust.min_inlier_fraction, min_points, label,
+                samples,
+                fit,
+                predict,
+                robust.outlier_mad,
+                robust.min_inlier_fraction,
+                min_points,
+                label,
                 robust.max_residual_sigma,
             )
             samples = samples.subset(screen.inliers)
@@ -628,7 +741,8 @@ def build_model(
         if exc.message.startswith(label):
             raise
         raise NodeError(
-            f"{label}: {exc.message}", hint=exc.hint or "use fewer coefficients or more, better spread placements."
+            f"{label}: {exc.message}",
+            hint=exc.hint or "use fewer coefficients or more, better spread placements.",
         ) from None
     except np.linalg.LinAlgError as exc:
         raise NodeError(
@@ -641,12 +755,16 @@ def build_model(
     corrected = predict(coefficients, samples)
     if not np.all(np.isfinite(corrected)):
         raise NodeError(
-            f"{label}: the fitted {model_type} model gives non-finite values on its own training placements.",
+            f"{label}: the fitted {model_type} model gives non-finite values on its own "
+            "training placements.",
             hint="check the training data (distances, disparities) or choose a simpler model.",
         )
     truth = samples.truth_cm
     valid_range = {
-        name: {"min": float(np.min(samples.variable(name))), "max": float(np.max(samples.variable(name)))}
+        name: {
+            "min": float(np.min(samples.variable(name))),
+            "max": float(np.max(samples.variable(name))),
+        }
         for name in inputs
     }
     model = {
@@ -669,13 +787,17 @@ def build_model(
     judge_cross_validation(model, label, model_type, ctx)
     if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
         listed = ", ".join(
-            f"{o['item']} ({o['residual_cm']:.3g} cm)" if o["residual_cm"] is not None else f"{o['item']} (undefined)"
+            f"{o['item']} ({o['residual_cm']:.3g} cm)"
+            if o["residual_cm"] is not None
+            else f"{o['item']} (undefined)"
             for o in screen.outliers[:8]
         )
         more = f", +{len(screen.outliers) - 8} more" if len(screen.outliers) > 8 else ""
         ctx.warn(
-            f"left {len(screen.outliers)} of {n_candidates} training placements out of the fit: their measurement "
-            f"disagrees with the truth by far more than the rest (residual > {screen.threshold_cm:.3g} cm): "
+            f"left {len(screen.outliers)} of {n_candidates} training placements out of "
+            "the fit: their measurement "
+            "disagrees with the truth by far more than the rest (residual > "
+            f"{screen.threshold_cm:.3g} cm): "
             f"{listed}{more}; see 'outliers' in the model"
         )
     return model

@@ -36,19 +36,23 @@ from nodes.contracts.compensator._common import Samples, model_metrics, samples_
 __all__ = ["FitPicture", "Panel", "draw", "fit_figure", "fit_picture", "held_out"]
 
 AXES = ("x", "y", "z")
-#: The curve is drawn this far (fraction of the valid span) beyond each end of the valid range, dashed.
+# : The curve is drawn this far (fraction of the valid span) beyond each end of the valid range,
+# dashed.
 MARGIN_FRACTION = 0.08
 GRID_POINTS = 300
 #: Outliers named on the picture at most (the model lists them all).
 MAX_LABELLED = 8
 
-_X_LABEL = {"z_cm": "measured distance z (cm)",
-            "disparity_px": "measured disparity d (px)  —  larger is nearer"}
+_X_LABEL = {
+    "z_cm": "measured distance z (cm)",
+    "disparity_px": "measured disparity d (px)  —  larger is nearer",
+}
 
 
 @dataclass
 class Panel:
-    """One corrected axis: errors (truth - measured, cm) of each group of placements, and the model."""
+    """One corrected axis: errors (truth - measured, cm) of each group of placements, and the
+    model."""
 
     axis: str
     train_y: np.ndarray
@@ -123,8 +127,15 @@ def _reference(inliers: Samples, variable: str, grid: np.ndarray) -> Samples:
     n = len(grid)
     u = _typical(inliers.disparity_px, inliers.u_px, d)
     v = _typical(inliers.disparity_px, inliers.v_px, d)
-    return Samples(ids=[f"ref{i}" for i in range(n)], xyz_cm=np.column_stack([np.zeros(n), np.zeros(n), z]),
-                   disparity_px=d, u_px=u, v_px=v, truth_cm=None, frame=inliers.frame)
+    return Samples(
+        ids=[f"ref{i}" for i in range(n)],
+        xyz_cm=np.column_stack([np.zeros(n), np.zeros(n), z]),
+        disparity_px=d,
+        u_px=u,
+        v_px=v,
+        truth_cm=None,
+        frame=inliers.frame,
+    )
 
 
 def _grid(values: np.ndarray, valid: tuple[float, float] | None, variable: str) -> np.ndarray:
@@ -150,7 +161,8 @@ def fit_picture(
     Parameters
     ----------
     model : dict
-        The ``CompensationModel`` the fit node built (``coefficients``, ``valid_range``, ``outliers``).
+        The ``CompensationModel`` the fit node built (``coefficients``, ``valid_range``,
+        ``outliers``).
     candidates : Samples
         Every training placement the fit considered, outliers included (cm, px).
     predict : callable
@@ -166,21 +178,30 @@ def fit_picture(
     """
     out_ids = [str(o["item"]) for o in model.get("outliers") or []]
     is_out = np.array([i in set(out_ids) for i in candidates.ids], dtype=bool)
-    rank = {item: r for r, item in enumerate(out_ids)}  # the model lists them largest residual first
+    # the model lists them largest residual first
+    rank = {item: r for r, item in enumerate(out_ids)}
     out_idx = sorted(np.flatnonzero(is_out), key=lambda i: rank[candidates.ids[i]])
     inliers = candidates.subset(np.flatnonzero(~is_out))
     outliers = candidates.subset(np.asarray(out_idx, dtype=int))
     residual = {str(o["item"]): o.get("residual_cm") for o in model.get("outliers") or []}
-    labels = [f"{i} ({residual[i]:.3g} cm from the model)" if residual.get(i) is not None else i
-              for i in outliers.ids]
+    labels = [
+        f"{i} ({residual[i]:.3g} cm from the model)" if residual.get(i) is not None else i
+        for i in outliers.ids
+    ]
     rng = (model.get("valid_range") or {}).get(variable)
     valid = (float(rng["min"]), float(rng["max"])) if rng else None
     train_x = inliers.variable(variable) if len(inliers) else np.zeros(0)
     grid = _grid(train_x, valid, variable) if len(train_x) else np.zeros(0)
     coefficients = model.get("coefficients") or {}
     ref = _reference(inliers, variable, grid) if len(grid) else None
-    ref_correction = (np.asarray(predict(coefficients, ref), float) - ref.xyz_cm) if ref is not None else None
-    fitted_all = (np.asarray(predict(coefficients, inliers), float) - inliers.xyz_cm) if len(inliers) else None
+    ref_correction = (
+        (np.asarray(predict(coefficients, ref), float) - ref.xyz_cm) if ref is not None else None
+    )
+    fitted_all = (
+        (np.asarray(predict(coefficients, inliers), float) - inliers.xyz_cm)
+        if len(inliers)
+        else None
+    )
     panels = []
     for name in axes:
         k = AXES.index(name)
@@ -195,19 +216,42 @@ def fit_picture(
             tol = 0.01 * max(float(np.ptp(err(inliers))), 1e-6)
             if np.all(np.abs(on_curve - fitted) <= tol):
                 fitted = None  # the curve is the model itself: the marks would repeat it
-        panels.append(Panel(axis=name, train_y=err(inliers), outlier_y=err(outliers), test_y=err(test),
-                            curve_y=curve, fitted_y=fitted))
+        panels.append(
+            Panel(
+                axis=name,
+                train_y=err(inliers),
+                outlier_y=err(outliers),
+                test_y=err(test),
+                curve_y=curve,
+                fitted_y=fitted,
+            )
+        )
     cv = model_metrics(model).get("cv_z_rms_cm")
-    title = (f"compensator.{model.get('type', '?')}: n_train = {len(inliers)}, outliers left out = {len(outliers)}, "
-             f"CV z RMS = {'n/a' if cv is None else f'{cv:.3g} cm'}")
+    title = (
+        f"compensator.{model.get('type', '?')}: n_train = {len(inliers)}, outliers left "
+        f"out = {len(outliers)}, "
+        f"CV z RMS = {'n/a' if cv is None else f'{cv:.3g} cm'}"
+    )
     note = ""
     if any(p.fitted_y is not None for p in panels):
-        note = ("line: the model at the training placements' typical image position (u, v) for each depth; "
-                "orange dashes: the model at each training placement")
-    return FitPicture(title=title, formula=formula, variable=variable, train_x=train_x,
-                      outlier_x=outliers.variable(variable) if len(outliers) else np.zeros(0),
-                      outlier_labels=labels, test_x=test.variable(variable) if test is not None else np.zeros(0),
-                      grid_x=grid, valid=valid, panels=panels, note=note)
+        note = (
+            "line: the model at the training placements' typical image position (u, v) "
+            "for each depth; "
+            "orange dashes: the model at each training placement"
+        )
+    return FitPicture(
+        title=title,
+        formula=formula,
+        variable=variable,
+        train_x=train_x,
+        outlier_x=outliers.variable(variable) if len(outliers) else np.zeros(0),
+        outlier_labels=labels,
+        test_x=test.variable(variable) if test is not None else np.zeros(0),
+        grid_x=grid,
+        valid=valid,
+        panels=panels,
+        note=note,
+    )
 
 
 def _limits(p: Panel, pic: FitPicture) -> tuple[float, float]:
@@ -217,7 +261,11 @@ def _limits(p: Panel, pic: FitPicture) -> tuple[float, float]:
     values at them set the scale, and the line may leave the plot (:func:`draw` says so).
     """
     inside = pic.valid is None or len(pic.grid_x) == 0
-    sel = np.ones(len(pic.grid_x), bool) if inside else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+    sel = (
+        np.ones(len(pic.grid_x), bool)
+        if inside
+        else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+    )
     line = p.curve_y[sel] if p.fitted_y is None else np.zeros(0)
     core = np.concatenate([p.train_y, line, p.fitted_y if p.fitted_y is not None else np.zeros(0)])
     core = core[np.isfinite(core)]
@@ -225,10 +273,13 @@ def _limits(p: Panel, pic: FitPicture) -> tuple[float, float]:
         core = np.array([-1.0, 1.0])
     lo, hi = float(np.min(core)), float(np.max(core))
     span = max(hi - lo, 1e-3)
-    near = p.test_y[(p.test_y > lo - span) & (p.test_y < hi + span)]  # test placements near the fit count too
+    # test placements near the fit count too
+    near = p.test_y[(p.test_y > lo - span) & (p.test_y < hi + span)]
     if p.fitted_y is not None:  # the slice too, where it stays near the placements
         curve = p.curve_y[sel]
-        near = np.concatenate([near, curve[np.isfinite(curve) & (curve > lo - span) & (curve < hi + span)]])
+        near = np.concatenate(
+            [near, curve[np.isfinite(curve) & (curve > lo - span) & (curve < hi + span)]]
+        )
     if len(near):
         lo, hi = min(lo, float(np.min(near))), max(hi, float(np.max(near)))
         span = max(hi - lo, 1e-3)
@@ -241,8 +292,10 @@ def _outlier_list(pic: FitPicture) -> str | None:
         return None
     shown = [f"{j + 1}: {text}" for j, text in enumerate(pic.outlier_labels[:MAX_LABELLED])]
     more = len(pic.outlier_labels) - MAX_LABELLED
-    lines = textwrap.wrap("left out: " + ",  ".join(shown) + (f",  +{more} more (model.json)" if more > 0 else ""),
-                          115)
+    lines = textwrap.wrap(
+        "left out: " + ",  ".join(shown) + (f",  +{more} more (model.json)" if more > 0 else ""),
+        115,
+    )
     return "\n".join(lines)
 
 
@@ -260,64 +313,141 @@ def draw(pic: FitPicture) -> np.ndarray:
         axes.append(ax)
         lo, hi = _limits(p, pic)
         if pic.valid is not None:
-            h = ax.axvspan(*pic.valid, color="#d5efd5", zorder=0,
-                           label="valid range (span fitted)")
+            h = ax.axvspan(*pic.valid, color="#d5efd5", zorder=0, label="valid range (span fitted)")
             legend_handles.setdefault("valid", h)
         ax.axhline(0.0, color="#888", lw=0.7, zorder=1)
         if len(pic.grid_x):
-            inside = np.ones(len(pic.grid_x), bool) if pic.valid is None else \
-                (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
-            (h,) = ax.plot(pic.grid_x, np.where(inside, p.curve_y, np.nan), "-", color="k", lw=2, zorder=4,
-                           label="fitted correction")
+            inside = (
+                np.ones(len(pic.grid_x), bool)
+                if pic.valid is None
+                else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+            )
+            (h,) = ax.plot(
+                pic.grid_x,
+                np.where(inside, p.curve_y, np.nan),
+                "-",
+                color="k",
+                lw=2,
+                zorder=4,
+                label="fitted correction",
+            )
             legend_handles.setdefault("curve", h)
             if pic.valid is not None:
-                (h,) = ax.plot(pic.grid_x, np.where(inside, np.nan, p.curve_y), "--", color="k", lw=1.3, zorder=4,
-                               label="extrapolated (flagged by apply)")
+                (h,) = ax.plot(
+                    pic.grid_x,
+                    np.where(inside, np.nan, p.curve_y),
+                    "--",
+                    color="k",
+                    lw=1.3,
+                    zorder=4,
+                    label="extrapolated (flagged by apply)",
+                )
                 legend_handles.setdefault("extra", h)
         if len(p.test_y):
             y = np.clip(p.test_y, lo, hi)
-            h = ax.scatter(pic.test_x, y, marker="s", s=22, facecolors="none", edgecolors="#7f7f7f", lw=1,
-                           zorder=3, label="test placements (not fitted)")
+            h = ax.scatter(
+                pic.test_x,
+                y,
+                marker="s",
+                s=22,
+                facecolors="none",
+                edgecolors="#7f7f7f",
+                lw=1,
+                zorder=3,
+                label="test placements (not fitted)",
+            )
             legend_handles.setdefault("test", h)
         if p.fitted_y is not None:
-            h = ax.scatter(pic.train_x, p.fitted_y, marker="_", s=60, color="#e67e22", lw=1.5, zorder=5,
-                           label="model at each training placement")
+            h = ax.scatter(
+                pic.train_x,
+                p.fitted_y,
+                marker="_",
+                s=60,
+                color="#e67e22",
+                lw=1.5,
+                zorder=5,
+                label="model at each training placement",
+            )
             legend_handles.setdefault("fitted", h)
         if len(p.train_y):
-            h = ax.scatter(pic.train_x, p.train_y, marker="o", s=16, color="#1f77b4", zorder=6,
-                           label="training placements (fitted)")
+            h = ax.scatter(
+                pic.train_x,
+                p.train_y,
+                marker="o",
+                s=16,
+                color="#1f77b4",
+                zorder=6,
+                label="training placements (fitted)",
+            )
             legend_handles.setdefault("train", h)
         if len(p.outlier_y):
             y = np.clip(p.outlier_y, lo, hi)  # far off the scale: drawn at the axis edge
-            h = ax.scatter(pic.outlier_x, y, marker="X", s=70, color="#d62728", edgecolors="k", lw=0.5, zorder=7,
-                           label="left out of the fit (on the edge: off the scale)")
+            h = ax.scatter(
+                pic.outlier_x,
+                y,
+                marker="X",
+                s=70,
+                color="#d62728",
+                edgecolors="k",
+                lw=0.5,
+                zorder=7,
+                label="left out of the fit (on the edge: off the scale)",
+            )
             legend_handles.setdefault("outlier", h)
             for j, (x0, y0) in enumerate(zip(pic.outlier_x[:MAX_LABELLED], y[:MAX_LABELLED])):
-                ax.annotate(str(j + 1), (x0, y0), xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
-                            textcoords="offset points", fontsize=8, fontweight="bold", color="#a11")
+                ax.annotate(
+                    str(j + 1),
+                    (x0, y0),
+                    xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
+                    textcoords="offset points",
+                    fontsize=8,
+                    fontweight="bold",
+                    color="#a11",
+                )
         ax.set_ylim(lo, hi)
         if p.fitted_y is not None and len(pic.grid_x):
             in_range = pic.valid is None or len(pic.grid_x) == 0
             sel = True if in_range else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
             c = p.curve_y[np.isfinite(p.curve_y) & sel]
             if len(c) and (np.min(c) < lo or np.max(c) > hi):
-                ax.text(0.01, 0.97, f"the line leaves the plot inside the valid range: {np.min(c):+.3g} to "
-                        f"{np.max(c):+.3g} cm (between placements the model is unconstrained)",
-                        transform=ax.transAxes, va="top", fontsize=7.5,
-                        color="#333", bbox={"fc": "white", "ec": "#bbb", "alpha": 0.85})
+                ax.text(
+                    0.01,
+                    0.97,
+                    f"the line leaves the plot inside the valid range: {np.min(c):+.3g} to "
+                    f"{np.max(c):+.3g} cm (between placements the model is unconstrained)",
+                    transform=ax.transAxes,
+                    va="top",
+                    fontsize=7.5,
+                    color="#333",
+                    bbox={"fc": "white", "ec": "#bbb", "alpha": 0.85},
+                )
         ax.set_ylabel(f"{p.axis} error, truth − measured (cm)", fontsize=9)
         ax.grid(True, lw=0.4, alpha=0.5)
         if not len(p.train_y) and not len(p.outlier_y):
-            ax.text(0.5, 0.5, "no training placements: nothing was fitted", transform=ax.transAxes,
-                    ha="center", va="center", fontsize=11)
+            ax.text(
+                0.5,
+                0.5,
+                "no training placements: nothing was fitted",
+                transform=ax.transAxes,
+                ha="center",
+                va="center",
+                fontsize=11,
+            )
     if axes:
         axes[-1].set_xlabel(_X_LABEL.get(pic.variable, pic.variable), fontsize=9)
     order = ["valid", "curve", "extra", "fitted", "train", "outlier", "test"]
     handles = [legend_handles[key] for key in order if key in legend_handles]
     if handles:
-        fig.legend(handles=handles, labels=[h.get_label() for h in handles], loc="outside lower center",
-                   ncol=min(3, len(handles)), fontsize=8, frameon=False, title=_outlier_list(pic),
-                   title_fontsize=8)
+        fig.legend(
+            handles=handles,
+            labels=[h.get_label() for h in handles],
+            loc="outside lower center",
+            ncol=min(3, len(handles)),
+            fontsize=8,
+            frameon=False,
+            title=_outlier_list(pic),
+            title_fontsize=8,
+        )
     head = "\n".join(textwrap.fill(t, 95) for t in (pic.title, pic.formula, pic.note) if t)
     fig.suptitle(head, fontsize=10)
     return figure_bgr(fig)

@@ -71,11 +71,16 @@ class Screen:
 
     def describe(self) -> dict[str, Any]:
         """The screening as plain data for the model artifact."""
-        return {"outliers": self.outliers, "outlier_threshold_cm": self.threshold_cm, "n_outliers": len(self.outliers)}
+        return {
+            "outliers": self.outliers,
+            "outlier_threshold_cm": self.threshold_cm,
+            "n_outliers": len(self.outliers),
+        }
 
 
 def robust_threshold(values: np.ndarray, k: float, min_scale: float) -> float:
-    """``median + k * max(1.4826 MAD, min_scale)`` of ``values`` (non-finite values count as huge)."""
+    """``median + k * max(1.4826 MAD, min_scale)`` of ``values`` (non-finite values count as
+    huge)."""
     v = np.where(np.isfinite(values), values, np.inf)
     med = float(np.median(v))
     scale = MAD_TO_SIGMA * float(np.median(np.abs(v - med)))
@@ -111,13 +116,20 @@ def _check_agreement(
     typical_sigma, typical_residual = float(np.median(s)), float(np.median(r))
     if typical_residual > max_ratio * typical_sigma:
         raise NodeError(
-            f"{label}: the {len(idx)} training placements kept for the fit disagree with it by a median "
-            f"{typical_residual:.3g} cm in depth, {typical_residual / typical_sigma:.0f} times their stated depth "
-            f"uncertainty ({typical_sigma:.3g} cm, limit {max_ratio:g} times); the training set disagrees with itself, "
-            "as when most placements measured the wrong object, so no correction is fitted from it.",
-            hint="check the training placements' detections (overlays in the segmenter's folder): a distractor or a "
-            "wrong colour makes a measurement of the wrong object; give the segmenter the ball's colour, or raise "
-            "max_residual_sigma if the measurements' sigma_z_cm is known to understate their error.",
+            f"{label}: the {len(idx)} training placements kept for the fit disagree with "
+            "it by a median "
+            f"{typical_residual:.3g} cm in depth, {typical_residual / typical_sigma:.0f} "
+            "times their stated depth "
+            f"uncertainty ({typical_sigma:.3g} cm, limit {max_ratio:g} times); the "
+            "training set disagrees with itself, "
+            "as when most placements measured the wrong object, so no correction is "
+            "fitted from it.",
+            hint="check the training placements' detections (overlays in the segmenter's "
+            "folder): a distractor or a "
+            "wrong colour makes a measurement of the wrong object; give the segmenter "
+            "the ball's colour, or raise "
+            "max_residual_sigma if the measurements' sigma_z_cm is known to understate "
+            "their error.",
         )
 
 
@@ -201,26 +213,37 @@ def screen_outliers(
     idx = np.flatnonzero(keep)
     out_idx = np.flatnonzero(~keep)
     outliers = [
-        {"item": samples.ids[i],
-         "residual_cm": float(residual[i]) if np.isfinite(residual[i]) else None,
-         "error_cm": [float(c) for c in raw[i]]}
+        {
+            "item": samples.ids[i],
+            "residual_cm": float(residual[i]) if np.isfinite(residual[i]) else None,
+            "error_cm": [float(c) for c in raw[i]],
+        }
         for i in out_idx
     ]
     outliers.sort(key=lambda o: -(o["residual_cm"] if o["residual_cm"] is not None else np.inf))
     if len(idx) < max(min_points, min_inlier_fraction * n) or not np.isfinite(threshold):
         worst = ", ".join(
-            f"{o['item']} ({o['residual_cm']:.3g} cm)" if o["residual_cm"] is not None else f"{o['item']} (undefined)"
+            f"{o['item']} ({o['residual_cm']:.3g} cm)"
+            if o["residual_cm"] is not None
+            else f"{o['item']} (undefined)"
             for o in outliers[:5]
         )
         raise NodeError(
-            f"{label}: only {len(idx)} of {n} training placements agree with one another; {len(out_idx)} disagree "
-            f"with their ground truth by far more than the rest (residual > {threshold:.3g} cm: {worst}"
-            f"{', ...' if len(outliers) > 5 else ''}). The model needs at least {min_points} placements and at least "
-            f"{min_inlier_fraction:.0%} of them in agreement, so the measurements cannot be trusted to fit "
+            f"{label}: only {len(idx)} of {n} training placements agree with one another; "
+            f"{len(out_idx)} disagree "
+            "with their ground truth by far more than the rest (residual > "
+            f"{threshold:.3g} cm: {worst}"
+            f"{', ...' if len(outliers) > 5 else ''}). The model needs at least "
+            f"{min_points} placements and at least "
+            f"{min_inlier_fraction:.0%} of them in agreement, so the measurements cannot "
+            "be trusted to fit "
             "a correction.",
-            hint="check the training placements' detections (overlays in the segmenter's folder): a distractor "
-            "or a wrong colour makes a measurement of the wrong object; give the segmenter the ball's colour, "
-            "remove the mis-detected placements, or lower min_inlier_fraction (0.5 at least) if you raised it.",
+            hint="check the training placements' detections (overlays in the segmenter's "
+            "folder): a distractor "
+            "or a wrong colour makes a measurement of the wrong object; give the "
+            "segmenter the ball's colour, "
+            "remove the mis-detected placements, or lower min_inlier_fraction (0.5 at "
+            "least) if you raised it.",
         )
     if fitted_on is None or not np.array_equal(fitted_on, keep):
         coefficients = fit(samples.subset(idx))  # the last round moved the set: fit what was kept

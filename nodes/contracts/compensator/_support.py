@@ -36,7 +36,9 @@ SURFACE_MARGIN_FRACTION = 0.05
 CORRECTION_FACTOR = 1.5
 
 
-def describe_support(raw_xyz_cm: np.ndarray, corrected_xyz_cm: np.ndarray, truth_xyz_cm: np.ndarray) -> dict:
+def describe_support(
+    raw_xyz_cm: np.ndarray, corrected_xyz_cm: np.ndarray, truth_xyz_cm: np.ndarray
+) -> dict:
     """Summarise where the training placements lie and how large their corrections were.
 
     Parameters
@@ -52,8 +54,8 @@ def describe_support(raw_xyz_cm: np.ndarray, corrected_xyz_cm: np.ndarray, truth
     -------
     dict
         ``{"center_cm", "axes" (rows: principal directions), "min_cm", "max_cm", "margin_cm"
-        (per principal axis, cm), "max_correction_cm", "residual_rms_cm"}`` -- plain lists and floats
-        (JSON).
+        (per principal axis, cm), "max_correction_cm", "residual_rms_cm"}`` -- plain lists and
+        floats (JSON).
     """
     raw = np.asarray(raw_xyz_cm, dtype=float).reshape(-1, 3)
     center = raw.mean(axis=0)
@@ -65,18 +67,28 @@ def describe_support(raw_xyz_cm: np.ndarray, corrected_xyz_cm: np.ndarray, truth
     lo, hi = coords.min(axis=0), coords.max(axis=0)
     extent = float(np.max(hi - lo)) if len(raw) else 0.0
     margin = np.maximum(3.0 * coords.std(axis=0), SURFACE_MARGIN_FRACTION * extent)
-    correction = np.linalg.norm(np.asarray(corrected_xyz_cm, dtype=float).reshape(-1, 3) - raw, axis=1)
-    residual = np.linalg.norm(np.asarray(corrected_xyz_cm, dtype=float).reshape(-1, 3)
-                              - np.asarray(truth_xyz_cm, dtype=float).reshape(-1, 3), axis=1)
+    correction = np.linalg.norm(
+        np.asarray(corrected_xyz_cm, dtype=float).reshape(-1, 3) - raw, axis=1
+    )
+    residual = np.linalg.norm(
+        np.asarray(corrected_xyz_cm, dtype=float).reshape(-1, 3)
+        - np.asarray(truth_xyz_cm, dtype=float).reshape(-1, 3),
+        axis=1,
+    )
     return {
-        "center_cm": center.tolist(), "axes": axes.tolist(), "min_cm": lo.tolist(), "max_cm": hi.tolist(),
+        "center_cm": center.tolist(),
+        "axes": axes.tolist(),
+        "min_cm": lo.tolist(),
+        "max_cm": hi.tolist(),
         "margin_cm": margin.tolist(),
         "max_correction_cm": float(correction.max()) if len(correction) else 0.0,
-        "residual_rms_cm": float(np.sqrt(np.mean(residual ** 2))) if len(residual) else 0.0,
+        "residual_rms_cm": float(np.sqrt(np.mean(residual**2))) if len(residual) else 0.0,
     }
 
 
-def outside_support(support: Mapping[str, Any] | None, n_inputs: int, raw_xyz_cm, corrected_xyz_cm) -> list[str]:
+def outside_support(
+    support: Mapping[str, Any] | None, n_inputs: int, raw_xyz_cm, corrected_xyz_cm
+) -> list[str]:
     """Why a measurement lies where the model is not supported (empty: it is supported).
 
     Parameters
@@ -102,14 +114,21 @@ def outside_support(support: Mapping[str, Any] | None, n_inputs: int, raw_xyz_cm
         lo, hi = np.asarray(support["min_cm"]), np.asarray(support["max_cm"])
         margin = np.asarray(support["margin_cm"])
         beyond = np.maximum(lo - coords, coords - hi)
-        # Only the thinnest direction says "off the surface"; the wide ones are the valid_range's job.
+        # Only the thinnest direction says "off the surface"; the wide ones are the valid_range's
+        # job.
         thin = int(np.argmin(hi - lo))
         if beyond[thin] > margin[thin]:
-            reasons.append(f"{beyond[thin]:.2f} cm off the training placements' surface "
-                           f"(margin {margin[thin]:.2f} cm)")
+            reasons.append(
+                f"{beyond[thin]:.2f} cm off the training placements' surface "
+                f"(margin {margin[thin]:.2f} cm)"
+            )
     correction = float(np.linalg.norm(np.asarray(corrected_xyz_cm, dtype=float) - raw))
-    limit = CORRECTION_FACTOR * float(support["max_correction_cm"]) + 3.0 * float(support["residual_rms_cm"])
+    limit = CORRECTION_FACTOR * float(support["max_correction_cm"]) + 3.0 * float(
+        support["residual_rms_cm"]
+    )
     if correction > limit:
-        reasons.append(f"a correction of {correction:.2f} cm, larger than any in training "
-                       f"(max {float(support['max_correction_cm']):.2f} cm)")
+        reasons.append(
+            f"a correction of {correction:.2f} cm, larger than any in training "
+            f"(max {float(support['max_correction_cm']):.2f} cm)"
+        )
     return reasons

@@ -33,14 +33,38 @@ from ._params import (
 from ._pixels import fill_holes, max_hole_area, structuring_element, to_channel
 from ._size import expected_radius_px
 
-__all__ = ["SEGMENTER_INPUTS", "SEGMENTER_OUTPUTS", "MaskFunction", "ObjectSpec", "SegmenterParams",
-           "apply_appearance", "apply_objects", "as_bgr", "color_distance_map", "expected_radius_px",
-           "fill_holes", "find_instances", "gaussian_blur", "max_hole_area", "pair_is_raw", "same_ball",
-           "segment_pair", "segmenter", "structuring_element", "to_channel", "validate_pair"]
+__all__ = [
+    "SEGMENTER_INPUTS",
+    "SEGMENTER_OUTPUTS",
+    "MaskFunction",
+    "ObjectSpec",
+    "SegmenterParams",
+    "apply_appearance",
+    "apply_objects",
+    "as_bgr",
+    "color_distance_map",
+    "expected_radius_px",
+    "fill_holes",
+    "find_instances",
+    "gaussian_blur",
+    "max_hole_area",
+    "pair_is_raw",
+    "same_ball",
+    "segment_pair",
+    "segmenter",
+    "structuring_element",
+    "to_channel",
+    "validate_pair",
+]
 
 
-def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, version: str = "1",
-              check: Callable | None = None, before: Callable | None = None) -> Callable[[MaskFunction], Callable]:
+def segmenter(
+    name: str,
+    params: type[SegmenterParams] = SegmenterParams,
+    version: str = "1",
+    check: Callable | None = None,
+    before: Callable | None = None,
+) -> Callable[[MaskFunction], Callable]:
     """Decorator: a mask function -> a registered segmenter node named ``name``.
 
     The node's description is the mask function's docstring. ``check(params, wired)`` refuses a
@@ -52,15 +76,24 @@ def segmenter(name: str, params: type[SegmenterParams] = SegmenterParams, versio
 
     def wrap(mask: MaskFunction) -> Callable:
         def run(params, pair, rectification=None, appearance=None, objects=None, ctx=None):
-            params, color_from = apply_appearance(apply_objects(params, objects, ctx), appearance, ctx)
+            params, color_from = apply_appearance(
+                apply_objects(params, objects, ctx), appearance, ctx
+            )
             if before is not None:
                 before(params)
             return segment_pair(pair, rectification, params, mask, method, ctx, color_from)
 
         run.__name__ = run.__qualname__ = method
-        run.__module__, run.__doc__ = mask.__module__, mask.__doc__  # (the cache keys the method's own code)
+        # (the cache keys the method's own code)
+        run.__module__, run.__doc__ = mask.__module__, mask.__doc__
         run.mask = mask
-        return node(name, inputs=SEGMENTER_INPUTS, outputs=SEGMENTER_OUTPUTS, params=params, version=version,
-                    check=check)(run)
+        return node(
+            name,
+            inputs=SEGMENTER_INPUTS,
+            outputs=SEGMENTER_OUTPUTS,
+            params=params,
+            version=version,
+            check=check,
+        )(run)
 
     return wrap

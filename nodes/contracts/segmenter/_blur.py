@@ -1,4 +1,5 @@
-"""Gaussian smoothing of 8-bit images: the exact pixels of ``cv2.GaussianBlur``, cheaper on small windows.
+"""Gaussian smoothing of 8-bit images: the exact pixels of ``cv2.GaussianBlur``, cheaper on small
+windows.
 
 For an 8-bit image ``cv2.GaussianBlur(img, (0, 0), sigma)`` runs OpenCV's bit-exact fixed-point
 path: the kernel as integers k_i summing to 256, a row pass R = sum_i k_i p_i, a column pass
@@ -65,7 +66,7 @@ def _checked_kernel(sigma: float) -> np.ndarray | None:
     noise = np.random.default_rng(0).integers(0, 256, (23, 29, 3), dtype=np.uint8)
     step = len(k) + 2
     impulses = np.zeros((16 * step, 16 * step), np.uint8)
-    impulses[step // 2::step, step // 2::step] = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    impulses[step // 2 :: step, step // 2 :: step] = np.arange(256, dtype=np.uint8).reshape(16, 16)
     for probe in (noise, impulses):
         if not np.array_equal(_separable(probe, k), cv2.GaussianBlur(probe, (0, 0), sigma)):
             return None
@@ -83,7 +84,9 @@ def _probe_kernel(sigma: float) -> np.ndarray | None:
     w = 6 * r + 3
     line = np.zeros((2 * r + 1, w), np.uint8)
     line[:, w // 2] = 255
-    out = cv2.GaussianBlur(line, (0, 0), sigma)[r, w // 2 - r: w // 2 + r + 1][::-1].astype(np.int64)
+    out = cv2.GaussianBlur(line, (0, 0), sigma)[r, w // 2 - r : w // 2 + r + 1][::-1].astype(
+        np.int64
+    )
     k = np.where(out > 128, out + 1, out)
     tie = np.flatnonzero(out == 128)
     if len(tie) > 1:
@@ -94,4 +97,4 @@ def _probe_kernel(sigma: float) -> np.ndarray | None:
         return None
     nz = np.flatnonzero(k)
     half = max(nz[-1] - r, r - nz[0])  # drop the zero taps on both ends, keeping the kernel centred
-    return k[r - half: r + half + 1].astype(np.float32)
+    return k[r - half : r + half + 1].astype(np.float32)

@@ -128,13 +128,20 @@ def select_candidate(
         # No colour to tell objects apart: a ball-sized region that failed only the roundness
         # test may be the ball merged with what it touches, as plausible as the round winner.
         a = ok[0]
-        rivals = [c for c in cands if c is not a and c.get("_why") == "round"
-                  and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max]
+        rivals = [
+            c
+            for c in cands
+            if c is not a
+            and c.get("_why") == "round"
+            and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max
+        ]
         if rivals:
             a["rejected"] = rivals[0]["rejected"] = "ambiguous"
-            return None, (f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
-                          f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
-                          "object.color_bgr to tell them apart")
+            return None, (
+                f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
+                f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
+                "object.color_bgr to tell them apart"
+            )
     winner = ok[0]
     if len(ok) > 1:
         a, b = ok[0], ok[1]
@@ -148,8 +155,10 @@ def select_candidate(
                 a["rejected"] = b["rejected"] = "ambiguous"
                 what = "and colour " if a.get("color_score") is not None else ""
                 hint = "" if what else "; give object.color_bgr to tell them apart"
-                return None, (f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
-                              f"{b['area_px']:.0f} px){hint}")
+                return None, (
+                    f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
+                    f"{b['area_px']:.0f} px){hint}"
+                )
         else:
             for c in ok[1:]:
                 c["rejected"] = "smaller"
@@ -157,15 +166,26 @@ def select_candidate(
         rival = _object_coloured_rival(cands, winner, img_bgr, a_min, a_max, params)
         if rival is not None:
             winner["rejected"] = rival["rejected"] = "ambiguous"
-            return None, (f"ambiguous: another region holds as much of the ball's colour ({rival['_object_px']:.0f} "
-                          f"px of it, the chosen one {winner['area_px']:.0f} px): a second ball of that colour, "
-                          "merged with its shadow or with what it touches?")
+            return None, (
+                "ambiguous: another region holds as much of the ball's colour "
+                f"({rival['_object_px']:.0f} "
+                f"px of it, the chosen one {winner['area_px']:.0f} px): a second ball of "
+                "that colour, "
+                "merged with its shadow or with what it touches?"
+            )
     return winner, None
 
 
-def _object_coloured_rival(cands: list[dict], winner: dict, img_bgr: np.ndarray, a_min: float, a_max: float,
-                           params: SegmenterParams) -> dict | None:
-    """A candidate other than ``winner`` that holds a ball-sized patch of the object's colour, or None.
+def _object_coloured_rival(
+    cands: list[dict],
+    winner: dict,
+    img_bgr: np.ndarray,
+    a_min: float,
+    a_max: float,
+    params: SegmenterParams,
+) -> dict | None:
+    """A candidate other than ``winner`` that holds a ball-sized patch of the object's colour, or
+    None.
 
     A region's median colour is not enough: a second ball of the object's colour whose outline
     merged with its shadow (or a touching object) has a median pulled away from the colour -- or

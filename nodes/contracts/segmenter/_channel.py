@@ -56,7 +56,8 @@ def best_plane(img_bgr: np.ndarray, color_bgr) -> tuple[str, dict[str, float]]:
 
 
 def normalize_exposure(img: np.ndarray) -> np.ndarray:
-    """Stretch a uint8 plane so that its 99th percentile becomes 255 (no change if already there)."""
+    """Stretch a uint8 plane so that its 99th percentile becomes 255 (no change if already
+    there)."""
     hist = cv2.calcHist([img], [0], None, [256], [0, 256]).ravel()
     cum = np.cumsum(hist)
     p99 = int(np.searchsorted(cum, 0.99 * cum[-1]))

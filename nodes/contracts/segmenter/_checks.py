@@ -13,7 +13,9 @@ from stereograph.api import NodeError
 from ._params import SegmenterParams
 
 
-def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None) -> str | None:
+def check_pair(
+    left: dict, right: dict, params: SegmenterParams, rectification: dict | None = None
+) -> str | None:
     """Reason why a left/right pair of regions cannot be trusted, or None.
 
     With a ``rectification`` also: the silhouettes' size must give the stereo distance for a
@@ -32,14 +34,19 @@ def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: 
     ra = max(left["area_px"], right["area_px"]) / max(min(left["area_px"], right["area_px"]), 1e-9)
     if ra > params.max_area_ratio:
         return (
-            f"left/right regions differ in size (areas {left['area_px']:.0f} vs {right['area_px']:.0f} px,"
+            f"left/right regions differ in size (areas {left['area_px']:.0f} vs "
+            f"{right['area_px']:.0f} px,"
             f" ratio {ra:.2f} > {params.max_area_ratio}): occluded or a different object"
         )
     dv = abs(left["centroid_px"][1] - right["centroid_px"][1])
     if dv > params.max_row_offset_px + 0.05 * math.sqrt(max(left["area_px"], 1.0) / math.pi):
-        return (f"left/right regions are on different rows (dv = {dv:.1f} px): not the same object -- or, when "
-                "every pair says so, images this calibration does not rectify (left and right swapped, another "
-                "rig's calibration)")
+        return (
+            f"left/right regions are on different rows (dv = {dv:.1f} px): not the same "
+            "object -- or, when "
+            "every pair says so, images this calibration does not rectify (left and "
+            "right swapped, another "
+            "rig's calibration)"
+        )
     el, er = left.get("ellipse"), right.get("ellipse")
     if el and er:
         ql = el["axes_px"][1] / max(el["axes_px"][0], 1e-9)
@@ -47,12 +54,17 @@ def check_pair(left: dict, right: dict, params: SegmenterParams, rectification: 
         if abs(ql - qr) > 0.15:
             return f"left/right regions differ in shape (axis ratios {ql:.2f} vs {qr:.2f})"
     if left["centroid_px"][0] < right["centroid_px"][0]:
-        return ("negative disparity: the right region lies right of the left one -- when every pair says so, the "
-                "left and right images are swapped")
+        return (
+            "negative disparity: the right region lies right of the left one -- when "
+            "every pair says so, the "
+            "left and right images are swapped"
+        )
     return None
 
 
-def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, rectification: dict) -> str | None:
+def _check_size_and_partial(
+    left: dict, right: dict, params: SegmenterParams, rectification: dict
+) -> str | None:
     from nodes.contracts.sphere import ellipse_to_conic, sphere_from_silhouette
 
     el, er = left.get("ellipse"), right.get("ellipse")
@@ -60,8 +72,12 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
         return None
     P1, P2 = np.asarray(rectification["P1"], float), np.asarray(rectification["P2"], float)
     try:
-        cones = [sphere_from_silhouette(ellipse_to_conic(e["center_px"], e["axes_px"], e["angle_deg"]), K)
-                 for e, K in ((el, P1[:, :3]), (er, P2[:, :3]))]
+        cones = [
+            sphere_from_silhouette(
+                ellipse_to_conic(e["center_px"], e["axes_px"], e["angle_deg"]), K
+            )
+            for e, K in ((el, P1[:, :3]), (er, P2[:, :3]))
+        ]
     except (ValueError, np.linalg.LinAlgError, ZeroDivisionError):
         return "the silhouettes are not the images of a sphere"
     fb = -float(P2[0, 3])  # P2[0, 3] = -f B (rectified right camera)
@@ -74,18 +90,28 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
     worst = max((0, 1), key=lambda i: abs(z_size[i] / z_stereo - 1.0))  # the view that fits worst
     if abs(z_size[worst] / z_stereo - 1.0) > params.max_size_mismatch:
         side, other = ("left", "right")[worst], ("left", "right")[1 - worst]
-        if abs(z_size[1 - worst] / z_stereo - 1.0) > params.max_size_mismatch:  # both views: the radius
-            return (f"the region's size does not fit its distance for a ball of radius {R:g} cm (size gives "
-                    f"{z_size[0]:.1f} cm in the left image and {z_size[1]:.1f} cm in the right, stereo "
-                    f"{z_stereo:.1f} cm): another object, or object.radius_cm is wrong")
-        return (f"the region's size does not fit its distance for a ball of radius {R:g} cm in the {side} image "
-                f"(size gives {z_size[worst]:.1f} cm there, {z_size[1 - worst]:.1f} cm in the {other} image, stereo "
-                f"{z_stereo:.1f} cm): the {side} view sees another object or only part of the ball")
+        # both views: the radius
+        if abs(z_size[1 - worst] / z_stereo - 1.0) > params.max_size_mismatch:
+            return (
+                f"the region's size does not fit its distance for a ball of radius {R:g} "
+                "cm (size gives "
+                f"{z_size[0]:.1f} cm in the left image and {z_size[1]:.1f} cm in the right, stereo "
+                f"{z_stereo:.1f} cm): another object, or object.radius_cm is wrong"
+            )
+        return (
+            f"the region's size does not fit its distance for a ball of radius {R:g} cm "
+            f"in the {side} image "
+            f"(size gives {z_size[worst]:.1f} cm there, {z_size[1 - worst]:.1f} cm in the "
+            f"{other} image, stereo "
+            f"{z_stereo:.1f} cm): the {side} view sees another object or only part of the ball"
+        )
     why = _check_same_size(left, right, z_size, params)
     if why is not None:
         return why
     if left.get("partial") or right.get("partial"):
-        s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
+        s_d = math.hypot(
+            left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0
+        )
         # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
         # whose size disagrees with the stereo distance by more than both can be off.
         for reg, z in ((left, z_size[0]), (right, z_size[1])):
@@ -95,26 +121,39 @@ def _check_size_and_partial(left: dict, right: dict, params: SegmenterParams, re
             tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
             if abs(z / z_stereo - 1.0) > tol:
                 side = "left" if reg is left else "right"
-                return (f"{_partial_clause(part, side)}: the arc fitted to it gives {z:.1f} cm from its size but "
-                        f"{z_stereo:.1f} cm by stereo (> {100 * tol:.1f} %): not trusted")
+                return (
+                    f"{_partial_clause(part, side)}: the arc fitted to it gives {z:.1f} "
+                    "cm from its size but "
+                    f"{z_stereo:.1f} cm by stereo (> {100 * tol:.1f} %): not trusted"
+                )
         s_z = z_stereo**2 * s_d / fb
         if s_z > params.partial.max_sigma_z_cm:
             part = left.get("partial") or right.get("partial")
             side = "left" if left.get("partial") else "right"
             reg = left if left.get("partial") else right
             r_px = math.sqrt(max(float(reg.get("area_px") or 0.0), 0.0) / math.pi)
-            if part["outline_visible"] >= 0.8 and r_px <= 12:  # seen (nearly) whole, and small: not hidden
-                return (f"the ball is small in the {side} image (~{r_px:.0f} px radius at {z_stereo:.0f} cm, "
-                        f"{100 * part['outline_visible']:.0f} % of its outline seen): too few outline pixels to "
-                        f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
-                        f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer focal length or a larger "
-                        "image locate it")
-            return (f"{_partial_clause(part, side)}: too little to locate it (sigma_z {s_z:.2f} cm > "
-                    f"partial.max_sigma_z_cm {params.partial.max_sigma_z_cm:g})")
+            # seen (nearly) whole, and small: not hidden
+            if part["outline_visible"] >= 0.8 and r_px <= 12:
+                return (
+                    f"the ball is small in the {side} image (~{r_px:.0f} px radius at "
+                    f"{z_stereo:.0f} cm, "
+                    f"{100 * part['outline_visible']:.0f} % of its outline seen): too few "
+                    "outline pixels to "
+                    f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
+                    f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer "
+                    "focal length or a larger "
+                    "image locate it"
+                )
+            return (
+                f"{_partial_clause(part, side)}: too little to locate it (sigma_z {s_z:.2f} cm > "
+                f"partial.max_sigma_z_cm {params.partial.max_sigma_z_cm:g})"
+            )
     return None
 
 
-def _check_same_size(left: dict, right: dict, z_size: list[float], params: SegmenterParams) -> str | None:
+def _check_same_size(
+    left: dict, right: dict, z_size: list[float], params: SegmenterParams
+) -> str | None:
     """Reason why the two silhouettes cannot be one sphere's, from their sizes alone, or None.
 
     Both rectified cameras see the sphere's centre at one depth, so the distances the two
@@ -133,28 +172,40 @@ def _check_same_size(left: dict, right: dict, z_size: list[float], params: Segme
         if part:
             sig.append(float(part["sigma_size_rel"]))
         else:  # mean of the outline residuals: rms / sqrt(N), relative to the radius
-            sig.append(float(ell.get("rms_px") or 0.0) / math.sqrt(max(int(ell.get("inliers") or 1), 1)) / r_px[-1])
+            sig.append(
+                float(ell.get("rms_px") or 0.0)
+                / math.sqrt(max(int(ell.get("inliers") or 1), 1))
+                / r_px[-1]
+            )
     rel = abs(z_size[0] / z_size[1] - 1.0)
     tol = 3.0 * math.hypot(*sig) + params.lr_size_tolerance_px / min(r_px)
     if rel <= tol:
         return None
     small = "left" if z_size[0] > z_size[1] else "right"
-    return (f"the left and right silhouettes are not one ball's: from their size the left one gives "
-            f"{z_size[0]:.1f} cm and the right one {z_size[1]:.1f} cm (radius {r_px[0]:.1f} vs {r_px[1]:.1f} px, "
-            f"{100 * rel:.1f} % apart > {100 * tol:.1f} %); the {small} view sees only part of the ball (its dark "
-            "side lost in a shadow or the dim table, or an occluder): not trusted")
+    return (
+        f"the left and right silhouettes are not one ball's: from their size the left one gives "
+        f"{z_size[0]:.1f} cm and the right one {z_size[1]:.1f} cm (radius {r_px[0]:.1f} "
+        f"vs {r_px[1]:.1f} px, "
+        f"{100 * rel:.1f} % apart > {100 * tol:.1f} %); the {small} view sees only part "
+        "of the ball (its dark "
+        "side lost in a shadow or the dim table, or an occluder): not trusted"
+    )
 
 
 def _partial_clause(part: dict, side: str) -> str:
-    """What the fitted arcs saw in the ``side`` image, for a reason: cut by a border, hidden in part, or --
-    the whole outline seen, part of it off the ball's edge -- a region that strays from the ball."""
+    """What the fitted arcs saw in the ``side`` image, for a reason: cut by a border, hidden in
+    part, or -- the whole outline seen, part of it off the ball's edge -- a region that strays from
+    the ball."""
     cause = part.get("cause", "")
     seen = f"{100 * part['outline_visible']:.0f} % of the outline visible"
     if cause.startswith("border: "):
         return f"cut by the {cause[8:]} image border in the {side} image, {seen}"
     if part["outline_visible"] >= 0.995:  # (every direction has true edge: nothing hides the ball)
-        return (f"the region's outline strays from the ball's edge in places in the {side} image (a touching "
-                "object, a shadow or highlight on the rim; the whole ball's outline is seen)")
+        return (
+            f"the region's outline strays from the ball's edge in places in the {side} "
+            "image (a touching "
+            "object, a shadow or highlight on the rim; the whole ball's outline is seen)"
+        )
     return f"occluded or touching another object in the {side} image, {seen}"
 
 
@@ -166,29 +217,45 @@ def validate_pair(pair: dict, rectification: dict | None, raw: bool = False) -> 
     """
     if not isinstance(pair, dict) or "left" not in pair or "right" not in pair:
         raise NodeError(
-            "segmenter input is not a RectifiedPair or StereoPair (a dict with 'left' and 'right' images).",
-            hint="wire the segmenter's `pair` input to a rectifier.remap output or a source's pairs.",
+            "segmenter input is not a RectifiedPair or StereoPair (a dict with 'left' "
+            "and 'right' images).",
+            hint="wire the segmenter's `pair` input to a rectifier.remap output or a source's "
+            "pairs.",
         )
     L, R = np.asarray(pair["left"]), np.asarray(pair["right"])
     for side, im in (("left", L), ("right", R)):
         if im.dtype != np.uint8 or im.ndim not in (2, 3) or im.size == 0:
             return f"{side} image is not a uint8 image (dtype {im.dtype}, shape {im.shape})"
     # Sizes are the setup's, not one pair's: every later pair would be refused the same way (a live
-    # loop would refuse every cycle), so they fail the node with the fix instead of giving "not found".
+    # loop would refuse every cycle), so they fail the node with the fix instead of giving "not
+    # found".
     if L.shape[:2] != R.shape[:2]:
-        raise NodeError(f"the left image is {L.shape[1]}x{L.shape[0]} px and the right one {R.shape[1]}x{R.shape[0]}: "
-                        "the two cameras must give images of one size.",
-                        hint="set both cameras to the resolution they were calibrated at (source.camera: width_px / "
-                             "height_px), or give image pairs of one size", lasting=True)
+        raise NodeError(
+            f"the left image is {L.shape[1]}x{L.shape[0]} px and the right one "
+            f"{R.shape[1]}x{R.shape[0]}: "
+            "the two cameras must give images of one size.",
+            hint="set both cameras to the resolution they were calibrated at (source.camera: "
+            "width_px / "
+            "height_px), or give image pairs of one size",
+            lasting=True,
+        )
     if rectification is not None:
-        size = rectification.get("source_size", rectification.get("image_size")) if raw \
+        size = (
+            rectification.get("source_size", rectification.get("image_size"))
+            if raw
             else rectification.get("image_size")
+        )
         if size is not None:
             w, h = (int(x) for x in size)
             if (L.shape[1], L.shape[0]) != (w, h):
-                raise NodeError(f"the images are {L.shape[1]}x{L.shape[0]} px but the calibration is for {w}x{h}.",
-                                hint="use the cameras at the resolution they were calibrated at (source.camera: "
-                                     "width_px / height_px), or calibrate at this one", lasting=True)
+                raise NodeError(
+                    f"the images are {L.shape[1]}x{L.shape[0]} px but the calibration is "
+                    f"for {w}x{h}.",
+                    hint="use the cameras at the resolution they were calibrated at "
+                    "(source.camera: "
+                    "width_px / height_px), or calibrate at this one",
+                    lasting=True,
+                )
     if L.shape != R.shape:
         return f"mismatched images: left {L.shape} vs right {R.shape} (one colour, one grey?)"
     return None
@@ -205,9 +272,10 @@ def pair_is_raw(ctx, rectification: dict | None) -> bool:
         return False
     if rectification is None or "map_left_x" not in rectification:
         raise NodeError(
-            "the segmenter's `pair` input gives raw camera images (StereoPair) but no Rectification "
+            "the segmenter's `pair` input gives raw camera images (StereoPair) but no "
+            "Rectification "
             "with remap maps is wired to rectify them.",
             hint="wire `rectification: <rectifier.opencv node>.rectification`, or wire `pair` to a "
-                 "rectifier.remap output.",
+            "rectifier.remap output.",
         )
     return True

@@ -19,8 +19,8 @@ from ._subpixel import region_properties
 
 
 def disparity_bounds(rectification: dict, params: SegmenterParams) -> tuple[float, float, float]:
-    """(d_min, d_max, dcx) px: the disparities f B / z over the working range with 25 % slack, and the
-    principal points' offset cx_left - cx_right that a measured u_left - u_right also holds."""
+    """(d_min, d_max, dcx) px: the disparities f B / z over the working range with 25 % slack, and
+    the principal points' offset cx_left - cx_right that a measured u_left - u_right also holds."""
     fb = float(rectification["f_px"]) * abs(float(rectification["baseline_cm"]))
     cx = float(rectification.get("cx_px", 0.0))
     z0, z1 = sorted(params.working_range_cm)
@@ -41,9 +41,14 @@ def search_band(
     Searching only there (the epipolar band) is cheaper than the whole image and cannot pick
     a look-alike elsewhere. None without a calibration (f_px, baseline_cm).
     """
-    if rectification is None or not rectification.get("f_px") or not rectification.get("baseline_cm"):
+    if (
+        rectification is None
+        or not rectification.get("f_px")
+        or not rectification.get("baseline_cm")
+    ):
         return None
-    d_min, d_max, dcx = disparity_bounds(rectification, params)  # d = f B / z + (cx_left - cx_right)
+    # d = f B / z + (cx_left - cx_right)
+    d_min, d_max, dcx = disparity_bounds(rectification, params)
     ell = region.get("ellipse")
     b_px = float(ell["axes_px"][1]) if ell else math.sqrt(max(region["area_px"], 1.0) / math.pi)
     if b_px > 1.0:
@@ -93,15 +98,24 @@ def _detect(
     m = mask_fn(small, params, r_small, s, False)
     if params.shadow.enabled:
         a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
+        m = suppress_shadow_regions(
+            small, m, a_rng, params.shadow, params.object, params.min_roundness
+        )
     cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
     if window is not None:
         # A region cut by the window's edge (inside the image) is not the object, which lies
         # inside the window by construction.
         sh, sw = m.shape
-        cands = [c for c in cands
-                 if not ((c["bbox"][0] <= 0 < wu0) or (c["bbox"][1] <= 0 < wv0)
-                         or (c["bbox"][2] >= sw - 1 and wu1 < w) or (c["bbox"][3] >= sh - 1 and wv1 < h))]
+        cands = [
+            c
+            for c in cands
+            if not (
+                (c["bbox"][0] <= 0 < wu0)
+                or (c["bbox"][1] <= 0 < wv0)
+                or (c["bbox"][2] >= sw - 1 and wu1 < w)
+                or (c["bbox"][3] >= sh - 1 and wv1 < h)
+            )
+        ]
     best, reason = select_candidate(cands, small, r_small, params)
     if rejected is not None:
         rejected.clear()
@@ -116,10 +130,13 @@ MAX_REJECTED_POINTS = 64  # points per outline
 _REJECTED_ORDER = {"ambiguous": 0, "colour": 1, "smaller": 2, "round": 3, "size": 4}
 
 
-def rejected_outlines(cands: list[dict], best: dict | None, to_full: tuple[float, float, int, int]) -> dict:
+def rejected_outlines(
+    cands: list[dict], best: dict | None, to_full: tuple[float, float, int, int]
+) -> dict:
     """``{"px": [Nx2 int32], "why": [str]}``: the outlines (full-resolution rectified px, at most
     ``MAX_REJECTED`` of ``MAX_REJECTED_POINTS`` points) of the candidates other than ``best``, the
-    most telling first (ambiguous, wrong colour, smaller, not round, wrong size; then larger first)."""
+    most telling first (ambiguous, wrong colour, smaller, not round, wrong size; then larger
+    first)."""
     sx, sy, ou, ov = to_full
     lost = [c for c in cands if c is not best]
     lost.sort(key=lambda c: (_REJECTED_ORDER.get(c.get("rejected", "smaller"), 5), -c["area_px"]))
@@ -145,7 +162,8 @@ _MIN_RADIUS_COARSE_PX = 4.0  # smallest ball radius a coarse-first pass trusts (
 
 
 def _drop_inside(rejected: dict, mask: np.ndarray) -> None:
-    """Remove from ``rejected`` the outlines whose mean point lies in ``mask`` (the found region)."""
+    """Remove from ``rejected`` the outlines whose mean point lies in ``mask`` (the found
+    region)."""
     h, w = mask.shape
     keep = []
     for i, c in enumerate(rejected["px"]):
@@ -192,8 +210,12 @@ def segment_image(
     # at twice the downscale is ~4x cheaper; it only accepts balls of >= 4 px there (smaller
     # ones, or none, fall through to the regular level, whose reasons are reported).
     passes = []
-    if params.coarse_first and params.detect_downscale is None and 2 * s <= 8 \
-            and r_range_px[1] / (2 * s) >= 2 * _MIN_RADIUS_COARSE_PX:
+    if (
+        params.coarse_first
+        and params.detect_downscale is None
+        and 2 * s <= 8
+        and r_range_px[1] / (2 * s) >= 2 * _MIN_RADIUS_COARSE_PX
+    ):
         passes.append((2 * s, window, _MIN_RADIUS_COARSE_PX))
     if window is not None:
         passes.append((s, window, 0.0))
@@ -201,8 +223,9 @@ def segment_image(
         passes.append((s, None, 0.0))
     best = None
     for level, where, r_floor in passes:
-        best, why, (sx, sy, ou, ov) = _detect(view, mask_fn, params, r_range_px, level, where, r_floor,
-                                              rejected)
+        best, why, (sx, sy, ou, ov) = _detect(
+            view, mask_fn, params, r_range_px, level, where, r_floor, rejected
+        )
         if r_floor == 0.0:
             reason = why
         if best is not None:
@@ -215,7 +238,8 @@ def segment_image(
 
             pmask, pregion, pwhy = partial_region(view, mask_fn, params, r_range_px, s, K, window)
             if pregion is not None:
-                if rejected:  # the partial pass found the ball in a region the coarse pass had turned down
+                # the partial pass found the ball in a region the coarse pass had turned down
+                if rejected:
                     _drop_inside(rejected, pmask)
                 return pmask, pregion, None
             reason = f"{reason}; partial view: {pwhy}"
@@ -232,7 +256,10 @@ def segment_image(
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     # Keep the contour around the coarse candidate's centre.
-    centre = (float(best["centroid_px"][0] * sx + ou - u0), float(best["centroid_px"][1] * sy + ov - v0))
+    centre = (
+        float(best["centroid_px"][0] * sx + ou - u0),
+        float(best["centroid_px"][1] * sy + ov - v0),
+    )
     inside = [c for c in cnts if cv2.pointPolygonTest(c, centre, False) >= 0]
     a_best = best["area_px"] * sx * sy
     inside = [c for c in inside if 0.5 * a_best <= cv2.contourArea(c) <= 2.0 * a_best]
@@ -241,8 +268,9 @@ def segment_image(
     else:
         # The window cut the outline open (a long shadow leaving it, say): use the coarse
         # region, scaled up; the sub-pixel refinement below moves it onto the true edge.
-        chosen = np.round((best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 + [ou - u0, ov - v0]
-                          ).astype(np.int32)
+        chosen = np.round(
+            (best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 + [ou - u0, ov - v0]
+        ).astype(np.int32)
         chosen = cv2.approxPolyDP(chosen, 0.5, True) if len(chosen) > 4 else chosen
         # Densify to one point per pixel along the outline.
         tmp = np.zeros(rm.shape, np.uint8)
@@ -253,17 +281,35 @@ def segment_image(
         chosen = max(dense, key=cv2.contourArea)
     region_mask = np.zeros(rm.shape, np.uint8)
     cv2.drawContours(region_mask, [chosen], -1, 255, cv2.FILLED)
-    region = region_properties(roi, region_mask, (u0, v0), (w, h), params, contour=chosen,
-                               search_extra_px=0.0 if inside else float(s))
+    region = region_properties(
+        roi,
+        region_mask,
+        (u0, v0),
+        (w, h),
+        params,
+        contour=chosen,
+        search_extra_px=0.0 if inside else float(s),
+    )
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
     ell = region.get("ellipse")
     n_pts = len(region["contour_px"])
-    if K is not None and params.partial.enabled and (
-            region["touches_border"] or (ell is not None and (
-                ell["inliers"] < _MIN_TRUE_EDGE * n_pts
-                or ell["rms_px"] > _MAX_EDGE_RMS_PX
-                or region["area_px"] < _MIN_FILL * math.pi * ell["axes_px"][0] * ell["axes_px"][1]))):
+    if (
+        K is not None
+        and params.partial.enabled
+        and (
+            region["touches_border"]
+            or (
+                ell is not None
+                and (
+                    ell["inliers"] < _MIN_TRUE_EDGE * n_pts
+                    or ell["rms_px"] > _MAX_EDGE_RMS_PX
+                    or region["area_px"]
+                    < _MIN_FILL * math.pi * ell["axes_px"][0] * ell["axes_px"][1]
+                )
+            )
+        )
+    ):
         # Part of the outline is not the ball's (the frame, an occluder, a touching object).
         from ._partial_pass import refit_region
 

@@ -44,8 +44,9 @@ def as_bgr(img: np.ndarray) -> np.ndarray:
 
 
 def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
-    """Left | right side by side (BGR uint8) with the mask outline (green), centroid (red cross), rejected
-    candidates (orange, when the Segmentation lists them) and a band above naming the pair and the result."""
+    """Left | right side by side (BGR uint8) with the mask outline (green), centroid (red cross),
+    rejected candidates (orange, when the Segmentation lists them) and a band above naming the pair
+    and the result."""
     from nodes.contracts.overlay import draw_rejected, label_pair
 
     out = []
@@ -55,7 +56,9 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
         mask = seg.get(f"{side}_mask")
         reg = seg.get(side)
         if mask is not None and mask.any():
-            cnts, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cnts, _ = cv2.findContours(
+                mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+            )
             cv2.drawContours(im, cnts, -1, (0, 255, 0), 1)
         if reg is not None:
             u, v = reg["centroid_px"]
@@ -65,8 +68,10 @@ def draw_overlay(left: np.ndarray, right: np.ndarray, seg: dict) -> np.ndarray:
     detail = None
     if seg["found"] and seg.get("left") is not None and seg.get("right") is not None:
         (ul, vl), (ur, vr) = seg["left"]["centroid_px"], seg["right"]["centroid_px"]
-        detail = (f"{seg.get('method', 'segmented')}: centroid left ({ul:.1f}, {vl:.1f}) px, "
-                  f"right ({ur:.1f}, {vr:.1f}) px")
+        detail = (
+            f"{seg.get('method', 'segmented')}: centroid left ({ul:.1f}, {vl:.1f}) px, "
+            f"right ({ur:.1f}, {vr:.1f}) px"
+        )
     return label_pair(over, seg.get("id"), bool(seg["found"]), seg.get("reason"), detail)
 
 
@@ -88,7 +93,8 @@ def segment_pair(
 
     ``color_from`` says where ``params.object``'s colour came from (``"params"``, ``"appearance"``),
     recorded in the Segmentation. Returns the node's outputs ``{"segmentation": Segmentation,
-    "overlay": BGR uint8}``; a pair that cannot be trusted gives ``found: False`` with a reason, never an exception.
+    "overlay": BGR uint8}``; a pair that cannot be trusted gives ``found: False`` with a reason,
+    never an exception.
     """
     raw = pair_is_raw(ctx, rectification)
     reason = reason_shape = validate_pair(pair, rectification, raw)
@@ -103,12 +109,17 @@ def segment_pair(
         "right": None,
         "method": method,
         "object_radius_cm": float(params.object.radius_cm),
-        "working_range_cm": sorted(float(z) for z in params.working_range_cm),  # (the next nodes' default)
+        # (the next nodes' default)
+        "working_range_cm": sorted(float(z) for z in params.working_range_cm),
         # where the object's colour came from: the YAML ("params"), learned ("appearance"), or none
-        "color_from": color_from if (params.object.color_bgr is not None
-                                     or params.object.hue_range_deg is not None) else None,
+        "color_from": color_from
+        if (params.object.color_bgr is not None or params.object.hue_range_deg is not None)
+        else None,
         "split": pair.get("split"),
-        "rejected_left_px": [], "rejected_left_why": [], "rejected_right_px": [], "rejected_right_why": [],
+        "rejected_left_px": [],
+        "rejected_left_why": [],
+        "rejected_right_px": [],
+        "rejected_right_why": [],
     }
     L, R = as_bgr(np.asarray(pair["left"])), as_bgr(np.asarray(pair["right"]))
     if reason is None:
@@ -117,14 +128,26 @@ def segment_pair(
         r_range = expected_radius_px(params, rectification, (w, h))
         K1 = K2 = None
         if rectification is not None and rectification.get("P1") is not None:
-            K1, K2 = np.asarray(rectification["P1"], float)[:, :3], np.asarray(rectification["P2"], float)[:, :3]
+            K1, K2 = (
+                np.asarray(rectification["P1"], float)[:, :3],
+                np.asarray(rectification["P2"], float)[:, :3],
+            )
         rej_l, rej_r = {}, {}
         lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1, rejected=rej_l)
         band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
-        rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band, K=K2, rejected=rej_r)
-        seg.update(left_mask=lm, right_mask=rm, left=lreg, right=rreg,
-                   rejected_left_px=rej_l.get("px", []), rejected_left_why=rej_l.get("why", []),
-                   rejected_right_px=rej_r.get("px", []), rejected_right_why=rej_r.get("why", []))
+        rm, rreg, rwhy = segment_image(
+            vr, mask_fn, params, r_range, window=band, K=K2, rejected=rej_r
+        )
+        seg.update(
+            left_mask=lm,
+            right_mask=rm,
+            left=lreg,
+            right=rreg,
+            rejected_left_px=rej_l.get("px", []),
+            rejected_left_why=rej_l.get("why", []),
+            rejected_right_px=rej_r.get("px", []),
+            rejected_right_why=rej_r.get("why", []),
+        )
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
         else:
@@ -137,7 +160,8 @@ def segment_pair(
     if reason is not None and ctx is not None:
         ctx.warn(f"{pid}: {reason}")
     if params.overlay and L.shape == R.shape:
-        if raw and reason_shape is None:  # the overlay shows the rectified images the masks refer to
+        # the overlay shows the rectified images the masks refer to
+        if raw and reason_shape is None:
             L, R = vl.full(), vr.full()
         overlay = draw_overlay(L, R, seg)
     else:  # off, or left and right of different sizes: no picture (None: nothing is saved)

@@ -36,7 +36,8 @@ import cv2
 import numpy as np
 
 _RANSAC_ITERS = 60
-_COVERAGE_BINS = 72  # 5 degree bins for the visible share of the outline (fewer on a small silhouette)
+# 5 degree bins for the visible share of the outline (fewer on a small silhouette)
+_COVERAGE_BINS = 72
 _COVERAGE_BIN_PX = 2.0  # least outline length per bin: the outline's points are 1-1.4 px apart
 
 
@@ -54,8 +55,13 @@ def _residual_px(w: np.ndarray, X: np.ndarray, f_px: float) -> np.ndarray:
     return np.abs(X @ w - 1.0) * f_px / math.sqrt(n2 - 1.0)
 
 
-def ransac_cone(X: np.ndarray, f_px: float, r_range_px: tuple[float, float], thr_px: float,
-                rng: np.random.Generator) -> np.ndarray | None:
+def ransac_cone(
+    X: np.ndarray,
+    f_px: float,
+    r_range_px: tuple[float, float],
+    thr_px: float,
+    rng: np.random.Generator,
+) -> np.ndarray | None:
     """Inlier mask of the best cone (sphere image) through the rays ``X`` (N, 3), or None.
 
     Samples are three points, all drawn and solved at once: the w with x_k . w = 1 for three
@@ -111,7 +117,8 @@ def cone_center_px(w: np.ndarray, K: np.ndarray, cov: np.ndarray) -> tuple[list[
 
 
 def cone_ellipse(w: np.ndarray, K: np.ndarray) -> dict | None:
-    """Silhouette ellipse (``center_px``, ``axes_px`` major first, ``angle_deg`` of the major axis)."""
+    """Silhouette ellipse (``center_px``, ``axes_px`` major first, ``angle_deg`` of the major
+    axis)."""
     Kinv = np.linalg.inv(K)
     A = Kinv.T @ (np.outer(w, w) - np.eye(3)) @ Kinv
     A = -A if A[0, 0] < 0 else A
@@ -126,8 +133,11 @@ def cone_ellipse(w: np.ndarray, K: np.ndarray) -> dict | None:
         return None
     axes = np.sqrt(k / ev)  # ascending eigenvalues -> major axis first
     ang = math.degrees(math.atan2(evec[1, 0], evec[0, 0])) % 180.0
-    return {"center_px": [float(centre[0]), float(centre[1])], "axes_px": [float(axes[0]), float(axes[1])],
-            "angle_deg": float(ang)}
+    return {
+        "center_px": [float(centre[0]), float(centre[1])],
+        "axes_px": [float(axes[0]), float(axes[1])],
+        "angle_deg": float(ang),
+    }
 
 
 def coverage(pts: np.ndarray, center: np.ndarray, radius_px: float | None = None) -> float:
@@ -145,15 +155,24 @@ def coverage(pts: np.ndarray, center: np.ndarray, radius_px: float | None = None
     return float(len(np.unique(bins)) / n_bins)
 
 
-def border_points(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image_size: tuple[int, int],
-                  margin_px: float = 2.0) -> np.ndarray:
+def border_points(
+    pts: np.ndarray,
+    img: np.ndarray,
+    offset: tuple[int, int],
+    image_size: tuple[int, int],
+    margin_px: float = 2.0,
+) -> np.ndarray:
     """Mask of outline points on the image border or next to the black (invalid) fill.
 
     ``pts`` are image coordinates; ``img`` the window they were found in, at ``offset``.
     """
     w, h = image_size
-    on = (pts[:, 0] < margin_px) | (pts[:, 1] < margin_px) | (pts[:, 0] > w - 1 - margin_px) \
+    on = (
+        (pts[:, 0] < margin_px)
+        | (pts[:, 1] < margin_px)
+        | (pts[:, 0] > w - 1 - margin_px)
         | (pts[:, 1] > h - 1 - margin_px)
+    )
     ch = 1 if img.ndim == 2 else img.shape[2]
     black = cv2.inRange(img, (0,) * ch, (0,) * ch)
     if cv2.countNonZero(black):
@@ -172,8 +191,15 @@ def which_border(pts: np.ndarray, image_size: tuple[int, int]) -> str:
     return min(d, key=d.get)
 
 
-def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image_size: tuple[int, int],
-                K: np.ndarray, r_range_px: tuple[float, float], seed: int = 0) -> dict:
+def fit_partial(
+    pts: np.ndarray,
+    img: np.ndarray,
+    offset: tuple[int, int],
+    image_size: tuple[int, int],
+    K: np.ndarray,
+    r_range_px: tuple[float, float],
+    seed: int = 0,
+) -> dict:
     """Fit the sphere's image to the true silhouette edge among outline points ``pts`` (image px).
 
     Returns a dict: ``ok`` (bool), ``reason`` (when not ok), and when ok ``ellipse`` (with
@@ -212,8 +238,11 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
     vis = coverage(true_pts, np.asarray(ell["center_px"]), ell["axes_px"][1])
     n_border = int(on_border.sum())
     foreign = cand[~inl]
-    cause = (f"border: {which_border(pts[on_border], image_size)}"
-             if n_border > len(foreign) else "occluded or touching")
+    cause = (
+        f"border: {which_border(pts[on_border], image_size)}"
+        if n_border > len(foreign)
+        else "occluded or touching"
+    )
     # A second sphere image of similar size in the rest of the outline (two balls merged).
     second, e2 = 0.0, None
     if len(foreign) >= 12:
@@ -226,7 +255,18 @@ def fit_partial(pts: np.ndarray, img: np.ndarray, offset: tuple[int, int], image
             if e2 is not None:
                 second = coverage(foreign[inl2], np.asarray(e2["center_px"]), e2["axes_px"][1])
     ell.update(rms_px=fit["rms_px"], inliers=int(inl.sum()), sigma_center_px=s_u)
-    return {"ok": True, "ellipse": ell, "center_px": centre, "sigma_u_px": s_u, "radius_px": radius_px,
-            "sigma_size_rel": s_size,
-            "outline_visible": vis, "cause": cause, "second": second, "n_border": n_border,
-            "second_ellipse": e2, "n_foreign": int(len(foreign)), "true_edge_px": true_pts}
+    return {
+        "ok": True,
+        "ellipse": ell,
+        "center_px": centre,
+        "sigma_u_px": s_u,
+        "radius_px": radius_px,
+        "sigma_size_rel": s_size,
+        "outline_visible": vis,
+        "cause": cause,
+        "second": second,
+        "n_border": n_border,
+        "second_ellipse": e2,
+        "n_foreign": int(len(foreign)),
+        "true_edge_px": true_pts,
+    }

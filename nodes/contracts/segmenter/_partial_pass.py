@@ -34,9 +34,17 @@ def _pad(img: np.ndarray, sides: tuple[int, int, int, int]) -> np.ndarray:
     return cv2.copyMakeBorder(img, top, bottom, left, right, cv2.BORDER_CONSTANT, value=(0, 0, 0))
 
 
-def partial_region(view, mask_fn, params, r_range_px, s: int, K: np.ndarray,
-                   window: tuple[int, int, int, int] | None = None) -> tuple[np.ndarray | None, dict | None, str]:
-    """(full-resolution bool mask, region, reason) of a partly visible ball in ``view``, or (None, None, reason)."""
+def partial_region(
+    view,
+    mask_fn,
+    params,
+    r_range_px,
+    s: int,
+    K: np.ndarray,
+    window: tuple[int, int, int, int] | None = None,
+) -> tuple[np.ndarray | None, dict | None, str]:
+    """(full-resolution bool mask, region, reason) of a partly visible ball in ``view``, or (None,
+    None, reason)."""
     h, w = view.shape[:2]
     small = view.coarse(s, 0, 0, w, h)
     sx, sy = w / small.shape[1], h / small.shape[0]
@@ -46,14 +54,22 @@ def partial_region(view, mask_fn, params, r_range_px, s: int, K: np.ndarray,
     m = np.ascontiguousarray(m)
     if params.shadow.enabled:
         a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(small, m, a_rng, params.shadow, params.object, params.min_roundness)
+        m = suppress_shadow_regions(
+            small, m, a_rng, params.shadow, params.object, params.min_roundness
+        )
     a_min, a_max = math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2
     # A ball 40 % visible at the far end, up to one merged with an object twice its size.
     cands = [c for c in candidates(m, min_area_px=0.25 * a_min) if c["area_px"] <= 3.0 * a_max]
     if window is not None:
         u0, v0, u1, v1 = window
-        cands = [c for c in cands if c["bbox"][0] * sx <= u1 and c["bbox"][2] * sx >= u0
-                 and c["bbox"][1] * sy <= v1 and c["bbox"][3] * sy >= v0]
+        cands = [
+            c
+            for c in cands
+            if c["bbox"][0] * sx <= u1
+            and c["bbox"][2] * sx >= u0
+            and c["bbox"][1] * sy <= v1
+            and c["bbox"][3] * sy >= v0
+        ]
     if not cands:
         return None, None, "no region that could hold part of a ball"
     cands.sort(key=lambda c: -c["area_px"])
@@ -68,8 +84,14 @@ def partial_region(view, mask_fn, params, r_range_px, s: int, K: np.ndarray,
         # Two regions each hold a ball's image (of the object's colour when given): which one?
         r0, r1 = (b[1]["partial"]["radius_px"] for b in balls[:2])
         if min(r0, r1) >= math.sqrt(params.ambiguity_ratio) * max(r0, r1):
-            return None, None, ("ambiguous: 2 partly visible round objects of similar size"
-                                + ("" if params.object.color_bgr is not None else "; give object.color_bgr"))
+            return (
+                None,
+                None,
+                (
+                    "ambiguous: 2 partly visible round objects of similar size"
+                    + ("" if params.object.color_bgr is not None else "; give object.color_bgr")
+                ),
+            )
     if balls:
         return balls[0]
     return None, None, reasons[0]
@@ -86,7 +108,9 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
     b = int(math.ceil(0.4 * r_range_px[0])) + 4
     sides = (b if v0 == 0 else 0, b if v1 == h else 0, b if u0 == 0 else 0, b if u1 == w else 0)
     rm = mask_fn(_pad(roi, sides), params, r_range_px, 1, True)
-    rm = np.ascontiguousarray(rm[sides[0]: rm.shape[0] - sides[1], sides[2]: rm.shape[1] - sides[3]])
+    rm = np.ascontiguousarray(
+        rm[sides[0] : rm.shape[0] - sides[1], sides[2] : rm.shape[1] - sides[3]]
+    )
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
     rm = _split_by_colour(roi, rm, params, r_range_px)
@@ -99,11 +123,23 @@ def _refine(view, mask_fn, params, r_range_px, s, K, cand, sx, sy):
     chosen = max(inside or cnts, key=cv2.contourArea)
     region_mask = np.zeros(rm.shape, np.uint8)
     cv2.drawContours(region_mask, [chosen], -1, 255, cv2.FILLED)
-    pts = refine_contour(roi, region_mask, params.edge_search_px, chosen) if params.subpixel else None
+    pts = (
+        refine_contour(roi, region_mask, params.edge_search_px, chosen) if params.subpixel else None
+    )
     if pts is None:
         pts = chosen.reshape(-1, 2).astype(np.float32)
     pts = pts.astype(np.float64) + [u0, v0]
-    return judge(view, params, r_range_px, K, roi, (u0, v0, u1, v1), region_mask, pts, float(cand["roundness"]))
+    return judge(
+        view,
+        params,
+        r_range_px,
+        K,
+        roi,
+        (u0, v0, u1, v1),
+        region_mask,
+        pts,
+        float(cand["roundness"]),
+    )
 
 
 def _split_by_colour(roi: np.ndarray, rm: np.ndarray, params, r_range_px) -> np.ndarray:
@@ -118,7 +154,9 @@ def _split_by_colour(roi: np.ndarray, rm: np.ndarray, params, r_range_px) -> np.
     else:
         col = hue_mask(roi, obj.hue_range_deg, obj.min_saturation)
     col = fill_holes(col, max_hole_area(r_range_px))
-    col = cv2.morphologyEx(col, cv2.MORPH_OPEN, structuring_element(int(max(3.0, 0.2 * r_range_px[0])) | 1))
+    col = cv2.morphologyEx(
+        col, cv2.MORPH_OPEN, structuring_element(int(max(3.0, 0.2 * r_range_px[0])) | 1)
+    )
     col = cv2.dilate(col, structuring_element(3))
     split = cv2.bitwise_and(rm, col)
     # Only when the colour leaves a ball-sized part (a dark rim or a dim view may fail the test).
@@ -138,8 +176,17 @@ def refit_region(view, params, r_range_px, K, mask: np.ndarray, region: dict):
     roi = view.window(u0, v0, u1, v1)
     region_mask = mask[v0:v1, u0:u1].astype(np.uint8) * 255
     pts = np.asarray(region["contour_px"], np.float64)
-    return judge(view, params, r_range_px, K, roi, (u0, v0, u1, v1), region_mask, pts,
-                 float(region.get("roundness", 1.0)))
+    return judge(
+        view,
+        params,
+        r_range_px,
+        K,
+        roi,
+        (u0, v0, u1, v1),
+        region_mask,
+        pts,
+        float(region.get("roundness", 1.0)),
+    )
 
 
 def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
@@ -153,12 +200,24 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
     ell = fit["ellipse"]
     # The fitted disc, clipped to the window (and so to the image).
     disc = np.zeros(rm.shape, np.uint8)
-    cv2.ellipse(disc, ((ell["center_px"][0] - u0, ell["center_px"][1] - v0),
-                       (2 * ell["axes_px"][0], 2 * ell["axes_px"][1]), ell["angle_deg"]), 255, cv2.FILLED)
+    cv2.ellipse(
+        disc,
+        (
+            (ell["center_px"][0] - u0, ell["center_px"][1] - v0),
+            (2 * ell["axes_px"][0], 2 * ell["axes_px"][1]),
+            ell["angle_deg"],
+        ),
+        255,
+        cv2.FILLED,
+    )
     n_disc = cv2.countNonZero(disc)
     both = cv2.bitwise_and(disc, region_mask)
     if n_disc == 0 or cv2.countNonZero(both) < params.partial.min_disc_coverage * n_disc:
-        return None, None, "the arc fitted to the region's outline is not filled by the region (not a ball)"
+        return (
+            None,
+            None,
+            "the arc fitted to the region's outline is not filled by the region (not a ball)",
+        )
     score = None
     if params.object.color_bgr is not None or params.object.hue_range_deg is not None:
         score = object_color_score(roi, both, params.object)
@@ -169,30 +228,55 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         if score is not None and fit.get("second_ellipse") is not None:
             e2 = fit["second_ellipse"]
             d2 = np.zeros(rm.shape, np.uint8)
-            cv2.ellipse(d2, ((e2["center_px"][0] - u0, e2["center_px"][1] - v0),
-                             (2 * e2["axes_px"][0], 2 * e2["axes_px"][1]), e2["angle_deg"]), 255, cv2.FILLED)
+            cv2.ellipse(
+                d2,
+                (
+                    (e2["center_px"][0] - u0, e2["center_px"][1] - v0),
+                    (2 * e2["axes_px"][0], 2 * e2["axes_px"][1]),
+                    e2["angle_deg"],
+                ),
+                255,
+                cv2.FILLED,
+            )
             d2 = cv2.bitwise_and(d2, cv2.bitwise_not(disc))
             s2 = object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
             same = s2 is not None and s2 <= 1.0
         if same:
-            return None, None, ("ambiguous: 2 round objects of similar size "
-                                + ("and colour " if score is not None else "") + "merged in one region")
+            return (
+                None,
+                None,
+                (
+                    "ambiguous: 2 round objects of similar size "
+                    + ("and colour " if score is not None else "")
+                    + "merged in one region"
+                ),
+            )
     full = np.zeros((h, w), bool)
     full[v0:v1, u0:u1] = both > 0
     a, bax = ell["axes_px"]
     cu, cv_ = ell["center_px"]
     region = {
         "area_px": float(math.pi * a * bax),
-        "centroid_px": [float(cu), float(cv_)],  # the full silhouette's (an ellipse's centroid is its centre)
-        "bbox": [int(math.floor(cu - a)), int(math.floor(cv_ - a)), int(math.ceil(cu + a)), int(math.ceil(cv_ + a))],
+        # the full silhouette's (an ellipse's centroid is its centre)
+        "centroid_px": [float(cu), float(cv_)],
+        "bbox": [
+            int(math.floor(cu - a)),
+            int(math.floor(cv_ - a)),
+            int(math.ceil(cu + a)),
+            int(math.ceil(cv_ + a)),
+        ],
         "ellipse": ell,
         "touches_border": False,
         "contour_px": fit["true_edge_px"].astype(np.float64),
         "centroid_method": "partial_sphere_fit",
         "sigma_centroid_px": float(fit["sigma_u_px"]),
         "roundness": roundness,
-        "partial": {"outline_visible": float(fit["outline_visible"]), "cause": fit["cause"],
-                    "sigma_u_px": float(fit["sigma_u_px"]), "radius_px": float(fit["radius_px"]),
-                    "sigma_size_rel": float(fit["sigma_size_rel"])},
+        "partial": {
+            "outline_visible": float(fit["outline_visible"]),
+            "cause": fit["cause"],
+            "sigma_u_px": float(fit["sigma_u_px"]),
+            "radius_px": float(fit["radius_px"]),
+            "sigma_size_rel": float(fit["sigma_size_rel"]),
+        },
     }
     return full, region, ""

@@ -29,7 +29,8 @@ def to_channel(img_bgr: np.ndarray, channel: str) -> np.ndarray:
 
 
 def structuring_element(size_px: int) -> np.ndarray:
-    """Elliptical structuring element of the given diameter (px, >= 1); do not modify it (shared)."""
+    """Elliptical structuring element of the given diameter (px, >= 1); do not modify it
+    (shared)."""
     return _ellipse_element(max(1, int(size_px)))
 
 
@@ -62,8 +63,9 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
         # measured exactly, by a flood fill (marked 1 = kept, 0 = dropped); a big hole may
         # surround small ones, which stay (they are separate components).
         while True:
-            cnts, _ = cv2.findContours(cv2.compare(holes, 255, cv2.CMP_EQ), cv2.RETR_EXTERNAL,
-                                       cv2.CHAIN_APPROX_NONE)
+            cnts, _ = cv2.findContours(
+                cv2.compare(holes, 255, cv2.CMP_EQ), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+            )
             # Pixel count <= polygon area + boundary points + 1 (Pick's theorem).
             big = [c for c in cnts if cv2.contourArea(c) + len(c) + 1 > max_area_px]
             if not big:

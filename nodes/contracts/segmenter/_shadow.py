@@ -1,5 +1,4 @@
-"""Shadow suppression: drop the pixels of a mask that look like the ball's shadow on the table.
-"""
+"""Shadow suppression: drop the pixels of a mask that look like the ball's shadow on the table."""
 
 from __future__ import annotations
 
@@ -14,7 +13,9 @@ from ._params import ObjectSpec, ShadowParams
 from ._pixels import masked_pixels, structuring_element
 
 
-def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec) -> np.ndarray:
+def suppress_shadow(
+    img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams, obj: ObjectSpec
+) -> np.ndarray:
     """Remove shadow pixels from a mask.
 
     A cast shadow on the table is the table's own colour, darker: a brightness well below that
@@ -43,10 +44,16 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
     # the same pixels, the same result, on a ball's window about a third of the pixels.
     h, w = mask.shape
     x, y, bw, bh = cv2.boundingRect(mask)
-    x0, y0, x1, y1 = max(0, x - _FRAME_PX), max(0, y - _FRAME_PX), min(w, x + bw + _FRAME_PX), \
-        min(h, y + bh + _FRAME_PX)
+    x0, y0, x1, y1 = (
+        max(0, x - _FRAME_PX),
+        max(0, y - _FRAME_PX),
+        min(w, x + bw + _FRAME_PX),
+        min(h, y + bh + _FRAME_PX),
+    )
     if (x1 - x0) * (y1 - y0) < h * w:
-        kept = _suppress(img_bgr[y0:y1, x0:x1], mask[y0:y1, x0:x1], n_sel, shadow, obj, img_bgr, mask)
+        kept = _suppress(
+            img_bgr[y0:y1, x0:x1], mask[y0:y1, x0:x1], n_sel, shadow, obj, img_bgr, mask
+        )
         if kept is None:
             return mask
         out = np.zeros_like(mask)
@@ -59,14 +66,24 @@ def suppress_shadow(img_bgr: np.ndarray, mask: np.ndarray, shadow: ShadowParams,
 _FRAME_PX = 5  # the shadow ring's reach (9 px element: 4 px) + 1 px of background for the opening
 
 
-def _suppress(img_bgr: np.ndarray, mask: np.ndarray, n_sel: int, shadow: ShadowParams, obj: ObjectSpec,
-              whole_img: np.ndarray, whole_mask: np.ndarray) -> np.ndarray | None:
+def _suppress(
+    img_bgr: np.ndarray,
+    mask: np.ndarray,
+    n_sel: int,
+    shadow: ShadowParams,
+    obj: ObjectSpec,
+    whole_img: np.ndarray,
+    whole_mask: np.ndarray,
+) -> np.ndarray | None:
     """:func:`suppress_shadow` on a crop holding the whole mask and its ring (``whole_*``: the
     uncropped window, for the fallback background); None = keep the mask unchanged."""
     # Local background: a ring just outside the mask (fallback: everything outside).
     ring = cv2.subtract(cv2.dilate(mask, structuring_element(9)), mask)
-    bg_px = masked_pixels(img_bgr, ring > 0) if cv2.countNonZero(ring) > 20 \
+    bg_px = (
+        masked_pixels(img_bgr, ring > 0)
+        if cv2.countNonZero(ring) > 20
         else masked_pixels(whole_img, whole_mask == 0)
+    )
     bg = _median_u8_rows(bg_px.reshape(-1, 3))
     bg_v = float(bg.max())
     if bg_v < 1:
@@ -82,7 +99,8 @@ def _suppress(img_bgr: np.ndarray, mask: np.ndarray, n_sel: int, shadow: ShadowP
         return cv2.morphologyEx(mask, cv2.MORPH_OPEN, structuring_element(3))
     sel = mask > 0
     where = np.flatnonzero(sel)
-    region_px = masked_pixels(img_bgr, sel)[None]  # 1xKx3: the cv2 calls below work on it as an image
+    # 1xKx3: the cv2 calls below work on it as an image
+    region_px = masked_pixels(img_bgr, sel)[None]
     hsv = cv2.cvtColor(region_px, cv2.COLOR_BGR2HSV)  # V = max channel, S = (V - min) / V * 255
     cand = cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255)))[0] > 0
     where = where[cand]
@@ -90,13 +108,16 @@ def _suppress(img_bgr: np.ndarray, mask: np.ndarray, n_sel: int, shadow: ShadowP
         px = masked_pixels(region_px, cand[None])[None]
         f = px.astype(np.float32)
         total = cv2.max(cv2.transform(f, _ONES_1x3), 1.0)
-        dark = px[0].max(axis=1) < DARK_LEVEL  # (V = the largest channel) chromaticity is noise in the darkest
-        dchroma = _chroma_distance(f, total, bg).reshape(-1)  # pixels: it must not veto (shadow test) ...
+        # (V = the largest channel) chromaticity is noise in the darkest
+        dark = px[0].max(axis=1) < DARK_LEVEL
+        # pixels: it must not veto (shadow test) ...
+        dchroma = _chroma_distance(f, total, bg).reshape(-1)
         dchroma[dark] = 0.0
         ok = dchroma <= shadow.max_chroma_shift
         if obj.color_bgr is not None:
             d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
-            d_obj[dark] = dark_pixel_distance(obj.color_bgr)  # ... nor decide the object's colour (as
+            # ... nor decide the object's colour (as
+            d_obj[dark] = dark_pixel_distance(obj.color_bgr)
             # color_distance_map: not the object's, unless the object is dark itself)
             ok &= d_obj > obj.color_tolerance
         elif obj.hue_range_deg is not None:
@@ -125,7 +146,11 @@ def _median_u8_rows(px: np.ndarray) -> np.ndarray:
 
 
 def suppress_shadow_regions(
-    img_bgr: np.ndarray, mask: np.ndarray, area_range_px: tuple[float, float], shadow: ShadowParams, obj: ObjectSpec,
+    img_bgr: np.ndarray,
+    mask: np.ndarray,
+    area_range_px: tuple[float, float],
+    shadow: ShadowParams,
+    obj: ObjectSpec,
     min_roundness: float | None = None,
 ) -> np.ndarray:
     """:func:`suppress_shadow` applied region by region, in a window around each region.
@@ -146,8 +171,11 @@ def suppress_shadow_regions(
         area = cv2.contourArea(c)
         if not (0.5 * area_range_px[0] <= area <= 4 * area_range_px[1]):
             continue
-        if min_roundness is not None and area_range_px[0] <= area <= area_range_px[1] \
-                and roundness(c, cv2.moments(c), area + 0.5 * cv2.arcLength(c, True)) >= min_roundness:
+        if (
+            min_roundness is not None
+            and area_range_px[0] <= area <= area_range_px[1]
+            and roundness(c, cv2.moments(c), area + 0.5 * cv2.arcLength(c, True)) >= min_roundness
+        ):
             continue
         m = 6
         x0, y0, x1, y1 = max(0, x - m), max(0, y - m), min(w, x + bw + m), min(h, y + bh + m)

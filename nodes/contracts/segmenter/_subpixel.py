@@ -74,7 +74,12 @@ def refine_contour(
         cx0, cy0, cx1, cy1 = bx, by, bx + bw - 1, by + bh - 1
     else:
         c, n = c[good], n[good] / norm[good]
-        cx0, cy0, cx1, cy1 = int(c[:, 0].min()), int(c[:, 1].min()), int(c[:, 0].max()), int(c[:, 1].max())
+        cx0, cy0, cx1, cy1 = (
+            int(c[:, 0].min()),
+            int(c[:, 1].min()),
+            int(c[:, 0].max()),
+            int(c[:, 1].max()),
+        )
     # The gradient is needed only along the outline: crop to it. Samples lie within
     # search_px + 1 px of the outline and the blur and Sobel reach 4 px, so a margin of
     # search_px + 6 px gives the values of the whole image's gradient.
@@ -182,11 +187,16 @@ def region_properties(
         # A rectified image has a black (exactly 0) fill outside the camera's field of view:
         # a region next to it is cut by the view's border just as by the frame's. (Most windows
         # have no black pixel at all: then the ring around the region need not be drawn.)
-        black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))  # every channel 0
+        # every channel 0
+        black = cv2.inRange(img_bgr, (0,) * _channels(img_bgr), (0,) * _channels(img_bgr))
         if cv2.countNonZero(black) >= 3:
             ring = cv2.subtract(cv2.dilate(mask, structuring_element(5)), mask)
             touches = cv2.countNonZero(cv2.bitwise_and(ring, black)) >= 3
-    pts = refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour) if params.subpixel else None
+    pts = (
+        refine_contour(img_bgr, mask, params.edge_search_px + search_extra_px, contour)
+        if params.subpixel
+        else None
+    )
     sigma_c = None
     method = "pixels"
     if pts is not None:
