@@ -490,30 +490,31 @@ def node(
     The undecorated function, with the spec attached as ``fn.spec``.
     """
 
-    def wrap(fn: Callable[..., Any]) -> Callable[..., Any]:
-        doc = inspect.getdoc(fn) or ""
-        spec = NodeSpec(
-            name=name,
-            fn=fn,
-            params=params or _NoParams,
-            inputs=dict(inputs or {}),
-            outputs=dict(outputs or {}),
-            version=str(version),
-            cacheable=cacheable,
-            reads=reads,
-            items=items,
-            prepare=prepare,
-            check=check,
-            description=doc.split("\n\n", 1)[0].replace("\n", " "),
-        )
-        sig = inspect.signature(fn)
-        missing = [i for i in spec.inputs if i not in sig.parameters]
-        if missing:
-            raise TypeError(
-                f"node {name!r}: function {fn.__name__} lacks parameters for inputs {missing}"
-            )
-        REGISTRY[name] = spec
-        fn.spec = spec  # type: ignore[attr-defined]
-        return fn
+    declared = dict(
+        params=params or _NoParams,
+        inputs=dict(inputs or {}),
+        outputs=dict(outputs or {}),
+        version=str(version),
+        cacheable=cacheable,
+        reads=reads,
+        items=items,
+        prepare=prepare,
+        check=check,
+    )
+    return lambda fn: _register(name, fn, declared)
 
-    return wrap
+
+def _register(name: str, fn: Callable[..., Any], declared: dict[str, Any]) -> Callable[..., Any]:
+    """Attach the spec to ``fn`` and register it (what :func:`node` returns for a function)."""
+    doc = inspect.getdoc(fn) or ""
+    spec = NodeSpec(
+        name=name, fn=fn, description=doc.split("\n\n", 1)[0].replace("\n", " "), **declared
+    )
+    missing = [i for i in spec.inputs if i not in inspect.signature(fn).parameters]
+    if missing:
+        raise TypeError(
+            f"node {name!r}: function {fn.__name__} lacks parameters for inputs {missing}"
+        )
+    REGISTRY[name] = spec
+    fn.spec = spec  # type: ignore[attr-defined]
+    return fn

@@ -573,53 +573,11 @@ class ArtifactStore:
         ``encoded``: top-level image outputs already encoded as JPEG (:func:`jpeg_roundtrip`; the
         value in ``outputs`` is what those bytes decode to), stored as those bytes.
         """
-        import io
-
         arrays: dict[str, np.ndarray] = {}
         tree = encode(outputs, arrays, "outputs")
         if not self.writable:
             return
-        data = json.dumps(tree, allow_nan=True).encode()
-        blobs = {"data.json": data}
-        ready: dict[str, str] = {}
-        # 8-bit images as PNG (lossless, 3-10x smaller than raw); a top-level image output's PNG
-        # is also the run folder's file for it, copied as it is (no second copy under rendered/)
-        for out, ref in tree.items() if isinstance(tree, dict) else ():
-            if (
-                out in (encoded or {})
-                and isinstance(ref, dict)
-                and ref.get("__ndarray__") in arrays
-            ):
-                blobs[f"{ref['__ndarray__']}.jpg"] = encoded[out]  # type: ignore[index]
-                del arrays[ref["__ndarray__"]]
-        t0 = time.perf_counter()
-        for name in [n for n, a in arrays.items() if is_png_image(a)]:
-            png = _png_encode(arrays[name])
-            if png is not None:
-                blobs[f"{name}.png"] = png
-                del arrays[name]
-        codec_seconds = time.perf_counter() - t0
-        recompute = (
-            compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds
-        )
-        for out, ref in tree.items() if isinstance(tree, dict) else ():
-            for ext in (".png", ".jpg"):
-                if (
-                    isinstance(ref, dict)
-                    and ref.get("__ndarray__")
-                    and f"{ref['__ndarray__']}{ext}" in blobs
-                ):
-                    ready[out] = f"{ref['__ndarray__']}{ext}"
-        if arrays:
-            buf = io.BytesIO()
-            # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
-            # float arrays barely compress, so they are stored as they are
-            (
-                np.savez_compressed
-                if any(a.dtype == np.bool_ for a in arrays.values())
-                else np.savez
-            )(buf, **arrays)
-            blobs["arrays.npz"] = buf.getvalue()
+        blobs, ready, codec_seconds = _entry_blobs(tree, arrays, encoded or {})
         manifest = {
             "key": key,
             "format": FORMAT,
@@ -628,7 +586,7 @@ class ArtifactStore:
             "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},
             **({"png_outputs": ready} if ready else {}),
         }
-        if recompute:
+        if compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds:
             # only the manifest: the entry reads as fresh, and its value is computed again from its
             # (cached) inputs by whoever needs it -- cheaper than reading it back
             blobs, manifest["files"], manifest["recompute"] = {}, {}, True
@@ -846,6 +804,11 @@ class ArtifactStore:
         look)."""
         return self._written
 
+    def took_in(self, notes: list[str], stored_bytes: int) -> None:
+        """Count what another process wrote into this cache for this run, and what it noted."""
+        self.notes += [m for m in notes if m not in self.notes]
+        self._written += stored_bytes
+
     def _entries(self) -> Iterator[Path]:
         """Entry folders (a stray file such as .DS_Store, or a half-deleted entry, is skipped)."""
         for sub in self.objects.iterdir():
@@ -935,3 +898,45 @@ def _sweep(folder: Path, levels: list[str]) -> None:
                 p.unlink(missing_ok=True)
     with contextlib.suppress(OSError):
         folder.rmdir()  # (only when empty)
+
+
+def _entry_blobs(
+    tree: Any, arrays: dict[str, np.ndarray], encoded: dict[str, bytes]
+) -> tuple[dict[str, bytes], dict[str, str], float]:
+    """``(blobs, png_outputs, codec_seconds)``: an entry's files -- data.json, 8-bit images as PNG
+    (lossless, 3-10x smaller than raw) or the JPEG bytes given, the other arrays in one npz -- and
+    which top-level output each image file is (the run folder copies it as it is)."""
+    import io
+
+    blobs = {"data.json": json.dumps(tree, allow_nan=True).encode()}
+    outs = tree.items() if isinstance(tree, dict) else ()
+    refs = {
+        out: ref["__ndarray__"]
+        for out, ref in outs
+        if isinstance(ref, dict) and ref.get("__ndarray__")
+    }
+    for out, name in refs.items():
+        if out in encoded and name in arrays:
+            blobs[f"{name}.jpg"] = encoded[out]
+            del arrays[name]
+    t0 = time.perf_counter()
+    for name in [n for n, a in arrays.items() if is_png_image(a)]:
+        png = _png_encode(arrays[name])
+        if png is not None:
+            blobs[f"{name}.png"] = png
+            del arrays[name]
+    codec_seconds = time.perf_counter() - t0
+    ready = {
+        out: f"{name}{ext}"
+        for out, name in refs.items()
+        for ext in (".png", ".jpg")
+        if f"{name}{ext}" in blobs
+    }
+    if arrays:
+        buf = io.BytesIO()
+        # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
+        # float arrays barely compress, so they are stored as they are
+        bools = any(a.dtype == np.bool_ for a in arrays.values())
+        (np.savez_compressed if bools else np.savez)(buf, **arrays)
+        blobs["arrays.npz"] = buf.getvalue()
+    return blobs, ready, codec_seconds

@@ -73,78 +73,64 @@ def execute(task: Task) -> TaskResult:
     """Run one node call; never raises (failures come back as a TaskResult)."""
     t0 = time.perf_counter()
     try:
-        # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
-        if task.plugins:
-            registry.import_plugins(task.plugins, Path(task.pipeline_dir))
-        spec = REGISTRY.get(task.node_type)
-        if spec is None:
-            spec = registry.get(task.node_type)
-        params = task.params
-        if isinstance(params, dict):  # sent as plain data to another process: validate again there
-            params = spec.params.model_validate(params)
-        kwargs = dict(task.inputs)
-        ctx = None
-        if spec.wants_ctx:
-            ctx = RunContext(
-                task.node_name,
-                task.item,
-                Path(task.out_dir) / task.node_name,
-                Path(task.pipeline_dir),
-                input_types=task.input_types,
-                resources=task.resources,
-                on_progress=_progress_hook(task.node_name),
-                producing_items=task.producing,
-                lost=task.lost,
-            )
-            kwargs["ctx"] = ctx
-        out = spec.fn(params, **kwargs)
+        spec, out, ctx = _call(task)
         if task.producing:
             _check_part(spec, task.item, out)
-        elif not isinstance(out, dict) or set(out) != set(spec.outputs):
-            if len(spec.outputs) == 1 and not (
-                isinstance(out, dict) and set(out) == set(spec.outputs)
-            ):
-                out = {next(iter(spec.outputs)): out}
-            elif not isinstance(out, dict):
-                raise TypeError(
-                    f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs"
-                )
-            else:
-                missing = set(spec.outputs) - set(out)
-                extra = set(out) - set(spec.outputs)
-                raise TypeError(
-                    f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
-                    + (f", unexpected {sorted(extra)}" if extra else "")
-                )
+        else:
+            out = _as_outputs(spec, out)
         _check_shapes(spec, out, task.producing)
         return TaskResult(True, out, time.perf_counter() - t0, ctx.messages if ctx else [])
     except NodeError as e:
-        return TaskResult(
-            False,
-            None,
-            time.perf_counter() - t0,
-            [],
-            e.message,
-            e.hint,
-            traceback.format_exc(),
-            True,
-            e.lasting,
-        )
+        failure = dict(error=e.message, hint=e.hint, user_error=True, lasting=e.lasting)
+        trace = traceback.format_exc()
     except ConfigError as e:
-        return TaskResult(
-            False, None, time.perf_counter() - t0, [], str(e), None, traceback.format_exc(), True
-        )
+        failure, trace = dict(error=str(e), user_error=True), traceback.format_exc()
     except Exception as e:  # a bug in a node: keep the traceback for --debug
-        return TaskResult(
-            False,
-            None,
-            time.perf_counter() - t0,
-            [],
-            f"{type(e).__name__}: {e}",
-            None,
-            traceback.format_exc(),
-            False,
+        failure, trace = dict(error=f"{type(e).__name__}: {e}"), traceback.format_exc()
+    return TaskResult(False, None, time.perf_counter() - t0, [], trace=trace, **failure)
+
+
+def _call(task: Task) -> tuple[Any, Any, RunContext | None]:
+    """``(spec, what the node returned, its context)``: the node's function called on the task."""
+    # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
+    if task.plugins:
+        registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+    spec = REGISTRY.get(task.node_type) or registry.get(task.node_type)
+    params = task.params
+    if isinstance(params, dict):  # sent as plain data to another process: validate again there
+        params = spec.params.model_validate(params)
+    kwargs = dict(task.inputs)
+    ctx = None
+    if spec.wants_ctx:
+        ctx = kwargs["ctx"] = RunContext(
+            task.node_name,
+            task.item,
+            Path(task.out_dir) / task.node_name,
+            Path(task.pipeline_dir),
+            input_types=task.input_types,
+            resources=task.resources,
+            on_progress=_progress_hook(task.node_name),
+            producing_items=task.producing,
+            lost=task.lost,
         )
+    return spec, spec.fn(params, **kwargs), ctx
+
+
+def _as_outputs(spec: Any, out: Any) -> dict[str, Any]:
+    """A node's return value as ``{output: value}``: a node of one output may return the value."""
+    if isinstance(out, dict) and set(out) == set(spec.outputs):
+        return out
+    if len(spec.outputs) == 1:
+        return {next(iter(spec.outputs)): out}
+    if not isinstance(out, dict):
+        raise TypeError(
+            f"{spec.name} returned {type(out).__name__}, expected a dict of its outputs"
+        )
+    missing, extra = set(spec.outputs) - set(out), set(out) - set(spec.outputs)
+    raise TypeError(
+        f"{spec.name} returned outputs {sorted(out)}; missing {sorted(missing)}"
+        + (f", unexpected {sorted(extra)}" if extra else "")
+    )
 
 
 def _check_shapes(spec: Any, out: dict[str, Any], producing: bool) -> None:

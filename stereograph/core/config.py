@@ -413,13 +413,24 @@ def load_pipeline(
     _include(doc, data, lines, where, _stack + (path,), budget)
     doc.lines.update(lines)
     _top_level(doc, data, where)
+    problems += _node_decls(doc, data, where)
+    raise_all(problems, doc)
+    for ov in types_first(overrides or []):
+        apply_override(doc, ov)
+    return doc
+
+
+def _node_decls(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> list[ConfigError]:
+    """Read the file's ``nodes:`` into ``doc`` (over what its includes declared); the problems of
+    a node leave it out, and are returned so that one ``validate`` reports them all."""
     nodes = data.get("nodes")
     if not nodes and not doc.nodes:
         raise ConfigError(
             "the pipeline has no nodes",
-            where("nodes") if "nodes" in data else Where(str(path), 1),
+            where("nodes") if "nodes" in data else Where(str(doc.path), 1),
             hint="add a 'nodes:' mapping of node instances, each with a 'type:'",
         )
+    problems = []
     for name, decl in (nodes or {}).items():
         name = str(name)
         try:
@@ -428,10 +439,7 @@ def load_pipeline(
             problems.append(e)
             doc.broken.add(name)
             doc.nodes.pop(name, None)
-    raise_all(problems, doc)
-    for ov in types_first(overrides or []):
-        apply_override(doc, ov)
-    return doc
+    return problems
 
 
 def _open(path: str | Path, stack: tuple, budget: list[int] | None) -> tuple[Path, list[int]]:

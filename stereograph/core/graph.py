@@ -228,6 +228,14 @@ def _param_error(
     return ConfigError(f"{spec.name} parameter '{field_name}'{via}: {msg}", where, node, hint)
 
 
+def _did_you_mean(word: str, options: Any, prefix: str, listing: str) -> str:
+    """A hint for a misspelt name: the closest of ``options``, else all of them."""
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return (
+        f"did you mean '{prefix}{close[0]}'?" if close else f"{listing} {sorted(options) or 'none'}"
+    )
+
+
 def _wire(
     doc: PipelineDoc,
     nodes: dict[str, NodeInstance],
@@ -241,15 +249,8 @@ def _wire(
     name = inst.name
     where = doc.where("nodes", name, "inputs", port)
     if port not in inst.spec.inputs:
-        close = difflib.get_close_matches(str(port), list(inst.spec.inputs), n=1)
-        raise ConfigError(
-            f"{inst.type} has no input '{port}'",
-            where,
-            name,
-            f"did you mean '{close[0]}'?"
-            if close
-            else f"its inputs are {sorted(inst.spec.inputs) or 'none'}",
-        )
+        hint = _did_you_mean(str(port), inst.spec.inputs, "", "its inputs are")
+        raise ConfigError(f"{inst.type} has no input '{port}'", where, name, hint)
     if not isinstance(ref, str) or ref.count(".") != 1:
         raise ConfigError(
             f"input '{port}: {ref}' must be 'node.output'",
@@ -261,23 +262,17 @@ def _wire(
     if src in unresolved:
         return False
     if src not in nodes:
-        close = difflib.get_close_matches(src, list(nodes), n=1)
+        hint = _did_you_mean(src, nodes, "", "nodes are")
         raise ConfigError(
-            f"input '{port}' refers to a node '{src}' that does not exist",
-            where,
-            name,
-            f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(nodes)}",
+            f"input '{port}' refers to a node '{src}' that does not exist", where, name, hint
         )
     src_spec = nodes[src].spec
     if out not in src_spec.outputs:
-        close = difflib.get_close_matches(out, list(src_spec.outputs), n=1)
         raise ConfigError(
             f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
             where,
             name,
-            f"did you mean '{src}.{close[0]}'?"
-            if close
-            else f"its outputs are {sorted(src_spec.outputs)}",
+            _did_you_mean(out, src_spec.outputs, f"{src}.", "its outputs are"),
         )
     have = src_spec.outputs[out].type
     accepted = inst.spec.inputs[port].types
