@@ -556,7 +556,7 @@ def test_the_rectifiers_exports_hold_the_runs_rectification_in_every_format(tmp_
         out_dir=tmp_path / "run",
     )
     assert res.ok
-    ran = res._run.get(("rectify", "rectification", None))
+    ran = res.state.get(("rectify", "rectification", None))
     out = res.out_dir
     fs = cv2.FileStorage(str(out / "rectify" / "opencv.yml"), cv2.FILE_STORAGE_READ)
     assert fs.getNode("rectify_alpha").real() == alpha

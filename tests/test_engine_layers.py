@@ -162,3 +162,33 @@ def test_every_engine_module_docstring_scans(tmp_path):
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "told.py").write_text('"""' + "a line\n" * 11 + '"""\n')
     assert long_docstrings(tmp_path) == ["pkg/told.py (11 lines)"]
+
+
+def run_state_reaches(root: Path, private: set[str]) -> list[str]:
+    """Where a module of ``root`` other than run_state.py touches one of ``private``."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "run_state.py":
+            continue
+        for n in ast.walk(ast.parse(path.read_text())):
+            if isinstance(n, ast.Attribute) and n.attr in private:
+                found.append(f"{path.name}:{n.lineno} .{n.attr}")
+    return found
+
+
+def test_only_run_state_touches_its_tables(tmp_path):
+    """(issue 27, part 2) RunState's tables (keys, values, items, failures, ...) are its own:
+    streaming, outputs, the runner and the app go through its methods."""
+    tree = ast.parse((ROOT / "stereograph" / "core" / "run_state.py").read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "RunState")
+    init = next(n for n in cls.body if isinstance(n, ast.FunctionDef) and n.name == "__init__")
+    private = {
+        t.attr
+        for n in ast.walk(init)
+        for t in (n.targets if isinstance(n, ast.Assign) else [getattr(n, "target", None)])
+        if isinstance(t, ast.Attribute) and t.attr.startswith("_")
+    }
+    assert {"_mem", "_ref_keys", "_items", "_failed_items", "_keys"} <= private
+    assert run_state_reaches(ROOT / "stereograph", private) == []
+    (tmp_path / "streaming.py").write_text("def f(run):\n    return run._mem[('a', 'b', None)]\n")
+    assert run_state_reaches(tmp_path, private) == ["streaming.py:2 ._mem"]

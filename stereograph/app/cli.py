@@ -334,13 +334,13 @@ def _echo_entries(result, live: frozenset[str] = frozenset()) -> list[list[str]]
     """``[title, kind, text]`` of the small terminal outputs, in order; ``["live", node, output]``
     for those of the nodes in ``live`` (a rerun memo fills them in when they run again)."""
     entries: list[list[str]] = []
-    for node, out, item in list(result._values):
+    for node, out, item in list(result.values):
         if node not in result.terminal or item is not None:
             continue  # (decided before loading: a cached rerun reads only what it shows)
         if node in live:
             entries.append(["live", node, out])
             continue
-        shown = echo_entry(result._values[(node, out, item)])
+        shown = echo_entry(result.values[(node, out, item)])
         if shown is not None:
             entries.append([f"{node}.{out}", *shown])
             if sum(e[0] != "live" for e in entries) >= ECHO_LIMIT:

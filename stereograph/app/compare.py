@@ -889,9 +889,7 @@ def _write_own_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> N
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
     # what a node wrote into its folder itself (a failure log), as a run records it
-    outputs_mod.add_node_files(
-        out, graph.order, files, getattr(getattr(result, "_run", None), "foreign", {})
-    )
+    outputs_mod.add_node_files(out, graph.order, files, getattr(result.state, "foreign", {}))
     summary = {
         # a later run may clear this folder
         outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},

@@ -125,18 +125,14 @@ class Loop:
                 hint="add a live node (a camera, an actuator) or drop --repeat",
             )
         self.live = [n for n in selected if n in live]
-        run.memory_only = set(live)
         # Kept in memory across cycles: what the live part reads, and each cycle's own values
         # until they are logged (the next cycle's reset drops them).
-        keep = set(run.keep)
-        run.keep |= {
-            src for n in self.live for src in g.dag.predecessors(n) if src not in live
-        } | live
+        held = {src for n in self.live for src in g.dag.predecessors(n) if src not in live} | live
         try:
-            self._cycles(run, selected, live, log_path=run.out_dir / "cycles.jsonl")
+            with run.cycling(live, held):
+                self._cycles(run, selected, live, log_path=run.out_dir / "cycles.jsonl")
         finally:
-            run.keep = keep
-            run.loop_info = self.info()  # into run.json
+            run.add_to_summary("loop", self.info())
 
     def info(self) -> dict[str, Any]:
         """What happened, for ``run.json``."""
@@ -214,7 +210,7 @@ class Loop:
                     else f"stopped by an interrupt as cycle {k} began"
                 )
                 return
-            asked = run.resources.pop(STOP_LOOP, None)
+            asked = run.take_resource(STOP_LOOP)
             if asked is not None:
                 self.stopped = f"stopped by node '{asked[0]}': {asked[1]}"
                 self.finished = True

@@ -158,9 +158,9 @@ class Result:
         """
         r = self._r
         self._check(node, output)
-        if (node, output) in r._items or (node, output, None) in r._values:
+        if r.holds(node, output):
             return r.outputs(node, output)
-        run = r._run
+        run = r.state
         if run is None or run.store is None:
             raise KeyError(
                 f"the result does not hold {node}.{output} (a run without the cache keeps only the "
@@ -176,12 +176,12 @@ class Result:
         return {o: self.outputs(node, o) for o in self._spec_outputs(node)}
 
     def _spec_outputs(self, node: str) -> list[str]:
-        run = self._r._run
+        run = self._r.state
         if run is not None:
             return list(run.g.nodes[node].spec.outputs)
         return sorted(
-            {o for (n, o, _) in self._r._values if n == node}
-            | {o for (n, o) in self._r._items if n == node}
+            {o for (n, o, _) in self._r.values if n == node}
+            | {o for (n, o) in self._r.item_ids if n == node}
         )
 
     def _check(self, node: str, output: str | None) -> None:

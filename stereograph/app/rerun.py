@@ -95,7 +95,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     """
     from stereograph.core.config import load_pipeline
 
-    run, doc = result._run, graph.doc
+    run, doc = result.state, graph.doc
     store = run.store
     if store is None or not store.writable or not result.ok or run.any_item_failed or result.notes:
         return False

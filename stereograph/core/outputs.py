@@ -345,10 +345,16 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
     if not ours:
         raise ConfigError(
             f"output folder {out_dir} is not empty and is not the folder of an earlier "
-            "stereograph run "
-            "(no run.json that stereograph wrote)",
+            "stereograph run (no run.json that stereograph wrote)",
             hint="choose another --out, or empty that folder",
         )
+    _clear_earlier_run(out_dir, written)
+    return _present(out_dir)
+
+
+def _clear_earlier_run(out_dir: Path, written: list[Any]) -> None:
+    """Delete what an earlier run recorded writing into ``out_dir``, and the folders it leaves
+    empty; nothing else."""
     root = out_dir.resolve()
     parents: set[Path] = set()
     for rel in written:
@@ -358,7 +364,7 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
         if root in p.parents and p.is_file():
             p.unlink()
             parents.update(q for q in p.parents if root in q.parents)
-    summary.unlink()
+    (out_dir / "run.json").unlink()
     # written from that run.json (stereograph.app.report)
     (out_dir / "report.html").unlink(missing_ok=True)
     # stereograph never makes symbolic links: one inside the folder was put there since, and writing
@@ -372,7 +378,6 @@ def prepare_out_dir(out_dir: Path) -> dict[str, tuple[int, int, int]]:
             d.rmdir()
         except OSError:
             pass  # not empty: something else lives there
-    return _present(out_dir)
 
 
 def _stamp(p: Path) -> tuple[int, int, int]:
@@ -455,17 +460,17 @@ def _output_files(
     nothing."""
     store, status = run.store, run.reports[name].status
     if not graph.is_collection(name, out):
-        if (name, out, None) not in run.ref_keys and (name, out, None) not in run.mem:
+        if not run.has_value((name, out, None)):
             return None
         return _rendered(
             store,
-            run.ref_keys.get((name, out, None)),
+            run.key_of((name, out, None)),
             out,
             stem,
             lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(p, run.get(r), lo),
         )
-    ids = run.items.get((name, out), [])
-    streamed = getattr(run, "streamed", {}).get((name, out), {})
+    ids = run.items_of(name, out)
+    streamed = run.streamed_files(name, out)
     # written item by item as each finished (streaming)
     if streamed and all(i in streamed for i in ids):
         return [f for i in ids for f in streamed[i]]
@@ -476,7 +481,7 @@ def _output_files(
         store is not None
         and ids
         and hasattr(store, "ready_file")
-        and store.ready_file(run.ref_keys.get((name, out, ids[0]), ""), out) is not None
+        and store.ready_file(run.key_of((name, out, ids[0])) or "", out) is not None
     )
     if not (ids and (ready or is_image(run.get((name, out, ids[0]))))):
         return write_collection(stem, {i: run.get((name, out, i)) for i in ids})
@@ -485,7 +490,7 @@ def _output_files(
         p = stem / file_name(i)
         files += _rendered(
             store,
-            run.ref_keys.get((name, out, i)),
+            run.key_of((name, out, i)),
             out,
             p,
             lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(p, run.get(r), lo),
@@ -574,10 +579,10 @@ def _summary(
             for r in run.reports.values()
         ],
         "failed_items": [
-            {"node": n, "item": i, "error": e} for (n, i), e in run.failed_items.items()
+            {"node": n, "item": i, "error": e} for (n, i), e in run.failures().items()
         ],
-        # stereograph.app.loop
-        **({"loop": run.loop_info} if getattr(run, "loop_info", None) else {}),
+        # what the caller added (a loop: its cycles)
+        **run.summary_additions(),
     }
 
 

@@ -1,10 +1,12 @@
 """The state of one run: what each node's entries are, where their values are, what happened.
 
-:class:`RunState` is what the runner, streaming, explain, loop and replay work through: key an
-entry (:meth:`RunState.entry_key`), look up a value (:meth:`RunState.get`), store a result
-(:meth:`RunState.store_result`), fail an item (:meth:`RunState.fail_item`), release a node's
-values (:meth:`RunState.release`), and run a node (:meth:`RunState.run_node`). Results:
-:class:`NodeReport` per node and :class:`RunResult` for the run.
+:class:`RunState` keeps its tables (keys, values, items, failures) to itself; the runner,
+streaming, outputs, explain, loop and replay go through its operations: key an entry
+(:meth:`~RunState.entry_key`), look up (:meth:`~RunState.get`), store
+(:meth:`~RunState.store_result`), fail an item, release, run a node; for a streamed region, run
+a part of the run (:meth:`~RunState.for_part`, :meth:`~RunState.records`) and take it in
+(:meth:`~RunState.absorb`, :meth:`~RunState.settle_member`). Results: :class:`NodeReport`,
+:class:`PartRecords`, :class:`RunResult`.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -68,14 +70,14 @@ class RunResult:
     out_dir: Path
     reports: dict[str, NodeReport]
     seconds: float
-    _values: dict[Ref, Any]
-    _items: dict[tuple[str, str], list[str]]
+    values: dict[Ref, Any]  # the terminal, saved and kept outputs' values
+    item_ids: dict[tuple[str, str], list[str]]  # their collections' items
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
     terminal: list[str] = field(default_factory=list)
     # about the run as a whole (a read-only cache, say)
     notes: list[str] = field(default_factory=list)
     # the finished run: loads any node's output from the cache
-    _run: Any = field(default=None, repr=False)
+    state: Any = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -89,15 +91,36 @@ class RunResult:
     def ran(self) -> set[str]:
         return {n for n, r in self.reports.items() if r.status in ("ran", "partial") or r.items_ran}
 
+    def holds(self, node: str, output: str) -> bool:
+        """Whether the result holds this output (terminal, saved or kept)."""
+        return (node, output) in self.item_ids or (node, output, None) in self.values
+
     def outputs(self, node: str, output: str) -> Any:
         """A terminal (or saved) output: the value, or ``{item: value}`` for per-item outputs."""
-        if (node, output) in self._items:
+        if (node, output) in self.item_ids:
             return {
-                i: self._values[(node, output, i)]
-                for i in self._items[(node, output)]
-                if (node, output, i) in self._values
+                i: self.values[(node, output, i)]
+                for i in self.item_ids[(node, output)]
+                if (node, output, i) in self.values
             }
-        return self._values.get((node, output, None))
+        return self.values.get((node, output, None))
+
+
+@dataclass
+class PartRecords:
+    """What a part of a run (a streamed chunk of items) made, for the run to take in: its nodes'
+    reports, item lists, failed items, entry and content keys, and the values it sends back."""
+
+    reports: dict[str, NodeReport]
+    items: dict[tuple[str, str], list[str]]
+    failed: dict[tuple[str, str | None], str]
+    ref_keys: dict[Ref, str]
+    ref_ids: dict[Ref, str]
+    keys: dict[tuple[str, str | None], str]
+    values: dict[Ref, Any] = field(default_factory=dict)
+    files: dict[tuple[str, str], dict[str, list[str]]] = field(default_factory=dict)
+    # about nodes outside the part (a corrupt entry read)
+    messages: dict[str, list[str]] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- the run
@@ -121,46 +144,49 @@ class RunState:
         executor: Any,
         force: set[str],
         progress: Any,
+        selected: Iterable[str] | None = None,
+        keep: Iterable[str] | None = None,
+        foreign: dict[str, tuple[int, int, int]] | None = None,
     ):
         self.g, self.store, self.out_dir, self.executor = graph, store, out_dir, executor
         self.force, self.progress = force, progress
-        self.keys: dict[tuple[str, str | None], str] = {}  # (node, item) -> entry key
-        self.ref_keys: dict[Ref, str] = {}  # ref -> key of the entry holding it
-        self.mem: dict[Ref, Any] = {}
+        self._keys: dict[tuple[str, str | None], str] = {}  # (node, item) -> entry key
+        self._ref_keys: dict[Ref, str] = {}  # ref -> key of the entry holding it
+        self._mem: dict[Ref, Any] = {}
         # collection output -> item ids (ok ones)
-        self.items: dict[tuple[str, str], list[str]] = {}
-        self.failed_items: dict[tuple[str, str], str] = {}  # (node, item) -> message
+        self._items: dict[tuple[str, str], list[str]] = {}
+        self._failed_items: dict[tuple[str, str], str] = {}  # (node, item) -> message
         # the table reads in run order
         self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}
         self.pipeline_id = hash_json(str(graph.doc.path))
-        self.code: dict[str, str] = {}
-        self.code_files: dict[str, dict[str, str]] = {}
-        self.remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
-        self.keep = set(graph.terminal())
+        self._code: dict[str, str] = {}
+        self._code_files: dict[str, dict[str, str]] = {}
+        self._remaining_consumers = {n: set(graph.consumers(n)) for n in graph.nodes}
+        # the nodes whose values the run's result holds (default: the terminal ones)
+        self.keep = set(graph.terminal() if keep is None else keep)
         # RunContext.resource objects, closed when the run ends
         self.resources: dict[str, Any] = {}
         # nodes whose results stay in memory (see stereograph.app.loop)
         self.memory_only: set[str] = set()
-        self.ref_ids: dict[Ref, str] = {}  # ref -> content key of a produced item (see ident)
-        self.declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
-        self.deferred: set[str] = set()  # producers whose items a streamed region makes
+        self._ref_ids: dict[Ref, str] = {}  # ref -> content key of a produced item (see ident)
+        self._declared: dict[str, list[str]] = {}  # item-producing node -> the item ids it declared
+        self._deferred: set[str] = set()  # producers whose items a streamed region makes
         # (node, out) -> item -> files
-        self.streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}
+        self._streamed: dict[tuple[str, str], dict[str, list[Path]]] = {}
         # a part of a run (stereograph.core.streaming): records nothing
         self.sub = False
-        self.streaming: set[str] = set()  # per-item nodes run in streamed regions
-        self.selected: set[str] = set(graph.nodes)
-        # source -> its items being made ahead (streaming.start_ahead)
-        self.ahead: dict[str, Any] = {}
+        self._streaming: set[str] = set()  # per-item nodes run in streamed regions
+        self.selected: set[str] = set(graph.nodes if selected is None else selected)
+        self._summary: dict[str, Any] = {}  # what callers add to run.json (a loop's cycles)
         # files in out_dir before the run (prepare_out_dir)
-        self.foreign: dict[str, tuple[int, int, int]] = {}
+        self.foreign: dict[str, tuple[int, int, int]] = dict(foreign or {})
 
     # ---- keys
 
     def node_components(self, inst: NodeInstance) -> dict[str, Any]:
         """What, besides inputs, determines this node's artifacts."""
-        if inst.type not in self.code:
-            self.code[inst.type], self.code_files[inst.type] = code_hash(inst.spec.fn)
+        if inst.type not in self._code:
+            self._code[inst.type], self._code_files[inst.type] = code_hash(inst.spec.fn)
         try:
             params = inst.params.model_dump(mode="json")
         except Exception as e:
@@ -178,7 +204,7 @@ class RunState:
         return {
             "type": inst.type,
             "version": inst.spec.version,
-            "code": self.code[inst.type],
+            "code": self._code[inst.type],
             "params": params,
             "files": files,
         }
@@ -189,7 +215,7 @@ class RunState:
         for port, (src, out) in inst.inputs.items():
             coll = self.g.is_collection(src, out)
             if inst.spec.inputs[port].gather:
-                refs[port] = [(i, (src, out, i)) for i in self.items.get((src, out), [])]
+                refs[port] = [(i, (src, out, i)) for i in self._items.get((src, out), [])]
             elif coll:
                 refs[port] = (src, out, item)
             else:
@@ -222,12 +248,12 @@ class RunState:
         of the wired node, and so are not in the collection it gathers (:attr:`RunContext.lost`)."""
         out: dict[str, dict[str, str]] = {}
         for port, (src, o) in inst.inputs.items():
-            if not inst.spec.inputs[port].gather or not self.failed_items:
+            if not inst.spec.inputs[port].gather or not self._failed_items:
                 continue
             chain = {src} | self.g.upstream(src)
-            present = set(self.items.get((src, o), []))
+            present = set(self._items.get((src, o), []))
             lost: dict[str, str] = {}
-            for (n, i), why in self.failed_items.items():
+            for (n, i), why in self._failed_items.items():
                 if i is not None and n in chain and i not in present and i not in lost:
                     lost[i] = f"{n}: {why}"
             if lost:
@@ -237,7 +263,7 @@ class RunState:
     def ident(self, ref: Ref) -> str:
         """What a downstream key says of an input: its content key where known (an item produced
         by a source is content-addressed, so an unchanged item keeps its downstream cached)."""
-        return self.ref_ids.get(ref) or self.ref_keys[ref]
+        return self._ref_ids.get(ref) or self._ref_keys[ref]
 
     def producer(self, inst: NodeInstance) -> bool:
         """The node produces its collections item by item (declared ``items=``)."""
@@ -246,25 +272,25 @@ class RunState:
     # ---- values
 
     def get(self, ref: Ref) -> Any:
-        if ref in self.mem:
-            return self.mem[ref]
+        if ref in self._mem:
+            return self._mem[ref]
         node, out, item = ref
-        files = self.streamed.get((node, out), {}).get(item)  # type: ignore[arg-type]
-        if files and (self.store is None or ref not in self.ref_keys):
+        files = self._streamed.get((node, out), {}).get(item)  # type: ignore[arg-type]
+        if files and (self.store is None or ref not in self._ref_keys):
             return _read_back(files)  # an image written to the run folder as its item finished
-        key = self.ref_keys[ref]
+        key = self._ref_keys[ref]
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
         except NotStored:  # kept as a manifest only: computing it again is the cheaper read
             self.recompute(node, item, store=False)
-            if ref not in self.mem:
+            if ref not in self._mem:
                 raise NodeError(
                     f"recomputing '{node}'"
                     + (f" for item '{item}'" if item is not None else "")
                     + f" no longer gives '{out}'",
                     hint="run again with --from " + node,
                 ) from None
-            return self.mem[ref]
+            return self._mem[ref]
         except CorruptEntry as e:
             self.reports[node].messages.append(
                 f"cache entry {key[:12]} was corrupt ({e}); recomputed"
@@ -277,16 +303,16 @@ class RunState:
                 node,
                 None if inst.spec.outputs[out].collection and not self.producer(inst) else item,
             )
-            if ref not in self.mem:
+            if ref not in self._mem:
                 raise NodeError(
                     f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
                     f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
                     hint="run again with --from " + node,
                 ) from None
-            return self.mem[ref]
+            return self._mem[ref]
         for o, v in entry.items():
-            self.mem[(node, o, item)] = v
-        return self.mem[ref]
+            self._mem[(node, o, item)] = v
+        return self._mem[ref]
 
     def inputs_for(self, refs: dict[str, Any]) -> dict[str, Any]:
         vals = {}
@@ -361,39 +387,7 @@ class RunState:
             if jpeg is not None:
                 out = {**out, name: jpeg[1]}
                 encoded[name] = jpeg[0]
-        single, colls = {}, {}
-        for name, val in out.items():
-            if inst.spec.outputs[name].collection:
-                if not isinstance(val, dict):
-                    raise NodeError(
-                        f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)"
-                    )
-                colls[name] = {str(k): v for k, v in val.items()}
-            else:
-                single[name] = val
-        for name, items in colls.items():
-            ids = list(items)
-            self.items[(inst.name, name)] = ids
-            ikeys = []
-            for i, v in items.items():
-                # items are content-addressed: a source change that leaves an item as it was
-                # (one image added to a folder) leaves that item's downstream cached
-                ikey = content_key(v) if key else f"{inst.name}/{name}/{i}"
-                ikeys.append(ikey)
-                self.ref_keys[(inst.name, name, i)] = ikey
-                self.mem[(inst.name, name, i)] = v
-                if self.store is not None and key is not None and not self.store.has(ikey):
-                    self.store.save(
-                        ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i}
-                    )
-            single[name] = {"__items__": ids, "__keys__": ikeys}
-            # the index too, so that a recompute (a corrupt entry) serves it as a load would
-            self.mem[(inst.name, name, item)] = single[name]
-            self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
-        for name, v in single.items():
-            if name not in colls:
-                self.mem[(inst.name, name, item)] = v
-                self.ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        single, colls = self._split_collections(inst, item, key, out)
         if save and self.store is not None and key is not None:
             # collection indexes in the manifest too: a rerun learns the items without loading the
             # entry (which may hold big values beside them, such as calibration views)
@@ -412,6 +406,46 @@ class RunState:
                 **({"encoded": encoded} if encoded else {}),
             )
 
+    def _split_collections(
+        self, inst: NodeInstance, item: str | None, key: str | None, out: dict[str, Any]
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Keep an entry's values in memory, each collection as content-addressed items (stored
+        on their own) under an index; returns ``(what the entry stores, the collections)``."""
+        single, colls = {}, {}
+        for name, val in out.items():
+            if inst.spec.outputs[name].collection:
+                if not isinstance(val, dict):
+                    raise NodeError(
+                        f"output '{name}' must be a mapping {{item_id: value}} (it is a collection)"
+                    )
+                colls[name] = {str(k): v for k, v in val.items()}
+            else:
+                single[name] = val
+        for name, items in colls.items():
+            ids = list(items)
+            self._items[(inst.name, name)] = ids
+            ikeys = []
+            for i, v in items.items():
+                # items are content-addressed: a source change that leaves an item as it was
+                # (one image added to a folder) leaves that item's downstream cached
+                ikey = content_key(v) if key else f"{inst.name}/{name}/{i}"
+                ikeys.append(ikey)
+                self._ref_keys[(inst.name, name, i)] = ikey
+                self._mem[(inst.name, name, i)] = v
+                if self.store is not None and key is not None and not self.store.has(ikey):
+                    self.store.save(
+                        ikey, {name: v}, {"type": inst.type, "node": inst.name, "item": i}
+                    )
+            single[name] = {"__items__": ids, "__keys__": ikeys}
+            # the index too, so that a recompute (a corrupt entry) serves it as a load would
+            self._mem[(inst.name, name, item)] = single[name]
+            self._ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        for name, v in single.items():
+            if name not in colls:
+                self._mem[(inst.name, name, item)] = v
+                self._ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+        return single, colls
+
     def _store_item(
         self,
         inst: NodeInstance,
@@ -426,10 +460,10 @@ class RunState:
         content = {}
         for name, v in out.items():
             ref = (inst.name, name, item)
-            self.ref_keys[ref] = key or f"{inst.name}/{name}/{item}"
-            self.mem[ref] = v
+            self._ref_keys[ref] = key or f"{inst.name}/{name}/{item}"
+            self._mem[ref] = v
             if key is not None:
-                content[name] = self.ref_ids[ref] = content_key(v)
+                content[name] = self._ref_ids[ref] = content_key(v)
         if out and self.store is not None and key is not None:
             self.store.save(
                 key,
@@ -459,13 +493,13 @@ class RunState:
             content = meta.get("content")
             for name, ck in content.items() if isinstance(content, dict) else []:
                 if name in inst.spec.outputs and isinstance(ck, str):
-                    self.ref_keys[(inst.name, name, item)] = key
-                    self.ref_ids[(inst.name, name, item)] = ck
+                    self._ref_keys[(inst.name, name, item)] = key
+                    self._ref_ids[(inst.name, name, item)] = ck
             return
         for name, o in inst.spec.outputs.items():
             if o.collection and self.producer(inst):
                 continue  # produced item by item: not in this entry
-            self.ref_keys[(inst.name, name, item)] = key
+            self._ref_keys[(inst.name, name, item)] = key
             if o.collection:
                 indexes = meta.get("indexes")
                 # (a damaged manifest must not name wrong items: its digest decides, else the entry
@@ -485,9 +519,9 @@ class RunState:
                     # an entry from before indexes were kept there
                     index = self.get((inst.name, name, item))
                 ids = index["__items__"]
-                self.items[(inst.name, name)] = ids
+                self._items[(inst.name, name)] = ids
                 for i, k in zip(ids, index["__keys__"]):
-                    self.ref_keys[(inst.name, name, i)] = k
+                    self._ref_keys[(inst.name, name, i)] = k
 
     def recompute(self, node: str, item: str | None, store: bool = True) -> None:
         """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest
@@ -499,7 +533,7 @@ class RunState:
             raise NodeError(
                 f"recomputing a cache entry of '{node}' failed: {res.error}", hint=res.hint
             )
-        self.store_result(inst, item, self.keys.get((node, item)), res.outputs or {}, save=store)
+        self.store_result(inst, item, self._keys.get((node, item)), res.outputs or {}, save=store)
 
     # ---- one node
 
@@ -513,7 +547,7 @@ class RunState:
         ids: list[str] | None = None
         for port, (src, out) in inst.inputs.items():
             if self.g.is_collection(src, out) and not inst.spec.inputs[port].gather:
-                these = self.items.get((src, out), [])
+                these = self._items.get((src, out), [])
                 ids = list(these) if ids is None else [i for i in ids if i in set(these)]
         return ids or []
 
@@ -554,13 +588,13 @@ class RunState:
     def check_produced(self, inst: NodeInstance) -> None:
         """A producer none of whose declared items came out has failed as a whole."""
         rep = self.reports[inst.name]
-        ids = self.declared.get(inst.name, [])
+        ids = self._declared.get(inst.name, [])
         if (
             ids
-            and (inst.name, None) not in self.failed_items
-            and not any(self.items.get((inst.name, o)) for o in self.item_outputs(inst, ""))
+            and (inst.name, None) not in self._failed_items
+            and not any(self._items.get((inst.name, o)) for o in self.item_outputs(inst, ""))
         ):
-            why = "; ".join(m for (n, _), m in list(self.failed_items.items()) if n == inst.name)[
+            why = "; ".join(m for (n, _), m in list(self._failed_items.items()) if n == inst.name)[
                 :400
             ] or "; ".join(rep.messages[:5])
             self.fail_item(
@@ -590,14 +624,14 @@ class RunState:
             rep.seconds = time.perf_counter() - t0
             return
         makes_items = inst.mapped or (
-            producer and (items is not None or inst.name not in self.deferred)
+            producer and (items is not None or inst.name not in self._deferred)
         )
         for out in self.item_outputs(inst, "") if makes_items else []:
-            self.items[(inst.name, out)] = []
+            self._items[(inst.name, out)] = []
         rep.items = (
             len(entries)
             if inst.mapped
-            else len(self.declared.get(inst.name, []))
+            else len(self._declared.get(inst.name, []))
             if producer
             else 0
         )
@@ -606,18 +640,18 @@ class RunState:
         cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
         lost = self.lost_items(inst)
         todo = self._look_up(inst, entries, base if store_on else None, cacheable, lost)
-        recorded = store_on and not self.sub and not (inst.mapped and inst.name in self.streaming)
+        recorded = store_on and not self.sub and not (inst.mapped and inst.name in self._streaming)
         if recorded:
             self.record(inst, base)
         self._compute(inst, todo, lost, store_on, cacheable, producer)
         if makes_items:  # keep the items in source order
             for out in self.item_outputs(inst, ""):
-                done = set(self.items[(inst.name, out)])
-                self.items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
-        if producer and items is None and inst.name not in self.deferred:
+                done = set(self._items[(inst.name, out)])
+                self._items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
+        if producer and items is None and inst.name not in self._deferred:
             self.check_produced(inst)
         rep.seconds = time.perf_counter() - t0
-        rep.items_failed = sum(1 for (n, _) in self.failed_items if n == inst.name)
+        rep.items_failed = sum(1 for (n, _) in self._failed_items if n == inst.name)
         if rep.items_failed and recorded:
             self.record(inst, base)  # again: which of its items failed is known now
         rep.status = self.status_of(inst, producer, rep.items_failed, len(entries), bool(todo))
@@ -636,13 +670,13 @@ class RunState:
             return list(items)
         if producer:  # its other outputs, then (unless a streamed region does) its items
             try:
-                if inst.name not in self.declared:  # (known already where items are made ahead)
-                    self.declared[inst.name] = self.produced_ids(inst)
+                if inst.name not in self._declared:  # (known already where items are made ahead)
+                    self._declared[inst.name] = self.produced_ids(inst)
             except NodeError as e:
                 self.fail_item(inst, None, e.message, e.hint)
                 return None
-            if inst.name not in self.deferred:
-                entries += self.declared[inst.name]
+            if inst.name not in self._deferred:
+                entries += self._declared[inst.name]
         return entries
 
     def _look_up(
@@ -659,15 +693,15 @@ class RunState:
             refs = self.input_refs(inst, item)
             key = self.entry_key(base, refs, item, lost) if base is not None else None
             if key is not None:
-                self.keys[(inst.name, item)] = key
+                self._keys[(inst.name, item)] = key
             manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
             if manifest is None:
                 todo.append((item, key, refs))
                 continue
             self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
             for out in self.item_outputs(inst, item):
-                if (inst.name, out, item) in self.ref_keys:
-                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+                if (inst.name, out, item) in self._ref_keys:
+                    self._items[(inst.name, out)].append(item)  # type: ignore[arg-type]
             if self.progress and self._counted(inst, item):
                 self.progress.advance(inst.name)
         return todo
@@ -720,8 +754,8 @@ class RunState:
             elif not self._keep_result(inst, item, key, res, stored, volatile, store_on, producer):
                 continue
             for out in self.item_outputs(inst, item):
-                if (inst.name, out, item) in self.ref_keys:  # (not an item the producer dropped)
-                    self.items[(inst.name, out)].append(item)  # type: ignore[arg-type]
+                if (inst.name, out, item) in self._ref_keys:  # (not an item the producer dropped)
+                    self._items[(inst.name, out)].append(item)  # type: ignore[arg-type]
 
     def _keep_result(
         self,
@@ -766,7 +800,7 @@ class RunState:
     ) -> str:
         """ran | cached | failed | partial, from what happened to the node's entries (streamed ones
         too)."""
-        if (inst.name, None) in self.failed_items:
+        if (inst.name, None) in self._failed_items:
             return "failed"
         if (inst.mapped or producer) and n_failed and n_failed < n_entries:
             return "partial"
@@ -779,12 +813,12 @@ class RunState:
         comps = dict(base or {})
         comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
         comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
-        comps["code_files"] = self.code_files.get(inst.type, {})
-        comps["keys"] = sorted(k for (n, _), k in self.keys.items() if n == inst.name)[:1000]
+        comps["code_files"] = self._code_files.get(inst.type, {})
+        comps["keys"] = sorted(k for (n, _), k in self._keys.items() if n == inst.name)[:1000]
         # its items that failed, with why (a gathering node downstream keys on them): explain's
         # guess of the next run, which tries them again, is that they fail again the same way
         comps["failed"] = {
-            i: why for (n, i), why in self.failed_items.items() if n == inst.name and i is not None
+            i: why for (n, i), why in self._failed_items.items() if n == inst.name and i is not None
         }
         self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
 
@@ -833,7 +867,7 @@ class RunState:
     def _counted(self, inst: NodeInstance, item: str | None) -> bool:
         """Whether an entry counts on the progress display: a producer's whole-node entry does not,
         once its items are known (they are what the display counts)."""
-        return not (item is None and self.producer(inst) and self.declared.get(inst.name))
+        return not (item is None and self.producer(inst) and self._declared.get(inst.name))
 
     def _advance(self, inst: NodeInstance, item: str | None, ok: bool = True) -> None:
         if self.progress and self._counted(inst, item):
@@ -859,7 +893,7 @@ class RunState:
         lasting: bool = False,
     ):
         rep = self.reports[inst.name]
-        self.failed_items[(inst.name, item)] = msg  # type: ignore[index]
+        self._failed_items[(inst.name, item)] = msg  # type: ignore[index]
         rep.lasting |= lasting
         if rep.error is None:
             rep.error = (f"item '{item}': " if item is not None else "") + msg
@@ -870,64 +904,309 @@ class RunState:
     def release(self, node: str) -> None:
         """Drop in-memory values nobody downstream still needs (Kedro-style)."""
         for src in self.g.dag.predecessors(node):
-            self.remaining_consumers[src].discard(node)
-            if not self.remaining_consumers[src] and src not in self.keep and not self._saves(src):
-                for ref in [r for r in self.mem if r[0] == src]:
-                    del self.mem[ref]
+            self._remaining_consumers[src].discard(node)
+            if not self._remaining_consumers[src] and src not in self.keep and not self._saves(src):
+                for ref in [r for r in self._mem if r[0] == src]:
+                    del self._mem[ref]
 
     def _saves(self, node: str) -> bool:
         return any(o.save for o in self.g.nodes[node].spec.outputs.values())
 
     def key_of(self, ref: Ref) -> str | None:
         """The entry key an output reference's value is stored under (None when it has none)."""
-        return self.ref_keys.get(ref)
+        return self._ref_keys.get(ref)
 
     def entry_key_of(self, node: str, item: str | None = None) -> str | None:
         """The key an entry of ``node`` was looked up under in this run (None when it was not)."""
-        return self.keys.get((node, item))
+        return self._keys.get((node, item))
 
     def used_keys(self) -> set[str]:
         """Every entry key this run looked up or stored under."""
-        return {k for k in [*self.keys.values(), *self.ref_keys.values()] if isinstance(k, str)}
+        return {k for k in [*self._keys.values(), *self._ref_keys.values()] if isinstance(k, str)}
 
     @property
     def any_item_failed(self) -> bool:
         """Some item of some node failed in this run."""
-        return bool(self.failed_items)
+        return bool(self._failed_items)
 
     def code_digests(self, node_type: str | None = None) -> dict[str, str]:
         """Every code file the entry keys (of ``node_type``'s nodes, or all) were computed from,
         with its digest."""
         if node_type is not None:
-            return dict(self.code_files.get(node_type, {}))
-        return {f: d for files in self.code_files.values() for f, d in files.items()}
+            return dict(self._code_files.get(node_type, {}))
+        return {f: d for files in self._code_files.values() for f, d in files.items()}
 
     def items_of(self, node: str, out: str) -> list[str]:
         """The items a collection output holds in this run, in order."""
-        return list(self.items.get((node, out), []))
+        return list(self._items.get((node, out), []))
 
     def expect_entry(self, inst: NodeInstance, item: str | None, key: str) -> None:
         """Note the key an entry of ``inst`` will be looked up under (what ``explain`` predicts)."""
-        self.keys[(inst.name, item)] = key
+        self._keys[(inst.name, item)] = key
 
     def expect_failure(self, inst: NodeInstance, item: str, why: str) -> None:
         """Predict that ``item`` of ``inst`` fails again, as it did in the last run
         (``explain``)."""
-        self.failed_items[(inst.name, item)] = why
+        self._failed_items[(inst.name, item)] = why
 
     def expect_missing(self, inst: NodeInstance, item: str | None, key: str) -> None:
         """Predict that an entry is computed and stored under ``key``: its items reach downstream,
         and downstream keys follow from it (``explain``)."""
         for out, o in inst.spec.outputs.items():
             if not o.collection:
-                self.ref_keys[(inst.name, out, item)] = key
+                self._ref_keys[(inst.name, out, item)] = key
         self.expect_items(inst, item)
 
     def expect_items(self, inst: NodeInstance, item: str | None) -> None:
         """The item lists a found or predicted entry of ``inst`` adds ``item`` to."""
         for out in self.item_outputs(inst, item):
-            if inst.mapped or (inst.name, out, item) in self.ref_keys:
-                self.items.setdefault((inst.name, out), []).append(item)  # type: ignore[arg-type]
+            if inst.mapped or (inst.name, out, item) in self._ref_keys:
+                self._items.setdefault((inst.name, out), []).append(item)  # type: ignore[arg-type]
+
+    # ---- parts of a run: streamed regions (stereograph.core.streaming)
+
+    @classmethod
+    def for_part(
+        cls,
+        graph: Graph,
+        store: ArtifactStore | None,
+        out_dir: Path,
+        force: set[str],
+        code: tuple[dict, dict],
+        statuses: dict[str, str],
+        keep: set[str],
+        inputs: dict[Ref, tuple[str, str | None, Any]],
+        collections: dict[tuple[str, str], list[str]],
+        members: set[str],
+        back: set[str],
+        missing: Any,
+    ) -> RunState:
+        """A run of a chunk of items through ``members``, fed the outside ``inputs`` (ref ->
+        (entry key, content key, value or ``missing``: read from the store where needed)); the
+        nodes in ``back`` keep their values until the chunk hands them back. It records nothing."""
+        run = cls(graph, store, out_dir, SerialExecutor(), set(force), None, keep=keep)
+        run.sub = True
+        run._code, run._code_files = dict(code[0]), dict(code[1])
+        for name, status in statuses.items():
+            run.reports[name].status = status
+        for ref, (key, ident, value) in inputs.items():
+            run._ref_keys[ref] = key
+            if ident:
+                run._ref_ids[ref] = ident
+            if not (isinstance(value, str) and value == missing):
+                run._mem[ref] = value
+        run._items.update({coll: list(ids) for coll, ids in collections.items()})
+        run._remaining_consumers = {n: set(graph.consumers(n)) & members for n in graph.nodes}
+        for n in back:  # read outside the chunk too: held until the chunk returns it
+            run._remaining_consumers[n].add("\0outside")
+        return run
+
+    def run_part_node(self, inst: NodeInstance, executor: Any, items: list[str] | None) -> None:
+        """(A part of a run) run a node of the chunk: its source for ``items``, or a member. A node
+        failing for all of the chunk's items is partial: the other chunks' items go on."""
+        self.executor = executor
+        if items is not None:
+            self._declared[inst.name] = list(items)
+        self.run_node(inst, items=items)
+        rep = self.reports[inst.name]
+        if rep.status == "failed" and (inst.name, None) not in self._failed_items:
+            rep.status = "partial"
+
+    def records(self, inside: set[str], values: dict, files: dict) -> PartRecords:
+        """(A part of a run) what it made, of the nodes ``inside`` the part."""
+        return PartRecords(
+            reports={n: self.reports[n] for n in inside},
+            items={k: v for k, v in self._items.items() if k[0] in inside},
+            failed={k: v for k, v in self._failed_items.items() if k[0] in inside},
+            ref_keys={r: k for r, k in self._ref_keys.items() if r[0] in inside},
+            ref_ids={r: k for r, k in self._ref_ids.items() if r[0] in inside},
+            keys={k: v for k, v in self._keys.items() if k[0] in inside},
+            values=values,
+            files=files,
+            messages={
+                n: r.messages for n, r in self.reports.items() if n not in inside and r.messages
+            },
+        )
+
+    def absorb(self, part: PartRecords, source: str | None, skipped: dict[str, str]) -> None:
+        """Take in what a part made as if its nodes had run here; ``skipped`` collects the nodes a
+        part skipped, with why."""
+        for n, r in part.reports.items():
+            rep = self.reports[n]
+            rep.seconds += r.seconds
+            if n != source:
+                rep.items += r.items
+            rep.items_ran += r.items_ran
+            # (a chunk whose items were all dropped upstream says NO_ITEMS; the region says it
+            # if true)
+            rep.messages += [m for m in r.messages if m not in rep.messages and m != NO_ITEMS]
+            if r.status == "skipped":
+                skipped.setdefault(n, r.error or "upstream did not finish")
+            elif rep.error is None and r.error:
+                rep.error, rep.hint, rep.trace, rep.unexpected = (
+                    r.error,
+                    r.hint,
+                    r.trace,
+                    r.unexpected,
+                )
+        for n, msgs in part.messages.items():
+            self.reports[n].messages += [m for m in msgs if m not in self.reports[n].messages]
+        for k, got in part.items.items():
+            self._items.setdefault(k, []).extend(got)
+        self._failed_items.update(part.failed)
+        self._ref_keys.update(part.ref_keys)
+        self._ref_ids.update(part.ref_ids)
+        self._keys.update(part.keys)
+        self._mem.update(part.values)
+        for k, by_item in part.files.items():
+            got = {i: [Path(f) for f in fs] for i, fs in by_item.items()}
+            self._streamed.setdefault(k, {}).update(got)
+
+    def start_region(self, nodes: Iterable[str], source: str | None) -> list[str]:
+        """Empty the item lists a region fills; returns the items it iterates over, in order: the
+        source's, or those of the collections it reads from outside."""
+        inside = set(nodes) | ({source} if source else set())
+        for n in nodes:
+            for o in self.g.nodes[n].spec.outputs:
+                self._items[(n, o)] = []
+        if source:
+            for o in self.item_outputs(self.g.nodes[source], ""):
+                self._items[(source, o)] = []
+            ok = self.reports[source].status not in ("failed", "skipped")
+            return list(self._declared.get(source, [])) if ok else []
+        seen: dict[str, None] = {}
+        for n in nodes:
+            inst = self.g.nodes[n]
+            for port, (s, o) in inst.inputs.items():
+                if (
+                    s not in inside
+                    and self.g.is_collection(s, o)
+                    and not inst.spec.inputs[port].gather
+                ):
+                    seen.update(dict.fromkeys(self._items.get((s, o), [])))
+        return list(seen)
+
+    def order_items(self, nodes: set[str], ids: list[str]) -> None:
+        """Put the item lists of ``nodes`` in the order of ``ids`` (chunks finish in any order)."""
+        order = {i: k for k, i in enumerate(ids)}
+        for (n, o), got in list(self._items.items()):
+            if n in nodes:
+                self._items[(n, o)] = sorted(
+                    dict.fromkeys(got), key=lambda i: order.get(i, len(order))
+                )
+
+    def settle_source(self, source: str) -> None:
+        """A region's source: its items checked and counted, its status, its record (explain)."""
+        src, rep = self.g.nodes[source], self.reports[source]
+        self.check_produced(src)
+        rep.items_failed = sum(1 for (n, i) in self._failed_items if n == source and i is not None)
+        if (source, None) in self._failed_items:
+            rep.status = "failed"
+        elif rep.items_failed:
+            rep.status = "partial"
+        elif rep.items_ran:
+            rep.status = "ran"
+        if self.store is not None and source not in self.memory_only:
+            self.record(src, self.node_components(src))  # now with its items' keys
+
+    def settle_member(self, n: str, skipped: dict[str, str], base: dict | None) -> None:
+        """A region member's status from its items, and its record for ``explain``."""
+        inst, rep = self.g.nodes[n], self.reports[n]
+        rep.items_failed = sum(1 for (m, _) in self._failed_items if m == n)
+        bad = self.upstream_failed(inst)
+        if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
+            rep.status, rep.error = (
+                "skipped",
+                skipped.get(n) or f"upstream node '{bad}' did not finish",
+            )
+            return
+        rep.status = self.status_of(inst, False, rep.items_failed, rep.items, bool(rep.items_ran))
+        if not rep.items:
+            rep.messages.append(NO_ITEMS)
+        if self.store is not None and n not in self.memory_only:
+            self.record(inst, base)
+
+    def skip_blocked(self, members: list[str]) -> bool:
+        """Whether every member of a region waits on a node outside it that failed or was skipped
+        (directly, or through a member before it); then each is skipped, as a node-by-node run
+        would, and released."""
+        blocked: dict[str, str] = {}
+        for n in members:  # (in topological order)
+            preds = self.g.dag.predecessors(n)
+            bad = self.upstream_failed(self.g.nodes[n]) or next(
+                (p for p in preds if p in blocked), None
+            )
+            if bad is None:
+                return False
+            blocked[n] = bad
+        for n in members:
+            rep = self.reports[n]
+            rep.status, rep.error = "skipped", f"upstream node '{blocked[n]}' did not finish"
+            self.release(n)
+        return True
+
+    def stream(self, members: Iterable[str], source: str | None) -> None:
+        """Have a streamed region run ``members`` (and make ``source``'s items)."""
+        self._streaming |= set(members)
+        if source:
+            self._deferred.add(source)
+
+    def declare_items(self, source: str, ids: list[str]) -> None:
+        """The items ``source`` makes (known early: they are being made ahead)."""
+        self._declared[source] = list(ids)
+
+    def declared_items(self, source: str) -> list[str]:
+        return list(self._declared.get(source, []))
+
+    def content_id(self, ref: Ref) -> str | None:
+        """The content key of a produced item (None for anything else)."""
+        return self._ref_ids.get(ref)
+
+    def held(self, ref: Ref, missing: Any = None) -> Any:
+        """The value of ``ref`` if this process holds it in memory, else ``missing``."""
+        return self._mem.get(ref, missing)
+
+    def keys_of(self, nodes: set[str]) -> list[tuple[Ref, str]]:
+        """``(ref, entry key)`` of every value of ``nodes`` known in this run."""
+        return [(ref, key) for ref, key in self._ref_keys.items() if ref[0] in nodes]
+
+    def code_snapshot(self) -> tuple[dict[str, str], dict[str, dict[str, str]]]:
+        """``(code digest per node type, code files per node type)`` hashed so far."""
+        return dict(self._code), dict(self._code_files)
+
+    def failures(self) -> dict[tuple[str, str | None], str]:
+        """``{(node, item): why}`` of every failed item (item None: the node as a whole)."""
+        return dict(self._failed_items)
+
+    def has_value(self, ref: Ref) -> bool:
+        """Whether ``ref`` has a value in this run (in memory or in the store)."""
+        return ref in self._ref_keys or ref in self._mem
+
+    def streamed_files(self, node: str, out: str) -> dict[str, list[Path]]:
+        """``{item: files}`` of an output a streamed region wrote into the run folder itself."""
+        return dict(self._streamed.get((node, out), {}))
+
+    @contextlib.contextmanager
+    def cycling(self, live: set[str], held: set[str]) -> Iterator[None]:
+        """(A loop) while it lasts, ``live`` nodes keep their values in memory only (never in the
+        store) and ``held`` values stay across cycles."""
+        self.memory_only, before = set(live), set(self.keep)
+        self.keep |= held
+        try:
+            yield
+        finally:
+            self.keep = before
+
+    def add_to_summary(self, key: str, value: Any) -> None:
+        """Add ``key: value`` to the run's ``run.json``."""
+        self._summary[key] = value
+
+    def summary_additions(self) -> dict[str, Any]:
+        return dict(self._summary)
+
+    def take_resource(self, key: str) -> Any:
+        """Remove and return a resource a node left for the run (None if none)."""
+        return self.resources.pop(key, None)
 
     def forget(self, nodes: Iterable[str]) -> None:
         """Drop the results of ``nodes`` in this run (values, item lists, failures, reports), so
@@ -935,8 +1214,8 @@ class RunState:
         names = set(nodes)
         for n in names:
             self.reports[n] = NodeReport(n, self.g.nodes[n].type)
-            self.remaining_consumers[n] = set(self.g.consumers(n))
-        for table in (self.mem, self.ref_keys, self.items, self.failed_items):
+            self._remaining_consumers[n] = set(self.g.consumers(n))
+        for table in (self._mem, self._ref_keys, self._items, self._failed_items):
             for key in [k for k in table if k[0] in names]:
                 del table[key]
 
@@ -945,9 +1224,9 @@ class RunState:
         (None when it holds no item), else the value (None when it has none)."""
         if self.g.is_collection(node, out):
             return {
-                i: self.mem.get((node, out, i)) for i in self.items.get((node, out), [])
+                i: self._mem.get((node, out, i)) for i in self._items.get((node, out), [])
             } or None
-        return self.mem.get((node, out, None))
+        return self._mem.get((node, out, None))
 
 
 def _read_back(files: list[Path]) -> Any:

@@ -61,25 +61,17 @@ def run_graph(
     t0 = time.perf_counter()
     selected, force = _selection(graph, only, from_node)
     run_id = run_id or new_run_id()
-    out = (
-        Path(out_dir)
-        if out_dir
-        else project.runs_dir(graph.doc.directory) / graph.doc.name / run_id
-    )
+    runs = project.runs_dir(graph.doc.directory)
+    out = Path(out_dir) if out_dir else runs / graph.doc.name / run_id
     foreign = outputs_mod.prepare_out_dir(out)
     store, budget = _open_store(graph.doc, cache_dir, use_cache)
     own_executor = executor is None
     executor = executor or SerialExecutor()
-    if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
-        executor.check_shared([out] + ([store.root] if store is not None else []))
-    # no prune or clear takes an entry from under this run while it runs
-    lease = contextlib.ExitStack()
-    if store is not None:
-        lease.enter_context(in_use(store.root))
-    run = RunState(graph, store, out, executor, force, progress)
-    run.foreign, run.selected = foreign, set(selected)
-    # default: the terminal nodes
-    run.keep = ({only} if only is not None else run.keep) | set(keep or ())
+    lease = _lease(executor, store, out)
+    # the result holds the terminal nodes (--only's node: the terminal one of its selection) and
+    # those the caller asks for
+    held = ({only} if only is not None else set(graph.terminal())) | set(keep or ())
+    run = RunState(graph, store, out, executor, force, progress, selected, held, foreign)
     progress_token = _PROGRESS.set(progress)
     try:
         _execute(run, selected, cycles, write_outputs, prepare)
@@ -94,11 +86,21 @@ def run_graph(
         _PROGRESS.reset(progress_token)
     result = _result(run, run_id, selected, write_outputs, lease)
     _prune(store, budget, result)
-    result._values, result._items = _terminal_values(graph, run, selected)
-    result._run = run
+    result.values, result.item_ids = _terminal_values(graph, run, selected)
+    result.state = run
     result.terminal = [n for n in selected if n in run.keep]
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def _lease(executor: Any, store: ArtifactStore | None, out: Path) -> contextlib.ExitStack:
+    """What the run holds while it runs: no prune or clear takes a cache entry from under it."""
+    if hasattr(executor, "check_shared"):  # a cluster: its workers read and write our files
+        executor.check_shared([out] + ([store.root] if store is not None else []))
+    lease = contextlib.ExitStack()
+    if store is not None:
+        lease.enter_context(in_use(store.root))
+    return lease
 
 
 def _selection(graph: Graph, only: str | None, from_node: str | None) -> tuple[list[str], set[str]]:
@@ -164,8 +166,7 @@ def _execute(
 def _release(run: RunState, out: Path, own_executor: bool) -> None:
     """What the run holds, let go of whatever happened: items made ahead, open resources, our
     pool."""
-    for source in list(run.ahead):
-        streaming.stop_ahead(run, source)
+    streaming.stop_all_ahead(run)
     if (out / streaming.AHEAD_DIR).exists():
         shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
     close_resources(run.resources)
@@ -195,7 +196,7 @@ def _result(
         0.0,
         {},
         {},
-        dict(run.failed_items),
+        run.failures(),
         notes=list(store.notes) if store is not None else [],
     )
     try:
@@ -258,9 +259,7 @@ def _units(run: RunState, selected: list[str]) -> list[Any]:
     if units is None:
         return list(selected)
     for reg in regions:
-        run.streaming |= set(reg.nodes)
-        if reg.source:
-            run.deferred.add(reg.source)
+        run.stream(reg.nodes, reg.source)
     return units
 
 
@@ -316,10 +315,10 @@ def _terminal_values(graph: Graph, run: RunState, selected: list[str]) -> tuple[
             if name not in run.keep and not decl.save:
                 continue
             if graph.is_collection(name, out):
-                ids = run.items.get((name, out), [])
+                ids = run.items_of(name, out)
                 items[(name, out)] = ids
                 refs += [(name, out, i) for i in ids]
-            elif (name, out, None) in run.ref_keys or (name, out, None) in run.mem:
+            elif run.has_value((name, out, None)):
                 refs.append((name, out, None))
     return _LazyValues(run, refs), items
 

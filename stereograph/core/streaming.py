@@ -14,6 +14,7 @@ import math
 import pickle
 import time
 import uuid
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from stereograph.core.api import NodeError
 from stereograph.core.cache import ArtifactStore
 from stereograph.core.calls import Task, TaskResult, execute
 from stereograph.core.executors import SerialExecutor, TaskLost, progress_advance
-from stereograph.core.run_state import NO_ITEMS, RunState
+from stereograph.core.run_state import PartRecords, RunState
 
 Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"
@@ -197,19 +198,10 @@ class Chunk:
 
 @dataclass
 class ChunkResult:
-    reports: dict[str, Any]
-    items: dict[tuple[str, str], list[str]]
-    failed: dict[tuple[str, str | None], str]
-    ref_keys: dict[Ref, str]
-    ref_ids: dict[Ref, str]
-    keys: dict[tuple[str, str | None], str]
-    values: dict[Ref, Any]
-    files: dict[tuple[str, str], dict[str, list[str]]]
+    records: PartRecords
     notes: list[str]
     seconds: float
     stored_bytes: int = 0  # what the task stored in the cache (the run's budget check counts it)
-    # about nodes outside (a corrupt entry read)
-    messages: dict[str, list[str]] = field(default_factory=dict)
 
 
 _STORES: dict[str, Any] = {}  # a worker's stores, by root: opened once per process
@@ -231,32 +223,17 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     run, store, written0 = _chunk_state(chunk)
     reg, graph = chunk.region, run.g
     for name in ([reg.source] if reg.source else []) + list(reg.nodes):
-        run.executor = (
-            _Ahead(chunk.ahead) if name == reg.source and chunk.ahead else SerialExecutor()
-        )
-        if name == reg.source:
-            run.declared[name] = list(chunk.items)
-        run.run_node(graph.nodes[name], items=list(chunk.items) if name == reg.source else None)
-        if run.reports[name].status == "failed" and (name, None) not in run.failed_items:
-            # all of this chunk's items: the others go on downstream
-            run.reports[name].status = "partial"
+        source = name == reg.source
+        ex = _Ahead(chunk.ahead) if source and chunk.ahead else SerialExecutor()
+        run.run_part_node(graph.nodes[name], ex, list(chunk.items) if source else None)
     files, values = _chunk_outputs(chunk, run, store)
     inside = set(reg.nodes) | ({reg.source} if reg.source else set())
-    mine = lambda ref: ref[0] in inside  # noqa: E731
     own_store = store is not None and chunk.store is None
     return ChunkResult(
-        reports={n: run.reports[n] for n in inside},
-        items={k: v for k, v in run.items.items() if k[0] in inside},
-        failed={k: v for k, v in run.failed_items.items() if k[0] in inside},
-        ref_keys={r: k for r, k in run.ref_keys.items() if mine(r)},
-        ref_ids={r: k for r, k in run.ref_ids.items() if mine(r)},
-        keys={k: v for k, v in run.keys.items() if k[0] in inside},
-        values=values,
-        files=files,
+        records=run.records(inside, values, files),
         notes=list(store.notes) if own_store else [],
         seconds=time.perf_counter() - t0,
-        stored_bytes=store._written - written0 if own_store else 0,
-        messages={n: r.messages for n, r in run.reports.items() if n not in inside and r.messages},
+        stored_bytes=store.stored_bytes() - written0 if own_store else 0,
     )
 
 
@@ -273,28 +250,23 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
         store = _STORES.get(chunk.cache_root)
         if store is None:
             store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
-    run = RunState(graph, store, Path(chunk.out_dir), SerialExecutor(), set(chunk.force), None)
-    run.sub = True
-    run.code, run.code_files = dict(chunk.code), dict(chunk.code_files)
-    # (what the cache may keep as a manifest only follows the whole run's rule)
-    run.keep = set(chunk.keep)
-    for name, status in chunk.statuses.items():
-        run.reports[name].status = status
-    if chunk.shared:
-        run.mem.update(_shared_values(chunk.shared))
-    for ref, (key, ident, value) in chunk.inputs.items():
-        run.ref_keys[ref] = key
-        if ident:
-            run.ref_ids[ref] = ident
-        if not (isinstance(value, str) and value == _MISSING):
-            run.mem[ref] = value
-    for coll, ids in chunk.collections.items():
-        run.items[coll] = list(ids)
-    members = set(chunk.region.nodes)
-    run.remaining_consumers = {n: set(graph.consumers(n)) & members for n in graph.nodes}
-    for n, _ in chunk.back:  # read outside the region too: held until the task returns it
-        run.remaining_consumers[n].add("\0outside")
-    return run, store, store._written if store is not None else 0
+    shared = _shared_values(chunk.shared) if chunk.shared else {}
+    inputs = {ref: (k, i, shared.get(ref, v)) for ref, (k, i, v) in chunk.inputs.items()}
+    run = RunState.for_part(
+        graph,
+        store,
+        Path(chunk.out_dir),
+        chunk.force,
+        (chunk.code, chunk.code_files),
+        chunk.statuses,
+        set(chunk.keep),
+        inputs,
+        chunk.collections,
+        set(chunk.region.nodes),
+        {n for n, _ in chunk.back},
+        _MISSING,
+    )
+    return run, store, store.stored_bytes() if store is not None else 0
 
 
 def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]:
@@ -303,7 +275,7 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
     files: dict[tuple[str, str], dict[str, list[str]]] = {}
     values: dict[Ref, Any] = {}
     for node, out in sorted(chunk.deliver | chunk.back):
-        ids = run.items.get((node, out), [])
+        ids = run.items_of(node, out)
         written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
         # pictures: JPEG
         lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))
@@ -316,7 +288,7 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
                         str(p)
                         for p in outputs_mod._rendered(
                             store,
-                            run.ref_keys.get(ref),
+                            run.key_of(ref),
                             out,
                             stem,
                             lambda r=ref, p=stem, lo=lossy: outputs_mod.write_value(
@@ -330,15 +302,16 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
                     )
                     files.get((node, out), {}).pop(i, None)
                     written = False
-            if not written and ref in run.mem:
-                values[ref] = run.mem[ref]
+            held = run.held(ref, _MISSING)
+            if not written and not (isinstance(held, str) and held == _MISSING):
+                values[ref] = held
     return files, values
 
 
 def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
     """Whether this output goes to the run folder as one image file per item."""
 
-    store, key = run.store, run.ref_keys.get((node, out, first), "")
+    store, key = run.store, run.key_of((node, out, first)) or ""
     if (
         store is not None
         and hasattr(store, "ready_file")
@@ -356,54 +329,29 @@ def _label(reg: Region) -> str:
     return names[0] if len(names) == 1 else f"{names[0]} → {names[-1]}"
 
 
-def run_region(run: Any, reg: Region, write_outputs: bool = True) -> None:
-    """Run a region for the parent run ``run`` (a :class:`stereograph.core.run_state.RunState`):
-    plan its chunks, hand them to the run's executor, and merge what comes back as if each node had
-    run."""
+def run_region(run: RunState, reg: Region, write_outputs: bool = True) -> None:
+    """Run a region for the parent run ``run``: plan its chunks, hand them to the run's executor,
+    and take in what comes back as if each node had run."""
     g, members = run.g, reg.nodes
     inside = set(members) | ({reg.source} if reg.source else set())
-    if not reg.source and _all_blocked(run, members):
+    if not reg.source and run.skip_blocked(members):
         return  # (said as each node's own skip: no progress line of items that would never run)
     store_on = run.store is not None
     bases = {n: run.node_components(g.nodes[n]) for n in members} if store_on else {}
-    ids = _region_items(run, reg, inside)
-    for n in members:
-        for o in g.nodes[n].spec.outputs:
-            run.items[(n, o)] = []
+    ids = run.start_region(members, reg.source)
     chunks = _plan_chunks(run, reg, ids, inside, *_region_outputs(run, inside, write_outputs))
     label = _label(reg)
     if run.progress:
         run.progress.node_started(label, len(ids))
     skipped: dict[str, str] = {}
     _run_chunks(run, reg, chunks, skipped, label)
-    order = {i: k for k, i in enumerate(ids)}
-    for (n, o), got in list(run.items.items()):
-        if n in inside:
-            run.items[(n, o)] = sorted(dict.fromkeys(got), key=lambda i: order.get(i, len(order)))
+    run.order_items(inside, ids)
     if reg.source:
-        _source_status(run, reg.source)
+        run.settle_source(reg.source)
     for n in members:
-        _member_status(run, n, skipped, bases.get(n))
+        run.settle_member(n, skipped, bases.get(n))
     for n in ([reg.source] if reg.source else []) + members:
         run.release(n)
-
-
-def _region_items(run: Any, reg: Region, inside: set[str]) -> list[str]:
-    """The items the region iterates over, in order: the source's, or those of its outside
-    collections."""
-    g = run.g
-    if reg.source:
-        ok_source = run.reports[reg.source].status not in ("failed", "skipped")
-        for o in run.item_outputs(g.nodes[reg.source], ""):
-            run.items[(reg.source, o)] = []
-        return list(run.declared.get(reg.source, [])) if ok_source else []
-    seen: dict[str, None] = {}
-    for n in reg.nodes:
-        inst = g.nodes[n]
-        for port, (s, o) in inst.inputs.items():
-            if s not in inside and g.is_collection(s, o) and not inst.spec.inputs[port].gather:
-                seen.update(dict.fromkeys(run.items.get((s, o), [])))
-    return list(seen)
 
 
 def _region_outputs(run: Any, inside: set[str], write_outputs: bool) -> tuple[set, set]:
@@ -437,7 +385,7 @@ def _plan_chunks(
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
     outside = {s for n in reg.nodes for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
     upstream = (outside.union(*(nx.ancestors(g.dag, s) for s in outside))) - inside
-    upstream_keys = [(ref, key) for ref, key in run.ref_keys.items() if ref[0] in upstream]
+    upstream_keys = run.keys_of(upstream)
     chunks = []
     for k, end in chunk_bounds(len(ids), workers):
         part = ids[k:end]
@@ -445,7 +393,7 @@ def _plan_chunks(
         want = set(part)
         for ref, key in upstream_keys:
             if ref not in inputs and (ref[2] is None or ref[2] in want):
-                inputs[ref] = (key, run.ref_ids.get(ref), _MISSING)
+                inputs[ref] = (key, run.content_id(ref), _MISSING)
         chunks.append(
             Chunk(
                 g,
@@ -456,8 +404,7 @@ def _plan_chunks(
                 inputs,
                 colls,
                 statuses,
-                dict(run.code),
-                dict(run.code_files),
+                *run.code_snapshot(),
                 str(run.store.root) if store_on else None,
                 str(run.out_dir),
                 set(run.force),
@@ -485,24 +432,25 @@ def _chunk_inputs(
             if s in inside:
                 continue
             if g.is_collection(s, o):
-                colls[(s, o)] = [i for i in run.items.get((s, o), []) if i in want]
+                colls[(s, o)] = [i for i in run.items_of(s, o) if i in want]
                 refs = [(s, o, i) for i in colls[(s, o)]]
             else:
                 refs = [(s, o, None)]
             for ref in refs:
                 if ref not in inputs:
                     inputs[ref] = (
-                        run.ref_keys.get(ref, ""),
-                        run.ref_ids.get(ref),
+                        run.key_of(ref) or "",
+                        run.content_id(ref),
                         _outside_value(run, ref, store_on),
                     )
     return inputs, colls
 
 
 def _outside_value(run: Any, ref: Ref, store_on: bool) -> Any:
-    if ref in run.mem:
-        return run.mem[ref]
-    if store_on and ref in run.ref_keys:
+    held = run.held(ref, _MISSING)
+    if not (isinstance(held, str) and held == _MISSING):
+        return held
+    if store_on and run.key_of(ref) is not None:
         return _MISSING  # read from the cache where it is needed
     try:
         return run.get(ref)
@@ -526,7 +474,7 @@ def _run_chunks(
         probe = run_chunk(chunks[0])
         _settle(run, reg, chunks[0], probe, skipped, label, first)
         chunks = chunks[1:]
-        local = not any(r.items_ran for r in probe.reports.values())
+        local = not any(r.items_ran for r in probe.records.reports.values())
     if not local and chunks:
         _ship(run, chunks)
     lost: list[Chunk] = []
@@ -575,57 +523,6 @@ def _ship(run: Any, chunks: list[Chunk]) -> None:
         }
 
 
-def _source_status(run: Any, source: str) -> None:
-    """The region's source: its items checked and counted, its status, its record for
-    ``explain``."""
-    src, rep = run.g.nodes[source], run.reports[source]
-    run.check_produced(src)
-    rep.items_failed = sum(1 for (n, i) in run.failed_items if n == source and i is not None)
-    if (source, None) in run.failed_items:
-        rep.status = "failed"
-    elif rep.items_failed:
-        rep.status = "partial"
-    elif rep.items_ran:
-        rep.status = "ran"
-    if run.store is not None and source not in run.memory_only:
-        # now with its items' keys (explain: which to try again)
-        run.record(src, run.node_components(src))
-
-
-def _member_status(run: Any, n: str, skipped: dict[str, str], base: dict | None) -> None:
-    """A region member's status from its items, and its record for ``explain``."""
-    inst, rep = run.g.nodes[n], run.reports[n]
-    rep.items_failed = sum(1 for (m, _) in run.failed_items if m == n)
-    bad = run.upstream_failed(inst)
-    if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
-        rep.status, rep.error = "skipped", skipped.get(n) or f"upstream node '{bad}' did not finish"
-        return
-    rep.status = run.status_of(inst, False, rep.items_failed, rep.items, bool(rep.items_ran))
-    if not rep.items:
-        rep.messages.append(NO_ITEMS)
-    if run.store is not None and n not in run.memory_only:
-        run.record(inst, base)
-
-
-def _all_blocked(run: Any, members: list[str]) -> bool:
-    """Whether every member of a region waits on a node outside it that failed or was skipped
-    (directly, or through a member before it); then each is marked skipped, as a node-by-node run
-    would, and released, and the region is not run at all."""
-    blocked: dict[str, str] = {}
-    for n in members:  # (in topological order)
-        bad = run.upstream_failed(run.g.nodes[n]) or next(
-            (p for p in run.g.dag.predecessors(n) if p in blocked), None
-        )
-        if bad is None:
-            return False
-        blocked[n] = bad
-    for n in members:
-        rep = run.reports[n]
-        rep.status, rep.error = "skipped", f"upstream node '{blocked[n]}' did not finish"
-        run.release(n)
-    return True
-
-
 def _settle(
     run: Any, reg: Region, chunk: Chunk, res: Any, skipped: dict[str, str], label: str, first: Any
 ) -> None:
@@ -635,48 +532,22 @@ def _settle(
         for i in chunk.items:
             run.fail_item(first, i, res.error, res.hint)
     else:
-        failed = {i for (_n, i) in res.failed if i is not None}
-        _merge(run, reg, res, skipped)
+        failed = {i for (_n, i) in res.records.failed if i is not None}
+        run.absorb(res.records, reg.source, skipped)
+        if run.store is not None:
+            run.store.took_in(res.notes, res.stored_bytes)
     if run.progress:
         for i in chunk.items:
             progress_advance(run.progress, label, i not in failed)
 
 
-def _merge(run: Any, reg: Region, res: ChunkResult, skipped: dict[str, str]) -> None:
-    for n, r in res.reports.items():
-        rep = run.reports[n]
-        rep.seconds += r.seconds
-        if n != reg.source:
-            rep.items += r.items
-        rep.items_ran += r.items_ran
-        # (a chunk whose items were all dropped upstream says NO_ITEMS; the region's end says it if
-        # true)
-        rep.messages += [m for m in r.messages if m not in rep.messages and m != NO_ITEMS]
-        if r.status == "skipped":
-            skipped.setdefault(n, r.error or "upstream did not finish")
-        elif rep.error is None and r.error:
-            rep.error, rep.hint, rep.trace, rep.unexpected = r.error, r.hint, r.trace, r.unexpected
-    for n, msgs in res.messages.items():
-        run.reports[n].messages += [m for m in msgs if m not in run.reports[n].messages]
-    for k, got in res.items.items():
-        run.items.setdefault(k, []).extend(got)
-    run.failed_items.update(res.failed)
-    run.ref_keys.update(res.ref_keys)
-    run.ref_ids.update(res.ref_ids)
-    run.keys.update(res.keys)
-    run.mem.update(res.values)
-    for k, by_item in res.files.items():
-        run.streamed.setdefault(k, {}).update(
-            {i: [Path(f) for f in fs] for i, fs in by_item.items()}
-        )
-    if run.store is not None:
-        run.store.notes += [m for m in res.notes if m not in run.store.notes]
-        run.store._written += res.stored_bytes
-
-
 # ---------------------------------------------------------------- items made ahead
 
-AHEAD_DIR = ".stereograph-ahead"  # in the run folder, removed when the run ends
+AHEAD_DIR = ".stereograph-ahead"
+# per run: source -> its items being made ahead (start_ahead), until the region takes them
+_AHEAD: weakref.WeakKeyDictionary[RunState, dict[str, Any]] = (
+    weakref.WeakKeyDictionary()
+)  # in the run folder, removed when the run ends
 
 
 @dataclass
@@ -740,7 +611,8 @@ def start_ahead(run: Any, reg: Region) -> None:
     if not hasattr(ex, "start") or inst.inputs:
         return
     try:
-        ids = run.declared[reg.source] = run.produced_ids(inst)
+        ids = run.produced_ids(inst)
+        run.declare_items(reg.source, ids)
     except NodeError:
         return  # the source's own run says why
     if run.store is not None and inst.spec.cacheable and reg.source not in run.force:
@@ -771,12 +643,18 @@ def start_ahead(run: Any, reg: Region) -> None:
     here: cf.Future = cf.Future()
     here.set_result(produce_ahead(task(ids[:1])))
     later = ex.start(produce_ahead, [task(ids[k : k + 2]) for k in range(1, len(ids), 2)])
-    run.ahead[reg.source] = ([here, *later], folder, outputs_mod.file_name)
+    _AHEAD.setdefault(run, {})[reg.source] = ([here, *later], folder, outputs_mod.file_name)
+
+
+def stop_all_ahead(run: RunState) -> None:
+    """Stop whatever is still being made ahead for ``run`` (the run is ending)."""
+    for source in list(_AHEAD.get(run, {})):
+        stop_ahead(run, source)
 
 
 def stop_ahead(run: Any, source: str | None) -> dict[str, str]:
     """Cancel the ahead tasks not begun, wait for the others; {item: file} of the items made."""
-    got = run.ahead.pop(source, None) if source else None
+    got = _AHEAD.get(run, {}).pop(source, None) if source else None
     if got is None:
         return {}
     futures, folder, name = got
