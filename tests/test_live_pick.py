@@ -113,6 +113,10 @@ def test_sigint_in_the_middle_of_a_motion_holds_the_arm_and_ends_the_loop(live):
         f"recording.ids={ORDER}",
         "--set",
         "act.sim_time_scale=1",
+        # (what this test is about is the interrupt: a servo reply that a loaded machine delays
+        # past dynamixel-sdk's wait must not end the run first)
+        "--set",
+        "act.reply_timeout_extra_ms=200",
     ]
     proc = subprocess.Popen(
         cmd,
