@@ -586,7 +586,8 @@ class ArtifactStore:
             "files": {n: {"size": len(b), "digest": digest(b)} for n, b in blobs.items()},
             **({"png_outputs": ready} if ready else {}),
         }
-        if compute_seconds is not None and len(blobs) > 1 and compute_seconds < codec_seconds:
+        images = any(n.endswith((".png", ".jpg")) for n in blobs)
+        if compute_seconds is not None and images and compute_seconds < codec_seconds:
             # only the manifest: the entry reads as fresh, and its value is computed again from its
             # (cached) inputs by whoever needs it -- cheaper than reading it back
             blobs, manifest["files"], manifest["recompute"] = {}, {}, True
