@@ -19,7 +19,7 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from stereograph.core.errors import ConfigError, UsageError, Where, raise_all
+from stereograph.core.errors import ConfigError, UsageError, Where, did_you_mean, raise_all
 
 Path_ = tuple  # a key path inside the document, e.g. ("nodes", "segment", "params", "canny_low")
 
@@ -667,10 +667,7 @@ def check_node_named(doc: PipelineDoc, node: str, what: str, where: Where | None
     named it: UsageError for a command-line option, ConfigError at ``where`` for a file's line."""
     if node in doc.nodes:
         return
-    import difflib
-
-    close = difflib.get_close_matches(node, list(doc.nodes), n=1)
-    hint = f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(doc.nodes)}"
+    hint = did_you_mean(node, doc.nodes, "nodes are")
     if where is None:
         raise UsageError(f"{what}: no node named '{node}' in {doc.path.name}", hint=hint)
     raise ConfigError(f"{what}: no node named '{node}' in {doc.path.name}", where, hint=hint)

@@ -61,6 +61,16 @@ class ConfigError(Exception):
         return text
 
 
+def did_you_mean(word: str, options: Any, listing: str, prefix: str = "") -> str:
+    """A Fix for a misspelt name: the closest of ``options``, else ``listing`` and all of them."""
+    import difflib  # (only on an error)
+
+    close = difflib.get_close_matches(word, list(options), n=1)
+    return (
+        f"did you mean '{prefix}{close[0]}'?" if close else f"{listing} {sorted(options) or 'none'}"
+    )
+
+
 def sentence(text: str) -> str:
     """End with exactly one full stop (a question keeps its '?')."""
     text = text.rstrip()

@@ -26,7 +26,13 @@ from stereograph.core.config import (
     merge_params,
     types_first,
 )
-from stereograph.core.errors import ConfigError, ConfigErrors, in_file_order, raise_all
+from stereograph.core.errors import (
+    ConfigError,
+    ConfigErrors,
+    did_you_mean,
+    in_file_order,
+    raise_all,
+)
 
 
 @dataclass
@@ -228,14 +234,6 @@ def _param_error(
     return ConfigError(f"{spec.name} parameter '{field_name}'{via}: {msg}", where, node, hint)
 
 
-def _did_you_mean(word: str, options: Any, prefix: str, listing: str) -> str:
-    """A hint for a misspelt name: the closest of ``options``, else all of them."""
-    close = difflib.get_close_matches(word, list(options), n=1)
-    return (
-        f"did you mean '{prefix}{close[0]}'?" if close else f"{listing} {sorted(options) or 'none'}"
-    )
-
-
 def _wire(
     doc: PipelineDoc,
     nodes: dict[str, NodeInstance],
@@ -249,7 +247,7 @@ def _wire(
     name = inst.name
     where = doc.where("nodes", name, "inputs", port)
     if port not in inst.spec.inputs:
-        hint = _did_you_mean(str(port), inst.spec.inputs, "", "its inputs are")
+        hint = did_you_mean(str(port), inst.spec.inputs, "its inputs are")
         raise ConfigError(f"{inst.type} has no input '{port}'", where, name, hint)
     if not isinstance(ref, str) or ref.count(".") != 1:
         raise ConfigError(
@@ -262,7 +260,7 @@ def _wire(
     if src in unresolved:
         return False
     if src not in nodes:
-        hint = _did_you_mean(src, nodes, "", "nodes are")
+        hint = did_you_mean(src, nodes, "nodes are")
         raise ConfigError(
             f"input '{port}' refers to a node '{src}' that does not exist", where, name, hint
         )
@@ -272,7 +270,7 @@ def _wire(
             f"input '{port}' refers to '{src}.{out}', but {src_spec.name} has no output '{out}'",
             where,
             name,
-            _did_you_mean(out, src_spec.outputs, f"{src}.", "its outputs are"),
+            did_you_mean(out, src_spec.outputs, "its outputs are", f"{src}."),
         )
     have = src_spec.outputs[out].type
     accepted = inst.spec.inputs[port].types

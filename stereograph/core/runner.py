@@ -21,7 +21,7 @@ from stereograph.core import project, streaming
 from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
 from stereograph.core.calls import _PROGRESS, close_resources
 from stereograph.core.config import load_pipeline
-from stereograph.core.errors import ConfigError
+from stereograph.core.errors import ConfigError, did_you_mean
 from stereograph.core.executors import SerialExecutor
 from stereograph.core.graph import build_graph
 from stereograph.core.run_state import RunResult, RunState, default_cache_dir, new_run_id
@@ -108,14 +108,11 @@ def _selection(graph: Graph, only: str | None, from_node: str | None) -> tuple[l
     its downstream); ConfigError naming the closest node for a name the graph does not have."""
     for flag, name in (("--only", only), ("--from", from_node)):
         if name is not None and name not in graph.nodes:
-            import difflib
-
-            close = difflib.get_close_matches(name, list(graph.nodes), n=1)
             raise ConfigError(
                 f"{flag} {name}: no such node in {graph.doc.path.name}",
                 None,
                 None,
-                f"did you mean '{close[0]}'?" if close else f"nodes are {sorted(graph.nodes)}",
+                did_you_mean(name, graph.nodes, "nodes are"),
             )
     wanted = graph.upstream(only) | {only} if only is not None else set(graph.order)
     force = graph.downstream(from_node) | {from_node} if from_node is not None else set()
