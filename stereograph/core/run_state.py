@@ -975,26 +975,26 @@ class RunState:
         code: tuple[dict, dict],
         statuses: dict[str, str],
         keep: set[str],
-        inputs: dict[Ref, tuple[str, str | None, Any]],
+        keys: dict[Ref, tuple[str, str | None]],
+        values: dict[Ref, Any],
         collections: dict[tuple[str, str], list[str]],
         members: set[str],
         back: set[str],
-        missing: Any,
     ) -> RunState:
-        """A run of a chunk of items through ``members``, fed the outside ``inputs`` (ref ->
-        (entry key, content key, value or ``missing``: read from the store where needed)); the
-        nodes in ``back`` keep their values until the chunk hands them back. It records nothing."""
+        """A run of a chunk of items through ``members``, fed the outside values: ``keys`` (ref ->
+        (entry key, content key)) of all, ``values`` of those the chunk brought (the others are
+        read from the store where needed); the nodes in ``back`` keep their values until the chunk
+        hands them back. It records nothing."""
         run = cls(graph, store, out_dir, SerialExecutor(), set(force), None, keep=keep)
         run.sub = True
         run._code, run._code_files = dict(code[0]), dict(code[1])
         for name, status in statuses.items():
             run.reports[name].status = status
-        for ref, (key, ident, value) in inputs.items():
+        for ref, (key, ident) in keys.items():
             run._ref_keys[ref] = key
             if ident:
                 run._ref_ids[ref] = ident
-            if not (isinstance(value, str) and value == missing):
-                run._mem[ref] = value
+        run._mem.update(values)
         run._items.update({coll: list(ids) for coll, ids in collections.items()})
         run._remaining_consumers = {n: set(graph.consumers(n)) & members for n in graph.nodes}
         for n in back:  # read outside the chunk too: held until the chunk returns it
@@ -1154,9 +1154,6 @@ class RunState:
     def declare_items(self, source: str, ids: list[str]) -> None:
         """The items ``source`` makes (known early: they are being made ahead)."""
         self._declared[source] = list(ids)
-
-    def declared_items(self, source: str) -> list[str]:
-        return list(self._declared.get(source, []))
 
     def content_id(self, ref: Ref) -> str | None:
         """The content key of a produced item (None for anything else)."""

@@ -28,7 +28,11 @@ from stereograph.core.executors import SerialExecutor, TaskLost, progress_advanc
 from stereograph.core.run_state import PartRecords, RunState
 
 Ref = tuple[str, str, "str | None"]
-_MISSING = "__stereograph_missing__"
+_MISSING = "__stereograph_missing__"  # a value left in the cache (a string: it is pickled)
+
+
+def _missing(value: Any) -> bool:
+    return isinstance(value, str) and value == _MISSING
 
 
 @dataclass
@@ -250,8 +254,8 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
         store = _STORES.get(chunk.cache_root)
         if store is None:
             store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
-    shared = _shared_values(chunk.shared) if chunk.shared else {}
-    inputs = {ref: (k, i, shared.get(ref, v)) for ref, (k, i, v) in chunk.inputs.items()}
+    values = dict(_shared_values(chunk.shared)) if chunk.shared else {}
+    values.update({ref: v for ref, (_k, _i, v) in chunk.inputs.items() if not _missing(v)})
     run = RunState.for_part(
         graph,
         store,
@@ -260,11 +264,11 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
         (chunk.code, chunk.code_files),
         chunk.statuses,
         set(chunk.keep),
-        inputs,
+        {ref: (k, i) for ref, (k, i, _v) in chunk.inputs.items()},
+        values,
         chunk.collections,
         set(chunk.region.nodes),
         {n for n, _ in chunk.back},
-        _MISSING,
     )
     return run, store, store.stored_bytes() if store is not None else 0
 
@@ -303,7 +307,7 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
                     files.get((node, out), {}).pop(i, None)
                     written = False
             held = run.held(ref, _MISSING)
-            if not written and not (isinstance(held, str) and held == _MISSING):
+            if not written and not _missing(held):
                 values[ref] = held
     return files, values
 
@@ -448,7 +452,7 @@ def _chunk_inputs(
 
 def _outside_value(run: Any, ref: Ref, store_on: bool) -> Any:
     held = run.held(ref, _MISSING)
-    if not (isinstance(held, str) and held == _MISSING):
+    if not _missing(held):
         return held
     if store_on and run.key_of(ref) is not None:
         return _MISSING  # read from the cache where it is needed
@@ -506,9 +510,7 @@ def _ship(run: Any, chunks: list[Chunk]) -> None:
     for chunk in chunks:
         chunk.graph, chunk.store = graph_bytes, None
     whole = {
-        ref: v[2]
-        for ref, v in chunks[0].inputs.items()
-        if ref[2] is None and not (isinstance(v[2], str) and v[2] == _MISSING)
+        ref: v[2] for ref, v in chunks[0].inputs.items() if ref[2] is None and not _missing(v[2])
     }
     if not whole:
         return
