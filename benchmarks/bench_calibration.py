@@ -1,7 +1,7 @@
 """Print the camera-rig figures: renderer speed and self-consistency, chessboard and Tsai recovery,
 real data.
 
-.venv/bin/python benchmarks/bench_calibration.py [--scenes 30] [--views 16]
+    .venv/bin/python benchmarks/bench_calibration.py [--scenes 30] [--views 16]
 """
 
 from __future__ import annotations

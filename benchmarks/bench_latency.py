@@ -6,8 +6,7 @@
 Runs ``pipelines/pick-live.yaml --repeat`` (the embedded default: a recorded synthetic 640x480
 camera, the saved calibration / compensation / hand-eye, the AX-12A emulator on a pseudo-terminal
 driven by the real dynamixel-sdk) in this process, pinned to one CPU core (OpenCV single-threaded),
-and for
-every cycle that picks, times:
+and for every cycle that picks, times:
 
     grab               source.camera: grab() both sides, retrieve (decode), timestamps, skew check
     calibration check  rectifier.gate: features matched on the first pair and every 10th (else 0 ms)

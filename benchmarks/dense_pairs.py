@@ -6,9 +6,9 @@ Pairs: Middlebury's Aloe (``../shared/data``, full size) and Motorcycle (the qua
 2014 pair scikit-image ships as ``skimage.data.stereo_motorcycle``: ``pip install scikit-image``;
 skipped, saying so, without it). Each is run through ``disparity.dense`` with the given overrides
 (default: the node's defaults) and scored as ``report.disparity`` scores: fill = share of pixels
-with
-known truth that got a disparity; bad-2.0 = share of those more than 2 px from the truth (target:
-bad-2.0 <= 3.8 % at >= 72 % fill on every pair), and the same for the padded left strip alone.
+with known truth that got a disparity; bad-2.0 = share of those more than 2 px from the truth
+(target: bad-2.0 <= 3.8 % at >= 72 % fill on every pair), and the same for the padded left strip
+alone.
 """
 
 from __future__ import annotations

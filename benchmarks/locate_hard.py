@@ -18,7 +18,7 @@ Usage::
     .venv/bin/python benchmarks/locate_hard.py --n 10 --old    # quicker, plus the issue-4 kinds
     .venv/bin/python benchmarks/locate_hard.py --segmenters edge_morph color --disparity ellipse
     .venv/bin/python benchmarks/locate_hard.py --learn         # also the colour learned from
-    training truth
+                                                               # training truth
 """
 
 from __future__ import annotations

@@ -10,10 +10,11 @@ each segmenter with shadow suppression off and on.
 Usage::
 
     .venv/bin/python benchmarks/locate_matrix.py                     # 120 placements, chessboard
-    calibration .venv/bin/python benchmarks/locate_matrix.py --calibration truth # isolate the
-    locating error .venv/bin/python benchmarks/locate_matrix.py --n 60 --no-sgbm     # quicker
+                                                                     # calibration
+    .venv/bin/python benchmarks/locate_matrix.py --calibration truth # isolate the locating error
+    .venv/bin/python benchmarks/locate_matrix.py --n 60 --no-sgbm     # quicker
     .venv/bin/python benchmarks/locate_matrix.py --rectify on-demand  # segmenters given the camera
-    pairs
+                                                                      # pairs
 
 Prints Markdown tables (cm): mean / std / max|err| per axis, n_found / n.
 """

@@ -18,7 +18,8 @@ TableFrame artifact::
     {"T_table_from_left": 4x4 (cm),      # X_table = T @ [X_left, 1]
      "method": "board", "view": str, "board": {"cols", "rows", "square_cm"},
      "disagreement": {"translation_cm": float, "rotation_deg": float},   # left-only vs right-only
-     pose "reprojection_rms_px": {"left": float, "right": float},             # of the joint pose
+                                                                         # pose
+     "reprojection_rms_px": {"left": float, "right": float},             # of the joint pose
      "flatness_cm": float,                 # largest |z| of the corners in the table frame
      "rig": {"image_size", "fx_px", "baseline_cm"}}                       # the calibration it used
 """

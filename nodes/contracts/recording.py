@@ -5,7 +5,8 @@ artifact.
 
     {"left_video": uint8 (n,), "right_video": uint8 (n,),  # the two files' bytes
      "container": "avi" | "mkv", "codec": "HFYU" | "FFV1" | "RGBA", "fps": float, "image_size": [w,
-     h], "ids": [str, ...], "truth": [StereoPair.truth | None, ...]}   # per frame
+     h],
+     "ids": [str, ...], "truth": [StereoPair.truth | None, ...]}   # per frame
 
 The bytes travel in the artifact (and the cache) so that a camera source can write them into its
 run folder and open them with ``cv2.VideoCapture`` — the same path as a real camera's recording.

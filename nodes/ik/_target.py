@@ -4,21 +4,26 @@ JointTarget (per item)::
 
     {"pair": str, "found": bool, "reason": str | None, "extrapolated": bool,
      "unreachable": bool,                                    # located, but out of this arm's reach
-     / limits "hint": str | None,                                     # the fix, when unreachable
+                                                             # / limits
+     "hint": str | None,                                     # the fix, when unreachable
      "location_cm": [x, y, z] | None, "frame": str,        # as located (camera or table frame)
      "target_base_cm": [x, y, z] | None,                     # the tool-point target, arm-base frame
      "truth_base_cm": [x, y, z] | None,                      # true ball centre, arm-base frame (rig
-     truth) "joints_deg": {"yaw", "shoulder", "elbow": float} | None,
+                                                             # truth)
+     "joints_deg": {"yaw", "shoulder", "elbow": float} | None,
      "servo_units": {str(id): int} | None,                   # goal positions of the joint servos
      "fk_cm": [x, y, z] | None,                              # tool point of the quantised servo
-     goals "solver": {"type": "analytic_3dof" | "numeric", "params": {...}},
+                                                             # goals
+     "solver": {"type": "analytic_3dof" | "numeric", "params": {...}},
      "object_radius_cm": float | None,                       # the ball's radius (the segmenter's),
-     when known "sigma_z_cm": float | None,                             # the location's depth
-     uncertainty "hand_eye_rms_cm": float | None,                        # the hand-eye fit's RMS
-     residual (fitted modes) "height_above_table_cm": float | None,                  # the centre's
-     height over the table frame's z = 0,
+                                                             # when known
+     "sigma_z_cm": float | None,                             # the location's depth uncertainty
+     "hand_eye_rms_cm": float | None,                        # the hand-eye fit's RMS residual
+                                                             # (fitted modes)
+     "height_above_table_cm": float | None,                  # the centre's height over the table
+                                                             # frame's z = 0,
                                                              #   when the hand-eye places the base
-                                                             in it
+                                                             # in it
      "split": str (copied when present)}
 """
 

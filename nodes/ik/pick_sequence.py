@@ -5,18 +5,22 @@ PickPlan (per item)::
 
     {"pair": str, "refused": bool, "reason": str | None, "split": str | None, "arm": str,
      "hint": str | None,                   # refused plans only: the fix (also appended to the
-     reason) "target_base_cm": [x, y, z], "truth_base_cm": [x, y, z] | None,
+                                           # reason)
+     "target_base_cm": [x, y, z], "truth_base_cm": [x, y, z] | None,
      "solver": {...},                      # the IK solver of the JointTarget, reused for every
-     waypoint "servo_ids": [int, ...],              # every servo the plan drives, chain order
+                                           # waypoint
+     "servo_ids": [int, ...],              # every servo the plan drives, chain order
      "grasp_index": int,                   # index of the waypoint that closes the gripper on the
-     object "grasp_fk_cm": [x, y, z],             # tool point of the quantised servo goals at the
-     grasp "workspace_cm": {"min": [x, y, z], "max": [x, y, z]},   # the box every waypoint was
-     checked against "table_check": {"height_above_table_cm": float, "radius_cm": float | None,
-     "tolerance_cm": float,
+                                           # object
+     "grasp_fk_cm": [x, y, z],             # tool point of the quantised servo goals at the grasp
+     "workspace_cm": {"min": [x, y, z], "max": [x, y, z]},   # the box every waypoint was checked
+                                                             # against
+     "table_check": {"height_above_table_cm": float, "radius_cm": float | None, "tolerance_cm":
+     float,
                      "table": str},        # the ball's centre vs one radius above the table (see
-                     _check_table)
+                                           # _check_table)
      "waypoints": [{"name": str,           # open, above, descend_k, grasp, close, lift,
-     place_above, ...
+                                           # place_above, ...
                     "gripper": "open" | "closed",
                     "tool_cm": [x, y, z],  # tool-point target, arm-base frame
                     "joints_deg": {"yaw", "shoulder", "elbow", "gripper": float},

@@ -233,8 +233,7 @@ class StereoCapture:
 
     def _compare_lengths(self) -> None:
         """Say when two recordings differ in length: the one sign of a frame dropped in one of them.
-        OpenCV
-        gives a file's frame the time code index / frame rate, so the skew check cannot see a
+        OpenCV gives a file's frame the time code index / frame rate, so the skew check cannot see a
         dropped frame: every later pair holds a left and a right image one frame apart, with equal
         time codes."""
         if not self.files or len(self.caps) != 2:
