@@ -366,7 +366,9 @@ def test_a_pick_is_planned_in_one_arm_configuration(solver):
     )
     rng = np.random.default_rng(3)
     planned = refused = 0
-    for _ in range(150):
+    # (the numeric solver is ~10x slower: fewer targets, still ~40 plans where 18 % showed the bug)
+    n_targets = 150 if solver == "analytic_3dof" else 60
+    for _ in range(n_targets):
         r, a = rng.uniform(8.0, 22.0), rng.uniform(-np.pi / 2, np.pi / 2)
         p = np.array([r * np.cos(a), r * np.sin(a), 2.0])
         kind = {"type": solver, "params": {}}
@@ -407,7 +409,7 @@ def test_a_pick_is_planned_in_one_arm_configuration(solver):
             p,
             confs,
         )
-    assert planned > 50
+    assert planned > n_targets // 3
 
 
 def test_a_home_pose_below_the_table_is_refused_before_any_move():

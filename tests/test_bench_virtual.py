@@ -19,7 +19,7 @@ from nodes.sources.synthetic import SyntheticParams, _rig_kwargs
 from stereograph.core.runner import run_pipeline
 
 ROOT = Path(__file__).resolve().parents[1]
-N_SCENES, N_VIEWS = 40, 10
+N_SCENES, N_VIEWS = 24, 10
 OBJECT = "{radius_cm: 2.0, color_bgr: [20, 120, 245]}"
 # the arm base, in the synthetic rig's own table frame (cm)
 BASE_IN_RIG_TABLE = np.array([0.0, 0.0, 0.0])

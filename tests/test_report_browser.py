@@ -121,7 +121,7 @@ def test_calibration_report_real_pairs(tmp_path):
 def test_locate_hard_report(tmp_path):
     res = run_pipeline(
         PIPES / "locate-hard.yaml",
-        ["rig.n_hard_each=2", "rig.n_views=10"],
+        ["rig.n_hard_each=1", "rig.n_views=10"],
         cache_dir=tmp_path / "cache",
         out_dir=tmp_path / "hard",
     )
@@ -166,7 +166,7 @@ def test_compare_report(tmp_path):
 def test_pick_report(tmp_path):
     res = run_pipeline(
         PIPES / "pick.yaml",
-        ["rig.n_scenes=16", "rig.n_views=10"],
+        ["rig.n_scenes=16", "rig.n_views=10", "act.sim_time_scale=20"],
         cache_dir=tmp_path / "cache",
         out_dir=tmp_path / "pick",
     )

@@ -125,6 +125,8 @@ def test_pick_yaml_picks_with_every_segmenter_type_by_one_setting(
                     f"segment.type={seg_type}",
                     "--set",
                     "rig.n_scenes=16",
+                    "--set",
+                    "act.sim_time_scale=20",  # (the servos' timing is not what this test is about)
                     "--out",
                     str(out),
                     "--cache-dir",
