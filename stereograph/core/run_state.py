@@ -282,15 +282,7 @@ class RunState:
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
         except NotStored:  # kept as a manifest only: computing it again is the cheaper read
-            self.recompute(node, item, store=False)
-            if ref not in self._mem:
-                raise NodeError(
-                    f"recomputing '{node}'"
-                    + (f" for item '{item}'" if item is not None else "")
-                    + f" no longer gives '{out}'",
-                    hint="run again with --from " + node,
-                ) from None
-            return self._mem[ref]
+            return self._recomputed(ref, item, store=False)
         except CorruptEntry as e:
             self.reports[node].messages.append(
                 f"cache entry {key[:12]} was corrupt ({e}); recomputed"
@@ -299,19 +291,22 @@ class RunState:
             # an item of a collection (or its index) comes from the one entry of the node that
             # yields it
             inst = self.g.nodes[node]
-            self.recompute(
-                node,
-                None if inst.spec.outputs[out].collection and not self.producer(inst) else item,
-            )
-            if ref not in self._mem:
-                raise NodeError(
-                    f"a cache entry of '{node}' was corrupt, and recomputing it no longer gives "
-                    f"'{out}'" + (f" for item '{item}'" if item is not None else ""),
-                    hint="run again with --from " + node,
-                ) from None
-            return self._mem[ref]
+            whole = inst.spec.outputs[out].collection and not self.producer(inst)
+            return self._recomputed(ref, None if whole else item)
         for o, v in entry.items():
             self._mem[(node, o, item)] = v
+        return self._mem[ref]
+
+    def _recomputed(self, ref: Ref, entry_item: str | None, store: bool = True) -> Any:
+        """``ref``'s value, its entry computed again (see :meth:`recompute`)."""
+        node, out, item = ref
+        self.recompute(node, entry_item, store=store)
+        if ref not in self._mem:
+            raise NodeError(
+                f"recomputing a cache entry of '{node}' no longer gives '{out}'"
+                + (f" for item '{item}'" if item is not None else ""),
+                hint="run again with --from " + node,
+            ) from None  # (called while handling the load's exception: not its cause)
         return self._mem[ref]
 
     def inputs_for(self, refs: dict[str, Any]) -> dict[str, Any]:
@@ -391,6 +386,7 @@ class RunState:
         if save and self.store is not None and key is not None:
             # collection indexes in the manifest too: a rerun learns the items without loading the
             # entry (which may hold big values beside them, such as calibration views)
+            indexes = {n: single[n] for n in colls}
             self.store.save(
                 key,
                 single,
@@ -399,8 +395,8 @@ class RunState:
                     "node": inst.name,
                     "item": item,
                     "messages": list(messages or []),
-                    "indexes": {n: single[n] for n in colls},
-                    "indexes_digest": hash_json({n: single[n] for n in colls}),
+                    "indexes": indexes,
+                    "indexes_digest": hash_json(indexes),
                 },
                 compute_seconds=seconds,
                 **({"encoded": encoded} if encoded else {}),
