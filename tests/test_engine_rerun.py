@@ -317,8 +317,8 @@ def act(params, n):
 @pytest.mark.slow
 def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_path):
     """The replay of an actuator-like node (plain-data inputs and outputs) runs it and writes its
-    run folder without NumPy: a replayed rerun costs the node's own modules, not the engine's
-    codecs."""
+    run folder without NumPy, and its page without NetworkX (0.2 s of imports): a replayed rerun
+    costs the node's own modules, not the engine's codecs or its graph library."""
     import subprocess
     import sys
 
@@ -335,7 +335,8 @@ def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_pa
         "stereograph.app.cli import main; "
         f"rc = main(['--allow-plugins', 'run', {str(p)!r}, '--cache-dir', "
         f"{str(tmp_path / 'w' / 'c')!r}, "
-        "'--out', sys.argv[1]]); print('NUMPY', 'numpy' in sys.modules); sys.exit(rc)"
+        "'--out', sys.argv[1]]); "
+        "print('NUMPY', 'numpy' in sys.modules, 'networkx' in sys.modules); sys.exit(rc)"
     )
     env = dict(os.environ, STEREOGRAPH_NO_REPLAY="")
     outs = []
@@ -350,8 +351,9 @@ def test_a_replay_imports_no_numpy_for_a_node_that_must_run_on_plain_data(tmp_pa
         )
         assert r.returncode == 0, r.stdout + r.stderr
         outs.append(r.stdout)
-    assert "NUMPY True" in outs[0]  # the real run: the cache's codecs
-    assert "NUMPY False" in outs[1], outs[1]
+    assert "NUMPY True True" in outs[0]  # the real run: the cache's codecs, the graph
+    assert "NUMPY False False" in outs[1], outs[1]
+    assert (tmp_path / "w" / "o2" / "report.html").is_file()
     s2 = _summary(tmp_path, "o2")
     assert {n["node"]: n["status"] for n in s2["nodes"]} == {"count": "cached", "act": "ran"}
     assert json.loads((tmp_path / "w" / "o2" / "act" / "log.json").read_text()) == {"moves": 3}

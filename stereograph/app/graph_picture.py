@@ -9,10 +9,10 @@ wire passes through a slot of its own in each row it crosses, beside the boxes, 
 
 from __future__ import annotations
 
+import graphlib
+import heapq
 import html
 from typing import Any
-
-import networkx as nx
 
 BOX_W, BOX_H, GAP_X, GAP_Y, PAD, SLOT_W = 170, 46, 24, 40, 12, 14
 MAX_SLOTS = 20000  # row crossings of long wires laid out (beyond: straight wires)
@@ -38,20 +38,21 @@ def describe(graph: Any) -> dict[str, dict[str, Any]]:
     }
 
 
-def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
-    """The wires between the described nodes as a DAG, nodes in their listed order. A description
-    read from a foreign ``run.json`` may hold a cycle: the wires a depth-first walk finds closing
-    one are left out."""
-    g = nx.DiGraph()
-    g.add_nodes_from(nodes)
-    g.add_edges_from((src, dst) for src, _, dst, _ in _edges(nodes) if src != dst)
+def dag(nodes: dict[str, dict[str, Any]]) -> dict[str, dict[str, None]]:
+    """The wires between the described nodes as a DAG: each node's successors, in the listed
+    order. A description read from a foreign ``run.json`` may hold a cycle: the wires a
+    depth-first walk finds closing one are left out."""
+    succ: dict[str, dict[str, None]] = {n: {} for n in nodes}
+    for src, _, dst, _ in _edges(nodes):
+        if src != dst:
+            succ[src][dst] = None
     state: dict[str, int] = {}  # 1: on the walk's path, 2: done
     back = []
     for root in nodes:
         if root in state:
             continue
         state[root] = 1
-        stack = [(root, iter(g.successors(root)))]  # (edges are removed only after the walk)
+        stack = [(root, iter(succ[root]))]  # (edges are removed only after the walk)
         while stack:
             n, rest = stack[-1]
             for m in rest:
@@ -59,25 +60,53 @@ def dag(nodes: dict[str, dict[str, Any]]) -> nx.DiGraph:
                     back.append((n, m))
                 elif m not in state:
                     state[m] = 1
-                    stack.append((m, iter(g.successors(m))))
+                    stack.append((m, iter(succ[m])))
                     break
             else:
                 state[n] = 2
                 stack.pop()
-    g.remove_edges_from(back)
-    return g
+    for n, m in back:
+        succ[n].pop(m, None)
+    return succ
+
+
+def topological_order(succ: dict[str, dict[str, None]], key: Any) -> list[str]:
+    """The nodes of :func:`dag`, each after those it reads; of the nodes ready, the smallest
+    ``key`` first (NetworkX's lexicographical topological sort; the standard library's
+    ``graphlib`` here: a replayed rerun writes its page without importing NetworkX)."""
+    sorter = graphlib.TopologicalSorter(_predecessors(succ))
+    sorter.prepare()
+    ready = [(key(n), n) for n in sorter.get_ready()]
+    heapq.heapify(ready)
+    order = []
+    while ready:
+        n = heapq.heappop(ready)[1]
+        order.append(n)
+        sorter.done(n)
+        for m in sorter.get_ready():
+            heapq.heappush(ready, (key(m), m))
+    return order
+
+
+def _predecessors(succ: dict[str, dict[str, None]]) -> dict[str, list[str]]:
+    preds: dict[str, list[str]] = {n: [] for n in succ}
+    for n, after in succ.items():
+        for m in after:
+            preds[m].append(n)
+    return preds
 
 
 def _rows(nodes: dict[str, dict[str, Any]]) -> dict[str, int]:
     """Each node's row: the longest path that reaches it; a node without inputs (an arm model) sits
     just above its first consumer."""
-    g = dag(nodes)
-    row: dict[str, int] = {}
-    for n in nx.topological_sort(g):
-        row[n] = 1 + max((row[p] for p in g.predecessors(n)), default=-1)
+    succ = dag(nodes)
+    index = {n: i for i, n in enumerate(nodes)}
+    preds, row = _predecessors(succ), {}
+    for n in topological_order(succ, index.__getitem__):
+        row[n] = 1 + max((row[p] for p in preds[n]), default=-1)
     for n in nodes:
-        users = [row[m] for m in g.successors(n)]
-        if not g.in_degree(n) and users:
+        users = [row[m] for m in succ[n]]
+        if not preds[n] and users:
             row[n] = max(0, min(users) - 1)
     return row
 

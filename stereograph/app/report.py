@@ -14,8 +14,6 @@ import os
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
-
 from stereograph.app import graph_picture
 from stereograph.app.page import (
     CHECK,
@@ -197,7 +195,7 @@ def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for name, n in by_name.items()
     }
     index = {name: i for i, name in enumerate(by_name)}
-    order = nx.lexicographical_topological_sort(graph_picture.dag(desc), key=index.__getitem__)
+    order = graph_picture.topological_order(graph_picture.dag(desc), index.__getitem__)
     return [by_name[name] for name in order] + [
         n for n in nodes if by_name.get(n.get("node")) is not n
     ]
