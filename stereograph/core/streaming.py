@@ -172,32 +172,39 @@ def chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
 
 
 @dataclass
-class Chunk:
-    """One task: a chunk of items through a region (picklable for the pools)."""
+class RegionTask:
+    """What every chunk of a region shares (picklable for the pools)."""
 
     graph: Any  # the Graph (in this process) or its pickle (for another one)
     plugins: list[str]
     pipeline_dir: str
     region: Region
-    items: list[str]
-    inputs: dict[Ref, tuple[str, str | None, Any]]  # ref -> (key, content key, value or _MISSING)
-    # outside collections: (node, out) -> this chunk's ids
-    collections: dict[tuple[str, str], list[str]]
-    statuses: dict[str, str]
-    code: dict[str, str]
-    code_files: dict[str, dict[str, str]]
+    statuses: dict[str, str]  # of the nodes outside the region
+    code: tuple[dict, dict]  # code digests and code files per node type (RunState.code_snapshot)
     cache_root: str | None
     out_dir: str
     force: set[str]
     # outputs whose item values the run needs back (read outside, kept)
     back: set[tuple[str, str]]
     deliver: set[tuple[str, str]]  # outputs the run folder gets (saved, terminal)
-    # the run's kept nodes (terminal, --only) in the region
-    keep: set[str] = field(default_factory=set)
+    keep: set[str]  # the run's kept nodes (terminal, --only) in the region
+    # the whole (not per-item) outside values: ref -> (key, content key, value or _MISSING)
+    whole: dict[Ref, tuple[str, str | None, Any]] = field(default_factory=dict)
     store: Any = None  # the run's own store, when run in its process
-    ahead: dict[str, str] = field(default_factory=dict)  # item -> file of an item made ahead
-    # file of the whole values every chunk reads (sent once per process)
+    # file of the whole values (sent once per process instead of in every task)
     shared: str | None = None
+
+
+@dataclass
+class Chunk:
+    """One task: a chunk of items through a region."""
+
+    task: RegionTask
+    items: list[str]
+    inputs: dict[Ref, tuple[str, str | None, Any]]  # this chunk's item values, as ``whole``
+    # outside collections: (node, out) -> this chunk's ids
+    collections: dict[tuple[str, str], list[str]]
+    ahead: dict[str, str] = field(default_factory=dict)  # item -> file of an item made ahead
 
 
 @dataclass
@@ -225,14 +232,14 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
     node's failure (those are item failures in the result)."""
     t0 = time.perf_counter()
     run, store, written0 = _chunk_state(chunk)
-    reg, graph = chunk.region, run.g
+    reg, graph = chunk.task.region, run.g
     for name in ([reg.source] if reg.source else []) + list(reg.nodes):
         source = name == reg.source
         ex = _Ahead(chunk.ahead) if source and chunk.ahead else SerialExecutor()
         run.run_part_node(graph.nodes[name], ex, list(chunk.items) if source else None)
     files, values = _chunk_outputs(chunk, run, store)
     inside = set(reg.nodes) | ({reg.source} if reg.source else set())
-    own_store = store is not None and chunk.store is None
+    own_store = store is not None and chunk.task.store is None
     return ChunkResult(
         records=run.records(inside, values, files),
         notes=list(store.notes) if own_store else [],
@@ -244,31 +251,32 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
 def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
     """A small run of the chunk's own: the graph (unpickled in another process, after its plugins),
     the store (one per cache per process), the outside values and keys the chunk brought."""
-    graph = chunk.graph
+    t, graph = chunk.task, chunk.task.graph
     if isinstance(graph, bytes):  # another process: its plugins' classes must exist to unpickle
-        if chunk.plugins:
-            registry.import_plugins(chunk.plugins, Path(chunk.pipeline_dir))
+        if t.plugins:
+            registry.import_plugins(t.plugins, Path(t.pipeline_dir))
         graph = pickle.loads(graph)
-    store = chunk.store
-    if store is None and chunk.cache_root is not None:
-        store = _STORES.get(chunk.cache_root)
+    store = t.store
+    if store is None and t.cache_root is not None:
+        store = _STORES.get(t.cache_root)
         if store is None:
-            store = _STORES[chunk.cache_root] = ArtifactStore(chunk.cache_root)
-    values = dict(_shared_values(chunk.shared)) if chunk.shared else {}
-    values.update({ref: v for ref, (_k, _i, v) in chunk.inputs.items() if not _missing(v)})
+            store = _STORES[t.cache_root] = ArtifactStore(t.cache_root)
+    refs = {**t.whole, **chunk.inputs}
+    values = dict(_shared_values(t.shared)) if t.shared else {}
+    values.update({ref: v for ref, (_k, _i, v) in refs.items() if not _missing(v)})
     run = RunState.for_part(
         graph,
         store,
-        Path(chunk.out_dir),
-        chunk.force,
-        (chunk.code, chunk.code_files),
-        chunk.statuses,
-        set(chunk.keep),
-        {ref: (k, i) for ref, (k, i, _v) in chunk.inputs.items()},
+        Path(t.out_dir),
+        t.force,
+        t.code,
+        t.statuses,
+        set(t.keep),
+        {ref: (k, i) for ref, (k, i, _v) in refs.items()},
         values,
         chunk.collections,
-        set(chunk.region.nodes),
-        {n for n, _ in chunk.back},
+        set(t.region.nodes),
+        {n for n, _ in t.back},
     )
     return run, store, store.stored_bytes() if store is not None else 0
 
@@ -278,15 +286,16 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
     item, and the values it sends back (what nodes outside read, and what it could not write)."""
     files: dict[tuple[str, str], dict[str, list[str]]] = {}
     values: dict[Ref, Any] = {}
-    for node, out in sorted(chunk.deliver | chunk.back):
+    t = chunk.task
+    for node, out in sorted(t.deliver | t.back):
         ids = run.items_of(node, out)
-        written = (node, out) in chunk.deliver and ids and _writes_images(run, node, out, ids[0])
+        written = (node, out) in t.deliver and ids and _writes_images(run, node, out, ids[0])
         # pictures: JPEG
         lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))
         for i in ids:
             ref = (node, out, i)
             if written:
-                stem = Path(chunk.out_dir) / node / out / outputs_mod.file_name(i)
+                stem = Path(t.out_dir) / node / out / outputs_mod.file_name(i)
                 try:
                     files.setdefault((node, out), {})[i] = [
                         str(p)
@@ -389,54 +398,47 @@ def _plan_chunks(
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
     outside = {s for n in reg.nodes for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
     upstream = (outside.union(*(nx.ancestors(g.dag, s) for s in outside))) - inside
-    upstream_keys = run.keys_of(upstream)
+    inputs, colls = _outside_inputs(run, reg.nodes, inside)
+    for ref, key in run.keys_of(upstream):
+        inputs.setdefault(ref, (key, run.content_id(ref), _MISSING))
+    task = RegionTask(
+        g,
+        list(g.doc.plugins),
+        str(g.doc.directory),
+        reg,
+        statuses,
+        run.code_snapshot(),
+        str(run.store.root) if store_on else None,
+        str(run.out_dir),
+        set(run.force),
+        back,
+        deliver,
+        run.keep & inside,
+        whole={ref: v for ref, v in inputs.items() if ref[2] is None},
+        store=run.store,
+    )
     chunks = []
     for k, end in chunk_bounds(len(ids), workers):
-        part = ids[k:end]
-        inputs, colls = _chunk_inputs(run, reg.nodes, inside, part)
-        want = set(part)
-        for ref, key in upstream_keys:
-            if ref not in inputs and (ref[2] is None or ref[2] in want):
-                inputs[ref] = (key, run.content_id(ref), _MISSING)
-        chunks.append(
-            Chunk(
-                g,
-                list(g.doc.plugins),
-                str(g.doc.directory),
-                reg,
-                part,
-                inputs,
-                colls,
-                statuses,
-                *run.code_snapshot(),
-                str(run.store.root) if store_on else None,
-                str(run.out_dir),
-                set(run.force),
-                back,
-                deliver,
-                keep=run.keep & inside,
-                store=run.store,
-            )
-        )
+        want = set(ids[k:end])
+        mine = {ref: v for ref, v in inputs.items() if ref[2] in want}
+        got = {c: [i for i in items if i in want] for c, items in colls.items()}
+        chunks.append(Chunk(task, ids[k:end], mine, got))
     return chunks
 
 
-def _chunk_inputs(
-    run: Any, members: list[str], inside: set[str], part: list[str]
-) -> tuple[dict, dict]:
-    """``(inputs, collections)`` of one chunk: every outside value its nodes read, as (key, id,
+def _outside_inputs(run: Any, members: list[str], inside: set[str]) -> tuple[dict, dict]:
+    """``(inputs, collections)`` of a region: every outside value its nodes read, as (key, id,
     value) -- the value itself when this process holds it, else :data:`_MISSING` (read from the
     cache)."""
     g, store_on = run.g, run.store is not None
     inputs: dict[Ref, tuple[str, str | None, Any]] = {}
     colls = {}
-    want = set(part)
     for n in members:
         for s, o in g.nodes[n].inputs.values():
             if s in inside:
                 continue
             if g.is_collection(s, o):
-                colls[(s, o)] = [i for i in run.items_of(s, o) if i in want]
+                colls[(s, o)] = run.items_of(s, o)
                 refs = [(s, o, i) for i in colls[(s, o)]]
             else:
                 refs = [(s, o, None)]
@@ -480,7 +482,7 @@ def _run_chunks(
         chunks = chunks[1:]
         local = not any(r.items_ran for r in probe.records.reports.values())
     if not local and chunks:
-        _ship(run, chunks)
+        _ship(run, chunks[0].task)
     lost: list[Chunk] = []
     for chunk, res in zip(
         chunks, (run.executor if not local else SerialExecutor()).map(run_chunk, chunks)
@@ -502,27 +504,22 @@ def _run_chunks(
         _settle(run, reg, chunk, res, skipped, label, first)
 
 
-def _ship(run: Any, chunks: list[Chunk]) -> None:
-    """Make chunks fit for another process: the graph as bytes, no store object, and what every
-    chunk reads whole (the rectification and its maps, ~9 MB) once in a file of the run folder, read
-    once per worker process, instead of pickled into every task."""
-    graph_bytes = pickle.dumps(run.g)
-    for chunk in chunks:
-        chunk.graph, chunk.store = graph_bytes, None
-    whole = {
-        ref: v[2] for ref, v in chunks[0].inputs.items() if ref[2] is None and not _missing(v[2])
-    }
+def _ship(run: Any, task: RegionTask) -> None:
+    """Make a region's chunks fit for another process: the graph as bytes, no store object, and
+    what every chunk reads whole (the rectification and its maps, ~9 MB) once in a file of the run
+    folder, read once per worker process, instead of pickled into every task."""
+    task.graph, task.store = pickle.dumps(run.g), None
+    whole = {ref: v[2] for ref, v in task.whole.items() if not _missing(v[2])}
     if not whole:
         return
     folder = Path(run.out_dir) / AHEAD_DIR
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"whole-{uuid.uuid4().hex}.pkl"
     path.write_bytes(pickle.dumps(whole, protocol=pickle.HIGHEST_PROTOCOL))
-    for chunk in chunks:
-        chunk.shared = str(path)
-        chunk.inputs = {
-            ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in chunk.inputs.items()
-        }
+    task.shared = str(path)
+    task.whole = {
+        ref: (v[0], v[1], _MISSING) if ref in whole else v for ref, v in task.whole.items()
+    }
 
 
 def _settle(
