@@ -304,7 +304,7 @@ def _check_validate(folder: Path, text: str, sets: list[str], capsys) -> None:
 
 
 @settings(
-    max_examples=examples(400),
+    max_examples=examples(250),
     deadline=None,
     database=None,
     derandomize=False,
