@@ -417,12 +417,19 @@ def _plan_chunks(
         whole={ref: v for ref, v in inputs.items() if ref[2] is None},
         store=run.store,
     )
+    by_item: dict[str, dict] = {}  # (each chunk takes its items' values: linear in the items)
+    for ref, v in inputs.items():
+        if ref[2] is not None:
+            by_item.setdefault(ref[2], {})[ref] = v
+    at = {c: {i: k for k, i in enumerate(items)} for c, items in colls.items()}
     chunks = []
     for k, end in chunk_bounds(len(ids), workers):
-        want = set(ids[k:end])
-        mine = {ref: v for ref, v in inputs.items() if ref[2] in want}
-        got = {c: [i for i in items if i in want] for c, items in colls.items()}
-        chunks.append(Chunk(task, ids[k:end], mine, got))
+        part = ids[k:end]
+        mine = {ref: v for i in part for ref, v in by_item.get(i, {}).items()}
+        got = {
+            c: sorted((i for i in part if i in pos), key=pos.__getitem__) for c, pos in at.items()
+        }
+        chunks.append(Chunk(task, part, mine, got))
     return chunks
 
 
