@@ -708,6 +708,26 @@ def test_a_plugin_edited_in_a_long_lived_process_runs_its_new_code(tmp_path):
     assert run(f, tmp_path).status["a"] == "cached" and run(f, tmp_path).outputs("a", "value") == 2
 
 
+def test_a_plugin_edited_with_its_old_size_and_time_is_imported_again(tmp_path):
+    # (every task asks whether its plugin file changed, by its stat rather than its bytes; the stat
+    # holds the change time, which no tool sets back)
+    body = """\
+        from stereograph.core.api import node, Out
+        @node("tmp.answer_old", outputs={{"value": Out("Number", save=True)}})
+        def answer(params):
+            return {{"value": {v}}}
+        """
+    plug = _plugin(tmp_path, "answer_old.py", body.format(v=1))
+    long_ago = time.time_ns() - 60 * 10**9
+    os.utime(plug, ns=(long_ago, long_ago))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: a\nplugins: [{plug}]\nnodes:\n  a: {{type: tmp.answer_old}}\n")
+    assert run(f, tmp_path).outputs("a", "value") == 1
+    plug.write_text(textwrap.dedent(body.format(v=2)))  # the same size
+    os.utime(plug, ns=(long_ago, long_ago))  # and the same modification time
+    assert run(f, tmp_path).outputs("a", "value") == 2
+
+
 def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neighbours(tmp_path):
     one = _plugin(
         tmp_path / "a",

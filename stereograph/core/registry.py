@@ -13,10 +13,11 @@ import importlib.util
 import json
 import os
 import sys
+import time
 from collections.abc import Iterator
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from stereograph.core.digests import digest, file_digest
 from stereograph.core.errors import ConfigError, Where
@@ -154,6 +155,8 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
 # sets this from ``--allow-plugins`` (off by default); a Python program that loads pipelines is
 # trusted to have chosen its files and keeps the default (on). See docs/security.md.
 PLUGIN_PATHS: set[str] = set()  # folders put on sys.path for plugins (not installed packages)
+# a plugin file's stamp (path, size, times, inode) -> its module, imported from the file as it is
+_IMPORTED_FILES: dict[tuple | None, str] = {}
 PLUGINS_ALLOWED = True
 
 
@@ -215,13 +218,26 @@ def _import_file(path: Path) -> None:
     """Import a ``.py`` plugin as a module of its own (two plugins named nodes.py in two folders are
     two modules); a file changed since this process imported it is imported again -- the cache key
     follows the file, so the code run must too."""
+    try:  # (every task of a run asks again: a stat, not a read, while the file is unchanged)
+        st = os.stat(path)
+        stamp: tuple | None = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+    except OSError:
+        stamp = None
+    if _IMPORTED_FILES.get(stamp, "") in sys.modules:
+        return
     path = path.resolve()
     mod_name = f"stereograph_plugin_{path.stem}_{digest(str(path).encode())[:8]}"
     if not path.is_file():
         raise FileNotFoundError(f"no such file {path}")
     loaded, now = sys.modules.get(mod_name), file_digest(path)
-    if loaded is not None and getattr(loaded, "__stereograph_digest__", None) == now:
-        return
+    if loaded is None or getattr(loaded, "__stereograph_digest__", None) != now:
+        _exec_plugin(path, mod_name, now, loaded)
+    # an edit within the file system's timestamp tick keeps the stamp: only older files are trusted
+    if stamp is not None and time.time_ns() - stamp[2] > 2_000_000_000:
+        _IMPORTED_FILES[stamp] = mod_name
+
+
+def _exec_plugin(path: Path, mod_name: str, now: str, loaded: Any) -> None:
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:
         raise ImportError(f"{path} is not a Python module")
@@ -266,11 +282,10 @@ def _keep_installed(plugin: str, before: dict, where: Where | None) -> None:
     plugin; two plugins may still define one name (the last imported is used)."""
     from stereograph.core.api import REGISTRY
 
-    installed = _entry_points()
-    for name, spec in list(REGISTRY.items()):
+    changed = [(name, spec) for name, spec in REGISTRY.items() if spec is not before.get(name)]
+    installed = _entry_points() if changed else {}  # (a plugin imported already changes nothing)
+    for name, spec in changed:
         old = before.get(name)
-        if spec is old:
-            continue
         if (
             name in installed
             and installed[name].value.partition(":")[0].strip() != spec.fn.__module__
