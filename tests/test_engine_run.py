@@ -728,6 +728,40 @@ def test_a_plugin_edited_with_its_old_size_and_time_is_imported_again(tmp_path):
     assert run(f, tmp_path).outputs("a", "value") == 2
 
 
+def test_what_a_code_file_imports_is_kept_with_its_digest_and_renewed_when_it_changes(
+    tmp_path, monkeypatch
+):
+    # (a run parsed every source file its node types import, ~0.3 s per start for pick.yaml)
+    from stereograph.core import cache as cache_mod
+    from stereograph.core.cache import ArtifactStore
+
+    long_ago = time.time_ns() - 60 * 10**9
+    _plugin(tmp_path, "helper_kept.py", "VALUE = 5\n")
+    body = """\
+        from stereograph.core.api import node, Out
+        {imports}
+        @node("tmp.kept", outputs={{"value": Out("Number", save=True)}})
+        def kept(params):
+            return {{"value": 5}}
+        """
+    plug = _plugin(tmp_path, "kept.py", body.format(imports=""))
+    os.utime(plug, ns=(long_ago, long_ago))
+    f = tmp_path / "p.yaml"
+    f.write_text(f"name: k\nplugins: [{plug}]\nnodes:\n  k: {{type: tmp.kept}}\n")
+    assert run(f, tmp_path).ok
+    # a new process's index gives the statements without parsing the file
+    monkeypatch.setattr(cache_mod, "import_statements", lambda path: pytest.fail(f"parsed {path}"))
+    index = ArtifactStore(tmp_path / "cache").files
+    assert ("stereograph.core.api", 0, ("node", "Out")) in index.statements(str(plug))
+    monkeypatch.undo()
+    # an edit (the stamp changes) is parsed again: the helper it now imports is in the key
+    plug.write_text(textwrap.dedent(body.format(imports="from helper_kept import VALUE")))
+    os.utime(plug, ns=(long_ago, long_ago))
+    r = run(f, tmp_path)
+    assert r.status["k"] == "ran"
+    assert any(p.endswith("helper_kept.py") for p in r.state.code_digests())
+
+
 def test_plugins_of_one_file_name_in_two_folders_both_load_and_import_their_neighbours(tmp_path):
     one = _plugin(
         tmp_path / "a",

@@ -262,25 +262,43 @@ def _find_origin(name: str) -> str | None:
     return spec.origin if spec and spec.origin and spec.origin.endswith(".py") else None
 
 
-@lru_cache(maxsize=512)
-def _imports_of(path: str, mtime_ns: int, package: str) -> tuple[str, ...]:
-    """Local modules imported by a source file (resolved to file paths)."""
+def import_statements(path: str) -> tuple:
+    """The import statements of a source file, ``(module, level, names)`` each (``import a.b``:
+    ``("a.b", 0, ())``); what a file imports depends on its bytes only (:class:`FileIndex` keeps
+    it, so that a run parses only the files changed since)."""
     try:
         tree = ast.parse(Path(path).read_text(encoding="utf-8"))
     except (OSError, SyntaxError):
         return ()
-    names: list[str] = []
+    out: list[tuple] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            names += [a.name for a in node.names]
+            out += [(a.name, 0, ()) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".") if package else []
-                parts = parts[: len(parts) - (node.level - 1)] if node.level > 1 else parts
-                base = ".".join(parts + ([node.module] if node.module else []))
-            names.append(base)
-            names += [f"{base}.{a.name}" for a in node.names if base]
+            out.append((node.module or "", node.level, tuple(a.name for a in node.names)))
+    return tuple(out)
+
+
+@lru_cache(maxsize=512)
+def _statements_at(path: str, mtime_ns: int) -> tuple:
+    return import_statements(path)  # (without a store: once per file and process)
+
+
+@lru_cache(maxsize=512)
+def _imports_of(statements: tuple, package: str) -> tuple[str, ...]:
+    """Local modules a file's import statements import (resolved to file paths)."""
+    names: list[str] = []
+    for module, level, members in statements:
+        if not members:  # import a.b
+            names.append(module)
+            continue
+        base = module
+        if level:
+            parts = package.split(".") if package else []
+            parts = parts[: len(parts) - (level - 1)] if level > 1 else parts
+            base = ".".join(parts + ([module] if module else []))
+        names.append(base)
+        names += [f"{base}.{a}" for a in members if base]
     found = []
     for n in names:
         if not n:
@@ -313,8 +331,9 @@ def _module_name_for(path: str) -> str:
     return _NAMES.get(path, "")
 
 
-def code_files(module_file: str) -> list[str]:
-    """A node module and every project-local module it imports, transitively."""
+def code_files(module_file: str, index: FileIndex | None = None) -> list[str]:
+    """A node module and every project-local module it imports, transitively (each file's import
+    statements from ``index`` where it has them)."""
     seen: set[str] = set()
     todo = [str(Path(module_file).resolve())]
     while todo:
@@ -328,18 +347,23 @@ def code_files(module_file: str) -> list[str]:
             mtime = os.stat(path).st_mtime_ns
         except OSError:
             continue
-        todo += [p for p in _imports_of(path, mtime, package) if p not in seen]
+        statements = index.statements(path) if index else _statements_at(path, mtime)
+        todo += [p for p in _imports_of(statements, package) if p not in seen]
     return sorted(seen)
 
 
-def code_hash(fn: Any) -> tuple[str, dict[str, str]]:
-    """Digest of a node function's source and its local imports, and the per-file digests."""
+def code_hash(fn: Any, index: FileIndex | None = None) -> tuple[str, dict[str, str]]:
+    """Digest of a node function's source and its local imports, and the per-file digests
+    (through a store's ``index`` when given: files unchanged since are neither read nor parsed)."""
     mod = sys.modules.get(fn.__module__)
     module_file = getattr(mod, "__file__", None)
     if not module_file:
         return digest(fn.__qualname__.encode()), {}
     files = {}
-    for f in code_files(module_file):
+    for f in code_files(module_file, index):
+        if index is not None:
+            files[f] = index.digest(Path(f))
+            continue
         try:
             files[f] = digest(Path(f).read_bytes())
         except OSError:
@@ -392,7 +416,7 @@ class FileIndex:
         rec = self.data.get(p)
         if (
             isinstance(rec, list)
-            and len(rec) == 6
+            and len(rec) in (6, 7)  # (7: with its import statements)
             and rec[:4] == stamp
             and rec[5] - rec[1] >= RACY_SECONDS * 1e9
         ):
@@ -404,6 +428,21 @@ class FileIndex:
         self.data[p] = [*stamp, d, time.time_ns()]
         self.dirty = True
         return d
+
+    def statements(self, path: str) -> tuple:
+        """A source file's :func:`import_statements`, kept beside its digest: parsed again only
+        when the file changed (the digest's record is renewed then)."""
+        p = str(Path(path).resolve())
+        self.digest(Path(p))
+        rec = self.data.get(p)
+        if isinstance(rec, list) and len(rec) == 7:
+            with contextlib.suppress(TypeError, ValueError):
+                return tuple((str(m), int(lv), tuple(map(str, ns))) for m, lv, ns in rec[6])
+        got = import_statements(p)
+        if isinstance(rec, list) and len(rec) >= 6:
+            self.data[p] = [*rec[:6], [[m, lv, list(ns)] for m, lv, ns in got]]
+            self.dirty = True
+        return got
 
     def save(self) -> None:
         if self.path and self.dirty:

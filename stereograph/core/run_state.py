@@ -186,7 +186,8 @@ class RunState:
     def node_components(self, inst: NodeInstance) -> dict[str, Any]:
         """What, besides inputs, determines this node's artifacts."""
         if inst.type not in self._code:
-            self._code[inst.type], self._code_files[inst.type] = code_hash(inst.spec.fn)
+            index = self.store.files if self.store is not None else None
+            self._code[inst.type], self._code_files[inst.type] = code_hash(inst.spec.fn, index)
         try:
             params = inst.params.model_dump(mode="json")
         except Exception as e:
