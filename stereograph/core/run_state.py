@@ -1003,7 +1003,7 @@ class RunState:
         failing for all of the chunk's items is partial: the other chunks' items go on."""
         self.executor = executor
         if items is not None:
-            self._declared[inst.name] = list(items)
+            self.declare_items(inst.name, items)
         self.run_node(inst, items=items)
         rep = self.reports[inst.name]
         if rep.status == "failed" and (inst.name, None) not in self._failed_items:

@@ -549,11 +549,9 @@ def _settle(
 
 # ---------------------------------------------------------------- items made ahead
 
-AHEAD_DIR = ".stereograph-ahead"
+AHEAD_DIR = ".stereograph-ahead"  # in the run folder, removed when the run ends
 # per run: source -> its items being made ahead (start_ahead), until the region takes them
-_AHEAD: weakref.WeakKeyDictionary[RunState, dict[str, Any]] = (
-    weakref.WeakKeyDictionary()
-)  # in the run folder, removed when the run ends
+_AHEAD: weakref.WeakKeyDictionary[RunState, dict[str, Any]] = weakref.WeakKeyDictionary()
 
 
 @dataclass
