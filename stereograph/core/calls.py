@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import time
 import traceback
 from collections.abc import Callable
@@ -90,11 +91,18 @@ def execute(task: Task) -> TaskResult:
     return TaskResult(False, None, time.perf_counter() - t0, [], trace=trace, **failure)
 
 
+@functools.lru_cache(maxsize=1024)
+def _folder(*parts: str) -> Path:
+    """One immutable Path per folder, not one per call (parsing a path costs more than a call of a
+    light node)."""
+    return Path(*parts)
+
+
 def _call(task: Task) -> tuple[Any, Any, RunContext | None]:
     """``(spec, what the node returned, its context)``: the node's function called on the task."""
     # a worker's first call, or a plugin file changed since (a long-lived Dask worker)
     if task.plugins:
-        registry.import_plugins(task.plugins, Path(task.pipeline_dir))
+        registry.import_plugins(task.plugins, _folder(task.pipeline_dir))
     spec = REGISTRY.get(task.node_type) or registry.get(task.node_type)
     params = task.params
     if isinstance(params, dict):  # sent as plain data to another process: validate again there
@@ -105,8 +113,8 @@ def _call(task: Task) -> tuple[Any, Any, RunContext | None]:
         ctx = kwargs["ctx"] = RunContext(
             task.node_name,
             task.item,
-            Path(task.out_dir) / task.node_name,
-            Path(task.pipeline_dir),
+            _folder(task.out_dir, task.node_name),
+            _folder(task.pipeline_dir),
             input_types=task.input_types,
             resources=task.resources,
             on_progress=_progress_hook(task.node_name),

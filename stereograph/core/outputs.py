@@ -100,6 +100,8 @@ def file_content(v: dict) -> bytes:
 
 
 def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
+    if v is None or type(v) in _PLAIN:  # most leaves: no NumPy type to ask about
+        return v
     np = _numpy()
     if np is not None:
         if isinstance(v, np.ndarray):
@@ -116,6 +118,9 @@ def to_json(v: Any, big: dict[str, np.ndarray], path: str = "") -> Any:
     if isinstance(v, (list, tuple)):
         return [to_json(x, big, f"{path}[{i}]") for i, x in enumerate(v)]
     return v
+
+
+_PLAIN = (str, int, bool)
 
 
 def _with_ext(stem: Path, ext: str) -> Path:
