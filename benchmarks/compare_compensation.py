@@ -30,7 +30,8 @@ from pathlib import Path
 
 from rich.console import Console
 
-from stereograph.app.compare import compare, print_table
+from stereograph.app.compare import compare
+from stereograph.app.compare_table import print_table
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE = ROOT / "pipelines" / "compare-compensation.yaml"

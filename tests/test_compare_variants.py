@@ -11,13 +11,8 @@ from pathlib import Path
 import pytest
 
 from stereograph.app.cli import main as cli_main
-from stereograph.app.compare import (
-    collect_metrics,
-    compare,
-    expand_variants,
-    metrics_outputs,
-    parse_vary,
-)
+from stereograph.app.compare import collect_metrics, compare, metrics_outputs
+from stereograph.app.variants import expand_variants, parse_vary
 from stereograph.core.config import load_pipeline
 from stereograph.core.errors import ConfigError, UsageError
 from stereograph.core.graph import build_graph
@@ -578,7 +573,8 @@ def test_pairs_that_failed_before_the_report_are_counted_as_lost_not_dropped(tmp
 def test_a_variant_whose_node_failed_did_not_compute_nothing():
     # (a node that failed as a whole is not in `ran`: the progress line said "computed: nothing (all
     # cached)")
-    from stereograph.app.compare import Variant, VariantResult, _computed
+    from stereograph.app.compare_result import VariantResult
+    from stereograph.app.variants import Variant
 
     def result(ok, status, ran):
         return VariantResult(
@@ -594,13 +590,13 @@ def test_a_variant_whose_node_failed_did_not_compute_nothing():
         )
 
     assert (
-        _computed(result(False, {"locate": "cached", "fit": "failed", "report": "skipped"}, []))
+        result(False, {"locate": "cached", "fit": "failed", "report": "skipped"}, []).computed
         == "fit (failed)"
     )
     assert (
-        _computed(result(True, {"locate": "cached", "fit": "cached"}, [])) == "nothing (all cached)"
+        result(True, {"locate": "cached", "fit": "cached"}, []).computed == "nothing (all cached)"
     )
-    assert _computed(result(True, {"locate": "cached", "fit": "ran"}, ["fit"])) == "fit"
+    assert result(True, {"locate": "cached", "fit": "ran"}, ["fit"]).computed == "fit"
 
 
 @pytest.mark.slow
@@ -623,7 +619,7 @@ def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
     assert [is_best(best_row(res, "z_mean_cm"), r) for r in res.rows] == [False, False, True]
     with pytest.raises(UsageError, match="not a way to rank"):
         best_row(res, "z_mean_cm:ab")
-    from stereograph.app.compare import print_table
+    from stereograph.app.compare_table import print_table
 
     print_table(res, None, metrics=["z_mean_cm"], best="z_mean_cm")
     assert "most negative" in capsys.readouterr().out
@@ -778,8 +774,8 @@ def test_sigterm_ends_compare_like_ctrl_c_and_the_same_command_resumes(tmp_path)
 def test_the_named_metric_leads_and_constant_metrics_step_aside(tmp_path, capsys):
     """(the terminal table was split in two, the page ran off a 1280 px window and metrics.png had
     23 panels, several constant, with the compared figure as panel 20)"""
-    from stereograph.app.compare import print_table
     from stereograph.app.compare_report import compare_table
+    from stereograph.app.compare_table import print_table
     from stereograph.app.ranking import PER_PAIR
 
     p = tmp_path / "p.yaml"

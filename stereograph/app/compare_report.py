@@ -2,9 +2,10 @@
 
 The table of every variant (its full override set in a column, and the settings every variant
 shares -- the pipeline's own ``--set`` overrides and the fixed variant keys -- in the table's
-title), the comparison plots embedded, and a link to each variant's own ``report.html``.
-Built from the :class:`~stereograph.app.compare.CompareResult` only: its columns are the metrics the
-variants' nodes declared (``Out("Metrics")``), whatever they are; the engine knows nothing of them.
+title), the comparison plots embedded, and a link to each variant's own ``report.html``. Built
+from the :class:`~stereograph.app.compare_result.CompareResult` only: its columns are the metrics
+the variants' nodes declared (``Out("Metrics")``), whatever they are; the engine knows nothing of
+them.
 """
 
 from __future__ import annotations
@@ -13,30 +14,24 @@ import html
 from pathlib import Path
 from typing import Any
 
+from stereograph.app.compare_result import CompareResult, metric_cell, metric_header
 from stereograph.app.page import CHECK, STYLE, Page, table_html, write_html
-from stereograph.app.ranking import PER_PAIR, best_row, is_best, show
+from stereograph.app.ranking import best_row, is_best, show
 from stereograph.core.errors import UsageError
 
 COMPARE_NAME = "compare.html"
-
-
-def _fmt(v: Any, digits: int = 3) -> str:
-    return "" if v is None else (f"{v:.{digits}f}" if isinstance(v, float) else str(v))
 
 
 # metric columns in the first table (a 1280 px window); the others that vary follow
 MAIN_COLUMNS = 10
 
 
-def compare_table(res: Any, overrides: list[str], names: list[str] | None = None) -> dict[str, Any]:
+def compare_table(
+    res: CompareResult, overrides: list[str], names: list[str] | None = None
+) -> dict[str, Any]:
     """The comparison as a *table* value (page.table_html renders it): one column per metric in
     ``names`` (default: the ranked one, then those that differ between variants)."""
-    varying = [
-        k for k in res.keys if len({show(v.variant.settings[k]) for v in res.variants}) > 1
-    ] or res.keys
-    fixed = [
-        f"{k}={show(res.variants[0].variant.settings[k])}" for k in res.keys if k not in varying
-    ]
+    varying, fixed = res.varying_keys(), res.fixed_settings()
     split = f", split {res.split}" if res.split else ""
     title = (
         f"compare {Path(res.pipeline).name}: {len(res.variants)} variants{split}. Every variant: "
@@ -44,7 +39,7 @@ def compare_table(res: Any, overrides: list[str], names: list[str] | None = None
         + f". Varied: {', '.join(varying)}."
     )
     names = names if names is not None else res.shown_metrics()[0]
-    cols = ["variant", "ok"] + ["pair ms" if n == PER_PAIR else n for n in names] + ["report"]
+    cols = ["variant", "ok"] + [metric_header(n) for n in names] + ["report"]
     try:
         top = best_row(res, res.ranked_by)
     # a metric no variant declared: the CLI's table says so; the page marks nothing
@@ -52,18 +47,12 @@ def compare_table(res: Any, overrides: list[str], names: list[str] | None = None
         top = None
     rows = []
     for r, vr in zip(res.rows, res.variants):
-        label = ", ".join(show(vr.variant.settings[k]) for k in varying)
+        label = res.short_label(vr.variant)
         cells = [
             label + (f" (best {top[0]})" if is_best(top, r) else ""),
             "yes" if r.get("ok") else "NO",
         ]
-        for n in names:
-            v = r.get(n)
-            cells.append(
-                ""
-                if v is None
-                else (f"{1000 * v:.1f}" if n == PER_PAIR else _fmt(v, 4 if n.endswith("_s") else 3))
-            )
+        cells += [metric_cell(n, r.get(n), missing="") for n in names]
         cells.append(
             str(Path("variants") / vr.out_dir.name / "report.html")
             if vr.out_dir is not None
@@ -73,7 +62,7 @@ def compare_table(res: Any, overrides: list[str], names: list[str] | None = None
     return {"title": title, "columns": cols, "rows": rows}
 
 
-def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
+def settings_table(res: CompareResult, overrides: list[str]) -> dict[str, Any]:
     """Each variant's full settings (the --set overrides and its varied keys), and the metrics every
     variant has the same value of: below the main table, which keeps to what tells variants
     apart."""
@@ -97,7 +86,7 @@ def settings_table(res: Any, overrides: list[str]) -> dict[str, Any]:
     }
 
 
-def write_compare_html(res: Any, overrides: list[str] | None = None) -> Path:
+def write_compare_html(res: CompareResult, overrides: list[str] | None = None) -> Path:
     """Write ``compare.html`` into ``res.out_dir``; returns its path."""
     out: Path = res.out_dir
     page = Page(out)

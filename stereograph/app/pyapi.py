@@ -352,12 +352,13 @@ def compare(
 
     Returns
     -------
-    stereograph.app.compare.CompareResult
+    stereograph.app.compare_result.CompareResult
         ``.rows`` (one dict per variant: its settings and the metrics its nodes declare,
         times), ``.row(**settings)``, ``.variants`` (each with ``.status``, ``.ran``, ``.out_dir``),
         ``.files`` (``compare.csv``, ``compare.json``, plots).
     """
     from stereograph.app import compare as compare_mod
+    from stereograph.app.compare_progress import CompareLines
 
     if isinstance(vary, Mapping):
         vary_texts = []
@@ -374,7 +375,7 @@ def compare(
     else:
         vary_texts = _set_texts(vary, "vary")
     # True: a line per variant, and the per-node lines of run(), on stderr
-    prog = compare_mod._PlainProgress(sys.stderr) if progress is True else (progress or None)
+    prog = CompareLines(sys.stderr) if progress is True else (progress or None)
     kw = dict(
         overrides=_set_texts(set),
         cache_dir=cache_dir,
