@@ -172,7 +172,7 @@ def test_a_failed_node_ends_on_failed_in_a_piped_run(tmp_path):
 
 
 def test_clip_cuts_after_a_whole_word():
-    from stereograph.app.cli import _clip
+    from stereograph.app.run_summary import clip as _clip
 
     text = "the views do not fit one pair of cameras; worst views v03 (0.07 px), v00 (0.07 px)"
     assert _clip(text, 200) == text

@@ -22,7 +22,7 @@ from stereograph.app import plaintext
 
 
 def _console(width: int) -> tuple[Console, io.StringIO]:
-    buf = io.StringIO()  # (as stereograph.app.cli._console for a pipe)
+    buf = io.StringIO()  # (as stereograph.app.console.command_console for a pipe)
     return Console(file=buf, highlight=False, soft_wrap=True, width=width), buf
 
 

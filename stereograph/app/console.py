@@ -1,9 +1,9 @@
-"""What the command line accepts and shows: argument types, and how one value is echoed.
+"""What the command line accepts and shows: argument types, the console, how one value is echoed.
 
-Shared by ``stereograph run`` (:mod:`stereograph.app.cli`), ``compare`` and a replayed rerun, so
-that each reads ``--workers`` and echoes a result the same way. Public names:
+Shared by the sub-commands (``run``, ``compare``, the others) and a replayed rerun, so that each
+reads ``--workers`` and echoes a result the same way. Public names:
 :func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`,
-:func:`echo_entry`.
+:func:`echo_entry`, :func:`command_console`, :func:`load_graph`, :data:`PIPE_WIDTH`.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from typing import Any
 
 
@@ -83,3 +84,27 @@ def echo_entry(v: Any) -> tuple[str, str] | None:
     elif arrays or len(text) > 3000:
         return None
     return "json", text
+
+
+PIPE_WIDTH = 160  # columns of what a log, pipe or file gets
+
+
+def command_console(stderr: bool = False):
+    """A rich console for a command's output: wide in a log or pipe, user text escaped."""
+    from stereograph.core.errors import console
+
+    stream = sys.stderr if stderr else sys.stdout
+    # logs and pipes get a wide table rather than rich's 80-column default
+    width = None if stream.isatty() else PIPE_WIDTH
+    # (user text is printed with its control characters escaped: a pipeline cannot drive the
+    # terminal)
+    return console(stderr=stderr, highlight=False, soft_wrap=True, width=width)
+
+
+def load_graph(args: Any) -> Any:
+    """The graph of ``args.pipeline`` with its ``--set`` overrides."""
+    from stereograph.core.config import load_pipeline
+    from stereograph.core.graph import build_graph
+
+    doc = load_pipeline(args.pipeline, getattr(args, "set", None) or [])
+    return build_graph(doc)
