@@ -732,7 +732,7 @@ def test_what_a_code_file_imports_is_kept_with_its_digest_and_renewed_when_it_ch
     tmp_path, monkeypatch
 ):
     # (a run parsed every source file its node types import, ~0.3 s per start for pick.yaml)
-    from stereograph.core import cache as cache_mod
+    from stereograph.core import file_index
     from stereograph.core.cache import ArtifactStore
 
     long_ago = time.time_ns() - 60 * 10**9
@@ -750,7 +750,7 @@ def test_what_a_code_file_imports_is_kept_with_its_digest_and_renewed_when_it_ch
     f.write_text(f"name: k\nplugins: [{plug}]\nnodes:\n  k: {{type: tmp.kept}}\n")
     assert run(f, tmp_path).ok
     # a new process's index gives the statements without parsing the file
-    monkeypatch.setattr(cache_mod, "import_statements", lambda path: pytest.fail(f"parsed {path}"))
+    monkeypatch.setattr(file_index, "import_statements", lambda path: pytest.fail(f"parsed {path}"))
     index = ArtifactStore(tmp_path / "cache").files
     assert ("stereograph.core.api", 0, ("node", "Out")) in index.statements(str(plug))
     monkeypatch.undo()

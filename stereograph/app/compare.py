@@ -117,7 +117,7 @@ def _lineages(graph: Graph, code: dict[Any, str] | None = None) -> dict[str, str
     Two variants whose node has the same fingerprint share that node's artifacts; the
     fingerprints also key the remembered per-item timings. ``code`` memoises source hashes.
     """
-    from stereograph.core.cache import code_hash
+    from stereograph.core.code_keys import code_hash
     from stereograph.core.digests import hash_json
 
     code = {} if code is None else code

@@ -26,7 +26,7 @@ from stereograph.core import hooks
 from stereograph.core.digests import file_digest, hash_json
 
 FORMAT = 1
-RACY_NS = 2_000_000_000  # coarser than any file system's timestamps (FAT: 2 s), as cache.FileIndex
+RACY_NS = 2_000_000_000  # coarser than any file system timestamp (FAT: 2 s), as FileIndex
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
 MEMO_DIR = "reruns"
 STAMPS = "stamps.json"  # beside memo.json: the stamps its files have now (see _restamp)
@@ -256,7 +256,7 @@ def _live_record(run: Any, inst: Any) -> dict[str, Any]:
     }
     # Inputs that are small plain data (an arm, pick plans) are kept in the memo as the cache keeps
     # them (JSON): a replay then reads one file instead of an entry per item.
-    from stereograph.core.cache import encode
+    from stereograph.core.codecs import encode
 
     arrays: dict[str, Any] = {}
     with contextlib.suppress(Exception):

@@ -1,23 +1,19 @@
-"""Content-addressed artifact store.
+"""Content-addressed artifact store (:class:`ArtifactStore`).
 
 An entry's key hashes everything that determines its value (node type, version, code and the
-project-local modules it imports, params, input keys, read files). Entries are folders in open
-formats, built aside and renamed into place; a corrupt entry is detected, deleted and
-recomputed; per-entry locks let two runs share results. Layout: docs/engine.md, docs/cache.md.
+project-local modules it imports (:mod:`~stereograph.core.code_keys`), params, input keys, read
+files (:mod:`~stereograph.core.file_index`)). Entries are folders in open formats
+(:mod:`~stereograph.core.codecs`), built aside and renamed into place; a corrupt entry is
+detected, deleted and recomputed; per-entry locks let two runs share results, and a run's shared
+lock (:func:`in_use`) keeps prunes away. Layout: docs/engine.md, docs/cache.md.
 """
 
 from __future__ import annotations
 
-import ast
 import contextlib
-import hashlib
-import importlib.util
 import json
 import os
 import shutil
-import stat
-import sys
-import sysconfig
 import time
 import uuid
 
@@ -26,15 +22,17 @@ try:
 except ImportError:  # Windows: no shared locks here (no protection of running runs)
     fcntl = None  # type: ignore[assignment]
 from collections.abc import Iterator
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from stereograph.core import hooks
-from stereograph.core.digests import digest, file_digest, hash_json
+from stereograph.core.codecs import decode, encode, entry_blobs, png_decode
+from stereograph.core.digests import digest
 from stereograph.core.errors import ConfigError
+from stereograph.core.file_index import FileIndex
+from stereograph.core.outputs import write_whole
 
 FORMAT = "2"  # bump when the entry layout changes (2: images as PNG, manifest-only entries)
 
@@ -101,370 +99,6 @@ def _lock_fd(root: Path) -> int | None:
 
 class NotStored(Exception):
     """An entry kept as a manifest only: recomputing its value is cheaper than reading it back."""
-
-
-def is_png_image(a: Any) -> bool:
-    """An 8-bit image PNG holds exactly (HxW, HxWx3, HxWx4 ``uint8``, not tiny)."""
-    return (
-        isinstance(a, np.ndarray)
-        and a.dtype == np.uint8
-        and a.size > 64
-        and (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4)))
-    )
-
-
-def _png_encode(a: np.ndarray) -> bytes | None:
-    """PNG bytes (OpenCV's default level: fast, lossless), byte-identical to what the run folder
-    gets."""
-    import cv2
-
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(a))
-    return buf.tobytes() if ok else None
-
-
-JPEG_QUALITY = 90  # a picture for people (Out(lossy=True)): no visible loss, ~6x smaller than PNG
-
-
-# id(decoded image) -> (a weak reference to it, the JPEG bytes it was decoded from): writing a lossy
-# output that is already a decoded JPEG writes those very bytes, not a second generation (which
-# differs by up to 32 grey levels), so the run folder's file decodes to the array its readers got.
-_DECODED_FROM: dict[int, tuple[Any, bytes]] = {}
-
-
-def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
-    """The JPEG bytes of an 8-bit image (HxW or HxWx3) and the image they decode to -- the value
-    every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values.
-    An image this function decoded gives back its own bytes and itself."""
-    import weakref
-
-    import cv2
-
-    if not is_png_image(a) or (a.ndim == 3 and a.shape[2] != 3):
-        return None
-    known = _DECODED_FROM.get(id(a))
-    if known is not None and known[0]() is a:
-        return known[1], a
-    ok, buf = cv2.imencode(
-        ".jpg", np.ascontiguousarray(a), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
-    )
-    if not ok:
-        return None
-    data = buf.tobytes()
-    decoded = _png_decode(data)
-    key = id(decoded)
-    _DECODED_FROM[key] = (weakref.ref(decoded, lambda _r, k=key: _DECODED_FROM.pop(k, None)), data)
-    return data, decoded
-
-
-def _png_decode(data: bytes) -> np.ndarray:
-    import cv2
-
-    a = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if a is None or a.dtype != np.uint8:
-        raise ValueError("an image file of the entry does not decode")
-    return a
-
-
-# --------------------------------------------------------------------------- plain data <-> files
-
-
-def encode(value: Any, arrays: dict[str, np.ndarray], where: str = "value") -> Any:
-    """Replace arrays by references, check the rest is plain JSON data."""
-    if isinstance(value, np.ndarray):
-        name = f"a{len(arrays)}"
-        arrays[name] = value
-        return {"__ndarray__": name}
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, (list, tuple)):
-        return [encode(v, arrays, f"{where}[{i}]") for i, v in enumerate(value)]
-    if isinstance(value, dict):
-        out = {}
-        for k, v in value.items():
-            if not isinstance(k, str):
-                raise TypeError(f"{where} has a non-string key {k!r}")
-            out[k] = encode(v, arrays, f"{where}.{k}")
-        return out
-    raise TypeError(
-        f"{where} is a {type(value).__name__}, not plain data "
-        "(dict/list/str/number/bool/None/ndarray)"
-    )
-
-
-def decode(value: Any, arrays: Any) -> Any:
-    if isinstance(value, dict):
-        if len(value) == 1 and "__ndarray__" in value:
-            return arrays[value["__ndarray__"]]
-        return {k: decode(v, arrays) for k, v in value.items()}
-    if isinstance(value, list):
-        return [decode(v, arrays) for v in value]
-    return value
-
-
-def content_key(value: Any) -> str:
-    """Digest of a plain-data value's content (arrays by dtype, shape and bytes)."""
-    arrays: dict[str, np.ndarray] = {}
-    tree = encode(value, arrays)
-    h = hashlib.blake2b(json.dumps(tree, sort_keys=True, allow_nan=True).encode(), digest_size=16)
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}{a.dtype.str}{a.shape}".encode())
-        h.update(a.data)
-    return "c" + h.hexdigest()
-
-
-# --------------------------------------------------------------------------- source-code hashing
-
-_SYSTEM_DIRS = tuple(
-    str(Path(p).resolve())
-    for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
-)
-_ENGINE_DIR = str(Path(__file__).resolve().parent)
-
-
-def _is_local(path: str) -> bool:
-    """Project-local source (not stdlib, not site-packages, not the engine itself)."""
-    p = str(Path(path).resolve())
-    return p.endswith(".py") and not p.startswith(_SYSTEM_DIRS) and not p.startswith(_ENGINE_DIR)
-
-
-@lru_cache(maxsize=1024)
-def _top_is_local(top: str) -> bool:
-    """Whether a top-level package could hold project-local modules. Asking about ``pkg.sub``
-    imports ``pkg``: for a site-packages or stdlib package (matplotlib, say) that costs a second
-    and cannot find anything local, so such names are not looked up at all."""
-    try:
-        spec = importlib.util.find_spec(top)  # a top-level name imports nothing
-    except (ImportError, ValueError, AttributeError):
-        return False
-    if spec is None:
-        return False
-    if spec.origin and spec.origin not in ("namespace", "built-in", "frozen"):
-        return _is_local(spec.origin)
-    return any(
-        _is_local(str(Path(p) / "__init__.py")) for p in (spec.submodule_search_locations or [])
-    )
-
-
-def _find_origin(name: str) -> str | None:
-    if "." in name and not _top_is_local(name.partition(".")[0]):
-        return None
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError, AttributeError):
-        return None
-    return spec.origin if spec and spec.origin and spec.origin.endswith(".py") else None
-
-
-def import_statements(path: str) -> tuple:
-    """The import statements of a source file, ``(module, level, names)`` each (``import a.b``:
-    ``("a.b", 0, ())``); what a file imports depends on its bytes only (:class:`FileIndex` keeps
-    it, so that a run parses only the files changed since)."""
-    try:
-        tree = ast.parse(Path(path).read_text(encoding="utf-8"))
-    except (OSError, SyntaxError):
-        return ()
-    out: list[tuple] = []
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            out += [(a.name, 0, ()) for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            out.append((node.module or "", node.level, tuple(a.name for a in node.names)))
-    return tuple(out)
-
-
-@lru_cache(maxsize=512)
-def _statements_at(path: str, mtime_ns: int) -> tuple:
-    return import_statements(path)  # (without a store: once per file and process)
-
-
-@lru_cache(maxsize=512)
-def _imports_of(statements: tuple, package: str) -> tuple[str, ...]:
-    """Local modules a file's import statements import (resolved to file paths)."""
-    names: list[str] = []
-    for module, level, members in statements:
-        if not members:  # import a.b
-            names.append(module)
-            continue
-        base = module
-        if level:
-            parts = package.split(".") if package else []
-            parts = parts[: len(parts) - (level - 1)] if level > 1 else parts
-            base = ".".join(parts + ([module] if module else []))
-        names.append(base)
-        names += [f"{base}.{a}" for a in members if base]
-    found = []
-    for n in names:
-        if not n:
-            continue
-        origin = _find_origin(n)
-        if origin and _is_local(origin):
-            found.append(str(Path(origin).resolve()))
-    return tuple(sorted(set(found)))
-
-
-@lru_cache(maxsize=8192)
-def _resolved(file: str) -> str:
-    return str(Path(file).resolve())
-
-
-# resolved module file -> module name, for the sys.modules it was built from
-_NAMES: dict[str, str] = {}
-_NAMES_SEEN = [0]
-
-
-def _module_name_for(path: str) -> str:
-    # resolving every loaded module's path on every call was most of a cached rerun's time
-    if len(sys.modules) != _NAMES_SEEN[0] or path not in _NAMES:
-        _NAMES.clear()
-        for name, mod in list(sys.modules.items()):
-            f = getattr(mod, "__file__", None)
-            if isinstance(f, str):
-                _NAMES.setdefault(_resolved(f), name)
-        _NAMES_SEEN[0] = len(sys.modules)
-    return _NAMES.get(path, "")
-
-
-def code_files(module_file: str, index: FileIndex | None = None) -> list[str]:
-    """A node module and every project-local module it imports, transitively (each file's import
-    statements from ``index`` where it has them)."""
-    seen: set[str] = set()
-    todo = [str(Path(module_file).resolve())]
-    while todo:
-        path = todo.pop()
-        if path in seen:
-            continue
-        seen.add(path)
-        modname = _module_name_for(path)
-        package = modname if path.endswith("__init__.py") else modname.rpartition(".")[0]
-        try:
-            mtime = os.stat(path).st_mtime_ns
-        except OSError:
-            continue
-        statements = index.statements(path) if index else _statements_at(path, mtime)
-        todo += [p for p in _imports_of(statements, package) if p not in seen]
-    return sorted(seen)
-
-
-def code_hash(fn: Any, index: FileIndex | None = None) -> tuple[str, dict[str, str]]:
-    """Digest of a node function's source and its local imports, and the per-file digests
-    (through a store's ``index`` when given: files unchanged since are neither read nor parsed)."""
-    mod = sys.modules.get(fn.__module__)
-    module_file = getattr(mod, "__file__", None)
-    if not module_file:
-        return digest(fn.__qualname__.encode()), {}
-    files = {}
-    for f in code_files(module_file, index):
-        if index is not None:
-            files[f] = index.digest(Path(f))
-            continue
-        try:
-            files[f] = digest(Path(f).read_bytes())
-        except OSError:
-            files[f] = "missing"
-    return hash_json(files), files
-
-
-# --------------------------------------------------------------------------- files a node reads
-
-
-RACY_SECONDS = 2.0  # coarser than any file system's timestamps (FAT: 2 s)
-
-
-class FileIndex:
-    """A fast path in front of content digests of input files.
-
-    A file's digest is reused only when its size, mtime, ctime and inode all match the ones
-    recorded with the digest, and its mtime was at least :data:`RACY_SECONDS` older than the
-    moment the digest was taken. The ctime cannot be set by a user tool, so a file edited and
-    then given its old mtime back (``touch -r``, a restore) is hashed again; the age rule covers
-    an edit in the same timestamp tick as the recording ("racy" files, as git calls them) on a
-    file system with coarse timestamps. Otherwise the content is hashed.
-    """
-
-    def __init__(self, root: Path | None):
-        self.path = root / "files.json" if root else None
-        self.data: dict[str, list] = {}
-        self.dirty = False
-        if self.path and (self.path.exists() or self.path.is_symlink()):
-            try:
-                data = json.loads(self.path.read_text()) if not self.path.is_symlink() else None
-            except (OSError, ValueError):
-                data = None
-            if isinstance(data, dict) and all(isinstance(v, list) for v in data.values()):
-                self.data = data
-            # someone's own files.json (a --cache-dir that is a folder of theirs): never overwritten
-            else:
-                self.path = None
-
-    def digest(self, path: Path) -> str:
-        p = str(Path(path).resolve())
-        try:
-            st = os.stat(p)
-        except OSError:
-            return "missing"
-        # a device or FIFO would never end (/dev/zero) or never answer
-        if not stat.S_ISREG(st.st_mode):
-            return "not a regular file"
-        stamp = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
-        rec = self.data.get(p)
-        if (
-            isinstance(rec, list)
-            and len(rec) in (6, 7)  # (7: with its import statements)
-            and rec[:4] == stamp
-            and rec[5] - rec[1] >= RACY_SECONDS * 1e9
-        ):
-            return rec[4]
-        try:
-            d = file_digest(Path(p))
-        except OSError:
-            return "unreadable"
-        self.data[p] = [*stamp, d, time.time_ns()]
-        self.dirty = True
-        return d
-
-    def statements(self, path: str) -> tuple:
-        """A source file's :func:`import_statements`, kept beside its digest: parsed again only
-        when the file changed (the digest's record is renewed then)."""
-        p = str(Path(path).resolve())
-        self.digest(Path(p))
-        rec = self.data.get(p)
-        if isinstance(rec, list) and len(rec) == 7:
-            with contextlib.suppress(TypeError, ValueError):
-                return tuple((str(m), int(lv), tuple(map(str, ns))) for m, lv, ns in rec[6])
-        got = import_statements(p)
-        if isinstance(rec, list) and len(rec) >= 6:
-            self.data[p] = [*rec[:6], [[m, lv, list(ns)] for m, lv, ns in got]]
-            self.dirty = True
-        return got
-
-    def save(self) -> None:
-        if self.path and self.dirty:
-            # a read-only or full cache: the digests are only a fast path
-            with contextlib.suppress(OSError):
-                _atomic_write(self.path, json.dumps(self.data).encode())
-            self.dirty = False
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-
-
-# --------------------------------------------------------------------------- the store
 
 
 class ArtifactStore:
@@ -564,7 +198,7 @@ class ArtifactStore:
                     arrays = {k: z[k] for k in z.files}
             for name, b in blobs.items():
                 if name.endswith((".png", ".jpg")):
-                    arrays[name[:-4]] = _png_decode(b)
+                    arrays[name[:-4]] = png_decode(b)
             return decode(data, arrays)
         except (CorruptEntry, NotStored):
             raise
@@ -616,7 +250,7 @@ class ArtifactStore:
         tree = encode(outputs, arrays, "outputs")
         if not self.writable:
             return
-        blobs, ready, codec_seconds = _entry_blobs(tree, arrays, encoded or {})
+        blobs, ready, codec_seconds = entry_blobs(tree, arrays, encoded or {})
         manifest = {
             "key": key,
             "format": FORMAT,
@@ -710,7 +344,7 @@ class ArtifactStore:
         if not self.writable:
             return
         try:
-            _atomic_write(
+            write_whole(
                 self.root / "last" / pipeline_id / f"{node}.json", json.dumps(components).encode()
             )
         except OSError as e:
@@ -938,45 +572,3 @@ def _sweep(folder: Path, levels: list[str]) -> None:
                 p.unlink(missing_ok=True)
     with contextlib.suppress(OSError):
         folder.rmdir()  # (only when empty)
-
-
-def _entry_blobs(
-    tree: Any, arrays: dict[str, np.ndarray], encoded: dict[str, bytes]
-) -> tuple[dict[str, bytes], dict[str, str], float]:
-    """``(blobs, png_outputs, codec_seconds)``: an entry's files -- data.json, 8-bit images as PNG
-    (lossless, 3-10x smaller than raw) or the JPEG bytes given, the other arrays in one npz -- and
-    which top-level output each image file is (the run folder copies it as it is)."""
-    import io
-
-    blobs = {"data.json": json.dumps(tree, allow_nan=True).encode()}
-    outs = tree.items() if isinstance(tree, dict) else ()
-    refs = {
-        out: ref["__ndarray__"]
-        for out, ref in outs
-        if isinstance(ref, dict) and ref.get("__ndarray__")
-    }
-    for out, name in refs.items():
-        if out in encoded and name in arrays:
-            blobs[f"{name}.jpg"] = encoded[out]
-            del arrays[name]
-    t0 = time.perf_counter()
-    for name in [n for n, a in arrays.items() if is_png_image(a)]:
-        png = _png_encode(arrays[name])
-        if png is not None:
-            blobs[f"{name}.png"] = png
-            del arrays[name]
-    codec_seconds = time.perf_counter() - t0
-    ready = {
-        out: f"{name}{ext}"
-        for out, name in refs.items()
-        for ext in (".png", ".jpg")
-        if f"{name}{ext}" in blobs
-    }
-    if arrays:
-        buf = io.BytesIO()
-        # masks (bool) are mostly runs of one value: zlib makes them ~50x smaller, fast;
-        # float arrays barely compress, so they are stored as they are
-        bools = any(a.dtype == np.bool_ for a in arrays.values())
-        (np.savez_compressed if bools else np.savez)(buf, **arrays)
-        blobs["arrays.npz"] = buf.getvalue()
-    return blobs, ready, codec_seconds

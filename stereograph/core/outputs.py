@@ -149,7 +149,7 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     if value is None:
         return []
     if lossy:
-        from stereograph.core.cache import jpeg_roundtrip
+        from stereograph.core.codecs import jpeg_roundtrip
 
         jpeg = jpeg_roundtrip(value)
         if jpeg is not None:

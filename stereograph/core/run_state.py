@@ -22,15 +22,10 @@ from typing import TYPE_CHECKING, Any
 
 from stereograph.core import project
 from stereograph.core.api import NodeError, RunContext
-from stereograph.core.cache import (
-    ArtifactStore,
-    CorruptEntry,
-    NotStored,
-    code_hash,
-    content_key,
-    jpeg_roundtrip,
-)
+from stereograph.core.cache import ArtifactStore, CorruptEntry, NotStored
 from stereograph.core.calls import Task, TaskResult, execute
+from stereograph.core.code_keys import code_hash
+from stereograph.core.codecs import content_key, jpeg_roundtrip
 from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
 from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
