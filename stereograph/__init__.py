@@ -20,7 +20,8 @@ this order (each module's docstring says its invariants and public names):
 - :mod:`stereograph.core.calls`     one call of a node function: ``Task`` in, ``TaskResult`` out
 - :mod:`stereograph.core.threads`   one library thread per worker process
 - :mod:`stereograph.core.executors` where tasks run: here, a process pool, Dask
-- :mod:`stereograph.core.run_state` one run's state (``RunState``) and results (``RunResult``)
+- :mod:`stereograph.core.run_result` what a run gives back: ``NodeReport``, ``RunResult``
+- :mod:`stereograph.core.run_state` one run's state (``RunState``) and its operations
 - :mod:`stereograph.core.streaming` the per-item part of a graph, a chunk of items at a time
 - :mod:`stereograph.core.runner`    the scheduler: ``run_graph``, ``run_pipeline``
 - :mod:`stereograph.core.hooks`     what the core announces (a run written, a cache pruned)

@@ -42,16 +42,12 @@ def _cache_remove(args, store, root: Path, con) -> int:
 def cmd_cache(args) -> int:
     from stereograph.core.cache import ArtifactStore
     from stereograph.core.config import load_pipeline
-    from stereograph.core.run_state import default_cache_dir
+    from stereograph.core.project import cache_dir
 
     if args.cache_dir:
         root = Path(args.cache_dir)
-    elif args.pipeline:
-        root = default_cache_dir(load_pipeline(args.pipeline))
     else:
-        from stereograph.core.project import cache_dir
-
-        root = cache_dir(Path.cwd())
+        root = cache_dir(load_pipeline(args.pipeline).directory if args.pipeline else Path.cwd())
     store = ArtifactStore(root)
     con = command_console()
     if args.action in ("clear", "prune"):

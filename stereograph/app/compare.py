@@ -181,8 +181,7 @@ def _per_pair_seconds(
 
 
 def _default_out(doc: PipelineDoc) -> Path:
-    from stereograph.core.project import runs_dir
-    from stereograph.core.run_state import new_run_id
+    from stereograph.core.project import new_run_id, runs_dir
 
     return runs_dir(doc.directory) / doc.name / f"compare-{new_run_id()}"
 
@@ -238,7 +237,7 @@ def compare(
         A bad pipeline or ``--vary``, or a pipeline that declares no metrics; with
         ``skip_invalid`` only if no variant is valid.
     """
-    from stereograph.core.run_state import default_cache_dir
+    from stereograph.core.project import cache_dir as project_cache_dir
 
     overrides = list(overrides or [])
     doc = _load(pipeline_path, overrides, split)
@@ -254,7 +253,7 @@ def compare(
         )
     out = Path(out_dir) if out_dir is not None else _default_out(doc)
     prepare_compare_dir(out)
-    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir(doc)
+    cache = Path(cache_dir) if cache_dir is not None else project_cache_dir(doc.directory)
     timings = _Timings(cache)
     prog = progress if progress is not None else CompareLines(None)
     results = _run_variants(graphs, cache, out, executor, prog, timings)

@@ -15,7 +15,8 @@ from stereograph.core.api import NodeError
 from stereograph.core.cache import ArtifactStore
 from stereograph.core.executors import SerialExecutor
 from stereograph.core.graph import Graph
-from stereograph.core.run_state import RunState, default_cache_dir
+from stereograph.core.project import cache_dir as project_cache_dir
+from stereograph.core.run_state import RunState
 
 
 @dataclass
@@ -76,7 +77,7 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     A node is fresh when every entry a run would look up is in the store; the reasons a stale
     node gives are what changed since its last run (params, code, files, type, upstream).
     """
-    store = ArtifactStore(cache_dir or default_cache_dir(graph.doc))
+    store = ArtifactStore(cache_dir or project_cache_dir(graph.doc.directory))
     run = RunState(graph, store, Path("."), SerialExecutor(), set(), None)
     root = Path.cwd()
     verdicts: list[Verdict] = []

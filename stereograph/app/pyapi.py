@@ -103,7 +103,7 @@ class Result:
     ran : set
         Nodes that computed anything in this run (the rest came from the cache).
     reports : dict
-        Node -> :class:`stereograph.core.run_state.NodeReport` (seconds, items, messages, error,
+        Node -> :class:`stereograph.core.run_result.NodeReport` (seconds, items, messages, error,
         hint).
     seconds : float
         Wall time of the run.

@@ -300,7 +300,7 @@ class Replayed:
 
 
 def _report(name: str, type_: str, status: str, **kw: Any) -> SimpleNamespace:
-    """A node's line of a replayed run: the attributes of run_state.NodeReport (not imported: it
+    """A node's line of a replayed run: the attributes of run_result.NodeReport (not imported: it
     brings NumPy and pydantic, which a replay without nodes to run does without)."""
     fields = dict(
         seconds=0.0,
@@ -420,7 +420,7 @@ def _write(
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
     from stereograph.core import outputs, project
 
-    # run_state.new_run_id's form
+    # project.new_run_id's form
     run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     foreign = outputs.prepare_out_dir(out)

@@ -8,6 +8,8 @@ budget: docs/engine.md. This module imports nothing heavy (the CLI asks it first
 from __future__ import annotations
 
 import os
+import uuid
+from datetime import datetime
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -100,3 +102,8 @@ def budget_bytes(pipeline_dir: str | Path | None = None) -> int:
     if not gb >= 0:
         raise ValueError(f"{source} = {value!r} must be 0 (no limit) or more")
     return int(gb * 1e9)
+
+
+def new_run_id() -> str:
+    """A run folder's name: when it started, and 4 hex digits apart from another one that second."""
+    return datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]

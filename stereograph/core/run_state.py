@@ -5,8 +5,8 @@ streaming, outputs, explain, loop and replay go through its operations: key an e
 (:meth:`~RunState.entry_key`), look up (:meth:`~RunState.get`), store
 (:meth:`~RunState.store_result`), fail an item, release, run a node; for a streamed region, run
 a part of the run (:meth:`~RunState.for_part`, :meth:`~RunState.records`) and take it in
-(:meth:`~RunState.absorb`, :meth:`~RunState.settle_member`). Results: :class:`NodeReport`,
-:class:`PartRecords`, :class:`RunResult`.
+(:meth:`~RunState.absorb`, :meth:`~RunState.settle_member`). What it fills: the shapes of
+:mod:`stereograph.core.run_result`.
 """
 
 from __future__ import annotations
@@ -15,12 +15,9 @@ import contextlib
 import time
 import uuid
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.core import project
 from stereograph.core.api import NodeError, RunContext
 from stereograph.core.cache import ArtifactStore, CorruptEntry, NotStored
 from stereograph.core.calls import Task, TaskResult, execute
@@ -29,105 +26,14 @@ from stereograph.core.codecs import content_key, jpeg_roundtrip
 from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
 from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
+from stereograph.core.run_result import NodeReport, PartRecords, Ref
 
 # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
 if TYPE_CHECKING:
-    from stereograph.core.config import PipelineDoc
     from stereograph.core.graph import Graph, NodeInstance
 
-Ref = tuple[str, str, "str | None"]  # (node, output, item)
 NO_ITEMS = "no items to process (upstream produced none)"
 _HERE_SERIAL = SerialExecutor()  # a node with one entry runs here, not in the pool
-
-
-@dataclass
-class NodeReport:
-    name: str
-    type: str
-    status: str = "pending"  # ran | cached | failed | skipped | partial
-    seconds: float = 0.0
-    items: int = 0
-    items_ran: int = 0
-    items_failed: int = 0
-    error: str | None = None
-    hint: str | None = None
-    trace: str | None = None
-    unexpected: bool = False  # a bug in the node rather than bad input
-    messages: list[str] = field(default_factory=list)
-    # its failure would come back on every later call (NodeError(lasting=True))
-    lasting: bool = False
-
-
-@dataclass
-class RunResult:
-    run_id: str
-    pipeline: str
-    out_dir: Path
-    reports: dict[str, NodeReport]
-    seconds: float
-    values: dict[Ref, Any]  # the terminal, saved and kept outputs' values
-    item_ids: dict[tuple[str, str], list[str]]  # their collections' items
-    item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
-    terminal: list[str] = field(default_factory=list)
-    # about the run as a whole (a read-only cache, say)
-    notes: list[str] = field(default_factory=list)
-    # the finished run: loads any node's output from the cache
-    state: Any = field(default=None, repr=False)
-
-    @property
-    def ok(self) -> bool:
-        return not any(r.status in ("failed", "partial") for r in self.reports.values())
-
-    @property
-    def status(self) -> dict[str, str]:
-        return {n: r.status for n, r in self.reports.items()}
-
-    @property
-    def ran(self) -> set[str]:
-        return {n for n, r in self.reports.items() if r.status in ("ran", "partial") or r.items_ran}
-
-    def holds(self, node: str, output: str) -> bool:
-        """Whether the result holds this output (terminal, saved or kept)."""
-        return (node, output) in self.item_ids or (node, output, None) in self.values
-
-    def outputs(self, node: str, output: str) -> Any:
-        """A terminal (or saved) output: the value, or ``{item: value}`` for per-item outputs."""
-        if (node, output) in self.item_ids:
-            return {
-                i: self.values[(node, output, i)]
-                for i in self.item_ids[(node, output)]
-                if (node, output, i) in self.values
-            }
-        return self.values.get((node, output, None))
-
-
-@dataclass
-class PartRecords:
-    """What a part of a run (a streamed chunk of items) made, for the run to take in: its nodes'
-    reports, item lists, failed items, entry and content keys, and the values it sends back."""
-
-    reports: dict[str, NodeReport]
-    items: dict[tuple[str, str], list[str]]
-    failed: dict[tuple[str, str | None], str]
-    ref_keys: dict[Ref, str]
-    ref_ids: dict[Ref, str]
-    keys: dict[tuple[str, str | None], str]
-    values: dict[Ref, Any] = field(default_factory=dict)
-    files: dict[tuple[str, str], dict[str, list[str]]] = field(default_factory=dict)
-    # about nodes outside the part (a corrupt entry read)
-    messages: dict[str, list[str]] = field(default_factory=dict)
-
-
-# --------------------------------------------------------------------------- the run
-
-
-def new_run_id() -> str:
-    return datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
-
-
-def default_cache_dir(doc: PipelineDoc) -> Path:
-    """The project's one cache (see :mod:`stereograph.core.project`)."""
-    return project.cache_dir(doc.directory)
 
 
 class RunState:

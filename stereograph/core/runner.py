@@ -24,7 +24,10 @@ from stereograph.core.config import load_pipeline
 from stereograph.core.errors import ConfigError, did_you_mean
 from stereograph.core.executors import SerialExecutor
 from stereograph.core.graph import build_graph
-from stereograph.core.run_state import RunResult, RunState, default_cache_dir, new_run_id
+from stereograph.core.project import cache_dir as project_cache_dir
+from stereograph.core.project import new_run_id
+from stereograph.core.run_result import RunResult
+from stereograph.core.run_state import RunState
 
 # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
 if TYPE_CHECKING:
@@ -123,7 +126,7 @@ def _open_store(
     doc: Any, cache_dir: str | Path | None, use_cache: bool
 ) -> tuple[ArtifactStore | None, int]:
     """The run's artifact store (None: ``--no-cache``) and the cache's budget in bytes (0: none)."""
-    store = ArtifactStore(cache_dir or default_cache_dir(doc)) if use_cache else None
+    store = ArtifactStore(cache_dir or project_cache_dir(doc.directory)) if use_cache else None
     try:
         return store, project.budget_bytes(doc.directory) if store is not None else 0
     except ValueError as e:

@@ -25,7 +25,8 @@ from stereograph.core.api import NodeError
 from stereograph.core.cache import ArtifactStore
 from stereograph.core.calls import Task, TaskResult, execute
 from stereograph.core.executors import SerialExecutor, TaskLost, progress_advance
-from stereograph.core.run_state import PartRecords, RunState
+from stereograph.core.run_result import PartRecords
+from stereograph.core.run_state import RunState
 
 Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"  # a value left in the cache (a string: it is pickled)
