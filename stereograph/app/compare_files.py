@@ -192,7 +192,7 @@ def write_plots(res: CompareResult, patterns: list[str] | None = None) -> dict[s
 
 
 def write_variant_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> None:
-    """Saved / terminal outputs of the given nodes, and a small ``run.json``, into ``out``."""
+    """Saved / terminal outputs of the given nodes, and ``run.json``, into ``out``."""
     terminal = set(graph.terminal())
     files: dict[str, list[str]] = {}
     for name in graph.order:
@@ -213,28 +213,11 @@ def write_variant_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
     # what a node wrote into its folder itself (a failure log), as a run records it
     outputs_mod.add_node_files(out, graph.order, files, getattr(result.state, "foreign", {}))
-    summary = {
-        # a later run may clear this folder
-        outputs_mod.MARKER: {"format": 1, "run_id": result.run_id},
-        "run_id": result.run_id,
-        "pipeline": result.pipeline,
-        "overrides": list(graph.doc.overrides),
-        "ok": result.ok,
-        "outputs_of": sorted(own),
-        "nodes": [
-            {
-                "node": r.name,
-                "type": r.type,
-                "status": r.status,
-                "seconds": round(r.seconds, 4),
-                "items": r.items,
-                "items_ran": r.items_ran,
-                "error": r.error,
-                "files": files.get(r.name, []),
-            }
-            for r in result.reports.values()
-        ],
-    }
+    # run.json as a run writes it (a later run may clear this folder), and whose outputs it holds
+    summary = outputs_mod.run_summary(
+        graph, result.state, result.run_id, result.pipeline, out, result.ok, result.notes, files
+    )
+    summary["outputs_of"] = sorted(own)
     out.mkdir(parents=True, exist_ok=True)
     write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     hooks.announce("run_written", out)  # its report.html (a page that fails is no failed compare)

@@ -436,7 +436,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files or [])
     add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
-    summary = _summary(
+    summary = run_summary(
         graph,
         run,
         result.run_id,
@@ -546,7 +546,7 @@ def add_node_files(
             written.setdefault(name, []).extend(extra)
 
 
-def _summary(
+def run_summary(
     graph: Any,
     run: Any,
     run_id: str,
@@ -612,7 +612,7 @@ def write_interrupted_summary(
         add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
-        summary = _summary(graph, run, run_id, pipeline, out_dir, False, notes, written)
+        summary = run_summary(graph, run, run_id, pipeline, out_dir, False, notes, written)
         write_whole(out_dir / "run.json", json.dumps(summary, indent=1).encode())
 
 
