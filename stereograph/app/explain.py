@@ -87,103 +87,123 @@ def explain(graph: Graph, cache_dir: str | Path | None = None) -> list[Verdict]:
     unknown: set[tuple[str, str]] = set()
     for name in graph.order:
         inst = graph.nodes[name]
-        preds = list(graph.dag.predecessors(name))
         base = run.node_components(inst)
-        computable = not any(wire in unknown for wire in inst.inputs.values())
-        missing, n_entries = 0, 0
         last = store.last(run.pipeline_id, name)
-        # entries the last run looked up under these very keys and did not keep: items that failed
-        # or were dropped. A run tries them again; predicted as failing again (their downstream
-        # entries then stay as they are), and said so.
-        tried_before = set((last or {}).get("keys") or ())
-        failed_before: dict[str, str] = (last or {}).get("failed") or {}
-        retried: list[str] = []
-        if computable:
-            entries = run.item_ids(inst) if inst.mapped else [None]
-            if run.producer(inst):  # its items are entries of their own (items=)
-                try:
-                    entries += run.produced_ids(inst)
-                except NodeError:
-                    computable = False
-                    entries = []
-            n_entries = len(entries)
-            lost = run.lost_items(inst)
-            for item in entries:
-                try:
-                    key = run.entry_key(base, run.input_refs(inst, item), item, lost)
-                except KeyError:
-                    computable = False
-                    break
-                run.expect_entry(inst, item, key)
-                manifest = store.complete(key) if inst.spec.cacheable else None
-                if manifest is not None:
-                    run.adopt_cached(inst, item, key, manifest)
-                    run.expect_items(inst, item)
-                elif key in tried_before and inst.spec.cacheable and item is not None:
-                    retried.append(item)
-                    if item in failed_before:  # (else dropped: simply absent downstream)
-                        run.expect_failure(inst, item, failed_before[item])
-                else:
-                    missing += 1
-                    run.expect_missing(inst, item, key)  # (the key a run would store it under)
-        fresh = computable and not missing and not retried and inst.spec.cacheable
+        computable = not any(wire in unknown for wire in inst.inputs.values())
+        got = _look_up(run, store, inst, base, last) if computable else _Lookup(False)
+        cacheable = inst.spec.cacheable
+        fresh = got.computable and not got.missing and not got.retried and cacheable
         v = Verdict(name, inst.type, fresh)
         own = _diff(last, {**base, "code_files": run.code_digests(inst.type)}, root) if last else []
-        if retried:
-            retrying[name] = retried
-        if fresh:
-            if own:
-                v.reasons.append("cached by an earlier run with these settings")
-            again = [a for a in graph.upstream(name) if a in retrying]
-            if again:
-                v.reasons.append(
-                    "cached -- unless the items "
-                    + ", ".join(f"'{a}'" for a in again)
-                    + " tries again succeed this time"
-                )
-        elif computable and not missing and inst.spec.cacheable:
-
-            def names(items: list[str]) -> str:
-                return ", ".join(items[:5]) + (
-                    f" and {len(items) - 5} more" if len(items) > 5 else ""
-                )
-
-            was_failed = [i for i in retried if i in failed_before]
-            others = [i for i in retried if i not in failed_before]
-            said = ([f"{names(was_failed)} failed"] if was_failed else []) + (
-                [f"{names(others)} dropped (or pruned since)"] if others else []
-            )
-            v.reasons.append(
-                f"{len(retried)} of {n_entries} entries the last run looked up with these "
-                "same inputs "
-                f"are not in the cache ({'; '.join(said)}): tried again; what depends on "
-                "them stays "
-                "cached if they fail again"
-            )
+        if got.retried:
+            retrying[name] = got.retried
+        if v.fresh:
+            v.reasons += _fresh_reasons(own, [a for a in graph.upstream(name) if a in retrying])
+        elif got.computable and not got.missing and cacheable:
+            v.reasons.append(_retry_reason(got, (last or {}).get("failed") or {}))
         else:
             stale.add(name)
-            if not inst.spec.cacheable:
-                v.reasons.append(
-                    "never cached (it has side effects or live input): runs every time"
-                )
-            v.reasons += own
-            up = [s for s in preds if s in stale]
-            if up:
-                v.reasons.append(
-                    "its input changes: upstream " + ", ".join(f"'{s}'" for s in up) + " will run"
-                )
-            if not v.reasons:
-                v.reasons.append(
-                    f"{missing} of {n_entries} cache entries are missing (cleared, or "
-                    "never computed "
-                    "with these inputs)"
-                    if last
-                    else "not computed yet with these settings"
-                )
+            up = [s for s in graph.dag.predecessors(name) if s in stale]
+            v.reasons += _stale_reasons(cacheable, own, up, got, bool(last))
             unknown.update(
                 (name, out)
                 for out, o in inst.spec.outputs.items()
-                if not computable or not inst.spec.cacheable or o.collection
+                if not got.computable or not cacheable or o.collection
             )
         verdicts.append(v)
     return verdicts
+
+
+@dataclass
+class _Lookup:
+    """What keying a node's entries now found: whether they could be keyed, how many there are,
+    how many the store lacks, and the items a run would try again."""
+
+    computable: bool
+    n_entries: int = 0
+    missing: int = 0
+    retried: list[str] = field(default_factory=list)
+
+
+def _look_up(run: RunState, store: ArtifactStore, inst: Any, base: dict, last: Any) -> _Lookup:
+    """Key every entry a run would look up, as it would, and find each in the store."""
+    # entries the last run looked up under these very keys and did not keep: items that failed
+    # or were dropped. A run tries them again; predicted as failing again (their downstream
+    # entries then stay as they are), and said so.
+    tried_before = set((last or {}).get("keys") or ())
+    failed_before: dict[str, str] = (last or {}).get("failed") or {}
+    entries = run.item_ids(inst) if inst.mapped else [None]
+    if run.producer(inst):  # its items are entries of their own (items=)
+        try:
+            entries += run.produced_ids(inst)
+        except NodeError:
+            return _Lookup(False)
+    got = _Lookup(True, len(entries))
+    lost = run.lost_items(inst)
+    for item in entries:
+        try:
+            key = run.entry_key(base, run.input_refs(inst, item), item, lost)
+        except KeyError:
+            got.computable = False
+            break
+        run.expect_entry(inst, item, key)
+        manifest = store.complete(key) if inst.spec.cacheable else None
+        if manifest is not None:
+            run.adopt_cached(inst, item, key, manifest)
+            run.expect_items(inst, item)
+        elif key in tried_before and inst.spec.cacheable and item is not None:
+            got.retried.append(item)
+            if item in failed_before:  # (else dropped: simply absent downstream)
+                run.expect_failure(inst, item, failed_before[item])
+        else:
+            got.missing += 1
+            run.expect_missing(inst, item, key)  # (the key a run would store it under)
+    return got
+
+
+def _fresh_reasons(own: list[str], retrying_upstream: list[str]) -> list[str]:
+    reasons = ["cached by an earlier run with these settings"] if own else []
+    if retrying_upstream:
+        reasons.append(
+            "cached -- unless the items "
+            + ", ".join(f"'{a}'" for a in retrying_upstream)
+            + " tries again succeed this time"
+        )
+    return reasons
+
+
+def _retry_reason(got: _Lookup, failed_before: dict[str, str]) -> str:
+    def names(items: list[str]) -> str:
+        return ", ".join(items[:5]) + (f" and {len(items) - 5} more" if len(items) > 5 else "")
+
+    was_failed = [i for i in got.retried if i in failed_before]
+    others = [i for i in got.retried if i not in failed_before]
+    said = ([f"{names(was_failed)} failed"] if was_failed else []) + (
+        [f"{names(others)} dropped (or pruned since)"] if others else []
+    )
+    return (
+        f"{len(got.retried)} of {got.n_entries} entries the last run looked up with these "
+        f"same inputs are not in the cache ({'; '.join(said)}): tried again; what depends on "
+        "them stays cached if they fail again"
+    )
+
+
+def _stale_reasons(
+    cacheable: bool, own: list[str], up: list[str], got: _Lookup, ran_before: bool
+) -> list[str]:
+    reasons = (
+        [] if cacheable else ["never cached (it has side effects or live input): runs every time"]
+    )
+    reasons += own
+    if up:
+        reasons.append(
+            "its input changes: upstream " + ", ".join(f"'{s}'" for s in up) + " will run"
+        )
+    if not reasons:
+        reasons.append(
+            f"{got.missing} of {got.n_entries} cache entries are missing (cleared, or never "
+            "computed with these inputs)"
+            if ran_before
+            else "not computed yet with these settings"
+        )
+    return reasons

@@ -93,24 +93,68 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     :func:`fingerprint` taken as the command started. Only a run where every node ran or was cached
     is recorded, and only when what the run used is still what is on disk.
     """
-    from stereograph.core.config import load_pipeline
-
     run, doc = result.state, graph.doc
+    live = _live_nodes(graph, result)
+    if live is None:
+        return False
+    t_rec = time.time_ns()
+    inputs = _unchanged_inputs(graph, run, live)
+    if inputs is None or any(
+        st is not None and max(st[1], st[2]) > t_rec - RACY_NS for st in inputs.values()
+    ):
+        return False  # changed a moment ago (mtime or ctime): the next run decides for itself
+    live_keys = {run.entry_key_of(n) for n in live}
+    entries = sorted(
+        k
+        for k in run.used_keys()
+        if "/" not in k and not k.startswith("volatile") and k not in live_keys
+    )
+    memo: dict[str, Any] = {
+        "format": FORMAT,
+        "recorded_ns": t_rec,
+        "pipeline": str(doc.path),
+        "overrides": list(doc.overrides),
+        "name": doc.name,
+        "pipeline_dir": str(doc.directory),
+        "plugins": list(doc.plugins),
+        "fingerprint": _now(sys_path, doc.path),
+        "inputs": inputs,
+        "entries": entries,
+        "echo": echo,
+        "files": {},
+        "summary": json.loads((result.out_dir / "run.json").read_text()),
+        "where": {n: str(doc.where("nodes", n)) for n in graph.nodes},
+        "upstream": {n: bool(graph.upstream(n)) for n in graph.nodes},
+        "live": {n: _live_record(run, graph.nodes[n]) for n in live},
+    }
+    return _write_memo(run.store, doc, memo, result.out_dir, set(live))
+
+
+def _live_nodes(graph: Any, result: Any) -> list[str] | None:
+    """The nodes a replay must run (uncacheable, or kept in memory by a loop); None when the run
+    cannot be replayed: no writable store, not every node ran or was cached, or a live node that
+    is not a terminal one-call node with whole values (see _run_live)."""
+    run = result.state
     store = run.store
     if store is None or not store.writable or not result.ok or run.any_item_failed or result.notes:
-        return False
+        return None
     if any(r.status not in ("ran", "cached") for r in run.reports.values()):
-        return False
+        return None
     live = [n for n, inst in graph.nodes.items() if not inst.spec.cacheable or n in run.memory_only]
-    for n in live:  # a node that must run: terminal, one call, whole values (see _run_live)
+    for n in live:
         inst = graph.nodes[n]
-        if (
-            inst.mapped
-            or graph.consumers(n)
-            or any(o.collection for o in inst.spec.outputs.values())
-        ):
-            return False
-    t_rec = time.time_ns()
+        outputs = inst.spec.outputs.values()
+        if inst.mapped or graph.consumers(n) or any(o.collection for o in outputs):
+            return None
+    return live
+
+
+def _unchanged_inputs(graph: Any, run: Any, live: list[str]) -> dict[str, list[int] | None] | None:
+    """The stamp now of everything the run used (pipeline files, code, the engine, files nodes
+    read), when each is still what the run used; None when one changed."""
+    from stereograph.core.config import load_pipeline
+
+    doc = graph.doc
     inputs: dict[str, list[int] | None] = {}
     # the pipeline as this run read it: the files' stamps now, and their content now equal to the
     # run's
@@ -126,59 +170,44 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
         doc.name,
         doc.plugins,
     ):
-        return False
+        return None
     # the code the keys were computed from: each file's digest now equal to the one the run used
     for f, d in run.code_digests().items():
         before = _stamp(f)
         if before is None or file_digest(Path(f)) != d or _stamp(f) != before:
-            return False
+            return None
         inputs[f] = before
     for f in _engine_files():
         inputs[f] = _stamp(f)
-    # files nodes read: the digest the run keyed on belongs to exactly these stamps
+    read = _read_files(graph, run.store.files, live)
+    return None if read is None else {**inputs, **read}
+
+
+def _read_files(graph: Any, index: Any, live: list[str]) -> dict[str, list[int] | None] | None:
+    """The stamps of the files the nodes read, when the digest the run keyed on belongs to exactly
+    these stamps (the store's file index); None when one changed."""
+    stamps: dict[str, list[int] | None] = {}
     for n, inst in graph.nodes.items():
         if inst.spec.reads is None or n in live:
             continue
-        for p in inst.spec.reads(inst.params, doc.directory):
+        for p in inst.spec.reads(inst.params, graph.doc.directory):
             rp = str(Path(p).resolve())
-            st, rec = _stamp(rp), store.files.data.get(rp)
-            if st is not None and not (isinstance(rec, list) and len(rec) == 6 and rec[:4] == st):
-                return False
+            st, rec = _stamp(rp), index.recorded(rp)
+            if st is None:
+                stamps[rp] = st
+                continue
+            if rec is None or rec[0] != st:
+                return None
             # hashed within a timestamp tick of its mtime: the content now must be what was hashed
-            if (
-                st is not None
-                and rec[5] - rec[1] < RACY_NS
-                and (file_digest(Path(rp)) != rec[4] or _stamp(rp) != st)
-            ):
-                return False
-            inputs[rp] = st
-    if any(st is not None and max(st[1], st[2]) > t_rec - RACY_NS for st in inputs.values()):
-        return False  # changed a moment ago (mtime or ctime): the next run decides for itself
-    live_keys = {run.entry_key_of(n) for n in live}
-    entries = sorted(
-        k
-        for k in run.used_keys()
-        if "/" not in k and not k.startswith("volatile") and k not in live_keys
-    )
-    summary = json.loads((result.out_dir / "run.json").read_text())
-    memo: dict[str, Any] = {
-        "format": FORMAT,
-        "recorded_ns": t_rec,
-        "pipeline": str(doc.path),
-        "overrides": list(doc.overrides),
-        "name": doc.name,
-        "pipeline_dir": str(doc.directory),
-        "plugins": list(doc.plugins),
-        "fingerprint": _now(sys_path, doc.path),
-        "inputs": inputs,
-        "entries": entries,
-        "echo": echo,
-        "files": {},
-        "summary": summary,
-        "where": {n: str(doc.where("nodes", n)) for n in graph.nodes},
-        "upstream": {n: bool(graph.upstream(n)) for n in graph.nodes},
-        "live": {n: _live_record(run, graph.nodes[n]) for n in live},
-    }
+            if rec[2] - st[1] < RACY_NS and (file_digest(Path(rp)) != rec[1] or _stamp(rp) != st):
+                return None
+            stamps[rp] = st
+    return stamps
+
+
+def _write_memo(store: Any, doc: Any, memo: dict, out_dir: Path, live: set[str]) -> bool:
+    """Write ``memo`` with hard links to the run folder's files (not the live nodes'), in place of
+    the pipeline's old memo; False when it cannot (another disk than the cache, say)."""
     final = memo_dir(store.root, doc.path, list(doc.overrides))
     # the old memo goes first: removing its links changes the ctime of the files the new one stamps
     trash = store.tmp / f"del-{uuid.uuid4().hex}"
@@ -189,18 +218,18 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     tmp = store.tmp / f"memo-{uuid.uuid4().hex}"
     try:
         tmp.mkdir(parents=True)  # (a run that saved no file has no files/ folder to make it)
-        for node in summary["nodes"]:
+        for node in memo["summary"]["nodes"]:
             if node["node"] in live:
                 continue
             for rel in node.get("files", []):
-                src, dest = result.out_dir / rel, tmp / "files" / rel
+                src, dest = out_dir / rel, tmp / "files" / rel
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 # (another disk than the cache: no memo rather than a second copy)
                 os.link(src, dest)
                 memo["files"][rel] = {
                     "stamp": _stamp(dest),
                     "digest": file_digest(dest),
-                    "verified_ns": t_rec,
+                    "verified_ns": memo["recorded_ns"],
                 }
         (tmp / "memo.json").write_text(json.dumps(memo))
         final.parent.mkdir(parents=True, exist_ok=True)

@@ -72,6 +72,14 @@ class FileIndex:
         self.dirty = True
         return d
 
+    def recorded(self, path: str) -> tuple[list[int], str, int] | None:
+        """``(stamp, digest, recorded_ns)`` of a file's record, None when there is none; the stamp
+        is ``[size, mtime_ns, ctime_ns, inode]`` as the file had when its digest was taken."""
+        rec = self.data.get(str(Path(path).resolve()))
+        if isinstance(rec, list) and len(rec) in (6, 7):
+            return rec[:4], rec[4], rec[5]
+        return None
+
     def statements(self, path: str) -> tuple:
         """A source file's :func:`import_statements`, kept beside its digest: parsed again only
         when the file changed (the digest's record is renewed then)."""
