@@ -68,14 +68,9 @@ def print_table(
         row in bold green, among the variants that ran to the end (a failed one is marked FAILED,
         never best).
     """
-    from rich import box
-    from rich.markup import escape
-    from rich.table import Table
-
     from stereograph.core.errors import console as safe_console
 
     con = console or safe_console(highlight=False)
-    keys, fixed = res.varying_keys(), res.fixed_settings()
     # A mistake in --metrics / --best is known only now that the variants ran: the table is printed
     # anyway (every metric, nothing marked), then the mistake is reported.
     mistakes: list[UsageError] = []
@@ -94,43 +89,66 @@ def print_table(
         mistakes.append(e)
         top = None
     narrow = con.width < 150
-    chunks = _chunks(res, keys, names, con.width, narrow)
-    failed = any(not r["ok"] for r in res.rows)
+    chunks = _chunks(res, res.varying_keys(), names, con.width, narrow)
     for i, chunk in enumerate(chunks):
-        title = (
-            f"compare {Path(res.pipeline).name}"
-            + (f" — split {res.split}" if res.split else "")
-            + (f"; fixed: {', '.join(fixed)}" if fixed else "")
-            + (f" ({i + 1}/{len(chunks)})" if len(chunks) > 1 else "")
+        part = f" ({i + 1}/{len(chunks)})" if len(chunks) > 1 else ""
+        con.print(_table(res, chunk, names, top, narrow, part))
+    _print_below(con, res, [n for n in constant if n not in names], top)
+    if mistakes:
+        raise mistakes[0]
+
+
+def _table(
+    res: CompareResult, chunk: list[str], names: list[str], top: Any, narrow: bool, part: str
+) -> Any:
+    """One rich table: the varied settings, the metrics of ``chunk``, and a mark column (best,
+    FAILED) when there is something to mark."""
+    from rich import box
+    from rich.markup import escape
+    from rich.table import Table
+
+    keys, fixed = res.varying_keys(), res.fixed_settings()
+    title = (
+        f"compare {Path(res.pipeline).name}"
+        + (f" — split {res.split}" if res.split else "")
+        + (f"; fixed: {', '.join(fixed)}" if fixed else "")
+        + part
+    )
+    t = Table(
+        title=escape(title),
+        title_justify="left",
+        **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}),
+    )
+    for k in keys:
+        t.add_column(escape(k), no_wrap=True)
+    for name in chunk:
+        t.add_column(metric_header(name), justify="right", no_wrap=True)
+    marks = top is not None or any(not r["ok"] for r in res.rows)
+    if marks:  # (the colour alone is lost in a log or a pipe)
+        t.add_column("", no_wrap=True)
+    for r in res.rows:
+        cells = [escape(show(r["settings"][k])) for k in keys]
+        marked = is_best(top, r)
+        mark = (
+            [f"<- best {top[0]}" if marked else "" if r["ok"] else "FAILED (see below)"]
+            if marks
+            else []
         )
-        t = Table(
-            title=escape(title),
-            title_justify="left",
-            **({"box": box.SIMPLE_HEAD, "pad_edge": False} if narrow else {}),
-        )
-        for k in keys:
-            t.add_column(escape(k), no_wrap=True)
-        for name in chunk:
-            t.add_column(metric_header(name), justify="right", no_wrap=True)
-        if top is not None or failed:  # (the colour alone is lost in a log or a pipe)
-            t.add_column("", no_wrap=True)
-        for r in res.rows:
-            cells = [escape(show(r["settings"][k])) for k in keys]
-            marked = is_best(top, r)
-            mark = (
-                [f"<- best {top[0]}" if marked else "" if r["ok"] else "FAILED (see below)"]
-                if top is not None or failed
-                else []
-            )
-            if not r["ok"] and not any(
-                isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR
-            ):
-                t.add_row(*cells, *(["–"] * len(chunk)), *mark, style="red")
-                continue
-            style = "bold green" if marked else ("red" if not r["ok"] else None)
-            t.add_row(*cells, *(metric_cell(n, r.get(n)) for n in chunk), *mark, style=style)
-        con.print(t)
-    same = [n for n in constant if n not in names]
+        if not r["ok"] and not any(
+            isinstance(r.get(n), (int, float)) for n in names if n != PER_PAIR
+        ):
+            t.add_row(*cells, *(["–"] * len(chunk)), *mark, style="red")
+            continue
+        style = "bold green" if marked else ("red" if not r["ok"] else None)
+        t.add_row(*cells, *(metric_cell(n, r.get(n)) for n in chunk), *mark, style=style)
+    return t
+
+
+def _print_below(con: Any, res: CompareResult, same: list[str], top: Any) -> None:
+    """Under the tables: the metrics every variant has alike, failed and left-out variants, and a
+    note when --best's lowest value of a signed metric is the most negative."""
+    from rich.markup import escape
+
     # (not columns: a number that does not change tells nothing apart; compare.csv has them all)
     if same:
         con.print("the same in every variant: " + res.same_in_every(same), markup=False)
@@ -151,5 +169,3 @@ def print_table(
             f"--best {top[0]}:abs marks the one closest to zero",
             markup=False,
         )
-    if mistakes:
-        raise mistakes[0]
