@@ -23,10 +23,9 @@ from types import SimpleNamespace
 from typing import Any
 
 from stereograph.core import hooks
-from stereograph.core.digests import file_digest, hash_json
+from stereograph.core.digests import RACY_NS, file_digest, hash_json
 
 FORMAT = 1
-RACY_NS = 2_000_000_000  # coarser than any file system timestamp (FAT: 2 s), as FileIndex
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
 MEMO_DIR = "reruns"
 STAMPS = "stamps.json"  # beside memo.json: the stamps its files have now (see _restamp)

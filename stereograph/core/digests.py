@@ -11,6 +11,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+# A file digest taken within this of the file's modification time may miss an edit made in the
+# same timestamp tick ("racy" files, as git calls them): coarser than any file system's (FAT: 2 s).
+RACY_NS = 2_000_000_000
+
 
 def digest(data: bytes) -> str:
     return hashlib.blake2b(data, digest_size=16).hexdigest()

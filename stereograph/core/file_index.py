@@ -1,7 +1,7 @@
 """A fast path in front of file digests: a file's digest (and, for a code file, its import
 statements) reused while its size, times and inode are unchanged (:class:`FileIndex`).
 
-Public: :class:`FileIndex`, :data:`RACY_SECONDS`.
+Public: :class:`FileIndex`.
 """
 
 from __future__ import annotations
@@ -14,18 +14,16 @@ import time
 from pathlib import Path
 
 from stereograph.core.code_keys import import_statements
-from stereograph.core.digests import file_digest
+from stereograph.core.digests import RACY_NS, file_digest
 from stereograph.core.outputs import write_whole
-
-RACY_SECONDS = 2.0  # coarser than any file system's timestamps (FAT: 2 s)
 
 
 class FileIndex:
     """A fast path in front of content digests of input files.
 
     A file's digest is reused only when its size, mtime, ctime and inode all match the ones
-    recorded with the digest, and its mtime was at least :data:`RACY_SECONDS` older than the
-    moment the digest was taken. The ctime cannot be set by a user tool, so a file edited and
+    recorded with the digest, and its mtime was at least ``digests.RACY_NS`` older than the moment
+    the digest was taken. The ctime cannot be set by a user tool, so a file edited and
     then given its old mtime back (``touch -r``, a restore) is hashed again; the age rule covers
     an edit in the same timestamp tick as the recording ("racy" files, as git calls them) on a
     file system with coarse timestamps. Otherwise the content is hashed.
@@ -61,7 +59,7 @@ class FileIndex:
             isinstance(rec, list)
             and len(rec) in (6, 7)  # (7: with its import statements)
             and rec[:4] == stamp
-            and rec[5] - rec[1] >= RACY_SECONDS * 1e9
+            and rec[5] - rec[1] >= RACY_NS
         ):
             return rec[4]
         try:

@@ -19,7 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.core.digests import digest, file_digest
+from stereograph.core.digests import RACY_NS, digest, file_digest
 from stereograph.core.errors import ConfigError, Where
 
 if TYPE_CHECKING:
@@ -233,7 +233,7 @@ def _import_file(path: Path) -> None:
     if loaded is None or getattr(loaded, "__stereograph_digest__", None) != now:
         _exec_plugin(path, mod_name, now, loaded)
     # an edit within the file system's timestamp tick keeps the stamp: only older files are trusted
-    if stamp is not None and time.time_ns() - stamp[2] > 2_000_000_000:
+    if stamp is not None and time.time_ns() - stamp[2] > RACY_NS:
         _IMPORTED_FILES[stamp] = mod_name
 
 
