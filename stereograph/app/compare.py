@@ -338,11 +338,7 @@ def _run_variants(
     from stereograph.core.runner import run_graph
 
     code: dict[Any, str] = {}  # (source digests, shared by the variants' lineages)
-    lanes = (
-        max(1, int(getattr(executor, "workers", 1) or 1))
-        if getattr(executor, "remote", False)
-        else 1
-    )
+    lanes = max(1, executor.workers) if executor is not None and executor.remote else 1
 
     def run(v: Variant, graph: Graph, lin: dict, progress: Any, shared: set | None):
         folder = out / "variants" / v.slug

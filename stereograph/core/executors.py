@@ -15,17 +15,11 @@ import uuid
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from stereograph.core.calls import TaskResult
 from stereograph.core.errors import ConfigError
 from stereograph.core.threads import ONE_THREAD, one_thread_each
-
-# (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
-if TYPE_CHECKING:
-    pass
-
-Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
 
 def progress_advance(progress: Any, name: str, ok: bool = True) -> None:
@@ -56,7 +50,13 @@ def lost_as_failed(results: Iterable[Any]) -> Iterable[TaskResult]:
 
 
 class SerialExecutor:
-    """Runs tasks one after another in this process, each when the caller asks for its result."""
+    """Runs tasks one after another in this process, each when the caller asks for its result.
+
+    Every executor has ``workers`` (how many tasks run at once) and ``remote`` (whether tasks run
+    in another process, so must be picklable), ``map`` and ``close``."""
+
+    workers = 1
+    remote = False
 
     def map(self, fn: Callable[[Any], Any], tasks: list[Any]) -> Iterable[Any]:
         return (fn(t) for t in tasks)
@@ -76,11 +76,8 @@ def _worker_start() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-# Libraries' own thread pools run one thread each in a worker process (stereograph.core.threads):
-# the pool's processes are the parallelism. A worker forked after the parent started a library's
-# threads keeps what it inherited (no call into a library's pool from a forked child: that can
-# deadlock on a lock a parent thread held); the command line sets the variables before NumPy loads
-# (cli).
+# Libraries' own thread pools run one thread each in a worker: the processes are the
+# parallelism (docs/parallel.md, "What runs where").
 class ProcessExecutor:
     """Runs tasks in a pool of worker processes (results in order).
 
@@ -103,11 +100,8 @@ class ProcessExecutor:
         if self._ended:
             raise cf.process.BrokenProcessPool("the run was interrupted")
         if not self._forked:
-            # The pool forks its workers at its first task. Objects alive now are moved out of the
-            # cyclic garbage collector's reach first (Python's advice for fork without exec): a
-            # collection in a worker would otherwise write into every inherited object's header and
-            # copy each memory page holding one. Freeing by reference count is unaffected; close()
-            # gives the objects back to the collector.
+            # Before the pool forks: objects alive now out of the cyclic collector's reach, or a
+            # collection in a worker copies every page holding one (docs/parallel.md).
             gc.freeze()
             self._froze = self._forked = True
         return self.pool.submit(fn, task)
@@ -263,15 +257,8 @@ class DaskExecutor:
 
 def _local_cluster(LocalCluster: Any, workers: int) -> Any:
     """A LocalCluster of ``workers`` processes with one thread each (and one library thread, as
-    the process pool: ONE_THREAD).
-
-    Dask starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536`` (to hand memory back to the
-    system sooner). Setting that turns off glibc's adaptive threshold, so every image-sized array
-    is a fresh ``mmap`` and page-faulted in again: on ``locate.yaml`` the two workers spent 8 s each
-    in the kernel (of 22 s of CPU) and the Dask run was slower than a serial one. Our items are
-    released after each chunk anyway, so the shipped default is dropped -- another value in the
-    Dask config, or the variable in this process's environment (which workers inherit), is kept.
-    """
+    the process pool: ONE_THREAD), without Dask's shipped ``MALLOC_TRIM_THRESHOLD_`` (it made
+    image-sized arrays page-fault again: docs/parallel.md, "Dask")."""
     import dask
 
     key = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"

@@ -215,7 +215,7 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
     """
     if store is None or not key or key.startswith("volatile") or "/" in key:
         return produce()
-    ready = store.ready_file(key, output) if hasattr(store, "ready_file") else None
+    ready = store.ready_file(key, output)
     # the entry keeps this image as the very PNG (or JPEG) the run folder gets
     if ready is not None:
         dest = _with_ext(stem, ready.suffix)
@@ -230,12 +230,10 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
             write_whole(dest, data)
             files.append(dest)
         return files
-    if rdir.exists() and getattr(store, "writable", True):  # corrupt or unverifiable: render again
+    if rdir.exists() and store.writable:  # corrupt or unverifiable: render again
         shutil.rmtree(rdir, ignore_errors=True)
     files = produce()
-    if not getattr(store, "writable", True) or (
-        hasattr(store, "ready_file") and store.ready_file(key, output)
-    ):
+    if not store.writable or store.ready_file(key, output):
         return files  # (an entry stored just now keeps the PNG itself: no second copy)
     tmp = store.tmp / f"r-{uuid.uuid4().hex}"
     try:
@@ -435,7 +433,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
                     )
                 continue
             written.setdefault(name, []).extend(str(f.relative_to(out_dir)) for f in files or [])
-    add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
+    add_node_files(out_dir, graph.nodes, written, run.foreign)
     summary = run_summary(
         graph,
         run,
@@ -443,7 +441,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
         result.pipeline,
         out_dir,
         result.ok,
-        list(getattr(result, "notes", [])),
+        list(result.notes),
         written,
     )
     try:
@@ -454,8 +452,7 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
             hint="free space on that disk, or choose another --out",
         ) from None
     notes = hooks.announce("run_written", out_dir)  # the app's page; never a failed run
-    if hasattr(result, "notes"):
-        result.notes.extend(notes)
+    result.notes.extend(notes)
 
 
 def _output_files(
@@ -463,44 +460,38 @@ def _output_files(
 ) -> list[Path] | None:
     """Write one output of a node (each item's, for a per-item output); the files, or None for
     nothing."""
-    store, status = run.store, run.reports[name].status
     if not graph.is_collection(name, out):
         if not run.has_value((name, out, None)):
             return None
-        return _rendered(
-            store,
-            run.key_of((name, out, None)),
-            out,
-            stem,
-            lambda r=(name, out, None), p=stem, lo=decl.lossy: write_value(p, run.get(r), lo),
-        )
+        return write_rendered(run, (name, out, None), stem, decl.lossy)
     ids = run.items_of(name, out)
     streamed = run.streamed_files(name, out)
     # written item by item as each finished (streaming)
     if streamed and all(i in streamed for i in ids):
         return [f for i in ids for f in streamed[i]]
-    if not ids and status in ("failed", "skipped"):
+    if not ids and run.reports[name].status in ("failed", "skipped"):
         return None  # (the items that did finish are kept; none is not an empty result)
-    # an image per item is known from the first entry's manifest, without loading it
-    ready = (
-        store is not None
-        and ids
-        and hasattr(store, "ready_file")
-        and store.ready_file(run.key_of((name, out, ids[0])) or "", out) is not None
-    )
-    if not (ids and (ready or is_image(run.get((name, out, ids[0]))))):
+    if not (ids and image_per_item(run, (name, out, ids[0]))):
         return write_collection(stem, {i: run.get((name, out, i)) for i in ids})
     files = []
-    for i in ids:  # one file per item
-        p = stem / file_name(i)
-        files += _rendered(
-            store,
-            run.key_of((name, out, i)),
-            out,
-            p,
-            lambda r=(name, out, i), p=p, lo=decl.lossy: write_value(p, run.get(r), lo),
-        )
+    for i in ids:
+        files += write_rendered(run, (name, out, i), stem / file_name(i), decl.lossy)
     return files
+
+
+def image_per_item(run: Any, first: tuple) -> bool:
+    """Whether a per-item output goes to the run folder as one image file per item: known from
+    its first entry's manifest without loading it, else from the first item's value."""
+    if run.store is not None and run.store.ready_file(run.key_of(first) or "", first[1]):
+        return True
+    return is_image(run.get(first))
+
+
+def write_rendered(run: Any, ref: tuple, stem: Path, lossy: bool) -> list[Path]:
+    """Write the value of ``ref`` (node, output, item) at ``stem`` (:func:`_rendered`)."""
+    return _rendered(
+        run.store, run.key_of(ref), ref[1], stem, lambda: write_value(stem, run.get(ref), lossy)
+    )
 
 
 def node_files(
@@ -603,13 +594,8 @@ def write_interrupted_summary(
             rep.status = "interrupted"
     written: dict[str, list[str]] = {}
     with contextlib.suppress(Exception):
-        for (name, _out), per_item in dict(getattr(run, "streamed", {})).items():
-            for files in per_item.values():
-                written.setdefault(name, []).extend(
-                    str(Path(f).relative_to(out_dir)) for f in files
-                )
-        # (as write_run_outputs)
-        add_node_files(out_dir, graph.nodes, written, getattr(run, "foreign", {}))
+        # the items streamed into the folder so far are files of their nodes' folders
+        add_node_files(out_dir, graph.nodes, written, run.foreign)
         notes = ["interrupted: finished nodes and items are cached; the same command resumes"]
         out_dir.mkdir(parents=True, exist_ok=True)
         summary = run_summary(graph, run, run_id, pipeline, out_dir, False, notes, written)

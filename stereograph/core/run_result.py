@@ -7,6 +7,7 @@ item)``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,7 +40,7 @@ class RunResult:
     out_dir: Path
     reports: dict[str, NodeReport]
     seconds: float
-    values: dict[Ref, Any]  # the terminal, saved and kept outputs' values
+    values: Mapping[Ref, Any]  # the terminal, saved and kept outputs' values
     item_ids: dict[tuple[str, str], list[str]]  # their collections' items
     item_errors: dict[tuple[str, str], str] = field(default_factory=dict)
     terminal: list[str] = field(default_factory=list)

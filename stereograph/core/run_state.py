@@ -231,7 +231,7 @@ class RunState:
         lost: dict[str, dict[str, str]] | None = None,
     ) -> Task:
         # a params model may come from a plugin module another process has not imported yet
-        remote = getattr(self.executor, "remote", False) if remote is None else remote
+        remote = self.executor.remote if remote is None else remote
         params = inst.params.model_dump() if remote else inst.params
         return Task(
             inst.type,
@@ -469,8 +469,6 @@ class RunState:
         )
         try:
             ids = [str(i) for i in inst.spec.items(inst.params, ctx)]  # type: ignore[misc]
-        except NodeError:
-            raise
         except (ValueError, RuntimeError, OSError) as e:
             raise NodeError(f"listing its items failed: {e}") from e
         seen: set[str] = set()
@@ -630,7 +628,7 @@ class RunState:
                 self.fail_item(inst, item, e.message, e.hint)
                 self._advance(inst, item, ok=False)
                 continue
-            tasks.append(self.task(inst, item, values, getattr(ex, "remote", False), lost))
+            tasks.append(self.task(inst, item, values, ex.remote, lost))
             metas.append((item, key))
         volatile = not store_on or not inst.spec.cacheable
         for (item, key), (res, stored) in zip(
@@ -670,21 +668,11 @@ class RunState:
         cannot be."""
         rep = self.reports[inst.name]
         ok = True
+        if volatile:  # (live camera, actuator): a fresh key, so nothing downstream is served stale
+            key = f"volatile-{uuid.uuid4().hex}" if store_on else None
         if not stored:
             try:
-                # uncacheable output (live camera, actuator): a fresh key, so nothing downstream is
-                # ever served a stale result
-                self.store_result(
-                    inst,
-                    item,
-                    ("volatile-" + uuid.uuid4().hex)
-                    if volatile and store_on
-                    else key
-                    if not volatile
-                    else None,
-                    res.outputs or {},
-                    res.messages,
-                )
+                self.store_result(inst, item, key, res.outputs or {}, res.messages)
             except (NodeError, TypeError) as e:
                 self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
                 ok = False

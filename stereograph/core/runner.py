@@ -12,7 +12,7 @@ import os
 import shutil
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -26,14 +26,12 @@ from stereograph.core.executors import SerialExecutor
 from stereograph.core.graph import build_graph
 from stereograph.core.project import cache_dir as project_cache_dir
 from stereograph.core.project import new_run_id
-from stereograph.core.run_result import RunResult
+from stereograph.core.run_result import Ref, RunResult
 from stereograph.core.run_state import RunState
 
 # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
 if TYPE_CHECKING:
     from stereograph.core.graph import Graph
-
-Ref = tuple[str, str, "str | None"]  # (node, output, item)
 
 
 def run_graph(
@@ -263,15 +261,14 @@ def _units(run: RunState, selected: list[str]) -> list[Any]:
     return units
 
 
-class _LazyValues(dict):
+class _LazyValues(Mapping):
     """Terminal values by ref, each loaded from the cache the first time it is asked for.
 
     A rerun with nothing changed then loads nothing that nobody reads (a caller that asks for
     ``result.outputs(...)`` gets the value as before)."""
 
     def __init__(self, run: RunState, refs: list[Ref]):
-        super().__init__()
-        self._run, self._refs = run, {r: None for r in refs}
+        self._run, self._refs, self._got = run, dict.fromkeys(refs), {}
 
     def __contains__(self, ref: object) -> bool:
         return ref in self._refs
@@ -282,24 +279,12 @@ class _LazyValues(dict):
     def __len__(self) -> int:
         return len(self._refs)
 
-    def keys(self):
-        return self._refs.keys()
-
     def __getitem__(self, ref: Ref) -> Any:
         if ref not in self._refs:
             raise KeyError(ref)
-        if not super().__contains__(ref):
-            super().__setitem__(ref, self._run.get(ref))
-        return super().__getitem__(ref)
-
-    def get(self, ref: Ref, default: Any = None) -> Any:
-        return self[ref] if ref in self._refs else default
-
-    def items(self):
-        return ((r, self[r]) for r in self._refs)
-
-    def values(self):
-        return (self[r] for r in self._refs)
+        if ref not in self._got:
+            self._got[ref] = self._run.get(ref)
+        return self._got[ref]
 
 
 def _terminal_values(graph: Graph, run: RunState, selected: list[str]) -> tuple[dict, dict]:

@@ -25,10 +25,9 @@ from stereograph.core.api import NodeError
 from stereograph.core.cache import ArtifactStore
 from stereograph.core.calls import Task, TaskResult, execute
 from stereograph.core.executors import SerialExecutor, TaskLost, progress_advance
-from stereograph.core.run_result import PartRecords
+from stereograph.core.run_result import PartRecords, Ref
 from stereograph.core.run_state import RunState
 
-Ref = tuple[str, str, "str | None"]
 _MISSING = "__stereograph_missing__"  # a value left in the cache (a string: it is pickled)
 
 
@@ -290,26 +289,15 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
     t = chunk.task
     for node, out in sorted(t.deliver | t.back):
         ids = run.items_of(node, out)
-        written = (node, out) in t.deliver and ids and _writes_images(run, node, out, ids[0])
-        # pictures: JPEG
-        lossy = bool(getattr(run.g.nodes[node].spec.outputs.get(out), "lossy", False))
+        written = (node, out) in t.deliver and ids and _writes_images(run, (node, out, ids[0]))
+        lossy = run.g.nodes[node].spec.outputs[out].lossy
         for i in ids:
             ref = (node, out, i)
             if written:
                 stem = Path(t.out_dir) / node / out / outputs_mod.file_name(i)
                 try:
-                    files.setdefault((node, out), {})[i] = [
-                        str(p)
-                        for p in outputs_mod._rendered(
-                            store,
-                            run.key_of(ref),
-                            out,
-                            stem,
-                            lambda r=ref, p=stem, lo=lossy: outputs_mod.write_value(
-                                p, run.get(r), lo
-                            ),
-                        )
-                    ]
+                    paths = outputs_mod.write_rendered(run, ref, stem, lossy)
+                    files.setdefault((node, out), {})[i] = [str(p) for p in paths]
                 except Exception as e:  # the run folder writes it again, and says why if it cannot
                     run.reports[node].messages.append(
                         f"could not write output '{out}' of item {i}: {e}"
@@ -322,18 +310,10 @@ def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]
     return files, values
 
 
-def _writes_images(run: Any, node: str, out: str, first: str) -> bool:
+def _writes_images(run: Any, first: Ref) -> bool:
     """Whether this output goes to the run folder as one image file per item."""
-
-    store, key = run.store, run.key_of((node, out, first)) or ""
-    if (
-        store is not None
-        and hasattr(store, "ready_file")
-        and store.ready_file(key, out) is not None
-    ):
-        return True
     try:
-        return outputs_mod.is_image(run.get((node, out, first)))
+        return outputs_mod.image_per_item(run, first)
     except Exception:
         return False
 
@@ -394,7 +374,7 @@ def _plan_chunks(
 
     g, store_on = run.g, run.store is not None
     statuses = {n: r.status for n, r in run.reports.items() if n not in inside}
-    workers = max(1, int(getattr(run.executor, "workers", 1) or 1))
+    workers = max(1, run.executor.workers)
     # The keys of everything upstream of the region's outside inputs go along (values read on
     # need): an outside item kept as a manifest only is recomputed in the chunk from its own inputs.
     outside = {s for n in reg.nodes for (s, _o) in g.nodes[n].inputs.values() if s not in inside}
@@ -478,7 +458,7 @@ def _run_chunks(
     """Run the chunks (here or in the pool) and settle each; a chunk whose worker died is run again
     one item per task, so that an item that kills its worker every time is lost alone."""
     first = run.g.nodes[reg.source or reg.nodes[0]]
-    local = isinstance(run.executor, SerialExecutor) or not getattr(run.executor, "remote", False)
+    local = not run.executor.remote
     made = stop_ahead(run, reg.source)
     for chunk in chunks:
         chunk.ahead = {i: made[i] for i in chunk.items if i in made}
@@ -673,14 +653,13 @@ def stop_ahead(run: Any, source: str | None) -> dict[str, str]:
     return made
 
 
-class _Ahead:
+class _Ahead(SerialExecutor):
     """A region task's executor for its source: an item made ahead is read from its file."""
 
     def __init__(self, files: dict[str, str]):
         self.files = files
 
     def map(self, fn: Any, tasks: list[Any]) -> Any:
-
         for t in tasks:
             path = self.files.get(t.item) if t.producing else None
             if path is None:
@@ -693,6 +672,3 @@ class _Ahead:
                 yield fn(t)  # gone or damaged: make it here
                 continue
             yield TaskResult(True, outputs, seconds, messages)
-
-    def close(self) -> None:
-        pass
