@@ -27,11 +27,12 @@ this order (each module's docstring says its invariants and public names):
 - :mod:`stereograph.core.hooks`     what the core announces (a run written, a cache pruned)
 
 On top, :mod:`stereograph.app`: the ``stereograph`` command (``cli``; ``run_command``,
-``run_summary``, ``info_commands``, ``cache_command``, ``stop_signals``), ``compare`` (``variants``,
-``compare_result``, ``compare_table``, ``compare_files``, ``compare_progress``), ``explain``,
-``loop`` (``--repeat``), ``rerun`` (replayed unchanged runs), the pages (``report``,
-``report_cycles``, ``compare_report``, ``graph_picture``), ``progress``, ``plaintext`` and the
-Python facade (``pyapi``: :func:`run`, :func:`check`, :func:`compare`; docs/python.md).
+``run_summary``, ``info_commands``, ``node_index``, ``cache_command``, ``stop_signals``),
+``compare`` (``variants``, ``compare_result``, ``compare_table``, ``compare_files``,
+``compare_progress``), ``explain``, ``loop`` (``--repeat``), ``rerun`` (replayed unchanged runs),
+the pages (``report``, ``report_cycles``, ``compare_report``, ``graph_picture``), ``progress``,
+``plaintext`` and the Python facade (``pyapi``: :func:`run`, :func:`check`, :func:`compare`;
+docs/python.md).
 """
 
 from typing import Any

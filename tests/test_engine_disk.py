@@ -195,7 +195,7 @@ def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     registry._all_groups.cache_clear()
     assert "rectifier.remap" in registry.names()
-    index = registry._index_file()
+    index = registry.index_file()
     assert index.is_file() and str(tmp_path) in str(index)
     # the index is what is read while sys.path's folders are unchanged ...
     index.write_text(

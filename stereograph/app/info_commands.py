@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from stereograph.app.console import command_console, load_graph
+from stereograph.app.node_index import summaries
 from stereograph.core import registry
 from stereograph.core.errors import ConfigError
 
@@ -175,7 +176,7 @@ def cmd_nodes(args) -> int:
         return 0
     t = Table("node type", "inputs → outputs", "description")
     # (an index: no node module imported when unchanged)
-    for name, s in registry.summaries().items():
+    for name, s in summaries().items():
         if "error" in s:
             t.add_row(escape(name), "[red]unavailable[/]", escape(s["error"]))
         else:

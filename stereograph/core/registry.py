@@ -56,9 +56,9 @@ def _fingerprint() -> list:
     return out
 
 
-def _index_file() -> Path:
-    """One folder per Python environment (two virtual environments must not take turns rewriting
-    it)."""
+def index_file() -> Path:
+    """The entry-point index's file: one folder per Python environment (two virtual environments
+    must not take turns rewriting it)."""
     import hashlib
 
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
@@ -72,7 +72,7 @@ def _all_groups() -> dict[str, dict[str, str]]:
     installed packages are unchanged (scanning every package's metadata costs more than the rest of
     ``--help``)."""
     fp = _fingerprint()
-    path = _index_file()
+    path = index_file()
     known: list = []
     with contextlib.suppress(OSError, ValueError, TypeError, AttributeError):
         known = [e for e in json.loads(path.read_text()) if isinstance(e, dict)]
@@ -92,7 +92,8 @@ def _all_groups() -> dict[str, dict[str, str]]:
     return groups
 
 
-def _entry_points() -> dict[str, EntryPoint]:
+def entry_points() -> dict[str, EntryPoint]:
+    """The installed node types' entry points, by name (nothing imported)."""
     return {n: EntryPoint(n, v) for n, v in _all_groups().get(GROUP, {}).items()}
 
 
@@ -100,7 +101,7 @@ def names() -> list[str]:
     """All known node type names, sorted."""
     # (no node can be registered before it is imported)
     api = sys.modules.get("stereograph.core.api")
-    return sorted(set(_entry_points()) | set(api.REGISTRY if api else ()))
+    return sorted(set(entry_points()) | set(api.REGISTRY if api else ()))
 
 
 def get(name: str, where: Where | None = None, node: str | None = None) -> NodeSpec:
@@ -115,7 +116,7 @@ def get(name: str, where: Where | None = None, node: str | None = None) -> NodeS
 
     if name in REGISTRY:
         return REGISTRY[name]
-    ep = _entry_points().get(name)
+    ep = entry_points().get(name)
     if ep is None:
         close = difflib.get_close_matches(name, names(), n=3, cutoff=0.5)
         hint = (
@@ -283,7 +284,7 @@ def _keep_installed(plugin: str, before: dict, where: Where | None) -> None:
     from stereograph.core.api import REGISTRY
 
     changed = [(name, spec) for name, spec in REGISTRY.items() if spec is not before.get(name)]
-    installed = _entry_points() if changed else {}  # (a plugin imported already changes nothing)
+    installed = entry_points() if changed else {}  # (a plugin imported already changes nothing)
     for name, spec in changed:
         old = before.get(name)
         if (
@@ -305,73 +306,3 @@ def _keep_installed(plugin: str, before: dict, where: Where | None) -> None:
 def commands() -> dict[str, EntryPoint]:
     """Extra CLI sub-commands contributed by node packages."""
     return {n: EntryPoint(n, v) for n, v in _all_groups().get(COMMANDS_GROUP, {}).items()}
-
-
-def _module_stamp(value: str) -> list:
-    """Size and mtime of a node module's file and of the files beside it (its package's helpers),
-    found without importing the module (its parent packages only)."""
-    module = value.partition(":")[0].strip()
-    try:
-        spec = importlib.util.find_spec(module)
-    except (ImportError, ValueError, AttributeError):
-        return [module, None]
-    if spec is None or not spec.origin:
-        return [module, None]
-    folder = Path(spec.origin).parent
-    stamp = []
-    with contextlib.suppress(OSError):
-        for f in sorted(folder.glob("*.py")):
-            st = f.stat()
-            stamp.append([f.name, st.st_size, st.st_mtime_ns])
-    return [module, str(folder), stamp]
-
-
-def summaries() -> dict[str, dict[str, str]]:
-    """For ``stereograph nodes``: each node type's ``io`` ("in:Type → out:Type") and
-    ``description``, or its ``error``; kept in an index beside the entry-point one and recomputed
-    (importing the node modules) only for node types whose module folder changed."""
-    eps = _entry_points()
-    path = _index_file().with_name("node-summaries.json")
-    try:
-        old = json.loads(path.read_text())
-        old = old if isinstance(old, dict) else {}
-    except (OSError, ValueError):
-        old = {}
-    stamps: dict[str, list] = {}
-    out: dict[str, dict[str, str]] = {}
-    changed = False
-    for name in names():
-        ep = eps.get(name)
-        stamp = [ep.value, _module_stamp(ep.value)] if ep is not None else None
-        rec = old.get(name)
-        if stamp is not None and isinstance(rec, dict) and rec.get("stamp") == stamp:
-            out[name] = rec["summary"]
-            continue
-        try:
-            spec = get(name)
-            summary = {
-                "io": (
-                    ", ".join(f"{k}:{v.type}" for k, v in spec.inputs.items())
-                    + " → "
-                    + ", ".join(f"{k}:{v.type}" for k, v in spec.outputs.items())
-                ),
-                "description": spec.description,
-            }
-        except ConfigError as e:
-            summary, stamp = {"error": str(e)}, None  # never remembered: the next call tries again
-        out[name] = summary
-        if stamp is not None:
-            stamps[name] = stamp
-            changed = True
-    if changed:
-        index = {
-            n: {"stamp": stamps.get(n, (old.get(n) or {}).get("stamp")), "summary": out[n]}
-            for n in out
-            if n in stamps or isinstance(old.get(n), dict)
-        }
-        with contextlib.suppress(OSError):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(index))
-            os.replace(tmp, path)
-    return out
