@@ -535,7 +535,7 @@ def add_subcommand(subparsers: Any) -> Any:
 
 def main(args: Any) -> int:
     """Run ``stereograph compare`` from parsed arguments; 0 when every variant ran, 1 otherwise."""
-    from stereograph.core.errors import console
+    from stereograph.app.console import console
     from stereograph.core.executors import workers_executor
 
     # a log or pipe: do not squeeze the table to 80 columns

@@ -68,7 +68,7 @@ def print_table(
         row in bold green, among the variants that ran to the end (a failed one is marked FAILED,
         never best).
     """
-    from stereograph.core.errors import console as safe_console
+    from stereograph.app.console import console as safe_console
 
     con = console or safe_console(highlight=False)
     # A mistake in --metrics / --best is known only now that the variants ran: the table is printed

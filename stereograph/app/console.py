@@ -3,7 +3,8 @@
 Shared by the sub-commands (``run``, ``compare``, the others) and a replayed rerun, so that each
 reads ``--workers`` and echoes a result the same way. Public names:
 :func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`,
-:func:`echo_entry`, :func:`command_console`, :func:`load_graph`, :data:`PIPE_WIDTH`.
+:func:`echo_entry`, :func:`console`, :func:`command_console`, :func:`load_graph`,
+:data:`PIPE_WIDTH`.
 """
 
 from __future__ import annotations
@@ -86,13 +87,34 @@ def echo_entry(v: Any) -> tuple[str, str] | None:
     return "json", text
 
 
+_CONSOLE_CLASS: Any = None
+
+
+def console(**kw: Any) -> Any:
+    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay),
+    no emoji codes."""
+    global _CONSOLE_CLASS
+    if _CONSOLE_CLASS is None:
+        from rich.console import Console
+
+        from stereograph.core.errors import printable
+
+        class _Console(Console):
+            # print(), table cells, titles, rules
+            def render_str(self, text: str, *a: Any, **k: Any) -> Any:
+                return super().render_str(printable(text), *a, **k)
+
+        _CONSOLE_CLASS = _Console
+    # (rich would show a user's ':ab:' -- in a value, a path -- as an emoji)
+    kw.setdefault("emoji", False)
+    return _CONSOLE_CLASS(**kw)
+
+
 PIPE_WIDTH = 160  # columns of what a log, pipe or file gets
 
 
 def command_console(stderr: bool = False):
     """A rich console for a command's output: wide in a log or pipe, user text escaped."""
-    from stereograph.core.errors import console
-
     stream = sys.stderr if stderr else sys.stdout
     # logs and pipes get a wide table rather than rich's 80-column default
     width = None if stream.isatty() else PIPE_WIDTH

@@ -143,24 +143,3 @@ def printable(text: str) -> str:
     """``text`` with its control characters written as escapes (``\\x1b``), newlines and tabs
     kept."""
     return _UNPRINTABLE.sub(lambda m: ascii(m.group())[1:-1], text)
-
-
-_CONSOLE_CLASS: Any = None
-
-
-def console(**kw: Any) -> Any:
-    """A rich ``Console`` that prints every text through :func:`printable` (its own colours stay),
-    no emoji codes."""
-    global _CONSOLE_CLASS
-    if _CONSOLE_CLASS is None:
-        from rich.console import Console
-
-        class _Console(Console):
-            # print(), table cells, titles, rules
-            def render_str(self, text: str, *a: Any, **k: Any) -> Any:
-                return super().render_str(printable(text), *a, **k)
-
-        _CONSOLE_CLASS = _Console
-    # (rich would show a user's ':ab:' -- in a value, a path -- as an emoji)
-    kw.setdefault("emoji", False)
-    return _CONSOLE_CLASS(**kw)
