@@ -60,17 +60,16 @@ def _browser(page: Path, tmp_path: Path, shot: Path, height: int = 3000) -> str:
         f"--user-data-dir={tmp_path / 'chromium-profile'}",
         "--virtual-time-budget=15000",
     ]
-    url = page.resolve().as_uri()
-    subprocess.run(
-        [*common, f"--window-size=1400,{height}", f"--screenshot={shot}", url],
+    shot.unlink(missing_ok=True)  # (the check below reads this launch's screenshot, no older one)
+    # one launch does both: the screenshot to its file, the DOM to stdout
+    return subprocess.run(
+        [*common, f"--window-size=1400,{height}", f"--screenshot={shot}", "--dump-dom"]
+        + [page.resolve().as_uri()],
         check=True,
         capture_output=True,
         timeout=180,
-    )
-    dom = subprocess.run(
-        [*common, "--dump-dom", url], check=True, capture_output=True, timeout=180, text=True
+        text=True,
     ).stdout
-    return dom
 
 
 def _check(dom: str, shot: Path, figures: list[str]) -> None:
