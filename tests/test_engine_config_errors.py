@@ -57,6 +57,19 @@ def test_unknown_node_type_did_you_mean(tmp_path, capsys):
     assert "unknown node type 'toy.powr'" in msg and "did you mean 'toy.power'" in msg
 
 
+def test_a_misspelt_pipeline_path_names_the_closest_file(tmp_path, capsys):
+    (tmp_path / "locate.yaml").write_text(GOOD)
+    (tmp_path / "pick.yaml").write_text(GOOD)
+    assert main(["validate", str(tmp_path / "locat.yaml")]) == 2
+    msg = " ".join(capsys.readouterr().err.split())
+    assert "pipeline file not found" in msg and "did you mean 'locate.yaml'?" in msg
+    assert main(["validate", str(tmp_path / "zzz.yaml")]) == 2  # nothing close: the folder's files
+    msg = " ".join(capsys.readouterr().err.split())
+    assert "pipeline files in" in msg and "'locate.yaml', 'pick.yaml'" in msg
+    assert main(["validate", str(tmp_path / "none" / "a.yaml")]) == 2
+    assert "Fix: check the path." in " ".join(capsys.readouterr().err.split())
+
+
 def test_unknown_param(tmp_path, capsys):
     code, msg = run_cli(tmp_path, GOOD.replace("{power: 2}", "{pwer: 2}"), capsys=capsys)
     assert code == 2

@@ -331,7 +331,7 @@ def parse_yaml(
 def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
     try:
         if not path.exists():
-            raise ConfigError(f"pipeline file not found: {path}", hint="check the path")
+            raise ConfigError(f"pipeline file not found: {path}", hint=_nearby_files(path))
         if not path.is_file():
             raise ConfigError(
                 f"{path} is not a regular file", hint="give the path of a pipeline .yaml file"
@@ -366,6 +366,16 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[Path_, Where]]:
             "a pipeline file must be a mapping with a 'nodes:' key", Where(str(path), 1)
         )
     return data, lines
+
+
+def _nearby_files(path: Path) -> str:
+    """A Fix for a pipeline path that does not exist: the closest pipeline file in its folder."""
+    try:
+        there = [p.name for p in path.parent.glob("*.y*ml") if p.is_file()]
+    except OSError:
+        there = []
+    hint = did_you_mean(path.name, there, f"pipeline files in {path.parent} are")
+    return hint if there and (len(there) <= 20 or hint.startswith("did")) else "check the path"
 
 
 def load_pipeline(
