@@ -118,7 +118,7 @@ class Page:
             f'<figure class="{css_class}"><img src="{src}" alt="{escape(rel)}" '
             f'data-file="{escape(rel)}" '
             'loading="eager">'
-            f"<figcaption>{escape(rel)}</figcaption></figure>"
+            f"<figcaption>{escape(caption)}</figcaption></figure>"
         )
 
     def json_block(self, rel: str, small_as_text: bool = False) -> str:

@@ -237,7 +237,7 @@ def run_chunk(chunk: Chunk) -> ChunkResult:
         source = name == reg.source
         ex = _Ahead(chunk.ahead) if source and chunk.ahead else SerialExecutor()
         run.run_part_node(graph.nodes[name], ex, list(chunk.items) if source else None)
-    files, values = _chunk_outputs(chunk, run, store)
+    files, values = _chunk_outputs(chunk, run)
     inside = set(reg.nodes) | ({reg.source} if reg.source else set())
     own_store = store is not None and chunk.task.store is None
     return ChunkResult(
@@ -281,7 +281,7 @@ def _chunk_state(chunk: Chunk) -> tuple[RunState, Any, int]:
     return run, store, store.stored_bytes() if store is not None else 0
 
 
-def _chunk_outputs(chunk: Chunk, run: RunState, store: Any) -> tuple[dict, dict]:
+def _chunk_outputs(chunk: Chunk, run: RunState) -> tuple[dict, dict]:
     """``(files, values)``: the images the chunk wrote into the run folder itself, per output and
     item, and the values it sends back (what nodes outside read, and what it could not write)."""
     files: dict[tuple[str, str], dict[str, list[str]]] = {}
