@@ -4,6 +4,7 @@ when needed, reruns that load nothing they do not need, an LRU budget."""
 from __future__ import annotations
 
 import json
+import re
 import textwrap
 from pathlib import Path
 
@@ -251,7 +252,9 @@ def test_what_killed_runs_left_in_tmp_is_reported_and_pruned(tmp_path, monkeypat
     info = store.info()
     assert (info["abandoned"], info["abandoned_bytes"], info["entries"]) == (1, 50_000, entries)
     assert main(["cache", "info", "--cache-dir", str(tmp_path / "c")]) == 0
-    assert "1 unfinished entries killed runs left" in " ".join(capsys.readouterr().out.split())
+    said = " ".join(capsys.readouterr().out.split())
+    assert "1 unfinished entry killed runs left" in said
+    assert re.search(r"disk\.sum 1 entry \d", said)  # (one total: one entry)
     assert main(["cache", "prune", "--max-gb", "100", "--cache-dir", str(tmp_path / "c")]) == 0
     said = " ".join(capsys.readouterr().out.split())
     assert (

@@ -19,7 +19,7 @@ def _cache_remove(args, store, root: Path, con) -> int:
     CACHE_WAIT_S)."""
     if args.action == "clear":
         n = store.clear(wait_s=CACHE_WAIT_S)
-        con.print(f"removed {n} entries from {root}", markup=False)
+        con.print(f"removed {_entries(n)} from {root}", markup=False)
         return 0
     if args.max_gb is None:
         raise ConfigError(
@@ -28,7 +28,8 @@ def _cache_remove(args, store, root: Path, con) -> int:
     left = store.sweep_abandoned() if store.writable else 0  # (prune would, first: said apart here)
     n, freed = store.prune(int(args.max_gb * 1e9), wait_s=CACHE_WAIT_S)
     con.print(
-        f"removed {n} least recently used entries ({freed / 1e6:.1f} MB) from {root}", markup=False
+        f"removed {_entries(n, 'least recently used ')} ({freed / 1e6:.1f} MB) from {root}",
+        markup=False,
     )
     if left:
         con.print(
@@ -80,14 +81,17 @@ def cmd_cache(args) -> int:
         else " (no budget)"
     )
     con.print(
-        f"cache {info['root']}: {info['entries']} entries, {info['bytes'] / 1e6:.1f} MB{limit}",
+        f"cache {info['root']}: {_entries(info['entries'])}, {info['bytes'] / 1e6:.1f} MB{limit}",
         markup=False,
     )
     for t, (n, b) in sorted(info["by_type"].items()):
-        con.print(f"  {t:<28} {n:>6} entries {b / 1e6:>9.1f} MB", markup=False)
+        con.print(
+            f"  {t:<28} {n:>6} {'entry  ' if n == 1 else 'entries'} {b / 1e6:>9.1f} MB",
+            markup=False,
+        )
     if info["abandoned"]:
         con.print(
-            f"  {info['abandoned']} unfinished entries killed runs left in {store.tmp}: "
+            f"  {_entries(info['abandoned'], 'unfinished ')} killed runs left in {store.tmp}: "
             f"{info['abandoned_bytes'] / 1e6:.1f} MB (the next prune removes them: "
             "`stereograph cache prune "
             f"--max-gb N`, or any run that stores something under a budget)",
@@ -111,3 +115,8 @@ def cache_positionals_first(argv: list[str]) -> list[str]:
         (options if a.startswith("-") else positionals).append(a)
         i += 1
     return head + positionals + options
+
+
+def _entries(n: int, what: str = "") -> str:
+    """``1 entry``, ``2 entries`` (``what`` before the noun)."""
+    return f"{n} {what}{'entry' if n == 1 else 'entries'}"

@@ -215,7 +215,7 @@ def _prune(store: ArtifactStore | None, budget: int, result: RunResult) -> None:
         if n:
             result.notes.append(
                 f"cache over its {budget / 1e9:g} GB budget: removed {n} least recently used "
-                f"entries ({freed / 1e6:.0f} MB)"
+                f"{'entry' if n == 1 else 'entries'} ({freed / 1e6:.0f} MB)"
             )
 
 
