@@ -12,6 +12,7 @@ compare") has the keys, the caching and the metric rules.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import json
 import math
 import sys
@@ -35,6 +36,7 @@ from stereograph.core import registry
 from stereograph.core.config import PipelineDoc, load_pipeline
 from stereograph.core.errors import ConfigError, UsageError, printable
 from stereograph.core.graph import Graph, build_graph
+from stereograph.core.outputs import write_whole
 
 #: The artifact type of a node output that ``compare`` tabulates.
 METRICS_TYPE = "Metrics"
@@ -153,13 +155,8 @@ class _Timings:
     def save(self) -> None:
         if self.path is None:
             return
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(self.data, indent=0, sort_keys=True))
-            tmp.replace(self.path)
-        except OSError:
-            pass
+        with contextlib.suppress(OSError):
+            write_whole(self.path, json.dumps(self.data, indent=0, sort_keys=True).encode())
 
 
 def _per_pair_seconds(

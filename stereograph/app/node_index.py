@@ -10,11 +10,11 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import json
-import os
 from pathlib import Path
 
 from stereograph.core import registry
 from stereograph.core.errors import ConfigError
+from stereograph.core.outputs import write_whole
 
 
 def _module_stamp(value: str) -> list:
@@ -79,9 +79,6 @@ def summaries() -> dict[str, dict[str, str]]:
             for n in out
             if n in stamps or isinstance(old.get(n), dict)
         }
-        with contextlib.suppress(OSError):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(index))
-            os.replace(tmp, path)
+        with contextlib.suppress(OSError):  # (only a fast path for the next listing)
+            write_whole(path, json.dumps(index).encode())
     return out

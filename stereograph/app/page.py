@@ -15,9 +15,10 @@ import json
 import os
 import re
 import urllib.parse
-import uuid
 from pathlib import Path
 from typing import Any
+
+from stereograph.core.outputs import write_whole
 
 # beyond this, images are linked (they lie beside the page) instead of embedded
 EMBED_BUDGET_BYTES = 48 * 2**20
@@ -255,11 +256,5 @@ def path_parts(rel: str) -> list[str]:
 
 def write_html(path: Path, text: str) -> Path:
     """Write atomically: never a half-written page."""
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_whole(path, text.encode("utf-8"))
     return path

@@ -17,7 +17,6 @@ import shutil
 import time
 import uuid
 from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -448,8 +447,7 @@ def _write(
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
     from stereograph.core import outputs, project
 
-    # project.new_run_id's form
-    run_id = datetime.now().strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:4]
+    run_id = project.new_run_id()
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     foreign = outputs.prepare_out_dir(out)
     made: list[Path] = []
@@ -481,9 +479,7 @@ def _write(
         rec["stamp"] = _stamp(f"{files}/{rel}")
         stamps[rel] = [rec["stamp"], rec["verified_ns"]]
     with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
-        tmp = mdir / f".stamps.{uuid.uuid4().hex}.tmp"
-        tmp.write_text(json.dumps(stamps))
-        os.replace(tmp, mdir / STAMPS)
+        outputs.write_whole(mdir / STAMPS, json.dumps(stamps).encode())
     summary = memo["summary"]
     reports: dict[str, SimpleNamespace] = {}
     echo_live: dict[tuple[str, str], Any] = {}

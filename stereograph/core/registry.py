@@ -84,11 +84,10 @@ def _all_groups() -> dict[str, dict[str, str]]:
     groups = {
         g: {ep.name: ep.value for ep in entry_points(group=g)} for g in (GROUP, COMMANDS_GROUP)
     }
+    from stereograph.core.outputs import write_whole  # (only when the index is renewed)
+
     with contextlib.suppress(OSError):  # a read-only home: the index is only a fast path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps([{"fingerprint": fp, "groups": groups}] + known[:7]))
-        os.replace(tmp, path)
+        write_whole(path, json.dumps([{"fingerprint": fp, "groups": groups}] + known[:7]).encode())
     return groups
 
 
