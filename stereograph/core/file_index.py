@@ -54,14 +54,9 @@ class FileIndex:
         if not stat.S_ISREG(st.st_mode):
             return "not a regular file"
         stamp = [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino]
-        rec = self.data.get(p)
-        if (
-            isinstance(rec, list)
-            and len(rec) in (6, 7)  # (7: with its import statements)
-            and rec[:4] == stamp
-            and rec[5] - rec[1] >= RACY_NS
-        ):
-            return rec[4]
+        got = self._record(p)
+        if got is not None and got[0] == stamp and got[2] - stamp[1] >= RACY_NS:
+            return got[1]
         try:
             d = file_digest(Path(p))
         except OSError:
@@ -73,8 +68,11 @@ class FileIndex:
     def recorded(self, path: str) -> tuple[list[int], str, int] | None:
         """``(stamp, digest, recorded_ns)`` of a file's record, None when there is none; the stamp
         is ``[size, mtime_ns, ctime_ns, inode]`` as the file had when its digest was taken."""
-        rec = self.data.get(str(Path(path).resolve()))
-        if isinstance(rec, list) and len(rec) in (6, 7):
+        return self._record(str(Path(path).resolve()))
+
+    def _record(self, resolved: str) -> tuple[list[int], str, int] | None:
+        rec = self.data.get(resolved)
+        if isinstance(rec, list) and len(rec) in (6, 7):  # (7: with its import statements)
             return rec[:4], rec[4], rec[5]
         return None
 
