@@ -190,6 +190,16 @@ def test_the_cache_stays_within_its_budget(tmp_path, monkeypatch):
         run_pipeline(p, cache_dir=tmp_path / "c", out_dir=tmp_path / "o3")
 
 
+def test_cache_info_names_a_budget_that_is_not_a_number(tmp_path, monkeypatch, capsys):
+    from stereograph.app.cli import main
+
+    monkeypatch.setenv("STEREOGRAPH_CACHE_BUDGET_GB", "-1")
+    assert main(["cache", "info", "--cache-dir", str(tmp_path / "c")]) == 2
+    said = " ".join(capsys.readouterr().err.split())
+    assert "cache budget: STEREOGRAPH_CACHE_BUDGET_GB = '-1' must be 0 (no limit) or more" in said
+    assert "Fix: set it in GB" in said
+
+
 def test_entry_points_come_from_an_index_renewed_when_packages_change(tmp_path, monkeypatch):
     from stereograph.core import registry
 

@@ -68,12 +68,7 @@ def cmd_cache(args) -> int:
             return 1
     from stereograph.core.project import budget_bytes
 
-    try:
-        budget = budget_bytes(Path(args.pipeline).parent if args.pipeline else Path.cwd())
-    except ValueError as e:
-        raise ConfigError(
-            f"cache budget: {e}", hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4"
-        ) from None
+    budget = budget_bytes(Path(args.pipeline).parent if args.pipeline else Path.cwd())
     info = store.info(budget)
     limit = (
         f" of a {budget / 1e9:g} GB budget (least recently used entries pruned after runs)"

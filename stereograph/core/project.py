@@ -83,7 +83,7 @@ def budget_bytes(pipeline_dir: str | Path | None = None) -> int:
 
     Raises
     ------
-    ValueError
+    ConfigError
         ``STEREOGRAPH_CACHE_BUDGET_GB`` or the project setting is not a non-negative number.
     """
     env = os.environ.get("STEREOGRAPH_CACHE_BUDGET_GB")
@@ -98,10 +98,17 @@ def budget_bytes(pipeline_dir: str | Path | None = None) -> int:
     try:
         gb = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{source} = {value!r} is not a number of GB") from None
+        raise _bad_budget(source, value, "is not a number of GB") from None
     if not gb >= 0:
-        raise ValueError(f"{source} = {value!r} must be 0 (no limit) or more")
+        raise _bad_budget(source, value, "must be 0 (no limit) or more")
     return int(gb * 1e9)
+
+
+def _bad_budget(source: str, value: Any, why: str) -> ConfigError:
+    return ConfigError(
+        f"cache budget: {source} = {value!r} {why}",
+        hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 (0: no limit)",
+    )
 
 
 def new_run_id() -> str:

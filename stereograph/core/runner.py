@@ -125,13 +125,7 @@ def _open_store(
 ) -> tuple[ArtifactStore | None, int]:
     """The run's artifact store (None: ``--no-cache``) and the cache's budget in bytes (0: none)."""
     store = ArtifactStore(cache_dir or project_cache_dir(doc.directory)) if use_cache else None
-    try:
-        return store, project.budget_bytes(doc.directory) if store is not None else 0
-    except ValueError as e:
-        raise ConfigError(
-            f"cache budget: {e}",
-            hint="set it in GB, for example STEREOGRAPH_CACHE_BUDGET_GB=4 (0: no limit)",
-        ) from None
+    return store, project.budget_bytes(doc.directory) if store is not None else 0
 
 
 def _execute(
