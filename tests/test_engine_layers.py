@@ -6,6 +6,7 @@ a module or inside a function; each check is also run on a planted violation to 
 from __future__ import annotations
 
 import ast
+import inspect
 import re
 import shutil
 from pathlib import Path
@@ -97,6 +98,25 @@ def test_the_reading_map_names_every_core_module_in_order():
     assert in_readme == in_doc
 
 
+def long_modules(root: Path, limit: int = 600) -> list[str]:
+    """Modules of ``root`` longer than ``limit`` lines."""
+    found = []
+    for path in sorted(root.glob("*.py")):
+        n = len(path.read_text().splitlines())
+        if n > limit:
+            found.append(f"{path.name} ({n} lines)")
+    return found
+
+
+def test_every_core_module_reads_in_one_sitting(tmp_path):
+    """(issue 27) One concept per core module, none over 600 lines: a module that grows past it
+    is split by what its parts do."""
+    assert long_modules(ROOT / "stereograph" / "core") == []
+    (tmp_path / "grown.py").write_text("x = 1\n" * 601)
+    (tmp_path / "fits.py").write_text("x = 1\n" * 600)
+    assert long_modules(tmp_path) == ["grown.py (601 lines)"]
+
+
 def long_functions(root: Path, limit: int = 60) -> list[str]:
     """Functions of ``root`` (docstring included) longer than ``limit`` lines."""
     found = []
@@ -165,11 +185,12 @@ def test_every_engine_module_docstring_scans(tmp_path):
     assert long_docstrings(tmp_path) == ["pkg/told.py (11 lines)"]
 
 
-def run_state_reaches(root: Path, private: set[str]) -> list[str]:
-    """Where a module of ``root`` other than run_state.py touches one of ``private``."""
+def run_state_reaches(root: Path, private: set[str], own: set[str]) -> list[str]:
+    """Where a module of ``root`` other than RunState's own (``own``: file names) touches one of
+    ``private``."""
     found = []
     for path in sorted(root.rglob("*.py")):
-        if path.name == "run_state.py":
+        if path.name in own:
             continue
         for n in ast.walk(ast.parse(path.read_text())):
             if isinstance(n, ast.Attribute) and n.attr in private:
@@ -190,6 +211,15 @@ def test_only_run_state_touches_its_tables(tmp_path):
         if isinstance(t, ast.Attribute) and t.attr.startswith("_")
     }
     assert {"_mem", "_ref_keys", "_items", "_failed_items", "_keys"} <= private
-    assert run_state_reaches(ROOT / "stereograph", private) == []
+    # its own modules: run_state.py and those of its bases (node_run.py, part_run.py)
+    from stereograph.core.run_state import RunState
+
+    own = {
+        Path(inspect.getfile(c)).name
+        for c in RunState.__mro__
+        if c.__module__.startswith("stereograph.core.")
+    }
+    assert own == {"run_state.py", "node_run.py", "part_run.py"}
+    assert run_state_reaches(ROOT / "stereograph", private, own) == []
     (tmp_path / "streaming.py").write_text("def f(run):\n    return run._mem[('a', 'b', None)]\n")
-    assert run_state_reaches(tmp_path, private) == ["streaming.py:2 ._mem"]
+    assert run_state_reaches(tmp_path, private, own) == ["streaming.py:2 ._mem"]

@@ -20,11 +20,12 @@ from stereograph.app.compare_result import CompareResult
 from stereograph.app.compare_table import select_metrics
 from stereograph.app.ranking import PER_PAIR
 from stereograph.app.variants import Variant
-from stereograph.core import hooks
+from stereograph.core import hooks, run_folder
 from stereograph.core import outputs as outputs_mod
 from stereograph.core.errors import ConfigError
 from stereograph.core.graph import Graph
-from stereograph.core.outputs import check_folder_path, write_whole
+from stereograph.core.outputs import write_whole
+from stereograph.core.run_folder import check_folder_path
 
 # a compare.json key only stereograph writes: the folder holds its comparison
 MARKER = "stereograph_compare"
@@ -45,7 +46,7 @@ def _compare_folder(out: Path) -> bool:
         if {p.name for p in out.iterdir()} != {"variants"}:
             return False
         for v in (out / "variants").iterdir():
-            marker = outputs_mod.MARKER
+            marker = run_folder.MARKER
             run = json.loads((v / "run.json").read_text()) if any(v.iterdir()) else {marker: {}}
             if not (isinstance(run, dict) and isinstance(run.get(marker), dict)):
                 return False
@@ -212,9 +213,9 @@ def write_variant_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -
                 continue
             files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
     # what a node wrote into its folder itself (a failure log), as a run records it
-    outputs_mod.add_node_files(out, graph.order, files, getattr(result.state, "foreign", {}))
+    run_folder.add_node_files(out, graph.order, files, getattr(result.state, "foreign", {}))
     # run.json as a run writes it (a later run may clear this folder), and whose outputs it holds
-    summary = outputs_mod.run_summary(
+    summary = run_folder.run_summary(
         graph, result.state, result.run_id, result.pipeline, out, result.ok, result.notes, files
     )
     summary["outputs_of"] = sorted(own)

@@ -445,11 +445,11 @@ def _write(
     memo: dict[str, Any], mdir: Path, out_dir: Path | None, live_inputs: dict[str, dict[str, Any]]
 ) -> Replayed | None:
     """The run folder: the memo's files linked, the must-run nodes run, run.json and report.html."""
-    from stereograph.core import outputs, project
+    from stereograph.core import outputs, project, run_folder
 
     run_id = project.new_run_id()
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
-    foreign = outputs.prepare_out_dir(out)
+    foreign = run_folder.prepare_out_dir(out)
     made: list[Path] = []
     folders: set[str] = set()
     src_root, out_root = str(mdir / "files"), str(out)
@@ -462,7 +462,7 @@ def _write(
             try:
                 os.link(src, dest)  # (a new name in an emptied folder: atomic as it is)
             except OSError:  # there already, or another disk: the careful way
-                outputs._link_or_copy(Path(src), Path(dest))
+                outputs.link_or_copy(Path(src), Path(dest))
             made.append(Path(dest))
     except OSError:  # (a full disk, say) leave the folder as it was and let a real run report it
         for f in made:
@@ -496,7 +496,7 @@ def _write(
                 memo["plugins"],
             )
             # (with what it wrote into its folder itself, a failure log: as a real run records it)
-            files = rep.files + outputs.node_files(out, name, set(rep.files), foreign)
+            files = rep.files + run_folder.node_files(out, name, set(rep.files), foreign)
             n.update(
                 status=rep.status,
                 seconds=round(rep.seconds, 4),
@@ -527,7 +527,7 @@ def _write(
     result = Replayed(
         run_id, out, reports, _echo(memo["echo"], echo_live), memo["where"], memo["upstream"]
     )
-    summary[outputs.MARKER] = {"format": 1, "run_id": run_id}
+    summary[run_folder.MARKER] = {"format": 1, "run_id": run_id}
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
     outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     result.notes.extend(hooks.announce("run_written", out))  # report.html, as a computed run gets

@@ -21,10 +21,10 @@ from stereograph.core.config import (
     PipelineDoc,
     apply_override,
     check_node_named,
-    parse_yaml,
 )
 from stereograph.core.errors import ConfigError, UsageError
 from stereograph.core.graph import Graph, build_graph
+from stereograph.core.yaml_lines import parse_yaml
 
 
 @dataclass

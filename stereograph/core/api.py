@@ -19,8 +19,8 @@ from typing import Annotated, Any
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator  # noqa: F401  (re-exported)
 
 from stereograph.core.checks import ARTIFACT_CHECKS, artifact_check  # noqa: F401  (re-exported)
-from stereograph.core.config import parse_yaml
 from stereograph.core.errors import ConfigError
+from stereograph.core.yaml_lines import parse_yaml
 
 __all__ = [
     "Params",

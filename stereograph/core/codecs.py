@@ -3,7 +3,8 @@ content key (:func:`content_key`), 8-bit images as PNG and pictures for people a
 (:func:`jpeg_roundtrip`, :func:`entry_blobs`).
 
 A lossy output's readers all get the decoded JPEG, and writing that array again writes the very
-bytes it came from. Public: the functions above, :func:`png_decode`, :data:`JPEG_QUALITY`.
+bytes it came from. Public: the functions above, :func:`png_decode`, :func:`read_written_image`,
+:data:`JPEG_QUALITY`.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,6 +78,18 @@ def png_decode(data: bytes) -> np.ndarray:
     if a is None or a.dtype != np.uint8:
         raise ValueError("an image file of the entry does not decode")
     return a
+
+
+def read_written_image(files: list[Path]) -> np.ndarray | None:
+    """An item's image as the run folder holds it (its PNG, else its JPEG); None if unreadable.
+
+    PNG is lossless (the very array); a lossy output's JPEG decodes to the very array too, since
+    every reader of a lossy output gets the decoded JPEG."""
+    import cv2
+
+    png = next((f for f in files if f.suffix == ".png"), None)
+    path = png or next((f for f in files if f.suffix == ".jpg"), None)
+    return cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path is not None else None
 
 
 def encode(value: Any, arrays: dict[str, np.ndarray], where: str = "value") -> Any:

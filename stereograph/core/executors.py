@@ -116,7 +116,7 @@ class ProcessExecutor:
 
     def start(self, fn: Callable[[Any], Any], tasks: list[Any]) -> list[cf.Future]:
         """Submit tasks now, to run while this process goes on with other work (see
-        :func:`stereograph.core.streaming.start_ahead`); :meth:`stop` cancels those not begun."""
+        :func:`stereograph.core.ahead.start_ahead`); :meth:`stop` cancels those not begun."""
         futures: list[cf.Future] = []
         try:
             for t in tasks:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
+NO_ITEMS = "no items to process (upstream produced none)"  # a per-item node's message
 
 
 @dataclass

@@ -3,40 +3,36 @@
 :class:`RunState` keeps its tables (keys, values, items, failures) to itself; the runner,
 streaming, outputs, explain, loop and replay go through its operations: key an entry
 (:meth:`~RunState.entry_key`), look up (:meth:`~RunState.get`), store
-(:meth:`~RunState.store_result`), fail an item, release, run a node; for a streamed region, run
-a part of the run (:meth:`~RunState.for_part`, :meth:`~RunState.records`) and take it in
-(:meth:`~RunState.absorb`, :meth:`~RunState.settle_member`). What it fills: the shapes of
+(:meth:`~RunState.store_result`), fail an item, release. Two bases in modules of their own hold
+its other operations on the same tables: running a node (:mod:`stereograph.core.node_run`) and
+a streamed part of a run (:mod:`stereograph.core.part_run`). What it fills: the shapes of
 :mod:`stereograph.core.run_result`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import time
-import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.core.api import NodeError, RunContext
+from stereograph.core.api import NodeError
 from stereograph.core.cache import ArtifactStore, CorruptEntry, NotStored
-from stereograph.core.calls import Task, TaskResult, execute
+from stereograph.core.calls import Task, execute
 from stereograph.core.code_keys import code_hash
-from stereograph.core.codecs import content_key, jpeg_roundtrip
+from stereograph.core.codecs import content_key, jpeg_roundtrip, read_written_image
 from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
-from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
-from stereograph.core.run_result import NodeReport, PartRecords, Ref
+from stereograph.core.node_run import NodeRuns
+from stereograph.core.part_run import PartRuns
+from stereograph.core.run_result import NodeReport, Ref
 
 # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
 if TYPE_CHECKING:
     from stereograph.core.graph import Graph, NodeInstance
 
-NO_ITEMS = "no items to process (upstream produced none)"
-_HERE_SERIAL = SerialExecutor()  # a node with one entry runs here, not in the pool
 
-
-class RunState:
+class RunState(NodeRuns, PartRuns):
     def __init__(
         self,
         graph: Graph,
@@ -179,7 +175,13 @@ class RunState:
         node, out, item = ref
         files = self._streamed.get((node, out), {}).get(item)  # type: ignore[arg-type]
         if files and (self.store is None or ref not in self._ref_keys):
-            return _read_back(files)  # an image written to the run folder as its item finished
+            img = read_written_image(files)  # written to the run folder as its item finished
+            if img is None:
+                raise NodeError(
+                    f"the image written to {files[0]} can no longer be read",
+                    hint="run again (the run folder was changed while the run went on)",
+                )
+            return img
         key = self._ref_keys[ref]
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
@@ -433,22 +435,6 @@ class RunState:
             )
         self.store_result(inst, item, self._keys.get((node, item)), res.outputs or {}, save=store)
 
-    # ---- one node
-
-    def upstream_failed(self, inst: NodeInstance) -> str | None:
-        for src in self.g.dag.predecessors(inst.name):
-            if self.reports[src].status in ("failed", "skipped"):
-                return src
-        return None
-
-    def item_ids(self, inst: NodeInstance) -> list[str]:
-        ids: list[str] | None = None
-        for port, (src, out) in inst.inputs.items():
-            if self.g.is_collection(src, out) and not inst.spec.inputs[port].gather:
-                these = self._items.get((src, out), [])
-                ids = list(these) if ids is None else [i for i in ids if i in set(these)]
-        return ids or []
-
     def item_outputs(self, inst: NodeInstance, item: str | None) -> list[str]:
         """The outputs an entry of this node adds one item to."""
         if item is None:
@@ -456,317 +442,6 @@ class RunState:
         if inst.mapped:
             return list(inst.spec.outputs)
         return [n for n, o in inst.spec.outputs.items() if o.collection]
-
-    def produced_ids(self, inst: NodeInstance) -> list[str]:
-        """The item ids an item-producing node declares (cheap: no item is produced)."""
-        ctx = RunContext(
-            inst.name,
-            None,
-            self.out_dir / inst.name,
-            self.g.doc.directory,
-            input_types=self.input_types(inst),
-            producing_items=True,
-        )
-        try:
-            ids = [str(i) for i in inst.spec.items(inst.params, ctx)]  # type: ignore[misc]
-        except (ValueError, RuntimeError, OSError) as e:
-            raise NodeError(f"listing its items failed: {e}") from e
-        seen: set[str] = set()
-        dup = sorted({i for i in ids if i in seen or seen.add(i)})  # type: ignore[func-returns-value]
-        if dup:
-            raise NodeError(
-                f"it declares item ids more than once: {', '.join(dup[:5])}",
-                hint="give every item (scene, file) its own id",
-            )
-        self.reports[inst.name].messages += ctx.messages
-        return ids
-
-    def check_produced(self, inst: NodeInstance) -> None:
-        """A producer none of whose declared items came out has failed as a whole."""
-        rep = self.reports[inst.name]
-        ids = self._declared.get(inst.name, [])
-        if (
-            ids
-            and (inst.name, None) not in self._failed_items
-            and not any(self._items.get((inst.name, o)) for o in self.item_outputs(inst, ""))
-        ):
-            why = "; ".join(m for (n, _), m in list(self._failed_items.items()) if n == inst.name)[
-                :400
-            ] or "; ".join(rep.messages[:5])
-            self.fail_item(
-                inst,
-                None,
-                f"none of its {len(ids)} items could be produced" + (f": {why}" if why else ""),
-                "fix or remove the inputs these reasons name"
-                if why
-                else "see the node's messages in run.json",
-            )
-
-    def run_node(self, inst: NodeInstance, items: list[str] | None = None) -> None:
-        """Run one node: all its entries, or (a part of a streamed run) a producer's ``items``.
-
-        Plan the entries, look each up in the store, compute the rest, store them, report status."""
-        rep = self.reports[inst.name]
-        t0 = time.perf_counter()
-        bad = self.upstream_failed(inst)
-        if bad:
-            rep.status, rep.error = "skipped", f"upstream node '{bad}' did not finish"
-            return
-        store_on = self.store is not None and inst.name not in self.memory_only
-        base = self.node_components(inst) if store_on else None
-        producer = self.producer(inst)
-        entries = self._entries(inst, items, producer)
-        if entries is None:  # the producer could not say which items it makes
-            rep.seconds = time.perf_counter() - t0
-            return
-        makes_items = inst.mapped or (
-            producer and (items is not None or inst.name not in self._deferred)
-        )
-        for out in self.item_outputs(inst, "") if makes_items else []:
-            self._items[(inst.name, out)] = []
-        rep.items = (
-            len(entries)
-            if inst.mapped
-            else len(self._declared.get(inst.name, []))
-            if producer
-            else 0
-        )
-        if self.progress:  # (a producer's own entry is not one of its items: "13 items", not 14)
-            self.progress.node_started(inst.name, sum(self._counted(inst, i) for i in entries))
-        cacheable = store_on and inst.spec.cacheable and inst.name not in self.force
-        lost = self.lost_items(inst)
-        todo = self._look_up(inst, entries, base if store_on else None, cacheable, lost)
-        recorded = store_on and not self.sub and not (inst.mapped and inst.name in self._streaming)
-        if recorded:
-            self.record(inst, base)
-        self._compute(inst, todo, lost, store_on, cacheable, producer)
-        if makes_items:  # keep the items in source order
-            for out in self.item_outputs(inst, ""):
-                done = set(self._items[(inst.name, out)])
-                self._items[(inst.name, out)] = [i for i in entries if i in done]  # type: ignore[misc]
-        if producer and items is None and inst.name not in self._deferred:
-            self.check_produced(inst)
-        rep.seconds = time.perf_counter() - t0
-        rep.items_failed = sum(1 for (n, _) in self._failed_items if n == inst.name)
-        if rep.items_failed and recorded:
-            self.record(inst, base)  # again: which of its items failed is known now
-        rep.status = self.status_of(inst, producer, rep.items_failed, len(entries), bool(todo))
-        if inst.mapped and not entries:
-            rep.messages.append(NO_ITEMS)
-        self.release(inst.name)
-
-    def _entries(
-        self, inst: NodeInstance, items: list[str] | None, producer: bool
-    ) -> list[str | None] | None:
-        """The node's entries: one per item of a per-item node, else one (None); a producer's own
-        entry and then its items (unless a streamed region makes them); None if it cannot list
-        them."""
-        entries: list[str | None] = self.item_ids(inst) if inst.mapped else [None]
-        if producer and items is not None:
-            return list(items)
-        if producer:  # its other outputs, then (unless a streamed region does) its items
-            try:
-                if inst.name not in self._declared:  # (known already where items are made ahead)
-                    self._declared[inst.name] = self.produced_ids(inst)
-            except NodeError as e:
-                self.fail_item(inst, None, e.message, e.hint)
-                return None
-            if inst.name not in self._deferred:
-                entries += self._declared[inst.name]
-        return entries
-
-    def _look_up(
-        self,
-        inst: NodeInstance,
-        entries: list[str | None],
-        base: dict[str, Any] | None,
-        cacheable: bool,
-        lost: dict,
-    ) -> list[tuple[str | None, str | None, dict[str, Any]]]:
-        """Key every entry and adopt what the store holds; returns the entries still to compute."""
-        todo = []
-        for item in entries:
-            refs = self.input_refs(inst, item)
-            key = self.entry_key(base, refs, item, lost) if base is not None else None
-            if key is not None:
-                self._keys[(inst.name, item)] = key
-            manifest = self.store.complete(key) if cacheable else None  # type: ignore[union-attr]
-            if manifest is None:
-                todo.append((item, key, refs))
-                continue
-            self.adopt_cached(inst, item, key, manifest)  # type: ignore[arg-type]
-            for out in self.item_outputs(inst, item):
-                if (inst.name, out, item) in self._ref_keys:
-                    self._items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-            if self.progress and self._counted(inst, item):
-                self.progress.advance(inst.name)
-        return todo
-
-    def _compute(
-        self,
-        inst: NodeInstance,
-        todo: list,
-        lost: dict,
-        store_on: bool,
-        cacheable: bool,
-        producer: bool,
-    ) -> None:
-        """Compute the entries the store did not have, and store what they made."""
-        # Lock what we compute so a concurrent run waits and then shares the result. A node called
-        # once (calibration, a report) runs here: shipping its inputs to a worker would only add
-        # copies, and the pool's workers are busy with items (made ahead: streaming.start_ahead).
-        ex = (
-            self.executor
-            if inst.mapped or any(item is not None for item, _, _ in todo)
-            else _HERE_SERIAL
-        )
-        tasks, metas = [], []
-        for item, key, refs in todo:
-            try:
-                values = self.inputs_for(refs)
-            except NodeError as e:
-                self.fail_item(inst, item, e.message, e.hint)
-                self._advance(inst, item, ok=False)
-                continue
-            tasks.append(self.task(inst, item, values, ex.remote, lost))
-            metas.append((item, key))
-        volatile = not store_on or not inst.spec.cacheable
-        for (item, key), (res, stored) in zip(
-            metas, self._run_locked(inst, tasks, metas, cacheable, ex)
-        ):
-            if res is not None and not res.ok:
-                self.fail_item(
-                    inst,
-                    item,
-                    res.error or "failed",
-                    res.hint,
-                    res.trace,
-                    not res.user_error,
-                    res.lasting,
-                )
-                continue
-            if res is None:  # another run computed it while we waited
-                self.adopt_cached(inst, item, key)  # type: ignore[arg-type]
-            elif not self._keep_result(inst, item, key, res, stored, volatile, store_on, producer):
-                continue
-            for out in self.item_outputs(inst, item):
-                if (inst.name, out, item) in self._ref_keys:  # (not an item the producer dropped)
-                    self._items[(inst.name, out)].append(item)  # type: ignore[arg-type]
-
-    def _keep_result(
-        self,
-        inst: NodeInstance,
-        item: str | None,
-        key: str | None,
-        res: TaskResult,
-        stored: bool,
-        volatile: bool,
-        store_on: bool,
-        producer: bool,
-    ) -> bool:
-        """Store a computed entry's outputs (if the worker did not) and count it; False if they
-        cannot be."""
-        rep = self.reports[inst.name]
-        ok = True
-        if volatile:  # (live camera, actuator): a fresh key, so nothing downstream is served stale
-            key = f"volatile-{uuid.uuid4().hex}" if store_on else None
-        if not stored:
-            try:
-                self.store_result(inst, item, key, res.outputs or {}, res.messages)
-            except (NodeError, TypeError) as e:
-                self.fail_item(inst, item, f"its outputs are not storable: {e}", None)
-                ok = False
-        rep.messages += res.messages
-        if inst.mapped or item is not None or not producer:
-            rep.items_ran += 1
-        return ok
-
-    def status_of(
-        self, inst: NodeInstance, producer: bool, n_failed: int, n_entries: int, computed: bool
-    ) -> str:
-        """ran | cached | failed | partial, from what happened to the node's entries (streamed ones
-        too)."""
-        if (inst.name, None) in self._failed_items:
-            return "failed"
-        if (inst.mapped or producer) and n_failed and n_failed < n_entries:
-            return "partial"
-        if n_failed:
-            return "failed"
-        return "ran" if computed else "cached"
-
-    def record(self, inst: NodeInstance, base: dict[str, Any] | None) -> None:
-        """What this node's entries were made from, for ``explain`` (what changed since)."""
-        comps = dict(base or {})
-        comps["inputs"] = sorted({src for src in self.g.dag.predecessors(inst.name)})
-        comps["upstream"] = {src: self.reports[src].status for src in comps["inputs"]}
-        comps["code_files"] = self._code_files.get(inst.type, {})
-        comps["keys"] = sorted(k for (n, _), k in self._keys.items() if n == inst.name)[:1000]
-        # its items that failed, with why (a gathering node downstream keys on them): explain's
-        # guess of the next run, which tries them again, is that they fail again the same way
-        comps["failed"] = {
-            i: why for (n, i), why in self._failed_items.items() if n == inst.name and i is not None
-        }
-        self.store.record(self.pipeline_id, inst.name, comps)  # type: ignore[union-attr]
-
-    def _run_locked(
-        self, inst: NodeInstance, tasks: list[Task], metas: list, cacheable: bool, ex: Any
-    ) -> list:
-        """Run tasks; returns (TaskResult or None if another run stored it, stored_already)."""
-        if not tasks:
-            return []
-        if not cacheable:
-            return [(r, False) for r in self._advancing(inst, tasks, ex.map(execute, tasks))]
-        # Take each entry's lock without blocking: ours to compute; busy ones are being computed
-        # by another run right now, so wait for those afterwards and reuse their result.
-        results: list[Any] = [None] * len(tasks)
-        with contextlib.ExitStack() as stack:
-            mine, busy = [], []
-            for idx, (_item, key) in enumerate(metas):
-                got = stack.enter_context(self.store.lock(key, blocking=False))  # type: ignore[union-attr]
-                (mine if got else busy).append(idx)
-            ours = [tasks[i] for i in mine]
-            for idx, res in zip(mine, self._advancing(inst, ours, ex.map(execute, ours))):
-                stored = False
-                if res.ok:  # store while still holding the lock
-                    item, key = metas[idx]
-                    try:
-                        self.store_result(
-                            inst, item, key, res.outputs or {}, res.messages, res.seconds
-                        )
-                        stored = True
-                    except (NodeError, TypeError) as e:
-                        res = TaskResult(False, error=f"its outputs are not storable: {e}")
-                results[idx] = (res, stored)
-        for idx in busy:
-            item, key = metas[idx]
-            with self.store.lock(key):  # type: ignore[union-attr]
-                if self.store.has(key):  # type: ignore[union-attr]
-                    results[idx] = (None, True)
-                else:
-                    res = execute(tasks[idx])
-                    if res.ok:
-                        self.store_result(inst, item, key, res.outputs or {}, res.messages)
-                    results[idx] = (res, res.ok)
-            self._advance(inst, item, ok=results[idx][0] is None or results[idx][0].ok)
-        return results
-
-    def _counted(self, inst: NodeInstance, item: str | None) -> bool:
-        """Whether an entry counts on the progress display: a producer's whole-node entry does not,
-        once its items are known (they are what the display counts)."""
-        return not (item is None and self.producer(inst) and self._declared.get(inst.name))
-
-    def _advance(self, inst: NodeInstance, item: str | None, ok: bool = True) -> None:
-        if self.progress and self._counted(inst, item):
-            progress_advance(self.progress, inst.name, ok)
-
-    def _advancing(
-        self, inst: NodeInstance, tasks: list[Task], results: Iterable[TaskResult]
-    ) -> Iterable[TaskResult]:
-        """The executor's results (in the order of ``tasks``), advancing the progress display as
-        each arrives."""
-        for task, res in zip(tasks, lost_as_failed(results)):
-            self._advance(inst, task.item, res.ok)
-            yield res
 
     def fail_item(
         self,
@@ -849,198 +524,6 @@ class RunState:
             if inst.mapped or (inst.name, out, item) in self._ref_keys:
                 self._items.setdefault((inst.name, out), []).append(item)  # type: ignore[arg-type]
 
-    # ---- parts of a run: streamed regions (stereograph.core.streaming)
-
-    @classmethod
-    def for_part(
-        cls,
-        graph: Graph,
-        store: ArtifactStore | None,
-        out_dir: Path,
-        force: set[str],
-        code: tuple[dict, dict],
-        statuses: dict[str, str],
-        keep: set[str],
-        keys: dict[Ref, tuple[str, str | None]],
-        values: dict[Ref, Any],
-        collections: dict[tuple[str, str], list[str]],
-        members: set[str],
-        back: set[str],
-    ) -> RunState:
-        """A run of a chunk of items through ``members``, fed the outside values: ``keys`` (ref ->
-        (entry key, content key)) of all, ``values`` of those the chunk brought (the others are
-        read from the store where needed); the nodes in ``back`` keep their values until the chunk
-        hands them back. It records nothing."""
-        run = cls(graph, store, out_dir, SerialExecutor(), set(force), None, keep=keep)
-        run.sub = True
-        run._code, run._code_files = dict(code[0]), dict(code[1])
-        for name, status in statuses.items():
-            run.reports[name].status = status
-        for ref, (key, ident) in keys.items():
-            run._ref_keys[ref] = key
-            if ident:
-                run._ref_ids[ref] = ident
-        run._mem.update(values)
-        run._items.update({coll: list(ids) for coll, ids in collections.items()})
-        run._remaining_consumers = {n: set(graph.consumers(n)) & members for n in graph.nodes}
-        for n in back:  # read outside the chunk too: held until the chunk returns it
-            run._remaining_consumers[n].add("\0outside")
-        return run
-
-    def run_part_node(self, inst: NodeInstance, executor: Any, items: list[str] | None) -> None:
-        """(A part of a run) run a node of the chunk: its source for ``items``, or a member. A node
-        failing for all of the chunk's items is partial: the other chunks' items go on."""
-        self.executor = executor
-        if items is not None:
-            self.declare_items(inst.name, items)
-        self.run_node(inst, items=items)
-        rep = self.reports[inst.name]
-        if rep.status == "failed" and (inst.name, None) not in self._failed_items:
-            rep.status = "partial"
-
-    def records(self, inside: set[str], values: dict, files: dict) -> PartRecords:
-        """(A part of a run) what it made, of the nodes ``inside`` the part."""
-        return PartRecords(
-            reports={n: self.reports[n] for n in inside},
-            items={k: v for k, v in self._items.items() if k[0] in inside},
-            failed={k: v for k, v in self._failed_items.items() if k[0] in inside},
-            ref_keys={r: k for r, k in self._ref_keys.items() if r[0] in inside},
-            ref_ids={r: k for r, k in self._ref_ids.items() if r[0] in inside},
-            keys={k: v for k, v in self._keys.items() if k[0] in inside},
-            values=values,
-            files=files,
-            messages={
-                n: r.messages for n, r in self.reports.items() if n not in inside and r.messages
-            },
-        )
-
-    def absorb(self, part: PartRecords, source: str | None, skipped: dict[str, str]) -> None:
-        """Take in what a part made as if its nodes had run here; ``skipped`` collects the nodes a
-        part skipped, with why."""
-        for n, r in part.reports.items():
-            rep = self.reports[n]
-            rep.seconds += r.seconds
-            if n != source:
-                rep.items += r.items
-            rep.items_ran += r.items_ran
-            # (a chunk whose items were all dropped upstream says NO_ITEMS; the region says it
-            # if true)
-            rep.messages += [m for m in r.messages if m not in rep.messages and m != NO_ITEMS]
-            if r.status == "skipped":
-                skipped.setdefault(n, r.error or "upstream did not finish")
-            elif rep.error is None and r.error:
-                rep.error, rep.hint, rep.trace, rep.unexpected = (
-                    r.error,
-                    r.hint,
-                    r.trace,
-                    r.unexpected,
-                )
-        for n, msgs in part.messages.items():
-            self.reports[n].messages += [m for m in msgs if m not in self.reports[n].messages]
-        for k, got in part.items.items():
-            self._items.setdefault(k, []).extend(got)
-        self._failed_items.update(part.failed)
-        self._ref_keys.update(part.ref_keys)
-        self._ref_ids.update(part.ref_ids)
-        self._keys.update(part.keys)
-        self._mem.update(part.values)
-        for k, by_item in part.files.items():
-            got = {i: [Path(f) for f in fs] for i, fs in by_item.items()}
-            self._streamed.setdefault(k, {}).update(got)
-
-    def start_region(self, nodes: Iterable[str], source: str | None) -> list[str]:
-        """Empty the item lists a region fills; returns the items it iterates over, in order: the
-        source's, or those of the collections it reads from outside."""
-        inside = set(nodes) | ({source} if source else set())
-        for n in nodes:
-            for o in self.g.nodes[n].spec.outputs:
-                self._items[(n, o)] = []
-        if source:
-            for o in self.item_outputs(self.g.nodes[source], ""):
-                self._items[(source, o)] = []
-            ok = self.reports[source].status not in ("failed", "skipped")
-            return list(self._declared.get(source, [])) if ok else []
-        seen: dict[str, None] = {}
-        for n in nodes:
-            inst = self.g.nodes[n]
-            for port, (s, o) in inst.inputs.items():
-                if (
-                    s not in inside
-                    and self.g.is_collection(s, o)
-                    and not inst.spec.inputs[port].gather
-                ):
-                    seen.update(dict.fromkeys(self._items.get((s, o), [])))
-        return list(seen)
-
-    def order_items(self, nodes: set[str], ids: list[str]) -> None:
-        """Put the item lists of ``nodes`` in the order of ``ids`` (chunks finish in any order)."""
-        order = {i: k for k, i in enumerate(ids)}
-        for (n, o), got in list(self._items.items()):
-            if n in nodes:
-                self._items[(n, o)] = sorted(
-                    dict.fromkeys(got), key=lambda i: order.get(i, len(order))
-                )
-
-    def settle_source(self, source: str) -> None:
-        """A region's source: its items checked and counted, its status, its record (explain)."""
-        src, rep = self.g.nodes[source], self.reports[source]
-        self.check_produced(src)
-        rep.items_failed = sum(1 for (n, i) in self._failed_items if n == source and i is not None)
-        if (source, None) in self._failed_items:
-            rep.status = "failed"
-        elif rep.items_failed:
-            rep.status = "partial"
-        elif rep.items_ran:
-            rep.status = "ran"
-        if self.store is not None and source not in self.memory_only:
-            self.record(src, self.node_components(src))  # now with its items' keys
-
-    def settle_member(self, n: str, skipped: dict[str, str], base: dict | None) -> None:
-        """A region member's status from its items, and its record for ``explain``."""
-        inst, rep = self.g.nodes[n], self.reports[n]
-        rep.items_failed = sum(1 for (m, _) in self._failed_items if m == n)
-        bad = self.upstream_failed(inst)
-        if n in skipped or bad:  # (an upstream node that failed as a whole: no item got here)
-            rep.status, rep.error = (
-                "skipped",
-                skipped.get(n) or f"upstream node '{bad}' did not finish",
-            )
-            return
-        rep.status = self.status_of(inst, False, rep.items_failed, rep.items, bool(rep.items_ran))
-        if not rep.items:
-            rep.messages.append(NO_ITEMS)
-        if self.store is not None and n not in self.memory_only:
-            self.record(inst, base)
-
-    def skip_blocked(self, members: list[str]) -> bool:
-        """Whether every member of a region waits on a node outside it that failed or was skipped
-        (directly, or through a member before it); then each is skipped, as a node-by-node run
-        would, and released."""
-        blocked: dict[str, str] = {}
-        for n in members:  # (in topological order)
-            preds = self.g.dag.predecessors(n)
-            bad = self.upstream_failed(self.g.nodes[n]) or next(
-                (p for p in preds if p in blocked), None
-            )
-            if bad is None:
-                return False
-            blocked[n] = bad
-        for n in members:
-            rep = self.reports[n]
-            rep.status, rep.error = "skipped", f"upstream node '{blocked[n]}' did not finish"
-            self.release(n)
-        return True
-
-    def stream(self, members: Iterable[str], source: str | None) -> None:
-        """Have a streamed region run ``members`` (and make ``source``'s items)."""
-        self._streaming |= set(members)
-        if source:
-            self._deferred.add(source)
-
-    def declare_items(self, source: str, ids: list[str]) -> None:
-        """The items ``source`` makes (known early: they are being made ahead)."""
-        self._declared[source] = list(ids)
-
     def content_id(self, ref: Ref) -> str | None:
         """The content key of a produced item (None for anything else)."""
         return self._ref_ids.get(ref)
@@ -1110,21 +593,3 @@ class RunState:
                 i: self._mem.get((node, out, i)) for i in self._items.get((node, out), [])
             } or None
         return self._mem.get((node, out, None))
-
-
-def _read_back(files: list[Path]) -> Any:
-    """An item's image as written to the run folder: PNG is lossless (the very array); a lossy
-    output's JPEG decodes to the very array too, since every reader of a lossy output gets the
-    decoded JPEG."""
-    import cv2
-
-    png = next((f for f in files if f.suffix == ".png"), None) or next(
-        (f for f in files if f.suffix == ".jpg"), None
-    )
-    img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED) if png is not None else None
-    if img is None:
-        raise NodeError(
-            f"the image written to {files[0] if files else '?'} can no longer be read",
-            hint="run again (the run folder was changed while the run went on)",
-        )
-    return img

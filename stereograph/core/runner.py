@@ -16,8 +16,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.core import outputs as outputs_mod
-from stereograph.core import project, streaming
+from stereograph.core import ahead, project, run_folder, streaming
 from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
 from stereograph.core.calls import _PROGRESS, close_resources
 from stereograph.core.config import load_pipeline
@@ -64,7 +63,7 @@ def run_graph(
     run_id = run_id or new_run_id()
     runs = project.runs_dir(graph.doc.directory)
     out = Path(out_dir) if out_dir else runs / graph.doc.name / run_id
-    foreign = outputs_mod.prepare_out_dir(out)
+    foreign = run_folder.prepare_out_dir(out)
     store, budget = _open_store(graph.doc, cache_dir, use_cache)
     own_executor = executor is None
     executor = executor or SerialExecutor()
@@ -79,7 +78,7 @@ def run_graph(
     except BaseException as e:
         # the same command resumes into this folder
         if isinstance(e, KeyboardInterrupt) and write_outputs:
-            outputs_mod.write_interrupted_summary(graph, run, run_id, str(graph.doc.path), out)
+            run_folder.write_interrupted_summary(graph, run, run_id, str(graph.doc.path), out)
         lease.close()
         raise
     finally:
@@ -145,7 +144,7 @@ def _execute(
     for k, unit in enumerate(units):
         if isinstance(unit, str):
             if unit in heads:  # the pool makes its items while this process runs the head
-                streaming.start_ahead(run, heads[unit])
+                ahead.start_ahead(run, heads[unit])
             run.run_node(run.g.nodes[unit])
             continue
         if hasattr(run.executor, "start"):  # a local pool: this process only waits
@@ -158,9 +157,9 @@ def _execute(
 def _release(run: RunState, out: Path, own_executor: bool) -> None:
     """What the run holds, let go of whatever happened: items made ahead, open resources, our
     pool."""
-    streaming.stop_all_ahead(run)
-    if (out / streaming.AHEAD_DIR).exists():
-        shutil.rmtree(out / streaming.AHEAD_DIR, ignore_errors=True)
+    ahead.stop_all_ahead(run)
+    if (out / ahead.AHEAD_DIR).exists():
+        shutil.rmtree(out / ahead.AHEAD_DIR, ignore_errors=True)
     close_resources(run.resources)
     if own_executor:
         run.executor.close()
@@ -193,7 +192,7 @@ def _result(
     )
     try:
         if write_outputs:
-            outputs_mod.write_run_outputs(run.g, run, result, selected)
+            run_folder.write_run_outputs(run.g, run, result, selected)
     finally:
         lease.close()
     return result
