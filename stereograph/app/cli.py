@@ -15,7 +15,12 @@ import traceback
 
 from stereograph import __version__
 from stereograph.app.cache_command import cache_positionals_first, cmd_cache
-from stereograph.app.console import command_console, non_negative_int, positive_int, size_gb
+from stereograph.app.console import (
+    add_executor_arguments,
+    command_console,
+    non_negative_int,
+    size_gb,
+)
 from stereograph.app.console import seconds as seconds_arg
 from stereograph.app.info_commands import (
     cmd_explain,
@@ -75,17 +80,7 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
     sp.add_argument(
         "--from", metavar="NODE", help="recompute NODE and its downstream even if cached"
     )
-    sp.add_argument(
-        "--workers", type=positive_int, default=1, help="processes for per-item nodes (default 1)"
-    )
-    sp.add_argument(
-        "--dask",
-        metavar="ADDRESS",
-        help="run per-item nodes on a Dask cluster "
-        "('local' starts one with --workers processes; needs the 'dask' extra; a remote "
-        "cluster must "
-        "see the cache and run folder on shared storage: docs/parallel.md)",
-    )
+    add_executor_arguments(sp, "per-item nodes")
     sp.add_argument(
         "--repeat",
         type=non_negative_int,

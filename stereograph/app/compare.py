@@ -459,7 +459,7 @@ def _rows(res: CompareResult) -> list[dict[str, Any]]:
 
 def add_subcommand(subparsers: Any) -> Any:
     """Add ``compare`` to the ``stereograph`` command's sub-parsers."""
-    from stereograph.app.console import positive_int  # (run's own check of --workers)
+    from stereograph.app.console import add_executor_arguments  # (run's own --workers)
 
     sp = subparsers.add_parser(
         "compare",
@@ -508,16 +508,7 @@ def add_subcommand(subparsers: Any) -> Any:
         help="show the row with the lowest (:max the highest, :abs the closest to zero) METRIC in "
         "bold green, among the variants that ran to the end",
     )
-    sp.add_argument(
-        "--workers", type=positive_int, default=1, help="processes for per-item nodes (default 1)"
-    )
-    sp.add_argument(
-        "--dask",
-        metavar="ADDRESS",
-        help="run every variant's per-item work on a Dask cluster "
-        "('local' starts one with --workers processes; the cache and run folder must be on "
-        "storage every worker sees: docs/parallel.md)",
-    )
+    add_executor_arguments(sp, "every variant's per-item nodes")
     sp.add_argument(
         "--skip-invalid",
         action="store_true",

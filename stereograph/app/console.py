@@ -3,8 +3,8 @@
 Shared by the sub-commands (``run``, ``compare``, the others) and a replayed rerun, so that each
 reads ``--workers`` and echoes a result the same way. Public names:
 :func:`positive_int`, :func:`non_negative_int`, :func:`size_gb`, :func:`seconds`,
-:func:`echo_entry`, :func:`console`, :func:`command_console`, :func:`load_graph`,
-:data:`PIPE_WIDTH`.
+:func:`add_executor_arguments`, :func:`echo_entry`, :func:`console`, :func:`command_console`,
+:func:`load_graph`, :data:`PIPE_WIDTH`.
 """
 
 from __future__ import annotations
@@ -24,6 +24,20 @@ def positive_int(text: str, least: int = 1, what: str = "at least 1") -> int:
     if value < least:
         raise argparse.ArgumentTypeError(f"must be {what} (got {value})")
     return value
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, work: str) -> None:
+    """``--workers`` and ``--dask``: where a command runs ``work`` (its per-item part)."""
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, help=f"processes for {work} (default 1)"
+    )
+    parser.add_argument(
+        "--dask",
+        metavar="ADDRESS",
+        help=f"run {work} on a Dask cluster ('local' starts one with --workers processes; needs "
+        "the 'dask' extra; a remote cluster must see the cache and run folder on shared storage: "
+        "docs/parallel.md)",
+    )
 
 
 def non_negative_int(text: str) -> int:
