@@ -122,6 +122,22 @@ def test_images_are_stored_once_as_png_and_linked_into_the_run_folder(tmp_path):
     assert ready is not None and ready.suffix == ".png"
 
 
+def test_an_entry_of_another_cache_format_is_computed_again(tmp_path):
+    """A cache written by an older stereograph (another entry layout) is never read with this
+    layout's rules: its entries count as absent, are computed again and stored anew."""
+    p = pipeline(tmp_path / "x")
+    first = run_pipeline(p, cache_dir=tmp_path / "c")
+    manifests = list((tmp_path / "c" / "objects").rglob("manifest.json"))
+    for f in manifests:
+        man = json.loads(f.read_text())
+        f.write_text(json.dumps({**man, "format": "1"}))
+    again = run_pipeline(p, cache_dir=tmp_path / "c")
+    assert again.ok and set(again.status.values()) == {"ran"}
+    assert again.outputs("total", "total") == first.outputs("total", "total")
+    assert {json.loads(f.read_text())["format"] for f in manifests} == {cache_mod.FORMAT}
+    assert set(run_pipeline(p, cache_dir=tmp_path / "c").status.values()) == {"cached"}
+
+
 def test_toy_saved_images_share_their_inode_with_the_cache(tmp_path):
     toy = Path(__file__).parent / "plugins" / "toy.py"
     p = tmp_path / "t.yaml"

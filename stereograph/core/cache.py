@@ -155,12 +155,13 @@ class ArtifactStore:
         return self.objects / key[:2] / key
 
     def complete(self, key: str) -> dict[str, Any] | None:
-        """The manifest of a complete-looking entry (manifest present, file sizes match), else None;
-        marks the entry used."""
+        """The manifest of a complete-looking entry (manifest present, of this :data:`FORMAT`, file
+        sizes match), else None; marks the entry used. An entry of another format is computed
+        again (and stored anew), never read with this layout's rules."""
         d = self._dir(key)
         try:
             man = json.loads((d / "manifest.json").read_text())
-            if not all(
+            if man["format"] != FORMAT or not all(
                 (d / name).stat().st_size == rec["size"] for name, rec in man["files"].items()
             ):
                 return None
