@@ -421,7 +421,7 @@ def _run_variant(
         keep={node for node, _ in measured},
     )
     if shared is not None:
-        write_variant_outputs(graph, result, out, {n for n, h in lin.items() if h not in shared})
+        write_variant_outputs(graph, result, {n for n, h in lin.items() if h not in shared})
     failed = [r for r in result.reports.values() if r.status in ("failed", "partial", "skipped")]
     error = "; ".join(_failure_words(r) for r in failed if r.error)[:700] or None
     metrics = collect_metrics({(node, port): result.outputs(node, port) for node, port in measured})

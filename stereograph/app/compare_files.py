@@ -20,8 +20,7 @@ from stereograph.app.compare_result import CompareResult
 from stereograph.app.compare_table import select_metrics
 from stereograph.app.ranking import PER_PAIR
 from stereograph.app.variants import Variant
-from stereograph.core import hooks, run_folder
-from stereograph.core import outputs as outputs_mod
+from stereograph.core import run_folder
 from stereograph.core.errors import ConfigError
 from stereograph.core.graph import Graph
 from stereograph.core.outputs import write_whole
@@ -192,33 +191,8 @@ def write_plots(res: CompareResult, patterns: list[str] | None = None) -> dict[s
     return {"metrics": path}
 
 
-def write_variant_outputs(graph: Graph, result: Any, out: Path, own: set[str]) -> None:
-    """Saved / terminal outputs of the given nodes, and ``run.json``, into ``out``."""
-    terminal = set(graph.terminal())
-    files: dict[str, list[str]] = {}
-    for name in graph.order:
-        if name not in own or result.reports[name].status in ("failed", "skipped"):
-            continue
-        for port, decl in graph.nodes[name].spec.outputs.items():
-            if not (decl.save or name in terminal):
-                continue
-            value = result.outputs(name, port)
-            stem = out / name / port
-            # (a picture for people is JPEG here too, as in a run)
-            if graph.is_collection(name, port):
-                written = outputs_mod.write_collection(stem, value or {}, decl.lossy)
-            elif value is not None:
-                written = outputs_mod.write_value(stem, value, decl.lossy)
-            else:
-                continue
-            files.setdefault(name, []).extend(str(f.relative_to(out)) for f in written)
-    # what a node wrote into its folder itself (a failure log), as a run records it
-    run_folder.add_node_files(out, graph.order, files, getattr(result.state, "foreign", {}))
-    # run.json as a run writes it (a later run may clear this folder), and whose outputs it holds
-    summary = run_folder.run_summary(
-        graph, result.state, result.run_id, result.pipeline, out, result.ok, result.notes, files
-    )
-    summary["outputs_of"] = sorted(own)
-    out.mkdir(parents=True, exist_ok=True)
-    write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
-    hooks.announce("run_written", out)  # its report.html (a page that fails is no failed compare)
+def write_variant_outputs(graph: Graph, result: Any, own: set[str]) -> None:
+    """The outputs of the given nodes (the variant's own: what it shares with the first variant is
+    written there) and ``run.json`` into its folder, as a run writes them."""
+    result.state.add_to_summary("outputs_of", sorted(own))
+    run_folder.write_run_outputs(graph, result.state, result, [n for n in graph.order if n in own])
