@@ -345,6 +345,18 @@ def test_include_and_defaults(tmp_path):
     assert g.nodes["power"].params.power == 3
     # merged over the include
     assert g.nodes["numbers"].params.n == 3 and g.nodes["numbers"].params.size == 5
+    # a change to an included node may leave its type out: it keeps the included one's
+    f.write_text(
+        "name: inc\ninclude: [common.yaml]\nnodes:\n  numbers: {params: {size: 6}}\n"
+        "  power: {type: toy.power, inputs: {m: numbers.items}}\n"
+    )
+    g = build_graph(load_pipeline(f))
+    assert g.nodes["numbers"].type == "toy.numbers"
+    assert g.nodes["numbers"].params.n == 3 and g.nodes["numbers"].params.size == 6
+    # a node of its own still needs one
+    f.write_text("name: inc\ninclude: [common.yaml]\nnodes:\n  other: {params: {size: 6}}\n")
+    with pytest.raises(ConfigError, match="node has no 'type'"):
+        load_pipeline(f)
 
 
 def test_process_pool_gives_the_same_result(tmp_path):

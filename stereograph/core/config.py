@@ -377,7 +377,7 @@ def _repeat(data: dict, where: Callable[..., Where]) -> int:
 
 def _node_decl(base: dict, name: str, decl: Any, where: Callable[..., Where]) -> dict:
     """One node's declaration, checked and merged over an included one of the same name (whose
-    params it keeps only if the type is the same)."""
+    type it keeps when it names none, and whose params it keeps only if the type is the same)."""
     decl = {} if decl is None else decl
     if not isinstance(decl, dict):
         raise ConfigError(
@@ -393,6 +393,8 @@ def _node_decl(base: dict, name: str, decl: Any, where: Callable[..., Where]) ->
                 node=name,
                 hint=f"a node takes {sorted(NODE_KEYS)}; parameters go under 'params:'",
             )
+    if "type" not in decl and isinstance(base.get("type"), str):
+        decl = {**decl, "type": base["type"]}  # a change to an included node keeps its type
     if "type" not in decl:
         raise ConfigError(
             "node has no 'type'",
