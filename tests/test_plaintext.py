@@ -170,3 +170,19 @@ def test_a_replayed_run_prints_what_rich_prints_without_importing_it(tmp_path):
     assert "RICH False" in outs["plain"] and "RICH True" in outs["rich"]
     assert "total.total" in outs["plain"] and "│ total" in outs["plain"]
     assert outs["plain"].replace("RICH False", "") == outs["rich"].replace("RICH True", "")
+
+
+def test_the_console_shows_floats_at_a_glance_and_the_run_folder_keeps_them():
+    """A terminal value's floats are shown to 4 significant digits (whole digits kept); the value
+    itself, as run.json and the output files hold it, is untouched."""
+    from stereograph.app.console import echo_entry
+
+    value = {"z_mean_cm": -0.05870309273607587, "n": 55, "f_px": 514.91234, "big": 1234567.3}
+    value["per_pair"] = [0.0072564784611959384, 0.0, float("nan")]
+    kind, text = echo_entry(value)
+    assert kind == "json"
+    assert text == (
+        '{"z_mean_cm": -0.0587, "n": 55, "f_px": 514.9, "big": 1234567.0, '
+        '"per_pair": [0.007256, 0.0, null]}'
+    )
+    assert value["z_mean_cm"] == -0.05870309273607587

@@ -80,7 +80,7 @@ def echo_entry(v: Any) -> tuple[str, str] | None:
     if isinstance(v, dict) and isinstance(v.get("markdown"), str):
         return "markdown", v["markdown"]  # a report that renders itself: shown as the table it is
     arrays: dict = {}
-    text = json.dumps(to_json(v, arrays), default=str)
+    text = json.dumps(_glance(to_json(v, arrays)), default=str)
     if (arrays or len(text) > 3000) and isinstance(v, dict):
         # big artifacts (a calibration, say): show their scalar facts only
         small = {
@@ -95,10 +95,22 @@ def echo_entry(v: Any) -> tuple[str, str] | None:
         }
         if not small:
             return None
-        text = json.dumps(to_json(small, {}), default=str)
+        text = json.dumps(_glance(to_json(small, {})), default=str)
     elif arrays or len(text) > 3000:
         return None
     return "json", text
+
+
+def _glance(x: Any) -> Any:
+    """Floats to 4 significant digits, whole digits kept (-0.0587, 514.9, 1234567.0): the console
+    is for a glance; the run folder keeps every digit."""
+    if isinstance(x, float) and math.isfinite(x) and x != 0:
+        return round(x, max(0, 3 - math.floor(math.log10(abs(x)))))
+    if isinstance(x, dict):
+        return {k: _glance(y) for k, y in x.items()}
+    if isinstance(x, list):
+        return [_glance(y) for y in x]
+    return x
 
 
 _CONSOLE_CLASS: Any = None
