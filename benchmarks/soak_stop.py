@@ -117,8 +117,11 @@ def _check(t: Trial, out: Path, max_exit_s: float) -> None:
         return
     if not loop.get("interrupted"):
         problems.append(f"run.json does not record an interrupt: {loop.get('stopped')}")
-    m = re.search(r"\(node '([^']+)'\)", loop.get("stopped", ""))
-    t.landed = m.group(1) if m else "between cycles"
+    stopped = loop.get("stopped", "")
+    m = re.search(r"\(node '([^']+)'\)", stopped)
+    # (in the engine as it went to a node: that node had not begun, so it has nothing to log)
+    before = re.search(r"before node '([^']+)' began", stopped)
+    t.landed = m.group(1) if m else f"before {before.group(1)}" if before else "between cycles"
     if t.landed == "act":
         try:
             stop = json.loads((out / "act" / "servo_log_interrupted.json").read_text())["stop"]

@@ -217,6 +217,26 @@ def test_an_interrupted_cycle_says_what_the_interrupted_node_did(tmp_path, capsy
     )
     assert "cycle 2: interrupted in" in (out := capsys.readouterr().out)
     assert "(during tick): ticker: Ctrl-C during tick 2: held still" in out
+    run_json = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run_json["loop"]["stopped"] == "stopped by an interrupt during cycle 2 (node 'tick')"
+
+
+def test_an_interrupt_before_a_nodes_code_began_is_not_put_on_the_node(tmp_path):
+    """(soak_stop.py: a signal that landed as the engine went from 'pick' to 'act' was said to be
+    'during act', and act had left no log of it: it had not begun.) The loop says where it
+    landed: before the node's own code, which did nothing in that cycle."""
+    calls = []
+
+    def lost_signal_at_check_of_cycle_2():  # (calls: cycle 1: start, const, tick, check; 2: ...)
+        calls.append(1)
+        return "cam" if len(calls) == 7 else None
+
+    graph = build_graph(load_pipeline(pipeline(tmp_path)))
+    loop = Loop(0, stop_requested=lost_signal_at_check_of_cycle_2)
+    run_graph(graph, cycles=loop, out_dir=tmp_path / "out", cache_dir=tmp_path / "cache")
+    assert loop.stopped == "stopped by an interrupt during cycle 2, before node 'check' began"
+    last = cycles(tmp_path / "out")[-1]
+    assert last["status"] == "interrupted" and last["failed_node"] == "check"
 
 
 def test_a_cycles_images_are_not_logged_as_values_whatever_their_size(tmp_path):

@@ -40,6 +40,16 @@ class Cycle:
     hint: str | None = None  # the failed node's fix
     nodes: dict[str, dict[str, Any]] = field(default_factory=dict)
     values: dict[str, Any] = field(default_factory=dict)
+    before_node: bool = False  # interrupted before ``failed_node``'s own code began
+
+    def stopped_by_interrupt(self) -> str:
+        """What ended the loop, said of this interrupted cycle."""
+        k, node = self.index, self.failed_node
+        if node is None:
+            return f"stopped by an interrupt as cycle {k} began"
+        if self.before_node:
+            return f"stopped by an interrupt during cycle {k}, before node '{node}' began"
+        return f"stopped by an interrupt during cycle {k} (node '{node}')"
 
     def line(self) -> str:
         """One line for the terminal, then one line per warning a live node gave in this cycle."""
@@ -54,7 +64,8 @@ class Cycle:
                 f" Fix: {self.hint}" if self.hint else ""
             )
         elif self.status == "interrupted":
-            head += f" (during {self.failed_node})" + (f": {self.error}" if self.error else "")
+            where = "before" if self.before_node else "during"
+            head += f" ({where} {self.failed_node})" + (f": {self.error}" if self.error else "")
         notes = "".join(
             f"\n  note: {n}: {m}" for n, d in self.nodes.items() for m in d.get("messages", [])
         )
@@ -180,22 +191,11 @@ class Loop:
                 if k > 1:
                     run.forget(self.live)
                 for name in order:
+                    current = name  # (a lost signal found here stops the loop before it begins)
                     self._check_stop()
-                    current = name
                     run.run_node(g.nodes[name])
             except KeyboardInterrupt as e:
-                # what the interrupted node did to end safely, as it noted on the interrupt (an arm
-                # held still)
-                cycle.error = " ".join(getattr(e, "__notes__", ()) or [str(e)]) or None
-                # before its first node: a cycle that did not begin (the last one's reports)
-                if current is None:
-                    order = []
-                for name in order:  # the interrupted node and those after it did not finish
-                    rep = run.reports[name]
-                    if rep.status in ("pending", "running"):
-                        rep.status, rep.error = "skipped", f"interrupted during cycle {k}"
-                cycle.status, cycle.failed_node = "interrupted", current
-                self.interrupted = True
+                order = self._interrupted(run, cycle, order, current, e)
             cycle.seconds = time.perf_counter() - t0
             # The log line and the count in run.json must agree: a signal here waits until both are
             # done.
@@ -204,11 +204,7 @@ class Loop:
             if self.on_cycle is not None:
                 self.on_cycle(cycle)
             if self.interrupted:
-                self.stopped = (
-                    f"stopped by an interrupt during cycle {k} (node '{cycle.failed_node}')"
-                    if cycle.failed_node
-                    else f"stopped by an interrupt as cycle {k} began"
-                )
+                self.stopped = cycle.stopped_by_interrupt()
                 return
             asked = run.take_resource(STOP_LOOP)
             if asked is not None:
@@ -237,6 +233,26 @@ class Loop:
                 self.stopped = f"stopped at the first failed cycle ({k})"
                 return
         self.stopped = f"ran the {self.repeat} cycle(s) asked for"
+
+    def _interrupted(
+        self, run: Any, cycle: Cycle, order: list[str], current: str | None, e: BaseException
+    ) -> list[str]:
+        """Note an interrupt in ``cycle`` (at node ``current``, None: before its first); returns
+        the nodes whose reports this cycle stands for."""
+        # what the interrupted node did to end safely, as it noted on the interrupt (an arm held)
+        cycle.error = " ".join(getattr(e, "__notes__", ()) or [str(e)]) or None
+        if current is None:  # a cycle that did not begin: the last one's reports stand
+            order = []
+        elif not _reached(e, run.g.nodes[current].spec.fn):
+            # in the engine, before the node's own code began: it did nothing this cycle
+            cycle.before_node = True
+        for name in order:  # the interrupted node and those after it did not finish
+            rep = run.reports[name]
+            if rep.status in ("pending", "running"):
+                rep.status, rep.error = "skipped", f"interrupted during cycle {cycle.index}"
+        cycle.status, cycle.failed_node = "interrupted", current
+        self.interrupted = True
+        return order
 
     def _check_stop(self) -> None:
         """Raise the interrupt a stop signal should have raised, if it was lost on its way."""
@@ -386,3 +402,15 @@ def _append_saved(run: Any, node: str, index: int) -> None:
             f.write(
                 json.dumps({"cycle": index, out: outputs_mod.to_json(v, {})}, default=str) + "\n"
             )
+
+
+def _reached(e: BaseException, fn: Any) -> bool:
+    """Whether an interrupt reached a node's own code (``fn`` is on its traceback), rather than
+    the engine before or around it; True when that cannot be told (``fn`` is not a function)."""
+    code = getattr(fn, "__code__", None)
+    tb = e.__traceback__
+    while code is not None and tb is not None:
+        if tb.tb_frame.f_code is code:
+            return True
+        tb = tb.tb_next
+    return code is None
