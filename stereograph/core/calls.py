@@ -13,7 +13,7 @@ import contextvars
 import functools
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +29,17 @@ from stereograph.core.errors import ConfigError
 _PROGRESS: contextvars.ContextVar[Any] = contextvars.ContextVar(
     "stereograph_progress", default=None
 )
+
+
+@contextlib.contextmanager
+def progress_to(progress: Any) -> Iterator[None]:
+    """While it lasts, node calls in this thread report their progress (``ctx.progress``) to
+    ``progress`` (None: nowhere)."""
+    token = _PROGRESS.set(progress)
+    try:
+        yield
+    finally:
+        _PROGRESS.reset(token)
 
 
 def _progress_hook(node_name: str) -> Callable[[float, float, str], None] | None:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from stereograph.core import ahead, project, run_folder, streaming
 from stereograph.core.cache import ArtifactStore, CacheBusy, in_use
-from stereograph.core.calls import _PROGRESS, close_resources
+from stereograph.core.calls import close_resources, progress_to
 from stereograph.core.config import load_pipeline
 from stereograph.core.errors import ConfigError, did_you_mean
 from stereograph.core.executors import SerialExecutor
@@ -72,9 +72,9 @@ def run_graph(
     # those the caller asks for
     held = ({only} if only is not None else set(graph.terminal())) | set(keep or ())
     run = RunState(graph, store, out, executor, force, progress, selected, held, foreign)
-    progress_token = _PROGRESS.set(progress)
     try:
-        _execute(run, selected, cycles, write_outputs, prepare)
+        with progress_to(progress):
+            _execute(run, selected, cycles, write_outputs, prepare)
     except BaseException as e:
         # the same command resumes into this folder
         if isinstance(e, KeyboardInterrupt) and write_outputs:
@@ -83,7 +83,6 @@ def run_graph(
         raise
     finally:
         _release(run, out, own_executor)
-        _PROGRESS.reset(progress_token)
     result = _result(run, run_id, selected, write_outputs, lease)
     _prune(store, budget, result)
     result.values, result.item_ids = _terminal_values(graph, run, selected)
