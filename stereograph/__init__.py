@@ -9,19 +9,19 @@ this order (each module's docstring says its invariants and public names):
   ``NodeError``)
 - :mod:`stereograph.core.registry`  node types from the ``stereograph.nodes`` entry-point group
 - :mod:`stereograph.core.yaml_lines` YAML within bounds, with the line of every key
-- :mod:`stereograph.core.config`    pipeline YAML -> a validated ``PipelineDoc``
+- :mod:`stereograph.core.config`    a pipeline file, its includes and ``--set`` -> ``PipelineDoc``
 - :mod:`stereograph.core.graph`     the DAG (networkx) and its checks
 - :mod:`stereograph.core.project`   where a project's cache and run folders live
 - :mod:`stereograph.core.digests`   content digests of bytes, files and values
 - :mod:`stereograph.core.codecs`    values to files and back: plain data, arrays, PNG, JPEG
 - :mod:`stereograph.core.code_keys` a node's code for its keys: its module and local imports
 - :mod:`stereograph.core.outputs`   values into files, in open formats
+- :mod:`stereograph.core.run_folder` a run's folder: made ready, its results and ``run.json``
 - :mod:`stereograph.core.file_index` file digests reused while a file is unchanged
 - :mod:`stereograph.core.cache`     the content-addressed artifact store
 - :mod:`stereograph.core.calls`     one call of a node function: ``Task`` in, ``TaskResult`` out
 - :mod:`stereograph.core.threads`   one library thread per worker process
 - :mod:`stereograph.core.executors` where tasks run: here, a process pool, Dask
-- :mod:`stereograph.core.run_folder` a run's folder: made ready, its results and ``run.json``
 - :mod:`stereograph.core.run_result` what a run gives back: ``NodeReport``, ``RunResult``
 - :mod:`stereograph.core.run_state` one run's state (``RunState``) and its operations
 - :mod:`stereograph.core.node_run`  (``RunState``'s base) running one node: entries, look-up, status
