@@ -221,6 +221,25 @@ def test_an_interrupted_cycle_says_what_the_interrupted_node_did(tmp_path, capsy
     assert run_json["loop"]["stopped"] == "stopped by an interrupt during cycle 2 (node 'tick')"
 
 
+def test_a_live_node_is_never_run_again_to_get_a_value_back(tmp_path):
+    """(soak_stop.py: an interrupt half-way through a cycle's reset left refs to values no longer
+    held, and writing the run folder recomputed the live nodes: the camera grabbed and the arm
+    moved after Ctrl-C.) A value let go of is computed again only for a node that does nothing
+    but compute; a live (uncacheable) node's is refused, and the node is not called."""
+    from stereograph.core.api import NodeError
+
+    graph = build_graph(load_pipeline(pipeline(tmp_path)))
+    r = run_graph(graph, use_cache=False, out_dir=tmp_path / "out")
+    assert r.ok and r.outputs("check", "result") == 8  # tick 1 + 7: the ticker ran once
+    assert r.state.get(("const", "value", None)) == 7  # (let go of: a pure node, computed again)
+    with pytest.raises(NodeError, match="live node 'tick'"):
+        r.state.get(("tick", "tick", None))
+    with pytest.raises(NodeError, match="live node 'tick'"):
+        r.state.recompute("tick", None)
+    # the ticker was not called again: a call would have opened its device anew (ctx.resource)
+    assert r.state.take_resource("tick:ticker") is None
+
+
 def test_an_interrupt_before_a_nodes_code_began_is_not_put_on_the_node(tmp_path):
     """(soak_stop.py: a signal that landed as the engine went from 'pick' to 'act' was said to be
     'during act', and act had left no log of it: it had not begun.) The loop says where it

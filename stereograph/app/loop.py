@@ -188,8 +188,9 @@ class Loop:
             current = None
             try:
                 self._check_stop()
-                if k > 1:
-                    run.forget(self.live)
+                if k > 1:  # (whole or not at all: a signal half-way would leave refs to nothing)
+                    with _signals_deferred():
+                        run.forget(self.live)
                 for name in order:
                     current = name  # (a lost signal found here stops the loop before it begins)
                     self._check_stop()

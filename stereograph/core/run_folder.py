@@ -146,7 +146,10 @@ def write_run_outputs(graph: Any, run: Any, result: Any, selected: list[str]) ->
     terminal = set(graph.terminal())
     for name in selected:
         inst = graph.nodes[name]
-        if run.reports[name].status in ("failed", "skipped", "not selected") and not inst.mapped:
+        status = run.reports[name].status
+        if status in ("pending", "running", "interrupted"):
+            continue  # it did not finish in this run: it has nothing to deliver
+        if status in ("failed", "skipped", "not selected") and not inst.mapped:
             continue
         for out, decl in inst.spec.outputs.items():
             if not (decl.save or name in terminal or name in run.keep):

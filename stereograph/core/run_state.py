@@ -50,8 +50,7 @@ class RunState(NodeRuns, PartRuns):
         self._keys: dict[tuple[str, str | None], str] = {}  # (node, item) -> entry key
         self._ref_keys: dict[Ref, str] = {}  # ref -> key of the entry holding it
         self._mem: dict[Ref, Any] = {}
-        # collection output -> item ids (ok ones)
-        self._items: dict[tuple[str, str], list[str]] = {}
+        self._items: dict[tuple[str, str], list[str]] = {}  # collection output -> ok item ids
         self._failed_items: dict[tuple[str, str], str] = {}  # (node, item) -> message
         # the table reads in run order
         self.reports = {n: NodeReport(n, graph.nodes[n].type) for n in graph.order}
@@ -183,6 +182,11 @@ class RunState(NodeRuns, PartRuns):
                 )
             return img
         key = self._ref_keys[ref]
+        # (an item of a collection, or its index, is in the node's one entry: entry item None)
+        inst = self.g.nodes[node]
+        entry_item = None if inst.spec.outputs[out].collection and not self.producer(inst) else item
+        if "/" in key:  # held in memory only (no store, a loop's live part) and let go of
+            return self._recomputed(ref, entry_item, store=False)
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
         except NotStored:  # kept as a manifest only: computing it again is the cheaper read
@@ -192,11 +196,7 @@ class RunState(NodeRuns, PartRuns):
                 f"cache entry {key[:12]} was corrupt ({e}); recomputed"
             )
             self.store.delete(key)  # type: ignore[union-attr]
-            # an item of a collection (or its index) comes from the one entry of the node that
-            # yields it
-            inst = self.g.nodes[node]
-            whole = inst.spec.outputs[out].collection and not self.producer(inst)
-            return self._recomputed(ref, None if whole else item)
+            return self._recomputed(ref, entry_item)
         for o, v in entry.items():
             self._mem[(node, o, item)] = v
         return self._mem[ref]
@@ -425,8 +425,13 @@ class RunState(NodeRuns, PartRuns):
 
     def recompute(self, node: str, item: str | None, store: bool = True) -> None:
         """Compute a cached entry's value again (its entry was corrupt, or kept as a manifest
-        only)."""
+        only); never a live node's (uncacheable, or a loop's): a camera grabs, an arm moves."""
         inst = self.g.nodes[node]
+        if not inst.spec.cacheable or node in self.memory_only:
+            raise NodeError(
+                f"a value of live node '{node}' is no longer held: it is not run again for it",
+                hint="run again; if this comes back, report it with the run's run.json",
+            )
         refs = self.input_refs(inst, item)
         res = execute(self.task(inst, item, self.inputs_for(refs)))
         if not res.ok:
