@@ -1,6 +1,7 @@
 """Soak test of the live loop's stop: SIGINT / SIGTERM at chosen moments must end it cleanly.
 
     .venv/bin/python benchmarks/soak_stop.py [--trials 200] [--jobs 2] [--seed 0] [--json FILE]
+        [--target segment] [--signal SIGTERM] [--started background]   # one kind of trial only
 
 Each trial starts ``stereograph run pipelines/pick-live.yaml --repeat 0`` on the embedded default
 (recorded camera, AX-12A emulator), in the foreground (signals as inherited from this process) or
@@ -14,8 +15,9 @@ and an interrupt during the servo I/O left ``servo_log_interrupted.json`` saying
 (every servo's goal := its present position) and the port closed.
 
 Prints one line per trial and a summary: trials, clean exits, median and worst time to exit, and
-where the interrupts landed. Exit status 1 if any trial was not clean. ``tests/test_live_stop.py``
-runs a few trials in CI; the full figure comes from this script.
+where the interrupts landed. Exit status 1 if any trial was not clean. Only the trials that were
+not clean are kept (folder and log, ~30 MB each; the path is printed); the rest is removed.
+``tests/test_live_stop.py`` runs a few trials in CI; the full figure comes from this script.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import json
 import os
 import random
 import re
+import shutil
 import signal
 import statistics
 import subprocess
@@ -167,16 +170,25 @@ def warm_cache(work: Path, cache: Path) -> None:
     )
 
 
-def plan_trials(trials: int, seed: int = 0) -> list[Trial]:
-    """SIGINT and SIGTERM, foreground and background, every target in turn, in every combination
-    alike."""
+SIGNALS, STARTS = ("SIGINT", "SIGTERM"), ("foreground", "background")
+
+
+def plan_trials(
+    trials: int,
+    seed: int = 0,
+    targets: list[str] = TARGETS,
+    signals: tuple[str, ...] = SIGNALS,
+    starts: tuple[str, ...] = STARTS,
+) -> list[Trial]:
+    """Each signal, start mode and target in turn, in every combination alike (by default SIGINT
+    and SIGTERM, foreground and background, every target)."""
     rng = random.Random(seed)
     plan = []
     for i in range(trials):
-        target = TARGETS[(i // 4) % len(TARGETS)]
+        target = targets[(i // 4) % len(targets)]
         delay = rng.uniform(0.0, 4.0) if target == "random" else rng.uniform(0.0, JITTER_S[target])
-        started = ("foreground", "background")[(i // 2) % 2]
-        plan.append(Trial(i, ("SIGINT", "SIGTERM")[i % 2], started, target, round(delay, 4)))
+        started = starts[(i // 2) % len(starts)]
+        plan.append(Trial(i, signals[i % len(signals)], started, target, round(delay, 4)))
     return plan
 
 
@@ -190,6 +202,8 @@ def soak(
 
     def one(t: Trial) -> Trial:
         run_trial(t, work, cache, max_exit_s)
+        if t.clean:  # (a trial's folder holds its recording, ~30 MB: only failed ones are kept)
+            shutil.rmtree(work / f"trial{t.index:04d}", ignore_errors=True)
         echo(f"trial {t.index:4d} {t.signal:7s} {t.started:10s} at {t.target}+{t.delay_s:.3f} s: "
              f"in {t.landed or '?':14s} exit {t.exit_code} in {t.exit_s} s "
              f"{'ok' if t.clean else 'NOT CLEAN: ' + t.problems}")  # fmt: skip
@@ -219,9 +233,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-exit-s", type=float, default=1.0)
     ap.add_argument("--json", type=Path, help="write every trial here")
+    ap.add_argument("--target", choices=TARGETS, help="aim at this moment only")
+    ap.add_argument("--signal", choices=SIGNALS, help="send this signal only")
+    ap.add_argument("--started", choices=STARTS, help="start every trial this way")
     a = ap.parse_args(argv)
-    results = soak(plan_trials(a.trials, a.seed), a.jobs, a.max_exit_s)
+    plan = plan_trials(
+        a.trials,
+        a.seed,
+        [a.target] if a.target else TARGETS,
+        (a.signal,) if a.signal else SIGNALS,
+        (a.started,) if a.started else STARTS,
+    )
+    work = Path(tempfile.mkdtemp(prefix="soak-stop-"))
+    results = soak(plan, a.jobs, a.max_exit_s, work)
     print(summary(results))
+    if all(t.clean for t in results):
+        shutil.rmtree(work, ignore_errors=True)
+    else:
+        print(f"the trials that were not clean are kept in {work} (folder and .log each)")
     if a.json:
         a.json.write_text(json.dumps([asdict(t) for t in results], indent=1))
     return 0 if all(t.clean for t in results) else 1
