@@ -186,7 +186,7 @@ class RunState(NodeRuns, PartRuns):
         inst = self.g.nodes[node]
         entry_item = None if inst.spec.outputs[out].collection and not self.producer(inst) else item
         if "/" in key:  # held in memory only (no store, a loop's live part) and let go of
-            return self._recomputed(ref, entry_item, store=False)
+            raise NodeError(f"a value of '{node}' is no longer held (it was kept in memory only)")
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
         except NotStored:  # kept as a manifest only: computing it again is the cheaper read
