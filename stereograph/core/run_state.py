@@ -182,9 +182,6 @@ class RunState(NodeRuns, PartRuns):
                 )
             return img
         key = self._ref_keys[ref]
-        # (an item of a collection, or its index, is in the node's one entry: entry item None)
-        inst = self.g.nodes[node]
-        entry_item = None if inst.spec.outputs[out].collection and not self.producer(inst) else item
         if "/" in key:  # held in memory only (no store, a loop's live part) and let go of
             raise NodeError(f"a value of '{node}' is no longer held (it was kept in memory only)")
         try:
@@ -196,7 +193,10 @@ class RunState(NodeRuns, PartRuns):
                 f"cache entry {key[:12]} was corrupt ({e}); recomputed"
             )
             self.store.delete(key)  # type: ignore[union-attr]
-            return self._recomputed(ref, entry_item)
+            # (an item of a collection, or its index, is in the node's one entry: entry item None)
+            inst = self.g.nodes[node]
+            whole = inst.spec.outputs[out].collection and not self.producer(inst)
+            return self._recomputed(ref, None if whole else item)
         for o, v in entry.items():
             self._mem[(node, o, item)] = v
         return self._mem[ref]
