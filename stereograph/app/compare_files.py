@@ -24,7 +24,6 @@ from stereograph.core import run_folder
 from stereograph.core.errors import ConfigError
 from stereograph.core.graph import Graph
 from stereograph.core.outputs import write_whole
-from stereograph.core.run_folder import check_folder_path
 
 # a compare.json key only stereograph writes: the folder holds its comparison
 MARKER = "stereograph_compare"
@@ -58,7 +57,7 @@ def prepare_compare_dir(out: Path) -> None:
     """Make ``out`` ready for a comparison's files, or refuse it (:class:`ConfigError`): an existing
     file, a folder that cannot be made or written, a non-empty folder that is not an earlier
     comparison's (its files are never overwritten: ``compare.csv``, ``variants/``)."""
-    check_folder_path(out)
+    run_folder.check_folder_path(out)
     try:
         if out.is_dir() and any(out.iterdir()) and not _compare_folder(out):
             raise ConfigError(
