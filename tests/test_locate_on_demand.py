@@ -131,21 +131,6 @@ def test_raw_pairs_without_a_rectification_are_refused_clearly(tmp_path):
     assert "StereoPair" in msg and "rectification" in res.reports["seg"].hint
 
 
-def test_edge_morph_canny_equals_cv2_canny(rig):
-    from nodes.segmenters.edge_morph import canny
-
-    pairs, rect = rig
-    view, _ = pair_views(rect, pairs[1]["left"], pairs[1]["right"], raw=True)
-    for img in (view.coarse(2, 0, 0, 640, 480), view.window(200, 150, 420, 330)):
-        blurred = cv2.GaussianBlur(img, (0, 0), 1.0)
-        for lo, hi in ((30, 90), (60, 180)):
-            assert np.array_equal(
-                canny(blurred, lo, hi), cv2.Canny(blurred, lo, hi, L2gradient=True)
-            )
-            gray = cv2.cvtColor(blurred, cv2.COLOR_BGR2GRAY)
-            assert np.array_equal(canny(gray, lo, hi), cv2.Canny(gray, lo, hi, L2gradient=True))
-
-
 def test_band_pyramid_margin_holds_on_texture(rig):
     """On noise (no smooth area to hide a border effect) a band's cropped pyramid still equals the
     whole-image coarse level: the crop's margin covers pyrDown's reach at every level."""

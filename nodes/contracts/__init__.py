@@ -13,6 +13,8 @@ Any kind may import these modules (and only these, besides its own and ``stereog
 * :mod:`nodes.contracts.recording` -- the ``StereoRecording`` lossless video files; camera
   sources and recorders.
 
+* :mod:`nodes.contracts.cv_overloads` -- stop signals held across an OpenCV call that tries more
+  than one overload (the binding would crash on one); any kind that calls OpenCV.
 * :mod:`nodes.contracts.records` -- the shape checks of the records kinds hand each other
   (``Segmentation``, ``Disparity``, ``Location``, the pairs), registered with the engine when any
   contract is imported, so a malformed record fails the node that made it.

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 import yaml
 
+from nodes.contracts.cv_overloads import stop_signals_held
+
 __all__ = [
     "EXPORT_OUTPUTS",
     "EXPORT_OUTPUTS_DOC",
@@ -48,31 +50,35 @@ def opencv_text(cal: dict, rect: dict | None = None) -> str:
     fd, tmp = tempfile.mkstemp(suffix=".yml")
     os.close(fd)
     try:
-        # FileStorage's in-memory mode is not in every build's Python binding; a temporary file is.
-        fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
-        fs.write("image_width", w)
-        fs.write("image_height", h)
-        fs.write("unit", str(cal.get("length_unit", "cm")))
-        fs.write("method", str(cal.get("method", "")))
-        if cal.get("rms_px") is not None:
-            fs.write("rms_px", float(cal["rms_px"]))
-        board = cal.get("board") or {}
-        if all(isinstance(board.get(k), (int, float)) for k in ("cols", "rows", "square_cm")):
-            # (read back by calibrator.load: the board survives)
-            for k in ("cols", "rows", "square_cm"):
-                fs.write(f"board_{k}", board[k])
-        for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
+        # FileStorage's in-memory mode is not in every build's Python binding; a temporary file
+        # is. Its write tries its overloads in turn (int, float, str, matrix): see cv_overloads.
+        with stop_signals_held():
+            fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
+            fs.write("image_width", w)
+            fs.write("image_height", h)
+            fs.write("unit", str(cal.get("length_unit", "cm")))
+            fs.write("method", str(cal.get("method", "")))
+            if cal.get("rms_px") is not None:
+                fs.write("rms_px", float(cal["rms_px"]))
+            board = cal.get("board") or {}
+            if all(isinstance(board.get(k), (int, float)) for k in ("cols", "rows", "square_cm")):
+                # (read back by calibrator.load: the board survives)
+                for k in ("cols", "rows", "square_cm"):
+                    fs.write(f"board_{k}", board[k])
+            for name, key in (("M1", "K1"), ("D1", "D1"), ("M2", "K2"), ("D2", "D2"), ("R", "R")):
+                fs.write(
+                    name,
+                    np.asarray(cal[key], np.float64).reshape(3, 3)
+                    if name[0] in "MR"
+                    else np.asarray(cal[key], np.float64).reshape(1, -1),
+                )
+            fs.write("T", np.asarray(cal["T_cm"], np.float64).reshape(3, 1))
+            for name in ("R1", "R2", "P1", "P2", "Q"):
+                fs.write(name, np.asarray(rect[name], np.float64))
             fs.write(
-                name,
-                np.asarray(cal[key], np.float64).reshape(3, 3)
-                if name[0] in "MR"
-                else np.asarray(cal[key], np.float64).reshape(1, -1),
-            )
-        fs.write("T", np.asarray(cal["T_cm"], np.float64).reshape(3, 1))
-        for name in ("R1", "R2", "P1", "P2", "Q"):
-            fs.write(name, np.asarray(rect[name], np.float64))
-        fs.write("rectify_alpha", float(rect.get("alpha", 1.0)))  # what R1..Q were computed with
-        fs.release()
+                "rectify_alpha", float(rect.get("alpha", 1.0))
+            )  # what R1..Q were computed with
+            fs.release()
         return Path(tmp).read_text()
     finally:
         os.unlink(tmp)

@@ -84,9 +84,14 @@ def _matches(left: np.ndarray, right: np.ndarray, features: str) -> tuple[np.nda
     ]
     a = np.float64([kl[m.queryIdx].pt for m in good]).reshape(-1, 2)
     b = np.float64([kr[m.trainIdx].pt for m in good]).reshape(-1, 2)
-    if len(a) < 8:
-        return a, b
-    _F, inl = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.0, 0.999)
+    return _epipolar_inliers(a, b) if len(a) >= 8 else (a, b)
+
+
+def _epipolar_inliers(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The matches (px, N x 2 each) that a RANSAC fundamental matrix keeps (1 px, 99.9 %)."""
+    # maxIters given (1000, the default) so that the call is the binding's first overload:
+    # trying another first can segfault on a stop signal (nodes.contracts.cv_overloads).
+    _F, inl = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.0, 0.999, 1000)
     keep = inl.ravel().astype(bool) if inl is not None else np.zeros(len(a), bool)
     return a[keep], b[keep]
 

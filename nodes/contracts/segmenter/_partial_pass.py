@@ -19,6 +19,8 @@ import math
 import cv2
 import numpy as np
 
+from nodes.contracts.cv_overloads import stop_signals_held
+
 from ._candidates import candidates
 from ._color import color_distance_map, hue_mask, object_color_score
 from ._partial import fit_partial
@@ -189,6 +191,21 @@ def refit_region(view, params, r_range_px, K, mask: np.ndarray, region: dict):
     )
 
 
+def _filled_ellipse(shape: tuple[int, ...], ell: dict, origin_px: tuple[int, int]) -> np.ndarray:
+    """A uint8 mask of ``shape`` with the fitted ellipse ``ell`` filled (255), its centre taken
+    relative to ``origin_px`` (u, v)."""
+    mask = np.zeros(shape, np.uint8)
+    box = (
+        (ell["center_px"][0] - origin_px[0], ell["center_px"][1] - origin_px[1]),
+        (2 * ell["axes_px"][0], 2 * ell["axes_px"][1]),
+        ell["angle_deg"],
+    )
+    # (a rotated box: ellipse's second overload, sub-pixel, so held: see cv_overloads)
+    with stop_signals_held():
+        cv2.ellipse(mask, box, 255, cv2.FILLED)
+    return mask
+
+
 def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
     """Fit the sphere's image to the true edge among ``pts`` and keep it only if it is the ball."""
     h, w = view.shape[:2]
@@ -199,17 +216,7 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         return None, None, fit["reason"]
     ell = fit["ellipse"]
     # The fitted disc, clipped to the window (and so to the image).
-    disc = np.zeros(rm.shape, np.uint8)
-    cv2.ellipse(
-        disc,
-        (
-            (ell["center_px"][0] - u0, ell["center_px"][1] - v0),
-            (2 * ell["axes_px"][0], 2 * ell["axes_px"][1]),
-            ell["angle_deg"],
-        ),
-        255,
-        cv2.FILLED,
-    )
+    disc = _filled_ellipse(rm.shape, ell, (u0, v0))
     n_disc = cv2.countNonZero(disc)
     both = cv2.bitwise_and(disc, region_mask)
     if n_disc == 0 or cv2.countNonZero(both) < params.partial.min_disc_coverage * n_disc:
@@ -227,17 +234,7 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         same = True
         if score is not None and fit.get("second_ellipse") is not None:
             e2 = fit["second_ellipse"]
-            d2 = np.zeros(rm.shape, np.uint8)
-            cv2.ellipse(
-                d2,
-                (
-                    (e2["center_px"][0] - u0, e2["center_px"][1] - v0),
-                    (2 * e2["axes_px"][0], 2 * e2["axes_px"][1]),
-                    e2["angle_deg"],
-                ),
-                255,
-                cv2.FILLED,
-            )
+            d2 = _filled_ellipse(rm.shape, e2, (u0, v0))
             d2 = cv2.bitwise_and(d2, cv2.bitwise_not(disc))
             s2 = object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
             same = s2 is not None and s2 <= 1.0
