@@ -1,12 +1,12 @@
-"""Stop signals held back across OpenCV calls that try more than one overload.
+"""Two pitfalls of how OpenCV's Python binding picks an overload, and their way round.
 
-When a call's arguments do not fit the first overload OpenCV's Python binding tries, the binding
-turns the conversion error into text with ``PyObject_Str`` and uses the result unchecked. Python
-runs signal handlers inside ``PyObject_Str``: a stop signal whose handler raises at that moment
-(``stereograph run`` makes SIGINT and SIGTERM a ``KeyboardInterrupt``) kills the process with a
-segmentation fault. Call OpenCV with its first overload's arguments where you can; where you
-cannot (``cv2.FileStorage.write`` of anything but an int), call it within
-:func:`stop_signals_held`. Public: :func:`stop_signals_held`.
+Stop signals: when a call's arguments do not fit the first overload tried, the binding turns the
+conversion error into text with ``PyObject_Str``, which runs Python signal handlers, and uses the
+result unchecked; a handler that raises (``stereograph run`` makes SIGINT and SIGTERM a
+``KeyboardInterrupt``) then crashes the process. Call OpenCV with its first overload's arguments,
+or within :func:`stop_signals_held`. A 1x1 image beside a number: OpenCV 5.1 reads both as
+Scalars and returns 4x1; call such element-wise functions through :func:`scalar_op`.
+Public: :func:`stop_signals_held`, :func:`scalar_op`.
 """
 
 from __future__ import annotations
@@ -14,9 +14,11 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
-__all__ = ["stop_signals_held"]
+import numpy as np
+
+__all__ = ["scalar_op", "stop_signals_held"]
 
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -43,3 +45,16 @@ def stop_signals_held() -> Iterator[None]:
             signal.signal(s, handler)
         for s in dict.fromkeys(held):
             signal.raise_signal(s)
+
+
+def scalar_op(fn: Callable[..., np.ndarray], img: np.ndarray, *args, **kwargs) -> np.ndarray:
+    """``fn(img, *args, **kwargs)``, an OpenCV element-wise call with a number among ``args``,
+    with the result the shape of ``img`` whatever its size.
+
+    OpenCV 5.1's binding takes a 1x1 array next to a number for a Scalar too (the result is 4x1),
+    so a 1x1 ``img`` (a one-pixel region) is widened to 1x2 for the call and its first column
+    kept.
+    """
+    if img.shape[:2] != (1, 1):
+        return fn(img, *args, **kwargs)
+    return fn(np.repeat(img, 2, axis=1), *args, **kwargs)[:, :1]

@@ -7,6 +7,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from nodes.contracts.cv_overloads import scalar_op
+
 from ._params import ObjectSpec
 from ._pixels import fast_median, masked_pixels
 
@@ -47,9 +49,9 @@ def color_distance_map(img_bgr: np.ndarray, color_bgr) -> np.ndarray:
     """
     img = np.asarray(img_bgr)
     f = img.astype(np.float32)
-    d = _chroma_distance(f, cv2.max(cv2.transform(f, _ONES_1x3), 1.0), color_bgr).reshape(
-        img.shape[:2]
-    )
+    d = _chroma_distance(
+        f, scalar_op(cv2.max, cv2.transform(f, _ONES_1x3), 1.0), color_bgr
+    ).reshape(img.shape[:2])
     gray_max = cv2.max(cv2.max(img[..., 0], img[..., 1]), img[..., 2]).reshape(img.shape[:2])
     d[gray_max < DARK_LEVEL] = dark_pixel_distance(color_bgr)
     return d

@@ -19,7 +19,7 @@ import math
 import cv2
 import numpy as np
 
-from nodes.contracts.cv_overloads import stop_signals_held
+from nodes.contracts.cv_overloads import scalar_op, stop_signals_held
 
 from ._candidates import candidates
 from ._color import color_distance_map, hue_mask, object_color_score
@@ -152,7 +152,9 @@ def _split_by_colour(roi: np.ndarray, rm: np.ndarray, params, r_range_px) -> np.
     if roi.ndim != 3 or (obj.color_bgr is None and obj.hue_range_deg is None):
         return rm
     if obj.color_bgr is not None:
-        col = cv2.compare(color_distance_map(roi, obj.color_bgr), obj.color_tolerance, cv2.CMP_LE)
+        col = scalar_op(
+            cv2.compare, color_distance_map(roi, obj.color_bgr), obj.color_tolerance, cv2.CMP_LE
+        )
     else:
         col = hue_mask(roi, obj.hue_range_deg, obj.min_saturation)
     col = fill_holes(col, max_hole_area(r_range_px))

@@ -11,6 +11,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from nodes.contracts.cv_overloads import scalar_op
+
 Channel = Literal["gray", "saturation", "color"]
 
 
@@ -56,7 +58,7 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
     padded = np.zeros((h + 2, w + 2), np.uint8)
     padded[1:-1, 1:-1] = mask
     cv2.floodFill(padded, None, (0, 0), 128)  # 4-connected background reachable from the border
-    holes = cv2.compare(padded[1:-1, 1:-1], 0, cv2.CMP_EQ)
+    holes = scalar_op(cv2.compare, padded[1:-1, 1:-1], 0, cv2.CMP_EQ)
     if max_area_px is not None and cv2.countNonZero(holes) > max_area_px:
         # Drop the holes larger than max_area_px (4-connected components). Cheaper than
         # labelling the whole image: only outlines whose area bound exceeds the limit are
@@ -64,7 +66,9 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
         # surround small ones, which stay (they are separate components).
         while True:
             cnts, _ = cv2.findContours(
-                cv2.compare(holes, 255, cv2.CMP_EQ), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+                scalar_op(cv2.compare, holes, 255, cv2.CMP_EQ),
+                cv2.RETR_EXTERNAL,
+                cv2.CHAIN_APPROX_NONE,
             )
             # Pixel count <= polygon area + boundary points + 1 (Pick's theorem).
             big = [c for c in cnts if cv2.contourArea(c) + len(c) + 1 > max_area_px]
@@ -76,7 +80,7 @@ def fill_holes(mask: np.ndarray, max_area_px: float | None = None) -> np.ndarray
                     continue
                 if cv2.floodFill(holes, None, (x, y), 1, flags=4)[0] > max_area_px:
                     cv2.floodFill(holes, None, (x, y), 0, flags=4)
-        holes = cv2.compare(holes, 0, cv2.CMP_GT)
+        holes = scalar_op(cv2.compare, holes, 0, cv2.CMP_GT)
     return cv2.bitwise_or(mask, holes)
 
 
