@@ -396,6 +396,19 @@ def test_bad_pipeline_files_are_located_config_errors(tmp_path, capsys, content,
     assert where in msg and says in msg and "internal error" not in msg and "Traceback" not in msg
 
 
+def test_an_error_in_an_included_file_names_the_include_line(tmp_path, capsys):
+    write(tmp_path / "common.yaml", "include: [deeper.yaml]\n")
+    write(tmp_path / "deeper.yaml", "nodes:\n  x: {type: source.synthetic, paramz: {}}\n")
+    f = write(tmp_path / "p.yaml", "name: p\ninclude:\n  - common.yaml\nnodes: {}\n")
+    code, msg = cli("validate", f, capsys=capsys)
+    assert code == 2 and "deeper.yaml:2" in msg and "'paramz'" in msg, msg
+    assert "included at " in msg and "common.yaml:1" in msg and "p.yaml:3" in msg, msg
+    code, msg = cli(
+        "validate", write(tmp_path / "q.yaml", "include: [/etc/passwd]\n"), capsys=capsys
+    )
+    assert code == 2 and "/etc/passwd:1" in msg and "included at " in msg and "q.yaml:1" in msg
+
+
 @pytest.mark.parametrize("path", ["/dev/zero", "."])
 def test_special_files_as_pipeline(capsys, path):
     code, msg = cli("validate", path, capsys=capsys)

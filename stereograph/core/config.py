@@ -69,6 +69,7 @@ class PipelineDoc:
 # Bounds on what one pipeline may read (its YAML's own: stereograph.core.yaml_lines). Pipeline
 # files are written by hand and are a few KB; data belongs in files that nodes read.
 MAX_FILE_BYTES = 256 * 1024
+_INCLUDED = "in a file included at"  # (an error's note on the include: lines that read its file)
 MAX_INCLUDED_FILES = 64  # files read for one pipeline, includes of includes counted
 
 # letters, digits, '_' and '-' (no dot, separator or space)
@@ -310,7 +311,17 @@ def _include(
                 at,
                 hint="paths in include: are relative to this file and name a YAML file",
             )
-        sub = load_pipeline(inc_path, None, stack, budget)
+        try:
+            sub = load_pipeline(inc_path, None, stack, budget)
+        except ConfigError as e:
+            # (the included file's own line alone does not say which pipeline read it)
+            for err in [e, *getattr(e, "errors", [])]:
+                msg = err.message.rstrip(" .")
+                nested = msg.endswith(")") and _INCLUDED in msg
+                err.message = (
+                    f"{msg[:-1]}, {_INCLUDED} {at})" if nested else f"{msg} ({_INCLUDED} {at})"
+                )
+            raise
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
             doc.defaults[t] = merge_params(doc.defaults.get(t, {}), p)
