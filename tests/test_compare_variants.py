@@ -599,6 +599,38 @@ def test_a_variant_whose_node_failed_did_not_compute_nothing():
     assert result(True, {"locate": "cached", "fit": "ran"}, ["fit"]).computed == "fit"
 
 
+def test_an_untimed_per_pair_column_says_why(capsys):
+    from rich.console import Console
+
+    from stereograph.app.compare import _rows
+    from stereograph.app.compare_result import CompareResult, VariantResult
+    from stereograph.app.compare_table import print_table
+    from stereograph.app.variants import Variant
+
+    def result(n, per_pair_s):
+        return VariantResult(
+            variant=Variant(n, {"fit.type": f"t{n}"}),
+            ok=True,
+            error=None,
+            status={"fit": "ran"},
+            ran={"fit"},
+            out_dir=Path("."),
+            seconds=0.1,
+            per_pair_s=per_pair_s,
+            metrics={"z_rms_cm": 0.1 * n},
+        )
+
+    def printed(*per_pair):
+        variants = [result(n, s) for n, s in enumerate(per_pair, 1)]
+        res = CompareResult("p.yaml", ["fit.type"], None, Path("."), variants, [], {})
+        res.rows = _rows(res)
+        print_table(res, Console(width=200, force_terminal=False))
+        return capsys.readouterr().out
+
+    assert "new --cache-dir times every node" in printed(None, None)
+    assert "new --cache-dir" not in printed(0.004, 0.005)
+
+
 @pytest.mark.slow
 def test_best_of_a_signed_metric(pipeline, tmp_path, capsys):
     """--best NAME:abs ranks by closeness to zero; the plain lowest of a metric with negative values

@@ -94,6 +94,13 @@ def print_table(
         part = f" ({i + 1}/{len(chunks)})" if len(chunks) > 1 else ""
         con.print(_table(res, chunk, names, top, narrow, part))
     _print_below(con, res, [n for n in constant if n not in names], top)
+    if PER_PAIR in names and any(r["ok"] and r.get(PER_PAIR) is None for r in res.rows):
+        # (a column of dashes would otherwise leave the reader guessing)
+        con.print(
+            f"{metric_header(PER_PAIR)} –: a per-item node's results came from the cache, stored "
+            "by a run that no compare timed; a compare with a new --cache-dir times every node",
+            markup=False,
+        )
     if mistakes:
         raise mistakes[0]
 
