@@ -51,7 +51,7 @@ def _checked(locations: list[dict]) -> int:
 @pytest.mark.slow
 @pytest.mark.parametrize("seg_type, least", [("segmenter.watershed", 4), ("segmenter.hough", 1)])
 def test_scikit_image_segmenters_find_the_ball_and_never_a_wrong_one(tmp_path, seg_type, least):
-    # (on locate.yaml's 120 scenes: watershed 55 / 55 test pairs, hough 26 / 55;
+    # (on locate.yaml's 120 scenes: watershed 55 / 55 test pairs, hough 33 / 55 on 2026-12-04;
     # benchmarks/locate_hard.py)
     assert _checked(_locate(tmp_path, seg_type)) >= least
 
