@@ -6,6 +6,7 @@ every segmenter failed on a scene whose mask had a one-pixel region (nodes.contr
 
 import cv2
 import numpy as np
+import pytest
 
 from nodes.contracts.cv_overloads import scalar_op
 from nodes.contracts.segmenter._color import color_distance_map
@@ -38,3 +39,35 @@ def test_shadow_suppression_of_a_one_pixel_dark_region():
     mask[10, 10] = 255
     out = suppress_shadow(img, mask, ShadowParams(), ObjectSpec(radius_cm=2.0))
     assert out.shape == mask.shape and set(np.unique(out)) <= {0, 255}
+
+
+def _segmenters_of_a_pair_alone() -> list[str]:
+    """Segmenter types that run on a ``pair`` alone (every other input optional)."""
+    from stereograph.core import registry
+
+    names = [n for n in registry.names() if n.startswith("segmenter.")]
+    return [
+        n
+        for n in names
+        if "pair" in registry.get(n).inputs
+        and all(i.optional for k, i in registry.get(n).inputs.items() if k != "pair")
+    ]
+
+
+@pytest.mark.parametrize("seg_type", _segmenters_of_a_pair_alone())
+def test_every_segmenter_takes_a_pair_of_any_small_size(seg_type):
+    # (OpenCV 5.1's 1x1 trap broke segmenter.color and segmenter.slic on a one-pixel pair)
+    from stereograph.core import registry
+
+    spec = registry.get(seg_type)
+    params = spec.params(object={"radius_cm": 2.0, "color_bgr": [20, 120, 245]})
+    rng = np.random.default_rng(0)
+    for h, w in [(1, 1), (1, 2), (2, 1), (1, 9), (9, 1), (2, 2), (3, 3), (5, 7), (16, 16)]:
+        for left in (
+            rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+            np.full((h, w, 3), 128, np.uint8),
+        ):
+            left[h // 2, w // 2] = (20, 120, 245)  # one pixel of the ball's colour
+            seg = spec.fn(params, pair={"id": "p", "left": left, "right": left.copy()})
+            seg = seg["segmentation"]
+            assert seg["found"] in (True, False) and (seg["found"] or seg["reason"]), (h, w)
