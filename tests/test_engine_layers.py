@@ -84,6 +84,52 @@ def test_the_checks_fail_on_a_planted_violation(tmp_path):
     assert any({"stereograph.app.rerun", "stereograph.core.cache"} <= set(c) for c in circles(copy))
 
 
+# Imported inside a core function on purpose: slow to import (cv2, NumPy, networkx, pydantic
+# through the node API, importlib.metadata behind the registry's index) or optional (Dask,
+# filelock).
+LAZY_OK = {
+    "cv2",
+    "numpy",
+    "networkx",
+    "dask",
+    "distributed",
+    "filelock",
+    "importlib",
+    "stereograph",
+}
+
+
+def lazy_imports(root: Path) -> list[str]:
+    """``file:line module`` of each import inside a function of ``root``'s modules that is not of a
+    module slow to import or optional (:data:`LAZY_OK`): those go at the top, where a reader
+    looks."""
+    found = []
+    for path in sorted(root.glob("*.py")):
+        for fn in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.Import):
+                    names = [a.name for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and not node.level:
+                    names = [node.module or ""]
+                else:
+                    continue
+                found += [
+                    f"{path.name}:{node.lineno} {n}"
+                    for n in names
+                    if n.partition(".")[0] not in LAZY_OK
+                ]
+    return sorted(set(found))
+
+
+def test_core_modules_import_at_the_top(tmp_path):
+    """(issue 27) A core module's imports are at its top, but for the slow and the optional."""
+    assert lazy_imports(ROOT / "stereograph" / "core") == []
+    (tmp_path / "m.py").write_text("import os\n\n\ndef f():\n    import re\n    import cv2\n")
+    assert lazy_imports(tmp_path) == ["m.py:5 re"]
+
+
 def test_the_reading_map_names_every_core_module_in_order():
     """The package docstring and the README's engine section list every ``core/`` module, in one
     order."""

@@ -10,6 +10,9 @@ Example and details: docs/engine.md.
 from __future__ import annotations
 
 import inspect
+import re
+import stat
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -110,8 +113,6 @@ def data_file(path: str | Path, what: str, label: str, max_mb: float = MAX_DATA_
     (``/dev/zero`` never ends, a FIFO never answers) --, it holds at most ``max_mb`` MB, and it does
     not nest brackets or XML tags deeper than :data:`MAX_DATA_NESTING` (a parser's stack).
     :class:`NodeError` naming it, else."""
-    import stat
-
     p = Path(path)
     try:
         st = p.stat()
@@ -144,8 +145,6 @@ def data_file(path: str | Path, what: str, label: str, max_mb: float = MAX_DATA_
 def _nesting(data: bytes) -> int:
     """How deep ``[``/``{`` brackets (JSON, YAML flow) or XML elements nest (a rough count: strings
     aside)."""
-    import re
-
     deepest = level = 0
     for m in re.finditer(rb"[\[{]|[\]}]|<[A-Za-z_][^>]*?(?<!/)>|</", data):
         tok = m.group(0)
@@ -436,8 +435,6 @@ def type_name(ann: Any) -> str:
     """A parameter's type as a person reads it: ``'train' | 'all'``, ``float | None``,
     ``tuple[float, float]`` (constraints such as ``PositiveRange``'s validator are left out: the
     description states them)."""
-    import typing
-
     origin = typing.get_origin(ann)
     if origin is typing.Annotated:
         return type_name(typing.get_args(ann)[0])

@@ -11,8 +11,10 @@ lock (:func:`in_use`) keeps prunes away. Layout: docs/engine.md, docs/cache.md.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
+import re
 import shutil
 import time
 import uuid
@@ -193,8 +195,6 @@ class ArtifactStore:
             data = json.loads(blobs["data.json"])
             arrays = {}
             if "arrays.npz" in blobs:
-                import io
-
                 with np.load(io.BytesIO(blobs["arrays.npz"]), allow_pickle=False) as z:
                     arrays = {k: z[k] for k in z.files}
             for name, b in blobs.items():
@@ -549,16 +549,12 @@ _CACHE_LAYOUT: dict[str, list[str]] = {
 def _named(p: Path, folder: str, level: int) -> bool:
     """Whether ``p``'s name is one the store gives at that level of ``folder``
     (:data:`_CACHE_LAYOUT`)."""
-    import re
-
     return re.fullmatch(_CACHE_LAYOUT[folder][level], p.name) is not None
 
 
 def _sweep(folder: Path, levels: list[str]) -> None:
     """Remove what matches ``levels`` under ``folder`` (never through a symbolic link), then the
     folders that are left empty, ``folder`` included."""
-    import re
-
     if folder.is_symlink() or not folder.is_dir():
         return
     with contextlib.suppress(OSError):

@@ -10,8 +10,10 @@ bytes it came from. Public: the functions above, :func:`png_decode`, :func:`read
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import time
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -50,8 +52,6 @@ def jpeg_roundtrip(a: Any) -> tuple[bytes, np.ndarray] | None:
     """The JPEG bytes of an 8-bit image (HxW or HxWx3) and the image they decode to -- the value
     every reader of a lossy output gets (OpenCV's decoder is deterministic); None for other values.
     An image this function decoded gives back its own bytes and itself."""
-    import weakref
-
     import cv2
 
     if not is_png_image(a) or (a.ndim == 3 and a.shape[2] != 3):
@@ -149,8 +149,6 @@ def entry_blobs(
     """``(blobs, png_outputs, codec_seconds)``: an entry's files -- data.json, 8-bit images as PNG
     (lossless, 3-10x smaller than raw) or the JPEG bytes given, the other arrays in one npz -- and
     which top-level output each image file is (the run folder copies it as it is)."""
-    import io
-
     blobs = {"data.json": json.dumps(tree, allow_nan=True).encode()}
     outs = tree.items() if isinstance(tree, dict) else ()
     refs = {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass
 from typing import Any
@@ -63,8 +64,6 @@ class ConfigError(Exception):
 
 def did_you_mean(word: str, options: Any, listing: str, prefix: str = "") -> str:
     """A Fix for a misspelt name: the closest of ``options``, else ``listing`` and all of them."""
-    import difflib  # (only on an error)
-
     close = difflib.get_close_matches(word, list(options), n=1)
     return (
         f"did you mean '{prefix}{close[0]}'?" if close else f"{listing} {sorted(options) or 'none'}"

@@ -11,6 +11,7 @@ import concurrent.futures as cf
 import contextlib
 import gc
 import os
+import signal
 import uuid
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -70,8 +71,6 @@ def _worker_start() -> None:
     that owns the pool. A terminal's Ctrl-C reaches every process of its group: a worker waiting for
     its next task printed a KeyboardInterrupt traceback; the owner ends its workers itself
     (close(now=True))."""
-    import signal
-
     one_thread_each()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 

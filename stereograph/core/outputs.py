@@ -9,6 +9,7 @@ run's folder: :mod:`stereograph.core.run_folder`; the formats: docs/engine.md.
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import math
 import os
@@ -170,8 +171,6 @@ def write_value(path_stem: Path, value: Any, lossy: bool = False) -> list[Path]:
     write_whole(p, json.dumps(data, indent=1).encode())
     files.append(p)
     if big:  # (arrays: NumPy is imported)
-        import io
-
         import numpy as np
 
         buf = io.BytesIO()

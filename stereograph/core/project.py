@@ -8,6 +8,7 @@ budget: docs/engine.md. This module imports nothing heavy (the CLI asks it first
 from __future__ import annotations
 
 import os
+import tomllib
 import uuid
 from datetime import datetime
 from functools import lru_cache
@@ -39,10 +40,8 @@ def _tool_config(root: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        import tomllib
-
         data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, ImportError):
+    except (OSError, ValueError):
         return {}
     conf = data.get("tool", {}).get("stereograph", {})
     return conf if isinstance(conf, dict) else {}

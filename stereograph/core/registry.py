@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import hashlib
 import importlib
 import importlib.util
 import json
@@ -59,8 +60,6 @@ def _fingerprint() -> list:
 def index_file() -> Path:
     """The entry-point index's file: one folder per Python environment (two virtual environments
     must not take turns rewriting it)."""
-    import hashlib
-
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     env = hashlib.blake2b(sys.prefix.encode(), digest_size=6).hexdigest()
     return Path(base) / "stereograph" / env / "entry-points.json"
