@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from stereograph.core.digests import RACY_NS, digest, file_digest
 from stereograph.core.errors import ConfigError, Where
+from stereograph.core.outputs import write_whole
 
 if TYPE_CHECKING:
     from stereograph.core.api import NodeSpec
@@ -83,8 +84,6 @@ def _all_groups() -> dict[str, dict[str, str]]:
     groups = {
         g: {ep.name: ep.value for ep in entry_points(group=g)} for g in (GROUP, COMMANDS_GROUP)
     }
-    from stereograph.core.outputs import write_whole  # (only when the index is renewed)
-
     with contextlib.suppress(OSError):  # a read-only home: the index is only a fast path
         write_whole(path, json.dumps([{"fingerprint": fp, "groups": groups}] + known[:7]).encode())
     return groups
