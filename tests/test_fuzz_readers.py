@@ -10,6 +10,7 @@ file.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import tempfile
@@ -131,6 +132,9 @@ READERS = {
 
 
 @pytest.mark.parametrize("name", list(READERS))
+# (a NumPy warning would reach the user's terminal beside the refusal: an overflow in the hand-eye
+# check of a file with 1e300 in it did)
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_a_fuzzed_file_is_read_or_refused_in_words(name):
     read, seed, suffix = READERS[name]
     read(_write(seed, suffix))  # the seed itself reads
@@ -170,3 +174,16 @@ def _write(data: bytes, suffix: str) -> Path:
     with os.fdopen(fd, "wb") as f:
         f.write(data)
     return Path(name)
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_a_hand_eye_of_huge_numbers_is_refused_without_a_numpy_warning(tmp_path):
+    # (found by the fuzz above: R R^T of 1e300 overflowed before the check refused it)
+    from stereograph.core.api import NodeError
+
+    he = json.loads((LIVE / "hand_eye.json").read_text())
+    he["T_base_from_left"][0][0] = 1e300
+    f = tmp_path / "hand_eye.json"
+    f.write_text(json.dumps(he))
+    with pytest.raises(NodeError, match="not a rigid 4x4 transform"):
+        _hand_eye(f)

@@ -169,8 +169,14 @@ LIVE_CAL = ROOT / "pipelines" / "live" / "calibration.yml"
         (("image_width: 640", "image_width: -640"), "image_size"),
         (("image_width: 640", "image_width: 2000000000"), "image_size"),
         (("image_width: 640", "image_width: .Inf"), "image_width"),
+        # (values a finite check passes, which overflowed the checks after it into NumPy warnings)
+        (("data: [ 560.33467267895105,", "data: [ 5e300,"), "not a camera matrix of 640x480"),
+        (("data: [ -0.1203332669250481,", "data: [ 1e300,"), "within +-1e+06"),
+        (("data: [ 0.9997553862578209,", "data: [ 1e308,"), "R is not a rotation"),
+        (("data: [ -8.0008914930812747,", "data: [ -8e300,"), "not a stereo rig's"),
     ],
 )
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, edit, said):
     """(a zero or NaN focal length loaded with exit 0 and failed later, inside pick-live, as a
     ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV

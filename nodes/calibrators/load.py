@@ -185,6 +185,9 @@ def read_calibration_file(
 MAX_IMAGE_SIDE_PX = 32768
 
 
+MAX_CALIBRATION_VALUE = 1e6  # distortion coefficients, baseline (cm: 10 km)
+
+
 def calibration_values_problem(cal: dict) -> str | None:
     """What makes a loaded calibration unusable, in words, or None: the numbers are checked for what
     they mean at load, not deep inside a later node (a zero focal length divided by in the live
@@ -202,25 +205,39 @@ def calibration_values_problem(cal: dict) -> str | None:
             return f"{name} is not a finite 3x3 camera matrix"
         if not (K[0, 0] > 0 and K[1, 1] > 0):
             return f"{name}'s focal lengths ({K[0, 0]:g}, {K[1, 1]:g} px) are not positive"
+        # (a focal length of 1000 image widths is a field of view under 0.06 degrees; the bounds
+        # also keep later products clear of overflow)
+        if np.abs(K).max() > 1000.0 * max(w, h):
+            return f"{name} holds {np.abs(K).max():g} px: not a camera matrix of {w}x{h} px images"
     for name in ("D1", "D2"):
         D = np.asarray(cal.get(name), float).ravel()
-        if D.size not in (4, 5, 8, 12, 14) or not np.isfinite(D).all():
+        if D.size not in (4, 5, 8, 12, 14) or not np.all(np.abs(D) <= MAX_CALIBRATION_VALUE):
             return (
                 f"{name} has {D.size} distortion coefficients (OpenCV's models have 4, 5, 8, "
-                "12 or 14, finite)"
+                f"12 or 14, finite and within +-{MAX_CALIBRATION_VALUE:g})"
             )
     R = np.asarray(cal.get("R"), float)
-    if (
-        R.shape != (3, 3)
-        or not np.isfinite(R).all()
-        or not np.allclose(R @ R.T, np.eye(3), atol=1e-3)
-        or not np.linalg.det(R) > 0
-    ):
+    if not _is_rotation(R, atol=1e-3) or not np.linalg.det(R) > 0:
         return "R is not a rotation (a finite 3x3 matrix with R R^T = I and det +1)"
     T = np.asarray(cal.get("T_cm"), float).ravel()
-    if T.size != 3 or not np.isfinite(T).all() or not np.linalg.norm(T) > 1e-6:
+    if T.size != 3 or not np.isfinite(T).all() or not np.abs(T).max() > 1e-6:
         return "the baseline T is zero or not three finite numbers: the two cameras would be one"
+    if np.abs(T).max() > MAX_CALIBRATION_VALUE:
+        return (
+            f"the baseline T ({np.abs(T).max():g} in the file's length unit) is not a stereo rig's"
+        )
     return None
+
+
+def _is_rotation(R: np.ndarray, atol: float) -> bool:
+    """A 3x3 matrix with R R^T = I within ``atol``. Entries beyond +-1, which no rotation has (NaN
+    and infinities too), are refused before the product: 1e308 in a file would overflow it, and
+    NumPy's warning would reach the user's terminal beside the refusal."""
+    return (
+        R.shape == (3, 3)
+        and bool(np.all(np.abs(R) <= 1 + atol))
+        and np.allclose(R @ R.T, np.eye(3), atol=atol)
+    )
 
 
 class LoadParams(Params):
@@ -314,7 +331,7 @@ def _load_matrix_artifact(
     T = art[key]
     if (
         T.shape != (4, 4)
-        or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6)
+        or not _is_rotation(T[:3, :3], atol=1e-6)
         or not np.allclose(T[3], [0, 0, 0, 1])
     ):
         raise NodeError(
