@@ -267,7 +267,7 @@ def _local_cluster(LocalCluster: Any, workers: int) -> Any:
             n_workers=workers,
             threads_per_worker=1,
             processes=True,
-            dashboard_address=None,
+            dashboard_address=":0",  # (a free port: two runs at once do not fight over 8787)
             env={k: os.environ.get(k, v) for k, v in ONE_THREAD.items()},
         )
 
