@@ -527,7 +527,7 @@ def _write(
     result = Replayed(
         run_id, out, reports, _echo(memo["echo"], echo_live), memo["where"], memo["upstream"]
     )
-    summary[run_folder.MARKER] = {"format": 1, "run_id": run_id}
+    summary[run_folder.MARKER] = run_folder.marker(run_id)
     summary.update(run_id=run_id, out_dir=str(out), ok=result.ok, notes=[], failed_items=[])
     outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     result.notes.extend(hooks.announce("run_written", out))  # report.html, as a computed run gets

@@ -28,6 +28,11 @@ from stereograph.core.outputs import (
 MARKER = "stereograph_run"
 
 
+def marker(run_id: str) -> dict[str, Any]:
+    """The value of ``run.json``'s :data:`MARKER` key (its format and the run's id)."""
+    return {"format": 1, "run_id": run_id}
+
+
 def check_folder_path(out: Path) -> Path:
     """Refuse an output folder that is an existing file or lies under one (:class:`ConfigError`);
     returns the nearest existing folder on its path (the folder itself when it exists)."""
@@ -271,7 +276,7 @@ def run_summary(
 ) -> dict[str, Any]:
     """``run.json``'s content."""
     return {
-        MARKER: {"format": 1, "run_id": run_id},
+        MARKER: marker(run_id),
         "run_id": run_id,
         "pipeline": pipeline,
         "out_dir": str(out_dir),
