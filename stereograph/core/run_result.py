@@ -2,7 +2,7 @@
 what a part of a run (a streamed chunk) hands the run (:class:`PartRecords`).
 
 Plain data shapes; :mod:`stereograph.core.run_state` fills them. ``Ref`` is ``(node, output,
-item)``.
+item)``; a value kept in memory only has a :func:`memory_key`.
 """
 
 from __future__ import annotations
@@ -14,6 +14,17 @@ from typing import Any
 
 Ref = tuple[str, str, "str | None"]  # (node, output, item)
 NO_ITEMS = "no items to process (upstream produced none)"  # a per-item node's message
+
+
+def memory_key(*parts: Any) -> str:
+    """The key of a value held in memory only (no store, or a loop's live part): ``node/...``.
+    A store's keys are hex digests, never with a ``/`` (:func:`is_memory_key`)."""
+    return "/".join(str(p) for p in parts)
+
+
+def is_memory_key(key: str) -> bool:
+    """True for a :func:`memory_key`: no store holds its value."""
+    return "/" in key
 
 
 @dataclass

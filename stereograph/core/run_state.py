@@ -25,7 +25,7 @@ from stereograph.core.digests import hash_json
 from stereograph.core.errors import ConfigError
 from stereograph.core.node_run import NodeRuns
 from stereograph.core.part_run import PartRuns
-from stereograph.core.run_result import NodeReport, Ref
+from stereograph.core.run_result import NodeReport, Ref, is_memory_key, memory_key
 
 # (not imported at run time: a replayed rerun runs a node without NetworkX or YAML)
 if TYPE_CHECKING:
@@ -182,7 +182,7 @@ class RunState(NodeRuns, PartRuns):
                 )
             return img
         key = self._ref_keys[ref]
-        if "/" in key:  # held in memory only (no store, a loop's live part) and let go of
+        if is_memory_key(key):  # held in memory only, and let go of
             raise NodeError(f"a value of '{node}' is no longer held (it was kept in memory only)")
         try:
             entry = self.store.load(key)  # type: ignore[union-attr]
@@ -328,7 +328,7 @@ class RunState(NodeRuns, PartRuns):
             for i, v in items.items():
                 # items are content-addressed: a source change that leaves an item as it was
                 # (one image added to a folder) leaves that item's downstream cached
-                ikey = content_key(v) if key else f"{inst.name}/{name}/{i}"
+                ikey = content_key(v) if key else memory_key(inst.name, name, i)
                 ikeys.append(ikey)
                 self._ref_keys[(inst.name, name, i)] = ikey
                 self._mem[(inst.name, name, i)] = v
@@ -339,11 +339,11 @@ class RunState(NodeRuns, PartRuns):
             single[name] = {"__items__": ids, "__keys__": ikeys}
             # the index too, so that a recompute (a corrupt entry) serves it as a load would
             self._mem[(inst.name, name, item)] = single[name]
-            self._ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+            self._ref_keys[(inst.name, name, item)] = key or memory_key(inst.name, item)
         for name, v in single.items():
             if name not in colls:
                 self._mem[(inst.name, name, item)] = v
-                self._ref_keys[(inst.name, name, item)] = key or f"{inst.name}/{item}"
+                self._ref_keys[(inst.name, name, item)] = key or memory_key(inst.name, item)
         return single, colls
 
     def _store_item(
@@ -360,7 +360,7 @@ class RunState(NodeRuns, PartRuns):
         content = {}
         for name, v in out.items():
             ref = (inst.name, name, item)
-            self._ref_keys[ref] = key or f"{inst.name}/{name}/{item}"
+            self._ref_keys[ref] = key or memory_key(inst.name, name, item)
             self._mem[ref] = v
             if key is not None:
                 content[name] = self._ref_ids[ref] = content_key(v)
