@@ -69,8 +69,9 @@ class PipelineDoc:
 # Bounds on what one pipeline may read (its YAML's own: stereograph.core.yaml_lines). Pipeline
 # files are written by hand and are a few KB; data belongs in files that nodes read.
 MAX_FILE_BYTES = 256 * 1024
-_INCLUDED = "in a file included at"  # (an error's note on the include: lines that read its file)
 MAX_INCLUDED_FILES = 64  # files read for one pipeline, includes of includes counted
+# how an error in an included file names the include: line that read it
+_INCLUDED = "in a file included at"
 
 # letters, digits, '_' and '-' (no dot, separator or space)
 _SAFE_NAME = re.compile(r"^[^\W][\w-]*$")
