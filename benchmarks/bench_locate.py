@@ -30,9 +30,9 @@ Usage::
     .venv/bin/python benchmarks/bench_locate.py --pairs 400 --repeat 5
 
 Prints pairs/s for each and the ratio engine / loop (the loop given the pairs as they are made;
-target: >= 150 pairs/s, ratio >= 0.95), both
-of the best runs and as the median over repeats of each engine run against the loop run just
-before it (robust to a shared machine's speed drifting between runs).
+target: >= 150 pairs/s, ratio >= 0.95), both of the best runs and as the median over repeats of
+each engine run against the loop run just before it (robust to a shared machine's speed drifting
+between runs).
 Figures are per wall second of the measured part; CPU seconds are printed too, since the
 machine may be shared (on a shared VM, repeat: the best of several runs is the machine's). The
 engine's CPU seconds are the run's minus those spent inside the upstream node functions (timed by
