@@ -8,9 +8,12 @@ traceback (``--debug`` does). The sub-commands live in ``run_command``, ``info_c
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
+import gc
 import os
 import sys
+import threading
 import traceback
 
 from stereograph import __version__
@@ -175,8 +178,6 @@ def main(argv: list[str] | None = None) -> int:
         # The command's process ends next: its objects need not be traced by the collections the
         # interpreter runs while it shuts down (~50 ms with pydantic and rich loaded); they are
         # still freed, files closed, atexit handlers run.
-        import gc
-
         gc.freeze()
     _end_process(code)
     return code
@@ -191,9 +192,6 @@ def _end_process(code: int) -> None:
     (mypy ends its process the same way). Not while a thread that is not a daemon still runs (the
     normal shut-down waits for it), nor when flushing fails (a closed pipe: the normal one says so).
     """
-    import atexit
-    import threading
-
     if any(
         t is not threading.main_thread() and t.is_alive() and not t.daemon
         for t in threading.enumerate()

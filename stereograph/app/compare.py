@@ -16,6 +16,7 @@ import contextlib
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -405,8 +406,6 @@ def _run_variant(
     lin: dict[str, str],
     shared: set[str] | None,
 ) -> VariantResult:
-    import time
-
     t0 = time.perf_counter()
     # The first variant writes every saved output; the others only those of their own nodes
     # (what they share with the first is the same artifact, already written there).

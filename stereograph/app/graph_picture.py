@@ -12,6 +12,7 @@ from __future__ import annotations
 import graphlib
 import heapq
 import html
+import io
 from typing import Any
 
 BOX_W, BOX_H, GAP_X, GAP_Y, PAD, SLOT_W = 170, 46, 24, 40, 12, 14
@@ -254,8 +255,6 @@ def to_png(
     nodes: dict[str, dict[str, Any]], status: dict[str, str] | None = None, dpi: int = 100
 ) -> bytes:
     """The same picture as :func:`to_svg`, rendered by matplotlib (Agg) as PNG bytes."""
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")

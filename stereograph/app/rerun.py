@@ -14,6 +14,7 @@ import contextlib
 import json
 import os
 import shutil
+import sys
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -57,8 +58,6 @@ def fingerprint(pipeline: str | Path) -> list:
     ``/work/x/.venv/bin`` are one folder). The pipeline's own folder, and any folder importing a
     plugin put on ``sys.path`` (for the rest of the process: a second run in it would otherwise
     never be replayed), are left out: the files there that count are stamped one by one."""
-    import sys
-
     from stereograph.core import registry
 
     out = []
