@@ -176,7 +176,6 @@ LIVE_CAL = ROOT / "pipelines" / "live" / "calibration.yml"
         (("data: [ -8.0008914930812747,", "data: [ -8e300,"), "not a stereo rig's"),
     ],
 )
-@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_a_calibration_whose_numbers_mean_nothing_is_refused_at_load(tmp_path, edit, said):
     """(a zero or NaN focal length loaded with exit 0 and failed later, inside pick-live, as a
     ZeroDivisionError; a huge or negative width asked for an 18 EB allocation or an OpenCV
