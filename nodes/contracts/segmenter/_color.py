@@ -49,15 +49,18 @@ def color_distance_map(img_bgr: np.ndarray, color_bgr) -> np.ndarray:
     """
     img = np.asarray(img_bgr)
     f = img.astype(np.float32)
-    d = _chroma_distance(
-        f, scalar_op(cv2.max, cv2.transform(f, _ONES_1x3), 1.0), color_bgr
-    ).reshape(img.shape[:2])
+    d = _chroma_distance(f, _channel_total(f), color_bgr).reshape(img.shape[:2])
     gray_max = cv2.max(cv2.max(img[..., 0], img[..., 1]), img[..., 2]).reshape(img.shape[:2])
     d[gray_max < DARK_LEVEL] = dark_pixel_distance(color_bgr)
     return d
 
 
 _ONES_1x3 = np.ones((1, 3), np.float32)
+
+
+def _channel_total(f: np.ndarray) -> np.ndarray:
+    """max(S, 1), S = x_b + x_g + x_r, of a float32 BGR image (any size, 1x1 too)."""
+    return scalar_op(cv2.max, cv2.transform(f, _ONES_1x3), 1.0)
 
 
 def _chroma_distance(f: np.ndarray, total: np.ndarray, color_bgr) -> np.ndarray:

@@ -7,10 +7,8 @@ import math
 import cv2
 import numpy as np
 
-from nodes.contracts.cv_overloads import scalar_op
-
 from ._candidates import roundness
-from ._color import DARK_LEVEL, _chroma_distance, _ONES_1x3, dark_pixel_distance, hue_mask
+from ._color import DARK_LEVEL, _channel_total, _chroma_distance, dark_pixel_distance, hue_mask
 from ._params import ObjectSpec, ShadowParams
 from ._pixels import masked_pixels, structuring_element
 
@@ -109,7 +107,7 @@ def _suppress(
     if len(where):
         px = masked_pixels(region_px, cand[None])[None]
         f = px.astype(np.float32)
-        total = scalar_op(cv2.max, cv2.transform(f, _ONES_1x3), 1.0)
+        total = _channel_total(f)
         # (V = the largest channel) chromaticity is noise in the darkest
         dark = px[0].max(axis=1) < DARK_LEVEL
         # pixels: it must not veto (shadow test) ...
