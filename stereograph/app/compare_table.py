@@ -93,14 +93,7 @@ def print_table(
     for i, chunk in enumerate(chunks):
         part = f" ({i + 1}/{len(chunks)})" if len(chunks) > 1 else ""
         con.print(_table(res, chunk, names, top, narrow, part))
-    _print_below(con, res, [n for n in constant if n not in names], top)
-    if PER_PAIR in names and any(r["ok"] and r.get(PER_PAIR) is None for r in res.rows):
-        # (a column of dashes would otherwise leave the reader guessing)
-        con.print(
-            f"{metric_header(PER_PAIR)} –: a per-item node's results came from the cache, stored "
-            "by a run that no compare timed; a compare with a new --cache-dir times every node",
-            markup=False,
-        )
+    _print_below(con, res, names, [n for n in constant if n not in names], top)
     if mistakes:
         raise mistakes[0]
 
@@ -151,9 +144,10 @@ def _table(
     return t
 
 
-def _print_below(con: Any, res: CompareResult, same: list[str], top: Any) -> None:
-    """Under the tables: the metrics every variant has alike, failed and left-out variants, and a
-    note when --best's lowest value of a signed metric is the most negative."""
+def _print_below(con: Any, res: CompareResult, shown: list[str], same: list[str], top: Any) -> None:
+    """Under the tables: the metrics every variant has alike, failed and left-out variants, why a
+    shown per-pair time is missing, and a note when --best's lowest value of a signed metric is
+    the most negative."""
     from rich.markup import escape
 
     # (not columns: a number that does not change tells nothing apart; compare.csv has them all)
@@ -164,6 +158,13 @@ def _print_below(con: Any, res: CompareResult, same: list[str], top: Any) -> Non
             con.print(f"[red]variant {escape(vr.variant.label)} failed:[/] {escape(str(vr.error))}")
     for label, why in res.skipped:
         con.print(f"left out (--skip-invalid): {label}: {why}", markup=False)
+    if PER_PAIR in shown and any(r["ok"] and r.get(PER_PAIR) is None for r in res.rows):
+        # (a column of dashes would otherwise leave the reader guessing)
+        con.print(
+            f"{metric_header(PER_PAIR)} –: a per-item node's results came from the cache, stored "
+            "by a run that no compare timed; a compare with a new --cache-dir times every node",
+            markup=False,
+        )
     if (
         top is not None
         and top[1] == "min"
