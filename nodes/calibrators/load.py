@@ -207,8 +207,9 @@ def calibration_values_problem(cal: dict) -> str | None:
             return f"{name}'s focal lengths ({K[0, 0]:g}, {K[1, 1]:g} px) are not positive"
         # (a focal length of 1000 image widths is a field of view under 0.06 degrees; the bounds
         # also keep later products clear of overflow)
-        if np.abs(K).max() > 1000.0 * max(w, h):
-            return f"{name} holds {np.abs(K).max():g} px: not a camera matrix of {w}x{h} px images"
+        largest = np.abs(K).max()
+        if largest > 1000.0 * max(w, h):
+            return f"{name} holds {largest:g} px: not a camera matrix of {w}x{h} px images"
     for name in ("D1", "D2"):
         D = np.asarray(cal.get(name), float).ravel()
         if D.size not in (4, 5, 8, 12, 14) or not np.all(np.abs(D) <= MAX_CALIBRATION_VALUE):
@@ -220,12 +221,11 @@ def calibration_values_problem(cal: dict) -> str | None:
     if not _is_rotation(R, atol=1e-3) or not np.linalg.det(R) > 0:
         return "R is not a rotation (a finite 3x3 matrix with R R^T = I and det +1)"
     T = np.asarray(cal.get("T_cm"), float).ravel()
-    if T.size != 3 or not np.isfinite(T).all() or not np.abs(T).max() > 1e-6:
+    longest = np.abs(T).max() if T.size == 3 else 0.0
+    if not np.isfinite(longest) or not longest > 1e-6:
         return "the baseline T is zero or not three finite numbers: the two cameras would be one"
-    if np.abs(T).max() > MAX_CALIBRATION_VALUE:
-        return (
-            f"the baseline T ({np.abs(T).max():g} in the file's length unit) is not a stereo rig's"
-        )
+    if longest > MAX_CALIBRATION_VALUE:
+        return f"the baseline T ({longest:g} in the file's length unit) is not a stereo rig's"
     return None
 
 
