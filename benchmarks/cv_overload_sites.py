@@ -29,7 +29,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-FIND = """
+# Both gdb scripts: where the cv2 library is loaded (its lowest mapping), in gdb's Python.
+BASE = """
 import gdb
 def _base():
     lo = None
@@ -38,6 +39,11 @@ def _base():
             a = int(line.split()[0], 16)
             lo = a if lo is None else min(lo, a)
     return lo
+"""
+
+FIND = (
+    BASE
+    + """
 class _Caller(gdb.Breakpoint):
     def stop(self):
         base = _base()
@@ -48,6 +54,7 @@ class _Caller(gdb.Breakpoint):
 gdb.execute("set pagination off")
 _Caller("PyObject_Str")
 """
+)
 
 TRIGGER = (
     "import cv2, numpy as np; d = np.zeros((8, 8), np.int16); "
@@ -64,16 +71,10 @@ RECORD = (
     " + chr(10)); _f.close()"
 )
 
-SWEEP = """
-import gdb
+SWEEP = (
+    BASE
+    + """
 state = {{"set": False}}
-def _base():
-    lo = None
-    for line in gdb.execute("info proc mappings", to_string=True).splitlines():
-        if {so!r} in line:
-            a = int(line.split()[0], 16)
-            lo = a if lo is None else min(lo, a)
-    return lo
 def _loaded(_event):
     base = None if state["set"] else _base()
     if base is not None:
@@ -86,6 +87,7 @@ gdb.execute("set print thread-events off")
 for s in ("SIGINT", "SIGTERM", "SIGCHLD", "SIGPIPE", "SIGALRM", "SIGUSR1", "SIGUSR2", "SIGHUP"):
     gdb.execute("handle %s nostop noprint pass" % s)
 """
+)
 
 
 def _gdb(script: str, argv: list[str], log: Path) -> int:
