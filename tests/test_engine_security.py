@@ -407,6 +407,12 @@ def test_an_error_in_an_included_file_names_the_include_line(tmp_path, capsys):
         "validate", write(tmp_path / "q.yaml", "include: [/etc/passwd]\n"), capsys=capsys
     )
     assert code == 2 and "/etc/passwd:1" in msg and "included at " in msg and "q.yaml:1" in msg
+    # found after the files are read (the graph's checks): the same chain, innermost first
+    write(tmp_path / "deeper.yaml", "nodes:\n  x: {type: source.synthetic}\n  y: {type: nosuch}\n")
+    code, msg = cli("validate", f, capsys=capsys)
+    chain = f"(in a file included at {tmp_path / 'common.yaml'}:1:11, in a file included at "
+    assert code == 2 and "deeper.yaml:3:7: node 'y': unknown node type" in msg, msg
+    assert chain + f"{tmp_path / 'p.yaml'}:3:5)" in msg, msg
 
 
 @pytest.mark.parametrize("path", ["/dev/zero", "."])

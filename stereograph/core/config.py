@@ -11,7 +11,7 @@ from __future__ import annotations
 import copy
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,8 +70,6 @@ class PipelineDoc:
 # files are written by hand and are a few KB; data belongs in files that nodes read.
 MAX_FILE_BYTES = 256 * 1024
 MAX_INCLUDED_FILES = 64  # files read for one pipeline, includes of includes counted
-# how an error in an included file names the include: line that read it
-_INCLUDED = "in a file included at"
 
 # letters, digits, '_' and '-' (no dot, separator or space)
 _SAFE_NAME = re.compile(r"^[^\W][\w-]*$")
@@ -315,22 +313,27 @@ def _include(
         try:
             sub = load_pipeline(inc_path, None, stack, budget)
         except ConfigError as e:
-            # (the included file's own line alone does not say which pipeline read it)
+            # (the included file's own line alone does not say which pipeline read it; an error
+            # with no line of its own is placed at the include: line)
             for err in [e, *getattr(e, "errors", [])]:
-                msg = err.message.rstrip(" .")
-                nested = msg.endswith(")") and _INCLUDED in msg
-                err.message = (
-                    f"{msg[:-1]}, {_INCLUDED} {at})" if nested else f"{msg} ({_INCLUDED} {at})"
-                )
+                err.where = _read_through(err.where, at) if err.where else at
+            partial = getattr(e, "doc", None)  # (what validate goes on checking)
+            if isinstance(partial, PipelineDoc):
+                partial.lines = {key: _read_through(w, at) for key, w in partial.lines.items()}
             raise
         doc.plugins += sub.plugins
         for t, p in sub.defaults.items():
             doc.defaults[t] = merge_params(doc.defaults.get(t, {}), p)
         doc.nodes.update(copy.deepcopy(sub.nodes))
-        doc.lines.update(sub.lines)
+        doc.lines.update({key: _read_through(w, at) for key, w in sub.lines.items()})
         doc.variants.update(sub.variants)
         doc.compare_metric = sub.compare_metric or doc.compare_metric
         doc.repeat = sub.repeat if sub.repeat is not None else doc.repeat
+
+
+def _read_through(where: Where, include_line: Where) -> Where:
+    """``where``, in a file read through ``include_line``."""
+    return replace(where, included_at=(*where.included_at, include_line))
 
 
 def _top_level(doc: PipelineDoc, data: dict, where: Callable[..., Where]) -> None:

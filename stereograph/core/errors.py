@@ -10,11 +10,13 @@ from typing import Any
 
 @dataclass
 class Where:
-    """A place in a pipeline file (1-based line and column)."""
+    """A place in a pipeline file (1-based line and column); ``included_at``: where the file was
+    read through ``include:``, the innermost ``include:`` line first."""
 
     file: str
     line: int | None = None
     column: int | None = None
+    included_at: tuple[Where, ...] = ()
 
     def __str__(self) -> str:
         if self.line is None:
@@ -56,6 +58,10 @@ class ConfigError(Exception):
         if self.node:
             parts.append(f"node '{self.node}':")
         parts.append(self.message.rstrip())
+        if self.where is not None and self.where.included_at:
+            parts[-1] = parts[-1].rstrip(" .")
+            chain = (f"in a file included at {at}" for at in self.where.included_at)
+            parts.append("(" + ", ".join(chain) + ")")
         text = sentence(" ".join(parts))
         if self.hint:
             text += " Fix: " + sentence(self.hint)
