@@ -24,6 +24,7 @@ from typing import Any
 
 from stereograph.core import hooks
 from stereograph.core.digests import RACY_NS, file_digest, hash_json
+from stereograph.core.run_result import is_lasting_key
 
 FORMAT = 1
 MAX_MEMOS = 32  # memos kept per cache (oldest removed first): one per pipeline and --set line
@@ -101,11 +102,7 @@ def record(graph: Any, result: Any, echo: list[list[Any]], sys_path: list | None
     ):
         return False  # changed a moment ago (mtime or ctime): the next run decides for itself
     live_keys = {run.entry_key_of(n) for n in live}
-    entries = sorted(
-        k
-        for k in run.used_keys()
-        if "/" not in k and not k.startswith("volatile") and k not in live_keys
-    )
+    entries = sorted(k for k in run.used_keys() if is_lasting_key(k) and k not in live_keys)
     memo: dict[str, Any] = {
         "format": FORMAT,
         "recorded_ns": t_rec,

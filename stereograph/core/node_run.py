@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-import uuid
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from stereograph.core.api import NodeError, RunContext
 from stereograph.core.calls import Task, TaskResult, execute
 from stereograph.core.executors import SerialExecutor, lost_as_failed, progress_advance
-from stereograph.core.run_result import NO_ITEMS
+from stereograph.core.run_result import NO_ITEMS, volatile_key
 
 if TYPE_CHECKING:
     from stereograph.core.graph import NodeInstance
@@ -254,7 +253,7 @@ class NodeRuns:
         rep = self.reports[inst.name]
         ok = True
         if volatile:  # (live camera, actuator): a fresh key, so nothing downstream is served stale
-            key = f"volatile-{uuid.uuid4().hex}" if store_on else None
+            key = volatile_key() if store_on else None
         if not stored:
             try:
                 self.store_result(inst, item, key, res.outputs or {}, res.messages)

@@ -21,7 +21,7 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from stereograph.core.run_result import is_memory_key
+from stereograph.core.run_result import is_lasting_key
 
 if TYPE_CHECKING:
     import numpy as np
@@ -209,7 +209,7 @@ def _rendered(store: Any, key: str | None, output: str, stem: Path, produce: Any
 
     Encoding a cached image again is most of a cached run's time; a copy of the PNG is not.
     """
-    if store is None or not key or key.startswith("volatile") or is_memory_key(key):
+    if store is None or not key or not is_lasting_key(key):
         return produce()
     ready = store.ready_file(key, output)
     # the entry keeps this image as the very PNG (or JPEG) the run folder gets

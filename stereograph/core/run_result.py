@@ -2,11 +2,13 @@
 what a part of a run (a streamed chunk) hands the run (:class:`PartRecords`).
 
 Plain data shapes; :mod:`stereograph.core.run_state` fills them. ``Ref`` is ``(node, output,
-item)``; a value kept in memory only has a :func:`memory_key`.
+item)``; a value kept in memory only has a :func:`memory_key`, one made again at every run a
+:func:`volatile_key`; :func:`is_lasting_key` tells them from a key a later run finds again.
 """
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +27,17 @@ def memory_key(*parts: Any) -> str:
 def is_memory_key(key: str) -> bool:
     """True for a :func:`memory_key`: no store holds its value."""
     return "/" in key
+
+
+def volatile_key() -> str:
+    """A fresh key for a value made again at every run (a camera's grab, an arm's move): stored,
+    but never found again, so nothing downstream is served a stale value."""
+    return f"volatile-{uuid.uuid4().hex}"
+
+
+def is_lasting_key(key: str) -> bool:
+    """True for a key a later run can find again: neither a memory nor a volatile key."""
+    return not is_memory_key(key) and not key.startswith("volatile-")
 
 
 @dataclass
