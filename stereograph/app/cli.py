@@ -15,6 +15,7 @@ import os
 import sys
 import threading
 import traceback
+from typing import Any
 
 from stereograph import __version__
 from stereograph.app.cache_command import cache_positionals_first, cmd_cache
@@ -57,96 +58,8 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
         "pipelines you trust; also STEREOGRAPH_ALLOW_PLUGINS=1)",
     )
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
-
-    def pipeline_cmd(name: str, help_: str) -> argparse.ArgumentParser:
-        sp = sub.add_parser(name, help=help_)
-        sp.add_argument("pipeline", help="pipeline YAML file")
-        sp.add_argument(
-            "--set",
-            action="append",
-            metavar="NODE.PARAM=VALUE",
-            help="override a param (value parsed as YAML), or NODE.type=NAME; repeatable",
-        )
-        sp.add_argument("--debug", action="store_true", help="show tracebacks")
-        return sp
-
-    sp = pipeline_cmd("run", "run a pipeline")
-    sp.add_argument("--out", help="output folder (default <project>/runs/<name>/<run-id>)")
-    sp.add_argument(
-        "--cache-dir",
-        help="artifact cache (default: the project's .stereograph/cache, or "
-        "STEREOGRAPH_CACHE_DIR; see docs/cache.md)",
-    )
-    sp.add_argument("--no-cache", action="store_true", help="compute everything, store nothing")
-    sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
-    sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
-    sp.add_argument(
-        "--from", metavar="NODE", help="recompute NODE and its downstream even if cached"
-    )
-    add_executor_arguments(sp, "per-item nodes")
-    sp.add_argument(
-        "--repeat",
-        type=non_negative_int,
-        metavar="N",
-        help="run the live part (uncacheable nodes and "
-        "their downstream) N times, 0 = until stopped; each cycle in cycles.jsonl",
-    )
-    sp.add_argument(
-        "--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle"
-    )
-    sp.add_argument(
-        "--save-cycles",
-        action="store_true",
-        help="--repeat: write every cycle's live outputs, images included, into cycles/<n>/",
-    )
-    sp.add_argument(
-        "--verbose",
-        action="store_true",
-        help="--repeat: a line per node in every cycle, not only in "
-        "the first (the others get one line per cycle)",
-    )
-    sp.add_argument(
-        "--progress-interval",
-        type=seconds_arg,
-        default=5.0,
-        metavar="SECONDS",
-        help="when output is not a terminal: seconds between progress lines per node (default 5)",
-    )
-    sp.set_defaults(fn=cmd_run)
-    pipeline_cmd("validate", "check a pipeline without running it").set_defaults(fn=cmd_validate)
-    sp = pipeline_cmd("graph", "print the pipeline graph")
-    sp.add_argument(
-        "--format",
-        choices=["mermaid", "dot", "png", "svg"],
-        default="mermaid",
-        help="text (mermaid, dot) on stdout, or a picture (png, svg) written to --output",
-    )
-    sp.add_argument(
-        "--output",
-        "-o",
-        metavar="FILE",
-        help="png/svg: the file (default <pipeline>.graph.<format>)",
-    )
-    sp.set_defaults(fn=cmd_graph)
-    sp = sub.add_parser("report", help="(re)build report.html in a run folder")
-    sp.add_argument("run_dir", help="the folder a run wrote (it holds run.json)")
-    sp.set_defaults(fn=cmd_report)
-    sp = pipeline_cmd("explain", "say for every node whether it is fresh or stale, and why")
-    sp.add_argument("--cache-dir")
-    sp.set_defaults(fn=cmd_explain)
-    sp = sub.add_parser("nodes", help="list node types, or show one's params")
-    sp.add_argument("name", nargs="?")
-    sp.set_defaults(fn=cmd_nodes)
-    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
-    sp.add_argument("action", choices=["info", "prune", "clear"])
-    sp.add_argument(
-        "--max-gb",
-        type=size_gb,
-        help="prune: keep the most recently used entries up to this size (GB, 0 or more)",
-    )
-    sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
-    sp.add_argument("--cache-dir")
-    sp.set_defaults(fn=cmd_cache)
+    _add_run(_pipeline_command(sub, "run", "run a pipeline"))
+    _add_looking_commands(sub)
     if lazy:
         sub.add_parser(
             "compare",
@@ -167,6 +80,109 @@ def build_parser(lazy: bool = False) -> argparse.ArgumentParser:
         sp.add_argument("rest", nargs=argparse.REMAINDER)
         sp.set_defaults(plugin=name)
     return p
+
+
+def _pipeline_command(sub: Any, name: str, help_: str) -> argparse.ArgumentParser:
+    """A sub-command that takes a pipeline file and ``--set``."""
+    sp = sub.add_parser(name, help=help_)
+    sp.add_argument("pipeline", help="pipeline YAML file")
+    sp.add_argument(
+        "--set",
+        action="append",
+        metavar="NODE.PARAM=VALUE",
+        help="override a param (value parsed as YAML), or NODE.type=NAME; repeatable",
+    )
+    sp.add_argument("--debug", action="store_true", help="show tracebacks")
+    return sp
+
+
+def _add_run(sp: argparse.ArgumentParser) -> None:
+    """``run``'s own options."""
+    sp.add_argument("--out", help="output folder (default <project>/runs/<name>/<run-id>)")
+    sp.add_argument(
+        "--cache-dir",
+        help="artifact cache (default: the project's .stereograph/cache, or "
+        "STEREOGRAPH_CACHE_DIR; see docs/cache.md)",
+    )
+    sp.add_argument("--no-cache", action="store_true", help="compute everything, store nothing")
+    sp.add_argument("--json", action="store_true", help="print run.json instead of the table")
+    sp.add_argument("--only", metavar="NODE", help="run only NODE and its upstream")
+    sp.add_argument(
+        "--from", metavar="NODE", help="recompute NODE and its downstream even if cached"
+    )
+    add_executor_arguments(sp, "per-item nodes")
+    loop = sp.add_argument_group("the live loop (docs/live.md)")
+    loop.add_argument(
+        "--repeat",
+        type=non_negative_int,
+        metavar="N",
+        help="run the live part (uncacheable nodes and "
+        "their downstream) N times, 0 = until stopped; each cycle in cycles.jsonl",
+    )
+    loop.add_argument(
+        "--stop-on-failure", action="store_true", help="--repeat: stop at the first failed cycle"
+    )
+    loop.add_argument(
+        "--save-cycles",
+        action="store_true",
+        help="--repeat: write every cycle's live outputs, images included, into cycles/<n>/",
+    )
+    loop.add_argument(
+        "--verbose",
+        action="store_true",
+        help="--repeat: a line per node in every cycle, not only in "
+        "the first (the others get one line per cycle)",
+    )
+    sp.add_argument(
+        "--progress-interval",
+        type=seconds_arg,
+        default=5.0,
+        metavar="SECONDS",
+        help="when output is not a terminal: seconds between progress lines per node (default 5)",
+    )
+    sp.set_defaults(fn=cmd_run)
+
+
+def _add_looking_commands(sub: Any) -> None:
+    """The commands that look without running: validate, graph, report, explain, nodes, cache."""
+    _pipeline_command(sub, "validate", "check a pipeline without running it").set_defaults(
+        fn=cmd_validate
+    )
+    sp = _pipeline_command(sub, "graph", "print the pipeline graph")
+    sp.add_argument(
+        "--format",
+        choices=["mermaid", "dot", "png", "svg"],
+        default="mermaid",
+        help="text (mermaid, dot) on stdout, or a picture (png, svg) written to --output",
+    )
+    sp.add_argument(
+        "--output",
+        "-o",
+        metavar="FILE",
+        help="png/svg: the file (default <pipeline>.graph.<format>)",
+    )
+    sp.set_defaults(fn=cmd_graph)
+    sp = sub.add_parser("report", help="(re)build report.html in a run folder")
+    sp.add_argument("run_dir", help="the folder a run wrote (it holds run.json)")
+    sp.set_defaults(fn=cmd_report)
+    sp = _pipeline_command(
+        sub, "explain", "say for every node whether it is fresh or stale, and why"
+    )
+    sp.add_argument("--cache-dir")
+    sp.set_defaults(fn=cmd_explain)
+    sp = sub.add_parser("nodes", help="list node types, or show one's params")
+    sp.add_argument("name", nargs="?")
+    sp.set_defaults(fn=cmd_nodes)
+    sp = sub.add_parser("cache", help="cache info | prune --max-gb N | clear (the project's cache)")
+    sp.add_argument("action", choices=["info", "prune", "clear"])
+    sp.add_argument(
+        "--max-gb",
+        type=size_gb,
+        help="prune: keep the most recently used entries up to this size (GB, 0 or more)",
+    )
+    sp.add_argument("pipeline", nargs="?", help="use this pipeline's default cache")
+    sp.add_argument("--cache-dir")
+    sp.set_defaults(fn=cmd_cache)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -243,15 +259,7 @@ def _main(argv: list[str]) -> int:
         ):
             return int(args.fn(args) or 0)
     except ConfigError as e:
-        from rich.markup import escape
-
-        from stereograph.core.errors import ConfigErrors
-
-        err = command_console(stderr=True)
-        for one in e.errors if isinstance(e, ConfigErrors) else [e]:
-            err.print(f"[red]error:[/] {escape(str(one))}")
-        if isinstance(e, ConfigErrors):
-            err.print(f"{len(e.errors)} problems; fix them all, then run the command again.")
+        _print_config_error(e)
         if debug:
             traceback.print_exc()
         return e.exit_code
@@ -270,6 +278,19 @@ def _main(argv: list[str]) -> int:
         if debug:
             traceback.print_exc()
         return 1
+
+
+def _print_config_error(e: ConfigError) -> None:
+    """A user's mistake on stderr: one paragraph per problem, and how many there are."""
+    from rich.markup import escape
+
+    from stereograph.core.errors import ConfigErrors
+
+    err = command_console(stderr=True)
+    for one in e.errors if isinstance(e, ConfigErrors) else [e]:
+        err.print(f"[red]error:[/] {escape(str(one))}")
+    if isinstance(e, ConfigErrors):
+        err.print(f"{len(e.errors)} problems; fix them all, then run the command again.")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -481,10 +481,6 @@ def add_subcommand(subparsers: Any) -> Any:
         metavar="NODE.PARAM=VALUE",
         help="override applied to every variant; repeatable",
     )
-    sp.add_argument("--out", help="output folder (default runs/<name>/compare-<run-id>)")
-    sp.add_argument(
-        "--cache-dir", help="shared artifact cache (default: the project's, see docs/cache.md)"
-    )
     sp.add_argument(
         "--split",
         default=None,
@@ -492,7 +488,26 @@ def add_subcommand(subparsers: Any) -> Any:
         help="set the 'split' param of every node that declares metrics and takes one "
         "(test, train, all); default: as the pipeline says",
     )
+    add_executor_arguments(sp, "every variant's per-item nodes")
     sp.add_argument(
+        "--skip-invalid",
+        action="store_true",
+        help="leave out combinations whose config does not validate instead of refusing",
+    )
+    sp.add_argument("--debug", action="store_true", help="show tracebacks")
+    _add_output_options(sp)
+    sp.set_defaults(fn=main)
+    return sp
+
+
+def _add_output_options(sp: Any) -> None:
+    """``compare``'s options for where it writes and what it shows (a group of ``--help``)."""
+    out = sp.add_argument_group("where it writes, what it shows")
+    out.add_argument("--out", help="output folder (default runs/<name>/compare-<run-id>)")
+    out.add_argument(
+        "--cache-dir", help="shared artifact cache (default: the project's, see docs/cache.md)"
+    )
+    out.add_argument(
         "--metrics",
         action="append",
         default=[],
@@ -501,23 +516,14 @@ def add_subcommand(subparsers: Any) -> Any:
         "repeatable; "
         "default all (compare.csv always has all)",
     )
-    sp.add_argument(
+    out.add_argument(
         "--best",
         metavar="METRIC[:max|:abs]",
         help="show the row with the lowest (:max the highest, :abs the closest to zero) METRIC in "
         "bold green, among the variants that ran to the end",
     )
-    add_executor_arguments(sp, "every variant's per-item nodes")
-    sp.add_argument(
-        "--skip-invalid",
-        action="store_true",
-        help="leave out combinations whose config does not validate instead of refusing",
-    )
-    sp.add_argument("--no-plots", action="store_true", help="do not write metrics.png")
-    sp.add_argument("--json", action="store_true", help="print compare.json instead of the table")
-    sp.add_argument("--debug", action="store_true", help="show tracebacks")
-    sp.set_defaults(fn=main)
-    return sp
+    out.add_argument("--no-plots", action="store_true", help="do not write metrics.png")
+    out.add_argument("--json", action="store_true", help="print compare.json instead of the table")
 
 
 def main(args: Any) -> int:

@@ -446,36 +446,8 @@ def _write(
     run_id = project.new_run_id()
     out = out_dir or project.runs_dir(memo["pipeline_dir"]) / memo["name"] / run_id
     foreign = run_folder.prepare_out_dir(out)
-    made: list[Path] = []
-    folders: set[str] = set()
-    src_root, out_root = str(mdir / "files"), str(out)
-    try:
-        for rel in memo["files"]:
-            src, dest = f"{src_root}/{rel}", f"{out_root}/{rel}"
-            if os.path.dirname(dest) not in folders:
-                os.makedirs(os.path.dirname(dest), exist_ok=True)
-                folders.add(os.path.dirname(dest))
-            try:
-                os.link(src, dest)  # (a new name in an emptied folder: atomic as it is)
-            except OSError:  # there already, or another disk: the careful way
-                outputs.link_or_copy(Path(src), Path(dest))
-            made.append(Path(dest))
-    except OSError:  # (a full disk, say) leave the folder as it was and let a real run report it
-        for f in made:
-            f.unlink(missing_ok=True)
-        # the folders made for them
-        for d, _dirs, _files in sorted(os.walk(out), key=lambda w: -len(w[0])):
-            with contextlib.suppress(OSError):
-                os.rmdir(d)
+    if not _link_files(memo, mdir, out):
         return None
-    files = str(mdir / "files")
-    stamps = {}
-    # (the link moved the ctime: the content was checked before)
-    for rel, rec in memo["files"].items():
-        rec["stamp"] = _stamp(f"{files}/{rel}")
-        stamps[rel] = [rec["stamp"], rec["verified_ns"]]
-    with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
-        outputs.write_whole(mdir / STAMPS, json.dumps(stamps).encode())
     summary = memo["summary"]
     reports: dict[str, SimpleNamespace] = {}
     echo_live: dict[tuple[str, str], Any] = {}
@@ -483,28 +455,7 @@ def _write(
         name = n["node"]
         n.pop("traceback", None)
         if name in memo["live"]:
-            rep, values = _run_live(
-                name,
-                memo["live"][name],
-                live_inputs[name],
-                out,
-                Path(memo["pipeline_dir"]),
-                memo["plugins"],
-            )
-            # (with what it wrote into its folder itself, a failure log: as a real run records it)
-            files = rep.files + run_folder.node_files(out, name, set(rep.files), foreign)
-            n.update(
-                status=rep.status,
-                seconds=round(rep.seconds, 4),
-                items_ran=0,
-                error=rep.error,
-                hint=rep.hint,
-                messages=rep.messages,
-                files=files,
-            )
-            if rep.unexpected and rep.trace:
-                n["traceback"] = rep.trace
-            echo_live.update({(name, o): v for o, v in values.items()})
+            echo_live.update(_replay_live(memo, name, live_inputs[name], out, foreign, n))
         else:
             n.update(status="cached", seconds=0.0, items_ran=0)
         reports[name] = _report(
@@ -528,6 +479,73 @@ def _write(
     outputs.write_whole(out / "run.json", json.dumps(summary, indent=1).encode())
     result.notes.extend(hooks.announce("run_written", out))  # report.html, as a computed run gets
     return result
+
+
+def _link_files(memo: dict[str, Any], mdir: Path, out: Path) -> bool:
+    """The memo's run-folder files linked into ``out``, and their new stamps noted; False (and
+    ``out`` as it was) when they cannot be (a full disk, say): a real run then reports it."""
+    from stereograph.core import outputs
+
+    made: list[Path] = []
+    folders: set[str] = set()
+    src_root, out_root = str(mdir / "files"), str(out)
+    try:
+        for rel in memo["files"]:
+            src, dest = f"{src_root}/{rel}", f"{out_root}/{rel}"
+            if os.path.dirname(dest) not in folders:
+                os.makedirs(os.path.dirname(dest), exist_ok=True)
+                folders.add(os.path.dirname(dest))
+            try:
+                os.link(src, dest)  # (a new name in an emptied folder: atomic as it is)
+            except OSError:  # there already, or another disk: the careful way
+                outputs.link_or_copy(Path(src), Path(dest))
+            made.append(Path(dest))
+    except OSError:
+        for f in made:
+            f.unlink(missing_ok=True)
+        # the folders made for them
+        for d, _dirs, _files in sorted(os.walk(out), key=lambda w: -len(w[0])):
+            with contextlib.suppress(OSError):
+                os.rmdir(d)
+        return False
+    stamps = {}
+    # (the link moved the ctime: the content was checked before)
+    for rel, rec in memo["files"].items():
+        rec["stamp"] = _stamp(f"{src_root}/{rel}")
+        stamps[rel] = [rec["stamp"], rec["verified_ns"]]
+    with contextlib.suppress(OSError):  # the new stamps: only a fast path for the next replay
+        outputs.write_whole(mdir / STAMPS, json.dumps(stamps).encode())
+    return True
+
+
+def _replay_live(
+    memo: dict[str, Any],
+    name: str,
+    inputs: dict[str, Any],
+    out: Path,
+    foreign: Any,
+    line: dict[str, Any],
+) -> dict[tuple[str, str], Any]:
+    """Run a node that must run, and update its ``run.json`` ``line``; returns its values."""
+    from stereograph.core import run_folder
+
+    rep, values = _run_live(
+        name, memo["live"][name], inputs, out, Path(memo["pipeline_dir"]), memo["plugins"]
+    )
+    # (with what it wrote into its folder itself, a failure log: as a real run records it)
+    files = rep.files + run_folder.node_files(out, name, set(rep.files), foreign)
+    line.update(
+        status=rep.status,
+        seconds=round(rep.seconds, 4),
+        items_ran=0,
+        error=rep.error,
+        hint=rep.hint,
+        messages=rep.messages,
+        files=files,
+    )
+    if rep.unexpected and rep.trace:
+        line["traceback"] = rep.trace
+    return {(name, o): v for o, v in values.items()}
 
 
 def _restamp(memo: dict[str, Any], mdir: Path) -> None:
