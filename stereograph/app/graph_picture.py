@@ -133,49 +133,9 @@ def layout(
     row = _rows(nodes)
     edges = list(_edges(nodes))
     n_rows = max(row.values(), default=-1) + 1
-    # per row: node names and (edge index, row) slots
-    order: list[list[Any]] = [[] for _ in range(n_rows)]
-    for n in nodes:
-        order[row[n]].append(n)
-    up: dict[Any, list[Any]] = {}  # each box or slot -> what feeds it from the row above
-    chains = []
-    # (a huge foreign run.json: past MAX_SLOTS the long wires are drawn straight, the page stays
-    # fast)
-    slots = sum(max(0, row[d] - row[s_] - 1) for s_, _, d, _ in edges) <= MAX_SLOTS
-    for i, (src, _out, dst, _port) in enumerate(edges):
-        chain = [src] + ([(i, r) for r in range(row[src] + 1, row[dst])] if slots else []) + [dst]
-        for r, slot in enumerate(chain[1:-1], row[src] + 1):
-            order[r].append(slot)
-        for a_, b_ in zip(chain, chain[1:]):
-            # (a long wire drawn straight links no rows)
-            if _row_of(b_, row) == _row_of(a_, row) + 1:
-                up.setdefault(b_, []).append(a_)
-        chains.append(chain)
-    down: dict[Any, list[Any]] = {}
-    for b_, feeds in up.items():
-        for a_ in feeds:
-            down.setdefault(a_, []).append(b_)
-    for _ in range(4):  # barycentre sweeps: down, then up
-        for rows_, links in ((range(1, n_rows), up), (range(n_rows - 2, -1, -1), down)):
-            for r in rows_:
-                near = {v: k for k, v in enumerate(order[r - 1 if links is up else r + 1])}
-                at = {v: k for k, v in enumerate(order[r])}
-                order[r].sort(
-                    key=lambda v: (
-                        sum(near[u] for u in links.get(v, ())) / len(links[v])
-                        if links.get(v)
-                        else at[v]
-                    )
-                )
-    pos: dict[Any, tuple[float, float]] = {}
-    width = 0.0
-    for r, items in enumerate(order):
-        x = PAD
-        for v in items:
-            pos[v] = (x, PAD + r * (BOX_H + GAP_Y))
-            x += BOX_W if v in nodes else SLOT_W
-            width = max(width, x)
-            x += GAP_X if v in nodes else 0
+    order, up, chains = _row_members(nodes, row, edges, n_rows)
+    _sweep(order, up, n_rows)
+    pos, width = _place(order, nodes)
     n_in = {n: len(d.get("inputs", {})) for n, d in nodes.items()}
     k_in: dict[str, int] = {}
     wires = []
@@ -190,6 +150,68 @@ def layout(
         wires.append((src, out, dst, port, pts))
     h = PAD + max(n_rows, 1) * (BOX_H + GAP_Y) - GAP_Y + PAD
     return {n: pos[n] for n in nodes}, wires, (max(width, PAD + BOX_W) + PAD, h)
+
+
+def _row_members(
+    nodes: dict[str, dict[str, Any]], row: dict[str, int], edges: list, n_rows: int
+) -> tuple[list[list[Any]], dict[Any, list[Any]], list[list[Any]]]:
+    """Per row, its boxes and the ``(edge index, row)`` slots of the wires that pass through it;
+    what feeds each box or slot from the row above; each wire's chain of boxes and slots."""
+    order: list[list[Any]] = [[] for _ in range(n_rows)]
+    for n in nodes:
+        order[row[n]].append(n)
+    up: dict[Any, list[Any]] = {}
+    chains = []
+    # (a huge foreign run.json: past MAX_SLOTS the long wires are drawn straight, the page stays
+    # fast)
+    slots = sum(max(0, row[d] - row[s_] - 1) for s_, _, d, _ in edges) <= MAX_SLOTS
+    for i, (src, _out, dst, _port) in enumerate(edges):
+        chain = [src] + ([(i, r) for r in range(row[src] + 1, row[dst])] if slots else []) + [dst]
+        for r, slot in enumerate(chain[1:-1], row[src] + 1):
+            order[r].append(slot)
+        for a_, b_ in zip(chain, chain[1:]):
+            # (a long wire drawn straight links no rows)
+            if _row_of(b_, row) == _row_of(a_, row) + 1:
+                up.setdefault(b_, []).append(a_)
+        chains.append(chain)
+    return order, up, chains
+
+
+def _sweep(order: list[list[Any]], up: dict[Any, list[Any]], n_rows: int) -> None:
+    """Order each row by the mean position of what it is wired to: barycentre sweeps, down then
+    up (fewer crossings)."""
+    down: dict[Any, list[Any]] = {}
+    for b_, feeds in up.items():
+        for a_ in feeds:
+            down.setdefault(a_, []).append(b_)
+    for _ in range(4):
+        for rows_, links in ((range(1, n_rows), up), (range(n_rows - 2, -1, -1), down)):
+            for r in rows_:
+                near = {v: k for k, v in enumerate(order[r - 1 if links is up else r + 1])}
+                at = {v: k for k, v in enumerate(order[r])}
+                order[r].sort(
+                    key=lambda v: (
+                        sum(near[u] for u in links.get(v, ())) / len(links[v])
+                        if links.get(v)
+                        else at[v]
+                    )
+                )
+
+
+def _place(
+    order: list[list[Any]], nodes: dict[str, dict[str, Any]]
+) -> tuple[dict[Any, tuple[float, float]], float]:
+    """Top-left corner of every box and slot, spaced out in its row's order; the widest row."""
+    pos: dict[Any, tuple[float, float]] = {}
+    width = 0.0
+    for r, items in enumerate(order):
+        x = PAD
+        for v in items:
+            pos[v] = (x, PAD + r * (BOX_H + GAP_Y))
+            x += BOX_W if v in nodes else SLOT_W
+            width = max(width, x)
+            x += GAP_X if v in nodes else 0
+    return pos, width
 
 
 def _row_of(v: Any, row: dict[str, int]) -> int:
@@ -259,7 +281,7 @@ def to_png(
 
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
-    from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
+    from matplotlib.patches import FancyArrowPatch
 
     pos, wires, (w, h) = layout(nodes)
     fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi)
@@ -283,42 +305,48 @@ def to_png(
             )
         )
     for n, d in nodes.items():
-        x, y = pos[n]
-        fill = STATUS_FILL.get((status or {}).get(n) or "", "#ffffff")
-        if d.get("mapped"):
-            ax.add_patch(
-                FancyBboxPatch(
-                    (x + 4, y + 4),
-                    BOX_W,
-                    BOX_H,
-                    boxstyle="round,pad=0,rounding_size=6",
-                    fc=fill,
-                    ec="#777",
-                )
-            )
-        ax.add_patch(
-            FancyBboxPatch(
-                (x, y), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6", fc=fill, ec="#333"
-            )
-        )
-        ax.text(
-            x + BOX_W / 2,
-            y + 17,
-            _clip(n, 22),
-            ha="center",
-            va="center",
-            fontsize=9.5,
-            weight="bold",
-        )
-        ax.text(
-            x + BOX_W / 2,
-            y + 34,
-            _clip(str(d.get("type", "")), 26),
-            ha="center",
-            va="center",
-            fontsize=8,
-            color="#444",
-        )
+        _draw_box(ax, pos[n], n, d, STATUS_FILL.get((status or {}).get(n) or "", "#ffffff"))
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
+
+
+def _draw_box(ax: Any, corner: tuple[float, float], n: str, d: dict[str, Any], fill: str) -> None:
+    """One node's box on matplotlib axes (a shadow box behind a per-item node), name, type."""
+    from matplotlib.patches import FancyBboxPatch
+
+    x, y = corner
+    if d.get("mapped"):
+        ax.add_patch(
+            FancyBboxPatch(
+                (x + 4, y + 4),
+                BOX_W,
+                BOX_H,
+                boxstyle="round,pad=0,rounding_size=6",
+                fc=fill,
+                ec="#777",
+            )
+        )
+    ax.add_patch(
+        FancyBboxPatch(
+            (x, y), BOX_W, BOX_H, boxstyle="round,pad=0,rounding_size=6", fc=fill, ec="#333"
+        )
+    )
+    ax.text(
+        x + BOX_W / 2,
+        y + 17,
+        _clip(n, 22),
+        ha="center",
+        va="center",
+        fontsize=9.5,
+        weight="bold",
+    )
+    ax.text(
+        x + BOX_W / 2,
+        y + 34,
+        _clip(str(d.get("type", "")), 26),
+        ha="center",
+        va="center",
+        fontsize=8,
+        color="#444",
+    )
