@@ -26,6 +26,7 @@ from stereograph.core.api import STOP_LOOP
 from stereograph.core.errors import ConfigError
 
 SMALL_JSON = 6000  # characters: larger values are left out of cycles.jsonl
+_NOT_LOGGED = object()  # (a value cycles.jsonl leaves out: see _logged_value)
 
 
 @dataclass
@@ -292,25 +293,9 @@ class Loop:
                     r.hint,
                 )
             for out in g.nodes[name].spec.outputs:
-                v = _value(run, name, out)
-                # an image of any size is never a small value (a 1x1 placeholder was logged as [[[0,
-                # 0, 0]]])
-                if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
-                    continue
-                text = json.dumps(outputs_mod.to_json(v, {}), default=str)
-                if len(text) <= SMALL_JSON and '"npz"' not in text:
-                    cycle.values[f"{name}.{out}"] = json.loads(text)
-                # a big value: keep its scalar facts (ids, timestamps, flags)
-                elif isinstance(v, dict):
-                    small = {
-                        key: x
-                        for key, x in v.items()
-                        if isinstance(x, (int, float, str, bool)) or x is None
-                    }
-                    if small:
-                        cycle.values[f"{name}.{out}"] = json.loads(
-                            json.dumps(outputs_mod.to_json(small, {}))
-                        )
+                logged = _logged_value(_value(run, name, out))
+                if logged is not _NOT_LOGGED:
+                    cycle.values[f"{name}.{out}"] = logged
             # every output with --save-cycles; else the pictures the node saves (Out(save=True)),
             # kept for every cycle as its other saved outputs are (in <node>/<output>.cycles.jsonl)
             _save(
@@ -336,6 +321,24 @@ class Loop:
         with log_path.open("a") as f:
             f.write(json.dumps(rec, default=str) + "\n")
         self.cycles.append(cycle)
+
+
+def _logged_value(v: Any) -> Any:
+    """What ``cycles.jsonl`` keeps of a live output's value: the value as JSON when it is small, a
+    big mapping's scalar facts (ids, timestamps, flags), else :data:`_NOT_LOGGED` (an image of any
+    size: a 1x1 placeholder was logged as [[[0, 0, 0]]])."""
+    if v is None or outputs_mod.image_shaped(v, channels=(1, 3, 4)):
+        return _NOT_LOGGED
+    text = json.dumps(outputs_mod.to_json(v, {}), default=str)
+    if len(text) <= SMALL_JSON and '"npz"' not in text:
+        return json.loads(text)
+    if isinstance(v, dict):
+        small = {
+            key: x for key, x in v.items() if isinstance(x, (int, float, str, bool)) or x is None
+        }
+        if small:
+            return json.loads(json.dumps(outputs_mod.to_json(small, {})))
+    return _NOT_LOGGED
 
 
 @contextlib.contextmanager

@@ -204,32 +204,7 @@ def flow_order(nodes: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def build_html(summary: dict[str, Any], run_dir: Path) -> str:
     page = Page(run_dir)
     nodes = flow_order([n for n in summary.get("nodes", []) if isinstance(n, dict)])
-    desc = {
-        n["node"]: {
-            "type": n.get("type", ""),
-            "mapped": bool(n.get("mapped")),
-            "inputs": n.get("inputs") or {},
-        }
-        for n in nodes
-        if "node" in n
-    }
-    status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
     title = f"{Path(str(summary.get('pipeline', 'run'))).name} — run {summary.get('run_id', '')}"
-    overview = {
-        "title": "nodes",
-        "columns": ["node", "type", "status", "seconds", "items", "error"],
-        "rows": [
-            [
-                n.get("node"),
-                n.get("type"),
-                n.get("status"),
-                round(float(n.get("seconds") or 0), 3),
-                n.get("items") or "",
-                n.get("error") or "",
-            ]
-            for n in nodes
-        ],
-    }
     parts = [
         f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{escape(title)}</title>",
         f"<style>{STYLE}</style></head><body>",
@@ -251,12 +226,7 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
         from stereograph.app import report_cycles
 
         parts.append(report_cycles.cycles_section(page, summary["loop"], run_dir))
-    svg = ascii_only(graph_picture.to_svg(desc, status))
-    parts.append(
-        f'<h2 id="sg-details">graph and nodes</h2><div class="graph-row">'
-        f'<div class="graph" id="sg-graph">{svg}</div>'
-        f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>"
-    )
+    parts.append(_graph_and_overview(nodes))
     for n in nodes:
         parts.append(
             f'<section class="sg-node-section" data-node="{escape(n.get("node", ""))}">'
@@ -264,6 +234,41 @@ def build_html(summary: dict[str, Any], run_dir: Path) -> str:
         )
     parts.append(CHECK + "</body></html>")
     return "\n".join(parts)
+
+
+def _graph_and_overview(nodes: list[dict[str, Any]]) -> str:
+    """The "graph and nodes" block: the DAG coloured by status, beside a table of every node."""
+    desc = {
+        n["node"]: {
+            "type": n.get("type", ""),
+            "mapped": bool(n.get("mapped")),
+            "inputs": n.get("inputs") or {},
+        }
+        for n in nodes
+        if "node" in n
+    }
+    status = {n["node"]: n.get("status", "") for n in nodes if "node" in n}
+    overview = {
+        "title": "nodes",
+        "columns": ["node", "type", "status", "seconds", "items", "error"],
+        "rows": [
+            [
+                n.get("node"),
+                n.get("type"),
+                n.get("status"),
+                round(float(n.get("seconds") or 0), 3),
+                n.get("items") or "",
+                n.get("error") or "",
+            ]
+            for n in nodes
+        ],
+    }
+    svg = ascii_only(graph_picture.to_svg(desc, status))
+    return (
+        f'<h2 id="sg-details">graph and nodes</h2><div class="graph-row">'
+        f'<div class="graph" id="sg-graph">{svg}</div>'
+        f"<div>{table_html(overview, 'sg-overview')}{_contents(nodes)}</div></div>"
+    )
 
 
 def write_report(run_dir: str | Path) -> Path:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+from typing import Any
 
 from stereograph.app.console import command_console, load_graph
 from stereograph.app.progress import Mutable, PlainProgress, RichProgress
@@ -57,14 +58,7 @@ def cmd_run(args) -> int:
     if args.repeat is None and graph.doc.repeat is not None:  # the pipeline's own loop (`repeat:`)
         args.repeat = graph.doc.repeat
     con = command_console()
-    interactive = sys.stdout.isatty() and not args.json and args.repeat is None
-    # a terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with
-    # --json); a loop's cycles after the first, one line each (their nodes' lines with --verbose)
-    prog = Mutable(
-        RichProgress(con)
-        if interactive
-        else PlainProgress(sys.stderr if args.json else sys.stdout, args.progress_interval)
-    )
+    prog = _progress(args, con)
     loop = _loop(args, con, None if args.verbose else prog.mute)
     executor = workers_executor(args.workers, args.dask)
     kw = dict(
@@ -87,13 +81,7 @@ def cmd_run(args) -> int:
     live = frozenset(n for n, i in graph.nodes.items() if not i.spec.cacheable)
     echo = echo_entries(result, live) if not args.json else []
     if _replayable(args) and not args.json:
-        try:
-            rerun.record(graph, result, rendered_markdown(echo, command_console()), sys_path)
-        except Exception as e:  # the memo is only a fast path: the run's result stands without it
-            if args.debug:
-                command_console(stderr=True).print(
-                    f"note: no rerun memo recorded: {type(e).__name__}: {e}", markup=False
-                )
+        _record_memo(args, graph, result, echo, sys_path)
     return finish_run(
         args,
         result,
@@ -102,6 +90,30 @@ def cmd_run(args) -> int:
         lambda n: bool(graph.upstream(n)),
         loop,
     )
+
+
+def _progress(args: Any, con: Any) -> Any:
+    """A terminal gets live bars; a log, pipe or CI plain lines every few seconds (stderr with
+    --json); a loop's cycles after the first, one line each (their nodes' lines with --verbose)."""
+    interactive = sys.stdout.isatty() and not args.json and args.repeat is None
+    return Mutable(
+        RichProgress(con)
+        if interactive
+        else PlainProgress(sys.stderr if args.json else sys.stdout, args.progress_interval)
+    )
+
+
+def _record_memo(args: Any, graph: Any, result: Any, echo: list, sys_path: list) -> None:
+    """The replay memo of a finished run (stereograph.app.rerun)."""
+    from stereograph.app import rerun
+
+    try:
+        rerun.record(graph, result, rendered_markdown(echo, command_console()), sys_path)
+    except Exception as e:  # the memo is only a fast path: the run's result stands without it
+        if args.debug:
+            command_console(stderr=True).print(
+                f"note: no rerun memo recorded: {type(e).__name__}: {e}", markup=False
+            )
 
 
 @contextlib.contextmanager
