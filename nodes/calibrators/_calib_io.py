@@ -233,40 +233,10 @@ def read_opencv(
                     "with <opencv_storage>)"
                 )
 
-        def found(n):
-            return next(
-                (node for fs in stores for node in [fs.getNode(n)] if not node.empty()), None
-            )
-
-        def mat(*names):
-            for n in names:
-                node = found(n)
-                if node is not None and node.isMap():
-                    why = matrix_node_problem(node)
-                    # checked before OpenCV reads it: a bad header corrupts its heap (cols: -1)
-                    if why:
-                        raise ValueError(f"{n} is not a valid opencv-matrix: {why}")
-                    m = node.mat()
-                    if m is not None:
-                        return np.asarray(m, np.float64)
-                if node is not None and node.isSeq():
-                    return np.asarray([node.at(i).real() for i in range(node.size())], np.float64)
-            return None
-
         def scalar(*names):
-            return next((node for n in names for node in [found(n)] if node is not None), None)
+            return _fs_scalar(stores, *names)
 
-        got = {
-            k: mat(*names)
-            for k, names in (
-                ("K1", ("M1", "K1", "cameraMatrix1")),
-                ("D1", ("D1", "distCoeffs1")),
-                ("K2", ("M2", "K2", "cameraMatrix2")),
-                ("D2", ("D2", "distCoeffs2")),
-                ("R", ("R",)),
-                ("T", ("T",)),
-            )
-        }
+        got = {k: _fs_mat(stores, *names) for k, names in _MATRIX_NAMES}
         missing = [k for k, v in got.items() if v is None]
         if missing:
             raise ValueError(
@@ -274,47 +244,8 @@ def read_opencv(
                 "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
                 "give both files: path and right_path)"
             )
-        u = scalar("unit", "units", "length_unit")
-        unit = u.string().strip().lower() if u is not None and u.isString() else None
-        if (
-            cm_per_unit is not None
-            and unit in CM_PER_UNIT
-            and abs(CM_PER_UNIT[unit] - float(cm_per_unit)) > 1e-9
-        ):
-            # (cm_per_unit won silently: 0.1 on a file in cm made an 8 cm baseline 0.8 cm)
-            raise NodeError(
-                f"{path} says its lengths are in {unit} (unit: {unit}), but cm_per_unit "
-                f"{cm_per_unit:g} "
-                f"was given ({CM_PER_UNIT[unit]:g} for {unit}).",
-                hint="remove cm_per_unit: it is for files that do not state their unit, or "
-                "are in board "
-                "squares",
-            )
-        if cm_per_unit is None:
-            if unit == "squares":
-                raise ValueError(
-                    "its lengths are in board squares (calibrated without a square size): the unit "
-                    "of T is one square; give cm_per_unit = the square's size in cm"
-                )
-            if unit not in CM_PER_UNIT:
-                raise ValueError(
-                    "it does not say the unit of T "
-                    f"({'unit: ' + repr(unit) if unit else 'no unit entry'};"
-                    f" known: mm, cm, m, in)"
-                )
-            cm_per_unit = CM_PER_UNIT[unit]
-        wn, hn = scalar("image_width", "imageWidth"), scalar("image_height", "imageHeight")
-        sz = mat("image_size", "imageSize")
-        # the file's own size wins (load.py refuses an image_size param that differs from it)
-        by_hand = False
-        if wn is not None and hn is not None:
-            image_size = [_whole(wn.real(), "image_width"), _whole(hn.real(), "image_height")]
-        elif sz is not None and sz.size == 2:
-            image_size = [_whole(v, "image_size") for v in sz.ravel()]
-        elif image_size is None:
-            raise ValueError("it does not give the image size (image_width / image_height)")
-        else:
-            by_hand = True
+        cm_per_unit = _cm_per_unit(path, scalar("unit", "units", "length_unit"), cm_per_unit)
+        by_hand, image_size = _image_size(stores, image_size)
         rms = scalar("rms_px", "rms")
         rms_px = float(rms.real()) if rms is not None and rms.isReal() else None
         board = _board_entries(scalar)
@@ -344,6 +275,91 @@ def read_opencv(
         "rejected_views": [],
         **({"board": board} if board else {}),
     }
+
+
+# each StereoCalibration matrix, and the names a FileStorage file may give it
+_MATRIX_NAMES = (
+    ("K1", ("M1", "K1", "cameraMatrix1")),
+    ("D1", ("D1", "distCoeffs1")),
+    ("K2", ("M2", "K2", "cameraMatrix2")),
+    ("D2", ("D2", "distCoeffs2")),
+    ("R", ("R",)),
+    ("T", ("T",)),
+)
+
+
+def _fs_scalar(stores: list, *names: str):
+    """The first non-empty FileStorage node of ``names`` in ``stores`` (the first file first)."""
+    return next(
+        (node for n in names for fs in stores for node in [fs.getNode(n)] if not node.empty()),
+        None,
+    )
+
+
+def _fs_mat(stores: list, *names: str) -> np.ndarray | None:
+    """The first of ``names`` that is a matrix (an opencv-matrix or a list of numbers), float64."""
+    for n in names:
+        node = _fs_scalar(stores, n)
+        if node is not None and node.isMap():
+            why = matrix_node_problem(node)
+            # checked before OpenCV reads it: a bad header corrupts its heap (cols: -1)
+            if why:
+                raise ValueError(f"{n} is not a valid opencv-matrix: {why}")
+            m = node.mat()
+            if m is not None:
+                return np.asarray(m, np.float64)
+        if node is not None and node.isSeq():
+            return np.asarray([node.at(i).real() for i in range(node.size())], np.float64)
+    return None
+
+
+def _cm_per_unit(path: Path, u, cm_per_unit: float | None) -> float:
+    """Centimetres per unit of T: ``cm_per_unit`` if given (it must agree with the file's ``unit``
+    entry ``u``), else from ``u``."""
+    unit = u.string().strip().lower() if u is not None and u.isString() else None
+    if (
+        cm_per_unit is not None
+        and unit in CM_PER_UNIT
+        and abs(CM_PER_UNIT[unit] - float(cm_per_unit)) > 1e-9
+    ):
+        # (cm_per_unit won silently: 0.1 on a file in cm made an 8 cm baseline 0.8 cm)
+        raise NodeError(
+            f"{path} says its lengths are in {unit} (unit: {unit}), but cm_per_unit "
+            f"{cm_per_unit:g} "
+            f"was given ({CM_PER_UNIT[unit]:g} for {unit}).",
+            hint="remove cm_per_unit: it is for files that do not state their unit, or "
+            "are in board "
+            "squares",
+        )
+    if cm_per_unit is not None:
+        return cm_per_unit
+    if unit == "squares":
+        raise ValueError(
+            "its lengths are in board squares (calibrated without a square size): the unit "
+            "of T is one square; give cm_per_unit = the square's size in cm"
+        )
+    if unit not in CM_PER_UNIT:
+        raise ValueError(
+            "it does not say the unit of T "
+            f"({'unit: ' + repr(unit) if unit else 'no unit entry'};"
+            f" known: mm, cm, m, in)"
+        )
+    return CM_PER_UNIT[unit]
+
+
+def _image_size(stores: list, image_size) -> tuple[bool, list]:
+    """``(given by hand, [w, h])``: the file's own size wins (load.py refuses an image_size param
+    that differs from it), else ``image_size``."""
+    wn = _fs_scalar(stores, "image_width", "imageWidth")
+    hn = _fs_scalar(stores, "image_height", "imageHeight")
+    sz = _fs_mat(stores, "image_size", "imageSize")
+    if wn is not None and hn is not None:
+        return False, [_whole(wn.real(), "image_width"), _whole(hn.real(), "image_height")]
+    if sz is not None and sz.size == 2:
+        return False, [_whole(v, "image_size") for v in sz.ravel()]
+    if image_size is None:
+        raise ValueError("it does not give the image size (image_width / image_height)")
+    return True, image_size
 
 
 def _board_entries(scalar) -> dict | None:

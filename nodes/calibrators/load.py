@@ -86,83 +86,11 @@ def read_calibration_file(
     if suffix == ".json" and not (
         _is_opencv_storage(path) or b'"opencv-matrix"' in path.read_bytes()
     ):
-        art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
-        if artifact_kind(art) != "a StereoCalibration":
-            raise NodeError(
-                f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
-                hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
-                "FileStorage .yml/.xml, or a ROS camera_info pair",
-            )
-        cal = array_keys(art, _CAL_ARRAYS, f"{label}: {path}")
-        fmt = "json"
-        if cm_per_unit is None and cal.get("length_unit", "cm") == "squares":
-            # (refused as the same calibration's opencv.yml and ROS files are: one rule for the
-            # three formats)
-            raise NodeError(
-                f"{label}: cannot use {path}: its lengths are in board squares "
-                "(calibrated without a "
-                "square size): the unit of T is one square; give cm_per_unit = the "
-                "square's size in cm.",
-                hint="set cm_per_unit to the board's square size in cm",
-            )
-        if cm_per_unit is not None:
-            unit = cal.get("length_unit", "cm")
-            if unit == "cm":
-                raise NodeError(
-                    f"{label}: {path} is in cm already; cm_per_unit would scale it again.",
-                    hint="remove cm_per_unit (it converts a calibration made in board squares)",
-                )
-            cal["T_cm"] = np.asarray(cal["T_cm"], float) * float(cm_per_unit)  # squares -> cm
-            if cal.get("T_table_from_left") is not None:
-                cal["T_table_from_left"] = np.asarray(cal["T_table_from_left"], float).copy()
-                cal["T_table_from_left"][:3, 3] *= float(cm_per_unit)
-            cal["length_unit"] = "cm"
+        cal, fmt = _read_run_json(path, label, cm_per_unit), "json"
     else:
-        ros = None
-        if not _is_opencv_storage(path) and suffix in (".yml", ".yaml"):
-            try:
-                ros = read_ros(path)
-            except ValueError:
-                ros = None
-        try:
-            if ros is None and right_path is not None and not _is_opencv_storage(right_path):
-                raise NodeError(
-                    f"{label}: {path} is an OpenCV FileStorage file but {right_path} is not.",
-                    hint="right_path is the right camera's ROS camera_info (with a ROS "
-                    "`path`) or the "
-                    "second OpenCV file (stereo_calib's extrinsics.yml beside intrinsics.yml)",
-                )
-            if ros is not None:
-                if right_path is None:
-                    raise NodeError(
-                        f"{label}: {path} is a ROS camera_info file (one camera); the "
-                        "right camera's "
-                        "is needed too.",
-                        hint="set right_path to the right camera's camera_info YAML",
-                    )
-                cal = read_ros_pair(path, right_path, cm_per_unit)
-                fmt = "ros"
-            else:
-                cal = read_opencv(
-                    path,
-                    cm_per_unit,
-                    image_size,
-                    extra=right_path,
-                    max_principal_offset=max_principal_offset,
-                )
-                fmt = "opencv"
-        # (OpenCV's parser on a malformed file: cv2.error, or
-        except (ValueError, cv2.error, SystemError) as exc:
-            # SystemError "returned a result with an exception set")
-            exc = str(exc).strip().splitlines()[-1] if not isinstance(exc, ValueError) else exc
-            raise NodeError(
-                f"{label}: cannot use "
-                f"{path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
-                hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and "
-                "image_width / "
-                "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
-                "camera_info pair",
-            ) from None
+        cal, fmt = _read_foreign(
+            path, right_path, cm_per_unit, image_size, label, max_principal_offset
+        )
     if image_size is not None and list(cal["image_size"]) != [int(v) for v in image_size]:
         raise NodeError(
             f"{label}: {path} is for {cal['image_size'][0]}x{cal['image_size'][1]} px images, but "
@@ -179,6 +107,99 @@ def read_calibration_file(
     cal["method"] = f"loaded/{fmt}" + (f" ({cal['method']})" if cal.get("method") else "")
     cal["source_file"] = str(path) + (f" + {right_path}" if right_path else "")
     return cal
+
+
+def _read_run_json(path: Path, label: str, cm_per_unit: float | None) -> dict:
+    """A calibration a run wrote (``calibration.json``), in cm (``cm_per_unit`` converts one made
+    in board squares)."""
+    art = read_artifact(path, label, "StereoCalibration", "<run>/<calibrator>/calibration.json")
+    if artifact_kind(art) != "a StereoCalibration":
+        raise NodeError(
+            f"{label}: {path} holds {artifact_kind(art)}, not a StereoCalibration.",
+            hint="give a calibration file: <run>/<calibrator>/calibration.json, an OpenCV "
+            "FileStorage .yml/.xml, or a ROS camera_info pair",
+        )
+    cal = array_keys(art, _CAL_ARRAYS, f"{label}: {path}")
+    if cm_per_unit is None and cal.get("length_unit", "cm") == "squares":
+        # (refused as the same calibration's opencv.yml and ROS files are: one rule for the
+        # three formats)
+        raise NodeError(
+            f"{label}: cannot use {path}: its lengths are in board squares "
+            "(calibrated without a "
+            "square size): the unit of T is one square; give cm_per_unit = the "
+            "square's size in cm.",
+            hint="set cm_per_unit to the board's square size in cm",
+        )
+    if cm_per_unit is not None:
+        unit = cal.get("length_unit", "cm")
+        if unit == "cm":
+            raise NodeError(
+                f"{label}: {path} is in cm already; cm_per_unit would scale it again.",
+                hint="remove cm_per_unit (it converts a calibration made in board squares)",
+            )
+        cal["T_cm"] = np.asarray(cal["T_cm"], float) * float(cm_per_unit)  # squares -> cm
+        if cal.get("T_table_from_left") is not None:
+            cal["T_table_from_left"] = np.asarray(cal["T_table_from_left"], float).copy()
+            cal["T_table_from_left"][:3, 3] *= float(cm_per_unit)
+        cal["length_unit"] = "cm"
+    return cal
+
+
+def _read_foreign(
+    path: Path,
+    right_path: Path | None,
+    cm_per_unit: float | None,
+    image_size,
+    label: str,
+    max_principal_offset: float,
+) -> tuple[dict, str]:
+    """``(calibration, "ros" | "opencv")`` from two ROS camera_info files or OpenCV FileStorage
+    files; NodeError naming the files for anything else."""
+    ros = None
+    if not _is_opencv_storage(path) and path.suffix.lower() in (".yml", ".yaml"):
+        try:
+            ros = read_ros(path)
+        except ValueError:
+            ros = None
+    try:
+        if ros is None and right_path is not None and not _is_opencv_storage(right_path):
+            raise NodeError(
+                f"{label}: {path} is an OpenCV FileStorage file but {right_path} is not.",
+                hint="right_path is the right camera's ROS camera_info (with a ROS "
+                "`path`) or the "
+                "second OpenCV file (stereo_calib's extrinsics.yml beside intrinsics.yml)",
+            )
+        if ros is not None:
+            if right_path is None:
+                raise NodeError(
+                    f"{label}: {path} is a ROS camera_info file (one camera); the "
+                    "right camera's "
+                    "is needed too.",
+                    hint="set right_path to the right camera's camera_info YAML",
+                )
+            cal = read_ros_pair(path, right_path, cm_per_unit)
+            fmt = "ros"
+        else:
+            cal = read_opencv(
+                path,
+                cm_per_unit,
+                image_size,
+                extra=right_path,
+                max_principal_offset=max_principal_offset,
+            )
+            fmt = "opencv"
+    # (OpenCV's parser on a malformed file: cv2.error, or
+    except (ValueError, cv2.error, SystemError) as exc:
+        # SystemError "returned a result with an exception set")
+        exc = str(exc).strip().splitlines()[-1] if not isinstance(exc, ValueError) else exc
+        raise NodeError(
+            f"{label}: cannot use {path}{' and ' + str(right_path) if right_path else ''}: {exc}.",
+            hint="give OpenCV stereo_calib names (M1 D1 M2 D2 R T) with `unit` and "
+            "image_width / "
+            "image_height in the file or cm_per_unit / image_size in the params, or a ROS "
+            "camera_info pair",
+        ) from None
+    return cal, fmt
 
 
 # a camera's image side; beyond, a mistyped or hostile size (an allocation of exabytes)
