@@ -170,128 +170,72 @@ def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None
         raise NodeError(
             f"truth file {path} does not exist.", hint="fix the `truth` parameter or remove it"
         )
+    if path.suffix.lower() == ".json":
+        return _read_truth_json(path)
+    return _read_truth_csv(path)
+
+
+def _read_truth_json(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
+    """:func:`_read_truth_file` of a JSON file: ``{id: record}`` or a list of records with an id."""
     truth: dict[str, dict] = {}
     split: dict[str, str] = {}
     has_split = False
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(
-                path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicate_keys
-            )
-            if isinstance(data, list):
-                ids = [str(r["id"]) for r in data]
-                twice = next((i for k, i in enumerate(ids) if i in ids[:k]), None)
-                if twice is not None:
-                    raise _DuplicateKey(twice)
-                data = {str(r["id"]): r for r in data}
-            items = {str(k): dict(v) for k, v in data.items()}
-        except _DuplicateKey as exc:
-            what = "field" if str(exc) in FIELDS else "id"
-            raise NodeError(
-                f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader "
-                "keeps only the "
-                "last one, silently.",
-                hint="keep one record per pair id (one value per field): the ball's measured "
-                "centre for "
-                "those images",
-            ) from None
-        except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            raise NodeError(
-                f"cannot parse truth file {path}: {exc!r}.",
-                hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id",
-            ) from None
-        for pid, rec in items.items():
-            _unknown_columns(list(rec), path, FIELDS, f", id {pid},")
-            if "split" in rec:
-                has_split = True
-                s = _split_value(rec.pop("split"), f"truth file {path}, id {pid}")
-                if s:
-                    split[pid] = s
-            rec.setdefault("center_table_cm", None)
-            truth[pid] = rec
-        return truth, (split if has_split else None)
+    try:
+        data = json.loads(
+            path.read_text(encoding="utf-8-sig"), object_pairs_hook=_no_duplicate_keys
+        )
+        if isinstance(data, list):
+            ids = [str(r["id"]) for r in data]
+            twice = next((i for k, i in enumerate(ids) if i in ids[:k]), None)
+            if twice is not None:
+                raise _DuplicateKey(twice)
+            data = {str(r["id"]): r for r in data}
+        items = {str(k): dict(v) for k, v in data.items()}
+    except _DuplicateKey as exc:
+        what = "field" if str(exc) in FIELDS else "id"
+        raise NodeError(
+            f"truth file {path}: {what} {str(exc)!r} is given twice; a JSON reader "
+            "keeps only the "
+            "last one, silently.",
+            hint="keep one record per pair id (one value per field): the ball's measured "
+            "centre for "
+            "those images",
+        ) from None
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise NodeError(
+            f"cannot parse truth file {path}: {exc!r}.",
+            hint="JSON {id: {center_left_cm: [x,y,z]}} or a list of records with an id",
+        ) from None
+    for pid, rec in items.items():
+        _unknown_columns(list(rec), path, FIELDS, f", id {pid},")
+        if "split" in rec:
+            has_split = True
+            s = _split_value(rec.pop("split"), f"truth file {path}, id {pid}")
+            if s:
+                split[pid] = s
+        rec.setdefault("center_table_cm", None)
+        truth[pid] = rec
+    return truth, (split if has_split else None)
+
+
+def _read_truth_csv(path: Path) -> tuple[dict[str, dict], dict[str, str] | None]:
+    """:func:`_read_truth_file` of a CSV file (header ``id,x_cm,y_cm,z_cm,...``)."""
+    truth: dict[str, dict] = {}
+    split: dict[str, str] = {}
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which would become part of
         # `id`
         with path.open(newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             fields = [f.strip() for f in reader.fieldnames or []]
-            if "id" not in fields:
-                sep = next((c for c in ";\t" if len(fields) == 1 and c in fields[0]), None)
-                raise NodeError(
-                    f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
-                    + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
-                    hint=_HEADER_HINT,
-                )
+            _check_truth_header(path, fields)
             has_split = "split" in fields
-            centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or {
-                "table_x_cm",
-                "table_y_cm",
-                "table_z_cm",
-            } <= set(fields)
-            if not centre_cols:  # a header problem, said as one (it was blamed on line 2)
-                raise NodeError(
-                    f"truth file {path} has no centre columns (header: "
-                    f"{', '.join(fields)}): the centre "
-                    "is x_cm,y_cm,z_cm (left-camera frame) or "
-                    "table_x_cm,table_y_cm,table_z_cm (cm).",
-                    hint="CSV header: "
-                    "id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
-                    "[,split]; convert millimetres to cm",
-                )
-            _unknown_columns(fields, path)
             line_of: dict[str, int] = {}
             for row in reader:
                 where = f"truth file {path}, line {reader.line_num}"
-                # values under no column name (an unnamed header cell, more cells than the header)
-                # would be dropped
-                extra = [
-                    x
-                    for k, v in row.items()
-                    if not (k or "").strip()
-                    for x in (v if isinstance(v, list) else [v])
-                    if x and x.strip()
-                ]
-                row = {
-                    (k or "").strip(): (v.strip() if isinstance(v, str) else v)
-                    for k, v in row.items()
-                }
-                if extra:
-                    raise NodeError(
-                        f"{where}: value(s) {', '.join(map(repr, extra))} stand under no "
-                        "column name "
-                        f"(header: {', '.join(fields)}).",
-                        hint=_HEADER_HINT,
-                    )
-                pid = row.get("id")
-                if not pid:
-                    raise NodeError(
-                        f"{where}: the id is empty.",
-                        hint="give every row the pair id of its images",
-                    )
-                if pid in line_of:  # (the later row silently replaced the earlier one)
-                    raise NodeError(
-                        f"{where}: pair {pid} is listed again (first on line {line_of[pid]}).",
-                        hint="keep one row per pair: the ball's measured centre for those images",
-                    )
+                pid, rec, s = _truth_row(row, fields, where, line_of, has_split)
                 line_of[pid] = reader.line_num
-                left = _xyz(row, ("x_cm", "y_cm", "z_cm"), where)
-                table = _xyz(row, ("table_x_cm", "table_y_cm", "table_z_cm"), where)
-                if left is None and table is None:
-                    raise NodeError(
-                        f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
-                        hint="give the ball centre in the left-camera or the table frame, in cm",
-                    )
-                radius = row.get("radius_cm")
-                try:
-                    radius = float(radius) if radius else None
-                except ValueError:
-                    raise NodeError(
-                        f"{where}: radius_cm must be a number, got {radius!r}.",
-                        hint="the ball's radius in cm, e.g. 2.0, or leave it empty",
-                    ) from None
-                truth[pid] = {"center_left_cm": left, "center_table_cm": table, "radius_cm": radius}
-                s = _split_value(row.get("split"), where) if has_split else None
+                truth[pid] = rec
                 if s:
                     split[pid] = s
     except (OSError, UnicodeDecodeError, csv.Error, ValueError) as exc:
@@ -300,6 +244,85 @@ def _read_truth_file(path: Path) -> tuple[dict[str, dict], dict[str, str] | None
             hint="CSV with a header id,x_cm,y_cm,z_cm (UTF-8), or JSON",
         ) from None
     return truth, (split if has_split else None)
+
+
+def _check_truth_header(path: Path, fields: list[str]) -> None:
+    """A truth CSV's header names an id and a centre, and no unknown column (NodeError)."""
+    if "id" not in fields:
+        sep = next((c for c in ";\t" if len(fields) == 1 and c in fields[0]), None)
+        raise NodeError(
+            f"truth file {path} has no `id` column (header: {', '.join(fields) or 'none'})"
+            + (f": its columns are separated by {sep!r}, not commas." if sep else "."),
+            hint=_HEADER_HINT,
+        )
+    centre_cols = {"x_cm", "y_cm", "z_cm"} <= set(fields) or {
+        "table_x_cm",
+        "table_y_cm",
+        "table_z_cm",
+    } <= set(fields)
+    if not centre_cols:  # a header problem, said as one (it was blamed on line 2)
+        raise NodeError(
+            f"truth file {path} has no centre columns (header: "
+            f"{', '.join(fields)}): the centre "
+            "is x_cm,y_cm,z_cm (left-camera frame) or "
+            "table_x_cm,table_y_cm,table_z_cm (cm).",
+            hint="CSV header: "
+            "id,x_cm,y_cm,z_cm[,radius_cm][,table_x_cm,table_y_cm,table_z_cm]"
+            "[,split]; convert millimetres to cm",
+        )
+    _unknown_columns(fields, path)
+
+
+def _truth_row(
+    row: dict, fields: list[str], where: str, line_of: dict[str, int], has_split: bool
+) -> tuple[str, dict, str | None]:
+    """``(pair id, truth record, split or None)`` of one CSV row, checked (NodeError naming the
+    line); ``line_of``: the line of each id read so far."""
+    # values under no column name (an unnamed header cell, more cells than the header)
+    # would be dropped
+    extra = [
+        x
+        for k, v in row.items()
+        if not (k or "").strip()
+        for x in (v if isinstance(v, list) else [v])
+        if x and x.strip()
+    ]
+    row = {(k or "").strip(): (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+    if extra:
+        raise NodeError(
+            f"{where}: value(s) {', '.join(map(repr, extra))} stand under no "
+            "column name "
+            f"(header: {', '.join(fields)}).",
+            hint=_HEADER_HINT,
+        )
+    pid = row.get("id")
+    if not pid:
+        raise NodeError(
+            f"{where}: the id is empty.",
+            hint="give every row the pair id of its images",
+        )
+    if pid in line_of:  # (the later row silently replaced the earlier one)
+        raise NodeError(
+            f"{where}: pair {pid} is listed again (first on line {line_of[pid]}).",
+            hint="keep one row per pair: the ball's measured centre for those images",
+        )
+    left = _xyz(row, ("x_cm", "y_cm", "z_cm"), where)
+    table = _xyz(row, ("table_x_cm", "table_y_cm", "table_z_cm"), where)
+    if left is None and table is None:
+        raise NodeError(
+            f"{where}: pair {pid} has no centre (x_cm,y_cm,z_cm or table_x_cm,...).",
+            hint="give the ball centre in the left-camera or the table frame, in cm",
+        )
+    radius = row.get("radius_cm")
+    try:
+        radius = float(radius) if radius else None
+    except ValueError:
+        raise NodeError(
+            f"{where}: radius_cm must be a number, got {radius!r}.",
+            hint="the ball's radius in cm, e.g. 2.0, or leave it empty",
+        ) from None
+    rec = {"center_left_cm": left, "center_table_cm": table, "radius_cm": radius}
+    return pid, rec, _split_value(row.get("split"), where) if has_split else None
 
 
 def truth_split(
