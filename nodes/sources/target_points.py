@@ -129,6 +129,50 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
     NodeError
         Naming the file, the line and the fix, for every malformed input.
     """
+    rows = _target_rows(path)
+    head_line, head = rows[0]
+    names, col, xyz, scale, want = _target_header(path, head_line, head, cameras, default_unit)
+    has_id = "id" in col
+    ids, world, pix, lines = [], [], {cam: [] for cam in cameras}, []
+    for ln, raw in rows[1:]:
+        vals = [v.strip() for v in _fields(raw)]
+        if len(vals) != len(names):
+            _fail(
+                path,
+                ln,
+                f"{len(vals)} values but the header has {len(names)} columns.",
+                "give one value per column (a decimal point, not a comma, inside numbers)",
+            )
+
+        def num(name, vals=vals, ln=ln):
+            return _number(path, ln, name, vals[col[name]])
+
+        world.append([num(n) * scale for n in xyz])
+        for cam, cols in want.items():
+            pix[cam].append([num(c) for c in cols])
+        if has_id and not vals[col["id"]]:
+            _fail(
+                path,
+                ln,
+                "the id is empty.",
+                "give every point an id, or drop the id column from the header",
+            )
+        ids.append(vals[col["id"]] if has_id else str(len(ids) + 1))
+        lines.append(ln)
+    if has_id:
+        _check_unique_ids(path, ids, lines)
+    out = {
+        "ids": ids if has_id else None,
+        "lines": lines,
+        "world_cm": np.asarray(world, float).reshape(-1, 3),
+    }
+    for cam in cameras:
+        out[f"{cam}_px" if cam else "px"] = np.asarray(pix[cam], float).reshape(-1, 2)
+    return out
+
+
+def _target_rows(path: Path) -> list[tuple[int, str]]:
+    """``(line, text)`` of a target CSV's header and rows (no blank or comment line), checked."""
     if not path.exists():
         _fail(
             path,
@@ -160,7 +204,14 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
             f"has {len(rows) - 1} points; a calibration target has at most {MAX_POINTS}.",
             "give the target's measured points (tens to thousands), not a dense point cloud",
         )
-    head_line, head = rows[0]
+    return rows
+
+
+def _target_header(
+    path: Path, head_line: int, head: str, cameras: tuple[str, ...], default_unit: str
+) -> tuple[list[str], dict[str, int], list[str], float, dict[str, list[str]]]:
+    """``(column names, column index by name, the 3-D columns, cm per their unit, the pixel columns
+    per camera)`` of a target CSV's header, checked."""
     if "," not in head and any(sep in head for sep in (";", "\t")):
         _fail(
             path,
@@ -205,52 +256,21 @@ def read_target_csv(path: Path, cameras: tuple[str, ...], default_unit: str = "c
                 f"add {', '.join(cols)} (pixels in that camera's image)"
                 + (", or give one CSV per camera with `left:` and `right:`" if cam else ""),
             )
-    has_id = "id" in col
-    ids, world, pix, lines = [], [], {cam: [] for cam in cameras}, []
-    for ln, raw in rows[1:]:
-        vals = [v.strip() for v in _fields(raw)]
-        if len(vals) != len(names):
+    return names, col, xyz, scale, want
+
+
+def _check_unique_ids(path: Path, ids: list[str], lines: list[int]) -> None:
+    """Every point of a target CSV has its own id (NodeError naming the line of the second)."""
+    seen: dict[str, int] = {}
+    for i, ln in zip(ids, lines):
+        if i in seen:
             _fail(
                 path,
                 ln,
-                f"{len(vals)} values but the header has {len(names)} columns.",
-                "give one value per column (a decimal point, not a comma, inside numbers)",
+                f"id {i!r} is used again (first on line {seen[i]}).",
+                "give every point its own id",
             )
-
-        def num(name, vals=vals, ln=ln):
-            return _number(path, ln, name, vals[col[name]])
-
-        world.append([num(n) * scale for n in xyz])
-        for cam, cols in want.items():
-            pix[cam].append([num(c) for c in cols])
-        if has_id and not vals[col["id"]]:
-            _fail(
-                path,
-                ln,
-                "the id is empty.",
-                "give every point an id, or drop the id column from the header",
-            )
-        ids.append(vals[col["id"]] if has_id else str(len(ids) + 1))
-        lines.append(ln)
-    if has_id:
-        seen: dict[str, int] = {}
-        for i, ln in zip(ids, lines):
-            if i in seen:
-                _fail(
-                    path,
-                    ln,
-                    f"id {i!r} is used again (first on line {seen[i]}).",
-                    "give every point its own id",
-                )
-            seen[i] = ln
-    out = {
-        "ids": ids if has_id else None,
-        "lines": lines,
-        "world_cm": np.asarray(world, float).reshape(-1, 3),
-    }
-    for cam in cameras:
-        out[f"{cam}_px" if cam else "px"] = np.asarray(pix[cam], float).reshape(-1, 2)
-    return out
+        seen[i] = ln
 
 
 def _fields(line: str) -> list[str]:
