@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -193,7 +194,6 @@ def make_scene(
     rng = np.random.default_rng(rng)
     ball = {"radius_cm": float(radius_cm), "color": color}
     C1 = rig["cams"][0]["origin_table"]
-    w, h = rig["truth"]["image_size"]
 
     def draw_ball(accept):
         for _ in range(4000):
@@ -236,85 +236,106 @@ def make_scene(
         )
         return scene
     if kind == "border":
-        side = rng.choice([0, 1])
-
-        def cut(c, sils):
-            s = sils[0]
-            u0, v0, u1, v1 = s["bbox_px"]
-            inside_v = v0 > border_margin_px and v1 < h - 1 - border_margin_px
-            if side == 0:  # cut by the left border of the left image
-                return inside_v and u0 < 0 < (u0 + u1) / 2 and _bbox_inside(rig, sils[1], -1e9)
-            return inside_v and (u0 + u1) / 2 < w - 1 < u1
-
-        c, _ = draw_ball(cut)
+        c, _ = draw_ball(_border_cut(rig, int(rng.choice([0, 1])), border_margin_px))
     else:
         c, _ = draw_ball(inside_both)
     ball["center_cm"] = [float(c[0]), float(c[1])]
     scene["ball"] = ball
-    r = radius_cm
     if kind == "clutter":
-        for _ in range(int(rng.integers(2, 5))):
-            ang = rng.uniform(0, 2 * np.pi)
-            d = rng.uniform(3.5 * r, 8 * r)
-            pos = [float(c[0] + d * math.cos(ang)), float(c[1] + d * math.sin(ang))]
-            if rng.random() < 0.5:
-                scene["objects"].append(
-                    {
-                        "type": "box",
-                        "center_cm": pos,
-                        "size_cm": [
-                            float(rng.uniform(2, 6)),
-                            float(rng.uniform(2, 6)),
-                            float(rng.uniform(1.5, 6)),
-                        ],
-                        "yaw_deg": float(rng.uniform(0, 90)),
-                        "color": str(rng.choice(others)),
-                    }
-                )
-            else:
-                scene["objects"].append(
-                    {
-                        "type": "cylinder",
-                        "center_cm": pos,
-                        "radius_cm": float(rng.uniform(1, 2.5)),
-                        "height_cm": float(rng.uniform(2, 8)),
-                        "color": str(rng.choice(others)),
-                    }
-                )
+        scene["objects"] += _clutter(rng, c, radius_cm, others)
     elif kind == "second_ball":
-        ang = rng.uniform(0, 2 * np.pi)
-        d = rng.uniform(3 * r, 7 * r)
-        scene["objects"].append(
-            {
-                "type": "ball",
-                "center_cm": [float(c[0] + d * math.cos(ang)), float(c[1] + d * math.sin(ang))],
-                "radius_cm": float(r * rng.uniform(0.8, 1.3)),
-                "color": str(rng.choice(others)),
-            }
-        )
+        scene["objects"].append(_second_ball(rng, c, radius_cm, others))
     elif kind in ("occluded", "hidden"):
-        # A box on the line of sight from the left camera, between it and the ball.
-        to_cam = C1[:2] - c[:2]
-        dist_xy = np.linalg.norm(to_cam)
-        u = to_cam / dist_xy
-        perp = np.array([-u[1], u[0]])
-        gap = r + 2.0
-        pos = c[:2] + u * (gap + 1.5)
-        # Height the line of sight needs to be blocked at that position, plus margin.
-        frac = (gap + 1.5) / dist_xy
-        sight = c[2] + (C1[2] - c[2]) * frac
-        if kind == "occluded":
-            pos = pos + perp * rng.choice([-1, 1]) * r * rng.uniform(1.0, 1.5)
-            size = [2.0 * r, 2.0, sight + r * rng.uniform(0.5, 1.2)]
-        else:
-            size = [4.0 * r, 2.0, sight + 2.0 * r]
-        scene["objects"].append(
-            {
-                "type": "box",
-                "center_cm": [float(pos[0]), float(pos[1])],
-                "size_cm": [float(s) for s in size],
-                "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
-                "color": str(rng.choice(others)),
-            }
-        )
+        scene["objects"].append(_occluder(rng, kind, c, C1, radius_cm, others))
     return scene
+
+
+def _border_cut(rig: dict, side: int, margin_px: float) -> Callable[[Any, list], bool]:
+    """A test of a ball's silhouettes: the left image's cuts it at its left border (``side`` 0, the
+    right image's then whole) or its right border (1), at most half hidden, clear of the top and
+    bottom by ``margin_px``."""
+    w, h = rig["truth"]["image_size"]
+
+    def cut(c, sils):
+        u0, v0, u1, v1 = sils[0]["bbox_px"]
+        inside_v = v0 > margin_px and v1 < h - 1 - margin_px
+        if side == 0:  # cut by the left border of the left image
+            return inside_v and u0 < 0 < (u0 + u1) / 2 and _bbox_inside(rig, sils[1], -1e9)
+        return inside_v and (u0 + u1) / 2 < w - 1 < u1
+
+    return cut
+
+
+def _clutter(rng: np.random.Generator, c: np.ndarray, r: float, others: list[str]) -> list[dict]:
+    """Two to four boxes and cylinders of other colours around the ball (centre ``c``, radius
+    ``r``, cm)."""
+    objects: list[dict] = []
+    for _ in range(int(rng.integers(2, 5))):
+        ang = rng.uniform(0, 2 * np.pi)
+        d = rng.uniform(3.5 * r, 8 * r)
+        pos = [float(c[0] + d * math.cos(ang)), float(c[1] + d * math.sin(ang))]
+        if rng.random() < 0.5:
+            objects.append(
+                {
+                    "type": "box",
+                    "center_cm": pos,
+                    "size_cm": [
+                        float(rng.uniform(2, 6)),
+                        float(rng.uniform(2, 6)),
+                        float(rng.uniform(1.5, 6)),
+                    ],
+                    "yaw_deg": float(rng.uniform(0, 90)),
+                    "color": str(rng.choice(others)),
+                }
+            )
+        else:
+            objects.append(
+                {
+                    "type": "cylinder",
+                    "center_cm": pos,
+                    "radius_cm": float(rng.uniform(1, 2.5)),
+                    "height_cm": float(rng.uniform(2, 8)),
+                    "color": str(rng.choice(others)),
+                }
+            )
+    return objects
+
+
+def _second_ball(rng: np.random.Generator, c: np.ndarray, r: float, others: list[str]) -> dict:
+    """A ball of another colour near the ball."""
+    ang = rng.uniform(0, 2 * np.pi)
+    d = rng.uniform(3 * r, 7 * r)
+    return {
+        "type": "ball",
+        "center_cm": [float(c[0] + d * math.cos(ang)), float(c[1] + d * math.sin(ang))],
+        "radius_cm": float(r * rng.uniform(0.8, 1.3)),
+        "color": str(rng.choice(others)),
+    }
+
+
+def _occluder(
+    rng: np.random.Generator, kind: str, c: np.ndarray, C1: np.ndarray, r: float, others: list[str]
+) -> dict:
+    """A box on the line of sight from the left camera (at ``C1``), between it and the ball: beside
+    the line, hiding part of the ball ("occluded"), or across it, hiding all of it ("hidden")."""
+    to_cam = C1[:2] - c[:2]
+    dist_xy = np.linalg.norm(to_cam)
+    u = to_cam / dist_xy
+    perp = np.array([-u[1], u[0]])
+    gap = r + 2.0
+    pos = c[:2] + u * (gap + 1.5)
+    # Height the line of sight needs to be blocked at that position, plus margin.
+    frac = (gap + 1.5) / dist_xy
+    sight = c[2] + (C1[2] - c[2]) * frac
+    if kind == "occluded":
+        pos = pos + perp * rng.choice([-1, 1]) * r * rng.uniform(1.0, 1.5)
+        size = [2.0 * r, 2.0, sight + r * rng.uniform(0.5, 1.2)]
+    else:
+        size = [4.0 * r, 2.0, sight + 2.0 * r]
+    return {
+        "type": "box",
+        "center_cm": [float(pos[0]), float(pos[1])],
+        "size_cm": [float(s) for s in size],
+        "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
+        "color": str(rng.choice(others)),
+    }
