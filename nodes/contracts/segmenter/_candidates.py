@@ -95,6 +95,36 @@ def select_candidate(
         return None, "no region found"
     a_min = math.pi * r_range_px[0] ** 2
     a_max = math.pi * r_range_px[1] ** 2
+    ok, rejected = _plausible(cands, img_bgr, a_min, a_max, params)
+    if not ok:
+        return None, _none_plausible(cands, img_bgr, a_min, rejected)
+    ok.sort(key=lambda c: -c["area_px"])
+    if params.object.color_bgr is None and params.object.hue_range_deg is None:
+        why = _merged_rival(cands, ok[0], a_max, params)
+        if why:
+            return None, why
+    winner, why = _larger_or_better_coloured(ok, params)
+    if winner is None:
+        return None, why
+    if winner.get("color_score") is not None:
+        rival = _object_coloured_rival(cands, winner, img_bgr, a_min, a_max, params)
+        if rival is not None:
+            winner["rejected"] = rival["rejected"] = "ambiguous"
+            return None, (
+                "ambiguous: another region holds as much of the ball's colour "
+                f"({rival['_object_px']:.0f} "
+                f"px of it, the chosen one {winner['area_px']:.0f} px): a second ball of "
+                "that colour, "
+                "merged with its shadow or with what it touches?"
+            )
+    return winner, None
+
+
+def _plausible(
+    cands: list[dict], img_bgr: np.ndarray, a_min: float, a_max: float, params: SegmenterParams
+) -> tuple[list[dict], list[str]]:
+    """The candidates of a plausible area, round enough and of the object's colour (each with its
+    ``color_score``), and why the others are not; each other one gets its ``rejected`` tag."""
     rejected = []
     ok = []
     for c in cands:
@@ -115,65 +145,70 @@ def select_candidate(
             continue
         c["color_score"] = score
         ok.append(c)
-    if not ok:
-        h, w = img_bgr.shape[:2]
-        biggest = max(cands, key=lambda c: c["area_px"])
-        x0, y0, x1, y1 = biggest["bbox"]
-        if biggest["area_px"] >= a_min and (x0 <= 0 or y0 <= 0 or x1 >= w - 1 or y1 >= h - 1):
-            return None, "the only sizeable region touches the image border (object cut off?)"
-        why = "; ".join(sorted(set(rejected))[:3])
-        return None, f"no plausible region ({len(cands)} candidate(s): {why})"
-    ok.sort(key=lambda c: -c["area_px"])
-    if params.object.color_bgr is None and params.object.hue_range_deg is None:
-        # No colour to tell objects apart: a ball-sized region that failed only the roundness
-        # test may be the ball merged with what it touches, as plausible as the round winner.
-        a = ok[0]
-        rivals = [
-            c
-            for c in cands
-            if c is not a
-            and c.get("_why") == "round"
-            and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max
-        ]
-        if rivals:
-            a["rejected"] = rivals[0]["rejected"] = "ambiguous"
-            return None, (
-                f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
-                f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
-                "object.color_bgr to tell them apart"
-            )
+    return ok, rejected
+
+
+def _none_plausible(
+    cands: list[dict], img_bgr: np.ndarray, a_min: float, rejected: list[str]
+) -> str:
+    """Why no candidate is the object: the only sizeable one is cut by the image border, or what
+    was wrong with them."""
+    h, w = img_bgr.shape[:2]
+    biggest = max(cands, key=lambda c: c["area_px"])
+    x0, y0, x1, y1 = biggest["bbox"]
+    if biggest["area_px"] >= a_min and (x0 <= 0 or y0 <= 0 or x1 >= w - 1 or y1 >= h - 1):
+        return "the only sizeable region touches the image border (object cut off?)"
+    why = "; ".join(sorted(set(rejected))[:3])
+    return f"no plausible region ({len(cands)} candidate(s): {why})"
+
+
+def _merged_rival(cands: list[dict], a: dict, a_max: float, params: SegmenterParams) -> str | None:
+    """(No colour to tell objects apart) why the largest plausible region ``a`` is ambiguous: a
+    ball-sized region that failed only the roundness test may be the ball merged with what it
+    touches, as plausible as the round winner. None when there is none."""
+    rivals = [
+        c
+        for c in cands
+        if c is not a
+        and c.get("_why") == "round"
+        and params.ambiguity_ratio * a["area_px"] <= c["area_px"] <= 3.0 * a_max
+    ]
+    if not rivals:
+        return None
+    a["rejected"] = rivals[0]["rejected"] = "ambiguous"
+    return (
+        f"ambiguous: 2 objects of about the ball's size ({a['area_px']:.0f} and "
+        f"{rivals[0]['area_px']:.0f} px, one not round: touching something?); give "
+        "object.color_bgr to tell them apart"
+    )
+
+
+def _larger_or_better_coloured(
+    ok: list[dict], params: SegmenterParams
+) -> tuple[dict | None, str | None]:
+    """Among plausible candidates, largest first: the largest (the thesis's rule), or of two of
+    near-equal area the one clearly closer to the object's colour; ``(None, why)`` when they
+    cannot be told apart. The others get their ``rejected`` tag."""
     winner = ok[0]
-    if len(ok) > 1:
-        a, b = ok[0], ok[1]
-        if b["area_px"] >= params.ambiguity_ratio * a["area_px"]:
-            if a.get("color_score") is not None and abs(a["color_score"] - b["color_score"]) > 0.25:
-                ok.sort(key=lambda c: c["color_score"])
-                for c in ok[1:]:
-                    c["rejected"] = "colour"
-                winner = ok[0]
-            else:
-                a["rejected"] = b["rejected"] = "ambiguous"
-                what = "and colour " if a.get("color_score") is not None else ""
-                hint = "" if what else "; give object.color_bgr to tell them apart"
-                return None, (
-                    f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
-                    f"{b['area_px']:.0f} px){hint}"
-                )
-        else:
-            for c in ok[1:]:
-                c["rejected"] = "smaller"
-    if winner.get("color_score") is not None:
-        rival = _object_coloured_rival(cands, winner, img_bgr, a_min, a_max, params)
-        if rival is not None:
-            winner["rejected"] = rival["rejected"] = "ambiguous"
-            return None, (
-                "ambiguous: another region holds as much of the ball's colour "
-                f"({rival['_object_px']:.0f} "
-                f"px of it, the chosen one {winner['area_px']:.0f} px): a second ball of "
-                "that colour, "
-                "merged with its shadow or with what it touches?"
-            )
-    return winner, None
+    if len(ok) == 1:
+        return winner, None
+    a, b = ok[0], ok[1]
+    if b["area_px"] < params.ambiguity_ratio * a["area_px"]:
+        for c in ok[1:]:
+            c["rejected"] = "smaller"
+        return winner, None
+    if a.get("color_score") is not None and abs(a["color_score"] - b["color_score"]) > 0.25:
+        ok.sort(key=lambda c: c["color_score"])
+        for c in ok[1:]:
+            c["rejected"] = "colour"
+        return ok[0], None
+    a["rejected"] = b["rejected"] = "ambiguous"
+    what = "and colour " if a.get("color_score") is not None else ""
+    hint = "" if what else "; give object.color_bgr to tell them apart"
+    return None, (
+        f"ambiguous: 2 round objects of similar size {what}({a['area_px']:.0f} and "
+        f"{b['area_px']:.0f} px){hint}"
+    )
 
 
 def _object_coloured_rival(
