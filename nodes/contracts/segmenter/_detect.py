@@ -206,23 +206,8 @@ def segment_image(
     view = img_bgr if isinstance(img_bgr, RectifiedView) else RectifiedView(img_bgr)
     h, w = view.shape[:2]
     s = auto_downscale(r_range_px[0], params.detect_downscale)
-    # Passes: (level, where, smallest plausible radius at that level). The optional first pass
-    # at twice the downscale is ~4x cheaper; it only accepts balls of >= 4 px there (smaller
-    # ones, or none, fall through to the regular level, whose reasons are reported).
-    passes = []
-    if (
-        params.coarse_first
-        and params.detect_downscale is None
-        and 2 * s <= 8
-        and r_range_px[1] / (2 * s) >= 2 * _MIN_RADIUS_COARSE_PX
-    ):
-        passes.append((2 * s, window, _MIN_RADIUS_COARSE_PX))
-    if window is not None:
-        passes.append((s, window, 0.0))
-    if not (only_window and window is not None):
-        passes.append((s, None, 0.0))
     best = None
-    for level, where, r_floor in passes:
+    for level, where, r_floor in _detection_passes(params, r_range_px, s, window, only_window):
         best, why, (sx, sy, ou, ov) = _detect(
             view, mask_fn, params, r_range_px, level, where, r_floor, rejected
         )
@@ -254,31 +239,9 @@ def segment_image(
     rm = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
         rm = suppress_shadow(roi, rm, params.shadow, params.object)
-    cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    # Keep the contour around the coarse candidate's centre.
-    centre = (
-        float(best["centroid_px"][0] * sx + ou - u0),
-        float(best["centroid_px"][1] * sy + ov - v0),
-    )
-    inside = [c for c in cnts if cv2.pointPolygonTest(c, centre, False) >= 0]
-    a_best = best["area_px"] * sx * sy
-    inside = [c for c in inside if 0.5 * a_best <= cv2.contourArea(c) <= 2.0 * a_best]
-    if inside:
-        chosen = max(inside, key=cv2.contourArea)
-    else:
-        # The window cut the outline open (a long shadow leaving it, say): use the coarse
-        # region, scaled up; the sub-pixel refinement below moves it onto the true edge.
-        chosen = np.round(
-            (best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 + [ou - u0, ov - v0]
-        ).astype(np.int32)
-        chosen = cv2.approxPolyDP(chosen, 0.5, True) if len(chosen) > 4 else chosen
-        # Densify to one point per pixel along the outline.
-        tmp = np.zeros(rm.shape, np.uint8)
-        cv2.drawContours(tmp, [chosen], -1, 255, cv2.FILLED)
-        dense, _ = cv2.findContours(tmp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        if not dense:
-            return full_mask, None, "region vanished at full resolution"
-        chosen = max(dense, key=cv2.contourArea)
+    chosen, inside = _full_resolution_outline(rm, best, (sx, sy, ou, ov), (u0, v0))
+    if chosen is None:
+        return full_mask, None, "region vanished at full resolution"
     region_mask = np.zeros(rm.shape, np.uint8)
     cv2.drawContours(region_mask, [chosen], -1, 255, cv2.FILLED)
     region = region_properties(
@@ -292,24 +255,7 @@ def segment_image(
     )
     region["roundness"] = float(best["roundness"])
     full_mask[v0:v1, u0:u1] = region_mask > 0
-    ell = region.get("ellipse")
-    n_pts = len(region["contour_px"])
-    if (
-        K is not None
-        and params.partial.enabled
-        and (
-            region["touches_border"]
-            or (
-                ell is not None
-                and (
-                    ell["inliers"] < _MIN_TRUE_EDGE * n_pts
-                    or ell["rms_px"] > _MAX_EDGE_RMS_PX
-                    or region["area_px"]
-                    < _MIN_FILL * math.pi * ell["axes_px"][0] * ell["axes_px"][1]
-                )
-            )
-        )
-    ):
+    if K is not None and params.partial.enabled and _not_all_ball(region):
         # Part of the outline is not the ball's (the frame, an occluder, a touching object).
         from ._partial_pass import refit_region
 
@@ -318,3 +264,83 @@ def segment_image(
             return np.zeros((h, w), bool), None, f"partial view: {pwhy}"
         return pmask, pregion, None
     return full_mask, region, None
+
+
+def _detection_passes(
+    params: SegmenterParams,
+    r_range_px: tuple[float, float],
+    s: int,
+    window: tuple[int, int, int, int] | None,
+    only_window: bool,
+) -> list[tuple[int, tuple[int, int, int, int] | None, float]]:
+    """The detection passes, in order: ``(level, where, smallest plausible radius there)``.
+
+    The optional first pass at twice the downscale ``s`` is ~4x cheaper; it only accepts balls of
+    >= 4 px there (smaller ones, or none, fall through to the regular level, whose reasons are
+    reported).
+    """
+    passes = []
+    if (
+        params.coarse_first
+        and params.detect_downscale is None
+        and 2 * s <= 8
+        and r_range_px[1] / (2 * s) >= 2 * _MIN_RADIUS_COARSE_PX
+    ):
+        passes.append((2 * s, window, _MIN_RADIUS_COARSE_PX))
+    if window is not None:
+        passes.append((s, window, 0.0))
+    if not (only_window and window is not None):
+        passes.append((s, None, 0.0))
+    return passes
+
+
+def _full_resolution_outline(
+    rm: np.ndarray,
+    best: dict,
+    level: tuple[float, float, int, int],
+    corner: tuple[int, int],
+) -> tuple[np.ndarray | None, bool]:
+    """``(outline in the window, found in it)``: the window mask ``rm``'s contour around the coarse
+    candidate ``best`` (``level``: its scale and offset in the image, as :func:`_detect` gives
+    them; ``corner``: the window's in the image), or, when the window cut that outline open,
+    ``best``'s own, scaled up; None if it vanishes."""
+    sx, sy, ou, ov = level
+    u0, v0 = corner
+    du, dv = ou - u0, ov - v0
+    cnts, _ = cv2.findContours(rm, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    # Keep the contour around the coarse candidate's centre.
+    centre = (
+        float(best["centroid_px"][0] * sx + ou - u0),
+        float(best["centroid_px"][1] * sy + ov - v0),
+    )
+    inside = [c for c in cnts if cv2.pointPolygonTest(c, centre, False) >= 0]
+    a_best = best["area_px"] * sx * sy
+    inside = [c for c in inside if 0.5 * a_best <= cv2.contourArea(c) <= 2.0 * a_best]
+    if inside:
+        return max(inside, key=cv2.contourArea), True
+    # The window cut the outline open (a long shadow leaving it, say): use the coarse
+    # region, scaled up; the sub-pixel refinement moves it onto the true edge.
+    chosen = np.round(
+        (best["contour"].astype(np.float64) + 0.5) * [sx, sy] - 0.5 + [du, dv]
+    ).astype(np.int32)
+    chosen = cv2.approxPolyDP(chosen, 0.5, True) if len(chosen) > 4 else chosen
+    # Densify to one point per pixel along the outline.
+    tmp = np.zeros(rm.shape, np.uint8)
+    cv2.drawContours(tmp, [chosen], -1, 255, cv2.FILLED)
+    dense, _ = cv2.findContours(tmp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    return (max(dense, key=cv2.contourArea) if dense else None), False
+
+
+def _not_all_ball(region: dict) -> bool:
+    """Part of the region's outline may not be the ball's (the frame, an occluder, a touching
+    object): it touches the border, or its ellipse fits few points, loosely, or is badly filled."""
+    ell = region.get("ellipse")
+    n_pts = len(region["contour_px"])
+    return region["touches_border"] or (
+        ell is not None
+        and (
+            ell["inliers"] < _MIN_TRUE_EDGE * n_pts
+            or ell["rms_px"] > _MAX_EDGE_RMS_PX
+            or region["area_px"] < _MIN_FILL * math.pi * ell["axes_px"][0] * ell["axes_px"][1]
+        )
+    )
