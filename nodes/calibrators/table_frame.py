@@ -26,6 +26,8 @@ TableFrame artifact::
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
@@ -238,23 +240,7 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
     """The table frame from a chessboard lying on the table (solvePnP in both views, checked against
     the rig)."""
     label = "calibrator.table_frame"
-    vlist = views.get("views") or []
-    if params.view is not None:
-        vlist = [v for v in vlist if str(v["id"]) == params.view]
-        if not vlist:
-            raise NodeError(
-                f"{label}: no view {params.view!r} among "
-                f"{', '.join(str(v['id']) for v in views.get('views') or []) or 'none'}.",
-                hint="set view to the id of the pair showing the board on the table",
-            )
-    if len(vlist) != 1:
-        raise NodeError(
-            f"{label}: {len(vlist)} views given; the table frame needs exactly one, the "
-            "board lying on "
-            "the table.",
-            hint="set `view` to its id, or point the source at a folder with that pair only",
-        )
-    v = vlist[0]
+    v = _the_view(params, views, label)
     board = views.get("board") or {}
     if board.get("type", "chessboard") != "chessboard":
         raise NodeError(
@@ -263,25 +249,7 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
             hint="lay the chessboard on the table",
         )
     cols, rows, sq = int(board["cols"]), int(board["rows"]), float(board["square_cm"])
-    if list(calibration["image_size"]) != [int(v["left"].shape[1]), int(v["left"].shape[0])]:
-        raise NodeError(
-            f"{label}: view {v['id']} is {v['left'].shape[1]}x{v['left'].shape[0]} px but the "
-            f"calibration is for {calibration['image_size'][0]}x{calibration['image_size'][1]} px.",
-            hint="use the calibration of these cameras at this resolution",
-        )
-    cal_unit, board_unit = calibration.get("length_unit", "cm"), board.get("length_unit", "cm")
-    # a pose in squares against a calibration in cm (or the reverse) never agrees
-    if cal_unit != board_unit:
-        raise NodeError(
-            f"{label}: the calibration's lengths are in {cal_unit} but the board's square "
-            "size is in "
-            f"{board_unit}{' (no square_cm given)' if board_unit == 'squares' else ''}.",
-            hint="calibrate with the board's square_cm, or load the calibration with "
-            "cm_per_unit = the "
-            "square's size in cm"
-            if cal_unit == "squares"
-            else "give the board's square_cm (cm) to the source of the table pair",
-        )
+    _check_size_and_units(v, board, calibration, label)
     pl, pr = detect_corners(v["left"], cols, rows), detect_corners(v["right"], cols, rows)
     if pl is None or pr is None:
         which = " and ".join(
@@ -319,42 +287,10 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
             "fully visible in both images",
         ) from None
     dt, dr = pose["translation_cm"], pose["rotation_deg"]
-    distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
     cal_sq = (calibration.get("board") or {}).get("square_cm")
     other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
     if not _poses_agree(pose, params):
-        msg = (
-            f"{label}: the board's pose from the left image and from the right image "
-            "(carried through the "
-            f"calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
-            f"{distance_cm:.1f} cm) and {dr:.3f} deg"
-        )
-        try:
-            swapped = board_pose(obj, pr.astype(float), pl.astype(float), calibration)
-        except ValueError:
-            swapped = None
-        # (it was blamed on the calibration)
-        if swapped is not None and _poses_agree(swapped, params):
-            raise NodeError(
-                f"{msg}; exchanged, the two images agree ({swapped['translation_cm']:.3f} "
-                "cm): the left "
-                f"and right images of view {v['id']} are swapped{_paths(v)}.",
-                hint="swap the table pair's left and right files (or the source's left_glob / "
-                "right_glob): the left image is the left camera's as the cameras look",
-            )
-        if other_square:
-            raise NodeError(
-                f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm "
-                "squares, and this "
-                f"board's square_cm is {sq:g}.",
-                hint="give the table pair's source the square size of the board lying on the table "
-                f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)",
-            )
-        raise NodeError(
-            f"{msg}.",
-            hint="the calibration does not fit these images: calibrate again with these "
-            "cameras as they stand, or check the board's square size",
-        )
+        _refuse_disagreement(label, v, pose, obj, (pl, pr), calibration, params, cal_sq, sq)
     if other_square and ctx is not None:
         ctx.warn(
             f"the calibration was made with {float(cal_sq):g} cm squares, this board's "
@@ -381,3 +317,99 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
             "rig": rig_fingerprint(calibration),
         }
     }
+
+
+def _the_view(params: TableFrameParams, views: dict, label: str) -> dict:
+    """The one pair that shows the board on the table (``params.view``, or the only one)."""
+    vlist = views.get("views") or []
+    if params.view is not None:
+        vlist = [v for v in vlist if str(v["id"]) == params.view]
+        if not vlist:
+            raise NodeError(
+                f"{label}: no view {params.view!r} among "
+                f"{', '.join(str(v['id']) for v in views.get('views') or []) or 'none'}.",
+                hint="set view to the id of the pair showing the board on the table",
+            )
+    if len(vlist) != 1:
+        raise NodeError(
+            f"{label}: {len(vlist)} views given; the table frame needs exactly one, the "
+            "board lying on "
+            "the table.",
+            hint="set `view` to its id, or point the source at a folder with that pair only",
+        )
+    return vlist[0]
+
+
+def _check_size_and_units(v: dict, board: dict, calibration: dict, label: str) -> None:
+    """The view is of the calibration's image size, and board and calibration measure in one
+    unit."""
+    if list(calibration["image_size"]) != [int(v["left"].shape[1]), int(v["left"].shape[0])]:
+        raise NodeError(
+            f"{label}: view {v['id']} is {v['left'].shape[1]}x{v['left'].shape[0]} px but the "
+            f"calibration is for {calibration['image_size'][0]}x{calibration['image_size'][1]} px.",
+            hint="use the calibration of these cameras at this resolution",
+        )
+    cal_unit, board_unit = calibration.get("length_unit", "cm"), board.get("length_unit", "cm")
+    # a pose in squares against a calibration in cm (or the reverse) never agrees
+    if cal_unit != board_unit:
+        raise NodeError(
+            f"{label}: the calibration's lengths are in {cal_unit} but the board's square "
+            "size is in "
+            f"{board_unit}{' (no square_cm given)' if board_unit == 'squares' else ''}.",
+            hint="calibrate with the board's square_cm, or load the calibration with "
+            "cm_per_unit = the "
+            "square's size in cm"
+            if cal_unit == "squares"
+            else "give the board's square_cm (cm) to the source of the table pair",
+        )
+
+
+def _refuse_disagreement(
+    label: str,
+    v: dict,
+    pose: dict,
+    obj: np.ndarray,
+    corners: tuple[np.ndarray, np.ndarray],
+    calibration: dict,
+    params: TableFrameParams,
+    cal_sq: float | None,
+    sq: float,
+) -> NoReturn:
+    """The board's poses from the two images disagree: say why, most likely cause first (images
+    swapped, another board's square size, else the calibration)."""
+    pl, pr = corners
+    dt, dr = pose["translation_cm"], pose["rotation_deg"]
+    distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
+    other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
+    msg = (
+        f"{label}: the board's pose from the left image and from the right image "
+        "(carried through the "
+        f"calibration) differ by {dt:.3f} cm ({100 * dt / distance_cm:.2f} % of its distance "
+        f"{distance_cm:.1f} cm) and {dr:.3f} deg"
+    )
+    try:
+        swapped = board_pose(obj, pr.astype(float), pl.astype(float), calibration)
+    except ValueError:
+        swapped = None
+    # (it was blamed on the calibration)
+    if swapped is not None and _poses_agree(swapped, params):
+        raise NodeError(
+            f"{msg}; exchanged, the two images agree ({swapped['translation_cm']:.3f} "
+            "cm): the left "
+            f"and right images of view {v['id']} are swapped{_paths(v)}.",
+            hint="swap the table pair's left and right files (or the source's left_glob / "
+            "right_glob): the left image is the left camera's as the cameras look",
+        )
+    if other_square:
+        raise NodeError(
+            f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm "
+            "squares, and this "
+            f"board's square_cm is {sq:g}.",
+            hint="give the table pair's source the square size of the board lying on the table "
+            f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)",
+        )
+    raise NodeError(
+        f"{msg}.",
+        hint="the calibration does not fit these images: calibrate again with these "
+        "cameras as they stand, or check the board's square size",
+    )
