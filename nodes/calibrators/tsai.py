@@ -44,7 +44,7 @@ it is tx = a4 ty / sx.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -472,37 +472,7 @@ def tsai(
         origin = ", ".join(points.get("files") or []) or "the `points` input"
         rejected = {}
     elif views is not None:
-        poses = views.get("board_poses_table") or {}
-        if not poses:
-            raise NodeError(
-                "calibrator.tsai: the views carry no board poses, so their corners have "
-                "no 3-D world "
-                "coordinates.",
-                hint="give a `points` input (world_cm + pixels) or views with "
-                "board_poses_table, e.g. from source.synthetic",
-            )
-        b = views["board"]
-        ids, left, right, rejected = detect_views(views["views"], int(b["cols"]), int(b["rows"]))
-        ids_ok = [i for i in ids if i in poses]
-        if len(ids_ok) < 2:
-            raise NodeError(
-                f"calibrator.tsai: {len(ids_ok)} usable view(s) with a known pose; a "
-                "multi-plane target "
-                "needs at least 2.",
-                hint="add views (different board poses)",
-            )
-        obj = board_points(int(b["cols"]), int(b["rows"]), float(b["square_cm"])).astype(float)
-        Ws, Ls, Rs = [], [], []
-        for i, cl, cr in zip(ids, left, right):
-            if i not in poses:
-                continue
-            T = np.asarray(poses[i], float)
-            Ws.append(obj @ T[:3, :3].T + T[:3, 3])
-            Ls.append(cl)
-            Rs.append(cr)
-            corners_l[i], corners_r[i] = cl, cr
-        W, L, Rr = np.concatenate(Ws), np.concatenate(Ls), np.concatenate(Rs)
-        size = views["image_size"]
+        W, L, Rr, size, rejected = _board_target(views, corners_l, corners_r)
     else:
         raise NodeError(
             "calibrator.tsai: wire `views` (with board poses) or `points`.",
@@ -530,49 +500,7 @@ def tsai(
             "planes (target: auto picks the method)",
         ) from exc
     for side in ("left", "right"):
-        c = cal[f"tsai_{side}"]
-        # A wrong calibration is worse than none: refuse one whose points do not fit a camera.
-        if not (c["rms_px"] <= params.max_rms_px and c["f"] > 0):
-            raise NodeError(
-                f"calibrator.tsai: the {side} camera's reprojection RMS is "
-                f"{c['rms_px']:.2f} px (limit "
-                f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: "
-                "the points do not fit one "
-                "camera.",
-                hint="check that each row's 3-D point and pixels belong together, the length "
-                "unit, the "
-                "principal point and image_size_px; raise max_rms_px only for a coarse target",
-            )
-        sig = 100 * c["f_sigma_rel"]
-        if not sig <= params.max_f_sigma_pct:
-            tilt = (
-                f" (seen {c['tilt_deg']:.1f}° from face-on)"
-                if c.get("tilt_deg") is not None
-                else ""
-            )
-            raise NodeError(
-                f"calibrator.tsai: the points from {origin} leave the {side} camera's "
-                "focal length uncertain by "
-                f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = "
-                f"{params.max_f_sigma_pct:g}): the target does not "
-                f"separate f from its distance{tilt}.",
-                hint="tilt a flat target 30° or more to the cameras, or add points at other "
-                "depths; spread the "
-                "points over the whole image",
-            )
-        if sig > params.max_f_sigma_pct / 2 and ctx is not None:
-            ctx.warn(
-                f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every "
-                "depth with it; a more "
-                "tilted target or more points would tighten it"
-            )
-        if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
-            raise NodeError(
-                f"calibrator.tsai: some target points from {origin} come out behind the "
-                f"{side} camera.",
-                hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
-                "right-handed",
-            )
+        _check_camera(side, cal[f"tsai_{side}"], W, origin, params, ctx)
     cal["target"] = cal["tsai_left"]["target"]
     assumed = [
         s
@@ -603,3 +531,85 @@ def tsai(
     if corners_l:
         cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
     return calibration_outputs(cal, ctx, (views or {}).get("board"))
+
+
+def _board_target(
+    views: dict, corners_l: dict, corners_r: dict
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any, dict]:
+    """``(world_cm, left_px, right_px, image_size, rejected views)`` of a multi-plane target: the
+    board corners of every view whose pose is known (``board_poses_table``); fills the corners
+    per view."""
+    poses = views.get("board_poses_table") or {}
+    if not poses:
+        raise NodeError(
+            "calibrator.tsai: the views carry no board poses, so their corners have "
+            "no 3-D world "
+            "coordinates.",
+            hint="give a `points` input (world_cm + pixels) or views with "
+            "board_poses_table, e.g. from source.synthetic",
+        )
+    b = views["board"]
+    ids, left, right, rejected = detect_views(views["views"], int(b["cols"]), int(b["rows"]))
+    ids_ok = [i for i in ids if i in poses]
+    if len(ids_ok) < 2:
+        raise NodeError(
+            f"calibrator.tsai: {len(ids_ok)} usable view(s) with a known pose; a "
+            "multi-plane target "
+            "needs at least 2.",
+            hint="add views (different board poses)",
+        )
+    obj = board_points(int(b["cols"]), int(b["rows"]), float(b["square_cm"])).astype(float)
+    Ws, Ls, Rs = [], [], []
+    for i, cl, cr in zip(ids, left, right):
+        if i not in poses:
+            continue
+        T = np.asarray(poses[i], float)
+        Ws.append(obj @ T[:3, :3].T + T[:3, 3])
+        Ls.append(cl)
+        Rs.append(cr)
+        corners_l[i], corners_r[i] = cl, cr
+    W, L, Rr = np.concatenate(Ws), np.concatenate(Ls), np.concatenate(Rs)
+    return W, L, Rr, views["image_size"], rejected
+
+
+def _check_camera(
+    side: str, c: dict, W: np.ndarray, origin: str, params: TsaiParams, ctx: Any
+) -> None:
+    """A wrong calibration is worse than none: refuse a camera whose points do not fit it, whose
+    focal length the target leaves uncertain, or that sees points behind it."""
+    if not (c["rms_px"] <= params.max_rms_px and c["f"] > 0):
+        raise NodeError(
+            f"calibrator.tsai: the {side} camera's reprojection RMS is "
+            f"{c['rms_px']:.2f} px (limit "
+            f"max_rms_px = {params.max_rms_px:g}) with {len(W)} points from {origin}: "
+            "the points do not fit one "
+            "camera.",
+            hint="check that each row's 3-D point and pixels belong together, the length "
+            "unit, the "
+            "principal point and image_size_px; raise max_rms_px only for a coarse target",
+        )
+    sig = 100 * c["f_sigma_rel"]
+    if not sig <= params.max_f_sigma_pct:
+        tilt = f" (seen {c['tilt_deg']:.1f}° from face-on)" if c.get("tilt_deg") is not None else ""
+        raise NodeError(
+            f"calibrator.tsai: the points from {origin} leave the {side} camera's "
+            "focal length uncertain by "
+            f"±{sig:.2g} % (1 sigma; limit max_f_sigma_pct = "
+            f"{params.max_f_sigma_pct:g}): the target does not "
+            f"separate f from its distance{tilt}.",
+            hint="tilt a flat target 30° or more to the cameras, or add points at other "
+            "depths; spread the "
+            "points over the whole image",
+        )
+    if sig > params.max_f_sigma_pct / 2 and ctx is not None:
+        ctx.warn(
+            f"the {side} camera's f is uncertain by ±{sig:.2f} % (1 sigma) and every "
+            "depth with it; a more "
+            "tilted target or more points would tighten it"
+        )
+    if np.any((W @ c["R"].T + c["t_cm"])[:, 2] <= 0):
+        raise NodeError(
+            f"calibrator.tsai: some target points from {origin} come out behind the {side} camera.",
+            hint="check that u (column) and v (row) are not swapped and the 3-D axes are "
+            "right-handed",
+        )
