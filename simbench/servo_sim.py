@@ -665,43 +665,13 @@ class ServoSim:
         if inst == INST_PING:
             pass
         elif inst == INST_READ:
-            if len(params) != 2:
-                err = ERR_INSTRUCTION
-            else:
-                addr, n = params
-                if addr + n > TABLE_SIZE or n == 0:
-                    err = ERR_RANGE
-                else:
-                    data = bytes(s.table[addr : addr + n])
+            err, data = _read(s, params)
         elif inst in (INST_WRITE, INST_REG_WRITE):
-            if len(params) < 2:
-                err = ERR_INSTRUCTION
-            elif inst == INST_WRITE:
-                err, changes = s.write(params[0], bytes(params[1:]))
-                self._log_changes(inst, s.id, changes, err)
-            else:
-                if params[0] + len(params) - 1 > TABLE_SIZE:
-                    err = ERR_RANGE
-                else:
-                    s.pending = (params[0], bytes(params[1:]))
-                    s.table[ADDR["registered"]] = 1
+            err = self._write(s, inst, params)
         elif inst == INST_ACTION:
-            if s.pending is None:
-                err = ERR_INSTRUCTION
-            else:
-                addr, payload = s.pending
-                s.pending = None
-                s.table[ADDR["registered"]] = 0
-                err, changes = s.write(addr, payload)
-                self._log_changes(inst, s.id, changes, err)
+            err = self._action(s, inst)
         elif inst == INST_RESET:
-            old = s.id
-            if reply:
-                self._reply(s, 0, instruction=inst)
-            s.reset(1)
-            if old != 1:
-                self.servos.pop(old, None)
-                self.servos[1] = s
+            self._reset(s, inst, reply)
             return
         else:
             err = ERR_INSTRUCTION
@@ -712,6 +682,41 @@ class ServoSim:
                 if v is s:
                     self.servos.pop(k)
             self.servos[s.id] = s
+
+    def _write(self, s: AX12, inst: int, params: bytes) -> int:
+        """WRITE now, or REG_WRITE (held until ACTION); the error byte."""
+        if len(params) < 2:
+            return ERR_INSTRUCTION
+        if inst == INST_WRITE:
+            err, changes = s.write(params[0], bytes(params[1:]))
+            self._log_changes(inst, s.id, changes, err)
+            return err
+        if params[0] + len(params) - 1 > TABLE_SIZE:
+            return ERR_RANGE
+        s.pending = (params[0], bytes(params[1:]))
+        s.table[ADDR["registered"]] = 1
+        return 0
+
+    def _action(self, s: AX12, inst: int) -> int:
+        """ACTION: the write a REG_WRITE held; the error byte."""
+        if s.pending is None:
+            return ERR_INSTRUCTION
+        addr, payload = s.pending
+        s.pending = None
+        s.table[ADDR["registered"]] = 0
+        err, changes = s.write(addr, payload)
+        self._log_changes(inst, s.id, changes, err)
+        return err
+
+    def _reset(self, s: AX12, inst: int, reply: bool) -> None:
+        """RESET: the status reply first, then the factory table (its ID back to 1)."""
+        old = s.id
+        if reply:
+            self._reply(s, 0, instruction=inst)
+        s.reset(1)
+        if old != 1:
+            self.servos.pop(old, None)
+            self.servos[1] = s
 
     def _sync_write(self, params: bytes) -> None:
         if len(params) < 2:
@@ -726,6 +731,16 @@ class ServoSim:
                 continue
             err, changes = s.write(addr, bytes(body[k + 1 : k + 1 + n]))
             self._log_changes(INST_SYNC_WRITE, s.id, changes, err)
+
+
+def _read(s: AX12, params: bytes) -> tuple[int, bytes]:
+    """READ: ``(error byte, the bytes read)``."""
+    if len(params) != 2:
+        return ERR_INSTRUCTION, b""
+    addr, n = params
+    if addr + n > TABLE_SIZE or n == 0:
+        return ERR_RANGE, b""
+    return 0, bytes(s.table[addr : addr + n])
 
 
 # --------------------------------------------------------------------------- CLI

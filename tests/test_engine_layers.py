@@ -185,8 +185,8 @@ def long_functions(root: Path, limit: int = 60, docstrings: bool = True) -> list
 
 def test_every_core_function_fits_on_a_screen(tmp_path):
     """(issue 27) No function in core/ over 60 lines, none in app/ over 60 lines of code, and none
-    in the engine (core/ and app/) over complexity 15 (ruff's C901, set in pyproject.toml); each
-    check shown failing on a planted function."""
+    in the engine (core/ and app/), the node library or the servo emulator over complexity 15
+    (ruff's C901, set in pyproject.toml); each check shown failing on a planted function."""
     import subprocess
     import sys
 
@@ -214,7 +214,9 @@ def test_every_core_function_fits_on_a_screen(tmp_path):
     assert limit == 15
     ruff = [sys.executable, "-m", "ruff", "check", "--quiet", "--select", "C901"]
     # project config
-    done = subprocess.run([*ruff, "stereograph"], cwd=ROOT, capture_output=True, text=True)
+    done = subprocess.run(
+        [*ruff, "stereograph", "nodes", "simbench"], cwd=ROOT, capture_output=True, text=True
+    )
     assert done.returncode == 0, done.stdout
     done = subprocess.run(
         [*ruff, "--isolated", "--config", f"lint.mccabe.max-complexity={limit}", str(planted)],
