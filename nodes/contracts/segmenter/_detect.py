@@ -13,7 +13,7 @@ from nodes.contracts.views import RectifiedView
 
 from ._candidates import candidates, select_candidate
 from ._params import MaskFunction, SegmenterParams
-from ._shadow import suppress_shadow, suppress_shadow_regions
+from ._shadow import suppress_shadow, without_shadows
 from ._size import auto_downscale
 from ._subpixel import region_properties
 
@@ -96,11 +96,7 @@ def _detect(
     sx, sy = (wu1 - wu0) / small.shape[1], (wv1 - wv0) / small.shape[0]
     r_small = (max(r_range_px[0] / s, min_radius_px), r_range_px[1] / s)
     m = mask_fn(small, params, r_small, s, False)
-    if params.shadow.enabled:
-        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(
-            small, m, a_rng, params.shadow, params.object, params.min_roundness
-        )
+    m = without_shadows(small, m, params, r_small)
     cands = candidates(m, min_area_px=max(4.0, 0.5 * math.pi * r_small[0] ** 2))
     if window is not None:
         # A region cut by the window's edge (inside the image) is not the object, which lies

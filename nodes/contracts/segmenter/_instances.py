@@ -25,7 +25,7 @@ from ._checks import check_pair
 from ._color import object_color_score
 from ._detect import disparity_bounds, segment_image
 from ._params import MaskFunction, SegmenterParams
-from ._shadow import suppress_shadow_regions
+from ._shadow import without_shadows
 from ._size import auto_downscale
 
 # the disparity may differ from the size-predicted one by this factor (off-axis, noise)
@@ -42,11 +42,7 @@ def _plausible(
     sx, sy = w / small.shape[1], h / small.shape[0]
     r_small = (r_range_px[0] / s, r_range_px[1] / s)
     m = mask_fn(small, params, r_small, s, False)
-    if params.shadow.enabled:
-        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(
-            small, m, a_rng, params.shadow, params.object, params.min_roundness
-        )
+    m = without_shadows(small, m, params, r_small)
     a_min, a_max = math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2
     coloured = params.object.color_bgr is not None or params.object.hue_range_deg is not None
     ok, refused = [], []

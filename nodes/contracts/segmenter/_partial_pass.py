@@ -25,7 +25,7 @@ from ._candidates import candidates
 from ._color import color_distance_map, hue_mask, object_color_score
 from ._partial import fit_partial
 from ._pixels import fill_holes, max_hole_area, structuring_element
-from ._shadow import suppress_shadow, suppress_shadow_regions
+from ._shadow import suppress_shadow, without_shadows
 from ._subpixel import refine_contour
 
 _MAX_TRIED = 4  # candidate regions refined at full resolution, largest first
@@ -54,11 +54,7 @@ def partial_region(
     p = int(math.ceil(0.4 * r_small[0])) + 4
     m = mask_fn(_pad(small, (p, p, p, p)), params, r_small, s, False)[p:-p, p:-p]
     m = np.ascontiguousarray(m)
-    if params.shadow.enabled:
-        a_rng = (math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2)
-        m = suppress_shadow_regions(
-            small, m, a_rng, params.shadow, params.object, params.min_roundness
-        )
+    m = without_shadows(small, m, params, r_small)
     a_min, a_max = math.pi * r_small[0] ** 2, math.pi * r_small[1] ** 2
     # A ball 40 % visible at the far end, up to one merged with an object twice its size.
     cands = [c for c in candidates(m, min_area_px=0.25 * a_min) if c["area_px"] <= 3.0 * a_max]

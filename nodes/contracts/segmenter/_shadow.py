@@ -9,7 +9,7 @@ import numpy as np
 
 from ._candidates import roundness
 from ._color import DARK_LEVEL, _channel_total, _chroma_distance, dark_pixel_distance, hue_mask
-from ._params import ObjectSpec, ShadowParams
+from ._params import ObjectSpec, SegmenterParams, ShadowParams
 from ._pixels import masked_pixels, structuring_element
 
 
@@ -143,6 +143,19 @@ def _median_u8_rows(px: np.ndarray) -> np.ndarray:
         return np.partition(px, k, axis=0)[k].astype(np.float32)
     p = np.partition(px, (k - 1, k), axis=0)
     return (p[k - 1].astype(np.float32) + p[k]) / 2
+
+
+def without_shadows(
+    img_bgr: np.ndarray, mask: np.ndarray, params: SegmenterParams, r_px: tuple[float, float]
+) -> np.ndarray:
+    """``mask`` with its regions' shadows removed (:func:`suppress_shadow_regions`) when
+    ``params.shadow`` is on; ``r_px``: the ball's smallest and largest radius in ``img_bgr``, px."""
+    if not params.shadow.enabled:
+        return mask
+    a_rng = (math.pi * r_px[0] ** 2, math.pi * r_px[1] ** 2)
+    return suppress_shadow_regions(
+        img_bgr, mask, a_rng, params.shadow, params.object, params.min_roundness
+    )
 
 
 def suppress_shadow_regions(
