@@ -23,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from nodes.calibrators._board import check_overall_rms
 from nodes.contracts.calibration_export import export_texts, rectify_params
 from stereograph.api import NodeError, parse_yaml_data
 
@@ -520,6 +521,19 @@ def _check_left_is_left(cal: dict) -> None:
             "columns or the files) and calibrate again: the left camera is the one on the left, "
             "seen from behind the cameras",
         )
+
+
+def board_calibration_outputs(
+    cal: dict, rejected: dict, board: dict, max_rms_px: float, label: str, ctx=None
+) -> dict:
+    """:func:`calibration_outputs` of a calibration from board views: refused when its overall
+    reprojection RMS exceeds ``max_rms_px``; the views left out named, with why."""
+    check_overall_rms(cal, max_rms_px, label)
+    cal["rejected_views"] = sorted(rejected)
+    cal["rejected_reasons"] = rejected
+    if rejected and ctx is not None:
+        ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
+    return calibration_outputs(cal, ctx, board)
 
 
 def calibration_outputs(cal: dict, ctx=None, board: dict | None = None) -> dict:

@@ -13,8 +13,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from nodes.calibrators._board import check_overall_rms, stereo_calibrate_points, to_gray
-from nodes.calibrators._calib_io import calibration_outputs
+from nodes.calibrators._board import stereo_calibrate_points, to_gray
+from nodes.calibrators._calib_io import board_calibration_outputs
 from nodes.contracts.board import charuco_board
 from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import Field, In, NodeError, Out, Params, node
@@ -271,9 +271,6 @@ def charuco(params: CharucoParams, views: dict, ctx=None) -> dict:
             "lighting and focus; "
             "or add views (10-20, the board at several distances and tilts)",
         )
-    check_overall_rms(cal, params.max_rms_px, "calibrator.charuco")
-    cal["rejected_views"] = sorted(rejected)
-    cal["rejected_reasons"] = rejected
-    if rejected and ctx is not None:
-        ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
-    return calibration_outputs(cal, ctx, board)
+    return board_calibration_outputs(
+        cal, rejected, board, params.max_rms_px, "calibrator.charuco", ctx
+    )

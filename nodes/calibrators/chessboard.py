@@ -8,12 +8,11 @@ import numpy as np
 
 from nodes.calibrators._board import (
     board_points,
-    check_overall_rms,
     detect_views,
     drop_outlier_views,
     stereo_calibrate_points,
 )
-from nodes.calibrators._calib_io import calibration_outputs
+from nodes.calibrators._calib_io import board_calibration_outputs
 from nodes.contracts.calibration_export import EXPORT_OUTPUTS
 from stereograph.api import Field, In, NodeError, Out, Params, node
 
@@ -185,9 +184,6 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     cal = drop_outlier_views(
         calibrate, ids, params.min_views, params.max_view_rms_px, rejected, ctx, params.max_rms_px
     )
-    check_overall_rms(cal, params.max_rms_px, "calibrator.chessboard")
-    cal["rejected_views"] = sorted(rejected)
-    cal["rejected_reasons"] = rejected
-    if rejected and ctx is not None:
-        ctx.warn(f"rejected {len(rejected)} view(s): " + ", ".join(sorted(rejected)))
-    return calibration_outputs(cal, ctx, board)
+    return board_calibration_outputs(
+        cal, rejected, board, params.max_rms_px, "calibrator.chessboard", ctx
+    )
