@@ -285,6 +285,42 @@ def _check_table(params: PickParams, target: dict, p: np.ndarray, floor_cm: floa
 
 def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
     """Plan the pick of a solved target (pure function; see the module docstring for the result)."""
+    _refuse_untrusted(params, target)
+    lo, hi = _workspace(params, model)
+    p = np.asarray(target["target_base_cm"], float)
+    points = _tool_points(params, p)
+    q_home = np.radians([joint(model, n)["home_deg"] for n in JOINTS])
+    _check_in_box(target, fk(model, q_home), points, lo, hi)
+    table_check = _check_table(params, target, p, float(lo[2]))
+    solved = _solve_in_one_configuration(model, points, target, q_home)
+    waypoints = _waypoints(params, model, points, solved)
+    _add_servo_goals(params, model, waypoints)
+    gi = next(i for i, w in enumerate(waypoints) if w["name"] == "grasp")
+    return {
+        "pair": target.get("pair"),
+        "refused": False,
+        "reason": None,
+        "split": target.get("split"),
+        "arm": model["name"],
+        "target_base_cm": [float(v) for v in p],
+        "location_cm": target.get("location_cm"),
+        "sigma_z_cm": target.get("sigma_z_cm"),
+        "frame": target.get("frame"),
+        "truth_base_cm": target.get("truth_base_cm"),
+        "solver": target["solver"],
+        "servo_ids": all_servo_ids(model),
+        "grasp_index": gi,
+        "grasp_fk_cm": waypoints[gi]["fk_cm"],
+        # the box this plan was checked against
+        "workspace_cm": {"min": lo.tolist(), "max": hi.tolist()},
+        "table_check": table_check,
+        "waypoints": waypoints,
+    }
+
+
+def _refuse_untrusted(params: PickParams, target: dict) -> None:
+    """Refuse a target the arm must not move on: unreachable, not located, or extrapolated
+    beyond the compensation (when ``refuse_extrapolated``)."""
     if target.get("unreachable"):
         # located, but out of this arm's reach or joint limits (ik on_unreachable: skip)
         raise _refuse(
@@ -306,6 +342,10 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             + (f" ({why})" if why else ""),
             "collect training scenes that cover this distance, or set refuse_extrapolated: false.",
         )
+
+
+def _workspace(params: PickParams, model: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The workspace box, cm (base frame): the params', else the arm's reach above the table."""
     reach = model["reach_cm"]
     h0 = model["links"]["base_height_cm"]
     lo = np.array(
@@ -316,7 +356,12 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
         if params.workspace_max_cm is not None
         else [reach, reach, h0 + reach]
     )
-    p = np.asarray(target["target_base_cm"], float)
+    return lo, hi
+
+
+def _tool_points(params: PickParams, p: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The tool's named points, in order: above, the descent, grasp, close, lift (and the place
+    moves), cm."""
     up = np.array([0.0, 0.0, 1.0])
     points = [("above", p + params.approach_height_cm * up)]
     for k in range(1, params.descend_steps):
@@ -331,9 +376,14 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             ("release", pl),
             ("retreat", pl + params.approach_height_cm * up),
         ]
-    q_home = np.radians([joint(model, n)["home_deg"] for n in JOINTS])
-    home_tool = fk(model, q_home)
-    # (the first and last moves go there)
+    return points
+
+
+def _check_in_box(
+    target: dict, home_tool: np.ndarray, points: list, lo: np.ndarray, hi: np.ndarray
+) -> None:
+    """Refuse a plan whose home pose (``home_tool``, where the first and last moves go) or any
+    point leaves the workspace box."""
     if np.any(home_tool < lo - 1e-9) or np.any(home_tool > hi + 1e-9):
         txt = ", ".join(f"{v:.2f}" for v in home_tool)
         raise _refuse(
@@ -357,7 +407,10 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
                 "move the object, or widen workspace_min_cm / workspace_max_cm if the "
                 "space is clear.",
             )
-    table_check = _check_table(params, target, p, float(lo[2]))
+
+
+def _waypoints(params: PickParams, model: dict, points: list, solved: dict) -> list[dict]:
+    """Open the gripper at home, then each point with its joints and gripper state (then home)."""
     g = joint(model, "gripper")
     grip = {"open": g["open_deg"], "closed": g["closed_deg"]}
     state = {
@@ -379,7 +432,6 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             "joints_deg": {**home, "gripper": grip["open"]},
         }
     ]
-    solved = _solve_in_one_configuration(model, points, target, q_home)
     for name, pt in points:
         q = solved[name]
         st = state.get(name, "open")
@@ -403,6 +455,11 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
                 "joints_deg": {**home, "gripper": waypoints[-1]["joints_deg"]["gripper"]},
             }
         )
+    return waypoints
+
+
+def _add_servo_goals(params: PickParams, model: dict, waypoints: list[dict]) -> None:
+    """Each waypoint's servo goals and speeds, and the tool position its quantised joints reach."""
     vmax_units = (params.speed_deg_s or model["max_speed_deg_s"]) / model["speed_deg_s_per_unit"]
     prev = None
     for w in waypoints:
@@ -420,27 +477,6 @@ def plan_pick(params: PickParams, model: dict, target: dict) -> dict:
             qq = quantize_joints_deg(model, {n: w["joints_deg"][n] for n in JOINTS})
             w["fk_cm"] = [float(v) for v in fk(model, np.radians([qq[n] for n in JOINTS]))]
         prev = w["servo_units"]
-    gi = next(i for i, w in enumerate(waypoints) if w["name"] == "grasp")
-    return {
-        "pair": target.get("pair"),
-        "refused": False,
-        "reason": None,
-        "split": target.get("split"),
-        "arm": model["name"],
-        "target_base_cm": [float(v) for v in p],
-        "location_cm": target.get("location_cm"),
-        "sigma_z_cm": target.get("sigma_z_cm"),
-        "frame": target.get("frame"),
-        "truth_base_cm": target.get("truth_base_cm"),
-        "solver": target["solver"],
-        "servo_ids": all_servo_ids(model),
-        "grasp_index": gi,
-        "grasp_fk_cm": waypoints[gi]["fk_cm"],
-        # the box this plan was checked against
-        "workspace_cm": {"min": lo.tolist(), "max": hi.tolist()},
-        "table_check": table_check,
-        "waypoints": waypoints,
-    }
 
 
 @node(
