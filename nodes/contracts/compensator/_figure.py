@@ -311,128 +311,7 @@ def draw(pic: FitPicture) -> np.ndarray:
     for k, p in enumerate(pic.panels):
         ax = fig.add_subplot(n, 1, k + 1, sharex=axes[0] if axes else None)
         axes.append(ax)
-        lo, hi = _limits(p, pic)
-        if pic.valid is not None:
-            h = ax.axvspan(*pic.valid, color="#d5efd5", zorder=0, label="valid range (span fitted)")
-            legend_handles.setdefault("valid", h)
-        ax.axhline(0.0, color="#888", lw=0.7, zorder=1)
-        if len(pic.grid_x):
-            inside = (
-                np.ones(len(pic.grid_x), bool)
-                if pic.valid is None
-                else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
-            )
-            (h,) = ax.plot(
-                pic.grid_x,
-                np.where(inside, p.curve_y, np.nan),
-                "-",
-                color="k",
-                lw=2,
-                zorder=4,
-                label="fitted correction",
-            )
-            legend_handles.setdefault("curve", h)
-            if pic.valid is not None:
-                (h,) = ax.plot(
-                    pic.grid_x,
-                    np.where(inside, np.nan, p.curve_y),
-                    "--",
-                    color="k",
-                    lw=1.3,
-                    zorder=4,
-                    label="extrapolated (flagged by apply)",
-                )
-                legend_handles.setdefault("extra", h)
-        if len(p.test_y):
-            y = np.clip(p.test_y, lo, hi)
-            h = ax.scatter(
-                pic.test_x,
-                y,
-                marker="s",
-                s=22,
-                facecolors="none",
-                edgecolors="#7f7f7f",
-                lw=1,
-                zorder=3,
-                label="test placements (not fitted)",
-            )
-            legend_handles.setdefault("test", h)
-        if p.fitted_y is not None:
-            h = ax.scatter(
-                pic.train_x,
-                p.fitted_y,
-                marker="_",
-                s=60,
-                color="#e67e22",
-                lw=1.5,
-                zorder=5,
-                label="model at each training placement",
-            )
-            legend_handles.setdefault("fitted", h)
-        if len(p.train_y):
-            h = ax.scatter(
-                pic.train_x,
-                p.train_y,
-                marker="o",
-                s=16,
-                color="#1f77b4",
-                zorder=6,
-                label="training placements (fitted)",
-            )
-            legend_handles.setdefault("train", h)
-        if len(p.outlier_y):
-            y = np.clip(p.outlier_y, lo, hi)  # far off the scale: drawn at the axis edge
-            h = ax.scatter(
-                pic.outlier_x,
-                y,
-                marker="X",
-                s=70,
-                color="#d62728",
-                edgecolors="k",
-                lw=0.5,
-                zorder=7,
-                label="left out of the fit (on the edge: off the scale)",
-            )
-            legend_handles.setdefault("outlier", h)
-            for j, (x0, y0) in enumerate(zip(pic.outlier_x[:MAX_LABELLED], y[:MAX_LABELLED])):
-                ax.annotate(
-                    str(j + 1),
-                    (x0, y0),
-                    xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
-                    textcoords="offset points",
-                    fontsize=8,
-                    fontweight="bold",
-                    color="#a11",
-                )
-        ax.set_ylim(lo, hi)
-        if p.fitted_y is not None and len(pic.grid_x):
-            in_range = pic.valid is None or len(pic.grid_x) == 0
-            sel = True if in_range else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
-            c = p.curve_y[np.isfinite(p.curve_y) & sel]
-            if len(c) and (np.min(c) < lo or np.max(c) > hi):
-                ax.text(
-                    0.01,
-                    0.97,
-                    f"the line leaves the plot inside the valid range: {np.min(c):+.3g} to "
-                    f"{np.max(c):+.3g} cm (between placements the model is unconstrained)",
-                    transform=ax.transAxes,
-                    va="top",
-                    fontsize=7.5,
-                    color="#333",
-                    bbox={"fc": "white", "ec": "#bbb", "alpha": 0.85},
-                )
-        ax.set_ylabel(f"{p.axis} error, truth − measured (cm)", fontsize=9)
-        ax.grid(True, lw=0.4, alpha=0.5)
-        if not len(p.train_y) and not len(p.outlier_y):
-            ax.text(
-                0.5,
-                0.5,
-                "no training placements: nothing was fitted",
-                transform=ax.transAxes,
-                ha="center",
-                va="center",
-                fontsize=11,
-            )
+        _draw_panel(ax, p, pic, legend_handles)
     if axes:
         axes[-1].set_xlabel(_X_LABEL.get(pic.variable, pic.variable), fontsize=9)
     order = ["valid", "curve", "extra", "fitted", "train", "outlier", "test"]
@@ -451,6 +330,149 @@ def draw(pic: FitPicture) -> np.ndarray:
     head = "\n".join(textwrap.fill(t, 95) for t in (pic.title, pic.formula, pic.note) if t)
     fig.suptitle(head, fontsize=10)
     return figure_bgr(fig)
+
+
+def _draw_panel(ax: Any, p: Panel, pic: FitPicture, legend_handles: dict[str, Any]) -> None:
+    """One axis's panel: the valid range, the fitted curve, the placements, the notes."""
+    lo, hi = _limits(p, pic)
+    if pic.valid is not None:
+        h = ax.axvspan(*pic.valid, color="#d5efd5", zorder=0, label="valid range (span fitted)")
+        legend_handles.setdefault("valid", h)
+    ax.axhline(0.0, color="#888", lw=0.7, zorder=1)
+    _draw_curve(ax, p, pic, legend_handles)
+    _draw_placements(ax, p, pic, lo, hi, legend_handles)
+    ax.set_ylim(lo, hi)
+    _note_off_scale(ax, p, pic, lo, hi)
+    ax.set_ylabel(f"{p.axis} error, truth − measured (cm)", fontsize=9)
+    ax.grid(True, lw=0.4, alpha=0.5)
+    if not len(p.train_y) and not len(p.outlier_y):
+        ax.text(
+            0.5,
+            0.5,
+            "no training placements: nothing was fitted",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+            fontsize=11,
+        )
+
+
+def _draw_curve(ax: Any, p: Panel, pic: FitPicture, legend_handles: dict[str, Any]) -> None:
+    """The fitted correction over the grid: solid in the valid range, dashed beyond it."""
+    if len(pic.grid_x):
+        inside = (
+            np.ones(len(pic.grid_x), bool)
+            if pic.valid is None
+            else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+        )
+        (h,) = ax.plot(
+            pic.grid_x,
+            np.where(inside, p.curve_y, np.nan),
+            "-",
+            color="k",
+            lw=2,
+            zorder=4,
+            label="fitted correction",
+        )
+        legend_handles.setdefault("curve", h)
+        if pic.valid is not None:
+            (h,) = ax.plot(
+                pic.grid_x,
+                np.where(inside, np.nan, p.curve_y),
+                "--",
+                color="k",
+                lw=1.3,
+                zorder=4,
+                label="extrapolated (flagged by apply)",
+            )
+            legend_handles.setdefault("extra", h)
+
+
+def _draw_placements(
+    ax: Any, p: Panel, pic: FitPicture, lo: float, hi: float, legend_handles: dict[str, Any]
+) -> None:
+    """Test, fitted and training placements, and the outliers left out (numbered)."""
+    if len(p.test_y):
+        y = np.clip(p.test_y, lo, hi)
+        h = ax.scatter(
+            pic.test_x,
+            y,
+            marker="s",
+            s=22,
+            facecolors="none",
+            edgecolors="#7f7f7f",
+            lw=1,
+            zorder=3,
+            label="test placements (not fitted)",
+        )
+        legend_handles.setdefault("test", h)
+    if p.fitted_y is not None:
+        h = ax.scatter(
+            pic.train_x,
+            p.fitted_y,
+            marker="_",
+            s=60,
+            color="#e67e22",
+            lw=1.5,
+            zorder=5,
+            label="model at each training placement",
+        )
+        legend_handles.setdefault("fitted", h)
+    if len(p.train_y):
+        h = ax.scatter(
+            pic.train_x,
+            p.train_y,
+            marker="o",
+            s=16,
+            color="#1f77b4",
+            zorder=6,
+            label="training placements (fitted)",
+        )
+        legend_handles.setdefault("train", h)
+    if len(p.outlier_y):
+        y = np.clip(p.outlier_y, lo, hi)  # far off the scale: drawn at the axis edge
+        h = ax.scatter(
+            pic.outlier_x,
+            y,
+            marker="X",
+            s=70,
+            color="#d62728",
+            edgecolors="k",
+            lw=0.5,
+            zorder=7,
+            label="left out of the fit (on the edge: off the scale)",
+        )
+        legend_handles.setdefault("outlier", h)
+        for j, (x0, y0) in enumerate(zip(pic.outlier_x[:MAX_LABELLED], y[:MAX_LABELLED])):
+            ax.annotate(
+                str(j + 1),
+                (x0, y0),
+                xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
+                textcoords="offset points",
+                fontsize=8,
+                fontweight="bold",
+                color="#a11",
+            )
+
+
+def _note_off_scale(ax: Any, p: Panel, pic: FitPicture, lo: float, hi: float) -> None:
+    """Say so when the fitted line leaves the plot inside the valid range."""
+    if p.fitted_y is not None and len(pic.grid_x):
+        in_range = pic.valid is None or len(pic.grid_x) == 0
+        sel = True if in_range else (pic.grid_x >= pic.valid[0]) & (pic.grid_x <= pic.valid[1])
+        c = p.curve_y[np.isfinite(p.curve_y) & sel]
+        if len(c) and (np.min(c) < lo or np.max(c) > hi):
+            ax.text(
+                0.01,
+                0.97,
+                f"the line leaves the plot inside the valid range: {np.min(c):+.3g} to "
+                f"{np.max(c):+.3g} cm (between placements the model is unconstrained)",
+                transform=ax.transAxes,
+                va="top",
+                fontsize=7.5,
+                color="#333",
+                bbox={"fc": "white", "ec": "#bbb", "alpha": 0.85},
+            )
 
 
 def fit_figure(
