@@ -235,24 +235,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
             "report.accuracy expects the gathered Location items ({pair: Location}).",
             hint="wire `locations` to locator.triangulate's `location` output.",
         )
-    sel = {
-        k: v
-        for k, v in locations.items()
-        if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))
-    }
-    if (
-        params.split != "all"
-        and sel
-        and all(v.get("split") is None for v in sel.values())
-        and ctx is not None
-    ):
-        ctx.warn("no item carries a `split`; all items evaluated")
-    if not sel and locations and ctx is not None:
-        ctx.warn(
-            f"none of the {len(locations)} locations is in the '{params.split}' split: "
-            "the report is empty "
-            f"(set `split: all`, or leave some placements for {params.split})"
-        )
+    sel = _in_split(params, locations, ctx)
     found = [v for v in sel.values() if v.get("found")]
     with_truth = [v for v in found if v.get("truth_cm") is not None and v.get("x_cm") is not None]
     meas = np.array([[v["x_cm"], v["y_cm"], v["z_cm"]] for v in with_truth], float).reshape(-1, 3)
@@ -260,27 +243,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
     axes = error_table(meas, true)
     frames = sorted({v.get("frame") for v in with_truth if v.get("frame")})
     md = markdown_table(axes, len(sel), len(found), len(with_truth), params.title, params.split)
-    reasons: dict[str, int] = {}
-    for v in sel.values():
-        if not v.get("found"):
-            r = str(v.get("reason") or "unknown")
-            reasons[r] = reasons.get(r, 0) + 1
-    # one line per kind of reason (its numbers as ranges), where people read: a cause every pair
-    # shares (swapped images, another rig's calibration) shows as one line with its count
-    kinds = group_reasons(reasons)
-    if kinds:
-        shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
-        more = sum(n for _, n in kinds[MAX_REASON_LINES:])
-        md = (
-            f"{md.rstrip()}\n\nNot found ({len(sel) - len(found)} pairs):\n\n"
-            + "\n".join(shown)
-            + (
-                f"\n- {more} × other kinds of reason (`not_found_kinds` in report.json)"
-                if more
-                else ""
-            )
-            + "\n"
-        )
+    reasons, kinds, md = _not_found(sel, len(found), md)
     # Pairs that failed before reaching this report (a node's error, not a "not found") are not in
     # `n`: their split is unknown here. Said, so that fewer pairs never look like a better method.
     lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
@@ -291,8 +254,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
             "here (first: "
             f"{first[0]}: {first[1]}); `lost` in report.json lists each."
         )
-        md = f"{md.rstrip()}\n\n{note}\n"
-        ctx.warn(note)
+        md = _noted(md, note, ctx)
     report = {
         "n": len(sel),
         "n_found": len(found),
@@ -315,10 +277,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
             "outside the range the "
             "compensation was fitted on (`extrapolated` in locations.json)."
         )
-        md = f"{md.rstrip()}\n\n{note}\n"
-        report["markdown"] = md
-        if ctx is not None:
-            ctx.warn(note)
+        report["markdown"] = md = _noted(md, note, ctx)
     # (an output, so that a cached report's run folder gets it too, and a later run clears it)
     return {
         "report": report,
@@ -331,6 +290,64 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         },
         "accuracy": {"file_text": md, "file_suffix": ".md"},
     }
+
+
+def _noted(md: str, note: str, ctx) -> str:
+    """``md`` with ``note`` as a paragraph of its own, which the run's messages show too."""
+    if ctx is not None:
+        ctx.warn(note)
+    return f"{md.rstrip()}\n\n{note}\n"
+
+
+def _in_split(params: AccuracyParams, locations: dict, ctx) -> dict:
+    """The locations of the report's split (all of them when none carries one), warning when
+    that leaves none."""
+    sel = {
+        k: v
+        for k, v in locations.items()
+        if isinstance(v, dict) and (params.split == "all" or v.get("split") in (params.split, None))
+    }
+    if (
+        params.split != "all"
+        and sel
+        and all(v.get("split") is None for v in sel.values())
+        and ctx is not None
+    ):
+        ctx.warn("no item carries a `split`; all items evaluated")
+    if not sel and locations and ctx is not None:
+        ctx.warn(
+            f"none of the {len(locations)} locations is in the '{params.split}' split: "
+            "the report is empty "
+            f"(set `split: all`, or leave some placements for {params.split})"
+        )
+    return sel
+
+
+def _not_found(sel: dict, n_found: int, md: str) -> tuple[dict[str, int], list, str]:
+    """``(count per reason, kinds of reason with counts, md with a "Not found" section)`` of the
+    pairs in ``sel`` that were not found."""
+    reasons: dict[str, int] = {}
+    for v in sel.values():
+        if not v.get("found"):
+            r = str(v.get("reason") or "unknown")
+            reasons[r] = reasons.get(r, 0) + 1
+    # one line per kind of reason (its numbers as ranges), where people read: a cause every pair
+    # shares (swapped images, another rig's calibration) shows as one line with its count
+    kinds = group_reasons(reasons)
+    if kinds:
+        shown = [f"- {n} × {text}" for text, n in kinds[:MAX_REASON_LINES]]
+        more = sum(n for _, n in kinds[MAX_REASON_LINES:])
+        md = (
+            f"{md.rstrip()}\n\nNot found ({len(sel) - n_found} pairs):\n\n"
+            + "\n".join(shown)
+            + (
+                f"\n- {more} × other kinds of reason (`not_found_kinds` in report.json)"
+                if more
+                else ""
+            )
+            + "\n"
+        )
+    return reasons, kinds, md
 
 
 def kind_metrics(locations: dict[str, dict]) -> dict[str, float | int]:
