@@ -289,20 +289,7 @@ def _fit(cam, arm_pts, params: HandEyeParams, source: str):
 def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None, ctx=None):
     """Left-camera pose in the arm-base frame: given, fitted from point pairs (Kabsch), or from rig
     truth."""
-    T_base_from_table = (
-        invert_pose(pose_matrix(params.base_in_table.translation_cm, params.base_in_table.rpy_deg))
-        if params.base_in_table
-        else None
-    )
-    T_tl = _truth_T_table_from_left(views)
-    T_truth = (
-        T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
-    )
-    T_measured = (
-        T_base_from_table @ np.asarray(table_frame["T_table_from_left"], float)
-        if (table_frame is not None and T_base_from_table is not None)
-        else None
-    )
+    T_base_from_table, T_truth, T_measured = _rig_poses(params, views, table_frame)
     rig = (table_frame or {}).get("rig") or next(
         (
             loc.get("rig")
@@ -315,19 +302,7 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None
     if params.mode == "given":  # camera_in_base is required by HandEyeParams
         T = pose_matrix(params.camera_in_base.translation_cm, params.camera_in_base.rpy_deg)
     elif params.mode == "pairs":
-        if params.pairs_file:
-            path = ctx.path(params.pairs_file) if ctx else params.pairs_file
-            cam, arm_pts = _read_pairs(path)
-            source = str(path)
-        else:
-            cam = np.array([p.camera_cm for p in params.pairs]).reshape(-1, 3)
-            arm_pts = np.array([p.arm_cm for p in params.pairs]).reshape(-1, 3)
-            source = "pairs"
-        if len(cam) < 3:
-            raise NodeError(
-                f"calibrator.hand_eye mode pairs got {len(cam)} point pairs; >= 3 are needed.",
-                hint="add pairs (camera_cm, arm_cm) or a pairs_file.",
-            )
+        cam, arm_pts, source = _given_pairs(params, ctx)
         T, residual = _fit(cam, arm_pts, params, source)
         n_pairs = len(cam)
     elif params.mode == "rig" and T_measured is not None:
@@ -348,29 +323,7 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None
         if params.mode == "rig":
             T = T_truth
         else:
-            cam, arm_pts = [], []
-            for item in (locations or {}).values():
-                if not item.get("found") or item.get("truth_cm") is None:
-                    continue
-                if params.split != "all" and item.get("split", "train") != params.split:
-                    continue
-                if item.get("frame", "left_camera") != "left_camera":
-                    raise NodeError(
-                        f"calibrator.hand_eye mode located needs left-camera locations, got frame "
-                        f"{item.get('frame')!r} for {item.get('pair')}.",
-                        hint="wire the locator's left-camera output.",
-                    )
-                cam.append([item["x_cm"], item["y_cm"], item["z_cm"]])
-                arm_pts.append(transform_points(T_truth, item["truth_cm"]))
-            if len(cam) < 3:
-                raise NodeError(
-                    f"calibrator.hand_eye mode located found {len(cam)} usable "
-                    f"{params.split} locations "
-                    "(found, with truth); >= 3 are needed.",
-                    hint="wire locations: <locator>.location over a source with ground truth, "
-                    "or use "
-                    "split: all.",
-                )
+            cam, arm_pts = _located_pairs(params, locations, T_truth)
             T, residual = _fit(np.array(cam), np.array(arm_pts), params, "located training balls")
             n_pairs = len(cam)
     if T_truth is not None and ctx is not None and params.mode != "rig":
@@ -388,3 +341,75 @@ def hand_eye(params: HandEyeParams, views=None, locations=None, table_frame=None
             "rig": rig,
         }
     }
+
+
+def _given_pairs(params: HandEyeParams, ctx) -> tuple[np.ndarray, np.ndarray, str]:
+    """``(camera points, arm points, where from)`` of mode pairs: ``pairs_file`` or ``pairs``,
+    cm; at least 3."""
+    if params.pairs_file:
+        path = ctx.path(params.pairs_file) if ctx else params.pairs_file
+        cam, arm_pts = _read_pairs(path)
+        source = str(path)
+    else:
+        cam = np.array([p.camera_cm for p in params.pairs]).reshape(-1, 3)
+        arm_pts = np.array([p.arm_cm for p in params.pairs]).reshape(-1, 3)
+        source = "pairs"
+    if len(cam) < 3:
+        raise NodeError(
+            f"calibrator.hand_eye mode pairs got {len(cam)} point pairs; >= 3 are needed.",
+            hint="add pairs (camera_cm, arm_cm) or a pairs_file.",
+        )
+    return cam, arm_pts, source
+
+
+def _located_pairs(
+    params: HandEyeParams, locations: dict | None, T_truth: np.ndarray
+) -> tuple[list, list]:
+    """``(camera points, arm points)`` of mode located: each found ball of the split, where the
+    camera saw it and where the rig's truth puts it in the arm's frame; at least 3."""
+    cam, arm_pts = [], []
+    for item in (locations or {}).values():
+        if not item.get("found") or item.get("truth_cm") is None:
+            continue
+        if params.split != "all" and item.get("split", "train") != params.split:
+            continue
+        if item.get("frame", "left_camera") != "left_camera":
+            raise NodeError(
+                f"calibrator.hand_eye mode located needs left-camera locations, got frame "
+                f"{item.get('frame')!r} for {item.get('pair')}.",
+                hint="wire the locator's left-camera output.",
+            )
+        cam.append([item["x_cm"], item["y_cm"], item["z_cm"]])
+        arm_pts.append(transform_points(T_truth, item["truth_cm"]))
+    if len(cam) < 3:
+        raise NodeError(
+            f"calibrator.hand_eye mode located found {len(cam)} usable "
+            f"{params.split} locations "
+            "(found, with truth); >= 3 are needed.",
+            hint="wire locations: <locator>.location over a source with ground truth, "
+            "or use "
+            "split: all.",
+        )
+    return cam, arm_pts
+
+
+def _rig_poses(
+    params: HandEyeParams, views, table_frame
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """``(T_base_from_table, the camera's pose in the base from the rig's truth, from the measured
+    table frame)``; each None when what it needs is not given."""
+    T_base_from_table = (
+        invert_pose(pose_matrix(params.base_in_table.translation_cm, params.base_in_table.rpy_deg))
+        if params.base_in_table
+        else None
+    )
+    T_tl = _truth_T_table_from_left(views)
+    T_truth = (
+        T_base_from_table @ T_tl if (T_tl is not None and T_base_from_table is not None) else None
+    )
+    T_measured = (
+        T_base_from_table @ np.asarray(table_frame["T_table_from_left"], float)
+        if (table_frame is not None and T_base_from_table is not None)
+        else None
+    )
+    return T_base_from_table, T_truth, T_measured
