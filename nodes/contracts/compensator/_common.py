@@ -717,38 +717,13 @@ def build_model(
         "outliers": [{"item", "residual_cm", "error_cm"}], "n_outliers", "outlier_threshold_cm"}``;
         every statistic is over the placements kept (``n_train`` of ``n_candidates``).
     """
-    from nodes.contracts.compensator._robust import Screen, screen_outliers
     from nodes.contracts.compensator._support import describe_support
 
     n_candidates = len(samples)
     t0 = time.perf_counter()
-    try:
-        if robust is not None and robust.outlier_mad is not None:
-            screen, coefficients = screen_outliers(
-                samples,
-                fit,
-                predict,
-                robust.outlier_mad,
-                robust.min_inlier_fraction,
-                min_points,
-                label,
-                robust.max_residual_sigma,
-            )
-            samples = samples.subset(screen.inliers)
-        else:
-            screen, coefficients = Screen(inliers=np.arange(len(samples))), fit(samples)
-    except NodeError as exc:
-        if exc.message.startswith(label):
-            raise
-        raise NodeError(
-            f"{label}: {exc.message}",
-            hint=exc.hint or "use fewer coefficients or more, better spread placements.",
-        ) from None
-    except np.linalg.LinAlgError as exc:
-        raise NodeError(
-            f"{label}: the least-squares fit of the {model_type} model failed ({exc}).",
-            hint="use fewer coefficients or more, better spread placements.",
-        ) from None
+    screen, coefficients, samples = _screened_fit(
+        samples, fit, predict, robust, min_points, label, model_type
+    )
     fit_time = time.perf_counter() - t0
     # after the screening, whose refusal of mostly mis-detected placements says more than this one's
     require_plausible_truth(samples, label)
@@ -801,3 +776,47 @@ def build_model(
             f"{listed}{more}; see 'outliers' in the model"
         )
     return model
+
+
+def _screened_fit(
+    samples: Samples,
+    fit: FitFn,
+    predict: PredictFn,
+    robust: FitParams | None,
+    min_points: int,
+    label: str,
+    model_type: str,
+) -> tuple[Any, Any, Samples]:
+    """``(screen, coefficients, the placements kept)``: the fit, after leaving mis-detected
+    placements out when ``robust.outlier_mad`` is set; a failed fit is a NodeError naming
+    ``label``."""
+    from nodes.contracts.compensator._robust import Screen, screen_outliers
+
+    try:
+        if robust is not None and robust.outlier_mad is not None:
+            screen, coefficients = screen_outliers(
+                samples,
+                fit,
+                predict,
+                robust.outlier_mad,
+                robust.min_inlier_fraction,
+                min_points,
+                label,
+                robust.max_residual_sigma,
+            )
+            samples = samples.subset(screen.inliers)
+        else:
+            screen, coefficients = Screen(inliers=np.arange(len(samples))), fit(samples)
+    except NodeError as exc:
+        if exc.message.startswith(label):
+            raise
+        raise NodeError(
+            f"{label}: {exc.message}",
+            hint=exc.hint or "use fewer coefficients or more, better spread placements.",
+        ) from None
+    except np.linalg.LinAlgError as exc:
+        raise NodeError(
+            f"{label}: the least-squares fit of the {model_type} model failed ({exc}).",
+            hint="use fewer coefficients or more, better spread placements.",
+        ) from None
+    return screen, coefficients, samples
