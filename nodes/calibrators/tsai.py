@@ -155,26 +155,7 @@ def tsai_camera(
     i0 = int(np.argmax(np.abs(Yd)))
     p0 = W[i0].copy()
     Pw = W - p0
-    if coplanar:
-        Rpw = plane_frame(W)
-        xy = Pw @ Rpw[:2].T
-        if np.linalg.matrix_rank(xy - xy.mean(0), tol=1e-6 * max(np.abs(xy).max(), 1e-12)) < 2:
-            raise ValueError(
-                "the target points lie on one line; Tsai's method needs them spread over a plane "
-                "or over several planes"
-            )
-        sx = float(coplanar_sx)
-        Rp, tx, ty = coplanar_rotation(Xdp / sx, Yd, xy)
-        R = Rp @ Rpw  # world -> plane -> camera
-    else:
-        if np.linalg.matrix_rank(Pw - Pw.mean(0), tol=1e-6 * np.abs(Pw).max()) < 3:
-            raise ValueError(
-                "the target points are coplanar; Tsai's non-coplanar method needs points "
-                "off one plane "
-                "(use target: coplanar or auto)"
-            )
-        R, tx, ty, sx = _noncoplanar_rotation(Xdp, Yd, Pw)
-        Rpw = np.eye(3)
+    R, tx, ty, sx, Rpw = _linear_pose(W, Pw, Xdp, Yd, coplanar, coplanar_sx)
     Xd = Xdp / sx
 
     def f_tz(R, Xd):
@@ -225,6 +206,34 @@ def tsai_camera(
     cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
     return cam
+
+
+def _linear_pose(
+    W: np.ndarray, Pw: np.ndarray, Xdp: np.ndarray, Yd: np.ndarray, coplanar: bool, coplanar_sx
+) -> tuple[np.ndarray, float, float, float, np.ndarray]:
+    """Tsai's linear step: ``(R, tx, ty, sx, the target plane's frame)`` from a coplanar target
+    (sx assumed ``coplanar_sx``; frame: the plane's) or a non-coplanar one (frame: identity)."""
+    if coplanar:
+        Rpw = plane_frame(W)
+        xy = Pw @ Rpw[:2].T
+        if np.linalg.matrix_rank(xy - xy.mean(0), tol=1e-6 * max(np.abs(xy).max(), 1e-12)) < 2:
+            raise ValueError(
+                "the target points lie on one line; Tsai's method needs them spread over a plane "
+                "or over several planes"
+            )
+        sx = float(coplanar_sx)
+        Rp, tx, ty = coplanar_rotation(Xdp / sx, Yd, xy)
+        R = Rp @ Rpw  # world -> plane -> camera
+    else:
+        if np.linalg.matrix_rank(Pw - Pw.mean(0), tol=1e-6 * np.abs(Pw).max()) < 3:
+            raise ValueError(
+                "the target points are coplanar; Tsai's non-coplanar method needs points "
+                "off one plane "
+                "(use target: coplanar or auto)"
+            )
+        R, tx, ty, sx = _noncoplanar_rotation(Xdp, Yd, Pw)
+        Rpw = np.eye(3)
+    return R, tx, ty, sx, Rpw
 
 
 def _noncoplanar_rotation(Xdp, Yd, Pw):
