@@ -756,8 +756,8 @@ def _ids(text: str) -> list[int]:
     return out
 
 
-def cli(argv: list[str] | None = None) -> int:
-    """``stereograph servo-sim``: run emulated AX-12A servos on a pseudo-terminal until Ctrl-C."""
+def _parser() -> argparse.ArgumentParser:
+    """``stereograph servo-sim``'s options."""
     ap = argparse.ArgumentParser(
         prog="stereograph servo-sim",
         description="Emulate AX-12A servos (Dynamixel Protocol 1.0) on a pseudo-terminal. "
@@ -790,7 +790,36 @@ def cli(argv: list[str] | None = None) -> int:
         help="write the command log and the servos' final state (JSON) here when stopping",
     )
     ap.add_argument("--trace", action="store_true", help="print every register write as it arrives")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def _print_write(e: dict) -> None:
+    """``--trace``: one register write as it arrives."""
+    print(
+        f"write t={e['t']:.3f} id={e['id']} {e['register']}={e['value']}"
+        f"{'' if e['accepted'] else ' REFUSED'}",
+        flush=True,
+    )
+
+
+def _write_log(sim: ServoSim, path: str) -> None:
+    """``--log``: the command log and the servos' final state, as JSON."""
+    with open(path, "w") as f:
+        json.dump(
+            {
+                "writes": sim.log,
+                "faults": sim.fault_log,
+                "positions": sim.positions(),
+                "servos": sim.state(),
+            },
+            f,
+            indent=1,
+        )
+
+
+def cli(argv: list[str] | None = None) -> int:
+    """``stereograph servo-sim``: run emulated AX-12A servos on a pseudo-terminal until Ctrl-C."""
+    a = _parser().parse_args(argv)
     try:
         ids = _ids(a.ids)
         unplugged = set(_ids(a.unplugged))
@@ -814,20 +843,12 @@ def cli(argv: list[str] | None = None) -> int:
     main = threading.current_thread() is threading.main_thread()
     prev = signal.signal(signal.SIGTERM, lambda *_: stop.set()) if main else None
     try:
-
-        def trace(e: dict) -> None:
-            print(
-                f"write t={e['t']:.3f} id={e['id']} {e['register']}={e['value']}"
-                f"{'' if e['accepted'] else ' REFUSED'}",
-                flush=True,
-            )
-
         with ServoSim(
             ids,
             faults=faults,
             time_scale=a.time_scale,
             link=a.link,
-            on_write=trace if a.trace else None,
+            on_write=_print_write if a.trace else None,
         ) as sim:
             print(
                 f"AX-12A emulator: IDs {','.join(map(str, ids))} on {sim.port_path} "
@@ -839,17 +860,7 @@ def cli(argv: list[str] | None = None) -> int:
             except KeyboardInterrupt:
                 pass
             if a.log:
-                with open(a.log, "w") as f:
-                    json.dump(
-                        {
-                            "writes": sim.log,
-                            "faults": sim.fault_log,
-                            "positions": sim.positions(),
-                            "servos": sim.state(),
-                        },
-                        f,
-                        indent=1,
-                    )
+                _write_log(sim, a.log)
             print(
                 f"servo-sim: stopped after {len(sim.packets)} packets, {len(sim.log)} "
                 "register writes."
