@@ -129,34 +129,11 @@ def learn_appearance(
                     "table-frame one)"
                 )
             continue
-        R = float((truth or {}).get("radius_cm") or params.radius_cm)
-        views = pair_views(rect, np.asarray(pair["left"]), np.asarray(pair["right"]), raw)
-        px, why = [], None
-        for side, view in zip(("left", "right"), views, strict=True):
-            c = _centre_in_rectified(X, rect, side)
-            if c is None:
-                why = f"the true centre is behind the {side} camera"
-                break
-            u, v, z = c
-            r_px = params.disc_fraction * float(rect["f_px"]) * R / z
-            p = disc_pixels(view, u, v, r_px) if view.image.ndim == 3 else None
-            if p is None:
-                why = (
-                    f"the ball's disc is not wholly inside the {side} image"
-                    if view.image.ndim == 3
-                    else "gray images carry no colour"
-                )
-                break
-            px.append(p)
+        colour, why = _pair_colour(pair, rect, params, raw, X, truth)
         if why is not None:
             left_out[pid] = why
             continue
-        p = np.concatenate(px)
-        p = p[p.max(axis=1) >= DARK]
-        if len(p) < 10:
-            left_out[pid] = "the ball's disc is too dark to have a colour"
-            continue
-        colours.append(np.median(p.astype(np.float64), axis=0))
+        colours.append(colour)
         used.append(pid)
     if not colours:
         raise NodeError(
@@ -207,6 +184,39 @@ def learn_appearance(
         "left_out": left_out,
         "split": params.split,
     }
+
+
+def _pair_colour(
+    pair: dict, rect: dict, params: AppearanceParams, raw: bool, X: np.ndarray, truth: dict | None
+) -> tuple[np.ndarray | None, str | None]:
+    """``(median BGR of the ball's disc in both images, None)`` of one placement whose true
+    centre is ``X`` (left-camera frame, cm), or ``(None, why not)``."""
+    R = float((truth or {}).get("radius_cm") or params.radius_cm)
+    views = pair_views(rect, np.asarray(pair["left"]), np.asarray(pair["right"]), raw)
+    px, why = [], None
+    for side, view in zip(("left", "right"), views, strict=True):
+        c = _centre_in_rectified(X, rect, side)
+        if c is None:
+            why = f"the true centre is behind the {side} camera"
+            break
+        u, v, z = c
+        r_px = params.disc_fraction * float(rect["f_px"]) * R / z
+        p = disc_pixels(view, u, v, r_px) if view.image.ndim == 3 else None
+        if p is None:
+            why = (
+                f"the ball's disc is not wholly inside the {side} image"
+                if view.image.ndim == 3
+                else "gray images carry no colour"
+            )
+            break
+        px.append(p)
+    if why is not None:
+        return None, why
+    p = np.concatenate(px)
+    p = p[p.max(axis=1) >= DARK]
+    if len(p) < 10:
+        return None, "the ball's disc is too dark to have a colour"
+    return np.median(p.astype(np.float64), axis=0), None
 
 
 def _distances(colours: np.ndarray, ref: np.ndarray) -> np.ndarray:
