@@ -127,59 +127,9 @@ def make_hard_scene(
             lo, hi = (0.5, 0.95) if kind == "occluded_part" else (0.97, 1.0)
         scene["ball"]["center_cm"] = [float(c[0]), float(c[1])]
         ang = rng.uniform(0, 2 * np.pi)
-        dirv = np.array([math.cos(ang), math.sin(ang)])
-        if kind == "occluded_part":
-            C1 = rig["cams"][0]["origin_table"]
-            to_cam = C1[:2] - c[:2]
-            dist_xy = float(np.linalg.norm(to_cam))
-            u = to_cam / dist_xy
-            perp = np.array([-u[1], u[0]])
-            gap = r + rng.uniform(1.0, 4.0)
-            sight = c[2] + (C1[2] - c[2]) * gap / dist_xy
-            pos = c[:2] + u * gap + perp * rng.choice([-1, 1]) * r * rng.uniform(0.9, 2.0)
-            size = [2.0 * r, 1.5, sight + r * rng.uniform(0.3, 1.5)]
-            scene["objects"].append(
-                {
-                    "type": "box",
-                    "center_cm": [float(pos[0]), float(pos[1])],
-                    "size_cm": [float(s) for s in size],
-                    "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
-                    "color": str(rng.choice(others)),
-                }
-            )
-        elif kind == "touching_box":
-            sx, sy = rng.uniform(2.5, 6.0), rng.uniform(2.5, 6.0)
-            # Box face perpendicular to dirv at distance r from the centre: they touch.
-            pos = c[:2] + dirv * (r + sy / 2.0)
-            scene["objects"].append(
-                {
-                    "type": "box",
-                    "center_cm": [float(pos[0]), float(pos[1])],
-                    "size_cm": [float(sx), float(sy), float(rng.uniform(1.5, 2.5 * r))],
-                    "yaw_deg": float(math.degrees(ang) - 90.0),
-                    "color": str(rng.choice(others)),
-                }
-            )
-        elif kind in ("touching_ball", "distractor", "same_color"):
-            if kind == "touching_ball":
-                r2, gap = r * rng.uniform(0.8, 1.3), 0.0
-            elif kind == "distractor":
-                r2, gap = r * rng.uniform(0.85, 1.15), rng.uniform(0.5, 5.0) * r
-            else:
-                r2, gap = (
-                    r * rng.uniform(0.9, 1.1),
-                    (0.0 if rng.random() < 0.5 else rng.uniform(0.2, 2.0) * r),
-                )
-            pos = c[:2] + dirv * (r + r2 + gap)
-            col = color if kind == "same_color" else str(rng.choice(others))
-            scene["objects"].append(
-                {
-                    "type": "ball",
-                    "center_cm": [float(pos[0]), float(pos[1])],
-                    "radius_cm": float(r2),
-                    "color": col,
-                }
-            )
+        obj = _hard_object(rig, kind, rng, c, r, ang, color, others)
+        if obj is not None:
+            scene["objects"].append(obj)
         vis = [
             visible_fraction(rig, scene, i, rng_seed=int(rng.integers(0, 2**31 - 1)))
             for i in (0, 1)
@@ -195,3 +145,66 @@ def make_hard_scene(
     raise RuntimeError(
         f"could not build a {kind!r} scene with the required visibility; widen the distance range"
     )
+
+
+def _hard_object(
+    rig: dict,
+    kind: str,
+    rng: np.random.Generator,
+    c: np.ndarray,
+    r: float,
+    ang: float,
+    color: Any,
+    others: list[str],
+) -> dict | None:
+    """The object that makes a scene of ``kind`` hard, beside the ball (centre ``c``, radius
+    ``r``, cm) in the direction ``ang``: a box hiding part of it, a box or ball touching it, a
+    look-alike; None for a kind without one."""
+    dirv = np.array([math.cos(ang), math.sin(ang)])
+    if kind == "occluded_part":
+        C1 = rig["cams"][0]["origin_table"]
+        to_cam = C1[:2] - c[:2]
+        dist_xy = float(np.linalg.norm(to_cam))
+        u = to_cam / dist_xy
+        perp = np.array([-u[1], u[0]])
+        gap = r + rng.uniform(1.0, 4.0)
+        sight = c[2] + (C1[2] - c[2]) * gap / dist_xy
+        pos = c[:2] + u * gap + perp * rng.choice([-1, 1]) * r * rng.uniform(0.9, 2.0)
+        size = [2.0 * r, 1.5, sight + r * rng.uniform(0.3, 1.5)]
+        return {
+            "type": "box",
+            "center_cm": [float(pos[0]), float(pos[1])],
+            "size_cm": [float(s) for s in size],
+            "yaw_deg": float(math.degrees(math.atan2(perp[1], perp[0]))),
+            "color": str(rng.choice(others)),
+        }
+    elif kind == "touching_box":
+        sx, sy = rng.uniform(2.5, 6.0), rng.uniform(2.5, 6.0)
+        # Box face perpendicular to dirv at distance r from the centre: they touch.
+        pos = c[:2] + dirv * (r + sy / 2.0)
+        return {
+            "type": "box",
+            "center_cm": [float(pos[0]), float(pos[1])],
+            "size_cm": [float(sx), float(sy), float(rng.uniform(1.5, 2.5 * r))],
+            "yaw_deg": float(math.degrees(ang) - 90.0),
+            "color": str(rng.choice(others)),
+        }
+    elif kind in ("touching_ball", "distractor", "same_color"):
+        if kind == "touching_ball":
+            r2, gap = r * rng.uniform(0.8, 1.3), 0.0
+        elif kind == "distractor":
+            r2, gap = r * rng.uniform(0.85, 1.15), rng.uniform(0.5, 5.0) * r
+        else:
+            r2, gap = (
+                r * rng.uniform(0.9, 1.1),
+                (0.0 if rng.random() < 0.5 else rng.uniform(0.2, 2.0) * r),
+            )
+        pos = c[:2] + dirv * (r + r2 + gap)
+        col = color if kind == "same_color" else str(rng.choice(others))
+        return {
+            "type": "ball",
+            "center_cm": [float(pos[0]), float(pos[1])],
+            "radius_cm": float(r2),
+            "color": col,
+        }
+    return None
