@@ -49,7 +49,7 @@ def chain_points(arm: dict, joints_deg: dict) -> np.ndarray:
 
 def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     """Side and top views of the arm at the grasp, with the ball and the workspace box."""
-    from matplotlib.patches import Circle, Rectangle
+    from matplotlib.patches import Circle
 
     g = plan["waypoints"][plan["grasp_index"]]
     pts = chain_points(arm, g["joints_deg"])
@@ -86,23 +86,7 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
         label="tool point",
     )
     if box is not None:
-        lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
-        side.add_patch(
-            Rectangle(
-                (lo[0], lo[2]),
-                hi[0] - lo[0],
-                hi[2] - lo[2],
-                fill=False,
-                ls="--",
-                color="#7f8c8d",
-                label="workspace box (x extent)",
-            )
-        )
-        top.add_patch(
-            Rectangle(
-                (lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"
-            )
-        )
+        _draw_workspace(side, top, box)
     side.axhline(0, color="k", lw=0.8)
     side.set_xlabel("distance from the base axis, in the arm's plane (cm)")
     side.set_ylabel("height z (cm)")
@@ -111,16 +95,7 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     top.plot(pts[:, 0], pts[:, 1], "-o", color="#34495e", lw=3, ms=5)
     top.add_patch(Circle((target[0], target[1]), params.ball_radius_cm, color="#e67e22", alpha=0.6))
     if truth is not None:
-        top.plot([truth[0]], [truth[1]], "+", color="green", ms=12, mew=2, label="true centre")
-        side.plot(
-            [truth[0] * math.cos(yaw) + truth[1] * math.sin(yaw)],
-            [truth[2]],
-            "+",
-            color="green",
-            ms=12,
-            mew=2,
-            label="true centre",
-        )
+        _draw_truth(side, top, truth, yaw)
     top.set_xlabel("x (cm, arm base)")
     top.set_ylabel("y (cm, arm base)")
     top.set_title("top view", fontsize=10)
@@ -136,6 +111,43 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
         fontsize=10,
     )
     return figure_bgr(fig)
+
+
+def _draw_workspace(side, top, box: dict) -> None:
+    """The workspace box ik.pick_sequence checked the plan against, dashed, in both views."""
+    from matplotlib.patches import Rectangle
+
+    lo, hi = np.asarray(box["min"], float), np.asarray(box["max"], float)
+    side.add_patch(
+        Rectangle(
+            (lo[0], lo[2]),
+            hi[0] - lo[0],
+            hi[2] - lo[2],
+            fill=False,
+            ls="--",
+            color="#7f8c8d",
+            label="workspace box (x extent)",
+        )
+    )
+    top.add_patch(
+        Rectangle(
+            (lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, ls="--", color="#7f8c8d"
+        )
+    )
+
+
+def _draw_truth(side, top, truth, yaw: float) -> None:
+    """The ball's true centre in both views (the side view in the arm's plane at ``yaw``)."""
+    top.plot([truth[0]], [truth[1]], "+", color="green", ms=12, mew=2, label="true centre")
+    side.plot(
+        [truth[0] * math.cos(yaw) + truth[1] * math.sin(yaw)],
+        [truth[2]],
+        "+",
+        color="green",
+        ms=12,
+        mew=2,
+        label="true centre",
+    )
 
 
 def servo_table(arm: dict, plan: dict, n_refused: int, reasons: list[str]) -> dict:
