@@ -89,65 +89,87 @@ def _check_size_and_partial(
     z_size = [R / max(math.sin(c["half_angle_rad"]), 1e-9) * c["axis"][2] for c in cones]
     worst = max((0, 1), key=lambda i: abs(z_size[i] / z_stereo - 1.0))  # the view that fits worst
     if abs(z_size[worst] / z_stereo - 1.0) > params.max_size_mismatch:
-        side, other = ("left", "right")[worst], ("left", "right")[1 - worst]
-        # both views: the radius
-        if abs(z_size[1 - worst] / z_stereo - 1.0) > params.max_size_mismatch:
-            return (
-                f"the region's size does not fit its distance for a ball of radius {R:g} "
-                "cm (size gives "
-                f"{z_size[0]:.1f} cm in the left image and {z_size[1]:.1f} cm in the right, stereo "
-                f"{z_stereo:.1f} cm): another object, or object.radius_cm is wrong"
-            )
-        return (
-            f"the region's size does not fit its distance for a ball of radius {R:g} cm "
-            f"in the {side} image "
-            f"(size gives {z_size[worst]:.1f} cm there, {z_size[1 - worst]:.1f} cm in the "
-            f"{other} image, stereo "
-            f"{z_stereo:.1f} cm): the {side} view sees another object or only part of the ball"
-        )
+        return _size_mismatch(z_size, z_stereo, worst, params)
     why = _check_same_size(left, right, z_size, params)
     if why is not None:
         return why
     if left.get("partial") or right.get("partial"):
-        s_d = math.hypot(
-            left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0
+        return _check_partial(left, right, params, z_size, z_stereo, d, fb)
+    return None
+
+
+def _size_mismatch(
+    z_size: list[float], z_stereo: float, worst: int, params: SegmenterParams
+) -> str:
+    """Why the region's size does not fit its stereo distance: in both views (the radius is
+    wrong, or it is another object), or in the ``worst`` one."""
+    R = params.object.radius_cm
+    side, other = ("left", "right")[worst], ("left", "right")[1 - worst]
+    # both views: the radius
+    if abs(z_size[1 - worst] / z_stereo - 1.0) > params.max_size_mismatch:
+        return (
+            f"the region's size does not fit its distance for a ball of radius {R:g} "
+            "cm (size gives "
+            f"{z_size[0]:.1f} cm in the left image and {z_size[1]:.1f} cm in the right, stereo "
+            f"{z_stereo:.1f} cm): another object, or object.radius_cm is wrong"
         )
-        # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
-        # whose size disagrees with the stereo distance by more than both can be off.
-        for reg, z in ((left, z_size[0]), (right, z_size[1])):
-            part = reg.get("partial")
-            if not part:
-                continue
-            tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
-            if abs(z / z_stereo - 1.0) > tol:
-                side = "left" if reg is left else "right"
-                return (
-                    f"{_partial_clause(part, side)}: the arc fitted to it gives {z:.1f} "
-                    "cm from its size but "
-                    f"{z_stereo:.1f} cm by stereo (> {100 * tol:.1f} %): not trusted"
-                )
-        s_z = z_stereo**2 * s_d / fb
-        if s_z > params.partial.max_sigma_z_cm:
-            part = left.get("partial") or right.get("partial")
-            side = "left" if left.get("partial") else "right"
-            reg = left if left.get("partial") else right
-            r_px = math.sqrt(max(float(reg.get("area_px") or 0.0), 0.0) / math.pi)
-            # seen (nearly) whole, and small: not hidden
-            if part["outline_visible"] >= 0.8 and r_px <= 12:
-                return (
-                    f"the ball is small in the {side} image (~{r_px:.0f} px radius at "
-                    f"{z_stereo:.0f} cm, "
-                    f"{100 * part['outline_visible']:.0f} % of its outline seen): too few "
-                    "outline pixels to "
-                    f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
-                    f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer "
-                    "focal length or a larger "
-                    "image locate it"
-                )
+    return (
+        f"the region's size does not fit its distance for a ball of radius {R:g} cm "
+        f"in the {side} image "
+        f"(size gives {z_size[worst]:.1f} cm there, {z_size[1 - worst]:.1f} cm in the "
+        f"{other} image, stereo "
+        f"{z_stereo:.1f} cm): the {side} view sees another object or only part of the ball"
+    )
+
+
+def _check_partial(
+    left: dict,
+    right: dict,
+    params: SegmenterParams,
+    z_size: list[float],
+    z_stereo: float,
+    d: float,
+    fb: float,
+) -> str | None:
+    """Reason not to trust a partly seen ball (disparity ``d``, px; ``fb``: f B): its arc's size
+    disagrees with the stereo distance, or too little of it is seen to locate it; else None."""
+    s_d = math.hypot(left.get("sigma_centroid_px") or 0.0, right.get("sigma_centroid_px") or 0.0)
+    # A fit to the wrong edge (an occluder's, a touching object's) shows as a sphere image
+    # whose size disagrees with the stereo distance by more than both can be off.
+    for reg, z in ((left, z_size[0]), (right, z_size[1])):
+        part = reg.get("partial")
+        if not part:
+            continue
+        tol = 3.0 * math.hypot(part["sigma_size_rel"], s_d / d) + params.partial.size_tolerance
+        if abs(z / z_stereo - 1.0) > tol:
+            side = "left" if reg is left else "right"
             return (
-                f"{_partial_clause(part, side)}: too little to locate it (sigma_z {s_z:.2f} cm > "
-                f"partial.max_sigma_z_cm {params.partial.max_sigma_z_cm:g})"
+                f"{_partial_clause(part, side)}: the arc fitted to it gives {z:.1f} "
+                "cm from its size but "
+                f"{z_stereo:.1f} cm by stereo (> {100 * tol:.1f} %): not trusted"
             )
+    s_z = z_stereo**2 * s_d / fb
+    if s_z > params.partial.max_sigma_z_cm:
+        part = left.get("partial") or right.get("partial")
+        side = "left" if left.get("partial") else "right"
+        reg = left if left.get("partial") else right
+        r_px = math.sqrt(max(float(reg.get("area_px") or 0.0), 0.0) / math.pi)
+        # seen (nearly) whole, and small: not hidden
+        if part["outline_visible"] >= 0.8 and r_px <= 12:
+            return (
+                f"the ball is small in the {side} image (~{r_px:.0f} px radius at "
+                f"{z_stereo:.0f} cm, "
+                f"{100 * part['outline_visible']:.0f} % of its outline seen): too few "
+                "outline pixels to "
+                f"locate it (sigma_z {s_z:.2f} cm > partial.max_sigma_z_cm "
+                f"{params.partial.max_sigma_z_cm:g}); nearer placements, a longer "
+                "focal length or a larger "
+                "image locate it"
+            )
+        return (
+            f"{_partial_clause(part, side)}: too little to locate it (sigma_z {s_z:.2f} cm > "
+            f"partial.max_sigma_z_cm {params.partial.max_sigma_z_cm:g})"
+        )
     return None
 
 
