@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -222,28 +222,8 @@ def screen_outliers(
     ]
     outliers.sort(key=lambda o: -(o["residual_cm"] if o["residual_cm"] is not None else np.inf))
     if len(idx) < max(min_points, min_inlier_fraction * n) or not np.isfinite(threshold):
-        worst = ", ".join(
-            f"{o['item']} ({o['residual_cm']:.3g} cm)"
-            if o["residual_cm"] is not None
-            else f"{o['item']} (undefined)"
-            for o in outliers[:5]
-        )
-        raise NodeError(
-            f"{label}: only {len(idx)} of {n} training placements agree with one another; "
-            f"{len(out_idx)} disagree "
-            "with their ground truth by far more than the rest (residual > "
-            f"{threshold:.3g} cm: {worst}"
-            f"{', ...' if len(outliers) > 5 else ''}). The model needs at least "
-            f"{min_points} placements and at least "
-            f"{min_inlier_fraction:.0%} of them in agreement, so the measurements cannot "
-            "be trusted to fit "
-            "a correction.",
-            hint="check the training placements' detections (overlays in the segmenter's "
-            "folder): a distractor "
-            "or a wrong colour makes a measurement of the wrong object; give the "
-            "segmenter the ball's colour, "
-            "remove the mis-detected placements, or lower min_inlier_fraction (0.5 at "
-            "least) if you raised it.",
+        _refuse_disagreement(
+            label, len(idx), n, outliers, threshold, min_points, min_inlier_fraction
         )
     if fitted_on is None or not np.array_equal(fitted_on, keep):
         coefficients = fit(samples.subset(idx))  # the last round moved the set: fit what was kept
@@ -252,3 +232,39 @@ def screen_outliers(
     _check_agreement(samples, idx, z_residual, max_residual_sigma, label)
     screen = Screen(inliers=idx, outliers=outliers, threshold_cm=float(threshold), rounds=rounds)
     return screen, coefficients
+
+
+def _refuse_disagreement(
+    label: str,
+    n_kept: int,
+    n: int,
+    outliers: list[dict],
+    threshold: float,
+    min_points: int,
+    min_inlier_fraction: float,
+) -> NoReturn:
+    """Too few training placements agree with one another to fit a correction: say which
+    disagree most, and what to check."""
+    worst = ", ".join(
+        f"{o['item']} ({o['residual_cm']:.3g} cm)"
+        if o["residual_cm"] is not None
+        else f"{o['item']} (undefined)"
+        for o in outliers[:5]
+    )
+    raise NodeError(
+        f"{label}: only {n_kept} of {n} training placements agree with one another; "
+        f"{len(outliers)} disagree "
+        "with their ground truth by far more than the rest (residual > "
+        f"{threshold:.3g} cm: {worst}"
+        f"{', ...' if len(outliers) > 5 else ''}). The model needs at least "
+        f"{min_points} placements and at least "
+        f"{min_inlier_fraction:.0%} of them in agreement, so the measurements cannot "
+        "be trusted to fit "
+        "a correction.",
+        hint="check the training placements' detections (overlays in the segmenter's "
+        "folder): a distractor "
+        "or a wrong colour makes a measurement of the wrong object; give the "
+        "segmenter the ball's colour, "
+        "remove the mis-detected placements, or lower min_inlier_fraction (0.5 at "
+        "least) if you raised it.",
+    )
