@@ -176,18 +176,7 @@ def fit_picture(
     formula : str
         One line saying what was fitted (shown under the title).
     """
-    out_ids = [str(o["item"]) for o in model.get("outliers") or []]
-    is_out = np.array([i in set(out_ids) for i in candidates.ids], dtype=bool)
-    # the model lists them largest residual first
-    rank = {item: r for r, item in enumerate(out_ids)}
-    out_idx = sorted(np.flatnonzero(is_out), key=lambda i: rank[candidates.ids[i]])
-    inliers = candidates.subset(np.flatnonzero(~is_out))
-    outliers = candidates.subset(np.asarray(out_idx, dtype=int))
-    residual = {str(o["item"]): o.get("residual_cm") for o in model.get("outliers") or []}
-    labels = [
-        f"{i} ({residual[i]:.3g} cm from the model)" if residual.get(i) is not None else i
-        for i in outliers.ids
-    ]
+    inliers, outliers, labels = _inliers_and_outliers(model, candidates)
     rng = (model.get("valid_range") or {}).get(variable)
     valid = (float(rng["min"]), float(rng["max"])) if rng else None
     train_x = inliers.variable(variable) if len(inliers) else np.zeros(0)
@@ -202,30 +191,10 @@ def fit_picture(
         if len(inliers)
         else None
     )
-    panels = []
-    for name in axes:
-        k = AXES.index(name)
-
-        def err(s: Samples | None, k: int = k) -> np.ndarray:
-            return np.zeros(0) if s is None or len(s) == 0 else s.truth_cm[:, k] - s.xyz_cm[:, k]
-
-        curve = ref_correction[:, k] if ref_correction is not None else np.zeros(0)
-        fitted = fitted_all[:, k] if fitted_all is not None else None
-        if fitted is not None and len(grid):
-            on_curve = np.interp(train_x, grid, curve)
-            tol = 0.01 * max(float(np.ptp(err(inliers))), 1e-6)
-            if np.all(np.abs(on_curve - fitted) <= tol):
-                fitted = None  # the curve is the model itself: the marks would repeat it
-        panels.append(
-            Panel(
-                axis=name,
-                train_y=err(inliers),
-                outlier_y=err(outliers),
-                test_y=err(test),
-                curve_y=curve,
-                fitted_y=fitted,
-            )
-        )
+    panels = [
+        _panel(name, inliers, outliers, test, train_x, grid, ref_correction, fitted_all)
+        for name in axes
+    ]
     cv = model_metrics(model).get("cv_z_rms_cm")
     title = (
         f"compensator.{model.get('type', '?')}: n_train = {len(inliers)}, outliers left "
@@ -251,6 +220,60 @@ def fit_picture(
         valid=valid,
         panels=panels,
         note=note,
+    )
+
+
+def _inliers_and_outliers(
+    model: Mapping[str, Any], candidates: Samples
+) -> tuple[Samples, Samples, list[str]]:
+    """``(the placements fitted, those left out (largest residual first), their labels)``."""
+    out_ids = [str(o["item"]) for o in model.get("outliers") or []]
+    is_out = np.array([i in set(out_ids) for i in candidates.ids], dtype=bool)
+    # the model lists them largest residual first
+    rank = {item: r for r, item in enumerate(out_ids)}
+    out_idx = sorted(np.flatnonzero(is_out), key=lambda i: rank[candidates.ids[i]])
+    inliers = candidates.subset(np.flatnonzero(~is_out))
+    outliers = candidates.subset(np.asarray(out_idx, dtype=int))
+    residual = {str(o["item"]): o.get("residual_cm") for o in model.get("outliers") or []}
+    labels = [
+        f"{i} ({residual[i]:.3g} cm from the model)" if residual.get(i) is not None else i
+        for i in outliers.ids
+    ]
+    return inliers, outliers, labels
+
+
+def _panel(
+    name: str,
+    inliers: Samples,
+    outliers: Samples,
+    test: Samples | None,
+    train_x: np.ndarray,
+    grid: np.ndarray,
+    ref_correction: np.ndarray | None,
+    fitted_all: np.ndarray | None,
+) -> Panel:
+    """One corrected axis's panel: errors (truth - measured) of each set of placements, the
+    model's correction along ``grid``, and its value at each training placement (None when the
+    curve already shows it)."""
+    k = AXES.index(name)
+
+    def err(s: Samples | None, k: int = k) -> np.ndarray:
+        return np.zeros(0) if s is None or len(s) == 0 else s.truth_cm[:, k] - s.xyz_cm[:, k]
+
+    curve = ref_correction[:, k] if ref_correction is not None else np.zeros(0)
+    fitted = fitted_all[:, k] if fitted_all is not None else None
+    if fitted is not None and len(grid):
+        on_curve = np.interp(train_x, grid, curve)
+        tol = 0.01 * max(float(np.ptp(err(inliers))), 1e-6)
+        if np.all(np.abs(on_curve - fitted) <= tol):
+            fitted = None  # the curve is the model itself: the marks would repeat it
+    return Panel(
+        axis=name,
+        train_y=err(inliers),
+        outlier_y=err(outliers),
+        test_y=err(test),
+        curve_y=curve,
+        fitted_y=fitted,
     )
 
 
