@@ -59,6 +59,54 @@ def apply_model(
     if not location.get("found"):
         return dict(location)
     mtype = model.get("type")
+    predict, needs, samples = _checked_inputs(model, location, label)
+    out = dict(location)
+    corrected = np.asarray(predict(model.get("coefficients", {}), samples), dtype=float)[0]
+    raw = [float(v) for v in samples.xyz_cm[0]]
+    if not np.all(np.isfinite(corrected)):
+        out.update(
+            found=False,
+            reason=f"the {mtype} compensation is undefined for this measurement (inputs "
+            + ", ".join(f"{k}={samples.variable(k)[0]:.4g}" for k in needs)
+            + "), far outside its training range",
+            x_cm=None,
+            y_cm=None,
+            z_cm=None,
+            sigma_z_cm=None,
+            extrapolated=True,
+            raw_x_cm=raw[0],
+            raw_y_cm=raw[1],
+            raw_z_cm=raw[2],
+            compensation={"type": mtype, "raw_cm": raw},
+        )
+        return out
+    extrapolated = bool(location.get("extrapolated", False))
+    outside = _outside(model, samples, raw, corrected)
+    out.update(
+        x_cm=float(corrected[0]),
+        y_cm=float(corrected[1]),
+        z_cm=float(corrected[2]),
+        extrapolated=extrapolated or bool(outside),
+        # what the locator measured, next to the correction
+        raw_x_cm=raw[0],
+        raw_y_cm=raw[1],
+        raw_z_cm=raw[2],
+        compensation={"type": mtype, "raw_cm": raw, "outside_range": outside},
+    )
+    sigma = location.get("sigma_z_cm")
+    if sigma is not None and raw[2] != 0:
+        # The depth noise scales with the depth correction's local scale; the ratio is a fair
+        # first-order proxy.
+        out["sigma_z_cm"] = float(abs(sigma * corrected[2] / raw[2]))
+    return out
+
+
+def _checked_inputs(
+    model: Mapping[str, Any], location: Mapping[str, Any], label: str
+) -> tuple[Any, tuple[str, ...], Any]:
+    """``(the model's predict, the quantities it reads, the location as Samples)``; NodeError for
+    an unknown model, a frame mismatch, or a quantity the location lacks."""
+    mtype = model.get("type")
     if mtype not in PREDICTORS:
         raise NodeError(
             f"{label}: unknown compensation model type {mtype!r}; known: "
@@ -86,27 +134,14 @@ def apply_model(
             hint="the locator must report x_cm, y_cm, z_cm, disparity_px, u_left_px and "
             "v_left_px for found items.",
         )
-    out = dict(location)
-    corrected = np.asarray(predict(model.get("coefficients", {}), samples), dtype=float)[0]
-    raw = [float(v) for v in samples.xyz_cm[0]]
-    if not np.all(np.isfinite(corrected)):
-        out.update(
-            found=False,
-            reason=f"the {mtype} compensation is undefined for this measurement (inputs "
-            + ", ".join(f"{k}={samples.variable(k)[0]:.4g}" for k in needs)
-            + "), far outside its training range",
-            x_cm=None,
-            y_cm=None,
-            z_cm=None,
-            sigma_z_cm=None,
-            extrapolated=True,
-            raw_x_cm=raw[0],
-            raw_y_cm=raw[1],
-            raw_z_cm=raw[2],
-            compensation={"type": mtype, "raw_cm": raw},
-        )
-        return out
-    extrapolated = bool(location.get("extrapolated", False))
+    return predict, needs, samples
+
+
+def _outside(
+    model: Mapping[str, Any], samples: Any, raw: list[float], corrected: np.ndarray
+) -> list[str]:
+    """What puts a correction outside the model's support: each input outside its training
+    range, and off the placements' surface or a correction far larger than any in training."""
     outside = []
     for name, rng in (model.get("valid_range") or {}).items():
         value = samples.variable(name)[0]
@@ -118,23 +153,7 @@ def apply_model(
     outside += outside_support(
         model.get("support"), len(model.get("valid_range") or {}), raw, corrected
     )
-    out.update(
-        x_cm=float(corrected[0]),
-        y_cm=float(corrected[1]),
-        z_cm=float(corrected[2]),
-        extrapolated=extrapolated or bool(outside),
-        # what the locator measured, next to the correction
-        raw_x_cm=raw[0],
-        raw_y_cm=raw[1],
-        raw_z_cm=raw[2],
-        compensation={"type": mtype, "raw_cm": raw, "outside_range": outside},
-    )
-    sigma = location.get("sigma_z_cm")
-    if sigma is not None and raw[2] != 0:
-        # The depth noise scales with the depth correction's local scale; the ratio is a fair
-        # first-order proxy.
-        out["sigma_z_cm"] = float(abs(sigma * corrected[2] / raw[2]))
-    return out
+    return outside
 
 
 class ApplyParams(Params):
