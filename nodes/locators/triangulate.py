@@ -203,20 +203,7 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
     frame = params.frame
     pid = disparity.get("id") or (ctx.item if ctx else None)
     split = disparity.get("split") or (pair or {}).get("split")
-    truth = None
-    t = (pair or {}).get("truth")
-    if t and t.get("center_left_cm") is not None:
-        tc = np.asarray(t["center_left_cm"], float)
-        truth = (apply_transform(T, tc) if T is not None else tc).tolist()
-    elif t and t.get("center_table_cm") is not None:
-        # measured on the table only (a ruler on the bench), in the table frame the wired table
-        # frame defines
-        T_known = T if T is not None else _known_transform(params, rig)
-        if T_known is not None:
-            tc = np.asarray(t["center_table_cm"], float)
-            truth = (
-                tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])
-            ).tolist()
+    truth = _truth_in_frame(params, (pair or {}).get("truth"), T, rig)
     # where the segmenter's object colour came from (given, learned): kept beside each result
     # ... and the ball's radius the segmenter looked for (ik.pick_sequence: its centre must be a
     # radius above the table, else the location is wrong)
@@ -268,3 +255,22 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
         method=disparity.get("method"),
         **base,
     )
+
+
+def _truth_in_frame(params: TriangulateParams, t: dict | None, T, rig) -> list[float] | None:
+    """The pair's true ball centre in the output frame (``T``: left camera to it, None for the
+    left camera), from a left-camera or a table-frame truth; None when it has neither."""
+    truth = None
+    if t and t.get("center_left_cm") is not None:
+        tc = np.asarray(t["center_left_cm"], float)
+        truth = (apply_transform(T, tc) if T is not None else tc).tolist()
+    elif t and t.get("center_table_cm") is not None:
+        # measured on the table only (a ruler on the bench), in the table frame the wired table
+        # frame defines
+        T_known = T if T is not None else _known_transform(params, rig)
+        if T_known is not None:
+            tc = np.asarray(t["center_table_cm"], float)
+            truth = (
+                tc if T is not None else np.linalg.solve(T_known[:3, :3], tc - T_known[:3, 3])
+            ).tolist()
+    return truth
