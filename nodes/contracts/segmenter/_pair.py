@@ -30,7 +30,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from nodes.contracts.views import pair_views
+from nodes.contracts.views import RectifiedView, pair_views
 
 from ._checks import check_pair, pair_is_raw, validate_pair
 from ._detect import search_band, segment_image
@@ -126,27 +126,8 @@ def segment_pair(
         vl, vr = pair_views(rectification, L, R, raw)
         h, w = vl.shape[:2]
         r_range = expected_radius_px(params, rectification, (w, h))
-        K1 = K2 = None
-        if rectification is not None and rectification.get("P1") is not None:
-            K1, K2 = (
-                np.asarray(rectification["P1"], float)[:, :3],
-                np.asarray(rectification["P2"], float)[:, :3],
-            )
-        rej_l, rej_r = {}, {}
-        lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1, rejected=rej_l)
-        band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
-        rm, rreg, rwhy = segment_image(
-            vr, mask_fn, params, r_range, window=band, K=K2, rejected=rej_r
-        )
-        seg.update(
-            left_mask=lm,
-            right_mask=rm,
-            left=lreg,
-            right=rreg,
-            rejected_left_px=rej_l.get("px", []),
-            rejected_left_why=rej_l.get("why", []),
-            rejected_right_px=rej_r.get("px", []),
-            rejected_right_why=rej_r.get("why", []),
+        lreg, lwhy, rreg, rwhy = _segment_views(
+            seg, vl, vr, rectification, params, mask_fn, r_range
         )
         if lreg is None or rreg is None:
             reason = f"left image: {lwhy}" if lreg is None else f"right image: {rwhy}"
@@ -167,3 +148,39 @@ def segment_pair(
     else:  # off, or left and right of different sizes: no picture (None: nothing is saved)
         overlay = None
     return {"segmentation": seg, "overlay": overlay}
+
+
+def _segment_views(
+    seg: dict,
+    vl: RectifiedView,
+    vr: RectifiedView,
+    rectification: dict | None,
+    params: SegmenterParams,
+    mask_fn: MaskFunction,
+    r_range: tuple[float, float],
+) -> tuple[dict | None, str | None, dict | None, str | None]:
+    """Segment the left view, then the right one in the band the left region allows; fill
+    ``seg``'s masks, regions and rejected outlines. Returns ``(left region, why none, right
+    region, why none)``."""
+    h, w = vl.shape[:2]
+    K1 = K2 = None
+    if rectification is not None and rectification.get("P1") is not None:
+        K1, K2 = (
+            np.asarray(rectification["P1"], float)[:, :3],
+            np.asarray(rectification["P2"], float)[:, :3],
+        )
+    rej_l, rej_r = {}, {}
+    lm, lreg, lwhy = segment_image(vl, mask_fn, params, r_range, K=K1, rejected=rej_l)
+    band = search_band(lreg, rectification, params, (w, h)) if lreg is not None else None
+    rm, rreg, rwhy = segment_image(vr, mask_fn, params, r_range, window=band, K=K2, rejected=rej_r)
+    seg.update(
+        left_mask=lm,
+        right_mask=rm,
+        left=lreg,
+        right=rreg,
+        rejected_left_px=rej_l.get("px", []),
+        rejected_left_why=rej_l.get("why", []),
+        rejected_right_px=rej_r.get("px", []),
+        rejected_right_why=rej_r.get("why", []),
+    )
+    return lreg, lwhy, rreg, rwhy
