@@ -405,43 +405,7 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
             report(k, len(ids), "scenes")
             pairs[pid] = _render_pair(params, k)
 
-    views = []
-    poses_table = {}
-    if params.n_views:
-        try:
-            poses = random_board_poses(
-                rig,
-                params.n_views,
-                np.random.default_rng([params.seed, 4]),
-                params.board_cols,
-                params.board_rows,
-                params.square_cm,
-            )
-        except RuntimeError as exc:
-            raise NodeError(
-                f"source.synthetic: {exc}.",
-                hint="use a smaller board (board_cols, board_rows, square_cm) "
-                "or a shorter focal_length_px (a wider view)",
-            ) from exc
-        charuco = (
-            {"dictionary": params.aruco_dict, "marker_fraction": params.marker_fraction}
-            if params.board_type == "charuco"
-            else None
-        )
-        for j, pose in enumerate(poses):
-            report(j, len(poses), "views")
-            vid = f"v{j:02d}"
-            left, right, corners = render_board_view(
-                rig,
-                pose,
-                params.board_cols,
-                params.board_rows,
-                params.square_cm,
-                seed=params.seed * 7919 + j,
-                charuco=charuco,
-            )
-            views.append({"id": vid, "left": left, "right": right})
-            poses_table[vid] = corners["T_table_from_board"]
+    views, poses_table = _board_views(params, rig, report)
     truth = copy.deepcopy(rig["truth"])  # the plan is cached: hand out a copy
     board = {
         "cols": params.board_cols,
@@ -464,3 +428,47 @@ def synthetic(params: SyntheticParams, ctx=None) -> dict:
     if not per_item:
         out["pairs"] = pairs
     return out
+
+
+def _board_views(params: SyntheticParams, rig: dict, report) -> tuple[list[dict], dict]:
+    """``(the board views, each view's T_table_from_board)``: ``n_views`` random poses of the
+    board, rendered in both cameras."""
+    views: list[dict] = []
+    poses_table: dict = {}
+    if not params.n_views:
+        return views, poses_table
+    try:
+        poses = random_board_poses(
+            rig,
+            params.n_views,
+            np.random.default_rng([params.seed, 4]),
+            params.board_cols,
+            params.board_rows,
+            params.square_cm,
+        )
+    except RuntimeError as exc:
+        raise NodeError(
+            f"source.synthetic: {exc}.",
+            hint="use a smaller board (board_cols, board_rows, square_cm) "
+            "or a shorter focal_length_px (a wider view)",
+        ) from exc
+    charuco = (
+        {"dictionary": params.aruco_dict, "marker_fraction": params.marker_fraction}
+        if params.board_type == "charuco"
+        else None
+    )
+    for j, pose in enumerate(poses):
+        report(j, len(poses), "views")
+        vid = f"v{j:02d}"
+        left, right, corners = render_board_view(
+            rig,
+            pose,
+            params.board_cols,
+            params.board_rows,
+            params.square_cm,
+            seed=params.seed * 7919 + j,
+            charuco=charuco,
+        )
+        views.append({"id": vid, "left": left, "right": right})
+        poses_table[vid] = corners["T_table_from_board"]
+    return views, poses_table
