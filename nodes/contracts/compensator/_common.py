@@ -21,7 +21,7 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn
 
 import numpy as np
 
@@ -372,43 +372,57 @@ def training_samples(
             continue
         keep[item_id] = loc
     if len(keep) < min_points:
-        why = (
-            ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n)
-            or "the collection is empty"
-        )
-        hint = (
-            "use a source with ground truth and more training placements (e.g. "
-            "source.synthetic n_scenes / "
-            "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins)."
-        )
-        in_split = len(train) - dropped["not in the train split"]
-        # the locator's own words: a cause shared by every pair (swapped images ...) shows here
-        if reasons:
-            top, n_top = group_reasons(reasons)[0]
-            why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
-            # the cause is upstream: more placements would not help
-            if 2 * dropped["not found"] >= in_split:
-                hint = (
-                    f"most training placements were not located ({dropped['not found']} "
-                    f"of {in_split}), most "
-                    f"often because: {top}. Fix that first: the object's declared colour "
-                    "and radius, or the "
-                    "segmenter's settings (look at the segment overlays in the run "
-                    "folder); then run again."
-                )
-        elif dropped["no ground truth"] and 2 * dropped["no ground truth"] >= in_split:
-            hint = (
-                "the training placements carry no ground truth (truth_cm): give the "
-                "source a truth file, or "
-                "use source.synthetic, whose placements know where the ball is."
-            )
-        raise NodeError(
-            f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
-            f"this model needs at least {min_points} (found, with truth_cm, split "
-            f"'train', finite {', '.join(needs)}).",
-            hint=hint,
-        )
+        _refuse_too_few(label, train, keep, dropped, reasons, needs, min_points)
     return samples_from_locations(keep)
+
+
+def _refuse_too_few(
+    label: str,
+    train: Mapping[str, Any],
+    keep: dict,
+    dropped: dict[str, int],
+    reasons: dict[str, int],
+    needs: tuple[str, ...],
+    min_points: int,
+) -> NoReturn:
+    """Too few usable training placements: say how many were dropped for which reason, and the
+    likeliest fix (upstream, when most were not located or carry no truth)."""
+    why = (
+        ", ".join(f"{n} {reason}" for reason, n in dropped.items() if n)
+        or "the collection is empty"
+    )
+    hint = (
+        "use a source with ground truth and more training placements (e.g. "
+        "source.synthetic n_scenes / "
+        "train_fraction), or a compensator with fewer coefficients (lower degree / fewer bins)."
+    )
+    in_split = len(train) - dropped["not in the train split"]
+    # the locator's own words: a cause shared by every pair (swapped images ...) shows here
+    if reasons:
+        top, n_top = group_reasons(reasons)[0]
+        why += f"; not found, most often ({n_top} of {dropped['not found']}): {top}"
+        # the cause is upstream: more placements would not help
+        if 2 * dropped["not found"] >= in_split:
+            hint = (
+                f"most training placements were not located ({dropped['not found']} "
+                f"of {in_split}), most "
+                f"often because: {top}. Fix that first: the object's declared colour "
+                "and radius, or the "
+                "segmenter's settings (look at the segment overlays in the run "
+                "folder); then run again."
+            )
+    elif dropped["no ground truth"] and 2 * dropped["no ground truth"] >= in_split:
+        hint = (
+            "the training placements carry no ground truth (truth_cm): give the "
+            "source a truth file, or "
+            "use source.synthetic, whose placements know where the ball is."
+        )
+    raise NodeError(
+        f"{label}: only {len(keep)} usable training placements of {len(train)} items ({why}); "
+        f"this model needs at least {min_points} (found, with truth_cm, split "
+        f"'train', finite {', '.join(needs)}).",
+        hint=hint,
+    )
 
 
 def require_span(values: np.ndarray, name: str, label: str, min_fraction: float, unit: str) -> None:
