@@ -25,20 +25,8 @@ from nodes.sources._scene_spec import SceneSpec
 from nodes.sources._scenes import SCENE_KINDS, make_scene
 from stereograph.api import Field, NodeError, Out, Params, node
 
-HardCase = Literal[
-    "clutter",
-    "second_ball",
-    "border",
-    "occluded",
-    "hidden",
-    "empty",
-    "border_cut",
-    "occluded_part",
-    "touching_box",
-    "touching_ball",
-    "distractor",
-    "same_color",
-]
+# every scene kind but the plain one
+HardCase = Literal[tuple(k for k in SCENE_KINDS if k != "plain")]
 
 
 class SyntheticParams(Params):
