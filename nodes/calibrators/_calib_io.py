@@ -237,14 +237,7 @@ def read_opencv(
         def scalar(*names):
             return _fs_scalar(stores, *names)
 
-        got = {k: _fs_mat(stores, *names) for k, names in _MATRIX_NAMES}
-        missing = [k for k, v in got.items() if v is None]
-        if missing:
-            raise ValueError(
-                f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
-                "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
-                "give both files: path and right_path)"
-            )
+        got = _matrices(stores)
         cm_per_unit = _cm_per_unit(path, scalar("unit", "units", "length_unit"), cm_per_unit)
         by_hand, image_size = _image_size(stores, image_size)
         rms = scalar("rms_px", "rms")
@@ -287,6 +280,20 @@ _MATRIX_NAMES = (
     ("R", ("R",)),
     ("T", ("T",)),
 )
+
+
+def _matrices(stores: list) -> dict[str, np.ndarray]:
+    """K1 D1 K2 D2 R T of a FileStorage file, whatever the names it gives them; ValueError
+    naming the missing ones."""
+    got = {k: _fs_mat(stores, *names) for k, names in _MATRIX_NAMES}
+    missing = [k for k, v in got.items() if v is None]
+    if missing:
+        raise ValueError(
+            f"it lacks {', '.join({'K1': 'M1', 'K2': 'M2'}.get(k, k) for k in missing)} "
+            "(stereo_calib's names: M1 D1 M2 D2 from intrinsics.yml, R T from extrinsics.yml; "
+            "give both files: path and right_path)"
+        )
+    return got
 
 
 def _fs_scalar(stores: list, *names: str):
