@@ -248,13 +248,7 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
     # `n`: their split is unknown here. Said, so that fewer pairs never look like a better method.
     lost = (ctx.lost.get("locations", {}) if ctx is not None else {}) or {}
     if lost:
-        first = next(iter(lost.items()))
-        note = (
-            f"{len(lost)} pair(s) failed before reaching this report and are not counted "
-            "here (first: "
-            f"{first[0]}: {first[1]}); `lost` in report.json lists each."
-        )
-        md = _noted(md, note, ctx)
+        md = _noted(md, _lost_note(lost), ctx)
     report = {
         "n": len(sel),
         "n_found": len(found),
@@ -290,6 +284,16 @@ def accuracy(params: AccuracyParams, locations, ctx=None):
         },
         "accuracy": {"file_text": md, "file_suffix": ".md"},
     }
+
+
+def _lost_note(lost: dict[str, str]) -> str:
+    """What the report says of the pairs that failed before reaching it."""
+    first = next(iter(lost.items()))
+    return (
+        f"{len(lost)} pair(s) failed before reaching this report and are not counted "
+        "here (first: "
+        f"{first[0]}: {first[1]}); `lost` in report.json lists each."
+    )
 
 
 def _noted(md: str, note: str, ctx) -> str:
