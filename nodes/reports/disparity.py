@@ -88,6 +88,25 @@ def _reads(params: DisparityScoreParams, pipeline_dir: Path) -> list[Path]:
     return sorted(pattern.parent.glob(pattern.name)) if "{id}" in params.truth else [pattern]
 
 
+def _truth_of(
+    params: DisparityScoreParams, dmap: dict, pdir: Path, pair_id: str, label: str
+) -> tuple[Path, np.ndarray]:
+    """``(path, image)`` of a pair's ground-truth disparity: beside the pair, or ``truth``;
+    NodeError when there is none to read."""
+    given = dmap.get("truth_disparity_path") if params.truth is None else None
+    path = Path(given) if given else truth_path(params, pdir, pair_id) if params.truth else None
+    truth = read_truth(path) if path is not None else None
+    if truth is None:
+        raise NodeError(
+            f"{label}: no readable truth image for pair '{pair_id}'"
+            + (f" at {path}." if path else ": none beside the pair and no `truth` param."),
+            hint="set `truth` to the ground-truth disparity image (relative to the "
+            "pipeline file; "
+            "`{id}` stands for the pair id)",
+        )
+    return path, truth
+
+
 @node(
     "report.disparity",
     inputs={
@@ -118,17 +137,7 @@ def disparity_score(params: DisparityScoreParams, disparity_map, ctx=None):
     rows = []
     for item, dmap in (disparity_map or {}).items():
         pair_id = str(dmap.get("id") or item)
-        given = dmap.get("truth_disparity_path") if params.truth is None else None
-        path = Path(given) if given else truth_path(params, pdir, pair_id) if params.truth else None
-        truth = read_truth(path) if path is not None else None
-        if truth is None:
-            raise NodeError(
-                f"{label}: no readable truth image for pair '{pair_id}'"
-                + (f" at {path}." if path else ": none beside the pair and no `truth` param."),
-                hint="set `truth` to the ground-truth disparity image (relative to the "
-                "pipeline file; "
-                "`{id}` stands for the pair id)",
-            )
+        path, truth = _truth_of(params, dmap, pdir, pair_id, label)
         disp = np.asarray(dmap["disparity_px"], dtype=np.float32)
         if truth.shape != disp.shape:
             raise NodeError(
