@@ -61,30 +61,7 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
     fig = new_figure(8, 4.6)  # 720 px: report.html's figure width, so the text is not scaled down
     fig.set_layout_engine("constrained")
     side, top = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
-    # side view: the plane of the arm (radial distance along the yaw direction vs height)
-    radial = pts[:, 0] * math.cos(yaw) + pts[:, 1] * math.sin(yaw)
-    side.plot(
-        radial, pts[:, 2], "-o", color="#34495e", lw=3, ms=5, label="arm (forward kinematics)"
-    )
-    t_r = target[0] * math.cos(yaw) + target[1] * math.sin(yaw)
-    side.add_patch(
-        Circle(
-            (t_r, target[2]),
-            params.ball_radius_cm,
-            color="#e67e22",
-            alpha=0.6,
-            label="ball (located)",
-        )
-    )
-    side.plot(
-        [pts[-1, 0] * math.cos(yaw) + pts[-1, 1] * math.sin(yaw)],
-        [pts[-1, 2]],
-        "x",
-        color="red",
-        ms=10,
-        mew=2,
-        label="tool point",
-    )
+    _draw_side(side, pts, yaw, target, params.ball_radius_cm)
     if box is not None:
         _draw_workspace(side, top, box)
     side.axhline(0, color="k", lw=0.8)
@@ -111,6 +88,36 @@ def arm_figure(arm: dict, plan: dict, params: PickReportParams) -> np.ndarray:
         fontsize=10,
     )
     return figure_bgr(fig)
+
+
+def _draw_side(side, pts: np.ndarray, yaw: float, target: np.ndarray, radius_cm: float) -> None:
+    """The side view: the plane of the arm (radial distance along the yaw direction vs height),
+    with the ball and the tool point."""
+    from matplotlib.patches import Circle
+
+    radial = pts[:, 0] * math.cos(yaw) + pts[:, 1] * math.sin(yaw)
+    side.plot(
+        radial, pts[:, 2], "-o", color="#34495e", lw=3, ms=5, label="arm (forward kinematics)"
+    )
+    t_r = target[0] * math.cos(yaw) + target[1] * math.sin(yaw)
+    side.add_patch(
+        Circle(
+            (t_r, target[2]),
+            radius_cm,
+            color="#e67e22",
+            alpha=0.6,
+            label="ball (located)",
+        )
+    )
+    side.plot(
+        [pts[-1, 0] * math.cos(yaw) + pts[-1, 1] * math.sin(yaw)],
+        [pts[-1, 2]],
+        "x",
+        color="red",
+        ms=10,
+        mew=2,
+        label="tool point",
+    )
 
 
 def _draw_workspace(side, top, box: dict) -> None:
