@@ -99,28 +99,7 @@ def segment_pair(
     raw = pair_is_raw(ctx, rectification)
     reason = reason_shape = validate_pair(pair, rectification, raw)
     pid = str(pair.get("id", ctx.item if ctx is not None else ""))
-    seg = {
-        "id": pid,
-        "found": False,
-        "reason": reason,
-        "left_mask": None,
-        "right_mask": None,
-        "left": None,
-        "right": None,
-        "method": method,
-        "object_radius_cm": float(params.object.radius_cm),
-        # (the next nodes' default)
-        "working_range_cm": sorted(float(z) for z in params.working_range_cm),
-        # where the object's colour came from: the YAML ("params"), learned ("appearance"), or none
-        "color_from": color_from
-        if (params.object.color_bgr is not None or params.object.hue_range_deg is not None)
-        else None,
-        "split": pair.get("split"),
-        "rejected_left_px": [],
-        "rejected_left_why": [],
-        "rejected_right_px": [],
-        "rejected_right_why": [],
-    }
+    seg = _unfound(pair, pid, reason, method, params, color_from)
     L, R = as_bgr(np.asarray(pair["left"])), as_bgr(np.asarray(pair["right"]))
     if reason is None:
         vl, vr = pair_views(rectification, L, R, raw)
@@ -148,6 +127,39 @@ def segment_pair(
     else:  # off, or left and right of different sizes: no picture (None: nothing is saved)
         overlay = None
     return {"segmentation": seg, "overlay": overlay}
+
+
+def _unfound(
+    pair: dict,
+    pid: str,
+    reason: str | None,
+    method: str,
+    params: SegmenterParams,
+    color_from: str | None,
+) -> dict:
+    """A pair's Segmentation before anything is found in it (``found`` False, no masks)."""
+    return {
+        "id": pid,
+        "found": False,
+        "reason": reason,
+        "left_mask": None,
+        "right_mask": None,
+        "left": None,
+        "right": None,
+        "method": method,
+        "object_radius_cm": float(params.object.radius_cm),
+        # (the next nodes' default)
+        "working_range_cm": sorted(float(z) for z in params.working_range_cm),
+        # where the object's colour came from: the YAML ("params"), learned ("appearance"), or none
+        "color_from": color_from
+        if (params.object.color_bgr is not None or params.object.hue_range_deg is not None)
+        else None,
+        "split": pair.get("split"),
+        "rejected_left_px": [],
+        "rejected_left_why": [],
+        "rejected_right_px": [],
+        "rejected_right_why": [],
+    }
 
 
 def _segment_views(
