@@ -179,45 +179,52 @@ def _render_camera(rig, i, objs, tex):
     off = (np.arange(S) + 0.5) / S - 0.5
     ou, ov = np.meshgrid(off, off)
     ou, ov = ou.ravel(), ov.ravel()
-    fmin = min(cam["K"][0, 0], cam["K"][1, 1])
     for o in objs:
-        if o["type"] != "sphere":
-            continue
-        cc = _table_to_cam(rig, i, o["c"])[0]
-        dist = np.linalg.norm(cc)
-        if dist <= o["r"] * 1.01 or cc[2] <= o["r"]:
-            continue
-        half = math.asin(o["r"] / dist)
-        sil = silhouette(cam["K"], cam["D"], cc, o["r"], n_boundary=256)
-        su0, sv0, su1, sv1 = sil["bbox_px"]
-        iu0, iv0 = max(int(math.floor(su0)) - 2, 0), max(int(math.floor(sv0)) - 2, 0)
-        iu1, iv1 = min(int(math.ceil(su1)) + 2, w - 1), min(int(math.ceil(sv1)) + 2, h - 1)
-        if iu0 > iu1 or iv0 > iv1:
-            continue
-        box = rays.reshape(h, w, 3)[iv0 : iv1 + 1, iu0 : iu1 + 1].reshape(-1, 3)
-        ang = np.arccos(np.clip(box @ (cc / dist) / np.linalg.norm(box, axis=1), -1, 1))
-        # A pixel's half-diagonal spans ~0.71/f rad (a little more where distortion stretches
-        # the image): pixels whose centre ray is farther than 1.1/f from the cone are pure.
-        band = np.abs(ang - half) < 1.1 / fmin
-        if not np.any(band):
-            continue
-        vv, uu = np.nonzero(band.reshape(iv1 - iv0 + 1, iu1 - iu0 + 1))
-        uu, vv = uu + iu0, vv + iv0
-        pu = (uu[:, None] + ou[None, :]).ravel()
-        pv = (vv[:, None] + ov[None, :]).ravel()
-        # Start Newton from the pixel centre's exact ray: two steps then reach machine precision.
-        guess = np.repeat(rays.reshape(h, w, 3)[vv, uu, :2], S * S, axis=0)
-        guess[:, 0] += (pu - np.repeat(uu, S * S)) / cam["K"][0, 0]
-        guess[:, 1] += (pv - np.repeat(vv, S * S)) / cam["K"][1, 1]
-        xy = undistort_pixels(
-            cam["K"], cam["D"], np.stack([pu, pv], axis=1), guess=guess, iterations=3
-        )
-        srays = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
-        sc, sid = _trace(rig, i, srays, objs, tex)
-        img[vv, uu] = sc.reshape(-1, S * S, 3).mean(axis=1)
-        if cov is not None:
-            cov[vv, uu] = (sid == 0).reshape(-1, S * S).mean(axis=1)
+        if o["type"] == "sphere":
+            _supersample_sphere(rig, i, o, rays, objs, tex, img, cov, (ou, ov))
     return img, cov
+
+
+def _supersample_sphere(rig, i, o, rays, objs, tex, img, cov, offsets) -> None:
+    """Supersample, in ``img`` and ``cov``, the band of camera ``i``'s pixels around sphere
+    ``o``'s silhouette (analytic cone test); ``offsets``: the sub-pixel grid (u, v)."""
+    w, h = rig["truth"]["image_size"]
+    cam = rig["cams"][i]
+    S = _SUPERSAMPLE
+    ou, ov = offsets
+    fmin = min(cam["K"][0, 0], cam["K"][1, 1])
+    cc = _table_to_cam(rig, i, o["c"])[0]
+    dist = np.linalg.norm(cc)
+    if dist <= o["r"] * 1.01 or cc[2] <= o["r"]:
+        return
+    half = math.asin(o["r"] / dist)
+    sil = silhouette(cam["K"], cam["D"], cc, o["r"], n_boundary=256)
+    su0, sv0, su1, sv1 = sil["bbox_px"]
+    iu0, iv0 = max(int(math.floor(su0)) - 2, 0), max(int(math.floor(sv0)) - 2, 0)
+    iu1, iv1 = min(int(math.ceil(su1)) + 2, w - 1), min(int(math.ceil(sv1)) + 2, h - 1)
+    if iu0 > iu1 or iv0 > iv1:
+        return
+    box = rays.reshape(h, w, 3)[iv0 : iv1 + 1, iu0 : iu1 + 1].reshape(-1, 3)
+    ang = np.arccos(np.clip(box @ (cc / dist) / np.linalg.norm(box, axis=1), -1, 1))
+    # A pixel's half-diagonal spans ~0.71/f rad (a little more where distortion stretches
+    # the image): pixels whose centre ray is farther than 1.1/f from the cone are pure.
+    band = np.abs(ang - half) < 1.1 / fmin
+    if not np.any(band):
+        return
+    vv, uu = np.nonzero(band.reshape(iv1 - iv0 + 1, iu1 - iu0 + 1))
+    uu, vv = uu + iu0, vv + iv0
+    pu = (uu[:, None] + ou[None, :]).ravel()
+    pv = (vv[:, None] + ov[None, :]).ravel()
+    # Start Newton from the pixel centre's exact ray: two steps then reach machine precision.
+    guess = np.repeat(rays.reshape(h, w, 3)[vv, uu, :2], S * S, axis=0)
+    guess[:, 0] += (pu - np.repeat(uu, S * S)) / cam["K"][0, 0]
+    guess[:, 1] += (pv - np.repeat(vv, S * S)) / cam["K"][1, 1]
+    xy = undistort_pixels(cam["K"], cam["D"], np.stack([pu, pv], axis=1), guess=guess, iterations=3)
+    srays = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
+    sc, sid = _trace(rig, i, srays, objs, tex)
+    img[vv, uu] = sc.reshape(-1, S * S, 3).mean(axis=1)
+    if cov is not None:
+        cov[vv, uu] = (sid == 0).reshape(-1, S * S).mean(axis=1)
 
 
 def render_scene(
