@@ -204,24 +204,9 @@ def _trace(rig: dict, cam_index: int, rays_cam: np.ndarray, objs: list[dict], te
         albedo[tabm] = _sample_texture(tex, P[tabm, 0], P[tabm, 1])
     for k, o in enumerate(objs):
         m = ids == k
-        if not np.any(m):
-            continue
-        albedo[m] = o["albedo"]
-        if o["type"] == "sphere":
-            normal[m] = (P[m] - o["c"]) / o["r"]
-        elif o["type"] == "box":
-            local = (P[m] - o["c"]) @ o["Rz"]
-            ax = aux[k][m]
-            nl = np.zeros_like(local)
-            nl[np.arange(nl.shape[0]), ax] = np.sign(local[np.arange(nl.shape[0]), ax])
-            normal[m] = nl @ o["Rz"].T
-        else:
-            side = aux[k][m]
-            rad = P[m] - o["c"]
-            rad[:, 2] = 0
-            nn = rad / np.maximum(np.linalg.norm(rad, axis=1, keepdims=True), 1e-12)
-            nn[~side] = [0.0, 0.0, 1.0]
-            normal[m] = nn
+        if np.any(m):
+            albedo[m] = o["albedo"]
+            normal[m] = _normals(o, P[m], aux.get(k, None), m)
     L = rig["light_table"]
     to_l = L[None, :] - P
     dist = np.linalg.norm(to_l, axis=1, keepdims=True)
@@ -234,6 +219,25 @@ def _trace(rig: dict, cam_index: int, rays_cam: np.ndarray, objs: list[dict], te
     radiance = albedo * (amb + (1.0 - amb) * lam * fall)[:, None]
     radiance[~hit] = 0.55  # grey wall beyond the table
     return radiance, ids
+
+
+def _normals(o: dict, P: np.ndarray, aux: np.ndarray | None, m: np.ndarray) -> np.ndarray:
+    """Surface normals of object ``o`` at its hit points ``P`` (table frame); ``aux``: the
+    face (box) or side (cylinder) each ray of the trace hit, ``m`` selecting this object's."""
+    if o["type"] == "sphere":
+        return (P - o["c"]) / o["r"]
+    if o["type"] == "box":
+        local = (P - o["c"]) @ o["Rz"]
+        ax = aux[m]
+        nl = np.zeros_like(local)
+        nl[np.arange(nl.shape[0]), ax] = np.sign(local[np.arange(nl.shape[0]), ax])
+        return nl @ o["Rz"].T
+    side = aux[m]
+    rad = P - o["c"]
+    rad[:, 2] = 0
+    nn = rad / np.maximum(np.linalg.norm(rad, axis=1, keepdims=True), 1e-12)
+    nn[~side] = [0.0, 0.0, 1.0]
+    return nn
 
 
 def _to_uint8(img: np.ndarray, noise_sigma: float, rng: np.random.Generator) -> np.ndarray:
