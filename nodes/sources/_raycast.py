@@ -17,52 +17,15 @@ def _objects_of(scene: dict) -> list[dict]:
     objs = []
     ball = scene.get("ball")
     if ball is not None:
-        c = list(ball["center_cm"])
-        r = float(ball.get("radius_cm", 2.0))
-        if len(c) == 2:
-            c = [c[0], c[1], r]
-        objs.append(
-            {
-                "type": "sphere",
-                "c": np.asarray(c, float),
-                "r": r,
-                "albedo": color_bgr(ball.get("color", "orange")),
-                "target": True,
-            }
-        )
+        albedo = color_bgr(ball.get("color", "orange"))
+        objs.append(_sphere(ball, albedo, target=True))
     for o in scene.get("objects", []) or []:
         t = o.get("type", "box")
         col = color_bgr(o.get("color", "grey"))
         if t in ("ball", "sphere"):
-            r = float(o.get("radius_cm", 2.0))
-            c = list(o["center_cm"])
-            if len(c) == 2:
-                c = [c[0], c[1], r]
-            objs.append(
-                {
-                    "type": "sphere",
-                    "c": np.asarray(c, float),
-                    "r": r,
-                    "albedo": col,
-                    "target": False,
-                }
-            )
+            objs.append(_sphere(o, col, target=False))
         elif t == "box":
-            sx, sy, sz = (float(v) for v in o["size_cm"])
-            yaw = math.radians(float(o.get("yaw_deg", 0.0)))
-            Rz = np.array(
-                [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]]
-            )
-            c = np.array([o["center_cm"][0], o["center_cm"][1], sz / 2.0], float)
-            objs.append(
-                {
-                    "type": "box",
-                    "c": c,
-                    "half": np.array([sx, sy, sz]) / 2.0,
-                    "Rz": Rz,
-                    "albedo": col,
-                }
-            )
+            objs.append(_box(o, col))
         elif t == "cylinder":
             objs.append(
                 {
@@ -76,6 +39,26 @@ def _objects_of(scene: dict) -> list[dict]:
         else:
             raise ValueError(f"unknown object type {t!r}; use box, cylinder or ball")
     return objs
+
+
+def _sphere(o: dict, albedo, target: bool) -> dict:
+    """A ball of the scene as a sphere primitive: a centre given on the table (x, y) sits on it."""
+    r = float(o.get("radius_cm", 2.0))
+    c = list(o["center_cm"])
+    if len(c) == 2:
+        c = [c[0], c[1], r]
+    return {"type": "sphere", "c": np.asarray(c, float), "r": r, "albedo": albedo, "target": target}
+
+
+def _box(o: dict, albedo) -> dict:
+    """A box of the scene, standing on the table, turned by its yaw, as a primitive."""
+    sx, sy, sz = (float(v) for v in o["size_cm"])
+    yaw = math.radians(float(o.get("yaw_deg", 0.0)))
+    Rz = np.array(
+        [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1.0]]
+    )
+    c = np.array([o["center_cm"][0], o["center_cm"][1], sz / 2.0], float)
+    return {"type": "box", "c": c, "half": np.array([sx, sy, sz]) / 2.0, "Rz": Rz, "albedo": albedo}
 
 
 def _hit_sphere(O, D, c, r):
