@@ -173,25 +173,10 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
         )
     lefts, rights = _glob(folder, left_glob), _glob(folder, right_glob)
     if not lefts and not rights:
-        images = (
-            [p.name for p in sorted(folder.iterdir())[:2000] if p.suffix.lower() in IMAGE_SUFFIXES]
-            if folder.is_dir()
-            else []
+        raise NodeError(
+            f"no images match {left_glob!r} / {right_glob!r} in {folder}.",
+            hint=_no_images_hint(folder),
         )
-        sided = [n for n in images if "left" in n.lower()]
-        hint = (
-            f"the folder holds {len(images)} images named like {sided[0]!r}: set left_glob: "
-            f"'{_side_glob(images, 'left')}' and right_glob: "
-            f"'{_side_glob(images, 'right')}' (or globs of your "
-            "own)"
-            if sided
-            else f"the folder holds {len(images)} images "
-            f"({', '.join(images[:3])}{' ...' if len(images) > 3 else ''}): "
-            "fix the globs"
-            if images
-            else f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs"
-        )
-        raise NodeError(f"no images match {left_glob!r} / {right_glob!r} in {folder}.", hint=hint)
     if len(lefts) != len(rights):
         lk = {pair_key(p.stem) for p in lefts}
         rk = {pair_key(p.stem) for p in rights}
@@ -227,6 +212,30 @@ def list_pairs(folder: Path, left_glob: str, right_glob: str) -> list[tuple[str,
             hint="every left image needs a right image of the same name",
         )
     return [(_clean_id(k), kl[k], kr[k]) for k in sorted(kl)]
+
+
+def _no_images_hint(folder: Path) -> str:
+    """How to fix globs that match nothing: globs for the side-named images the folder holds,
+    or what it holds."""
+    images = (
+        [p.name for p in sorted(folder.iterdir())[:2000] if p.suffix.lower() in IMAGE_SUFFIXES]
+        if folder.is_dir()
+        else []
+    )
+    sided = [n for n in images if "left" in n.lower()]
+    hint = (
+        f"the folder holds {len(images)} images named like {sided[0]!r}: set left_glob: "
+        f"'{_side_glob(images, 'left')}' and right_glob: "
+        f"'{_side_glob(images, 'right')}' (or globs of your "
+        "own)"
+        if sided
+        else f"the folder holds {len(images)} images "
+        f"({', '.join(images[:3])}{' ...' if len(images) > 3 else ''}): "
+        "fix the globs"
+        if images
+        else f"put images ({', '.join(sorted(IMAGE_SUFFIXES))}) there or fix the globs"
+    )
+    return hint
 
 
 def _glob_keys(files: list[Path], pattern: str) -> dict[str, Path] | None:
