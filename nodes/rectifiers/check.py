@@ -137,7 +137,13 @@ def epipolar_check(rect: dict, pairs: list[dict], params: CheckParams) -> dict:
             "cause": f"only {len(rows)} consistent feature matches (fewer than "
             f"{params.min_matches}): too little texture to check",
         }
-    d = np.concatenate(disp)
+    return _verdict(out, rows, np.concatenate(disp), (w, h), params)
+
+
+def _verdict(out: dict, rows: np.ndarray, d: np.ndarray, size: tuple, params: CheckParams) -> dict:
+    """``out`` with the matches' statistics and the verdict: swapped images, a camera moved (or
+    another rig's calibration), or ok."""
+    w, h = size
     dy = np.abs(rows[:, 0])
     out.update(
         dy_median_px=round(float(np.median(dy)), 3),
