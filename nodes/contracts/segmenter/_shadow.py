@@ -105,24 +105,7 @@ def _suppress(
     cand = cv2.inRange(hsv, (0, 0, 0), (255, min(s_max, 255), min(v_max, 255)))[0] > 0
     where = where[cand]
     if len(where):
-        px = masked_pixels(region_px, cand[None])[None]
-        f = px.astype(np.float32)
-        total = _channel_total(f)
-        # (V = the largest channel) chromaticity is noise in the darkest
-        dark = px[0].max(axis=1) < DARK_LEVEL
-        # pixels: it must not veto (shadow test) ...
-        dchroma = _chroma_distance(f, total, bg).reshape(-1)
-        dchroma[dark] = 0.0
-        ok = dchroma <= shadow.max_chroma_shift
-        if obj.color_bgr is not None:
-            d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
-            # ... nor decide the object's colour (as
-            d_obj[dark] = dark_pixel_distance(obj.color_bgr)
-            # color_distance_map: not the object's, unless the object is dark itself)
-            ok &= d_obj > obj.color_tolerance
-        elif obj.hue_range_deg is not None:
-            ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
-        where = where[ok]
+        where = where[_shadow_like(masked_pixels(region_px, cand[None])[None], bg, shadow, obj)]
     if len(where) > shadow.max_removed_fraction * n_sel:
         return None  # most of the region looks like shadow: a dark neutral object, keep it
     out = mask
@@ -132,6 +115,30 @@ def _suppress(
     # Cut thin bridges left between the object and remaining shadow specks.
     out = cv2.morphologyEx(out, cv2.MORPH_OPEN, structuring_element(3))
     return out
+
+
+def _shadow_like(
+    px: np.ndarray, bg: np.ndarray, shadow: ShadowParams, obj: ObjectSpec
+) -> np.ndarray:
+    """Which of the dark, grey candidate pixels ``px`` (1xKx3) keep the background ``bg``'s
+    chromaticity and are not of the object's colour: the shadow's (bool, K)."""
+    f = px.astype(np.float32)
+    total = _channel_total(f)
+    # (V = the largest channel) chromaticity is noise in the darkest
+    dark = px[0].max(axis=1) < DARK_LEVEL
+    # pixels: it must not veto (shadow test) ...
+    dchroma = _chroma_distance(f, total, bg).reshape(-1)
+    dchroma[dark] = 0.0
+    ok = dchroma <= shadow.max_chroma_shift
+    if obj.color_bgr is not None:
+        d_obj = _chroma_distance(f, total, obj.color_bgr).reshape(-1)
+        # ... nor decide the object's colour (as
+        d_obj[dark] = dark_pixel_distance(obj.color_bgr)
+        # color_distance_map: not the object's, unless the object is dark itself)
+        ok &= d_obj > obj.color_tolerance
+    elif obj.hue_range_deg is not None:
+        ok &= hue_mask(px, obj.hue_range_deg, obj.min_saturation)[0] == 0
+    return ok
 
 
 def _median_u8_rows(px: np.ndarray) -> np.ndarray:
