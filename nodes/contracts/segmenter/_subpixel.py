@@ -56,30 +56,7 @@ def refine_contour(
     c = contour.reshape(-1, 2).astype(np.float32)
     if len(c) < 12:
         return None
-    # Normals from the contour's tangent over +-3 points (smooths the pixel staircase),
-    # oriented away from the region's centre.
-    cc = np.concatenate((c[-3:], c, c[:3]))  # wrap around the closed outline
-    t = cc[6:] - cc[:-6]  # c[i + 3] - c[i - 3]
-    n = t[:, ::-1] * np.float32([1.0, -1.0])  # (t_y, -t_x)
-    # Outward when sum((c - mean) . n) > 0; that sum is 2 sum(x_i y_i+3 - x_i+3 y_i), a
-    # lagged shoelace area, cheaper as two dot products.
-    c64, c3 = c.astype(np.float64), cc[6:].astype(np.float64)
-    if float(c64[:, 0] @ c3[:, 1] - c3[:, 0] @ c64[:, 1]) < 0:
-        n = -n
-    norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
-    good = norm[:, 0] > 1e-6
-    if good.all():  # the usual case: no copies, and the outline's bounds are its bounding box
-        n = n / norm
-        bx, by, bw, bh = cv2.boundingRect(contour)
-        cx0, cy0, cx1, cy1 = bx, by, bx + bw - 1, by + bh - 1
-    else:
-        c, n = c[good], n[good] / norm[good]
-        cx0, cy0, cx1, cy1 = (
-            int(c[:, 0].min()),
-            int(c[:, 1].min()),
-            int(c[:, 0].max()),
-            int(c[:, 1].max()),
-        )
+    c, n, (cx0, cy0, cx1, cy1) = _outward_normals(c, contour)
     # The gradient is needed only along the outline: crop to it. Samples lie within
     # search_px + 1 px of the outline and the blur and Sobel reach 4 px, so a margin of
     # search_px + 6 px gives the values of the whole image's gradient.
@@ -109,6 +86,38 @@ def refine_contour(
     if len(pts) < 12:
         return None
     return pts.astype(np.float32)
+
+
+def _outward_normals(
+    c: np.ndarray, contour: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
+    """``(points, unit outward normals, bounds (x0, y0, x1, y1) of the points)`` of a closed
+    outline ``c`` (Nx2 float32; ``contour`` its int form); points with no normal are dropped."""
+    # Normals from the contour's tangent over +-3 points (smooths the pixel staircase),
+    # oriented away from the region's centre.
+    cc = np.concatenate((c[-3:], c, c[:3]))  # wrap around the closed outline
+    t = cc[6:] - cc[:-6]  # c[i + 3] - c[i - 3]
+    n = t[:, ::-1] * np.float32([1.0, -1.0])  # (t_y, -t_x)
+    # Outward when sum((c - mean) . n) > 0; that sum is 2 sum(x_i y_i+3 - x_i+3 y_i), a
+    # lagged shoelace area, cheaper as two dot products.
+    c64, c3 = c.astype(np.float64), cc[6:].astype(np.float64)
+    if float(c64[:, 0] @ c3[:, 1] - c3[:, 0] @ c64[:, 1]) < 0:
+        n = -n
+    norm = np.sqrt((n * n).sum(axis=1, keepdims=True))
+    good = norm[:, 0] > 1e-6
+    if good.all():  # the usual case: no copies, and the outline's bounds are its bounding box
+        n = n / norm
+        bx, by, bw, bh = cv2.boundingRect(contour)
+        cx0, cy0, cx1, cy1 = bx, by, bx + bw - 1, by + bh - 1
+    else:
+        c, n = c[good], n[good] / norm[good]
+        cx0, cy0, cx1, cy1 = (
+            int(c[:, 0].min()),
+            int(c[:, 1].min()),
+            int(c[:, 0].max()),
+            int(c[:, 1].max()),
+        )
+    return c, n, (cx0, cy0, cx1, cy1)
 
 
 def fit_ellipse_robust(pts: np.ndarray) -> dict | None:
