@@ -453,29 +453,36 @@ def _draw_placements(
         )
         legend_handles.setdefault("train", h)
     if len(p.outlier_y):
-        y = np.clip(p.outlier_y, lo, hi)  # far off the scale: drawn at the axis edge
-        h = ax.scatter(
-            pic.outlier_x,
-            y,
-            marker="X",
-            s=70,
-            color="#d62728",
-            edgecolors="k",
-            lw=0.5,
-            zorder=7,
-            label="left out of the fit (on the edge: off the scale)",
+        _draw_outliers(ax, p, pic, lo, hi, legend_handles)
+
+
+def _draw_outliers(
+    ax: Any, p: Panel, pic: FitPicture, lo: float, hi: float, legend_handles: dict[str, Any]
+) -> None:
+    """The placements left out of the fit, numbered (those off the scale on its edge)."""
+    y = np.clip(p.outlier_y, lo, hi)  # far off the scale: drawn at the axis edge
+    h = ax.scatter(
+        pic.outlier_x,
+        y,
+        marker="X",
+        s=70,
+        color="#d62728",
+        edgecolors="k",
+        lw=0.5,
+        zorder=7,
+        label="left out of the fit (on the edge: off the scale)",
+    )
+    legend_handles.setdefault("outlier", h)
+    for j, (x0, y0) in enumerate(zip(pic.outlier_x[:MAX_LABELLED], y[:MAX_LABELLED])):
+        ax.annotate(
+            str(j + 1),
+            (x0, y0),
+            xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
+            textcoords="offset points",
+            fontsize=8,
+            fontweight="bold",
+            color="#a11",
         )
-        legend_handles.setdefault("outlier", h)
-        for j, (x0, y0) in enumerate(zip(pic.outlier_x[:MAX_LABELLED], y[:MAX_LABELLED])):
-            ax.annotate(
-                str(j + 1),
-                (x0, y0),
-                xytext=(5 if j % 2 == 0 else -12, -11 if y0 >= (lo + hi) / 2 else 4),
-                textcoords="offset points",
-                fontsize=8,
-                fontweight="bold",
-                color="#a11",
-            )
 
 
 def _note_off_scale(ax: Any, p: Panel, pic: FitPicture, lo: float, hi: float) -> None:
