@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, NoReturn
 
 import numpy as np
 
@@ -134,38 +134,7 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     ids, left, right, rejected = detect_views(vlist, cols, rows, params.subpix_window_px)
     rejected = {**(views.get("rejected") or {}), **rejected}  # views the source could not read
     if len(ids) < params.min_views:
-        named = f" ({'; '.join(f'{k}: {v}' for k, v in rejected.items())})" if rejected else ""
-        board_hint = (
-            "check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and "
-            "that the whole "
-            "board is visible in both images"
-        )
-        add_hint = (
-            f"add chessboard views: at least {params.min_views} are needed (10-20 "
-            "recommended, the board "
-            "at several distances and tilts across the working range)"
-        )
-        if not ids:
-            msg = (
-                f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of "
-                f"the {len(vlist)} "
-                f"views{named}."
-            )
-            hint = board_hint
-        elif not rejected:  # every view shows the board: there are just too few of them
-            msg = (
-                f"calibrator.chessboard: all {len(vlist)} views show the {cols}x{rows} board, but "
-                f"{params.min_views} are needed."
-            )
-            hint = add_hint
-        else:
-            msg = (
-                f"calibrator.chessboard: only {len(ids)} of {len(vlist)} views show the "
-                f"{cols}x{rows} board; "
-                f"{params.min_views} are needed{named}."
-            )
-            hint = f"{board_hint}; or {add_hint}"
-        raise NodeError(msg, hint=hint)
+        _refuse_too_few_views(params, ids, rejected, len(vlist), cols, rows)
     at = {i: k for k, i in enumerate(ids)}
 
     def calibrate(keep: list[str]) -> dict:
@@ -187,3 +156,42 @@ def chessboard(params: ChessboardParams, views: dict, ctx=None) -> dict:
     return board_calibration_outputs(
         cal, rejected, board, params.max_rms_px, "calibrator.chessboard", ctx
     )
+
+
+def _refuse_too_few_views(
+    params: ChessboardParams, ids: list, rejected: dict, n_views: int, cols: int, rows: int
+) -> NoReturn:
+    """Too few views show the board: none (the board's size?), too few in all (add views), or
+    some rejected (both), with each rejected view's reason."""
+    named = f" ({'; '.join(f'{k}: {v}' for k, v in rejected.items())})" if rejected else ""
+    board_hint = (
+        "check board cols/rows (inner corners, e.g. 9x6 for a 10x7-square board) and "
+        "that the whole "
+        "board is visible in both images"
+    )
+    add_hint = (
+        f"add chessboard views: at least {params.min_views} are needed (10-20 "
+        "recommended, the board "
+        "at several distances and tilts across the working range)"
+    )
+    if not ids:
+        msg = (
+            f"calibrator.chessboard: no {cols}x{rows} chessboard was found in any of "
+            f"the {n_views} "
+            f"views{named}."
+        )
+        hint = board_hint
+    elif not rejected:  # every view shows the board: there are just too few of them
+        msg = (
+            f"calibrator.chessboard: all {n_views} views show the {cols}x{rows} board, but "
+            f"{params.min_views} are needed."
+        )
+        hint = add_hint
+    else:
+        msg = (
+            f"calibrator.chessboard: only {len(ids)} of {n_views} views show the "
+            f"{cols}x{rows} board; "
+            f"{params.min_views} are needed{named}."
+        )
+        hint = f"{board_hint}; or {add_hint}"
+    raise NodeError(msg, hint=hint)
