@@ -319,22 +319,7 @@ def point_cloud(disp: np.ndarray, left: np.ndarray, rectification: dict, stride:
 def dense(params: DenseParams, pair, rectification, ctx=None):
     """Full disparity map of a rectified pair (StereoSGBM, optional WLS), a coloured image and a PLY
     point cloud."""
-    if rectification is None or "f_px" not in rectification or rectification.get("Q") is None:
-        raise NodeError(
-            "disparity.dense needs a Rectification with f_px, baseline_cm and Q.",
-            hint="wire `rectification` to rectifier.opencv or rectifier.given",
-        )
-    left, right = np.asarray(pair["left"]), np.asarray(pair["right"])
-    size = list(rectification.get("image_size") or [left.shape[1], left.shape[0]])
-    if left.shape != right.shape or [left.shape[1], left.shape[0]] != [int(v) for v in size]:
-        raise NodeError(
-            f"disparity.dense: pair '{pair.get('id')}' is {left.shape[1]}x{left.shape[0]} / "
-            f"{right.shape[1]}x{right.shape[0]} px but the rectification is for "
-            f"{size[0]}x{size[1]}.",
-            hint="rectify the pair with the same rectification (rectifier.remap), or fix "
-            "image_size "
-            "of rectifier.given",
-        )
+    left, right = _checked_pair(pair, rectification)
     d_min, num = search_range_px(rectification, params)
     t0 = time.perf_counter()
     disp = dense_disparity(left, right, d_min, num, params)
@@ -383,3 +368,25 @@ def dense(params: DenseParams, pair, rectification, ctx=None):
         "disparity_image": colorize(disp, (d_min, d_min + num - 1), params.colormap),
         "point_cloud": cloud,
     }
+
+
+def _checked_pair(pair: dict, rectification: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """The pair's images, when ``rectification`` can match them (f_px, baseline_cm, Q; their
+    size); NodeError otherwise."""
+    if rectification is None or "f_px" not in rectification or rectification.get("Q") is None:
+        raise NodeError(
+            "disparity.dense needs a Rectification with f_px, baseline_cm and Q.",
+            hint="wire `rectification` to rectifier.opencv or rectifier.given",
+        )
+    left, right = np.asarray(pair["left"]), np.asarray(pair["right"])
+    size = list(rectification.get("image_size") or [left.shape[1], left.shape[0]])
+    if left.shape != right.shape or [left.shape[1], left.shape[0]] != [int(v) for v in size]:
+        raise NodeError(
+            f"disparity.dense: pair '{pair.get('id')}' is {left.shape[1]}x{left.shape[0]} / "
+            f"{right.shape[1]}x{right.shape[0]} px but the rectification is for "
+            f"{size[0]}x{size[1]}.",
+            hint="rectify the pair with the same rectification (rectifier.remap), or fix "
+            "image_size "
+            "of rectifier.given",
+        )
+    return left, right
