@@ -74,7 +74,6 @@ def random_board_poses(
         [outline + (np.roll(outline, -1, 0) - outline) * s for s in np.linspace(0, 1, 9)]
     )
     centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0])
-    w, h = rig["truth"]["image_size"]
     R, T = rig["truth"]["R"], rig["truth"]["T_cm"]
     poses = []
     for i in range(n):
@@ -96,21 +95,7 @@ def random_board_poses(
             pr = pl @ R.T + T
             if pl[:, 2].min() < 5 or pr[:, 2].min() < 5:
                 continue
-            ok = True
-            for K, D, pts in (
-                (rig["truth"]["K1"], rig["truth"]["D1"], pl),
-                (rig["truth"]["K2"], rig["truth"]["D2"], pr),
-            ):
-                px = project_points(K, D, pts)
-                if (
-                    px[:, 0].min() < margin_px
-                    or px[:, 1].min() < margin_px
-                    or px[:, 0].max() > w - 1 - margin_px
-                    or px[:, 1].max() > h - 1 - margin_px
-                ):
-                    ok = False
-                    break
-            if ok:
+            if _inside_both(rig, pl, pr, margin_px):
                 Tm = np.eye(4)
                 Tm[:3, :3], Tm[:3, 3] = Rb, t
                 poses.append(Tm)
@@ -118,6 +103,25 @@ def random_board_poses(
         else:
             raise RuntimeError("could not place a calibration board fully inside both images")
     return poses
+
+
+def _inside_both(rig: dict, pl: np.ndarray, pr: np.ndarray, margin_px: float) -> bool:
+    """Whether points ``pl`` (left camera, cm) and ``pr`` (right camera) all project at least
+    ``margin_px`` inside their images."""
+    w, h = rig["truth"]["image_size"]
+    for K, D, pts in (
+        (rig["truth"]["K1"], rig["truth"]["D1"], pl),
+        (rig["truth"]["K2"], rig["truth"]["D2"], pr),
+    ):
+        px = project_points(K, D, pts)
+        if (
+            px[:, 0].min() < margin_px
+            or px[:, 1].min() < margin_px
+            or px[:, 0].max() > w - 1 - margin_px
+            or px[:, 1].max() > h - 1 - margin_px
+        ):
+            return False
+    return True
 
 
 def _tri(x):
