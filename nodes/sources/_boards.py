@@ -239,62 +239,67 @@ def render_board_view(
         else:
             R, T = rig["truth"]["R"], rig["truth"]["T_cm"]
             Rcb, tcb = R @ pose_left_from_board[:3, :3], R @ pose_left_from_board[:3, 3] + T
-        rays_all = _ray_grid(cam, (w, h)).reshape(h, w, 3)
-        img = _empty_table(rig, i, tex).astype(float)
-        # Only the board's screen rectangle is traced (outline projected, plus a margin).
-        outline = np.array(
-            [[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]]
-        )
-        edge = np.concatenate(
-            [outline + (np.roll(outline, -1, 0) - outline) * f for f in np.linspace(0, 1, 9)]
-        )
-        epx = project_points(cam["K"], cam["D"], edge @ Rcb.T + tcb)
-        u0, v0 = int(max(epx[:, 0].min() - 3, 0)), int(max(epx[:, 1].min() - 3, 0))
-        u1, v1 = int(min(epx[:, 0].max() + 3, w - 1)), int(min(epx[:, 1].max() + 3, h - 1))
-        sh = (v1 - v0 + 1, u1 - u0 + 1)
-        rays = rays_all[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
-        # Ray-plane intersection in the board frame: X(t) = t * ray, board z = 0.
-        n = Rcb[:, 2]
-        denom = rays @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (n @ tcb) / denom
-        P = t[:, None] * rays
-        B = (P - tcb) @ Rcb  # board coordinates (cm)
-        bx = (B[:, 0] / square_cm).reshape(sh)
-        by = (B[:, 1] / square_cm).reshape(sh)
-        inside = (
-            (t > 0)
-            & (B[:, 0] >= lo[0])
-            & (B[:, 0] <= hi[0])
-            & (B[:, 1] >= lo[1])
-            & (B[:, 1] <= hi[1])
-        )
-        # Footprint of a pixel in board squares (for the box filter).
-        gxu, gxv = np.gradient(bx, axis=1), np.gradient(bx, axis=0)
-        gyu, gyv = np.gradient(by, axis=1), np.gradient(by, axis=0)
-        wx = np.abs(gxu) + np.abs(gxv)
-        wy = np.abs(gyu) + np.abs(gyv)
-        if charuco is None:
-            checker = 0.5 + 0.5 * _filtered_square(bx, wx) * _filtered_square(by, wy)
-        else:
-            checker = _charuco_reflectance(bx, by, (gxu, gyu), (gxv, gyv), cols, rows, charuco)
-        pattern = (bx >= -1) & (bx <= cols) & (by >= -1) & (by <= rows)
-        refl = np.where(pattern, 0.10 + 0.80 * checker, 0.92).ravel()
-        # Two-sided matte plate lit by the rig's lamp (table frame -> camera frame).
-        L_cam = (rig["light_table"] - cam["origin_table"]) @ cam["R_table_from_cam"]
-        to_l = L_cam[None, :] - P
-        lam = np.abs(to_l @ n) / np.linalg.norm(to_l, axis=1)
-        # Boards are held up facing the cameras, so they get more ambient light than the table.
-        shade = (0.6 + 0.4 * lam) * refl
-        roi = img[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
-        roi[inside] = shade[inside, None]
-        img[v0 : v1 + 1, u0 : u1 + 1] = roi.reshape(*sh, 3)
+        img = _board_image(rig, i, (Rcb, tcb), (lo, hi), cols, rows, square_cm, charuco, tex)
         imgs.append(_to_uint8(img, sigma, rng))
         corners["left_px" if i == 0 else "right_px"] = project_points(
             cam["K"], cam["D"], pts_b @ Rcb.T + tcb
         )
     corners["T_table_from_board"] = T_tl @ pose_left_from_board
     return imgs[0], imgs[1], corners
+
+
+def _board_image(rig, i, pose, extent, cols, rows, square_cm, charuco, tex) -> np.ndarray:
+    """Radiance image (H, W, 3 float) of camera ``i``: the table with the board at ``pose``
+    (``(R, t)``, board to camera, cm) over it, its pattern box-filtered over each pixel."""
+    cam = rig["cams"][i]
+    w, h = rig["truth"]["image_size"]
+    Rcb, tcb = pose
+    lo, hi = extent
+    rays_all = _ray_grid(cam, (w, h)).reshape(h, w, 3)
+    img = _empty_table(rig, i, tex).astype(float)
+    # Only the board's screen rectangle is traced (outline projected, plus a margin).
+    outline = np.array([[lo[0], lo[1], 0], [hi[0], lo[1], 0], [hi[0], hi[1], 0], [lo[0], hi[1], 0]])
+    edge = np.concatenate(
+        [outline + (np.roll(outline, -1, 0) - outline) * f for f in np.linspace(0, 1, 9)]
+    )
+    epx = project_points(cam["K"], cam["D"], edge @ Rcb.T + tcb)
+    u0, v0 = int(max(epx[:, 0].min() - 3, 0)), int(max(epx[:, 1].min() - 3, 0))
+    u1, v1 = int(min(epx[:, 0].max() + 3, w - 1)), int(min(epx[:, 1].max() + 3, h - 1))
+    sh = (v1 - v0 + 1, u1 - u0 + 1)
+    rays = rays_all[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
+    # Ray-plane intersection in the board frame: X(t) = t * ray, board z = 0.
+    n = Rcb[:, 2]
+    denom = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (n @ tcb) / denom
+    P = t[:, None] * rays
+    B = (P - tcb) @ Rcb  # board coordinates (cm)
+    bx = (B[:, 0] / square_cm).reshape(sh)
+    by = (B[:, 1] / square_cm).reshape(sh)
+    inside = (
+        (t > 0) & (B[:, 0] >= lo[0]) & (B[:, 0] <= hi[0]) & (B[:, 1] >= lo[1]) & (B[:, 1] <= hi[1])
+    )
+    # Footprint of a pixel in board squares (for the box filter).
+    gxu, gxv = np.gradient(bx, axis=1), np.gradient(bx, axis=0)
+    gyu, gyv = np.gradient(by, axis=1), np.gradient(by, axis=0)
+    wx = np.abs(gxu) + np.abs(gxv)
+    wy = np.abs(gyu) + np.abs(gyv)
+    if charuco is None:
+        checker = 0.5 + 0.5 * _filtered_square(bx, wx) * _filtered_square(by, wy)
+    else:
+        checker = _charuco_reflectance(bx, by, (gxu, gyu), (gxv, gyv), cols, rows, charuco)
+    pattern = (bx >= -1) & (bx <= cols) & (by >= -1) & (by <= rows)
+    refl = np.where(pattern, 0.10 + 0.80 * checker, 0.92).ravel()
+    # Two-sided matte plate lit by the rig's lamp (table frame -> camera frame).
+    L_cam = (rig["light_table"] - cam["origin_table"]) @ cam["R_table_from_cam"]
+    to_l = L_cam[None, :] - P
+    lam = np.abs(to_l @ n) / np.linalg.norm(to_l, axis=1)
+    # Boards are held up facing the cameras, so they get more ambient light than the table.
+    shade = (0.6 + 0.4 * lam) * refl
+    roi = img[v0 : v1 + 1, u0 : u1 + 1].reshape(-1, 3)
+    roi[inside] = shade[inside, None]
+    img[v0 : v1 + 1, u0 : u1 + 1] = roi.reshape(*sh, 3)
+    return img
 
 
 def render_table_board(
