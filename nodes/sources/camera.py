@@ -34,7 +34,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn
 
 import cv2
 from pydantic import model_validator
@@ -363,16 +363,7 @@ class StereoCapture:
         p = self.p
         for attempt in range(p.skew_retries + 1):
             host = self._grab()
-            frames = []
-            for c in self.caps:
-                ok, f = c.retrieve()
-                if not ok or f is None:
-                    raise NodeError(
-                        f"source.camera: frame {self.frame} was grabbed but could not be decoded.",
-                        hint="check the video codec / camera pixel format (backend, width_px, "
-                        "height_px)",
-                    )
-                frames.append(f)
+            frames = self._retrieve()
             stream = [c.get(cv2.CAP_PROP_POS_MSEC) for c in self.caps]
             if len(frames) == 1:  # one side-by-side device: one exposure, no skew
                 f = frames[0]
@@ -390,21 +381,7 @@ class StereoCapture:
             if skew <= p.max_skew_ms:
                 break
             if attempt == p.skew_retries:
-                clock = (
-                    f"stream time codes {stream[0]:.1f} / {stream[1]:.1f} ms"
-                    if self.clock == "stream"
-                    else "grab() calls on this computer"
-                )
-                raise NodeError(
-                    f"source.camera: refusing frame {self.frame}: left and right are "
-                    f"{skew:.1f} ms apart ({clock}), "
-                    f"more than max_skew_ms {p.max_skew_ms:g} ms ({p.skew_retries + 1} "
-                    "pair(s) tried).",
-                    hint="recordings: the two files must have the same frame rate and start "
-                    "(re-record or trim them); "
-                    "cameras: use synchronised cameras, a lower resolution or frame "
-                    "rate, or raise max_skew_ms",
-                )
+                self._refuse_skew(skew, stream)
         k = self.frame
         pid = (self.ids[k] if self.ids and k < len(self.ids) else f"cam{k:05d}") + (
             f"@{self.lap}" if self.lap else ""
@@ -424,6 +401,39 @@ class StereoCapture:
             "skew_clock": self.clock,
             "grab_monotonic_s": host[0],
         }
+
+    def _retrieve(self) -> list[Any]:
+        """The grabbed frame of each capture, decoded."""
+        frames = []
+        for c in self.caps:
+            ok, f = c.retrieve()
+            if not ok or f is None:
+                raise NodeError(
+                    f"source.camera: frame {self.frame} was grabbed but could not be decoded.",
+                    hint="check the video codec / camera pixel format (backend, width_px, "
+                    "height_px)",
+                )
+            frames.append(f)
+        return frames
+
+    def _refuse_skew(self, skew: float, stream: list[float]) -> NoReturn:
+        """Left and right stayed too far apart in time for every pair tried."""
+        p = self.p
+        clock = (
+            f"stream time codes {stream[0]:.1f} / {stream[1]:.1f} ms"
+            if self.clock == "stream"
+            else "grab() calls on this computer"
+        )
+        raise NodeError(
+            f"source.camera: refusing frame {self.frame}: left and right are "
+            f"{skew:.1f} ms apart ({clock}), "
+            f"more than max_skew_ms {p.max_skew_ms:g} ms ({p.skew_retries + 1} "
+            "pair(s) tried).",
+            hint="recordings: the two files must have the same frame rate and start "
+            "(re-record or trim them); "
+            "cameras: use synchronised cameras, a lower resolution or frame "
+            "rate, or raise max_skew_ms",
+        )
 
     def close(self) -> None:
         for c in self.caps:
