@@ -263,45 +263,7 @@ class StereoCapture:
             cap = cv2.VideoCapture(src, BACKENDS[self.p.backend])
         if not cap.isOpened():
             cap.release()
-            field = "left" if which in ("left", "stereo") else "right"
-            if isinstance(src, int):
-                raise NodeError(
-                    f"source.camera: no {which} camera at device index {src} "
-                    "(cv2.VideoCapture could not "
-                    "open it).",
-                    hint=f"plug the camera in or set {field} to an existing device "
-                    "(ls /dev/video*), a video file or an image-sequence pattern",
-                )
-            if stream:
-                raise NodeError(
-                    f"source.camera: the {which} stream {src!r} did not open within "
-                    f"{self.p.stream_timeout_s:g} s (nothing answered, or not a video stream).",
-                    hint="check the camera's URL and that it streams (open it in a player); raise "
-                    "stream_timeout_s for a slow network",
-                )
-            plain = _is_file(src) and "%" not in src
-            missing = plain and not Path(src).exists()
-            empty = plain and not missing and Path(src).is_file() and Path(src).stat().st_size == 0
-            why = (
-                " (no such file)."
-                if missing
-                else " (the file is empty: 0 bytes)."
-                if empty
-                else f" with backend {self.p.backend}"
-                + (
-                    ": the file is not a video it can read (corrupt, or a "
-                    "codec this OpenCV build lacks)."
-                    if plain
-                    else "."
-                )
-            )
-            raise NodeError(
-                f"source.camera: cv2.VideoCapture could not open the {which} source {src!r}{why}",
-                hint=f"set {field} to an existing video file, an image pattern such as "
-                f"{field}_%03d.png, "
-                "a stream URL or a GStreamer pipeline ending in appsink; check the codec is one "
-                "OpenCV's build reads (cv2.getBuildInformation())",
-            )
+            self._refuse_unopened(src, which, stream)
         if (self.p.width_px or self.p.height_px) and _is_file(src) and which != "right":
             self.notes.append(
                 "width_px / height_px set the resolution of a camera; a video file or "
@@ -313,6 +275,48 @@ class StereoCapture:
         if self.p.height_px:
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.p.height_px)
         return cap
+
+    def _refuse_unopened(self, src: int | str, which: str, stream: bool) -> NoReturn:
+        """Why ``src`` did not open, in the words of what it is: a device, a stream, a file."""
+        field = "left" if which in ("left", "stereo") else "right"
+        if isinstance(src, int):
+            raise NodeError(
+                f"source.camera: no {which} camera at device index {src} "
+                "(cv2.VideoCapture could not "
+                "open it).",
+                hint=f"plug the camera in or set {field} to an existing device "
+                "(ls /dev/video*), a video file or an image-sequence pattern",
+            )
+        if stream:
+            raise NodeError(
+                f"source.camera: the {which} stream {src!r} did not open within "
+                f"{self.p.stream_timeout_s:g} s (nothing answered, or not a video stream).",
+                hint="check the camera's URL and that it streams (open it in a player); raise "
+                "stream_timeout_s for a slow network",
+            )
+        plain = _is_file(src) and "%" not in src
+        missing = plain and not Path(src).exists()
+        empty = plain and not missing and Path(src).is_file() and Path(src).stat().st_size == 0
+        why = (
+            " (no such file)."
+            if missing
+            else " (the file is empty: 0 bytes)."
+            if empty
+            else f" with backend {self.p.backend}"
+            + (
+                ": the file is not a video it can read (corrupt, or a "
+                "codec this OpenCV build lacks)."
+                if plain
+                else "."
+            )
+        )
+        raise NodeError(
+            f"source.camera: cv2.VideoCapture could not open the {which} source {src!r}{why}",
+            hint=f"set {field} to an existing video file, an image pattern such as "
+            f"{field}_%03d.png, "
+            "a stream URL or a GStreamer pipeline ending in appsink; check the codec is one "
+            "OpenCV's build reads (cv2.getBuildInformation())",
+        )
 
     def _grab(self) -> list[float]:
         """``grab()`` every side back to back; host times (s) when each returned. Rewinds files on
