@@ -211,16 +211,7 @@ def screen_outliers(
             break
         keep = new_keep
     idx = np.flatnonzero(keep)
-    out_idx = np.flatnonzero(~keep)
-    outliers = [
-        {
-            "item": samples.ids[i],
-            "residual_cm": float(residual[i]) if np.isfinite(residual[i]) else None,
-            "error_cm": [float(c) for c in raw[i]],
-        }
-        for i in out_idx
-    ]
-    outliers.sort(key=lambda o: -(o["residual_cm"] if o["residual_cm"] is not None else np.inf))
+    outliers = _outlier_records(samples, np.flatnonzero(~keep), residual, raw)
     if len(idx) < max(min_points, min_inlier_fraction * n) or not np.isfinite(threshold):
         _refuse_disagreement(
             label, len(idx), n, outliers, threshold, min_points, min_inlier_fraction
@@ -232,6 +223,23 @@ def screen_outliers(
     _check_agreement(samples, idx, z_residual, max_residual_sigma, label)
     screen = Screen(inliers=idx, outliers=outliers, threshold_cm=float(threshold), rounds=rounds)
     return screen, coefficients
+
+
+def _outlier_records(
+    samples: Any, out_idx: np.ndarray, residual: np.ndarray, raw: np.ndarray
+) -> list[dict[str, Any]]:
+    """``{item, residual_cm, error_cm}`` of each placement left out, largest residual first (an
+    undefined residual first of all)."""
+    outliers = [
+        {
+            "item": samples.ids[i],
+            "residual_cm": float(residual[i]) if np.isfinite(residual[i]) else None,
+            "error_cm": [float(c) for c in raw[i]],
+        }
+        for i in out_idx
+    ]
+    outliers.sort(key=lambda o: -(o["residual_cm"] if o["residual_cm"] is not None else np.inf))
+    return outliers
 
 
 def _refuse_disagreement(
