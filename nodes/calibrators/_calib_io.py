@@ -383,6 +383,30 @@ def _board_entries(scalar) -> dict | None:
 
 
 # --------------------------------------------------------------------------- ROS camera_info
+def _check_ros_lens_model(doc: dict, path: Path) -> None:
+    """A camera_info's distortion model is OpenCV's standard one (ValueError otherwise: e.g.
+    equidistant (fisheye), same YAML shape, other lens model)."""
+    model = str(doc.get("distortion_model") or "plumb_bob").strip().lower()
+    if model not in _ROS_OPENCV_MODELS:
+        raise ValueError(
+            f"{path} has distortion_model {doc.get('distortion_model')!r}, which is not OpenCV's "
+            f"standard lens model ({' / '.join(_ROS_OPENCV_MODELS)}): its coefficients would "
+            "be read with another meaning"
+        )
+
+
+def _ros_image_size(L: dict, Rd: dict, left_path: Path, right_path: Path) -> list[int]:
+    """The pair's image size, ``[w, h]`` px: both files must give the same one."""
+    size_l = [int(L.get("image_width", 0)), int(L.get("image_height", 0))]
+    size_r = [int(Rd.get("image_width", 0)), int(Rd.get("image_height", 0))]
+    if size_l != size_r or 0 in size_l:
+        raise ValueError(
+            f"the image sizes differ or are missing: {left_path} {size_l[0]}x{size_l[1]}, "
+            f"{right_path} {size_r[0]}x{size_r[1]}"
+        )
+    return size_l
+
+
 def _ros_mat(doc: dict, key: str, shape, path: Path) -> np.ndarray:
     v = doc.get(key)
     data = v.get("data") if isinstance(v, dict) else v
@@ -459,14 +483,7 @@ def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None =
         _ros_mat(Rd, "camera_matrix", (3, 3), right_path),
     )
     for doc, p in ((L, left_path), (Rd, right_path)):
-        model = str(doc.get("distortion_model") or "plumb_bob").strip().lower()
-        # e.g. equidistant (fisheye): same YAML shape, other lens model
-        if model not in _ROS_OPENCV_MODELS:
-            raise ValueError(
-                f"{p} has distortion_model {doc.get('distortion_model')!r}, which is not OpenCV's "
-                f"standard lens model ({' / '.join(_ROS_OPENCV_MODELS)}): its coefficients would "
-                "be read with another meaning"
-            )
+        _check_ros_lens_model(doc, p)
     D1 = _ros_mat(L, "distortion_coefficients", None, left_path)
     D2 = _ros_mat(Rd, "distortion_coefficients", None, right_path)
     R1, R2 = (
@@ -483,13 +500,7 @@ def read_ros_pair(left_path: Path, right_path: Path, cm_per_unit: float | None =
             "camera's file; `path` is the left camera's camera_info and `right_path` the "
             "right one's"
         )
-    size_l = [int(L.get("image_width", 0)), int(L.get("image_height", 0))]
-    size_r = [int(Rd.get("image_width", 0)), int(Rd.get("image_height", 0))]
-    if size_l != size_r or 0 in size_l:
-        raise ValueError(
-            f"the image sizes differ or are missing: {left_path} {size_l[0]}x{size_l[1]}, "
-            f"{right_path} {size_r[0]}x{size_r[1]}"
-        )
+    size_l = _ros_image_size(L, Rd, left_path, right_path)
     t_m = np.array([P2[0, 3] / P2[0, 0], P2[1, 3] / P2[1, 1], 0.0])
     if not np.any(t_m):
         raise ValueError(
