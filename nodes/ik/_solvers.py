@@ -269,27 +269,9 @@ def numeric_ik_batch(
         Remaining position error (cm).
     """
     P = np.asarray(P, dtype=float).reshape(-1, 3)
-    n = len(P)
     lo, hi = limits_rad(model)
     rng = np.random.default_rng(seed)
-    # Seeds: the caller's guess, then the poses of a coarse joint-space grid whose tool points lie
-    # nearest the target (only FK is needed, so this carries over to any chain), then home, the
-    # middle of the limits and seeded random poses.
-    from scipy.spatial import cKDTree
-
-    grid = np.stack(
-        np.meshgrid(
-            *[np.linspace(lo[i], hi[i], g) for i, g in enumerate((24, 13, 13))], indexing="ij"
-        ),
-        axis=-1,
-    ).reshape(-1, 3)
-    n_near = 4
-    near = cKDTree(fk(model, grid)).query(P, k=n_near)[1].reshape(n, n_near)
-    per_target = [grid[near[:, k]] for k in range(n_near)]
-    generic = _seeds(model, n_random_seeds, rng)
-    if q_init is not None:
-        per_target.insert(0, np.broadcast_to(np.asarray(q_init, float), (n, 3)).copy())
-    seed_list = per_target + [np.tile(g, (n, 1)) for g in generic]
+    seed_list = _seed_list(model, P, (lo, hi), n_random_seeds, rng, q_init)
     q_best = np.clip(seed_list[0], lo, hi)
     err_best = np.linalg.norm(fk(model, q_best) - P, axis=1)
     todo = err_best > tol_cm
@@ -325,6 +307,30 @@ def numeric_ik_batch(
     d_sh = _shoulder_distance(model, P)
     status[(status != OK) & (d_sh > reach + tol_cm)] = TOO_FAR
     return q_best, status, err_best
+
+
+def _seed_list(model: dict[str, Any], P: np.ndarray, limits, n_random_seeds: int, rng, q_init):
+    """Starting poses, each ``(N, 3)`` rad: the caller's guess, then the poses of a coarse
+    joint-space grid whose tool points lie nearest the target (only FK is needed, so this carries
+    over to any chain), then home, the middle of the limits and seeded random poses."""
+    lo, hi = limits
+    n = len(P)
+    from scipy.spatial import cKDTree
+
+    grid = np.stack(
+        np.meshgrid(
+            *[np.linspace(lo[i], hi[i], g) for i, g in enumerate((24, 13, 13))], indexing="ij"
+        ),
+        axis=-1,
+    ).reshape(-1, 3)
+    n_near = 4
+    near = cKDTree(fk(model, grid)).query(P, k=n_near)[1].reshape(n, n_near)
+    per_target = [grid[near[:, k]] for k in range(n_near)]
+    generic = _seeds(model, n_random_seeds, rng)
+    if q_init is not None:
+        per_target.insert(0, np.broadcast_to(np.asarray(q_init, float), (n, 3)).copy())
+    seed_list = per_target + [np.tile(g, (n, 1)) for g in generic]
+    return seed_list
 
 
 def _shoulder_distance(model, P) -> np.ndarray:
