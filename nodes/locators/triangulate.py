@@ -188,17 +188,7 @@ def triangulate(params: TriangulateParams, disparity, rectification, pair=None, 
 
 
 def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx) -> dict:
-    if not isinstance(disparity, dict) or "found" not in disparity:
-        raise NodeError(
-            "locator.triangulate: `disparity` is not a Disparity record.",
-            hint="wire it to a disparity.* node's `disparity` output.",
-        )
-    for key in ("f_px", "baseline_cm"):
-        if rectification is None or key not in rectification:
-            raise NodeError(
-                f"locator.triangulate: the Rectification lacks {key!r}.",
-                hint="wire `rectification` to rectifier.opencv's output.",
-            )
+    _check_inputs(disparity, rectification)
     T = _transform(params, rig)
     frame = params.frame
     pid = disparity.get("id") or (ctx.item if ctx else None)
@@ -255,6 +245,21 @@ def _locate(params: TriangulateParams, disparity, rectification, pair, rig, ctx)
         method=disparity.get("method"),
         **base,
     )
+
+
+def _check_inputs(disparity, rectification) -> None:
+    """``disparity`` is a Disparity record and ``rectification`` gives f_px and baseline_cm."""
+    if not isinstance(disparity, dict) or "found" not in disparity:
+        raise NodeError(
+            "locator.triangulate: `disparity` is not a Disparity record.",
+            hint="wire it to a disparity.* node's `disparity` output.",
+        )
+    for key in ("f_px", "baseline_cm"):
+        if rectification is None or key not in rectification:
+            raise NodeError(
+                f"locator.triangulate: the Rectification lacks {key!r}.",
+                hint="wire `rectification` to rectifier.opencv's output.",
+            )
 
 
 def _truth_in_frame(params: TriangulateParams, t: dict | None, T, rig) -> list[float] | None:
