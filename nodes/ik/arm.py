@@ -151,38 +151,7 @@ def build_arm_model(params: ArmParams) -> dict:
     seen: dict[int, str] = {}
     for name in ("yaw", "shoulder", "elbow", "gripper"):
         spec: JointSpec = getattr(params, name)
-        if not spec.min_deg < spec.max_deg:
-            raise NodeError(
-                f"arm model: {name} min_deg {spec.min_deg} is not below max_deg {spec.max_deg}.",
-                hint=f"swap or fix {name}.min_deg / {name}.max_deg in the ik.arm params.",
-            )
-        checks = {"home_deg": spec.home_deg}
-        if isinstance(spec, GripperSpec):
-            checks.update(open_deg=spec.open_deg, closed_deg=spec.closed_deg)
-        for key, v in checks.items():
-            if not spec.min_deg <= v <= spec.max_deg:
-                raise NodeError(
-                    f"arm model: {name}.{key} = {v} deg is outside its limits "
-                    f"[{spec.min_deg}, {spec.max_deg}] deg.",
-                    hint=f"set {name}.{key} within the limits.",
-                )
-        for s in spec.servos:
-            if s.id in seen:
-                raise NodeError(
-                    f"arm model: servo ID {s.id} is used by both {seen[s.id]} and {name}.",
-                    hint="give every servo its own Dynamixel ID.",
-                )
-            seen[s.id] = name
-            for lim in (spec.min_deg, spec.max_deg):
-                u = s.zero_units + s.direction * lim * UNITS_PER_DEG
-                if not -0.5 <= u <= MAX_POSITION_UNITS + 0.5:
-                    raise NodeError(
-                        f"arm model: {name} limit {lim} deg maps to servo {s.id} position "
-                        f"{u:.0f} units, outside "
-                        f"the AX-12A range 0-1023 (300 deg).",
-                        hint=f"narrow {name}'s limits or change the servo's zero_units (the "
-                        "servo position at 0 deg).",
-                    )
+        _check_joint(name, spec, seen)
         j = {
             "name": name,
             "min_deg": float(spec.min_deg),
@@ -215,6 +184,43 @@ def build_arm_model(params: ArmParams) -> dict:
     }
     model["servo_limits_units"] = {k: list(v) for k, v in servo_limits_units(model).items()}
     return model
+
+
+def _check_joint(name: str, spec: JointSpec, seen: dict[int, str]) -> None:
+    """A joint's limits in order, its home (and gripper) angles within them, its servos' IDs not
+    used before (``seen``: ID -> joint, filled) and its limits within each servo's range."""
+    if not spec.min_deg < spec.max_deg:
+        raise NodeError(
+            f"arm model: {name} min_deg {spec.min_deg} is not below max_deg {spec.max_deg}.",
+            hint=f"swap or fix {name}.min_deg / {name}.max_deg in the ik.arm params.",
+        )
+    checks = {"home_deg": spec.home_deg}
+    if isinstance(spec, GripperSpec):
+        checks.update(open_deg=spec.open_deg, closed_deg=spec.closed_deg)
+    for key, v in checks.items():
+        if not spec.min_deg <= v <= spec.max_deg:
+            raise NodeError(
+                f"arm model: {name}.{key} = {v} deg is outside its limits "
+                f"[{spec.min_deg}, {spec.max_deg}] deg.",
+                hint=f"set {name}.{key} within the limits.",
+            )
+    for s in spec.servos:
+        if s.id in seen:
+            raise NodeError(
+                f"arm model: servo ID {s.id} is used by both {seen[s.id]} and {name}.",
+                hint="give every servo its own Dynamixel ID.",
+            )
+        seen[s.id] = name
+        for lim in (spec.min_deg, spec.max_deg):
+            u = s.zero_units + s.direction * lim * UNITS_PER_DEG
+            if not -0.5 <= u <= MAX_POSITION_UNITS + 0.5:
+                raise NodeError(
+                    f"arm model: {name} limit {lim} deg maps to servo {s.id} position "
+                    f"{u:.0f} units, outside "
+                    f"the AX-12A range 0-1023 (300 deg).",
+                    hint=f"narrow {name}'s limits or change the servo's zero_units (the "
+                    "servo position at 0 deg).",
+                )
 
 
 def _check_model(params: ArmParams, wired: frozenset[str]) -> None:
