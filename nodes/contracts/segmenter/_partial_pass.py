@@ -228,29 +228,29 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
         score = object_color_score(roi, both, params.object)
         if score is None or score > 1.0:
             return None, None, "the round part of the region has another colour than the object"
-    if fit["second"] >= params.partial.ambiguous_second_arc:
-        same = True
-        if score is not None and fit.get("second_ellipse") is not None:
-            e2 = fit["second_ellipse"]
-            d2 = _filled_ellipse(rm.shape, e2, (u0, v0))
-            d2 = cv2.bitwise_and(d2, cv2.bitwise_not(disc))
-            s2 = object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
-            same = s2 is not None and s2 <= 1.0
-        if same:
-            return (
-                None,
-                None,
-                (
-                    "ambiguous: 2 round objects of similar size "
-                    + ("and colour " if score is not None else "")
-                    + "merged in one region"
-                ),
-            )
+    if fit["second"] >= params.partial.ambiguous_second_arc and _second_ball(
+        fit, roi, rm.shape, disc, (u0, v0), score, params
+    ):
+        return (
+            None,
+            None,
+            (
+                "ambiguous: 2 round objects of similar size "
+                + ("and colour " if score is not None else "")
+                + "merged in one region"
+            ),
+        )
     full = np.zeros((h, w), bool)
     full[v0:v1, u0:u1] = both > 0
+    region = _partial_region(ell, fit, roundness)
+    return full, region, ""
+
+
+def _partial_region(ell: dict, fit: dict, roundness: float) -> dict:
+    """The region of a partly seen ball, from the sphere's image fitted to its true edge."""
     a, bax = ell["axes_px"]
     cu, cv_ = ell["center_px"]
-    region = {
+    return {
         "area_px": float(math.pi * a * bax),
         # the full silhouette's (an ellipse's centroid is its centre)
         "centroid_px": [float(cu), float(cv_)],
@@ -274,4 +274,14 @@ def judge(view, params, r_range_px, K, roi, box, region_mask, pts, roundness):
             "sigma_size_rel": float(fit["sigma_size_rel"]),
         },
     }
-    return full, region, ""
+
+
+def _second_ball(fit: dict, roi, shape, disc, origin, score, params) -> bool:
+    """Whether the second arc the fit found is another ball like this one: with a colour to
+    compare, only if its own disc (less the first one's) has the object's colour too."""
+    if score is None or fit.get("second_ellipse") is None:
+        return True
+    d2 = _filled_ellipse(shape, fit["second_ellipse"], origin)
+    d2 = cv2.bitwise_and(d2, cv2.bitwise_not(disc))
+    s2 = object_color_score(roi, d2, params.object) if cv2.countNonZero(d2) else None
+    return s2 is not None and s2 <= 1.0
