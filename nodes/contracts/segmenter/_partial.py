@@ -228,12 +228,7 @@ def fit_partial(
     if ell is None:
         return {"ok": False, "reason": "the outline's arc is not the image of a sphere"}
     centre, s_u = cone_center_px(w, K, fit["cov"])
-    n = float(np.linalg.norm(w))
-    radius_px = f_px * math.sqrt(max(n * n - 1.0, 0.0))
-    # Relative sd of the distance the fitted size gives: |C| = R / sin(alpha) = R n / sqrt(n^2 - 1),
-    # d ln|C| / dn = -1 / (n (n^2 - 1)), with sd(n) along w / n.
-    u_w = w / n
-    s_size = math.sqrt(max(float(u_w @ fit["cov"] @ u_w), 0.0)) / (n * max(n * n - 1.0, 1e-12))
+    radius_px, s_size = _size(w, fit["cov"], f_px)
     true_pts = cand[inl]
     vis = coverage(true_pts, np.asarray(ell["center_px"]), ell["axes_px"][1])
     n_border = int(on_border.sum())
@@ -243,17 +238,7 @@ def fit_partial(
         if n_border > len(foreign)
         else "occluded or touching"
     )
-    # A second sphere image of similar size in the rest of the outline (two balls merged).
-    second, e2 = 0.0, None
-    if len(foreign) >= 12:
-        Xf = rays(foreign, K)
-        r2 = (0.75 * radius_px, 1.33 * radius_px)
-        inl2 = ransac_cone(Xf, f_px, r2, 0.6, rng)
-        if inl2 is not None and inl2.sum() >= 12:
-            fit2 = fit_cone(Xf[inl2], f_px)
-            e2 = cone_ellipse(fit2["w"], K)
-            if e2 is not None:
-                second = coverage(foreign[inl2], np.asarray(e2["center_px"]), e2["axes_px"][1])
+    second, e2 = _second_arc(foreign, K, f_px, radius_px, rng)
     ell.update(rms_px=fit["rms_px"], inliers=int(inl.sum()), sigma_center_px=s_u)
     return {
         "ok": True,
@@ -270,3 +255,31 @@ def fit_partial(
         "n_foreign": int(len(foreign)),
         "true_edge_px": true_pts,
     }
+
+
+def _size(w: np.ndarray, cov: np.ndarray, f_px: float) -> tuple[float, float]:
+    """``(radius of the sphere's image, px (f tan alpha); relative sd of the distance its size
+    gives)`` from the fitted cone ``w`` and its covariance."""
+    n = float(np.linalg.norm(w))
+    radius_px = f_px * math.sqrt(max(n * n - 1.0, 0.0))
+    # Relative sd of the distance the fitted size gives: |C| = R / sin(alpha) = R n / sqrt(n^2 - 1),
+    # d ln|C| / dn = -1 / (n (n^2 - 1)), with sd(n) along w / n.
+    u_w = w / n
+    s_size = math.sqrt(max(float(u_w @ cov @ u_w), 0.0)) / (n * max(n * n - 1.0, 1e-12))
+    return radius_px, s_size
+
+
+def _second_arc(foreign: np.ndarray, K: np.ndarray, f_px: float, radius_px: float, rng):
+    """``(share of the rest of the outline it explains, its ellipse or None)``: a second sphere
+    image of similar size in the outline points the first left over (two balls merged)."""
+    second, e2 = 0.0, None
+    if len(foreign) >= 12:
+        Xf = rays(foreign, K)
+        r2 = (0.75 * radius_px, 1.33 * radius_px)
+        inl2 = ransac_cone(Xf, f_px, r2, 0.6, rng)
+        if inl2 is not None and inl2.sum() >= 12:
+            fit2 = fit_cone(Xf[inl2], f_px)
+            e2 = cone_ellipse(fit2["w"], K)
+            if e2 is not None:
+                second = coverage(foreign[inl2], np.asarray(e2["center_px"]), e2["axes_px"][1])
+    return second, e2
