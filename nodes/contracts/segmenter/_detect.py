@@ -215,22 +215,9 @@ def segment_image(
     full_mask = np.zeros((h, w), bool)
     if best is None:
         if K is not None and params.partial.enabled and not (reason or "").startswith("ambiguous"):
-            from ._partial_pass import partial_region  # the fallback imports this module
-
-            pmask, pregion, pwhy = partial_region(view, mask_fn, params, r_range_px, s, K, window)
-            if pregion is not None:
-                # the partial pass found the ball in a region the coarse pass had turned down
-                if rejected:
-                    _drop_inside(rejected, pmask)
-                return pmask, pregion, None
-            reason = f"{reason}; partial view: {pwhy}"
+            return _partial_view(view, mask_fn, params, r_range_px, s, K, window, rejected, reason)
         return full_mask, None, reason
-    # Region of interest at full resolution around the chosen candidate.
-    x0, y0, x1, y1 = best["bbox"]
-    r_est = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1) * s
-    pad = int(math.ceil(0.35 * r_est + 2 * s + params.edge_search_px + 4))
-    u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
-    u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
+    u0, v0, u1, v1 = _window_around(best, s, (sx, sy, ou, ov), (w, h), params)
     roi = view.window(u0, v0, u1, v1)
     rm = mask_fn(roi, params, r_range_px, 1, True)
     if params.shadow.enabled:
@@ -260,6 +247,37 @@ def segment_image(
             return np.zeros((h, w), bool), None, f"partial view: {pwhy}"
         return pmask, pregion, None
     return full_mask, region, None
+
+
+def _partial_view(view, mask_fn, params, r_range_px, s, K, window, rejected, reason):
+    """No whole ball found: :func:`segment_image`'s answer from the partial-view pass (a ball
+    cut by the border, hidden in part or touching something), or why there is none."""
+    from ._partial_pass import partial_region  # the fallback imports this module
+
+    pmask, pregion, pwhy = partial_region(view, mask_fn, params, r_range_px, s, K, window)
+    if pregion is not None:
+        # the partial pass found the ball in a region the coarse pass had turned down
+        if rejected:
+            _drop_inside(rejected, pmask)
+        return pmask, pregion, None
+    h, w = view.shape[:2]
+    return np.zeros((h, w), bool), None, f"{reason}; partial view: {pwhy}"
+
+
+def _window_around(
+    best: dict, s: int, level: tuple[float, float, int, int], size: tuple[int, int], params
+) -> tuple[int, int, int, int]:
+    """The full-resolution region of interest ``(u0, v0, u1, v1)`` around the coarse candidate
+    ``best`` (``level``: its scale and offset, as :func:`_detect` gives them), padded for the
+    outline's refinement."""
+    sx, sy, ou, ov = level
+    w, h = size
+    x0, y0, x1, y1 = best["bbox"]
+    r_est = 0.5 * max(x1 - x0 + 1, y1 - y0 + 1) * s
+    pad = int(math.ceil(0.35 * r_est + 2 * s + params.edge_search_px + 4))
+    u0, v0 = max(0, ou + int(x0 * sx) - pad), max(0, ov + int(y0 * sy) - pad)
+    u1, v1 = min(w, ou + int((x1 + 1) * sx) + pad), min(h, ov + int((y1 + 1) * sy) + pad)
+    return u0, v0, u1, v1
 
 
 def _detection_passes(
