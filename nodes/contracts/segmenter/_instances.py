@@ -276,29 +276,10 @@ def find_instances(
     )
     for i, a in enumerate(lefts):
         if not options[i]:
-            # whole on the left, merged with a neighbour on the right (the views see the pair from
-            # two sides)
-            js = _rows_partners(a, r_refused, params, rect)
-            left = _left(vl, mask_fn, params, r_range_px, a, K1) if js else (None, None)
-            merged = [
-                t
-                for j in js
-                if (
-                    t := _masked_retry(
-                        left, vr, mask_fn, params, r_range_px, rect, a, r_refused[j], K2
-                    )
-                )
-                is not None
-            ]
             out.append(
-                {**merged[0], "merged": True}
-                if len(merged) == 1
-                else {
-                    "found": False,
-                    "left_px": a["centroid_px"],
-                    "reason": "no ball in the right image on its rows at the distance its size "
-                    "says",
-                }
+                _merged_on_the_right(
+                    vl, vr, mask_fn, params, r_range_px, rect, a, r_refused, K1, K2
+                )
             )
         elif len(options[i]) > 1 or len(takers[options[i][0]]) > 1:
             out.append(
@@ -325,6 +306,30 @@ def find_instances(
                 )
             )
     return sorted(out, key=lambda r: (round(r["left_px"][1] / 8), r["left_px"][0]))
+
+
+def _merged_on_the_right(vl, vr, mask_fn, params, r_range_px, rect, a, r_refused, K1, K2) -> dict:
+    """A ball whole on the left with no round partner on the right: merged there with a
+    neighbour (the views see the pair from two sides), found in that region, or refused."""
+    # whole on the left, merged with a neighbour on the right (the views see the pair from
+    # two sides)
+    js = _rows_partners(a, r_refused, params, rect)
+    left = _left(vl, mask_fn, params, r_range_px, a, K1) if js else (None, None)
+    merged = [
+        t
+        for j in js
+        if (t := _masked_retry(left, vr, mask_fn, params, r_range_px, rect, a, r_refused[j], K2))
+        is not None
+    ]
+    return (
+        {**merged[0], "merged": True}
+        if len(merged) == 1
+        else {
+            "found": False,
+            "left_px": a["centroid_px"],
+            "reason": "no ball in the right image on its rows at the distance its size says",
+        }
+    )
 
 
 def same_ball(a: dict, b: dict) -> bool:
