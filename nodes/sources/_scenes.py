@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import Any
@@ -195,24 +196,9 @@ def make_scene(
     ball = {"radius_cm": float(radius_cm), "color": color}
     C1 = rig["cams"][0]["origin_table"]
 
-    def draw_ball(accept):
-        for _ in range(4000):
-            # Uniform in distance and bearing, then checked against both images.
-            # (the bearing is drawn only for a distance beyond the table: the draws, and so the
-            # scenes of a seed, stay as they were)
-            dist = rng.uniform(min_distance_cm, max_distance_cm)
-            if dist <= C1[2] - radius_cm:
-                continue
-            c = _ball_on_table(C1, dist, rng.uniform(-_BEARING_RAD, _BEARING_RAD), radius_cm)
-            if not _in_region(c, region_cm):
-                continue
-            sils = _ball_sils(rig, c, radius_cm)
-            if sils is not None and accept(c, sils):
-                return c, sils
-        seen = placeable_distance_range(rig, radius_cm, accept, region_cm)
-        raise RuntimeError(
-            _unplaceable_message(rig, kind, min_distance_cm, max_distance_cm, seen, region_cm)
-        )
+    draw_ball = functools.partial(
+        _draw_ball, rig, rng, kind, radius_cm, (min_distance_cm, max_distance_cm), region_cm
+    )
 
     def inside_both(c, sils):
         return all(_bbox_inside(rig, s, border_margin_px) for s in sils)
@@ -225,15 +211,7 @@ def make_scene(
     ]
     if kind == "empty":
         c, _ = draw_ball(inside_both)
-        scene["objects"].append(
-            {
-                "type": "box",
-                "center_cm": [float(c[0]), float(c[1])],
-                "size_cm": [5.0, 4.0, 3.0],
-                "yaw_deg": float(rng.uniform(0, 90)),
-                "color": str(rng.choice(others)),
-            }
-        )
+        scene["objects"].append(_box_in_place_of_ball(rng, c, others))
         return scene
     if kind == "border":
         c, _ = draw_ball(_border_cut(rig, int(rng.choice([0, 1])), border_margin_px))
@@ -248,6 +226,42 @@ def make_scene(
     elif kind in ("occluded", "hidden"):
         scene["objects"].append(_occluder(rng, kind, c, C1, radius_cm, others))
     return scene
+
+
+def _draw_ball(rig, rng, kind, radius_cm, distance_range, region_cm, accept) -> tuple:
+    """``(centre, silhouettes)`` of a ball on the table that ``accept(c, sils)`` takes: uniform
+    in distance (``distance_range``, cm, from the left camera) and bearing, then checked against
+    both images; RuntimeError naming the placeable range when none is found."""
+    C1 = rig["cams"][0]["origin_table"]
+    min_distance_cm, max_distance_cm = distance_range
+    for _ in range(4000):
+        # Uniform in distance and bearing, then checked against both images.
+        # (the bearing is drawn only for a distance beyond the table: the draws, and so the
+        # scenes of a seed, stay as they were)
+        dist = rng.uniform(min_distance_cm, max_distance_cm)
+        if dist <= C1[2] - radius_cm:
+            continue
+        c = _ball_on_table(C1, dist, rng.uniform(-_BEARING_RAD, _BEARING_RAD), radius_cm)
+        if not _in_region(c, region_cm):
+            continue
+        sils = _ball_sils(rig, c, radius_cm)
+        if sils is not None and accept(c, sils):
+            return c, sils
+    seen = placeable_distance_range(rig, radius_cm, accept, region_cm)
+    raise RuntimeError(
+        _unplaceable_message(rig, kind, min_distance_cm, max_distance_cm, seen, region_cm)
+    )
+
+
+def _box_in_place_of_ball(rng: np.random.Generator, c: np.ndarray, others: list[str]) -> dict:
+    """A box where a ball could have been (the "empty" kind: nothing to find)."""
+    return {
+        "type": "box",
+        "center_cm": [float(c[0]), float(c[1])],
+        "size_cm": [5.0, 4.0, 3.0],
+        "yaw_deg": float(rng.uniform(0, 90)),
+        "color": str(rng.choice(others)),
+    }
 
 
 def _border_cut(rig: dict, side: int, margin_px: float) -> Callable[[Any, list], bool]:
