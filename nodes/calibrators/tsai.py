@@ -511,6 +511,18 @@ def tsai(
     for side in ("left", "right"):
         _check_camera(side, cal[f"tsai_{side}"], W, origin, params, ctx)
     cal["target"] = cal["tsai_left"]["target"]
+    if ctx is not None:
+        _warn_assumptions(cal, params, ctx)
+    cal["rejected_views"] = sorted(rejected)
+    cal["rejected_reasons"] = rejected
+    if corners_l:
+        cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
+    return calibration_outputs(cal, ctx, (views or {}).get("board"))
+
+
+def _warn_assumptions(cal: dict, params: TsaiParams, ctx) -> None:
+    """Warn of what the result rests on: principal points assumed at the image centre, a nearly
+    flat target fitted by the non-coplanar step."""
     assumed = [
         s
         for s, pp in (
@@ -520,7 +532,7 @@ def tsai(
         if pp is None
     ]
     # Tsai's method does not estimate it (docs/rig.md: 1-3 % on T when it is off)
-    if assumed and ctx is not None:
+    if assumed:
         ctx.warn(
             f"the {' and '.join(assumed)} principal "
             f"point{'s are' if len(assumed) > 1 else ' is'} assumed at the "
@@ -529,17 +541,12 @@ def tsai(
             "if it is known"
         )
     thick = cal["tsai_left"]["thickness"]
-    if cal["target"] == "non_coplanar" and thick < COPLANAR_THICKNESS and ctx is not None:
+    if cal["target"] == "non_coplanar" and thick < COPLANAR_THICKNESS:
         ctx.warn(
             f"the target is nearly flat (out-of-plane spread {100 * thick:.1f} % of its "
             "size): the non-coplanar "
             "step cannot separate sx from the pose; target: auto would use the coplanar one"
         )
-    cal["rejected_views"] = sorted(rejected)
-    cal["rejected_reasons"] = rejected
-    if corners_l:
-        cal["corners_left_px"], cal["corners_right_px"] = corners_l, corners_r
-    return calibration_outputs(cal, ctx, (views or {}).get("board"))
 
 
 def _board_target(
