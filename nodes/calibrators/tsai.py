@@ -132,18 +132,7 @@ def tsai_camera(
         ``linear`` (f, tz, k1 before refinement), ``K`` and ``D`` (the OpenCV equivalent;
         see :func:`opencv_distortion_from_tsai`).
     """
-    W = np.asarray(world_cm, float).reshape(-1, 3)
-    px = np.asarray(image_px, float).reshape(-1, 2)
-    thick = thickness_ratio(W) if len(W) >= 3 else 0.0
-    if target not in ("auto", "coplanar", "non_coplanar"):
-        raise ValueError(f"target must be auto, coplanar or non_coplanar, not {target!r}")
-    coplanar = target == "coplanar" or (target == "auto" and thick < COPLANAR_THICKNESS)
-    need = 5 if coplanar else 7
-    if W.shape[0] != px.shape[0] or W.shape[0] < need:
-        raise ValueError(
-            f"Tsai needs >= {need} matched points, got {W.shape[0]} world and "
-            f"{px.shape[0]} image points"
-        )
+    W, px, thick, coplanar = _target_points(world_cm, image_px, target)
     w, h = image_size
     u0, v0 = (
         principal_point_px if principal_point_px is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
@@ -158,20 +147,7 @@ def tsai_camera(
     R, tx, ty, sx, Rpw = _linear_pose(W, Pw, Xdp, Yd, coplanar, coplanar_sx)
     Xd = Xdp / sx
 
-    def f_tz(R, Xd):
-        # Ignoring distortion: Xd (w + tz) = f xc, Yd (w + tz) = f yc, w = r3 . P.
-        xcs, ycs, ws = Pw @ R[0] + tx, Pw @ R[1] + ty, Pw @ R[2]
-        M = np.concatenate([np.column_stack([xcs, -Xd]), np.column_stack([ycs, -Yd])])
-        b = np.concatenate([ws * Xd, ws * Yd])
-        sol, *_ = np.linalg.lstsq(M, b, rcond=None)
-        return float(sol[0]), float(sol[1])
-
-    f, tz = f_tz(R, Xd)
-    # Tsai: the wrong one of two mirror solutions; flip r13, r23, r31, r32 (in the target's own
-    if f < 0:
-        # frame: z along a flat target's normal, where the coplanar step chose the sign of r13, r23)
-        R = (R @ Rpw.T * np.array([[1, 1, -1], [1, 1, -1], [-1, -1, 1]])) @ Rpw
-        f, tz = f_tz(R, Xd)
+    R, f, tz = _f_and_tz(Pw, R, tx, ty, Xd, Yd, Rpw)
     k1 = 0.0
     linear = {"f": f, "tz_cm": tz, "k1": k1}
     if refine:
@@ -202,10 +178,54 @@ def tsai_camera(
         if coplanar
         else None,
     }
+    return _with_fit(cam, W, px, image_size)
+
+
+def _with_fit(cam: dict, W: np.ndarray, px: np.ndarray, image_size) -> dict:
+    """``cam`` with its reprojection RMS (px) over the target and its OpenCV equivalent K, D."""
     err = tsai_project(cam, W) - px
     cam["rms_px"] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
     cam["K"], cam["D"] = _opencv_equivalent(cam, image_size)
     return cam
+
+
+def _target_points(world_cm, image_px, target: str) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """``(world points (N, 3), pixels (N, 2), thickness, coplanar?)``: the step ``target`` asks
+    for (``auto``: coplanar below ``COPLANAR_THICKNESS``), with enough matched points for it."""
+    W = np.asarray(world_cm, float).reshape(-1, 3)
+    px = np.asarray(image_px, float).reshape(-1, 2)
+    thick = thickness_ratio(W) if len(W) >= 3 else 0.0
+    if target not in ("auto", "coplanar", "non_coplanar"):
+        raise ValueError(f"target must be auto, coplanar or non_coplanar, not {target!r}")
+    coplanar = target == "coplanar" or (target == "auto" and thick < COPLANAR_THICKNESS)
+    need = 5 if coplanar else 7
+    if W.shape[0] != px.shape[0] or W.shape[0] < need:
+        raise ValueError(
+            f"Tsai needs >= {need} matched points, got {W.shape[0]} world and "
+            f"{px.shape[0]} image points"
+        )
+    return W, px, thick, coplanar
+
+
+def _f_tz(Pw: np.ndarray, R: np.ndarray, tx: float, ty: float, Xd: np.ndarray, Yd: np.ndarray):
+    """Tsai's ``(f, tz)`` by least squares, ignoring distortion: Xd (w + tz) = f xc,
+    Yd (w + tz) = f yc, w = r3 . P."""
+    xcs, ycs, ws = Pw @ R[0] + tx, Pw @ R[1] + ty, Pw @ R[2]
+    M = np.concatenate([np.column_stack([xcs, -Xd]), np.column_stack([ycs, -Yd])])
+    b = np.concatenate([ws * Xd, ws * Yd])
+    sol, *_ = np.linalg.lstsq(M, b, rcond=None)
+    return float(sol[0]), float(sol[1])
+
+
+def _f_and_tz(Pw, R, tx, ty, Xd, Yd, Rpw) -> tuple[np.ndarray, float, float]:
+    """``(R, f, tz)``: with f < 0, the linear step found the wrong one of two mirror solutions;
+    flip r13, r23, r31, r32 (in the target's own frame: z along a flat target's normal, where the
+    coplanar step chose the sign of r13, r23) and solve again."""
+    f, tz = _f_tz(Pw, R, tx, ty, Xd, Yd)
+    if f < 0:
+        R = (R @ Rpw.T * np.array([[1, 1, -1], [1, 1, -1], [-1, -1, 1]])) @ Rpw
+        f, tz = _f_tz(Pw, R, tx, ty, Xd, Yd)
+    return R, f, tz
 
 
 def _linear_pose(
