@@ -250,29 +250,7 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
         )
     cols, rows, sq = int(board["cols"]), int(board["rows"]), float(board["square_cm"])
     _check_size_and_units(v, board, calibration, label)
-    pl, pr = detect_corners(v["left"], cols, rows), detect_corners(v["right"], cols, rows)
-    if pl is None or pr is None:
-        which = " and ".join(
-            str(v.get(f"{s}_path", f"the {s} image"))
-            for s, c in (("left", pl), ("right", pr))
-            if c is None
-        )
-        raise NodeError(
-            f"{label}: no {cols}x{rows} chessboard found in {which} of view {v['id']}.",
-            hint="the whole board must be visible and sharp in both images; check cols/rows (inner "
-            "corners) of the source's board",
-        )
-    bigger = larger_board(v["left"], cols, rows)
-    if bigger is not None:  # the frame would sit on a part of the board, a square or more off
-        raise NodeError(
-            f"{label}: view {v['id']} shows a board with more inner corners than {cols}x{rows} (a "
-            f"{bigger[0]}x{bigger[1]} board is found too): the table frame would be put "
-            "on a part of it, "
-            "a square or more away from where you expect it.",
-            hint="set the source's board cols/rows to the whole board's inner corners (the "
-            "points where "
-            "four squares meet, e.g. 9x6 on a board of 10x7 squares)",
-        )
+    pl, pr = _board_corners(v, cols, rows, label)
     obj = board_points(cols, rows, sq).astype(float)
     try:
         pose = board_pose(obj, pl.astype(float), pr.astype(float), calibration)
@@ -317,6 +295,35 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
             "rig": rig_fingerprint(calibration),
         }
     }
+
+
+def _board_corners(v: dict, cols: int, rows: int, label: str) -> tuple[np.ndarray, np.ndarray]:
+    """The board's inner corners in both images of view ``v``; NodeError when either lacks the
+    board, or when a larger board is seen (the frame would sit on a part of it)."""
+    pl, pr = detect_corners(v["left"], cols, rows), detect_corners(v["right"], cols, rows)
+    if pl is None or pr is None:
+        which = " and ".join(
+            str(v.get(f"{s}_path", f"the {s} image"))
+            for s, c in (("left", pl), ("right", pr))
+            if c is None
+        )
+        raise NodeError(
+            f"{label}: no {cols}x{rows} chessboard found in {which} of view {v['id']}.",
+            hint="the whole board must be visible and sharp in both images; check cols/rows (inner "
+            "corners) of the source's board",
+        )
+    bigger = larger_board(v["left"], cols, rows)
+    if bigger is not None:  # the frame would sit on a part of the board, a square or more off
+        raise NodeError(
+            f"{label}: view {v['id']} shows a board with more inner corners than {cols}x{rows} (a "
+            f"{bigger[0]}x{bigger[1]} board is found too): the table frame would be put "
+            "on a part of it, "
+            "a square or more away from where you expect it.",
+            hint="set the source's board cols/rows to the whole board's inner corners (the "
+            "points where "
+            "four squares meet, e.g. 9x6 on a board of 10x7 squares)",
+        )
+    return pl, pr
 
 
 def _the_view(params: TableFrameParams, views: dict, label: str) -> dict:
