@@ -102,35 +102,7 @@ def calibrate_charuco(
         Views used.
     """
     board = charuco_board(cols, rows, square_cm, dictionary, marker_fraction)
-    detector = cv2.aruco.CharucoDetector(board)
-    pts3 = np.asarray(board.getChessboardCorners(), np.float32).reshape(-1, 3)
-    # OpenCV's board frame starts at the outer corner of the first square; ours at the first inner
-    # corner.
-    pts3 = pts3 - pts3[0]
-    ids, obj, left, right, rejected = [], [], [], [], {}
-    mono = {"left": ([], []), "right": ([], [])}
-    for v in views:
-        vid = str(v["id"])
-        found = {}
-        for side in ("left", "right"):
-            cid, px = detect_charuco(v[side], detector)
-            found[side] = (cid, px)
-            if len(cid) >= min_corners and _spans_plane(cid, cols):
-                mono[side][0].append(pts3[cid])
-                mono[side][1].append(px)
-        (il, pl), (ir, pr) = found["left"], found["right"]
-        common, kl, kr = np.intersect1d(il, ir, assume_unique=True, return_indices=True)
-        if len(common) < min_corners or not _spans_plane(common, cols):
-            names = {s: str(v.get(f"{s}_path", s + " image")) for s in ("left", "right")}
-            rejected[vid] = (
-                f"{len(common)} corners seen in both images ({names['left']}: {len(il)}, "
-                f"{names['right']}: {len(ir)}); {min_corners} not all on one line are needed"
-            )
-            continue
-        ids.append(vid)
-        obj.append(pts3[common])
-        left.append(pl[kl])
-        right.append(pr[kr])
+    ids, obj, left, right, rejected, mono = _common_corners(views, board, cols, min_corners)
     if len(ids) < 3 or min(len(mono["left"][0]), len(mono["right"][0])) < 3:
         return None, rejected, len(ids)
     cal = stereo_calibrate_points(
@@ -274,3 +246,39 @@ def charuco(params: CharucoParams, views: dict, ctx=None) -> dict:
     return board_calibration_outputs(
         cal, rejected, board, params.max_rms_px, "calibrator.charuco", ctx
     )
+
+
+def _common_corners(views: list[dict], board, cols: int, min_corners: int):
+    """``(view ids, board points, left px, right px, rejected, per-camera points)``: the ChArUco
+    corners each view shows in both images (views with too few, or all on one line, rejected
+    with why), and each camera's own corners for its intrinsics."""
+    detector = cv2.aruco.CharucoDetector(board)
+    pts3 = np.asarray(board.getChessboardCorners(), np.float32).reshape(-1, 3)
+    # OpenCV's board frame starts at the outer corner of the first square; ours at the first inner
+    # corner.
+    pts3 = pts3 - pts3[0]
+    ids, obj, left, right, rejected = [], [], [], [], {}
+    mono = {"left": ([], []), "right": ([], [])}
+    for v in views:
+        vid = str(v["id"])
+        found = {}
+        for side in ("left", "right"):
+            cid, px = detect_charuco(v[side], detector)
+            found[side] = (cid, px)
+            if len(cid) >= min_corners and _spans_plane(cid, cols):
+                mono[side][0].append(pts3[cid])
+                mono[side][1].append(px)
+        (il, pl), (ir, pr) = found["left"], found["right"]
+        common, kl, kr = np.intersect1d(il, ir, assume_unique=True, return_indices=True)
+        if len(common) < min_corners or not _spans_plane(common, cols):
+            names = {s: str(v.get(f"{s}_path", s + " image")) for s in ("left", "right")}
+            rejected[vid] = (
+                f"{len(common)} corners seen in both images ({names['left']}: {len(il)}, "
+                f"{names['right']}: {len(ir)}); {min_corners} not all on one line are needed"
+            )
+            continue
+        ids.append(vid)
+        obj.append(pts3[common])
+        left.append(pl[kl])
+        right.append(pr[kr])
+    return ids, obj, left, right, rejected, mono
