@@ -115,41 +115,7 @@ def fit_disparity_curve(
     p = _linear_ac(d, z, 0.0)
     iterations = 0
     if with_offset_px:
-        # Algebraic start: multiply out the denominator, z d = (a + c b) + c d - b z, linear in (a +
-        # cb, c, b).
-        (_alpha, _c, b), *_ = np.linalg.lstsq(
-            np.column_stack([np.ones_like(d), d, -z]), z * d, rcond=None
-        )
-        if np.all(d + b > 0.05 * np.min(d)):
-            start = _linear_ac(d, z, float(b))
-            if np.sum((z - _curve(start, d)) ** 2) < np.sum((z - _curve(p, d)) ** 2):
-                p = start
-        # b > -min(d) keeps every denominator positive (the curve's pole stays left of the data)
-        b_low = -float(np.min(d)) * (1.0 - 1e-6)
-
-        def residuals(q: np.ndarray) -> np.ndarray:
-            return _curve(q, d) - z
-
-        def jacobian(q: np.ndarray) -> np.ndarray:
-            den = d + q[1]
-            return np.column_stack([1.0 / den, -q[0] / den**2, np.ones_like(d)])
-
-        fit = least_squares(
-            residuals,
-            p,
-            jac=jacobian,
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_iter,
-            bounds=([-np.inf, b_low, -np.inf], [np.inf, np.inf, np.inf]),
-            ftol=1e-12,
-            xtol=1e-12,
-            gtol=1e-12,
-        )
-        # never worse than the start (least_squares returns its best point, but say so explicitly)
-        if np.sum(fit.fun**2) <= np.sum((z - _curve(p, d)) ** 2):
-            p = fit.x
-        iterations = int(fit.njev or fit.nfev)
+        p, iterations = _fit_with_offset(d, z, p, max_iter)
     if not np.all(np.isfinite(p)):
         raise NodeError("the disparity curve fit did not converge to finite coefficients.")
     return {
@@ -160,6 +126,47 @@ def fit_disparity_curve(
         "along_ray": resolve_along_ray(xy, samples, _curve(p, d) * g),
         "iterations": int(iterations),
     }
+
+
+def _fit_with_offset(d: np.ndarray, z: np.ndarray, p: np.ndarray, max_iter: int):
+    """``(a, b, c)`` of z = a / (d + b) + c by nonlinear least squares from the better of ``p``
+    (b = 0) and an algebraic start, never worse than its start; and the Jacobian evaluations."""
+    # Algebraic start: multiply out the denominator, z d = (a + c b) + c d - b z, linear in (a +
+    # cb, c, b).
+    (_alpha, _c, b), *_ = np.linalg.lstsq(
+        np.column_stack([np.ones_like(d), d, -z]), z * d, rcond=None
+    )
+    if np.all(d + b > 0.05 * np.min(d)):
+        start = _linear_ac(d, z, float(b))
+        if np.sum((z - _curve(start, d)) ** 2) < np.sum((z - _curve(p, d)) ** 2):
+            p = start
+    # b > -min(d) keeps every denominator positive (the curve's pole stays left of the data)
+    b_low = -float(np.min(d)) * (1.0 - 1e-6)
+
+    def residuals(q: np.ndarray) -> np.ndarray:
+        return _curve(q, d) - z
+
+    def jacobian(q: np.ndarray) -> np.ndarray:
+        den = d + q[1]
+        return np.column_stack([1.0 / den, -q[0] / den**2, np.ones_like(d)])
+
+    fit = least_squares(
+        residuals,
+        p,
+        jac=jacobian,
+        method="trf",
+        x_scale="jac",
+        max_nfev=max_iter,
+        bounds=([-np.inf, b_low, -np.inf], [np.inf, np.inf, np.inf]),
+        ftol=1e-12,
+        xtol=1e-12,
+        gtol=1e-12,
+    )
+    # never worse than the start (least_squares returns its best point, but say so explicitly)
+    if np.sum(fit.fun**2) <= np.sum((z - _curve(p, d)) ** 2):
+        p = fit.x
+    iterations = int(fit.njev or fit.nfev)
+    return p, iterations
 
 
 def predict_disparity_curve(coefficients: Mapping[str, Any], samples: Samples) -> np.ndarray:
