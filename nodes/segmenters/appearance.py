@@ -112,29 +112,9 @@ def learn_appearance(
 ) -> dict:
     """The ``ObjectAppearance`` of the ball from the placements with truth (see the module
     docstring)."""
-    colours, used, left_out = [], [], {}
-    considered = 0
-    for pid, pair in sorted(pairs.items()):
-        if not isinstance(pair, dict):
-            continue
-        if params.split == "train" and pair.get("split") != "train":
-            continue
-        truth = pair.get("truth")
-        considered += bool(truth)
-        X = _truth_centre(truth, T_table_from_left)
-        if X is None:
-            if truth:
-                left_out[pid] = (
-                    "truth has no ball centre in the left-camera frame (wire `rig` for a "
-                    "table-frame one)"
-                )
-            continue
-        colour, why = _pair_colour(pair, rect, params, raw, X, truth)
-        if why is not None:
-            left_out[pid] = why
-            continue
-        colours.append(colour)
-        used.append(pid)
+    colours, used, left_out, considered = _placement_colours(
+        pairs, rect, params, raw, T_table_from_left
+    )
     if not colours:
         raise NodeError(
             f"segmenter.appearance: none of the {len(pairs)} pairs is a {params.split} "
@@ -146,15 +126,7 @@ def learn_appearance(
             "segmenter instead.",
         )
     colours = np.asarray(colours)
-    dist = _distances(colours, np.median(colours, axis=0))
-    spread = 1.4826 * float(np.median(dist)) + 1e-3
-    keep = dist <= max(params.max_outlier_distance, 4.0 * spread)
-    for pid, d, k in zip(used, dist, keep, strict=True):
-        if not k:
-            left_out[pid] = (
-                f"its colour is {d:.3f} from the others' (chromaticity L1): wrong truth "
-                "or ball hidden?"
-            )
+    dist, keep = _agreeing(colours, used, params, left_out)
     n_keep = int(keep.sum())
     if n_keep < params.min_pairs:
         raise NodeError(
@@ -184,6 +156,52 @@ def learn_appearance(
         "left_out": left_out,
         "split": params.split,
     }
+
+
+def _placement_colours(pairs: dict, rect: dict, params: AppearanceParams, raw: bool, T):
+    """``(the ball's colour in each usable placement, their ids, {id: why not} for the others,
+    how many of the split's placements have truth)``."""
+    colours, used, left_out = [], [], {}
+    considered = 0
+    for pid, pair in sorted(pairs.items()):
+        if not isinstance(pair, dict):
+            continue
+        if params.split == "train" and pair.get("split") != "train":
+            continue
+        truth = pair.get("truth")
+        considered += bool(truth)
+        X = _truth_centre(truth, T)
+        if X is None:
+            if truth:
+                left_out[pid] = (
+                    "truth has no ball centre in the left-camera frame (wire `rig` for a "
+                    "table-frame one)"
+                )
+            continue
+        colour, why = _pair_colour(pair, rect, params, raw, X, truth)
+        if why is not None:
+            left_out[pid] = why
+            continue
+        colours.append(colour)
+        used.append(pid)
+    return colours, used, left_out, considered
+
+
+def _agreeing(
+    colours: np.ndarray, used: list[str], params: AppearanceParams, left_out: dict
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(each placement's colour distance to the median, which agree)``: a robust spread, never
+    tighter than ``max_outlier_distance``; each one that does not is added to ``left_out``."""
+    dist = _distances(colours, np.median(colours, axis=0))
+    spread = 1.4826 * float(np.median(dist)) + 1e-3
+    keep = dist <= max(params.max_outlier_distance, 4.0 * spread)
+    for pid, d, k in zip(used, dist, keep, strict=True):
+        if not k:
+            left_out[pid] = (
+                f"its colour is {d:.3f} from the others' (chromaticity L1): wrong truth "
+                "or ball hidden?"
+            )
+    return dist, keep
 
 
 def _pair_colour(
