@@ -12,6 +12,7 @@ outlier screening (:func:`build_model`) and the fit figure. Parameters derive fr
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
 from nodes.contracts.drawing import load_figures
@@ -90,44 +91,11 @@ def fit_compensator(
     is the fit function's docstring.
     """
     method = name.rpartition(".")[2]
+    spec = _FitSpec(name, method, predict, inputs, min_points, span, axes, title, check, after)
 
     def wrap(fit: FitFunction) -> Callable:
         def run(params, train, ctx=None):
-            label = node_label(ctx, name)
-            n_min = min_points(params)
-            samples = training_samples(train, label, needs=inputs, min_points=n_min)
-            if check is not None:
-                check(params, samples, label)
-            what, unit, axis = SPANS[span]
-            values = samples.xyz_cm[:, 2] if span == "z" else samples.disparity_px
-            require_span(values, what, label, params.min_span_fraction, unit)
-            fitted = build_model(
-                method,
-                samples,
-                lambda s: fit(params, s),
-                predict,
-                inputs,
-                label,
-                params.cv_folds,
-                params.cv_seed,
-                params.model_dump(),
-                robust=params,
-                min_points=n_min,
-                ctx=ctx,
-            )
-            if after is not None:
-                after(params, fitted, samples, ctx)
-            picture = fit_figure(
-                fitted,
-                samples,
-                predict,
-                held_out(train, inputs),
-                axis,
-                axes,
-                title(params, fitted),
-                enabled=params.figure,
-            )
-            return {"model": fitted, "metrics": model_metrics(fitted), "figure": picture}
+            return _fit_and_describe(spec, fit, params, train, ctx)
 
         # (the module binds the node to this name: workers find it)
         run.__name__ = run.__qualname__ = method
@@ -148,3 +116,59 @@ def fit_compensator(
         )(run)
 
     return wrap
+
+
+@dataclass(frozen=True)
+class _FitSpec:
+    """What :func:`fit_compensator` was told about its model (see its docstring)."""
+
+    name: str
+    method: str
+    predict: Callable
+    inputs: tuple[str, ...]
+    min_points: Callable[[Any], int]
+    span: str
+    axes: tuple[str, ...]
+    title: Callable[[Any, dict], str]
+    check: Callable | None
+    after: Callable | None
+
+
+def _fit_and_describe(spec: _FitSpec, fit: FitFunction, params, train, ctx) -> dict:
+    """What a node made by :func:`fit_compensator` does: the usable training placements, their
+    spread checked, the model fitted and described, its metrics and figure."""
+    label = node_label(ctx, spec.name)
+    n_min = spec.min_points(params)
+    samples = training_samples(train, label, needs=spec.inputs, min_points=n_min)
+    if spec.check is not None:
+        spec.check(params, samples, label)
+    what, unit, axis = SPANS[spec.span]
+    values = samples.xyz_cm[:, 2] if spec.span == "z" else samples.disparity_px
+    require_span(values, what, label, params.min_span_fraction, unit)
+    fitted = build_model(
+        spec.method,
+        samples,
+        lambda s: fit(params, s),
+        spec.predict,
+        spec.inputs,
+        label,
+        params.cv_folds,
+        params.cv_seed,
+        params.model_dump(),
+        robust=params,
+        min_points=n_min,
+        ctx=ctx,
+    )
+    if spec.after is not None:
+        spec.after(params, fitted, samples, ctx)
+    picture = fit_figure(
+        fitted,
+        samples,
+        spec.predict,
+        held_out(train, spec.inputs),
+        axis,
+        spec.axes,
+        spec.title(params, fitted),
+        enabled=params.figure,
+    )
+    return {"model": fitted, "metrics": model_metrics(fitted), "figure": picture}

@@ -775,21 +775,26 @@ def build_model(
     }
     judge_cross_validation(model, label, model_type, ctx)
     if screen.outliers and ctx is not None and hasattr(ctx, "warn"):
-        listed = ", ".join(
-            f"{o['item']} ({o['residual_cm']:.3g} cm)"
-            if o["residual_cm"] is not None
-            else f"{o['item']} (undefined)"
-            for o in screen.outliers[:8]
-        )
-        more = f", +{len(screen.outliers) - 8} more" if len(screen.outliers) > 8 else ""
-        ctx.warn(
-            f"left {len(screen.outliers)} of {n_candidates} training placements out of "
-            "the fit: their measurement "
-            "disagrees with the truth by far more than the rest (residual > "
-            f"{screen.threshold_cm:.3g} cm): "
-            f"{listed}{more}; see 'outliers' in the model"
-        )
+        ctx.warn(_left_out_note(screen, n_candidates))
     return model
+
+
+def _left_out_note(screen: Any, n_candidates: int) -> str:
+    """The warning that names the training placements the screening left out (8 at most)."""
+    listed = ", ".join(
+        f"{o['item']} ({o['residual_cm']:.3g} cm)"
+        if o["residual_cm"] is not None
+        else f"{o['item']} (undefined)"
+        for o in screen.outliers[:8]
+    )
+    more = f", +{len(screen.outliers) - 8} more" if len(screen.outliers) > 8 else ""
+    return (
+        f"left {len(screen.outliers)} of {n_candidates} training placements out of "
+        "the fit: their measurement "
+        "disagrees with the truth by far more than the rest (residual > "
+        f"{screen.threshold_cm:.3g} cm): "
+        f"{listed}{more}; see 'outliers' in the model"
+    )
 
 
 def _screened_fit(
