@@ -31,7 +31,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NoReturn
 
 from nodes.contracts.arm import (
     JOINTS,
@@ -395,22 +395,7 @@ def _run_waypoint(
     expected = move_seconds(present, data)
     timeout = params.move_timeout_s or (1.5 * expected + 1.0)
     t_start = time.monotonic()
-    # All joints at once; read the goals back, since a broadcast has no reply to confirm it.
-    for attempt in range(params.retries + 1):
-        bus.sync_write(data)
-        got = {sid: bus.read(sid, ADDR_GOAL, 2, "read-back of the goal position") for sid in data}
-        missing = [sid for sid in data if got[sid] != data[sid][0]]
-        if not missing:
-            break
-        if attempt == params.retries:
-            raise ServoFailure(
-                f"servos {missing} did not take their goal positions after "
-                f"{params.retries + 1} sync writes"
-            )
-        bus.n_retries += 1
-        bus.events.append(
-            f"{w['name']}: goal read-back mismatch on servos {missing}; sync write again"
-        )
+    _send_goals(bus, w, data, params)
     last: dict[int, int] = {}
     still_since: float | None = None  # since when every pending joint has kept its position
     while True:
@@ -444,25 +429,7 @@ def _run_waypoint(
             still_since is not None and now - still_since >= SETTLED_S and _not_moving(bus, pending)
         )
         if stopped or now - t_start > timeout:
-            head = (
-                f"servos {pending} still {[err[s] for s in pending]} units from their goals "
-                f"{[data[s][0] for s in pending]} after {now - t_start:.1f} s (at "
-                f"{[pos[s] for s in pending]})"
-            )
-            worst = max(err[s] for s in pending)
-            if stopped or (worst <= SHORT_UNITS and _not_moving(bus, pending)):
-                head += ", stopped there (moving flag 0" + (
-                    f", not moving for {SETTLED_S:g} s past the move's {expected:.1f} s)"
-                    if stopped
-                    else ")"
-                )
-                raise _Stalled(
-                    head,
-                    hint=SHORT_HINT.format(n=worst, tol=params.tolerance_units)
-                    if worst <= SHORT_UNITS
-                    else None,
-                )
-            raise _Stalled(head)
+            _raise_stalled(bus, pending, err, data, pos, now - t_start, expected, stopped, params)
         last = dict(pos)
         time.sleep(params.poll_interval_s)
     return pos, {
@@ -472,6 +439,60 @@ def _run_waypoint(
         "max_error_units": int(max(err.values())),
         "seconds": round(time.monotonic() - t_start, 4),
     }
+
+
+def _send_goals(bus: Bus, w: dict, data: dict, params: DynamixelParams) -> None:
+    """Every joint's goal at once (sync write), read back, since a broadcast has no reply to
+    confirm it; written again on a mismatch, ``params.retries`` times at most."""
+    for attempt in range(params.retries + 1):
+        bus.sync_write(data)
+        got = {sid: bus.read(sid, ADDR_GOAL, 2, "read-back of the goal position") for sid in data}
+        missing = [sid for sid in data if got[sid] != data[sid][0]]
+        if not missing:
+            break
+        if attempt == params.retries:
+            raise ServoFailure(
+                f"servos {missing} did not take their goal positions after "
+                f"{params.retries + 1} sync writes"
+            )
+        bus.n_retries += 1
+        bus.events.append(
+            f"{w['name']}: goal read-back mismatch on servos {missing}; sync write again"
+        )
+
+
+def _raise_stalled(
+    bus: Bus,
+    pending: list[int],
+    err: dict,
+    data: dict,
+    pos: dict,
+    elapsed: float,
+    expected: float,
+    stopped: bool,
+    params: DynamixelParams,
+) -> NoReturn:
+    """Joints short of their goals when the move's time is up, or stopped short for good: a
+    :class:`_Stalled` that says where, and whether it is the small settling gap."""
+    head = (
+        f"servos {pending} still {[err[s] for s in pending]} units from their goals "
+        f"{[data[s][0] for s in pending]} after {elapsed:.1f} s (at "
+        f"{[pos[s] for s in pending]})"
+    )
+    worst = max(err[s] for s in pending)
+    if stopped or (worst <= SHORT_UNITS and _not_moving(bus, pending)):
+        head += ", stopped there (moving flag 0" + (
+            f", not moving for {SETTLED_S:g} s past the move's {expected:.1f} s)"
+            if stopped
+            else ")"
+        )
+        raise _Stalled(
+            head,
+            hint=SHORT_HINT.format(n=worst, tol=params.tolerance_units)
+            if worst <= SHORT_UNITS
+            else None,
+        )
+    raise _Stalled(head)
 
 
 def _not_moving(bus: Bus, ids: list[int]) -> bool:
