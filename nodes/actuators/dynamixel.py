@@ -643,10 +643,6 @@ def execute_plan(
     elif not bus.is_open:
         bus.open()  # closed by a fault or an interrupt in an earlier plan: set up again
     bus.begin(t0)
-    where = (
-        f"{params.port if params.port != 'sim' else 'the emulator (' + port_path + ')'} at "
-        f"{params.baud} baud"
-    )
     reached: list[dict] = []
     moved = False
     try:
@@ -662,19 +658,8 @@ def execute_plan(
                 bus.torque_off(ids)
     except (ServoFailure, NodeError) as e:
         if not moved:
-            if isinstance(e, ServoFailure):
-                head, hint = _diagnose.head_and_hint(e, moving=False, baud=params.baud)
-            else:
-                head, hint = e.message, e.hint
-            torque, left_on = _diagnose.torque_report(bus, ids, params.torque_off_on_failure)
-            bus.close()
-            if left_on and not params.torque_off_on_failure:
-                hint = (
-                    hint or ""
-                ) + " To turn torque off when a run fails: --set act.torque_off_on_failure=true."
-            msg = head.rstrip(".") + "; the arm was not moved." + (" " + torque if torque else "")
-            raise NodeError(msg, hint=hint) from None
-        err = _motion_failure(e, bus, ids, where, params.baud)
+            raise _not_moved_error(e, bus, ids, params) from None
+        err = _motion_failure(e, bus, ids, _bus_name(params, port_path), params.baud)
         bus.close()
         err.partial_log = _servo_log(plan, params, port_path, bus, reached, ok=False, t0=t0)
         raise err from None
@@ -703,6 +688,33 @@ def execute_plan(
     if own:
         bus.close()
     return _servo_log(plan, params, port_path, bus, reached, ok=True, t0=t0)
+
+
+def _bus_name(params: DynamixelParams, port_path: str) -> str:
+    """The bus in words, for messages: its port (or the emulator's) and baud rate."""
+    return (
+        f"{params.port if params.port != 'sim' else 'the emulator (' + port_path + ')'} at "
+        f"{params.baud} baud"
+    )
+
+
+def _not_moved_error(
+    e: ServoFailure | NodeError, bus: Bus, ids: list[int], params: DynamixelParams
+) -> NodeError:
+    """A failure before any goal was written: what went wrong and whether torque is still on;
+    the port is closed."""
+    if isinstance(e, ServoFailure):
+        head, hint = _diagnose.head_and_hint(e, moving=False, baud=params.baud)
+    else:
+        head, hint = e.message, e.hint
+    torque, left_on = _diagnose.torque_report(bus, ids, params.torque_off_on_failure)
+    bus.close()
+    if left_on and not params.torque_off_on_failure:
+        hint = (
+            hint or ""
+        ) + " To turn torque off when a run fails: --set act.torque_off_on_failure=true."
+    msg = head.rstrip(".") + "; the arm was not moved." + (" " + torque if torque else "")
+    return NodeError(msg, hint=hint)
 
 
 def _interrupt_name(e: BaseException) -> str:
