@@ -268,7 +268,8 @@ def table_frame(params: TableFrameParams, views: dict, calibration: dict, ctx=No
     cal_sq = (calibration.get("board") or {}).get("square_cm")
     other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
     if not _poses_agree(pose, params):
-        _refuse_disagreement(label, v, pose, obj, (pl, pr), calibration, params, cal_sq, sq)
+        other_sq = float(cal_sq) if other_square else None
+        _refuse_disagreement(label, v, pose, obj, (pl, pr), calibration, params, other_sq, sq)
     if other_square and ctx is not None:
         ctx.warn(
             f"the calibration was made with {float(cal_sq):g} cm squares, this board's "
@@ -379,15 +380,15 @@ def _refuse_disagreement(
     corners: tuple[np.ndarray, np.ndarray],
     calibration: dict,
     params: TableFrameParams,
-    cal_sq: float | None,
+    other_sq: float | None,
     sq: float,
 ) -> NoReturn:
     """The board's poses from the two images disagree: say why, most likely cause first (images
-    swapped, another board's square size, else the calibration)."""
+    swapped, another board's square size, else the calibration). ``other_sq``: the calibration
+    board's square size (cm) when it differs from this board's ``sq``."""
     pl, pr = corners
     dt, dr = pose["translation_cm"], pose["rotation_deg"]
     distance_cm = float(np.linalg.norm(pose["T_left_from_board"][:3, 3]))
-    other_square = cal_sq is not None and abs(float(cal_sq) - sq) > 1e-6 * sq
     msg = (
         f"{label}: the board's pose from the left image and from the right image "
         "(carried through the "
@@ -407,13 +408,13 @@ def _refuse_disagreement(
             hint="swap the table pair's left and right files (or the source's left_glob / "
             "right_glob): the left image is the left camera's as the cameras look",
         )
-    if other_square:
+    if other_sq is not None:
         raise NodeError(
-            f"{msg}; the calibration was made with a board of {float(cal_sq):g} cm "
+            f"{msg}; the calibration was made with a board of {other_sq:g} cm "
             "squares, and this "
             f"board's square_cm is {sq:g}.",
             hint="give the table pair's source the square size of the board lying on the table "
-            f"(--set board.square_cm={float(cal_sq):g} if it is the calibration board)",
+            f"(--set board.square_cm={other_sq:g} if it is the calibration board)",
         )
     raise NodeError(
         f"{msg}.",
